@@ -1,0 +1,178 @@
+//! Faults: one enum with stable numbers, and the latched fault set.
+//!
+//! Numbers are part of the telemetry and run-log contract (`fault` column): never reuse or
+//! renumber. Each variant's doc line is written for the operator: what it means and the fix.
+//! Faults latch; [`FaultSet::clear`] is only called on an explicit clear command once the
+//! cause is gone (the controller checks that).
+
+/// A fault condition. `0` is reserved for "no fault" in logs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[repr(u8)]
+pub enum Fault {
+    /// Sin/cos amplitude out of [0.7, 1.3] of nominal too often: check the encoder cable and
+    /// the read-head gap, then re-home.
+    EncoderSignal = 1,
+    /// Master and slave encoders disagree by more than the limit: check both read heads.
+    EncoderMismatch = 2,
+    /// A pressure sensor reads open or shorted: check its wiring and supply.
+    PressureSensor = 3,
+    /// A chamber pressure does not follow the volume change: sensor stuck or port leaking.
+    PressurePlausibility = 4,
+    /// Position or force error above its limit for longer than the filter time: check for an
+    /// obstruction, a lost section or wrong mass/friction parameters.
+    FollowingError = 5,
+    /// One motor section delivers no force: check its drive stage and phase wiring.
+    SectionFault = 6,
+    /// Phase current above the hardware limit: check for a short and the current-loop gains.
+    Overcurrent = 7,
+    /// Speed above 1.2 × the configured limit: check the trajectory and the load.
+    Overspeed = 8,
+    /// The piston could not be stopped before the clearance limit: review speed and limits.
+    BrakingEnvelope = 9,
+    /// The rotation is not where the linear phase needs it (ports untimed): check the servo.
+    RotationSync = 10,
+    /// The control step overran its 50 µs period: reduce the computational load.
+    Deadline = 11,
+    /// The MCU was reset by the independent watchdog: a task hung; read the logs.
+    WatchdogReset = 12,
+    /// Homing found no end stop within the search distance: check the mechanics.
+    HomingFailed = 13,
+    /// The stored configuration is invalid: reload a valid parameter set.
+    ConfigInvalid = 14,
+}
+
+impl Fault {
+    /// Every fault, in number order.
+    pub const ALL: [Fault; 14] = [
+        Fault::EncoderSignal,
+        Fault::EncoderMismatch,
+        Fault::PressureSensor,
+        Fault::PressurePlausibility,
+        Fault::FollowingError,
+        Fault::SectionFault,
+        Fault::Overcurrent,
+        Fault::Overspeed,
+        Fault::BrakingEnvelope,
+        Fault::RotationSync,
+        Fault::Deadline,
+        Fault::WatchdogReset,
+        Fault::HomingFailed,
+        Fault::ConfigInvalid,
+    ];
+
+    /// Stable snake_case name (run logs, JSON, command line).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Fault::EncoderSignal => "encoder_signal",
+            Fault::EncoderMismatch => "encoder_mismatch",
+            Fault::PressureSensor => "pressure_sensor",
+            Fault::PressurePlausibility => "pressure_plausibility",
+            Fault::FollowingError => "following_error",
+            Fault::SectionFault => "section_fault",
+            Fault::Overcurrent => "overcurrent",
+            Fault::Overspeed => "overspeed",
+            Fault::BrakingEnvelope => "braking_envelope",
+            Fault::RotationSync => "rotation_sync",
+            Fault::Deadline => "deadline",
+            Fault::WatchdogReset => "watchdog_reset",
+            Fault::HomingFailed => "homing_failed",
+            Fault::ConfigInvalid => "config_invalid",
+        }
+    }
+
+    /// The fault with number `code`, if any.
+    pub fn from_code(code: u8) -> Option<Fault> {
+        Fault::ALL.iter().copied().find(|f| *f as u8 == code)
+    }
+
+    /// Whether the position is still trustworthy under this fault, so a controlled stop
+    /// (SS1) is possible; otherwise outputs go off at once (STO).
+    pub const fn position_trusted(self) -> bool {
+        !matches!(
+            self,
+            Fault::EncoderSignal | Fault::EncoderMismatch | Fault::ConfigInvalid
+        )
+    }
+}
+
+/// The latched set of faults, in latch order for reporting.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct FaultSet {
+    bits: u32,
+    /// First fault latched (the cause; later ones are often consequences).
+    first: Option<Fault>,
+}
+
+impl FaultSet {
+    /// No fault.
+    pub const fn new() -> Self {
+        FaultSet {
+            bits: 0,
+            first: None,
+        }
+    }
+
+    /// Latches `fault`; returns true if it was not latched before.
+    pub fn latch(&mut self, fault: Fault) -> bool {
+        let bit = 1u32 << (fault as u8);
+        let new = self.bits & bit == 0;
+        self.bits |= bit;
+        if self.first.is_none() {
+            self.first = Some(fault);
+        }
+        new
+    }
+
+    /// Whether `fault` is latched.
+    pub fn contains(&self, fault: Fault) -> bool {
+        self.bits & (1u32 << (fault as u8)) != 0
+    }
+
+    /// Whether no fault is latched.
+    pub fn is_empty(&self) -> bool {
+        self.bits == 0
+    }
+
+    /// The first latched fault (its code goes into the run log).
+    pub fn first(&self) -> Option<Fault> {
+        self.first
+    }
+
+    /// Latched faults in number order.
+    pub fn iter(&self) -> impl Iterator<Item = Fault> + '_ {
+        Fault::ALL.iter().copied().filter(|f| self.contains(*f))
+    }
+
+    /// Clears every fault (explicit operator command only).
+    pub fn clear(&mut self) {
+        *self = FaultSet::new();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_are_stable_and_unique() {
+        for (i, f) in Fault::ALL.iter().enumerate() {
+            assert_eq!(*f as u8 as usize, i + 1);
+            assert_eq!(Fault::from_code(*f as u8), Some(*f));
+        }
+        assert_eq!(Fault::from_code(0), None);
+    }
+
+    #[test]
+    fn faults_latch_until_cleared() {
+        let mut s = FaultSet::new();
+        assert!(s.latch(Fault::Deadline));
+        assert!(!s.latch(Fault::Deadline));
+        s.latch(Fault::EncoderSignal);
+        assert_eq!(s.first(), Some(Fault::Deadline));
+        assert_eq!(s.iter().count(), 2);
+        s.clear();
+        assert!(s.is_empty());
+    }
+}

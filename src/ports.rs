@@ -1,0 +1,132 @@
+//! Port traits: every piece of hardware the control logic touches, as a small trait.
+//!
+//! The firmware implements these once for the STM32G474 board (`src/board/`, MCU only) and
+//! `hal-sim` implements them once for the simulated plant. The logic is generic over them
+//! (static dispatch, no trait objects), so the very same task bodies run on both.
+//!
+//! Sampling model: on the board, TIM1's update at the PWM centre triggers one burst of
+//! conversions (phase currents by injected ADC, encoder sin/cos and pressures by regular
+//! ADC) and the end of that burst wakes the control task ([`CycleTrigger`]). The synchronous
+//! `read` methods then return the samples of that burst; they never block.
+#![allow(async_fn_in_trait)] // single-core executors: the futures never need `Send`.
+
+use crate::units::{AdcCode, DacCode, PhaseDuties, Section, Ticks};
+
+/// Sin and cos channels of one 1 Vpp sin/cos encoder, as raw ADC codes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct SinCosCodes {
+    /// Sine channel.
+    pub sin: AdcCode,
+    /// Cosine channel.
+    pub cos: AdcCode,
+}
+
+/// Both encoders of the linear axis, sampled in the same burst.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct EncoderCodes {
+    /// Encoder on the master section (the position the controller uses).
+    pub master: SinCosCodes,
+    /// Encoder on the slave section (cross-check and correction).
+    pub slave: SinCosCodes,
+}
+
+/// Phase currents of one section (phases U, V, W) as raw ADC codes, mid-scale = 0 A.
+pub type PhaseCurrentCodes = [AdcCode; 3];
+
+/// The four pressure channels, raw ADC codes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct PressureCodes {
+    /// Chamber A (small x).
+    pub chamber_a: AdcCode,
+    /// Chamber B (large x).
+    pub chamber_b: AdcCode,
+    /// Suction line.
+    pub suction: AdcCode,
+    /// Discharge line.
+    pub discharge: AdcCode,
+}
+
+/// Waits for the next control cycle: the end of the sampling burst at the PWM centre.
+pub trait CycleTrigger {
+    /// Completes once per control period with the time of the sampling instant.
+    async fn next_cycle(&mut self) -> Ticks;
+}
+
+/// Monotonic time base.
+pub trait Clock {
+    /// Now, in wrapping microsecond ticks.
+    fn now(&self) -> Ticks;
+}
+
+/// Waiting on the time base, for the slow (thread-mode) tasks.
+pub trait Sleep {
+    /// Completes at or after `deadline`.
+    async fn until(&mut self, deadline: Ticks);
+}
+
+/// The two sin/cos encoders of the linear axis.
+pub trait EncoderInput {
+    /// Samples of the current burst.
+    fn read(&mut self) -> EncoderCodes;
+}
+
+/// Phase-current sensing of both motor sections (injected ADC, mid-PWM).
+pub trait CurrentInput {
+    /// Phase-current codes of `section` from the current burst.
+    fn read(&mut self, section: Section) -> PhaseCurrentCodes;
+}
+
+/// Three-phase PWM outputs of both motor sections.
+pub trait PwmOutput {
+    /// Sets the duties of `section`; they take effect at the next PWM period.
+    fn write(&mut self, section: Section, duties: PhaseDuties);
+    /// Switches every output of every section off (all six gates low): safe torque off.
+    fn disable(&mut self);
+    /// Re-enables the outputs after [`PwmOutput::disable`].
+    fn enable(&mut self);
+}
+
+/// The servo's quadrature counter (hardware 16-bit, wrapping).
+pub trait QuadratureInput {
+    /// Raw counter value.
+    fn count(&mut self) -> u16;
+}
+
+/// The servo drive's analog torque command (DAC).
+pub trait TorqueOutput {
+    /// Writes the torque command code; [`DacCode::MID`] is zero torque.
+    fn write(&mut self, code: DacCode);
+}
+
+/// Chamber and line pressure sensors.
+pub trait PressureInput {
+    /// Samples of the current burst.
+    fn read(&mut self) -> PressureCodes;
+}
+
+/// All ports of the 20 kHz control task, bundled so the task takes one argument.
+pub struct ControlPorts<T, E, C, P, Q, S, R> {
+    /// Cycle trigger (end of the sampling burst).
+    pub cycle: T,
+    /// Linear-axis encoders.
+    pub encoders: E,
+    /// Phase currents.
+    pub currents: C,
+    /// Motor PWM.
+    pub pwm: P,
+    /// Servo quadrature counter.
+    pub quadrature: Q,
+    /// Servo torque command.
+    pub servo: S,
+    /// Pressure sensors.
+    pub pressures: R,
+}
+
+/// The independent watchdog: once started it resets the MCU unless fed in time.
+pub trait Watchdog {
+    /// Restarts the watchdog's countdown.
+    fn feed(&mut self);
+}

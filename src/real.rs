@@ -1,0 +1,149 @@
+//! The scalar the physics laws are written over: `f32` on the MCU, `f64` in the simulator.
+//!
+//! Each physical law (friction, gas force, nozzle flow, …) is written once, generic over
+//! [`Real`], so the firmware's feed-forward, the simulator's plant and the model-gap workflow
+//! evaluate the same formula. `f32` goes through `micromath` (fast, FPU-friendly, the same on
+//! host and MCU — called through its trait explicitly so std's methods never shadow it on the
+//! host); `f64` goes through `libm`.
+
+/// A floating-point scalar with the few operations the physics needs.
+pub trait Real:
+    Copy
+    + PartialOrd
+    + core::ops::Add<Output = Self>
+    + core::ops::Sub<Output = Self>
+    + core::ops::Mul<Output = Self>
+    + core::ops::Div<Output = Self>
+    + core::ops::Neg<Output = Self>
+{
+    /// 0.
+    const ZERO: Self;
+    /// 1.
+    const ONE: Self;
+    /// π.
+    const PI: Self;
+    /// From an `f32` constant.
+    fn of(x: f32) -> Self;
+    /// To `f32` (rounding).
+    fn to_f32(self) -> f32;
+    /// |x|.
+    fn abs(self) -> Self;
+    /// eˣ.
+    fn exp(self) -> Self;
+    /// xʸ for x ≥ 0.
+    fn powf(self, y: Self) -> Self;
+    /// √x for x ≥ 0.
+    fn sqrt(self) -> Self;
+    /// sin x.
+    fn sin(self) -> Self;
+    /// cos x.
+    fn cos(self) -> Self;
+    /// tanh x.
+    fn tanh(self) -> Self;
+    /// The larger of the two (NaN-ignoring like `f32::max`).
+    fn max(self, other: Self) -> Self;
+    /// The smaller of the two.
+    fn min(self, other: Self) -> Self;
+}
+
+impl Real for f32 {
+    const ZERO: f32 = 0.0;
+    const ONE: f32 = 1.0;
+    const PI: f32 = core::f32::consts::PI;
+    #[inline]
+    fn of(x: f32) -> f32 {
+        x
+    }
+    #[inline]
+    fn to_f32(self) -> f32 {
+        self
+    }
+    #[inline]
+    fn abs(self) -> f32 {
+        micromath::F32Ext::abs(self)
+    }
+    #[inline]
+    fn exp(self) -> f32 {
+        micromath::F32Ext::exp(self)
+    }
+    #[inline]
+    fn powf(self, y: f32) -> f32 {
+        micromath::F32Ext::powf(self, y)
+    }
+    #[inline]
+    fn sqrt(self) -> f32 {
+        micromath::F32Ext::sqrt(self)
+    }
+    #[inline]
+    fn sin(self) -> f32 {
+        micromath::F32Ext::sin(self)
+    }
+    #[inline]
+    fn cos(self) -> f32 {
+        micromath::F32Ext::cos(self)
+    }
+    #[inline]
+    fn tanh(self) -> f32 {
+        // tanh x = 1 − 2/(e^{2x}+1); saturates cleanly for large |x|.
+        let e = micromath::F32Ext::exp(2.0 * self.clamp(-20.0, 20.0));
+        1.0 - 2.0 / (e + 1.0)
+    }
+    #[inline]
+    fn max(self, other: f32) -> f32 {
+        f32::max(self, other)
+    }
+    #[inline]
+    fn min(self, other: f32) -> f32 {
+        f32::min(self, other)
+    }
+}
+
+impl Real for f64 {
+    const ZERO: f64 = 0.0;
+    const ONE: f64 = 1.0;
+    const PI: f64 = core::f64::consts::PI;
+    #[inline]
+    fn of(x: f32) -> f64 {
+        f64::from(x)
+    }
+    #[inline]
+    fn to_f32(self) -> f32 {
+        self as f32
+    }
+    #[inline]
+    fn abs(self) -> f64 {
+        libm::fabs(self)
+    }
+    #[inline]
+    fn exp(self) -> f64 {
+        libm::exp(self)
+    }
+    #[inline]
+    fn powf(self, y: f64) -> f64 {
+        libm::pow(self, y)
+    }
+    #[inline]
+    fn sqrt(self) -> f64 {
+        libm::sqrt(self)
+    }
+    #[inline]
+    fn sin(self) -> f64 {
+        libm::sin(self)
+    }
+    #[inline]
+    fn cos(self) -> f64 {
+        libm::cos(self)
+    }
+    #[inline]
+    fn tanh(self) -> f64 {
+        libm::tanh(self)
+    }
+    #[inline]
+    fn max(self, other: f64) -> f64 {
+        f64::max(self, other)
+    }
+    #[inline]
+    fn min(self, other: f64) -> f64 {
+        f64::min(self, other)
+    }
+}

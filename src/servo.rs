@@ -1,0 +1,153 @@
+//! The rotation servo loop: position/velocity control from the quadrature count, torque
+//! command out through the DAC, with feed-forward of the rotary trajectory.
+//!
+//! The rotation sets the port timing, so it is a position loop on the piston angle. The
+//! servo drive runs in torque mode; its analog input is ±full-scale torque around DAC
+//! mid-scale.
+
+use crate::units::DacCode;
+
+/// Servo configuration (reference values **A**: J 2e-3 kg·m², ≈ 30 Hz bandwidth).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ServoConfig {
+    /// Encoder counts per revolution (after quadrature).
+    pub counts_per_rev: u32,
+    /// Rotating inertia, kg·m² (feed-forward).
+    pub inertia_kgm2: f32,
+    /// Proportional gain, N·m/rad.
+    pub kp_nm_per_rad: f32,
+    /// Derivative gain, N·m·s/rad.
+    pub kd_nms_per_rad: f32,
+    /// Torque at DAC full scale (and the command limit), N·m.
+    pub torque_full_scale_nm: f32,
+    /// Time constant of the velocity estimate, s.
+    pub velocity_filter_s: f32,
+    /// Sample time, s.
+    pub sample_time_s: f32,
+}
+
+impl ServoConfig {
+    /// Reference servo tuned for ≈ 30 Hz (ω = 190 rad/s, damping 0.8).
+    pub const fn reference() -> Self {
+        ServoConfig {
+            counts_per_rev: 4096,
+            inertia_kgm2: 2e-3,
+            kp_nm_per_rad: 72.0,
+            kd_nms_per_rad: 0.6,
+            torque_full_scale_nm: 5.0,
+            velocity_filter_s: 5e-4,
+            sample_time_s: 50e-6,
+        }
+    }
+
+    /// Radians per count.
+    #[inline]
+    pub fn rad_per_count(&self) -> f32 {
+        core::f32::consts::TAU / self.counts_per_rev.max(1) as f32
+    }
+}
+
+/// Angle reference of the rotation.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RotarySetpoint {
+    /// Angle, rad (unwrapped).
+    pub angle_rad: f32,
+    /// Angular velocity, rad/s.
+    pub velocity_rad_s: f32,
+    /// Angular acceleration, rad/s².
+    pub acceleration_rad_s2: f32,
+}
+
+/// Servo loop state.
+#[derive(Clone, Debug)]
+pub struct ServoController {
+    config: ServoConfig,
+    last_count: Option<i64>,
+    velocity_rad_s: f32,
+    angle_rad: f32,
+    torque_nm: f32,
+}
+
+impl ServoController {
+    /// A servo loop with `config`.
+    pub fn new(config: ServoConfig) -> Self {
+        ServoController {
+            config,
+            last_count: None,
+            velocity_rad_s: 0.0,
+            angle_rad: 0.0,
+            torque_nm: 0.0,
+        }
+    }
+
+    /// Measured angle, rad (from the last step).
+    pub fn angle_rad(&self) -> f32 {
+        self.angle_rad
+    }
+
+    /// Estimated angular velocity, rad/s.
+    pub fn velocity_rad_s(&self) -> f32 {
+        self.velocity_rad_s
+    }
+
+    /// Last torque command, N·m.
+    pub fn torque_nm(&self) -> f32 {
+        self.torque_nm
+    }
+
+    /// Updates the measurement from the wide count without commanding (outputs off).
+    pub fn observe(&mut self, count: i64) {
+        let c = &self.config;
+        let step = self.last_count.map_or(0, |l| count.saturating_sub(l));
+        self.last_count = Some(count);
+        // Wide count to angle: i64 → f32 loses nothing relevant within ±2²⁴ counts·rad.
+        self.angle_rad = count as f32 * c.rad_per_count();
+        let raw_velocity = step as f32 * c.rad_per_count() / c.sample_time_s;
+        let alpha = c.sample_time_s / (c.velocity_filter_s + c.sample_time_s);
+        self.velocity_rad_s += alpha * (raw_velocity - self.velocity_rad_s);
+    }
+
+    /// One loop step: measure, then compute the torque command for `reference`.
+    pub fn step(&mut self, count: i64, reference: &RotarySetpoint) -> DacCode {
+        self.observe(count);
+        let c = &self.config;
+        let torque = c.inertia_kgm2 * reference.acceleration_rad_s2
+            + c.kp_nm_per_rad * (reference.angle_rad - self.angle_rad)
+            + c.kd_nms_per_rad * (reference.velocity_rad_s - self.velocity_rad_s);
+        self.command(torque)
+    }
+
+    /// Converts a torque to the DAC code, saturating at full scale (NaN → zero torque).
+    pub fn command(&mut self, torque_nm: f32) -> DacCode {
+        let fs = self.config.torque_full_scale_nm;
+        let t = if torque_nm.is_nan() {
+            0.0
+        } else {
+            torque_nm.clamp(-fs, fs)
+        };
+        self.torque_nm = t;
+        DacCode(((2048.0 + t / fs * 2047.0) + 0.5).clamp(0.0, 4095.0) as u16)
+    }
+}
+
+/// Torque a DAC code stands for (inverse of [`ServoController::command`]), for the
+/// simulator's servo drive model.
+pub fn torque_of_code(code: DacCode, torque_full_scale_nm: f32) -> f32 {
+    (f32::from(code.0.min(4095)) - 2048.0) / 2047.0 * torque_full_scale_nm
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dac_code_round_trips_and_saturates() {
+        let mut s = ServoController::new(ServoConfig::reference());
+        for t in [-5.0, -1.0, 0.0, 2.5, 5.0] {
+            let c = s.command(t);
+            assert!((torque_of_code(c, 5.0) - t).abs() < 5.0 / 2047.0);
+        }
+        assert_eq!(s.command(100.0), DacCode(4095));
+        assert_eq!(s.command(f32::NAN), DacCode(2048));
+    }
+}

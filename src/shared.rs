@@ -1,0 +1,104 @@
+//! State shared between the tasks: the command mailbox, replies, the latest status and the
+//! watchdog check-ins.
+//!
+//! Generic over the raw mutex so the firmware uses a critical-section mutex across its two
+//! executors and the simulator a no-op one on its single thread. Nothing here blocks: the
+//! control task only ever `try_`s, so a slow reader can never stall the 20 kHz loop.
+
+use core::cell::Cell;
+use core::sync::atomic::{AtomicU8, Ordering};
+
+use embassy_sync::blocking_mutex::raw::RawMutex;
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::channel::Channel;
+
+use crate::command::{Command, Refusal};
+use crate::controller::Status;
+
+/// Depth of the command mailbox.
+pub const COMMAND_DEPTH: usize = 8;
+
+/// The answer to one command.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reply {
+    /// The command answered.
+    pub command: Command,
+    /// Accepted, or refused with the reason.
+    pub result: Result<(), Refusal>,
+}
+
+/// Bit of each task in the watchdog check-in mask.
+pub mod task_bits {
+    /// The 20 kHz control task.
+    pub const CONTROL: u8 = 1 << 0;
+    /// Every task the supervision task expects before it feeds the watchdog.
+    pub const ALL: u8 = CONTROL;
+}
+
+/// The shared state.
+pub struct Shared<M: RawMutex> {
+    commands: Channel<M, Command, COMMAND_DEPTH>,
+    replies: Channel<M, Reply, COMMAND_DEPTH>,
+    status: Mutex<M, Cell<Status>>,
+    checkins: AtomicU8,
+}
+
+impl<M: RawMutex> Default for Shared<M> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<M: RawMutex> Shared<M> {
+    /// Empty mailboxes, initial status (usable in a `static`).
+    pub const fn new() -> Self {
+        Shared {
+            commands: Channel::new(),
+            replies: Channel::new(),
+            status: Mutex::new(Cell::new(Status::INIT)),
+            checkins: AtomicU8::new(0),
+        }
+    }
+
+    /// Posts a command for the control task; returns it back if the mailbox is full.
+    pub fn post_command(&self, command: Command) -> Result<(), Command> {
+        self.commands.try_send(command).map_err(|e| match e {
+            embassy_sync::channel::TrySendError::Full(c) => c,
+        })
+    }
+
+    /// The next pending command, if any (control task).
+    pub fn take_command(&self) -> Option<Command> {
+        self.commands.try_receive().ok()
+    }
+
+    /// Posts a reply; a reply nobody collects is dropped rather than blocking.
+    pub fn post_reply(&self, reply: Reply) {
+        let _ = self.replies.try_send(reply);
+    }
+
+    /// The next reply, if any (host side).
+    pub fn take_reply(&self) -> Option<Reply> {
+        self.replies.try_receive().ok()
+    }
+
+    /// Publishes the latest status (control task).
+    pub fn publish(&self, status: Status) {
+        self.status.lock(|s| s.set(status));
+    }
+
+    /// The latest status.
+    pub fn status(&self) -> Status {
+        self.status.lock(|s| s.get())
+    }
+
+    /// A task reports that it ran.
+    pub fn check_in(&self, task_bit: u8) {
+        self.checkins.fetch_or(task_bit, Ordering::Relaxed);
+    }
+
+    /// Takes the check-ins: true if every task in `expected` checked in since the last take.
+    pub fn take_checkins(&self, expected: u8) -> bool {
+        self.checkins.swap(0, Ordering::Relaxed) & expected == expected
+    }
+}
