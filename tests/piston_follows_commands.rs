@@ -23,7 +23,11 @@ struct Tracking {
     final_error_m: Option<f64>,
 }
 
-fn observe(w: &hal_sim::world::World, shared: &SimShared, state: &mut (Tracking, Option<f64>)) -> ControlFlow<()> {
+fn observe(
+    w: &hal_sim::world::World,
+    shared: &SimShared,
+    state: &mut (Tracking, Option<f64>),
+) -> ControlFlow<()> {
     let (track, move_started) = state;
     let status = shared.status();
     if w.cycle() == 0 {
@@ -58,13 +62,33 @@ fn observe(w: &hal_sim::world::World, shared: &SimShared, state: &mut (Tracking,
 fn piston_homes_then_follows_a_commanded_move() {
     let model = MachineModel::reference();
     let mut state = (Tracking::default(), None);
-    let end = simulate(world(&model, 7, 0, 0.005), control_config(&model), |w, s| observe(w, s, &mut state));
+    let end = simulate(
+        world(&model, 7, 0, 0.005),
+        control_config(&model),
+        |w, s| observe(w, s, &mut state),
+    );
     let (track, _) = state;
-    println!("homed at {:?} s; max tracking error {:.1} µm; final error {:?} m", track.homed_at_s, track.max_error_m * 1e6, track.final_error_m);
+    println!(
+        "homed at {:?} s; max tracking error {:.1} µm; final error {:?} m",
+        track.homed_at_s,
+        track.max_error_m * 1e6,
+        track.final_error_m
+    );
     // Homing from 5 mm at 10 mm/s, then the park move to 10 mm: about 0.9 s.
-    assert!(track.homed_at_s.is_some_and(|t| t < 1.5), "homing did not finish");
-    assert!(track.max_error_m < 0.3e-3, "tracking error {} m", track.max_error_m);
-    assert!(track.final_error_m.is_some_and(|e| e < 20e-6), "final error {:?}", track.final_error_m);
+    assert!(
+        track.homed_at_s.is_some_and(|t| t < 1.5),
+        "homing did not finish"
+    );
+    assert!(
+        track.max_error_m < 0.3e-3,
+        "tracking error {} m",
+        track.max_error_m
+    );
+    assert!(
+        track.final_error_m.is_some_and(|e| e < 20e-6),
+        "final error {:?}",
+        track.final_error_m
+    );
     // The zero is head A: the piston never went through it.
     assert!(end.plant.x_m > 0.1);
 }
@@ -80,7 +104,9 @@ fn without_the_control_task_the_piston_does_not_follow() {
             io.cycle.next_cycle().await;
         }
     };
-    simulate_with(world(&model, 7, 0, 0.005), &shared, idle, |w, s| observe(w, s, &mut state));
+    simulate_with(world(&model, 7, 0, 0.005), &shared, idle, |w, s| {
+        observe(w, s, &mut state)
+    });
     let (track, _) = state;
     assert!(track.homed_at_s.is_none());
     assert!(track.final_error_m.is_none_or(|e| e > 20e-6));

@@ -19,14 +19,23 @@ use fpc::ports::ControlPorts;
 use fpc::shared::Shared;
 use fpc::tasks::{control_run, supervision_run};
 
-use crate::world::{clock, cycle, peripherals, watchdog, SimCycle, SimPeripherals, World, WorldRef};
+use crate::world::{
+    clock, cycle, peripherals, watchdog, SimCycle, SimPeripherals, World, WorldRef,
+};
 
 /// The shared state as the simulator instantiates it (single thread: no-op mutex).
 pub type SimShared = Shared<NoopRawMutex>;
 
 /// The control-task ports of the simulated board.
-pub type SimControlPorts =
-    ControlPorts<SimCycle, SimPeripherals, SimPeripherals, SimPeripherals, SimPeripherals, SimPeripherals, SimPeripherals>;
+pub type SimControlPorts = ControlPorts<
+    SimCycle,
+    SimPeripherals,
+    SimPeripherals,
+    SimPeripherals,
+    SimPeripherals,
+    SimPeripherals,
+    SimPeripherals,
+>;
 
 /// Runs the firmware's control and supervision tasks on `world` until `each_cycle` breaks.
 ///
@@ -38,12 +47,22 @@ where
     F: FnMut(&mut World, &SimShared) -> ControlFlow<()>,
 {
     let shared = SimShared::new();
-    simulate_with(world, &shared, |io, shared| control_run(io, shared, config), each_cycle)
+    simulate_with(
+        world,
+        &shared,
+        |io, shared| control_run(io, shared, config),
+        each_cycle,
+    )
 }
 
 /// As [`simulate`], with the control task body given by `control` (a test can put a
 /// different body in the loop, e.g. one that never drives, to show what the real one does).
-pub fn simulate_with<'s, F, C, Fut>(world: World, shared: &'s SimShared, control: C, mut each_cycle: F) -> World
+pub fn simulate_with<'s, F, C, Fut>(
+    world: World,
+    shared: &'s SimShared,
+    control: C,
+    mut each_cycle: F,
+) -> World
 where
     F: FnMut(&mut World, &SimShared) -> ControlFlow<()>,
     C: FnOnce(SimControlPorts, &'s SimShared) -> Fut,
@@ -61,7 +80,12 @@ where
     };
     {
         let mut control = pin!(control(io, shared));
-        let mut supervision = pin!(supervision_run(clock(&world), clock(&world), watchdog(&world), shared));
+        let mut supervision = pin!(supervision_run(
+            clock(&world),
+            clock(&world),
+            watchdog(&world),
+            shared
+        ));
         let mut cx = Context::from_waker(Waker::noop());
         loop {
             // The task bodies loop forever; a body that returns simply stops acting.

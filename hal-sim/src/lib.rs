@@ -12,14 +12,18 @@
 //! | [`exec`] | running the firmware's task bodies in simulated time |
 //! | [`model`] | the machine-model TOML |
 //! | [`runlog`] | the run-log CSV |
-//! | [`run`] | `fpc-sim run` |
+//! | [`cli`] | what every subcommand shares: failures and exit codes |
+//! | [`run`] | the closed-loop run and its figures |
+//! | [`run_cmd`] | `fpc-sim run` |
 //! | [`plot`] | SVG plots |
 #![warn(missing_docs)]
 
+pub mod cli;
 pub mod exec;
 pub mod model;
 pub mod plant;
 pub mod plot;
 pub mod run;
+pub mod run_cmd;
 pub mod runlog;
 pub mod world;
