@@ -12,6 +12,7 @@
 //! sections with each section's own encoder angle → duties for both, written in the same
 //! cycle → servo loop.
 
+use crate::allocation::{allocate, AllocationConfig};
 use crate::command::{Command, Refusal};
 use crate::differentiator::{Derivatives, SavitzkyGolay, SgConfig, SgError};
 use crate::encoder::{EncoderConfig, EncoderReading, SinCosDecoder};
@@ -64,6 +65,8 @@ pub struct ControlConfig {
     pub brake_deceleration_mps2: f32,
     /// Motor section parameters (both sections alike).
     pub motor: MotorParams<f32>,
+    /// Split of the force over the sections, cogging compensation.
+    pub allocation: AllocationConfig,
     /// Current-loop gains.
     pub current_gains: CurrentLoopGains,
     /// Current-sense calibration per section.
@@ -106,7 +109,8 @@ impl ControlConfig {
             force_limit_n: 10_000.0,
             max_speed_mps: 4.5,
             brake_deceleration_mps2: 200.0,
-            current_gains: CurrentLoopGains::for_bandwidth(&motor, 6000.0),
+            current_gains: CurrentLoopGains::for_bandwidth(&motor, 8000.0),
+            allocation: AllocationConfig::reference(),
             motor,
             current_sense: PerSection {
                 master: CurrentSense::reference(),
@@ -455,7 +459,14 @@ impl ControlStep {
                 self.supervise_following(&sp, position_m, dt);
                 let force = self.position_loop(&sp, position_m, &derivatives, gas_force_n, limit);
                 self.status.force_command_n = force;
-                Some(self.drive(inputs, &master, &slave, force))
+                Some(self.drive(
+                    inputs,
+                    &master,
+                    &slave,
+                    force,
+                    position_m,
+                    derivatives.velocity_mps,
+                ))
             }
             None => {
                 self.currents.master.reset();
@@ -666,21 +677,30 @@ impl ControlStep {
         master: &EncoderReading,
         slave: &EncoderReading,
         force_n: f32,
+        position_m: f32,
+        velocity_mps: f32,
     ) -> PerSection<PhaseDuties> {
-        let iq = 0.5 * force_n / self.config.motor.force_constant_n_per_a;
-        let reference = Dq { d: 0.0, q: iq };
+        let shares = allocate(&self.config.allocation, force_n, position_m);
+        let inv_kf = 1.0 / self.config.motor.force_constant_n_per_a;
         let mut out = PerSection::<PhaseDuties>::default();
         for (section, angle) in [
             (Section::Master, master.angle),
             (Section::Slave, slave.angle),
         ] {
+            let reference = Dq {
+                d: 0.0,
+                q: *shares.get(section) * inv_kf,
+            };
             let amps = self
                 .config
                 .current_sense
                 .get(section)
                 .amps(inputs.currents.get(section));
             let angle = angle.wrapping_add(*self.config.angle_offset.get(section));
-            *out.get_mut(section) = self.currents.get_mut(section).step(amps, angle, reference);
+            *out.get_mut(section) =
+                self.currents
+                    .get_mut(section)
+                    .step(amps, angle, reference, velocity_mps);
         }
         out
     }

@@ -80,6 +80,7 @@ pub struct FocState {
 #[derive(Clone, Debug)]
 pub struct CurrentController {
     gains: CurrentLoopGains,
+    motor: MotorParams<f32>,
     sample_time_s: f32,
     voltage_limit_v: f32,
     bus_voltage_v: f32,
@@ -92,6 +93,7 @@ impl CurrentController {
     pub fn new(motor: &MotorParams<f32>, gains: CurrentLoopGains, sample_time_s: f32) -> Self {
         CurrentController {
             gains,
+            motor: *motor,
             sample_time_s,
             voltage_limit_v: motor.voltage_limit_v(),
             bus_voltage_v: motor.bus_voltage_v,
@@ -111,19 +113,44 @@ impl CurrentController {
     }
 
     /// One current-loop step: measured phase currents, electrical angle (wrapping, 2³² = one
-    /// period) and the d/q current references → the three duties.
-    pub fn step(&mut self, phase_a: [f32; 3], angle: u32, reference: Dq<f32>) -> PhaseDuties {
+    /// period), the d/q current references and the velocity (for the decoupling and back-EMF
+    /// feed-forward) → the three duties.
+    ///
+    /// The PI zero cancels the electrical pole, which leaves that slow pole (L/R = 10 ms) in
+    /// the response to any integrator mismatch; the model feed-forward (`R·i_ref`, the
+    /// motional cross-coupling `ω_e·L·i` and the back-EMF `K_e·v`) puts the steady-state
+    /// voltage in directly, so the integrator only trims model error and a saturated step
+    /// settles at the fast closed-loop pole instead.
+    pub fn step(
+        &mut self,
+        phase_a: [f32; 3],
+        angle: u32,
+        reference: Dq<f32>,
+        velocity_mps: f32,
+    ) -> PhaseDuties {
         let (sin, cos) = angle_sin_cos(angle);
         let i = park(clarke(phase_a), sin, cos);
         let err = Dq {
             d: reference.d - i.d,
             q: reference.q - i.q,
         };
+        let m = &self.motor;
+        let we_l = m.electrical_speed(velocity_mps) * m.inductance_h;
+        let ff = Dq {
+            d: m.resistance_ohm * reference.d - we_l * reference.q,
+            q: m.resistance_ohm * reference.q
+                + we_l * reference.d
+                + m.back_emf_v_per_mps() * velocity_mps,
+        };
         let kp = self.gains.kp_v_per_a;
         let ki_dt = self.gains.ki_v_per_as * self.sample_time_s;
+        let integral = Dq {
+            d: self.integral.d + ki_dt * err.d,
+            q: self.integral.q + ki_dt * err.q,
+        };
         let mut v = Dq {
-            d: kp * err.d + self.integral.d + ki_dt * err.d,
-            q: kp * err.q + self.integral.q + ki_dt * err.q,
+            d: ff.d + kp * err.d + integral.d,
+            q: ff.q + kp * err.q + integral.q,
         };
         let mag = F32Ext::sqrt(v.d * v.d + v.q * v.q);
         let limited = mag > self.voltage_limit_v;
@@ -133,8 +160,7 @@ impl CurrentController {
             v.d *= k;
             v.q *= k;
         } else {
-            self.integral.d += ki_dt * err.d;
-            self.integral.q += ki_dt * err.q;
+            self.integral = integral;
         }
         let [a, b, c] = phase_a;
         self.state = FocState {

@@ -13,7 +13,9 @@
 //! | [`differentiator`] | fixed-point Savitzky–Golay velocity and acceleration |
 //! | [`pressure`] | pressure codes to pascal, open/short detection |
 //! | [`friction`] | Bo & Pavelescu friction law |
+//! | [`cogging`] | cogging force: the law, and the calibrated compensation map |
 //! | [`motor`] | linear-motor parameters and Clarke/Park |
+//! | [`allocation`] | one force command split over both sections, cogging cancelled |
 //! | [`foc`] | current loops and modulation of one section |
 //! | [`servo`] | rotation servo loop |
 //! | [`trajectory`] | reference setpoints and moves |
@@ -27,6 +29,8 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod allocation;
+pub mod cogging;
 pub mod command;
 pub mod controller;
 pub mod differentiator;

@@ -1,0 +1,135 @@
+//! Cogging (detent) force of the iron-core linear motor: periodic in position at the magnet
+//! pitch, independent of current and speed.
+//!
+//! One concept, three users: the simulator's plant evaluates [`CoggingParams::force_n`]
+//! (the `[effects.cogging]` single harmonic of the model file), the firmware compensates with
+//! a calibrated [`HarmonicMap`], and the model-gap workflow fits the same harmonic form.
+//! Sign: the force acts on the piston, positive toward +x.
+
+use crate::real::Real;
+
+/// A single-harmonic cogging law `F = A·sin(2π·x/p + φ)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CoggingParams<T> {
+    /// Amplitude A, N.
+    pub amplitude_n: T,
+    /// Period p, m (the N–N pitch, 24 mm, on the reference machine).
+    pub period_m: T,
+    /// Phase φ, rad.
+    pub phase_rad: T,
+}
+
+impl<T: Real> CoggingParams<T> {
+    /// The reference machine: 30 N at the 24 mm pitch (**A**).
+    pub fn reference() -> Self {
+        CoggingParams {
+            amplitude_n: T::of(30.0),
+            period_m: T::of(0.024),
+            phase_rad: T::ZERO,
+        }
+    }
+
+    /// Cogging force at position `x_m`, N.
+    #[inline]
+    pub fn force_n(&self, x_m: T) -> T {
+        self.amplitude_n * (T::of(2.0) * T::PI * x_m / self.period_m + self.phase_rad).sin()
+    }
+}
+
+/// Harmonics a [`HarmonicMap`] holds.
+pub const MAP_HARMONICS: usize = 4;
+
+/// A calibrated cogging map: `F(x) = Σₖ aₖ·sin(2πk·x/p) + bₖ·cos(2πk·x/p)`, k = 1..=4.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct HarmonicMap {
+    /// Fundamental period p, m (> 0; a map with p ≤ 0 gives zero force).
+    pub period_m: f32,
+    /// Sine coefficients a₁..a₄, N.
+    pub sin_n: [f32; MAP_HARMONICS],
+    /// Cosine coefficients b₁..b₄, N.
+    pub cos_n: [f32; MAP_HARMONICS],
+}
+
+impl HarmonicMap {
+    /// An empty map (no compensation).
+    pub const fn none() -> Self {
+        HarmonicMap {
+            period_m: 0.024,
+            sin_n: [0.0; MAP_HARMONICS],
+            cos_n: [0.0; MAP_HARMONICS],
+        }
+    }
+
+    /// Cogging force the map predicts at `x_m`, N. Uses one sin/cos and the angle-addition
+    /// recurrence for the higher harmonics (cheap on the MCU).
+    #[inline]
+    pub fn force_n(&self, x_m: f32) -> f32 {
+        if self.period_m <= 0.0 {
+            return 0.0;
+        }
+        // Reduce to one period first so the angle stays small for f32.
+        let turns = x_m / self.period_m;
+        let frac = turns - (turns as i32) as f32;
+        let (s1, c1) = micromath::F32Ext::sin_cos(frac * core::f32::consts::TAU);
+        let (mut s, mut c) = (s1, c1);
+        let mut f = 0.0;
+        for (a, b) in self.sin_n.iter().zip(&self.cos_n) {
+            f += a * s + b * c;
+            let next_s = s * c1 + c * s1;
+            c = c * c1 - s * s1;
+            s = next_s;
+        }
+        f
+    }
+
+    /// Least-squares fit of the map to samples `(x_m, force_n)` with fundamental `period_m`
+    /// (each harmonic fitted by projection, exact for samples spread evenly over whole
+    /// periods). Returns the empty map if there are no samples.
+    pub fn fit<I: IntoIterator<Item = (f32, f32)>>(samples: I, period_m: f32) -> HarmonicMap {
+        let mut sums_s = [0.0f64; MAP_HARMONICS];
+        let mut sums_c = [0.0f64; MAP_HARMONICS];
+        let mut n = 0u32;
+        for (x, f) in samples {
+            let base = core::f64::consts::TAU * f64::from(x) / f64::from(period_m);
+            for (k, (ss, sc)) in sums_s.iter_mut().zip(sums_c.iter_mut()).enumerate() {
+                let ang = base * (k + 1) as f64;
+                *ss += f64::from(f) * libm::sin(ang);
+                *sc += f64::from(f) * libm::cos(ang);
+            }
+            n += 1;
+        }
+        if n == 0 {
+            return HarmonicMap::none();
+        }
+        let scale = 2.0 / f64::from(n);
+        HarmonicMap {
+            period_m,
+            sin_n: sums_s.map(|v| (v * scale) as f32),
+            cos_n: sums_c.map(|v| (v * scale) as f32),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn map_fits_and_reproduces_the_law() {
+        let law = CoggingParams::<f64> {
+            amplitude_n: 30.0,
+            period_m: 0.024,
+            phase_rad: 0.7,
+        };
+        let samples = (0..2400).map(|i| {
+            let x = i as f64 * 1e-4; // 10 periods
+            (x as f32, law.force_n(x) as f32)
+        });
+        let map = HarmonicMap::fit(samples, 0.024);
+        for i in 0..500 {
+            let x = 0.013 + i as f64 * 3.7e-4;
+            let err = f64::from(map.force_n(x as f32)) - law.force_n(x);
+            assert!(err.abs() < 0.3, "x={x} err={err}");
+        }
+    }
+}
