@@ -25,6 +25,7 @@ use crate::ports::{EncoderCodes, PhaseCurrentCodes, PressureCodes};
 use crate::pressure::PressureCalibration;
 use crate::quadrature::QuadratureCounter;
 use crate::servo::{RotarySetpoint, ServoConfig, ServoController};
+use crate::supervisor::{LimitFlags, Observation, Supervisor, SupervisorConfig};
 use crate::trajectory::{PointToPoint, Setpoint};
 use crate::units::{DacCode, PerSection, PhaseDuties, Section, Ticks, CONTROL_PERIOD_US};
 
@@ -61,8 +62,6 @@ pub struct ControlConfig {
     pub force_limit_n: f32,
     /// Largest commanded speed, m/s.
     pub max_speed_mps: f32,
-    /// Deceleration of a controlled stop, m/s².
-    pub brake_deceleration_mps2: f32,
     /// Motor section parameters (both sections alike).
     pub motor: MotorParams<f32>,
     /// Split of the force over the sections, cogging compensation.
@@ -81,10 +80,8 @@ pub struct ControlConfig {
     pub homing: HomingConfig,
     /// Where the piston parks after homing, m.
     pub park_position_m: f32,
-    /// Position error that counts as a following error, m.
-    pub following_error_limit_m: f32,
-    /// How long the error must persist, s.
-    pub following_error_time_s: f32,
+    /// Supervision limits.
+    pub supervisor: SupervisorConfig,
 }
 
 impl ControlConfig {
@@ -108,7 +105,6 @@ impl ControlConfig {
             position_kd_ns_per_m: 4.8e3,
             force_limit_n: 10_000.0,
             max_speed_mps: 4.5,
-            brake_deceleration_mps2: 200.0,
             current_gains: CurrentLoopGains::for_bandwidth(&motor, 8000.0),
             allocation: AllocationConfig::reference(),
             motor,
@@ -121,8 +117,7 @@ impl ControlConfig {
             pressure: PressureCalibration::reference(),
             homing: HomingConfig::reference(),
             park_position_m: 0.01,
-            following_error_limit_m: 2.0e-3,
-            following_error_time_s: 5e-3,
+            supervisor: SupervisorConfig::reference(),
         }
     }
 }
@@ -227,6 +222,8 @@ pub struct Status {
     pub pressure_b_pa: f32,
     /// Latched faults.
     pub faults: FaultSet,
+    /// Limits active this cycle.
+    pub limits: LimitFlags,
 }
 
 impl Status {
@@ -248,6 +245,11 @@ impl Status {
         pressure_a_pa: 0.0,
         pressure_b_pa: 0.0,
         faults: FaultSet::new(),
+        limits: LimitFlags {
+            force: false,
+            voltage: false,
+            envelope: false,
+        },
     };
 }
 
@@ -278,14 +280,22 @@ pub struct ControlStep {
     zero_slave_raw_m: f32,
     theta_reference_rad: f32,
     last_t: Option<Ticks>,
-    following_s: f32,
+    supervisor: Supervisor,
+    /// Force commanded to each section in the last cycle, N.
+    shares: PerSection<f32>,
+    /// Consecutive cycles with an invalid chamber-pressure sample.
+    pressure_bad: u8,
+    limits: LimitFlags,
     faults: FaultSet,
     status: Status,
 }
 
 impl ControlStep {
     /// Builds the step from a configuration, refusing invalid parameters.
-    pub fn new(config: ControlConfig) -> Result<Self, ConfigError> {
+    pub fn new(mut config: ControlConfig) -> Result<Self, ConfigError> {
+        // The supervisor's geometry and speed limit follow the machine's, never disagree.
+        config.supervisor.travel_m = config.travel_m;
+        config.supervisor.overspeed_mps = 1.2 * config.max_speed_mps;
         for (name, v) in [
             ("sample_time_s", config.sample_time_s),
             ("travel_m", config.travel_m),
@@ -297,7 +307,10 @@ impl ControlStep {
             ),
             ("motor.bus_voltage_v", config.motor.bus_voltage_v),
             ("max_speed_mps", config.max_speed_mps),
-            ("brake_deceleration_mps2", config.brake_deceleration_mps2),
+            (
+                "supervisor.brake_deceleration_mps2",
+                config.supervisor.brake_deceleration_mps2,
+            ),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(ConfigError::NotPositive(name));
@@ -330,7 +343,10 @@ impl ControlStep {
             zero_slave_raw_m: 0.0,
             theta_reference_rad: 0.0,
             last_t: None,
-            following_s: 0.0,
+            supervisor: Supervisor::new(),
+            shares: PerSection::default(),
+            pressure_bad: 0,
+            limits: LimitFlags::default(),
             faults: FaultSet::new(),
             status: Status::INIT,
             config,
@@ -447,45 +463,97 @@ impl ControlStep {
         };
 
         let count = self.quadrature.update(inputs.quadrature);
+        self.servo.observe(count);
 
         // Measured section forces (before this cycle's FOC step: last cycle's state).
         let kf = self.config.motor.force_constant_n_per_a;
         let force_master = self.currents.master.state().current.q * kf;
         let force_slave = self.currents.slave.state().current.q * kf;
 
+        // Invalid pressure samples never reach the control law (the gas feed-forward above
+        // falls back to zero); two in a row latch the fault (one glitch is tolerated).
+        let pressures_valid = pa.valid().is_some() && pb.valid().is_some();
+        self.pressure_bad = if pressures_valid {
+            0
+        } else {
+            self.pressure_bad.saturating_add(1)
+        };
+        if self.pressure_bad >= 2 {
+            self.latch(Fault::PressureSensor);
+        }
+
+        let homed = self.zero_raw_m.is_some();
+        let driving = !matches!(self.mode, Mode::Idle | Mode::Faulted);
+        let observation = Observation {
+            dt_s: dt,
+            homed,
+            driving: driving && !matches!(self.mode, Mode::Homing(_)),
+            position_m,
+            slave_position_m: slave_raw_m - self.zero_slave_raw_m,
+            velocity_mps: derivatives.velocity_mps,
+            reference_m: self.reference_m().unwrap_or(position_m),
+            peak_phase_a: self
+                .currents
+                .master
+                .state()
+                .peak_phase_a
+                .max(self.currents.slave.state().peak_phase_a),
+            commanded_n: [self.shares.master, self.shares.slave],
+            delivered_n: [force_master, force_slave],
+            rotation_error_rad: if driving {
+                self.theta_reference_rad - self.servo.angle_rad()
+            } else {
+                0.0
+            },
+        };
+        let verdict = self.supervisor.check(&self.config.supervisor, &observation);
+        if let Some(section) = verdict.lost_section {
+            self.drop_section(section);
+        }
+        if let Some(fault) = verdict.fault {
+            if fault == Fault::Overcurrent {
+                // Drop the section with the excessive current; the other one stops the piston.
+                let m = self.currents.master.state().peak_phase_a;
+                let s = self.currents.slave.state().peak_phase_a;
+                self.drop_section(if m >= s { 0 } else { 1 });
+            }
+            self.latch(fault);
+        }
+
+        self.limits = LimitFlags::default();
         let setpoint = self.next_setpoint(raw_m, slave_raw_m, force_master + force_slave, dt);
         let pwm = match setpoint {
             Some((sp, limit)) => {
-                self.supervise_following(&sp, position_m, dt);
                 let force = self.position_loop(&sp, position_m, &derivatives, gas_force_n, limit);
+                self.limits.force = force.abs() >= limit;
                 self.status.force_command_n = force;
-                Some(self.drive(
+                let duties = self.drive(
                     inputs,
                     &master,
                     &slave,
                     force,
                     position_m,
                     derivatives.velocity_mps,
-                ))
+                );
+                self.limits.voltage = self.currents.master.state().voltage_limited
+                    || self.currents.slave.state().voltage_limited;
+                Some(duties)
             }
             None => {
                 self.currents.master.reset();
                 self.currents.slave.reset();
+                self.shares = PerSection::default();
                 self.status.force_command_n = 0.0;
                 None
             }
         };
 
         let servo = if pwm.is_some() {
-            self.servo.step(
-                count,
-                &RotarySetpoint {
-                    angle_rad: self.theta_reference_rad,
-                    ..RotarySetpoint::default()
-                },
-            )
+            self.servo.control(&RotarySetpoint {
+                angle_rad: self.theta_reference_rad,
+                ..RotarySetpoint::default()
+            })
         } else {
-            self.servo.observe(count);
             self.theta_reference_rad = self.servo.angle_rad();
             self.servo.command(0.0)
         };
@@ -507,6 +575,7 @@ impl ControlStep {
             pressure_a_pa: pa.pressure_pa,
             pressure_b_pa: pb.pressure_pa,
             faults: self.faults,
+            limits: self.limits,
         };
         CycleOutputs { pwm, servo }
     }
@@ -604,13 +673,13 @@ impl ControlStep {
             }
             Mode::Stopping { setpoint, then_off } => {
                 let v = setpoint.velocity_mps;
-                let dv = self.config.brake_deceleration_mps2 * dt;
+                let dv = self.config.supervisor.brake_deceleration_mps2 * dt;
                 let (v_next, a) = if v.abs() <= dv {
                     (0.0, -v / dt)
                 } else if v > 0.0 {
-                    (v - dv, -self.config.brake_deceleration_mps2)
+                    (v - dv, -self.config.supervisor.brake_deceleration_mps2)
                 } else {
-                    (v + dv, self.config.brake_deceleration_mps2)
+                    (v + dv, self.config.supervisor.brake_deceleration_mps2)
                 };
                 setpoint.position_m += 0.5 * (v + v_next) * dt;
                 setpoint.velocity_mps = v_next;
@@ -632,18 +701,13 @@ impl ControlStep {
         }
     }
 
-    fn supervise_following(&mut self, sp: &Setpoint, position_m: f32, dt: f32) {
-        if matches!(self.mode, Mode::Homing(_)) {
-            self.following_s = 0.0;
-            return;
-        }
-        if (sp.position_m - position_m).abs() > self.config.following_error_limit_m {
-            self.following_s += dt;
-            if self.following_s >= self.config.following_error_time_s {
-                self.latch(Fault::FollowingError);
-            }
+    /// Takes a section out of the allocation (lost, or switched off after an overcurrent).
+    fn drop_section(&mut self, index: usize) {
+        let cap = &mut self.config.allocation.capability;
+        if index == 0 {
+            cap.master = 0.0;
         } else {
-            self.following_s = 0.0;
+            cap.slave = 0.0;
         }
     }
 
@@ -681,6 +745,7 @@ impl ControlStep {
         velocity_mps: f32,
     ) -> PerSection<PhaseDuties> {
         let shares = allocate(&self.config.allocation, force_n, position_m);
+        self.shares = shares;
         let inv_kf = 1.0 / self.config.motor.force_constant_n_per_a;
         let mut out = PerSection::<PhaseDuties>::default();
         for (section, angle) in [

@@ -10,6 +10,7 @@
 
 use crate::motor::{clarke, inverse_clarke, inverse_park, park, Dq, MotorParams};
 use crate::ports::PhaseCurrentCodes;
+use crate::real::sqrt_f32;
 use crate::units::{Duty, PhaseDuties};
 use micromath::F32Ext;
 
@@ -152,7 +153,7 @@ impl CurrentController {
             d: ff.d + kp * err.d + integral.d,
             q: ff.q + kp * err.q + integral.q,
         };
-        let mag = F32Ext::sqrt(v.d * v.d + v.q * v.q);
+        let mag = sqrt_f32(v.d * v.d + v.q * v.q);
         let limited = mag > self.voltage_limit_v;
         if limited {
             // Scale back onto the circle and hold the integrators (anti-windup).

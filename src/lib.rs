@@ -21,6 +21,7 @@
 //! | [`trajectory`] | reference setpoints and moves |
 //! | [`homing`] | finding the zero at head A |
 //! | [`faults`] | the fault enum and the latched set |
+//! | [`supervisor`] | the per-cycle checks, the braking envelope, limit flags |
 //! | [`command`] | host commands and refusals |
 //! | [`controller`] | the 20 kHz control step, a pure function of its inputs |
 //! | [`shared`] | state shared between tasks |
@@ -46,6 +47,7 @@ pub mod quadrature;
 pub mod real;
 pub mod servo;
 pub mod shared;
+pub mod supervisor;
 pub mod tasks;
 pub mod trajectory;
 pub mod units;

@@ -6,6 +6,19 @@
 //! host and MCU — called through its trait explicitly so std's methods never shadow it on the
 //! host); `f64` goes through `libm`.
 
+/// √x in `f32`, accurate to ~1 ulp·few: micromath's bit-trick seed (±5 %) refined by two
+/// Newton steps (±5 % → ±0.13 % → ±1e-6). Cheaper than a software `sqrtf` on the MCU and the
+/// same on the host. NaN for negative input, 0 for 0.
+#[inline]
+pub fn sqrt_f32(x: f32) -> f32 {
+    if x <= 0.0 {
+        return if x == 0.0 { 0.0 } else { f32::NAN };
+    }
+    let y = micromath::F32Ext::sqrt(x);
+    let y = 0.5 * (y + x / y);
+    0.5 * (y + x / y)
+}
+
 /// A floating-point scalar with the few operations the physics needs.
 pub trait Real:
     Copy
@@ -72,7 +85,7 @@ impl Real for f32 {
     }
     #[inline]
     fn sqrt(self) -> f32 {
-        micromath::F32Ext::sqrt(self)
+        sqrt_f32(self)
     }
     #[inline]
     fn sin(self) -> f32 {
@@ -95,6 +108,23 @@ impl Real for f32 {
     #[inline]
     fn min(self, other: f32) -> f32 {
         f32::min(self, other)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn refined_sqrt_is_accurate() {
+        let mut worst = 0.0f64;
+        let mut x = 1e-6f32;
+        while x < 1e7 {
+            let err = (f64::from(super::sqrt_f32(x)) - f64::from(x).sqrt()) / f64::from(x).sqrt();
+            worst = worst.max(err.abs());
+            x *= 1.37;
+        }
+        assert!(worst < 2e-6, "{worst}");
+        assert!(super::sqrt_f32(-1.0).is_nan());
+        assert_eq!(super::sqrt_f32(0.0), 0.0);
     }
 }
 

@@ -110,6 +110,11 @@ impl ServoController {
     /// One loop step: measure, then compute the torque command for `reference`.
     pub fn step(&mut self, count: i64, reference: &RotarySetpoint) -> DacCode {
         self.observe(count);
+        self.control(reference)
+    }
+
+    /// The torque command for `reference` from the last observation.
+    pub fn control(&mut self, reference: &RotarySetpoint) -> DacCode {
         let c = &self.config;
         let torque = c.inertia_kgm2 * reference.acceleration_rad_s2
             + c.kp_nm_per_rad * (reference.angle_rad - self.angle_rad)
