@@ -1,5 +1,72 @@
-//! Firmware entry (the STM32G474 board glue lands next).
+//! `fpc` firmware for the STM32G474RE: brings the board up and runs the library's task
+//! bodies on embassy executors.
+//!
+//! - the 20 kHz control task ([`fpc::tasks::control_run`]) on a high-priority
+//!   `InterruptExecutor`, woken by the end of each ADC burst;
+//! - the supervision task ([`fpc::tasks::supervision_run`], 1 kHz, feeds the watchdog) in
+//!   thread mode.
+//!
+//! Each embassy task is a thin concrete wrapper: embassy tasks cannot be generic, the
+//! bodies are. All hardware glue is in `board` (pins, clocks, interrupts, safe state).
+//!
+//! Build with `cargo fw`, flash and watch defmt with `cargo fw-run`. On the host this
+//! binary only says so, so that `cargo build` of the workspace keeps working.
 #![cfg_attr(target_os = "none", no_std, no_main)]
+#![deny(unsafe_code)]
+
+// The one place `unsafe` is allowed, each use with a `// SAFETY:` comment.
+#[cfg(target_os = "none")]
+#[allow(unsafe_code)]
+mod board;
+
+/// The embassy tasks and the entry point.
+#[cfg(target_os = "none")]
+mod firmware {
+    use core::convert::Infallible;
+
+    use defmt_rtt as _;
+    use embassy_executor::Spawner;
+    use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+    use fpc::controller::ControlConfig;
+    use fpc::shared::Shared;
+
+    use crate::board::{self, BoardClock, BoardSleep, BoardWatchdog};
+
+    /// State shared by the control and supervision tasks (two executors, so a
+    /// critical-section mutex).
+    static SHARED: Shared<CriticalSectionRawMutex> = Shared::new();
+
+    /// The 20 kHz control task (control executor, woken by each ADC burst).
+    #[embassy_executor::task]
+    async fn control(ports: board::ControlPorts) {
+        let never: Infallible =
+            fpc::tasks::control_run(ports, &SHARED, ControlConfig::reference()).await;
+        match never {}
+    }
+
+    /// The 1 kHz supervision task (thread mode): the only one that feeds the watchdog.
+    #[embassy_executor::task]
+    async fn supervision(sleep: BoardSleep, clock: BoardClock, watchdog: BoardWatchdog) {
+        let never: Infallible = fpc::tasks::supervision_run(sleep, clock, watchdog, &SHARED).await;
+        match never {}
+    }
+
+    #[embassy_executor::main]
+    async fn main(spawner: Spawner) {
+        let board = board::init();
+        board::start_control_executor().spawn(defmt::unwrap!(control(board.control)));
+        spawner.spawn(defmt::unwrap!(supervision(
+            board.sleep,
+            board.clock,
+            board.watchdog
+        )));
+    }
+}
 
 #[cfg(not(target_os = "none"))]
-fn main() {}
+fn main() {
+    println!(
+        "fpc: this binary is the STM32G474RE firmware; build it with `cargo fw` \
+         (thumbv7em-none-eabihf). The host-side tools are in hal-sim."
+    );
+}

@@ -1,0 +1,214 @@
+//! The STM32G474RE board (LQFP64): every line of MCU glue, and the only place `unsafe` is
+//! allowed (each use carries a `// SAFETY:` comment). Declared from `src/main.rs`, MCU only.
+//!
+//! [`init`] brings the board up and returns the concrete ports of `fpc::ports`; the library
+//! never names anything in here.
+//!
+//! # Clocks and timing
+//! 170 MHz from HSI16 via the PLL, boost mode ([`clocks`]). TIM1 and TIM8 count centre-aligned
+//! at 20 kHz, in phase (TIM8 started by TIM1's TRGO); TIM1 CH4 marks each counter peak and
+//! starts one ADC burst; the end of the burst (DMA transfer complete) is the 20 kHz control
+//! tick ([`pwm`], [`adc`]). embassy-time runs on TIM2 at 1 MHz.
+//!
+//! # Pins
+//! | signal | pin | peripheral | function |
+//! |---|---|---|---|
+//! | section 1 phase U high / low | PA8 / PB13 | TIM1 | CH1 / CH1N (AF6 / AF6) |
+//! | section 1 phase V high / low | PA9 / PB14 | TIM1 | CH2 / CH2N (AF6 / AF6) |
+//! | section 1 phase W high / low | PA10 / PB15 | TIM1 | CH3 / CH3N (AF6 / AF4) |
+//! | section 2 phase U high / low | PC6 / PC10 | TIM8 | CH1 / CH1N (AF4 / AF4) |
+//! | section 2 phase V high / low | PC7 / PC11 | TIM8 | CH2 / CH2N (AF4 / AF4) |
+//! | section 2 phase W high / low | PC8 / PC12 | TIM8 | CH3 / CH3N (AF4 / AF4) |
+//! | section 1 current U, V, W | PA0, PA1, PA2 | ADC1 | IN1, IN2, IN3, injected ranks 1–3 |
+//! | section 2 current U, V, W | PA6, PA7, PC4 | ADC2 | IN3, IN4, IN5, injected ranks 1–3 |
+//! | master encoder sin / cos | PB0 / PC5 | ADC1 / ADC2 | IN15 / IN11, regular rank 1 |
+//! | slave encoder sin / cos | PB1 / PB2 | ADC1 / ADC2 | IN12 / IN12, regular rank 2 |
+//! | pressure chamber A / B | PB12 / PC1 | ADC1 / ADC2 | IN11 / IN7, regular rank 3 |
+//! | pressure suction / discharge | PC0 / PC2 | ADC1 / ADC2 | IN6 / IN8, regular rank 4 |
+//! | servo encoder A / B | PB6 / PB7 | TIM4 | CH1 / CH2 (AF2), encoder mode 3 |
+//! | servo torque command | PA4 | DAC1 | OUT1, buffered, mid-scale = 0 |
+//! | debug, defmt over RTT | PA13 / PA14 | SWD | SWDIO / SWCLK |
+//!
+//! The currents use the fast channels (IN1–IN5); PA2 carrying one of them costs the Nucleo's
+//! LPUART1 virtual COM port, so telemetry goes over RTT or USB FS (PA11/PA12, free). Also
+//! left free: PF0/PF1 (24 MHz HSE crystal), PB8 (TIM1 BKIN, for a future hardware
+//! over-current trip), PA5/PC13 (Nucleo LED/button). Phase outputs are active high; the
+//! gate-driver inputs need pull-downs, since the pins float from reset until [`init`].
+//!
+//! # Interrupts (lower number = more urgent)
+//! | vector | priority | use |
+//! |---|---|---|
+//! | DMA1_CHANNEL1 | 1 | end of burst: copy the samples, wake the control task |
+//! | UART5 | 2 | the control executor (`InterruptExecutor`; the UART itself is unused) |
+//! | TIM2 | 3 | embassy-time (only the thread-mode tasks wait on time) |
+//! | thread mode | — | supervision (watchdog) |
+//!
+//! # Safe state
+//! Motor outputs are off (MOE = 0, all gates driven low) from [`init`] until the control
+//! task enables them, whenever it disables them, on a debugger halt (DBGMCU freezes TIM1/TIM8,
+//! which also disables their outputs), and first thing on panic and HardFault
+//! ([`fault::safe_outputs_off`]). The IWDG (≈ 20 ms) is fed only by the supervision task,
+//! and only while the control task keeps checking in.
+
+mod adc;
+mod clocks;
+mod fault;
+mod pwm;
+mod servo;
+mod time;
+mod watchdog;
+
+use embassy_executor::{InterruptExecutor, SendSpawner};
+use embassy_stm32::dac::DacChannel;
+use embassy_stm32::gpio::OutputType;
+use embassy_stm32::interrupt;
+use embassy_stm32::interrupt::{InterruptExt, Priority};
+use embassy_stm32::pac;
+use embassy_stm32::time::Hertz;
+use embassy_stm32::timer::complementary_pwm::{ComplementaryPwm, ComplementaryPwmPin};
+use embassy_stm32::timer::low_level::CountingMode;
+use embassy_stm32::timer::qei::{self, Qei};
+use embassy_stm32::timer::simple_pwm::PwmPin;
+
+pub use adc::{CurrentAdc, EncoderAdc, PressureAdc, SampleTrigger};
+pub use pwm::MotorPwm;
+pub use servo::{ServoEncoder, ServoTorque};
+pub use time::{BoardClock, BoardSleep};
+pub use watchdog::BoardWatchdog;
+
+/// The 20 kHz control task's ports on this board.
+pub type ControlPorts = fpc::ports::ControlPorts<
+    SampleTrigger,
+    EncoderAdc,
+    CurrentAdc,
+    MotorPwm,
+    ServoEncoder,
+    ServoTorque,
+    PressureAdc,
+>;
+
+/// Priority of the end-of-burst interrupt.
+const BURST_PRIORITY: Priority = Priority::P1;
+/// Priority of the control executor's interrupt: below the burst, above everything else.
+const CONTROL_PRIORITY: Priority = Priority::P2;
+/// Priority of embassy-time's TIM2 interrupt: never delays the control task.
+const TIME_PRIORITY: Priority = Priority::P3;
+
+/// The board, brought up.
+pub struct Board {
+    /// Ports of the control task (motor outputs off).
+    pub control: ControlPorts,
+    /// Time base for the supervision task.
+    pub clock: BoardClock,
+    /// Waiting for the supervision task.
+    pub sleep: BoardSleep,
+    /// The running watchdog; feed it within [`watchdog::WATCHDOG_TIMEOUT_US`].
+    pub watchdog: BoardWatchdog,
+}
+
+/// Brings the board up: clocks, debug freeze, servo I/O, ADC burst, PWM (running, outputs
+/// off), watchdog (running). Call once, first thing.
+pub fn init() -> Board {
+    let p = embassy_stm32::init(clocks::config());
+    freeze_on_debug_halt();
+    interrupt::TIM2.set_priority(TIME_PRIORITY);
+
+    let servo_encoder = ServoEncoder::new(Qei::new(p.TIM4, p.PB6, p.PB7, qei::Config::default()));
+    let servo_torque = ServoTorque::new(DacChannel::new_blocking(p.DAC1, p.PA4));
+
+    use adc::{adc1_channel as adc1, adc2_channel as adc2};
+    let master = adc::Sequence {
+        injected: [adc1(p.PA0), adc1(p.PA1), adc1(p.PA2)],
+        regular: [adc1(p.PB0), adc1(p.PB1), adc1(p.PB12), adc1(p.PC0)],
+    };
+    let slave = adc::Sequence {
+        injected: [adc2(p.PA6), adc2(p.PA7), adc2(p.PC4)],
+        regular: [adc2(p.PC5), adc2(p.PB2), adc2(p.PC1), adc2(p.PC2)],
+    };
+    let sampler = adc::start(p.ADC1, p.ADC2, p.DMA1_CH1, &master, &slave);
+
+    let push_pull = OutputType::PushPull;
+    let section1 = ComplementaryPwm::new(
+        p.TIM1,
+        Some(PwmPin::new(p.PA8, push_pull)),
+        Some(ComplementaryPwmPin::new(p.PB13, push_pull)),
+        Some(PwmPin::new(p.PA9, push_pull)),
+        Some(ComplementaryPwmPin::new(p.PB14, push_pull)),
+        Some(PwmPin::new(p.PA10, push_pull)),
+        Some(ComplementaryPwmPin::new(p.PB15, push_pull)),
+        None,
+        None,
+        Hertz(pwm::PWM_HZ),
+        CountingMode::CenterAlignedBothInterrupts,
+    );
+    let section2 = ComplementaryPwm::new(
+        p.TIM8,
+        Some(PwmPin::new(p.PC6, push_pull)),
+        Some(ComplementaryPwmPin::new(p.PC10, push_pull)),
+        Some(PwmPin::new(p.PC7, push_pull)),
+        Some(ComplementaryPwmPin::new(p.PC11, push_pull)),
+        Some(PwmPin::new(p.PC8, push_pull)),
+        Some(ComplementaryPwmPin::new(p.PC12, push_pull)),
+        None,
+        None,
+        Hertz(pwm::PWM_HZ),
+        CountingMode::CenterAlignedBothInterrupts,
+    );
+    let motor_pwm = MotorPwm::start(section1, section2);
+
+    let watchdog = BoardWatchdog::start(p.IWDG);
+    defmt::info!(
+        "board up: {} Hz PWM, ARR {}, dead time {} ns",
+        pwm::PWM_HZ,
+        pwm::PWM_ARR,
+        pwm::DEAD_TIME_NS
+    );
+
+    Board {
+        control: fpc::ports::ControlPorts {
+            cycle: sampler.trigger,
+            encoders: sampler.encoders,
+            currents: sampler.currents,
+            pwm: motor_pwm,
+            quadrature: servo_encoder,
+            servo: servo_torque,
+            pressures: sampler.pressures,
+        },
+        clock: BoardClock,
+        sleep: BoardSleep,
+        watchdog,
+    }
+}
+
+/// A debugger halt stops the motor timers (their outputs go to the idle state, as with
+/// MOE = 0) and the watchdog, so stepping through code is safe and does not reset.
+fn freeze_on_debug_halt() {
+    pac::DBGMCU.apb2fzr().modify(|w| {
+        w.set_tim1(true);
+        w.set_tim8(true);
+    });
+    pac::DBGMCU.apb1lfzr().modify(|w| w.set_iwdg(true));
+}
+
+/// Both bridges off: MOE = 0 on TIM1 and TIM8 (see [`pwm`] for the idle levels).
+fn safe_pwm_off() {
+    for tim in [pac::TIM1, pac::TIM8] {
+        tim.bdtr().modify(|w| w.set_moe(false));
+    }
+}
+
+/// Runs the 20 kHz control task above every thread-mode task.
+static CONTROL_EXECUTOR: InterruptExecutor = InterruptExecutor::new();
+
+#[interrupt]
+fn UART5() {
+    // SAFETY: UART5's vector is reserved for this executor (the peripheral is unused), and
+    // this handler is the only caller of `on_interrupt`.
+    unsafe { CONTROL_EXECUTOR.on_interrupt() }
+}
+
+/// Starts the control executor on the UART5 vector at [`CONTROL_PRIORITY`].
+pub fn start_control_executor() -> SendSpawner {
+    interrupt::UART5.set_priority(CONTROL_PRIORITY);
+    CONTROL_EXECUTOR.start(interrupt::UART5)
+}
