@@ -7,6 +7,7 @@
 //! then limited to what that section can deliver.
 
 use crate::cogging::HarmonicMap;
+use crate::real::clamp_f32;
 use crate::units::PerSection;
 
 /// Allocation parameters.
@@ -42,15 +43,15 @@ pub fn allocate(config: &AllocationConfig, force_n: f32, x_m: f32) -> PerSection
     if wanted.is_nan() {
         return PerSection::default();
     }
-    let cm = config.capability.master.clamp(0.0, 1.0);
-    let cs = config.capability.slave.clamp(0.0, 1.0);
+    let cm = clamp_f32(config.capability.master, 0.0, 1.0);
+    let cs = clamp_f32(config.capability.slave, 0.0, 1.0);
     let total = cm + cs;
     if total <= 0.0 {
         return PerSection::default();
     }
     let share = |c: f32| {
         let limit = config.section_limit_n * c;
-        (wanted * c / total).clamp(-limit, limit)
+        clamp_f32(wanted * c / total, -limit, limit)
     };
     PerSection {
         master: share(cm),

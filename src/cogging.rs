@@ -60,17 +60,20 @@ impl HarmonicMap {
         }
     }
 
+    /// True if every coefficient is zero (no compensation).
+    #[inline]
+    pub fn is_empty(&self) -> bool {
+        self.sin_n.iter().chain(&self.cos_n).all(|c| *c == 0.0)
+    }
+
     /// Cogging force the map predicts at `x_m`, N. Uses one sin/cos and the angle-addition
     /// recurrence for the higher harmonics (cheap on the MCU).
     #[inline]
     pub fn force_n(&self, x_m: f32) -> f32 {
-        if self.period_m <= 0.0 {
+        if self.period_m <= 0.0 || self.is_empty() {
             return 0.0;
         }
-        // Reduce to one period first so the angle stays small for f32.
-        let turns = x_m / self.period_m;
-        let frac = turns - (turns as i32) as f32;
-        let (s1, c1) = micromath::F32Ext::sin_cos(frac * core::f32::consts::TAU);
+        let (s1, c1) = crate::angle::sin_cos_turns(crate::angle::turns(x_m / self.period_m));
         let (mut s, mut c) = (s1, c1);
         let mut f = 0.0;
         for (a, b) in self.sin_n.iter().zip(&self.cos_n) {

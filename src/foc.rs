@@ -10,9 +10,8 @@
 
 use crate::motor::{clarke, inverse_clarke, inverse_park, park, Dq, MotorParams};
 use crate::ports::PhaseCurrentCodes;
-use crate::real::sqrt_f32;
+use crate::real::{max_f32, min_f32, sqrt_f32};
 use crate::units::{Duty, PhaseDuties};
-use micromath::F32Ext;
 
 /// Current-sense calibration of one section.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -84,7 +83,8 @@ pub struct CurrentController {
     motor: MotorParams<f32>,
     sample_time_s: f32,
     voltage_limit_v: f32,
-    bus_voltage_v: f32,
+    /// 1/V_dc, precomputed (a division per cycle saved).
+    inv_bus_voltage: f32,
     integral: Dq<f32>,
     state: FocState,
 }
@@ -97,7 +97,7 @@ impl CurrentController {
             motor: *motor,
             sample_time_s,
             voltage_limit_v: motor.voltage_limit_v(),
-            bus_voltage_v: motor.bus_voltage_v,
+            inv_bus_voltage: 1.0 / motor.bus_voltage_v,
             integral: Dq::default(),
             state: FocState::default(),
         }
@@ -153,11 +153,12 @@ impl CurrentController {
             d: ff.d + kp * err.d + integral.d,
             q: ff.q + kp * err.q + integral.q,
         };
-        let mag = sqrt_f32(v.d * v.d + v.q * v.q);
-        let limited = mag > self.voltage_limit_v;
+        // Compare squares: the square root is only needed when the limit is hit.
+        let mag_sq = v.d * v.d + v.q * v.q;
+        let limited = mag_sq > self.voltage_limit_v * self.voltage_limit_v;
         if limited {
             // Scale back onto the circle and hold the integrators (anti-windup).
-            let k = self.voltage_limit_v / mag;
+            let k = self.voltage_limit_v / sqrt_f32(mag_sq);
             v.d *= k;
             v.q *= k;
         } else {
@@ -167,12 +168,12 @@ impl CurrentController {
         self.state = FocState {
             current: i,
             voltage: v,
-            peak_phase_a: a.abs().max(b.abs()).max(c.abs()),
+            peak_phase_a: max_f32(max_f32(a.abs(), b.abs()), c.abs()),
             voltage_limited: limited,
         };
-        modulate(
+        modulate_inv(
             inverse_clarke(inverse_park(v, sin, cos)),
-            self.bus_voltage_v,
+            self.inv_bus_voltage,
         )
     }
 }
@@ -180,17 +181,21 @@ impl CurrentController {
 /// sin and cos of a wrapping angle (2³² = 2π).
 #[inline]
 pub fn angle_sin_cos(angle: u32) -> (f32, f32) {
-    let rad = angle as i32 as f32 * (core::f32::consts::TAU / 4_294_967_296.0);
-    F32Ext::sin_cos(rad)
+    crate::angle::sin_cos_turns(angle)
 }
 
 /// Space-vector modulation by min–max injection: phase voltages (V) → duties on a bus of
 /// `bus_v`. Saturates at 0 and 100 %.
 #[inline]
 pub fn modulate(v: [f32; 3], bus_v: f32) -> PhaseDuties {
+    modulate_inv(v, 1.0 / bus_v)
+}
+
+/// [`modulate`] with the reciprocal of the bus voltage given.
+#[inline]
+fn modulate_inv(v: [f32; 3], inv: f32) -> PhaseDuties {
     let [a, b, c] = v;
-    let offset = -0.5 * (a.max(b).max(c) + a.min(b).min(c));
-    let inv = 1.0 / bus_v;
+    let offset = -0.5 * (max_f32(max_f32(a, b), c) + min_f32(min_f32(a, b), c));
     [
         Duty::from_fraction(0.5 + (a + offset) * inv),
         Duty::from_fraction(0.5 + (b + offset) * inv),

@@ -5,6 +5,7 @@
 //! servo drive runs in torque mode; its analog input is ±full-scale torque around DAC
 //! mid-scale.
 
+use crate::real::clamp_f32;
 use crate::units::DacCode;
 
 /// Servo configuration (reference values **A**: J 2e-3 kg·m², ≈ 30 Hz bandwidth).
@@ -63,6 +64,8 @@ pub struct RotarySetpoint {
 pub struct ServoController {
     config: ServoConfig,
     last_count: Option<i64>,
+    /// Count at angle zero of the current base.
+    count_base: i64,
     velocity_rad_s: f32,
     angle_rad: f32,
     torque_nm: f32,
@@ -74,10 +77,18 @@ impl ServoController {
         ServoController {
             config,
             last_count: None,
+            count_base: 0,
             velocity_rad_s: 0.0,
             angle_rad: 0.0,
             torque_nm: 0.0,
         }
+    }
+
+    /// Moves the angle base forward by whole `turns` (angles drop by 2π per turn).
+    pub fn rebase(&mut self, turns: i32) {
+        let counts = i64::from(turns) * i64::from(self.config.counts_per_rev);
+        self.count_base = self.count_base.saturating_add(counts);
+        self.angle_rad -= turns as f32 * core::f32::consts::TAU;
     }
 
     /// Measured angle, rad (from the last step).
@@ -100,8 +111,9 @@ impl ServoController {
         let c = &self.config;
         let step = self.last_count.map_or(0, |l| count.saturating_sub(l));
         self.last_count = Some(count);
-        // Wide count to angle: i64 → f32 loses nothing relevant within ±2²⁴ counts·rad.
-        self.angle_rad = count as f32 * c.rad_per_count();
+        // Relative to the base, the count stays within a few turns (the controller re-bases by
+        // whole turns), so the f32 angle keeps its full resolution however long it runs.
+        self.angle_rad = count.saturating_sub(self.count_base) as f32 * c.rad_per_count();
         let raw_velocity = step as f32 * c.rad_per_count() / c.sample_time_s;
         let alpha = c.sample_time_s / (c.velocity_filter_s + c.sample_time_s);
         self.velocity_rad_s += alpha * (raw_velocity - self.velocity_rad_s);
@@ -128,10 +140,11 @@ impl ServoController {
         let t = if torque_nm.is_nan() {
             0.0
         } else {
-            torque_nm.clamp(-fs, fs)
+            clamp_f32(torque_nm, -fs, fs)
         };
         self.torque_nm = t;
-        DacCode(((2048.0 + t / fs * 2047.0) + 0.5).clamp(0.0, 4095.0) as u16)
+        // The float→int cast saturates; t is within ±fs, so the code is within 1..=4095.
+        DacCode((2048.0 + t / fs * 2047.0 + 0.5) as u16)
     }
 }
 

@@ -34,6 +34,8 @@ pub struct PointToPoint {
     from_m: f32,
     distance_m: f32,
     duration_s: f32,
+    /// 1/T (0 for a zero-length move), precomputed: [`PointToPoint::sample`] runs per cycle.
+    inv_duration: f32,
 }
 
 impl PointToPoint {
@@ -46,10 +48,16 @@ impl PointToPoint {
         } else {
             1e-3
         };
+        let duration_s = 1.875 * distance_m.abs() / speed;
         PointToPoint {
             from_m,
             distance_m,
-            duration_s: 1.875 * distance_m.abs() / speed,
+            duration_s,
+            inv_duration: if duration_s > 0.0 {
+                1.0 / duration_s
+            } else {
+                0.0
+            },
         }
     }
 
@@ -80,7 +88,7 @@ impl PointToPoint {
         if t_s <= 0.0 {
             return Setpoint::at_rest(self.from_m);
         }
-        let inv_t = 1.0 / self.duration_s;
+        let inv_t = self.inv_duration;
         let s = t_s * inv_t;
         let s2 = s * s;
         let s3 = s2 * s;

@@ -27,7 +27,18 @@ pub fn safe_outputs_off() {
 fn panic(info: &PanicInfo) -> ! {
     cortex_m::interrupt::disable();
     safe_outputs_off();
-    defmt::error!("panic: {}", defmt::Display2Format(info));
+    // Location and static message only: formatting the message's arguments would link all
+    // of core::fmt (float formatting alone is ~17 KiB of flash).
+    let message = info.message().as_str().unwrap_or("(formatted message)");
+    match info.location() {
+        Some(l) => defmt::error!(
+            "panic at {=str}:{=u32}: {=str}",
+            l.file(),
+            l.line(),
+            message
+        ),
+        None => defmt::error!("panic: {=str}", message),
+    }
     cortex_m::asm::udf()
 }
 
