@@ -1,13 +1,37 @@
-//! The physical plant: piston, end stops, the two motor sections and the rotation servo.
+//! The physical plant: the piston (one moving mass between two heads), the two motor
+//! sections, the rotation, and the gas in both chambers, configured by the machine model.
 //!
-//! State is `f64`; the laws (friction, motor transforms) are the library's own, evaluated in
-//! `f64`. The plant advances in fixed sub-steps inside each 50 µs control period with the
-//! PWM duties held, as the averaged inverter applies them.
+//! `m·ẍ = F_master + F_slave + (p_A − p_B)·A_eff + F_cog(x) − F_fr + F_stop` (`machine.md`;
+//! the cogging force is the library's law, positive toward +x). State is `f64`; every law is
+//! the library's own, evaluated in `f64`. The plant advances in fixed sub-steps inside each
+//! 50 µs control period with the PWM duties held, as the averaged inverter applies them:
+//! currents (explicit), piston (semi-implicit Euler, friction implicit through its secant
+//! coefficient), rotation, then the chambers with the new volumes ([`crate::chambers`]).
+//!
+//! **Friction of a rotating, translating piston**: the sliding surface (radius `bore/2`) moves
+//! with the velocity vector `(ẋ, ω·r)`; the friction law's force, of magnitude `F(|u|)`, acts
+//! against that vector. Its axial part `F·ẋ/|u|` brakes the translation, its tangential part
+//! times `r` loads the servo. While the piston turns, the axial friction no longer sticks at a
+//! reversal: it becomes viscous-like, `F(|u|)/|u|·ẋ`.
+//!
+//! **Sub-steps.** One per control period is accurate for this machine: over 50 µs the
+//! electrical pole moves R·dt/L = 0.5 %, the electrical angle at 4.5 m/s 0.06 rad, the stiffest
+//! mechanical mode (end-stop contact, √(k/m) ≈ 2000 rad/s) ω·dt = 0.1, and the stiff gas flows are
+//! integrated implicitly; `[simulation] substeps_per_period` raises it for checks.
+//!
+//! Line pressures and the port mode are inputs: [`Plant::lines`] (set during a run with
+//! [`Lines::set_pressure_ratio`] and friends) and [`Plant::port_mode`].
 
+use fpc::cogging::CoggingParams;
 use fpc::foc::phase_voltages;
 use fpc::friction::FrictionParams;
-use fpc::motor::{clarke, inverse_clarke, inverse_park, park, Dq, MotorParams};
-use fpc::units::{PerSection, PhaseDuties, Section};
+use fpc::motor::{clarke, AlphaBeta, Dq};
+use fpc::units::{PerSection, PhaseDuties, Section, CONTROL_PERIOD_S};
+
+use crate::chambers::{ChamberParams, Chambers, Lines, PortMode};
+use crate::model::MachineModel;
+use crate::motor_model::{SectionParams, Sections};
+use crate::servo_model::{Rotation, ServoParams};
 
 /// Parameters of the plant, SI.
 #[derive(Clone, Debug, PartialEq)]
@@ -16,42 +40,77 @@ pub struct PlantParams {
     pub mass_kg: f64,
     /// Head-to-head travel, m.
     pub travel_m: f64,
-    /// Friction of the translation.
+    /// Friction law of the sliding surface.
     pub friction: FrictionParams<f64>,
-    /// Motor sections (alike).
-    pub motor: MotorParams<f64>,
+    /// Radius at which the sliding friction acts on the rotation, m.
+    pub friction_radius_m: f64,
     /// End-stop contact stiffness, N/m.
     pub stop_stiffness_n_per_m: f64,
     /// End-stop contact damping, N·s/m.
     pub stop_damping_ns_per_m: f64,
-    /// Rotating inertia, kg·m².
-    pub servo_inertia_kgm2: f64,
-    /// Rotary viscous friction, N·m·s/rad.
-    pub servo_viscous_nms_per_rad: f64,
-    /// Servo torque at full-scale command, N·m.
-    pub servo_torque_full_scale_nm: f64,
-    /// Constant chamber pressures of the simple plant, Pa.
-    pub chamber_pressure_pa: f64,
+    /// Motor sections.
+    pub sections: SectionParams,
+    /// Cogging, if present.
+    pub cogging: Option<CoggingParams<f64>>,
+    /// Chambers, ports, leaks, heat transfer.
+    pub chambers: ChamberParams,
+    /// Rotation.
+    pub servo: ServoParams,
+    /// Suction pressure, Pa, and pressure ratio at the start.
+    pub lines: (f64, f64),
+    /// Suction temperature, K.
+    pub suction_temperature_k: f64,
     /// Sub-steps per control period.
     pub substeps: u32,
 }
 
 impl PlantParams {
-    /// The reference machine with ideal motor sections and no gas (the foundation plant).
-    pub fn reference() -> Self {
+    /// The plant a model describes.
+    pub fn from_model(model: &MachineModel) -> Self {
+        let (piston_leak, rod_leak) = model.leaks();
+        let ht = model.effects.heat_transfer.as_ref();
         PlantParams {
-            mass_kg: 12.0,
-            travel_m: 0.205,
-            friction: FrictionParams::reference(),
-            motor: MotorParams::reference(),
-            stop_stiffness_n_per_m: 5.0e7,
-            stop_damping_ns_per_m: 2.0e4,
-            servo_inertia_kgm2: 2e-3,
-            servo_viscous_nms_per_rad: 1e-3,
-            servo_torque_full_scale_nm: 5.0,
-            chamber_pressure_pa: 101_325.0,
-            substeps: 2,
+            mass_kg: model.piston.mass_kg,
+            travel_m: model.piston.travel_m,
+            friction: model.friction(),
+            friction_radius_m: 0.5 * model.piston.bore_m,
+            stop_stiffness_n_per_m: model.piston.stop_stiffness_n_per_m,
+            stop_damping_ns_per_m: model.piston.stop_damping_ns_per_m,
+            sections: SectionParams {
+                motor: model.motor_sections(),
+                slave_offset_m: model
+                    .effects
+                    .section_misalignment
+                    .as_ref()
+                    .map_or(0.0, |m| m.offset_m),
+                slave_lag_s: model.slave_lag_s(),
+                actuator_lag_s: model.effects.actuator_lag.as_ref().map(|l| l.delay_s),
+            },
+            cogging: model.cogging(),
+            chambers: ChamberParams {
+                cylinder: model.cylinder(),
+                gas: model.gas_properties(),
+                ports: model.port_geometry(),
+                port_area_scale: model.port_area_scale(),
+                piston_leak,
+                rod_leak,
+                ua_w_per_k: ht.map_or(0.0, |h| h.ua_w_per_k),
+                wall_temperature_k: ht
+                    .and_then(|h| h.wall_temperature_k)
+                    .unwrap_or(model.gas.temperature_k),
+                ambient_pa: model.gas.ambient_pa,
+                ambient_temperature_k: model.gas.temperature_k,
+            },
+            servo: ServoParams::from_model(&model.servo),
+            lines: (model.lines.suction_pa, model.lines.pressure_ratio),
+            suction_temperature_k: model.gas.temperature_k,
+            substeps: model.simulation.substeps_per_period,
         }
+    }
+
+    /// The reference machine (the embedded model file).
+    pub fn reference() -> Self {
+        Self::from_model(&MachineModel::reference())
     }
 }
 
@@ -60,7 +119,7 @@ impl PlantParams {
 pub struct Drive {
     /// Duties of both sections, or `None` when the outputs are off.
     pub duties: Option<PerSection<PhaseDuties>>,
-    /// Servo torque, N·m.
+    /// Servo torque command, N·m.
     pub servo_torque_nm: f64,
 }
 
@@ -75,105 +134,156 @@ pub struct Plant {
     pub v_mps: f64,
     /// Piston acceleration of the last sub-step, m/s².
     pub a_mps2: f64,
-    /// Rotation angle, rad.
-    pub theta_rad: f64,
-    /// Rotation speed, rad/s.
-    pub omega_rad_s: f64,
-    /// d/q currents of each section, A.
+    /// The rotation (servo side and piston side).
+    pub rotation: Rotation,
+    /// The motor sections.
+    pub motors: Sections,
+    /// d/q currents of each section (copy of `motors.current`), A.
     pub current: PerSection<Dq<f64>>,
-    /// Force of each section in the last sub-step, N.
+    /// Force of each section in the last sub-step (copy of `motors.force_n`), N.
     pub force_n: PerSection<f64>,
     /// Force of the end stops in the last sub-step, N.
     pub stop_force_n: f64,
+    /// Axial friction force in the last sub-step (opposing +x motion when positive), N.
+    pub friction_force_n: f64,
+    /// Cogging force in the last sub-step, toward +x, N.
+    pub cogging_force_n: f64,
+    /// The two chambers.
+    pub chambers: Chambers,
+    /// Suction and discharge lines (an input: set them during a run).
+    pub lines: Lines,
+    /// How the chambers connect to the lines (an input).
+    pub port_mode: PortMode,
+    /// Stator-frame voltages of the period being simulated.
+    voltages: PerSection<AlphaBeta<f64>>,
 }
 
 impl Plant {
-    /// A plant at rest at `x_m`.
+    /// A plant at rest at `x_m`, chambers at ambient pressure, ports timed by the rotation.
     pub fn new(params: PlantParams, x_m: f64) -> Self {
+        let dt = CONTROL_PERIOD_S as f64 / f64::from(params.substeps.max(1));
+        let (suction_pa, pr) = params.lines;
+        let c = &params.chambers;
+        let lines = Lines::new(suction_pa, params.suction_temperature_k, pr, c.gas.gamma);
+        let chambers = Chambers::new(c.clone(), x_m, c.ambient_pa, c.ambient_temperature_k);
+        let motors = Sections::new(params.sections.clone(), x_m, dt);
         Plant {
-            params,
             x_m,
             v_mps: 0.0,
             a_mps2: 0.0,
-            theta_rad: 0.0,
-            omega_rad_s: 0.0,
-            current: PerSection::default(),
-            force_n: PerSection::default(),
+            rotation: Rotation::default(),
+            current: motors.current,
+            force_n: motors.force_n,
+            motors,
             stop_force_n: 0.0,
+            friction_force_n: 0.0,
+            cogging_force_n: 0.0,
+            chambers,
+            lines,
+            port_mode: PortMode::Timed,
+            voltages: PerSection::default(),
+            params,
         }
     }
 
-    /// Electrical angle of a section at the current position, rad.
+    /// Electrical angle of the master section at the current position, rad.
     pub fn electrical_angle(&self) -> f64 {
-        2.0 * core::f64::consts::PI * self.x_m / self.params.motor.electrical_period_m
+        std::f64::consts::TAU * self.x_m / self.motors.electrical_period_m()
     }
 
     /// Phase currents of `section`, A.
     pub fn phase_currents(&self, section: Section) -> [f64; 3] {
-        let th = self.electrical_angle();
-        inverse_clarke(inverse_park(*self.current.get(section), th.sin(), th.cos()))
+        self.motors.phase_currents(section)
+    }
+
+    /// Rotation phase of the piston, φ = θ mod 2π, rad (what times the ports).
+    pub fn port_phase_rad(&self) -> f64 {
+        let turn = std::f64::consts::TAU;
+        let a = self.rotation.piston_angle_rad;
+        // floor by conversion (cheaper than `rem_euclid`'s fmod); exact for |a| < 2⁶³ turns.
+        let turns = (a / turn) as i64 as f64;
+        let phase = a - turns * turn;
+        if phase < 0.0 {
+            phase + turn
+        } else {
+            phase
+        }
     }
 
     /// Advances the plant by `period_s` with `drive` held.
     pub fn advance(&mut self, drive: &Drive, period_s: f64) {
         let n = self.params.substeps.max(1);
         let dt = period_s / f64::from(n);
+        if let Some(d) = &drive.duties {
+            // The duties are held over the period: their stator-frame voltages once.
+            let ab = |s: Section| {
+                let bus = self.params.sections.motor.get(s).bus_voltage_v;
+                clarke(phase_voltages(d.get(s), bus))
+            };
+            self.voltages = PerSection {
+                master: ab(Section::Master),
+                slave: ab(Section::Slave),
+            };
+        }
         for _ in 0..n {
-            self.substep(drive, dt);
+            self.substep(drive.duties.is_some(), drive.servo_torque_nm, dt);
         }
     }
 
-    fn substep(&mut self, drive: &Drive, dt: f64) {
+    fn substep(&mut self, powered: bool, servo_torque_nm: f64, dt: f64) {
+        let voltages = self.voltages;
+        self.motors
+            .step(powered.then_some(&voltages), self.v_mps, dt);
+        self.current = self.motors.current;
+        self.force_n = self.motors.force_n;
+
         let p = &self.params;
-        let m = &p.motor;
-        let th = self.electrical_angle();
-        let (s, c) = th.sin_cos();
-        let we = m.electrical_speed(self.v_mps);
-        let ke = m.back_emf_v_per_mps();
-        for section in Section::ALL {
-            let i = *self.current.get(section);
-            let next = match &drive.duties {
-                Some(d) => {
-                    let v = park(
-                        clarke(phase_voltages(d.get(section), m.bus_voltage_v)),
-                        s,
-                        c,
-                    );
-                    // dq voltage equations with motional coupling and back-EMF on q.
-                    let did =
-                        (v.d - m.resistance_ohm * i.d + we * m.inductance_h * i.q) / m.inductance_h;
-                    let diq = (v.q
-                        - m.resistance_ohm * i.q
-                        - we * m.inductance_h * i.d
-                        - ke * self.v_mps)
-                        / m.inductance_h;
-                    Dq {
-                        d: i.d + did * dt,
-                        q: i.q + diq * dt,
-                    }
-                }
-                // Outputs off: the bridge is open, the currents decay through the diodes
-                // within a few µs — modelled as zero current.
-                None => Dq::default(),
-            };
-            *self.current.get_mut(section) = next;
-            *self.force_n.get_mut(section) = m.force_constant_n_per_a * next.q;
-        }
         let stop = self.stop_force();
         self.stop_force_n = stop;
-        let force =
-            self.force_n.master + self.force_n.slave + stop - p.friction.force_n(self.v_mps);
-        self.a_mps2 = force / p.mass_kg;
-        // Semi-implicit Euler: stable for the stiff end stops at this step.
-        self.v_mps += self.a_mps2 * dt;
-        self.x_m += self.v_mps * dt;
+        self.cogging_force_n = p.cogging.as_ref().map_or(0.0, |c| c.force_n(self.x_m));
+        let r = p.friction_radius_m;
+        let tangential = self.rotation.piston_speed_rad_s * r;
+        let slip = (self.v_mps * self.v_mps + tangential * tangential)
+            .sqrt()
+            .max(1e-9);
+        let secant = p.friction.force_n(slip) / slip;
+        let driving = self.force_n.master
+            + self.force_n.slave
+            + self.chambers.gas_force_n()
+            + self.cogging_force_n
+            + stop;
+        let m = p.mass_kg;
+        let v_new = (self.v_mps + dt * driving / m) / (1.0 + dt * secant / m);
+        self.friction_force_n = secant * v_new;
+        self.a_mps2 = (v_new - self.v_mps) / dt;
+        self.v_mps = v_new;
+        self.x_m += v_new * dt;
 
-        let torque = drive
-            .servo_torque_nm
-            .clamp(-p.servo_torque_full_scale_nm, p.servo_torque_full_scale_nm)
-            - p.servo_viscous_nms_per_rad * self.omega_rad_s;
-        self.omega_rad_s += torque / p.servo_inertia_kgm2 * dt;
-        self.theta_rad += self.omega_rad_s * dt;
+        self.rotation
+            .step(&p.servo, servo_torque_nm, secant * r * r, dt);
+        self.motors.set_position(self.x_m);
+        let phase = self.port_phase_rad();
+        self.chambers
+            .step(self.x_m, phase, &self.lines, self.port_mode, dt);
+    }
+
+    /// Moves the piston along a prescribed path (kinematic drive, for physics checks): the
+    /// piston goes to `x_m` and turns to `piston_angle_rad` over `dt_s`, the gas follows. The
+    /// motors, servo and end stops are bypassed.
+    pub fn advance_kinematic(&mut self, x_m: f64, piston_angle_rad: f64, dt_s: f64) {
+        let v = (x_m - self.x_m) / dt_s;
+        self.a_mps2 = (v - self.v_mps) / dt_s;
+        self.v_mps = v;
+        self.x_m = x_m;
+        let r = &mut self.rotation;
+        r.piston_speed_rad_s = (piston_angle_rad - r.piston_angle_rad) / dt_s;
+        r.servo_speed_rad_s = r.piston_speed_rad_s;
+        r.piston_angle_rad = piston_angle_rad;
+        r.servo_angle_rad = piston_angle_rad;
+        self.motors.set_position(x_m);
+        let phase = self.port_phase_rad();
+        self.chambers
+            .step(self.x_m, phase, &self.lines, self.port_mode, dt_s);
     }
 
     /// Contact force of the heads (penalty: spring and damper while penetrating), N.

@@ -4,59 +4,26 @@
 //! Time advances only in [`World::advance`], one control period at a time, so a run is
 //! deterministic: the same seed gives the same samples bit for bit. As on the board, the
 //! burst is sampled at the start of a period and the duties the control task writes act
-//! during the next period (one period of transport delay).
+//! during the next period (one period of transport delay). What the sensors make of the plant
+//! (errors, noise, lag, quantisation) is [`crate::sensors`].
 
 use std::cell::RefCell;
 use std::future::poll_fn;
 use std::rc::Rc;
 use std::task::Poll;
 
-use fpc::encoder::NOMINAL_AMPLITUDE_CODES;
-use fpc::foc::CurrentSense;
 use fpc::ports::{
     Clock, CurrentInput, CycleTrigger, EncoderCodes, EncoderInput, PhaseCurrentCodes,
     PressureCodes, PressureInput, PwmOutput, QuadratureInput, SinCosCodes, Sleep, TorqueOutput,
     Watchdog,
 };
-use fpc::pressure::PressureCalibration;
 use fpc::servo::torque_of_code;
-use fpc::units::{AdcCode, DacCode, PerSection, PhaseDuties, Section, Ticks, CONTROL_PERIOD_US};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
-use rand_distr::StandardNormal;
+use fpc::units::{DacCode, PerSection, PhaseDuties, Section, Ticks, CONTROL_PERIOD_US};
 
-use crate::plant::{Drive, Plant};
-
-/// Sensor models of the simulated board.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Sensors {
-    /// Encoder period λ, m.
-    pub encoder_period_m: f64,
-    /// Encoder signal amplitude at the ADC, codes.
-    pub encoder_amplitude_codes: f64,
-    /// Encoder noise, codes RMS per channel.
-    pub encoder_noise_codes: f64,
-    /// Current sensing (same calibration as the firmware's reference).
-    pub current: CurrentSense,
-    /// Pressure sensing.
-    pub pressure: PressureCalibration,
-    /// Servo encoder counts per revolution.
-    pub counts_per_rev: u32,
-}
-
-impl Sensors {
-    /// Ideal reference sensors (quantisation only).
-    pub fn reference() -> Self {
-        Sensors {
-            encoder_period_m: 0.024,
-            encoder_amplitude_codes: f64::from(NOMINAL_AMPLITUDE_CODES),
-            encoder_noise_codes: 0.0,
-            current: CurrentSense::reference(),
-            pressure: PressureCalibration::reference(),
-            counts_per_rev: 4096,
-        }
-    }
-}
+use crate::model::MachineModel;
+use crate::plant::{Drive, Plant, PlantParams};
+pub use crate::sensors::Sensors;
+use crate::sensors::{adc, EncoderModel, Noise, PRESSURE_CHANNELS};
 
 /// Everything the simulated board holds.
 #[derive(Clone)]
@@ -76,7 +43,13 @@ pub struct World {
     pub servo_code: DacCode,
     /// Simulated time of the last watchdog feed, µs since the start.
     pub watchdog_fed_us: u64,
-    rng: ChaCha8Rng,
+    /// What the firmware's telemetry task sent up the (simulated) RTT channel.
+    pub telemetry: crate::capture::TelemetryCapture,
+    noise: Noise,
+    /// The pressure sensors' lagged readings, Pa (A, B, suction, discharge).
+    pressure_lagged_pa: [f64; PRESSURE_CHANNELS],
+    /// Per-period factor of the pressure sensors' first-order lag.
+    pressure_alpha: f64,
 }
 
 #[derive(Clone, Copy, Debug, Default)]
@@ -90,7 +63,15 @@ struct Burst {
 impl World {
     /// A world at simulated time zero (the time base reads `start_us`, to exercise its wrap).
     pub fn new(plant: Plant, sensors: Sensors, seed: u64, start_us: u32) -> Self {
+        let period_s = f64::from(CONTROL_PERIOD_US) * 1e-6;
+        let tau = sensors.pressure.time_constant_s;
+        let pressure_alpha = if tau > 0.0 {
+            1.0 - (-period_s / tau).exp()
+        } else {
+            1.0
+        };
         let mut w = World {
+            pressure_lagged_pa: true_pressures(&plant),
             plant,
             sensors,
             cycle: 0,
@@ -100,10 +81,24 @@ impl World {
             enabled: false,
             servo_code: DacCode::MID,
             watchdog_fed_us: 0,
-            rng: ChaCha8Rng::seed_from_u64(seed),
+            telemetry: Default::default(),
+            noise: Noise::new(seed),
+            pressure_alpha,
         };
         w.sample();
         w
+    }
+
+    /// The simulated board of a machine model, with the piston resting at
+    /// `start_position_m`.
+    pub fn from_model(
+        model: &MachineModel,
+        seed: u64,
+        start_us: u32,
+        start_position_m: f64,
+    ) -> Self {
+        let plant = Plant::new(PlantParams::from_model(model), start_position_m);
+        World::new(plant, Sensors::from_model(model), seed, start_us)
     }
 
     /// Control cycles simulated so far.
@@ -134,7 +129,7 @@ impl World {
             duties: self.enabled.then_some(self.duties),
             servo_torque_nm: f64::from(torque_of_code(
                 self.servo_code,
-                self.plant.params.servo_torque_full_scale_nm as f32,
+                self.plant.params.servo.torque_full_scale_nm as f32,
             )),
         };
         self.plant
@@ -143,55 +138,77 @@ impl World {
         self.sample();
     }
 
-    fn noise(&mut self, sigma: f64) -> f64 {
-        if sigma == 0.0 {
-            0.0
-        } else {
-            sigma * self.rng.sample::<f64, _>(StandardNormal)
-        }
-    }
-
-    fn code(v: f64) -> AdcCode {
-        AdcCode(v.round().clamp(0.0, 4095.0) as u16)
-    }
-
     fn sample(&mut self) {
-        let s = self.sensors.clone();
-        let th = 2.0 * std::f64::consts::PI * self.plant.x_m / s.encoder_period_m;
-        let channel =
-            |w: &mut World, v: f64| Self::code(2048.0 + v + w.noise(s.encoder_noise_codes));
-        let a = s.encoder_amplitude_codes;
-        let master = SinCosCodes {
-            sin: channel(self, a * th.sin()),
-            cos: channel(self, a * th.cos()),
+        let s = &self.sensors;
+        let plant = &self.plant;
+        let noise = &mut self.noise;
+        let x = plant.x_m;
+        let encoder = |m: &EncoderModel, x_read: f64, noise: &mut Noise| {
+            let (sin, cos) = m.signals(x_read);
+            SinCosCodes {
+                sin: adc(sin + noise.scaled(m.noise_codes)),
+                cos: adc(cos + noise.scaled(m.noise_codes)),
+            }
         };
-        let slave = SinCosCodes {
-            sin: channel(self, a * th.sin()),
-            cos: channel(self, a * th.cos()),
+        let master = encoder(&s.encoder_master, x, noise);
+        let x_slave = s.slave_pitch_error.map_or(x, |e| e.read_m(x));
+        let slave = encoder(&s.encoder_slave, x_slave, noise);
+
+        let per_code = f64::from(s.current.a_per_code);
+        let mut current = |section: Section| {
+            let offsets = s.current_offset_a.get(section);
+            let i = plant.phase_currents(section);
+            let mut codes = [adc(0.0); 3];
+            for ((code, a), off) in codes.iter_mut().zip(i).zip(offsets) {
+                *code = adc(2048.0 + (a + off + noise.scaled(s.current_noise_a)) / per_code);
+            }
+            codes
         };
-        let current =
-            |i: [f64; 3]| i.map(|a| Self::code(2048.0 + a / f64::from(s.current.a_per_code)));
+        let currents = PerSection {
+            master: current(Section::Master),
+            slave: current(Section::Slave),
+        };
+
         let counts =
-            self.plant.theta_rad / (2.0 * std::f64::consts::PI) * f64::from(s.counts_per_rev);
-        let p = s
-            .pressure
-            .code_for(self.plant.params.chamber_pressure_pa as f32);
+            plant.rotation.servo_angle_rad / std::f64::consts::TAU * f64::from(s.counts_per_rev);
+
+        let p = &s.pressure;
+        let truth = true_pressures(plant);
+        let mut codes = [adc(0.0); PRESSURE_CHANNELS];
+        for (((code, lagged), t), off) in codes
+            .iter_mut()
+            .zip(self.pressure_lagged_pa.iter_mut())
+            .zip(truth)
+            .zip(p.offset_pa)
+        {
+            *lagged += self.pressure_alpha * (t - *lagged);
+            let reading = *lagged + off + noise.scaled(p.noise_pa);
+            *code = p.calibration.code_for(reading as f32);
+        }
+        let [chamber_a, chamber_b, suction, discharge] = codes;
         self.burst = Burst {
             encoders: EncoderCodes { master, slave },
-            currents: PerSection {
-                master: current(self.plant.phase_currents(Section::Master)),
-                slave: current(self.plant.phase_currents(Section::Slave)),
-            },
+            currents,
             // The hardware counter wraps at 16 bits.
             quadrature: counts.floor() as i64 as u16,
             pressures: PressureCodes {
-                chamber_a: p,
-                chamber_b: p,
-                suction: p,
-                discharge: p,
+                chamber_a,
+                chamber_b,
+                suction,
+                discharge,
             },
         };
     }
+}
+
+/// The true pressures the four sensors see: chamber A, chamber B, suction, discharge, Pa.
+fn true_pressures(plant: &Plant) -> [f64; PRESSURE_CHANNELS] {
+    [
+        plant.chambers.a.pressure_pa,
+        plant.chambers.b.pressure_pa,
+        plant.lines.suction_pa,
+        plant.lines.discharge_pa,
+    ]
 }
 
 /// A shared handle on the world, as every simulated peripheral holds one.
@@ -327,5 +344,64 @@ pub fn clock(world: &WorldRef) -> SimClock {
 pub fn watchdog(world: &WorldRef) -> SimWatchdog {
     SimWatchdog {
         world: world.clone(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn model_with(extra: &str) -> MachineModel {
+        MachineModel::parse(&format!("{}\n{extra}", crate::model::REFERENCE_TOML)).unwrap()
+    }
+
+    /// Position within a period read back from sin/cos codes, m.
+    fn decode(codes: SinCosCodes, period_m: f64) -> f64 {
+        let (s, c) = (
+            f64::from(codes.sin.0) - 2048.0,
+            f64::from(codes.cos.0) - 2048.0,
+        );
+        s.atan2(c).rem_euclid(std::f64::consts::TAU) / std::f64::consts::TAU * period_m
+    }
+
+    #[test]
+    fn the_slave_encoder_reads_the_pitch_error() {
+        let mut m =
+            model_with("[effects.encoder_pitch_error]\namplitude_m = 2e-4\nperiod_m = 0.024\n");
+        m.sensors.encoder_master.noise_codes = 0.0;
+        m.sensors.encoder_slave.noise_codes = 0.0;
+        let w = World::from_model(&m, 1, 0, 0.006); // a quarter period: sin = 1
+        let e = w.burst.encoders;
+        let diff = decode(e.slave, 0.024) - decode(e.master, 0.024);
+        assert!((diff - 2e-4).abs() < 5e-6, "{diff}");
+    }
+
+    #[test]
+    fn pressure_sensors_lag_and_carry_their_offset() {
+        let mut m = MachineModel::reference();
+        m.sensors.pressure.noise_pa = 0.0;
+        m.sensors.pressure.time_constant_s = 1e-3;
+        m.sensors.pressure.offset_a_pa = 2e4;
+        let mut w = World::from_model(&m, 1, 0, 0.1);
+        let cal = w.sensors.pressure.calibration;
+        let p0 = w.plant.chambers.a.pressure_pa;
+        let read = |w: &World| f64::from(cal.convert(w.burst.pressures.chamber_a).pressure_pa);
+        assert!((read(&w) - (p0 + 2e4)).abs() < 400.0);
+        // A step of the true pressure: after one 50 µs period the sensor has moved ≈ 5 %.
+        w.plant.port_mode = crate::chambers::PortMode::Closed;
+        w.plant.chambers.a.pressure_pa = p0 + 4e5;
+        w.sample();
+        let moved = (read(&w) - (p0 + 2e4)) / 4e5;
+        assert!((moved - (1.0 - (-0.05f64).exp())).abs() < 0.01, "{moved}");
+    }
+
+    #[test]
+    fn the_quadrature_counter_counts_the_servo_angle_and_wraps() {
+        let mut w = World::from_model(&MachineModel::reference(), 1, 0, 0.1);
+        w.plant.rotation.servo_angle_rad = 20.0 * std::f64::consts::TAU + 0.5;
+        w.sample();
+        // 20 turns and 0.5 rad: 82 245 counts, which the 16-bit counter shows modulo 65 536.
+        let expected = (20.0 * 4096.0 + 0.5 / std::f64::consts::TAU * 4096.0).floor() as i64 as u16;
+        assert_eq!(w.burst.quadrature, expected);
     }
 }

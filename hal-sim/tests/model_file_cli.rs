@@ -1,0 +1,99 @@
+//! `fpc-sim run --model FILE`: the minimal model file of `formats.md` §2 runs; an unknown
+//! key, a missing required key or a non-physical value is refused with exit code 2 and one
+//! line on stderr naming the key.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+const MINIMAL: &str = r#"
+[piston]
+mass_kg = 12.0
+bore_m = 0.090
+rod_m = 0.020
+travel_m = 0.205          # head to head; x in [0, travel_m]
+dead_length_a_m = 0.0005  # dead volume of chamber A as a length of bore
+dead_length_b_m = 0.0005
+
+[friction]
+coulomb_n = 40.0
+viscous_ns_per_m = 25.0
+# optional Stribeck: static_n, stribeck_velocity_mps, stribeck_exponent
+
+[gas]
+gamma = 1.4
+gas_constant_j_per_kg_k = 287.0
+temperature_k = 293.15
+ambient_pa = 101325.0
+
+[motor]
+pole_pitch_m = 0.012
+slave_follows_master = true   # the slave section is commanded with the master's force
+
+[encoder]
+period_m = 0.024
+"#;
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("fpc_model_cli_{name}_{}", std::process::id()));
+    let _ = std::fs::create_dir_all(&d);
+    d
+}
+
+/// Runs `fpc-sim run --model <text> --cycles 1`; returns (exit code, stderr).
+fn run_with(name: &str, text: &str) -> (i32, String) {
+    let d = dir(name);
+    let model = d.join("model.toml");
+    std::fs::write(&model, text).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_fpc-sim"))
+        .args(["run", "--cycles", "1", "--model"])
+        .arg(&model)
+        .arg("--out")
+        .arg(d.join("out"))
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn the_minimal_model_file_runs() {
+    let (code, err) = run_with("minimal", MINIMAL);
+    println!("minimal model: exit {code}: {}", err.trim());
+    assert_eq!(code, 0, "{err}");
+}
+
+#[test]
+fn bad_model_files_exit_2_naming_the_key() {
+    let cases = [
+        (
+            "unknown",
+            MINIMAL.replace("coulomb_n = 40.0", "coulomb_n = 40.0\ncolumb_n = 40.0"),
+            "columb_n",
+        ),
+        ("missing", MINIMAL.replace("bore_m = 0.090\n", ""), "bore_m"),
+        (
+            "negative_mass",
+            MINIMAL.replace("mass_kg = 12.0", "mass_kg = -12.0"),
+            "piston.mass_kg",
+        ),
+        (
+            "zero_period",
+            format!("{MINIMAL}\n[effects.cogging]\namplitude_n = 30.0\nperiod_m = 0.0\n"),
+            "effects.cogging.period_m",
+        ),
+        (
+            "unknown_effect",
+            format!("{MINIMAL}\n[effects.coging]\namplitude_n = 30.0\n"),
+            "coging",
+        ),
+    ];
+    for (name, text, key) in cases {
+        let (code, err) = run_with(name, &text);
+        println!("{name}: exit {code}: {}", err.trim());
+        assert_eq!(code, 2, "{name}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+        assert!(err.contains(key), "{name}: `{key}` not named in {err}");
+    }
+}

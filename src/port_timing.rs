@@ -1,0 +1,331 @@
+//! Port timing: which port of which chamber is open at a given rotation phase of the piston.
+//!
+//! The piston rotates monotonically, one revolution per compression cycle (A → B → A); its
+//! slots sweep past the cylinder's ports, so each port is open over a fixed window of the
+//! rotation phase `φ = θ mod 2π`. Phase 0 is dead point A (x at its smallest, chamber A at its
+//! dead volume); the stroke A → B takes φ from 0 to π, the stroke B → A from π to 2π:
+//!
+//! | port | window (reference) | role |
+//! |---|---|---|
+//! | intake A | 0 … π | open through A's whole suction stroke |
+//! | discharge A | 288° … 360° | opens when A has reached the discharge pressure |
+//! | intake B | π … 2π | B's suction stroke |
+//! | discharge B | 108° … 180° | as A, shifted by π |
+//!
+//! The window *edges are fixed geometry*. The volume ratio is set by *when* the rotation
+//! crosses an edge: the rotary synchroniser shapes θ(t) so that the discharge edge is crossed
+//! at the planned piston position. Reversing the rotation traverses the windows in reverse
+//! order, so the discharge window admits high-pressure gas at the start of the stroke and the
+//! intake window exhausts it: the machine runs as an expander.
+//!
+//! Each window opens and closes over a ramp of `ramp_rad` (a slot edge sweeping across the
+//! port), shaped as a smoothstep so the open fraction is continuous with its slope; the
+//! window's edge angle is where the port *starts* to open (or has just closed). The open
+//! fraction scales the port's effective flow area `C_d·A`.
+//!
+//! One geometry for the simulator's plant (`f64`) and the firmware's synchroniser (`f32`).
+
+use crate::real::Real;
+
+/// The four ports.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Port {
+    /// Intake (suction) port of chamber A.
+    IntakeA,
+    /// Discharge port of chamber A.
+    DischargeA,
+    /// Intake port of chamber B.
+    IntakeB,
+    /// Discharge port of chamber B.
+    DischargeB,
+}
+
+impl Port {
+    /// All four, in the order of [`PortOpenings`].
+    pub const ALL: [Port; 4] = [
+        Port::IntakeA,
+        Port::DischargeA,
+        Port::IntakeB,
+        Port::DischargeB,
+    ];
+}
+
+/// One port's window in rotation phase: open from `open_rad` going forward to `close_rad`
+/// (the window may contain phase 0, e.g. 300° … 20°). Both in [0, 2π].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PortWindow<T> {
+    /// Leading edge (where the port starts to open with forward rotation), rad.
+    pub open_rad: T,
+    /// Trailing edge (where it has just closed), rad.
+    pub close_rad: T,
+}
+
+impl<T: Real> PortWindow<T> {
+    /// A window from `open_deg` to `close_deg`, in degrees.
+    pub fn from_degrees(open_deg: T, close_deg: T) -> Self {
+        let k = T::PI / T::of(180.0);
+        PortWindow {
+            open_rad: open_deg * k,
+            close_rad: close_deg * k,
+        }
+    }
+
+    /// Angular length of the window, rad, in (0, 2π] (equal edges: a full turn).
+    #[inline]
+    pub fn span_rad(&self) -> T {
+        let s = wrap_phase_rad(self.close_rad - self.open_rad);
+        if s > T::ZERO {
+            s
+        } else {
+            T::of(2.0) * T::PI
+        }
+    }
+
+    /// Open fraction 0..1 at `phase_rad` in [0, 2π) with ramps of `ramp_rad` at both edges.
+    #[inline]
+    pub fn fraction(&self, phase_rad: T, ramp_rad: T) -> T {
+        let into = wrap_phase_rad(phase_rad - self.open_rad);
+        let span = self.span_rad();
+        if into >= span {
+            return T::ZERO;
+        }
+        let edge = into.min(span - into);
+        if ramp_rad > T::ZERO {
+            smoothstep(edge / ramp_rad)
+        } else if edge > T::ZERO {
+            T::ONE
+        } else {
+            T::ZERO
+        }
+    }
+}
+
+/// `3t² − 2t³` on t clamped to [0, 1].
+#[inline]
+fn smoothstep<T: Real>(t: T) -> T {
+    let t = t.max(T::ZERO).min(T::ONE);
+    t * t * (T::of(3.0) - T::of(2.0) * t)
+}
+
+/// Wraps an angle within one turn of [0, 2π) into [0, 2π) (inputs in (−2π, 4π) are exact;
+/// others are brought one turn closer). The plant and the firmware wrap the unwrapped
+/// rotation angle themselves (`rem_euclid`, or a wrapping fixed-point angle).
+#[inline]
+pub fn wrap_phase_rad<T: Real>(angle_rad: T) -> T {
+    let turn = T::of(2.0) * T::PI;
+    if angle_rad < T::ZERO {
+        angle_rad + turn
+    } else if angle_rad >= turn {
+        angle_rad - turn
+    } else {
+        angle_rad
+    }
+}
+
+/// Open fraction (0 = closed, 1 = fully open) of each port.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PortOpenings<T> {
+    /// Intake of chamber A.
+    pub intake_a: T,
+    /// Discharge of chamber A.
+    pub discharge_a: T,
+    /// Intake of chamber B.
+    pub intake_b: T,
+    /// Discharge of chamber B.
+    pub discharge_b: T,
+}
+
+impl<T: Copy> PortOpenings<T> {
+    /// The value for `port`.
+    #[inline]
+    pub fn get(&self, port: Port) -> T {
+        match port {
+            Port::IntakeA => self.intake_a,
+            Port::DischargeA => self.discharge_a,
+            Port::IntakeB => self.intake_b,
+            Port::DischargeB => self.discharge_b,
+        }
+    }
+}
+
+/// The port geometry of the machine: windows, ramp and flow areas.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PortGeometry<T> {
+    /// Intake window of chamber A.
+    pub intake_a: PortWindow<T>,
+    /// Discharge window of chamber A.
+    pub discharge_a: PortWindow<T>,
+    /// Intake window of chamber B.
+    pub intake_b: PortWindow<T>,
+    /// Discharge window of chamber B.
+    pub discharge_b: PortWindow<T>,
+    /// Angular width of the opening (and closing) ramp, rad (≥ 0).
+    pub ramp_rad: T,
+    /// Geometric area of an intake port fully open, m².
+    pub intake_area_m2: T,
+    /// Geometric area of a discharge port fully open, m².
+    pub discharge_area_m2: T,
+    /// Discharge coefficient C_d of the ports (effective area = C_d·A·open fraction).
+    pub discharge_coefficient: T,
+}
+
+impl<T: Real> PortGeometry<T> {
+    /// The reference machine (**A**, the paper gives no port geometry): windows of the table
+    /// above, 6° ramps, 5 cm² ports (about 2 % pressure drop at 4 m/s), C_d 0.8. The discharge
+    /// edge at 288° is where a sinusoidal stroke with uniform rotation reaches the
+    /// discharge-opening volume of PR ≈ 4 (V/V₀ ≈ 0.37); the synchroniser moves the crossing
+    /// to the position each pressure ratio needs.
+    pub fn reference() -> Self {
+        PortGeometry {
+            intake_a: PortWindow::from_degrees(T::ZERO, T::of(180.0)),
+            discharge_a: PortWindow::from_degrees(T::of(288.0), T::of(360.0)),
+            intake_b: PortWindow::from_degrees(T::of(180.0), T::of(360.0)),
+            discharge_b: PortWindow::from_degrees(T::of(108.0), T::of(180.0)),
+            ramp_rad: T::of(6.0) * T::PI / T::of(180.0),
+            intake_area_m2: T::of(5e-4),
+            discharge_area_m2: T::of(5e-4),
+            discharge_coefficient: T::of(0.8),
+        }
+    }
+
+    /// The window of `port`.
+    #[inline]
+    pub fn window(&self, port: Port) -> &PortWindow<T> {
+        match port {
+            Port::IntakeA => &self.intake_a,
+            Port::DischargeA => &self.discharge_a,
+            Port::IntakeB => &self.intake_b,
+            Port::DischargeB => &self.discharge_b,
+        }
+    }
+
+    /// Phase at which `port` starts to open with forward rotation, rad.
+    #[inline]
+    pub fn opening_edge_rad(&self, port: Port) -> T {
+        self.window(port).open_rad
+    }
+
+    /// Phase at which `port` has just closed with forward rotation, rad.
+    #[inline]
+    pub fn closing_edge_rad(&self, port: Port) -> T {
+        self.window(port).close_rad
+    }
+
+    /// Phase at which `port` is half open on its opening ramp, rad (wrapped to [0, 2π)) —
+    /// the effective opening instant for timing the discharge.
+    #[inline]
+    pub fn half_open_rad(&self, port: Port) -> T {
+        let w = self.window(port);
+        let half_ramp = (T::of(0.5) * self.ramp_rad).min(T::of(0.5) * w.span_rad());
+        wrap_phase_rad(w.open_rad + half_ramp)
+    }
+
+    /// Open fraction of every port at rotation phase `phase_rad` ∈ [0, 2π).
+    #[inline]
+    pub fn openings(&self, phase_rad: T) -> PortOpenings<T> {
+        let r = self.ramp_rad;
+        PortOpenings {
+            intake_a: self.intake_a.fraction(phase_rad, r),
+            discharge_a: self.discharge_a.fraction(phase_rad, r),
+            intake_b: self.intake_b.fraction(phase_rad, r),
+            discharge_b: self.discharge_b.fraction(phase_rad, r),
+        }
+    }
+
+    /// Effective flow area C_d·A of `port` at open fraction `fraction`, m².
+    #[inline]
+    pub fn effective_area_m2(&self, port: Port, fraction: T) -> T {
+        let area = match port {
+            Port::IntakeA | Port::IntakeB => self.intake_area_m2,
+            Port::DischargeA | Port::DischargeB => self.discharge_area_m2,
+        };
+        self.discharge_coefficient * area * fraction
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn deg(d: f64) -> f64 {
+        d.to_radians()
+    }
+
+    #[test]
+    fn reference_windows_open_in_the_right_strokes() {
+        let g = PortGeometry::<f64>::reference();
+        // Mid A→B stroke: A sucks, B compresses (closed).
+        let o = g.openings(deg(60.0));
+        assert_eq!(
+            (o.intake_a, o.discharge_a, o.intake_b, o.discharge_b),
+            (1.0, 0.0, 0.0, 0.0)
+        );
+        // Late A→B stroke: B discharges.
+        let o = g.openings(deg(150.0));
+        assert_eq!((o.intake_a, o.discharge_b), (1.0, 1.0));
+        // Mid B→A stroke: B sucks, A compresses.
+        let o = g.openings(deg(250.0));
+        assert_eq!(
+            (o.intake_a, o.discharge_a, o.intake_b, o.discharge_b),
+            (0.0, 0.0, 1.0, 0.0)
+        );
+        let o = g.openings(deg(320.0));
+        assert_eq!((o.discharge_a, o.intake_b), (1.0, 1.0));
+        // At the dead points every window is at an edge: all closed, no short circuit.
+        for p in [0.0, deg(180.0)] {
+            let o = g.openings(p);
+            assert_eq!(o.intake_a + o.discharge_a + o.intake_b + o.discharge_b, 0.0);
+        }
+    }
+
+    #[test]
+    fn ramps_are_continuous_and_monotonic() {
+        let g = PortGeometry::<f64>::reference();
+        let edge = g.opening_edge_rad(Port::DischargeA);
+        let mut last = 0.0;
+        for i in 0..=200 {
+            let f = g.openings(edge + g.ramp_rad * i as f64 / 200.0).discharge_a;
+            assert!(f >= last && f - last < 0.02);
+            last = f;
+        }
+        assert!((last - 1.0).abs() < 1e-12);
+        let half = g.openings(g.half_open_rad(Port::DischargeA)).discharge_a;
+        assert!((half - 0.5).abs() < 1e-9);
+        assert!((g.closing_edge_rad(Port::DischargeA) - 2.0 * core::f64::consts::PI).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_window_across_phase_zero_works() {
+        let w = PortWindow::<f64>::from_degrees(300.0, 20.0);
+        assert!((w.span_rad() - deg(80.0)).abs() < 1e-12);
+        assert_eq!(w.fraction(deg(350.0), deg(5.0)), 1.0);
+        assert_eq!(w.fraction(deg(10.0), deg(5.0)), 1.0);
+        assert_eq!(w.fraction(deg(30.0), deg(5.0)), 0.0);
+        assert_eq!(w.fraction(deg(200.0), deg(5.0)), 0.0);
+    }
+
+    #[test]
+    fn zero_ramp_opens_as_a_step() {
+        let w = PortWindow::<f64>::from_degrees(10.0, 20.0);
+        assert_eq!(w.fraction(deg(15.0), 0.0), 1.0);
+        assert_eq!(w.fraction(deg(25.0), 0.0), 0.0);
+        assert_eq!(w.fraction(deg(10.0), 0.0), 0.0);
+    }
+
+    #[test]
+    fn f32_geometry_matches_f64() {
+        let g64 = PortGeometry::<f64>::reference();
+        let g32 = PortGeometry::<f32>::reference();
+        for i in 0..720 {
+            let p = deg(i as f64 * 0.5);
+            let a = g64.openings(p);
+            let b = g32.openings(p as f32);
+            for port in Port::ALL {
+                assert!(
+                    (a.get(port) - f64::from(b.get(port))).abs() < 1e-3,
+                    "{port:?} at {i}"
+                );
+            }
+        }
+    }
+}
