@@ -45,6 +45,7 @@ impl QuadratureCounter {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
 
     #[test]
     fn counts_through_the_wrap_both_ways() {
@@ -61,5 +62,38 @@ mod tests {
             q.update(raw);
         }
         assert_eq!(q.count(), -7000);
+    }
+
+    proptest! {
+        /// Any start and any moves of fewer than 2¹⁵ counts between reads: the wide count is
+        /// exactly the sum of the moves, however often the 16-bit counter wraps.
+        #[test]
+        fn wide_count_is_the_sum_of_the_moves(
+            start in any::<u16>(),
+            moves in proptest::collection::vec(-32_767i32..=32_767, 0..2000),
+        ) {
+            let mut q = QuadratureCounter::new();
+            prop_assert_eq!(q.update(start), 0);
+            let mut raw = start;
+            let mut sum = 0i64;
+            for m in moves {
+                raw = raw.wrapping_add(m as u16);
+                sum += i64::from(m);
+                prop_assert_eq!(q.update(raw), sum);
+            }
+        }
+
+        /// Any sequence of raw values at all: no panic, and each read moves the count by at
+        /// most 2¹⁵.
+        #[test]
+        fn any_raw_sequence_is_total(raws in proptest::collection::vec(any::<u16>(), 0..2000)) {
+            let mut q = QuadratureCounter::new();
+            let mut last = 0i64;
+            for r in raws {
+                let c = q.update(r);
+                prop_assert!((c - last).abs() <= 32_768);
+                last = c;
+            }
+        }
     }
 }
