@@ -130,3 +130,21 @@ pub trait Watchdog {
     /// Restarts the watchdog's countdown.
     fn feed(&mut self);
 }
+
+/// A byte stream to the host: the RTT telemetry up-channel on the board, a buffer in the
+/// simulator.
+/// Where commands arrive: the RTT down-channel on the MCU, a buffer in tests.
+pub trait ByteSource {
+    /// Copies the bytes waiting (at most `buf.len()`) into `buf` without blocking; returns
+    /// how many.
+    fn read(&mut self, buf: &mut [u8]) -> usize;
+}
+
+/// Where a byte stream leaves the board: the RTT up-channels (telemetry, command replies)
+/// on the MCU, a buffer in the simulator.
+pub trait FrameSink {
+    /// Takes as many of `bytes` as fit now, without blocking; returns how many it took.
+    /// A sink should take a whole frame or nothing (RTT "no block, skip"): the telemetry
+    /// task then never tears a frame, and counts what it could not send.
+    fn write(&mut self, bytes: &[u8]) -> usize;
+}

@@ -1,12 +1,12 @@
-//! State shared between the tasks: the command mailbox, replies, the latest status and the
-//! watchdog check-ins.
+//! State shared between the tasks: the command mailbox, replies, the latest status, the
+//! telemetry frame queue and the watchdog check-ins.
 //!
 //! Generic over the raw mutex so the firmware uses a critical-section mutex across its two
 //! executors and the simulator a no-op one on its single thread. Nothing here blocks: the
 //! control task only ever `try_`s, so a slow reader can never stall the 20 kHz loop.
 
 use core::cell::Cell;
-use core::sync::atomic::{AtomicU8, Ordering};
+use core::sync::atomic::{AtomicU16, AtomicU32, AtomicU8, Ordering};
 
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::blocking_mutex::Mutex;
@@ -14,9 +14,14 @@ use embassy_sync::channel::Channel;
 
 use crate::command::{Command, Refusal};
 use crate::controller::Status;
+use crate::telemetry::Frame;
 
 /// Depth of the command mailbox.
 pub const COMMAND_DEPTH: usize = 8;
+
+/// Depth of the telemetry frame queue: 32 frames (≈ 1.8 KiB) ride out 32 ms of a busy
+/// thread-mode executor at the default 1 kHz frame rate.
+pub const TELEMETRY_DEPTH: usize = 32;
 
 /// The answer to one command.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -41,6 +46,13 @@ pub struct Shared<M: RawMutex> {
     replies: Channel<M, Reply, COMMAND_DEPTH>,
     status: Mutex<M, Cell<Status>>,
     checkins: AtomicU8,
+    frames: Channel<M, Frame, TELEMETRY_DEPTH>,
+    /// One frame every this many control cycles; 0 = telemetry off (no task drains it).
+    telemetry_decimation: AtomicU16,
+    /// Control cycles since telemetry started (written by the control task only).
+    telemetry_cycles: AtomicU32,
+    /// Frames lost: queue full (control task) or sink full (telemetry task).
+    telemetry_dropped: AtomicU32,
 }
 
 impl<M: RawMutex> Default for Shared<M> {
@@ -57,6 +69,10 @@ impl<M: RawMutex> Shared<M> {
             replies: Channel::new(),
             status: Mutex::new(Cell::new(Status::INIT)),
             checkins: AtomicU8::new(0),
+            frames: Channel::new(),
+            telemetry_decimation: AtomicU16::new(0),
+            telemetry_cycles: AtomicU32::new(0),
+            telemetry_dropped: AtomicU32::new(0),
         }
     }
 
@@ -100,5 +116,50 @@ impl<M: RawMutex> Shared<M> {
     /// Takes the check-ins: true if every task in `expected` checked in since the last take.
     pub fn take_checkins(&self, expected: u8) -> bool {
         self.checkins.swap(0, Ordering::Relaxed) & expected == expected
+    }
+
+    /// Turns telemetry on at one frame every `decimation` control cycles (0 = off); the
+    /// telemetry task calls this as it starts, so without it the control task queues nothing.
+    pub fn start_telemetry(&self, decimation: u16) {
+        self.telemetry_cycles.store(0, Ordering::Relaxed);
+        self.telemetry_decimation
+            .store(decimation, Ordering::Relaxed);
+    }
+
+    /// Control task, once per cycle: queues this cycle's frame if it is due. Never waits: a
+    /// full queue drops the frame and counts it.
+    pub fn queue_telemetry(&self, status: &Status) {
+        let decimation = self.telemetry_decimation.load(Ordering::Relaxed);
+        if decimation == 0 {
+            return;
+        }
+        // Only the control task writes this counter, so load + store is race-free.
+        let cycle = self.telemetry_cycles.load(Ordering::Relaxed);
+        self.telemetry_cycles
+            .store(cycle.wrapping_add(1), Ordering::Relaxed);
+        if !cycle.is_multiple_of(u32::from(decimation)) {
+            return;
+        }
+        let dropped = u16::try_from(self.telemetry_dropped()).unwrap_or(u16::MAX);
+        // The sequence number is the cycle count modulo 2¹⁶: gaps show as steps ≠ decimation.
+        let frame = Frame::from_status(cycle as u16, dropped, status);
+        if self.frames.try_send(frame).is_err() {
+            self.count_telemetry_drop();
+        }
+    }
+
+    /// Telemetry task: waits for the next queued frame.
+    pub async fn next_frame(&self) -> Frame {
+        self.frames.receive().await
+    }
+
+    /// Counts a frame lost on its way to the host.
+    pub fn count_telemetry_drop(&self) {
+        self.telemetry_dropped.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Frames lost so far (queue full or sink full).
+    pub fn telemetry_dropped(&self) -> u32 {
+        self.telemetry_dropped.load(Ordering::Relaxed)
     }
 }

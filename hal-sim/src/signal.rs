@@ -1,0 +1,552 @@
+//! Signal analysis for the log tools: FFT cross-correlation (time lag), zero-phase
+//! Butterworth filtering (`filtfilt`), finite differences, the firmware's own
+//! Savitzky–Golay differentiator run offline, and stroke detection.
+//!
+//! Everything is `f64` on uniformly sampled signals. [`xcorr_lag`] is the paper's method
+//! (Fig. 4: FFT of both signals, conjugate product, inverse FFT, peak) with a parabolic
+//! sub-sample refinement; the model-gap workflow reuses it for `slave_lag` and
+//! `actuator_lag`.
+
+use std::ops::Range;
+
+use fpc::differentiator::{SavitzkyGolay, SgConfig};
+use fpc::encoder::EncoderConfig;
+use rustfft::num_complex::Complex;
+use rustfft::FftPlanner;
+
+/// How much lower than the best correlation coefficient a peak nearer zero lag may be and
+/// still be taken (see [`xcorr_lag`]).
+pub const PEAK_TOLERANCE: f64 = 0.02;
+
+/// A time shift found by cross-correlation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Lag {
+    /// How far `b` lags `a`, samples (negative: `b` leads), refined below one sample.
+    pub samples: f64,
+    /// The same in seconds.
+    pub seconds: f64,
+    /// Normalised correlation at the peak, −1..1 (near 1: the signals are alike).
+    pub correlation: f64,
+}
+
+/// How far `b` lags `a`: the lag `k` (|k| ≤ `max_lag_samples`, default half the length)
+/// that maximises the correlation coefficient of the overlapping parts, `a[n]` against
+/// `b[n+k]`, refined by a parabola through the peak and its two neighbours.
+///
+/// The products `Σ a[n]·b[n+k]` for every lag come from one FFT cross-correlation (zero
+/// padded, so linear rather than circular: the paper's method); each is then normalised by
+/// the overlap's own means and energies (prefix sums). Without that normalisation the
+/// shrinking overlap drags the peak of slow signals toward zero lag — the reason the paper
+/// cut exactly one period out of its log first.
+pub fn xcorr_lag(
+    a: &[f64],
+    b: &[f64],
+    sample_time_s: f64,
+    max_lag_samples: Option<usize>,
+) -> Result<Lag, String> {
+    let n = a.len().min(b.len());
+    if n < 8 {
+        return Err(format!("{n} samples: at least 8 needed for a lag"));
+    }
+    // Centred for numerical conditioning; the coefficient itself ignores offsets.
+    let centred = |x: &[f64]| {
+        let x = x.get(..n).unwrap_or_default();
+        let mean = x.iter().sum::<f64>() / n as f64;
+        x.iter().map(|v| v - mean).collect::<Vec<f64>>()
+    };
+    let (a, b) = (centred(a), centred(b));
+    let nfft = (2 * n).next_power_of_two();
+    let mut planner = FftPlanner::<f64>::new();
+    let forward = planner.plan_fft_forward(nfft);
+    let inverse = planner.plan_fft_inverse(nfft);
+    let spectrum = |x: &[f64]| {
+        let mut buf: Vec<Complex<f64>> = x
+            .iter()
+            .map(|&v| Complex::new(v, 0.0))
+            .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
+            .take(nfft)
+            .collect();
+        forward.process(&mut buf);
+        buf
+    };
+    let (fa, fb) = (spectrum(&a), spectrum(&b));
+    let mut r: Vec<Complex<f64>> = fa.iter().zip(&fb).map(|(x, y)| x.conj() * y).collect();
+    inverse.process(&mut r);
+    // Prefix sums of x and x² (index i: sum of the first i samples).
+    let prefix = |x: &[f64]| {
+        let mut s = vec![(0.0, 0.0)];
+        let mut acc = (0.0, 0.0);
+        for v in x {
+            acc = (acc.0 + v, acc.1 + v * v);
+            s.push(acc);
+        }
+        s
+    };
+    let (pa, pb) = (prefix(&a), prefix(&b));
+    let sums = |p: &[(f64, f64)], from: usize, to: usize| -> Option<(f64, f64)> {
+        let (hi, lo) = (p.get(to)?, p.get(from)?);
+        Some((hi.0 - lo.0, hi.1 - lo.1))
+    };
+    // Correlation coefficient at lag k (b[n+k] against a[n]); None where undefined.
+    let rho = |k: isize| -> Option<f64> {
+        let shift = k.unsigned_abs();
+        let m = n.checked_sub(shift).filter(|m| *m >= 2)?;
+        let (a_range, b_range) = if k >= 0 {
+            ((0, m), (shift, n))
+        } else {
+            ((shift, n), (0, m))
+        };
+        let (sa, saa) = sums(&pa, a_range.0, a_range.1)?;
+        let (sb, sbb) = sums(&pb, b_range.0, b_range.1)?;
+        let at = if k >= 0 { shift } else { nfft - shift };
+        let sab = r.get(at)?.re / nfft as f64;
+        let mf = m as f64;
+        let var = (saa - sa * sa / mf) * (sbb - sb * sb / mf);
+        (var > 0.0).then(|| (sab - sa * sb / mf) / var.sqrt())
+    };
+    let max_lag = max_lag_samples.unwrap_or(n / 2).min(n - 2) as isize;
+    let coefficients: Vec<(isize, f64)> = (-max_lag..=max_lag)
+        .filter_map(|k| Some((k, rho(k)?)))
+        .collect();
+    let best = coefficients
+        .iter()
+        .map(|(_, v)| *v)
+        .fold(f64::NEG_INFINITY, f64::max);
+    if !best.is_finite() {
+        return Err("a signal is constant: no lag can be found".into());
+    }
+    // A periodic signal correlates again at every whole period. Among the local peaks
+    // within PEAK_TOLERANCE of the best, take the one nearest zero lag: the lags measured
+    // here (drive and filter delays, ms) are far shorter than a stroke.
+    let is_peak =
+        |k: isize, v: f64| rho(k - 1).is_none_or(|l| l <= v) && rho(k + 1).is_none_or(|h| h <= v);
+    let (k, peak) = coefficients
+        .iter()
+        .copied()
+        .filter(|&(k, v)| v >= best - PEAK_TOLERANCE && is_peak(k, v))
+        .min_by_key(|(k, _)| k.unsigned_abs())
+        .unwrap_or((0, best));
+    let refine = match (rho(k - 1), rho(k + 1)) {
+        (Some(l), Some(h)) if k > -max_lag && k < max_lag => {
+            let curvature = l - 2.0 * peak + h;
+            if curvature < 0.0 {
+                (0.5 * (l - h) / curvature).clamp(-0.5, 0.5)
+            } else {
+                0.0
+            }
+        }
+        _ => 0.0,
+    };
+    let samples = k as f64 + refine;
+    Ok(Lag {
+        samples,
+        seconds: samples * sample_time_s,
+        // Rounding can put a perfect match a hair above 1.
+        correlation: peak.clamp(-1.0, 1.0),
+    })
+}
+
+/// One second-order section, direct form II transposed, `a0 = 1`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Biquad {
+    /// Numerator b0, b1, b2.
+    pub b: [f64; 3],
+    /// Denominator a1, a2.
+    pub a: [f64; 2],
+}
+
+/// A Butterworth low-pass of even `order` as cascaded biquads (bilinear transform with the
+/// cut-off pre-warped, so the −3 dB point is exactly `cutoff_hz`).
+pub fn butterworth_lowpass(
+    order: usize,
+    cutoff_hz: f64,
+    sample_rate_hz: f64,
+) -> Result<Vec<Biquad>, String> {
+    if order == 0 || !order.is_multiple_of(2) || order > 12 {
+        return Err(format!("filter order {order}: must be even, 2..=12"));
+    }
+    if !(cutoff_hz.is_finite() && cutoff_hz > 0.0 && cutoff_hz < 0.5 * sample_rate_hz) {
+        return Err(format!(
+            "cut-off {cutoff_hz} Hz: must lie between 0 and half the sample rate ({} Hz)",
+            0.5 * sample_rate_hz
+        ));
+    }
+    let w0 = 2.0 * std::f64::consts::PI * cutoff_hz / sample_rate_hz;
+    let (sin, cos) = w0.sin_cos();
+    Ok((0..order / 2)
+        .map(|k| {
+            // Pole pair k of the analogue prototype: s² + 2·sin(θk)·s + 1, θk = π(2k+1)/2N.
+            let theta = std::f64::consts::PI * (2 * k + 1) as f64 / (2 * order) as f64;
+            let q = 1.0 / (2.0 * theta.sin());
+            let alpha = sin / (2.0 * q);
+            let a0 = 1.0 + alpha;
+            let b0 = (1.0 - cos) / 2.0 / a0;
+            Biquad {
+                b: [b0, 2.0 * b0, b0],
+                a: [-2.0 * cos / a0, (1.0 - alpha) / a0],
+            }
+        })
+        .collect())
+}
+
+/// Runs `x` through `sections` in place, each starting in its steady state for the first
+/// sample (so a signal that starts away from zero does not ring).
+pub fn lfilter(sections: &[Biquad], x: &mut [f64]) {
+    for s in sections {
+        let [b0, b1, b2] = s.b;
+        let [a1, a2] = s.a;
+        let first = x.first().copied().unwrap_or(0.0);
+        let gain = (b0 + b1 + b2) / (1.0 + a1 + a2);
+        let y0 = gain * first;
+        let mut z2 = b2 * first - a2 * y0;
+        let mut z1 = b1 * first - a1 * y0 + z2;
+        for v in x.iter_mut() {
+            let input = *v;
+            let y = b0 * input + z1;
+            z1 = b1 * input - a1 * y + z2;
+            z2 = b2 * input - a2 * y;
+            *v = y;
+        }
+    }
+}
+
+/// Zero-phase filtering, as scipy's `filtfilt`: odd extension at both ends, forward pass,
+/// backward pass, extension removed. No delay, squared magnitude. The extension is
+/// `pad_samples` long (at most the signal's length − 1); [`filtfilt`] picks it.
+pub fn filtfilt_padded(sections: &[Biquad], x: &[f64], pad_samples: usize) -> Vec<f64> {
+    let n = x.len();
+    if n < 2 {
+        return x.to_vec();
+    }
+    let pad = pad_samples.min(n - 1);
+    let (first, last) = match (x.first(), x.last()) {
+        (Some(&f), Some(&l)) => (f, l),
+        _ => return x.to_vec(),
+    };
+    let mut ext: Vec<f64> = Vec::with_capacity(n + 2 * pad);
+    ext.extend(x.iter().skip(1).take(pad).rev().map(|v| 2.0 * first - v));
+    ext.extend_from_slice(x);
+    ext.extend(x.iter().rev().skip(1).take(pad).map(|v| 2.0 * last - v));
+    lfilter(sections, &mut ext);
+    ext.reverse();
+    lfilter(sections, &mut ext);
+    ext.reverse();
+    ext.into_iter().skip(pad).take(n).collect()
+}
+
+/// [`filtfilt_padded`] with an extension of three time constants of the slowest section
+/// (scipy's 3·(order+1) samples leave edge transients when the cut-off is far below the
+/// sample rate, as it is at 20 kHz).
+pub fn filtfilt(sections: &[Biquad], x: &[f64]) -> Vec<f64> {
+    // Pole radius of each section from a2 = r²; time constant 1/(1 − r) samples.
+    let slowest = sections
+        .iter()
+        .map(|s| {
+            let r = s.a[1].abs().sqrt().min(1.0 - 1e-12);
+            1.0 / (1.0 - r)
+        })
+        .fold(0.0, f64::max);
+    let pad = (3.0 * slowest).ceil() as usize;
+    filtfilt_padded(sections, x, pad.max(3 * (2 * sections.len() + 1)))
+}
+
+/// Backward difference `(x[i] − x[i−1])/dt` (the paper's Eq. 5, causal); the first value
+/// repeats the second.
+pub fn backward_difference(x: &[f64], sample_time_s: f64) -> Vec<f64> {
+    let d: Vec<f64> = x
+        .windows(2)
+        .map(|w| (w[1] - w[0]) / sample_time_s)
+        .collect();
+    d.first().copied().into_iter().chain(d).collect()
+}
+
+/// Central difference `(x[i+1] − x[i−1])/2dt` (zero phase); the ends are one-sided.
+pub fn central_difference(x: &[f64], sample_time_s: f64) -> Vec<f64> {
+    let d: Vec<f64> = x
+        .windows(3)
+        .map(|w| (w[2] - w[0]) / (2.0 * sample_time_s))
+        .collect();
+    let head = x.get(..2).map(|w| (w[1] - w[0]) / sample_time_s);
+    let tail = x
+        .len()
+        .checked_sub(2)
+        .and_then(|i| x.get(i..))
+        .map(|w| (w[1] - w[0]) / sample_time_s);
+    head.into_iter()
+        .chain(d)
+        .chain(tail)
+        .take(x.len())
+        .collect()
+}
+
+/// Second difference `(x[i+1] − 2x[i] + x[i−1])/dt²`, centred; the end values repeat
+/// their neighbours.
+pub fn second_difference(x: &[f64], sample_time_s: f64) -> Vec<f64> {
+    let dt2 = sample_time_s * sample_time_s;
+    let d: Vec<f64> = x
+        .windows(3)
+        .map(|w| (w[2] - 2.0 * w[1] + w[0]) / dt2)
+        .collect();
+    let (head, tail) = (d.first().copied(), d.last().copied());
+    head.into_iter().chain(d).chain(tail).collect()
+}
+
+/// `x` delayed by `samples` (fractional: linear interpolation), the first value held
+/// before the start.
+pub fn delayed(x: &[f64], samples: f64) -> Vec<f64> {
+    let first = x.first().copied().unwrap_or(0.0);
+    (0..x.len())
+        .map(|i| {
+            let t = i as f64 - samples;
+            if t <= 0.0 {
+                return first;
+            }
+            let k = t.floor() as usize;
+            let f = t - k as f64;
+            match (x.get(k), x.get(k + 1)) {
+                (Some(a), Some(b)) => a + f * (b - a),
+                (Some(a), None) => *a,
+                _ => first,
+            }
+        })
+        .collect()
+}
+
+/// Root mean square of `a − b` over their common length.
+pub fn rms_difference(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    if n == 0 {
+        return 0.0;
+    }
+    let sum: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
+    (sum / n as f64).sqrt()
+}
+
+/// Settings of the firmware's Savitzky–Golay differentiator.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SgSettings {
+    /// Window length N (odd).
+    pub window: usize,
+    /// Polynomial order.
+    pub order: usize,
+    /// Evaluation point, samples back from the newest (0 = causal).
+    pub lag: usize,
+}
+
+/// Velocity and acceleration of `x_m` by the firmware's own fixed-point differentiator
+/// (`fpc::differentiator`), fed the position in encoder counts exactly as the control step
+/// does. Each output is placed at the sample it estimates (`lag` samples back), so only the
+/// differentiator's true delay remains; the last `lag` values repeat the last estimate.
+pub fn firmware_derivatives(
+    x_m: &[f64],
+    sample_time_s: f64,
+    encoder_period_m: f64,
+    s: SgSettings,
+) -> Result<(Vec<f64>, Vec<f64>), String> {
+    let m_per_count = EncoderConfig {
+        period_m: encoder_period_m as f32,
+        ..EncoderConfig::reference()
+    }
+    .m_per_count();
+    let mut sg = SavitzkyGolay::new(SgConfig {
+        window: s.window,
+        order: s.order,
+        lag: s.lag,
+        sample_time_s: sample_time_s as f32,
+        m_per_count,
+    })
+    .map_err(|e| format!("differentiator settings {s:?}: {e:?}"))?;
+    let mut v = Vec::with_capacity(x_m.len());
+    let mut a = Vec::with_capacity(x_m.len());
+    for (i, &x) in x_m.iter().enumerate() {
+        let counts = (x / f64::from(m_per_count))
+            .round()
+            .clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32;
+        let d = sg.push(counts);
+        if i >= s.lag {
+            v.push(f64::from(d.velocity_mps));
+            a.push(f64::from(d.acceleration_mps2));
+        }
+    }
+    let (lv, la) = (v.last().copied(), a.last().copied());
+    v.resize(x_m.len(), lv.unwrap_or(0.0));
+    a.resize(x_m.len(), la.unwrap_or(0.0));
+    Ok((v, a))
+}
+
+/// The strokes in a log: index ranges from one reversal to the next in which the piston
+/// moves one way at more than 5 % of its peak speed, covering at least half the longest
+/// stroke's travel. In time order.
+pub fn strokes(x_m: &[f64], v_mps: &[f64]) -> Vec<Range<usize>> {
+    let n = x_m.len().min(v_mps.len());
+    let peak = v_mps.iter().take(n).fold(0.0f64, |m, v| m.max(v.abs()));
+    if peak <= 0.0 {
+        return Vec::new();
+    }
+    let threshold = 0.05 * peak;
+    let sign = |i: usize| v_mps.get(i).map_or(0.0, |v| v.signum());
+    // Maximal runs above the threshold, same sign.
+    let mut runs: Vec<(Range<usize>, f64)> = Vec::new();
+    let mut i = 0;
+    while i < n {
+        if v_mps.get(i).is_some_and(|v| v.abs() > threshold) {
+            let s = sign(i);
+            let start = i;
+            while i < n && v_mps.get(i).is_some_and(|v| v * s > threshold) {
+                i += 1;
+            }
+            match runs.last_mut() {
+                // A dip below the threshold without reversing continues the same stroke.
+                Some((r, rs)) if *rs == s => r.end = i,
+                _ => runs.push((start..i, s)),
+            }
+        } else {
+            i += 1;
+        }
+    }
+    // Widen each run to the reversals on both sides.
+    let mut out: Vec<Range<usize>> = Vec::new();
+    let mut floor = 0;
+    for (r, s) in &runs {
+        let mut start = r.start;
+        while start > floor && v_mps.get(start - 1).is_some_and(|v| v * s > 0.0) {
+            start -= 1;
+        }
+        let mut end = r.end;
+        while end < n && v_mps.get(end).is_some_and(|v| v * s > 0.0) {
+            end += 1;
+        }
+        floor = end;
+        out.push(start..end);
+    }
+    let travel = |r: &Range<usize>| match (x_m.get(r.start), x_m.get(r.end.saturating_sub(1))) {
+        (Some(a), Some(b)) => (b - a).abs(),
+        _ => 0.0,
+    };
+    let longest = out.iter().map(travel).fold(0.0, f64::max);
+    out.into_iter()
+        .filter(|r| travel(r) >= 0.5 * longest && r.len() > 2)
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sines(n: usize, dt: f64, delay_s: f64) -> Vec<f64> {
+        (0..n)
+            .map(|i| {
+                let t = i as f64 * dt - delay_s;
+                (2.0 * std::f64::consts::PI * 3.0 * t).sin()
+                    + 0.5 * (2.0 * std::f64::consts::PI * 17.0 * t + 0.3).sin()
+                    + 0.2 * (2.0 * std::f64::consts::PI * 41.0 * t + 1.1).sin()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn xcorr_finds_integer_and_fractional_lags_both_ways() {
+        let dt = 50e-6;
+        let a = sines(8000, dt, 0.0);
+        for delay in [0.75e-3, -0.75e-3, 0.7725e-3, 0.0] {
+            let b = sines(8000, dt, delay);
+            let lag = xcorr_lag(&a, &b, dt, None).unwrap();
+            assert!((lag.seconds - delay).abs() < 0.01e-3, "{delay}: {lag:?}");
+            assert!(lag.correlation > 0.99);
+        }
+    }
+
+    #[test]
+    fn xcorr_refuses_constant_and_short_signals() {
+        assert!(xcorr_lag(&[1.0; 100], &sines(100, 1e-3, 0.0), 1e-3, None).is_err());
+        assert!(xcorr_lag(&[1.0, 2.0], &[1.0, 2.0], 1e-3, None).is_err());
+    }
+
+    #[test]
+    fn butterworth_has_unit_dc_gain_and_minus_3_db_at_cutoff() {
+        let fs = 20_000.0;
+        for order in [2, 4, 6] {
+            let s = butterworth_lowpass(order, 500.0, fs).unwrap();
+            let gain = |f: f64| {
+                let z = Complex::from_polar(1.0, -2.0 * std::f64::consts::PI * f / fs);
+                s.iter()
+                    .map(|q| {
+                        let num = q.b[0] + q.b[1] * z + q.b[2] * z * z;
+                        let den = 1.0 + q.a[0] * z + q.a[1] * z * z;
+                        (num / den).norm()
+                    })
+                    .product::<f64>()
+            };
+            assert!((gain(0.0) - 1.0).abs() < 1e-12);
+            assert!((gain(500.0) - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-9);
+            // Roll-off of order N: at 10 × the cut-off, below 10^−N.
+            assert!(gain(5000.0) < 10f64.powi(-(order as i32)));
+        }
+        assert!(butterworth_lowpass(3, 500.0, fs).is_err());
+        assert!(butterworth_lowpass(4, 12_000.0, fs).is_err());
+    }
+
+    #[test]
+    fn filtfilt_has_no_delay_and_holds_a_constant() {
+        let dt = 50e-6;
+        let x = sines(4000, dt, 0.0);
+        let s = butterworth_lowpass(4, 200.0, 1.0 / dt).unwrap();
+        let y = filtfilt(&s, &x);
+        let lag = xcorr_lag(&x, &y, dt, None).unwrap();
+        assert!(lag.samples.abs() < 0.05, "{lag:?}");
+        let c = filtfilt(&s, &[3.5; 50]);
+        assert!(c.iter().all(|v| (v - 3.5).abs() < 1e-12));
+    }
+
+    #[test]
+    fn differences_of_a_parabola_are_exact() {
+        let dt = 1e-3;
+        let x: Vec<f64> = (0..20)
+            .map(|i| 0.5 * 4.0 * (i as f64 * dt).powi(2))
+            .collect();
+        let a = second_difference(&x, dt);
+        assert!(a.iter().all(|v| (v - 4.0).abs() < 1e-6));
+        let v = backward_difference(&x, dt);
+        assert!((v[10] - 4.0 * 9.5 * dt).abs() < 1e-9);
+        let v = central_difference(&x, dt);
+        assert_eq!(v.len(), x.len());
+        assert!((v[10] - 4.0 * 10.0 * dt).abs() < 1e-9);
+        assert_eq!(
+            delayed(&[0.0, 1.0, 2.0, 3.0], 1.5),
+            vec![0.0, 0.0, 0.5, 1.5]
+        );
+    }
+
+    #[test]
+    fn firmware_differentiator_tracks_a_ramp() {
+        let dt = 50e-6;
+        let x: Vec<f64> = (0..400).map(|i| 0.01 + 2.0 * i as f64 * dt).collect();
+        let s = SgSettings {
+            window: 21,
+            order: 2,
+            lag: 10,
+        };
+        let (v, a) = firmware_derivatives(&x, dt, 0.024, s).unwrap();
+        assert!(
+            v[100..].iter().all(|v| (v - 2.0).abs() < 1e-3),
+            "{:?}",
+            &v[100..110]
+        );
+        assert!(a[100..].iter().all(|a| a.abs() < 1.0));
+        assert!(firmware_derivatives(&x, dt, 0.024, SgSettings { window: 4, ..s }).is_err());
+    }
+
+    #[test]
+    fn strokes_run_from_reversal_to_reversal() {
+        let dt = 1e-3;
+        let x: Vec<f64> = (0..3000)
+            .map(|i| 0.1 - 0.09 * (2.0 * std::f64::consts::PI * i as f64 * dt).cos())
+            .collect();
+        let v = backward_difference(&x, dt);
+        let s = strokes(&x, &v);
+        assert_eq!(s.len(), 6, "{s:?}");
+        for r in &s {
+            assert!((r.len() as i64 - 500).abs() <= 2, "{r:?}");
+        }
+    }
+}

@@ -1,0 +1,90 @@
+//! Telemetry through the real path: the firmware's control task queues frames, its
+//! telemetry task encodes them into the simulated RTT up-channel, and the host decoder turns
+//! the capture back into a run log — which equals the simulator's own run log sample for
+//! sample, bit for bit, with no frame dropped.
+
+use fpc::telemetry::DEFAULT_DECIMATION;
+use hal_sim::capture::{decode_capture, decoded_columns};
+use hal_sim::run::{run, RunOptions, RunOutcome};
+
+/// Compression cycles that take the reference run past 10 s of simulated time at 20 kHz.
+const CYCLES_FOR_10_S: u32 = 29;
+
+fn run_with_telemetry(decimation: u16) -> RunOutcome {
+    run(&RunOptions {
+        cycles: CYCLES_FOR_10_S,
+        telemetry_decimation: decimation,
+        ..RunOptions::reference()
+    })
+    .unwrap()
+}
+
+/// The acceptance run: 10 s of simulated time at 20 kHz, stroking without a fault.
+fn assert_ten_seconds_clean(outcome: &RunOutcome) {
+    let s = &outcome.summary;
+    assert!(s.sim_time_s >= 10.0 && s.faults.is_empty(), "{s:?}");
+}
+
+/// Every column a frame carries equals `run.csv`'s, row `i·step` against decoded row `i`,
+/// bit for bit. (The simulator's log has more columns — the plant's true pressures and
+/// volumes — which the firmware cannot know and telemetry does not carry.)
+fn assert_matches(outcome: &RunOutcome, step: usize) {
+    let d = decode_capture(&outcome.telemetry, |_| {}).unwrap();
+    assert_eq!(d.stats.rejected, 0);
+    assert_eq!((d.gaps, d.left_out, d.dropped), (0, 0, 0));
+    assert_eq!(d.decimation as usize, step);
+    let rows = outcome.log.len();
+    assert_eq!(d.log.len(), rows.div_ceil(step), "rows");
+    let mut compared = 0;
+    for name in decoded_columns() {
+        let Some(want) = outcome.log.column(name) else {
+            assert_eq!(name, "mode", "run.csv lacks {name}");
+            continue;
+        };
+        let got = d.log.column(name).unwrap();
+        for (i, g) in got.iter().enumerate() {
+            let w = want[i * step];
+            assert_eq!(
+                g.to_bits(),
+                w.to_bits(),
+                "{name} row {}: {g} vs {w}",
+                i * step
+            );
+        }
+        compared += 1;
+    }
+    assert_eq!(
+        compared, 12,
+        "t_s, the 7 required signals and 4 optional ones"
+    );
+}
+
+#[test]
+fn telemetry_capture_matches_run_log_at_full_rate() {
+    let outcome = run_with_telemetry(1);
+    // One 56-byte frame per control cycle.
+    assert_eq!(
+        outcome.telemetry.len(),
+        outcome.log.len() * fpc::telemetry::WIRE_BYTES
+    );
+    assert_matches(&outcome, 1);
+    assert_ten_seconds_clean(&outcome);
+    assert!(outcome.log.len() >= 200_000, "{}", outcome.log.len());
+}
+
+#[test]
+fn telemetry_capture_matches_run_log_at_the_default_decimation() {
+    let outcome = run_with_telemetry(DEFAULT_DECIMATION);
+    assert_matches(&outcome, usize::from(DEFAULT_DECIMATION));
+    assert_ten_seconds_clean(&outcome);
+}
+
+#[test]
+fn telemetry_is_off_unless_asked_for() {
+    let outcome = run(&RunOptions {
+        cycles: 1,
+        ..RunOptions::reference()
+    })
+    .unwrap();
+    assert!(outcome.telemetry.is_empty());
+}
