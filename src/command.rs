@@ -4,6 +4,9 @@
 //! refused command carries the reason and leaves the state as it was. The binary codec for
 //! the RTT down-channel encodes exactly these values.
 
+use crate::synchroniser::Rotation;
+use crate::volume_ratio::RatioTarget;
+
 /// A command from the host.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -17,7 +20,29 @@ pub enum Command {
         /// Peak speed of the move, m/s.
         peak_speed_mps: f32,
     },
-    /// Controlled stop where the piston is, then hold.
+    /// Start compressing: continuous strokes between the dead points at this peak speed,
+    /// m/s (homed, holding machine only).
+    Start {
+        /// Peak speed, m/s.
+        peak_speed_mps: f32,
+    },
+    /// Change the peak speed of the running strokes (from the next stroke on), m/s.
+    SetSpeed {
+        /// Peak speed, m/s.
+        peak_speed_mps: f32,
+    },
+    /// Compressor or expander, from the next half cycle on (on the fly, at a dead point).
+    SetRotation {
+        /// The mode.
+        rotation: Rotation,
+    },
+    /// How the built-in volume ratio is chosen: follow the measured pressure ratio, or fixed.
+    SetVolumeRatio {
+        /// The target.
+        target: RatioTarget,
+    },
+    /// Stop: a running machine finishes its stroke and holds at that dead point; a moving
+    /// one stops on the braking deceleration and holds.
     Stop,
     /// Host keep-alive.
     Heartbeat,

@@ -96,6 +96,19 @@ impl Fault {
     }
 }
 
+/// Why the MCU last started, as the board reads it from its reset flags.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum ResetCause {
+    /// Power-on or brown-out: a normal start.
+    PowerOn,
+    /// The reset pin or a software reset: a normal start.
+    External,
+    /// The independent watchdog: a task hung. The machine starts with
+    /// [`Fault::WatchdogReset`] latched and its outputs off.
+    Watchdog,
+}
+
 /// The latched set of faults, in latch order for reporting.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]

@@ -3,8 +3,9 @@
 //!
 //! - the 20 kHz control task ([`fpc::tasks::control_run`]) on a high-priority
 //!   `InterruptExecutor`, woken by the end of each ADC burst;
-//! - the supervision task ([`fpc::tasks::supervision_run`], 1 kHz, feeds the watchdog) in
-//!   thread mode.
+//! - in thread mode: the supervision task ([`fpc::tasks::supervision_run`], 1 kHz, feeds
+//!   the watchdog), the telemetry task ([`fpc::tasks::telemetry_run`], frames to RTT up 1)
+//!   and the command task ([`fpc::tasks::command_run`], RTT down 0 in, replies on up 2).
 //!
 //! Each embassy task is a thin concrete wrapper: embassy tasks cannot be generic, the
 //! bodies are. All hardware glue is in `board` (pins, clocks, interrupts, safe state).
@@ -24,10 +25,10 @@ mod board;
 mod firmware {
     use core::convert::Infallible;
 
-    use defmt_rtt as _;
     use embassy_executor::Spawner;
     use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
     use fpc::controller::ControlConfig;
+    use fpc::faults::ResetCause;
     use fpc::shared::Shared;
 
     use crate::board::{self, BoardClock, BoardSleep, BoardWatchdog};
@@ -38,9 +39,9 @@ mod firmware {
 
     /// The 20 kHz control task (control executor, woken by each ADC burst).
     #[embassy_executor::task]
-    async fn control(ports: board::ControlPorts) {
+    async fn control(ports: board::ControlPorts, reset_cause: ResetCause) {
         let never: Infallible =
-            fpc::tasks::control_run(ports, &SHARED, ControlConfig::reference()).await;
+            fpc::tasks::control_run(ports, &SHARED, ControlConfig::reference(), reset_cause).await;
         match never {}
     }
 
@@ -51,15 +52,50 @@ mod firmware {
         match never {}
     }
 
+    /// The telemetry task (thread mode): frames from the control task to RTT up-channel 1.
+    #[embassy_executor::task]
+    async fn telemetry(sink: board::rtt::TelemetryChannel) {
+        let never: Infallible =
+            fpc::tasks::telemetry_run(sink, &SHARED, fpc::telemetry::DEFAULT_DECIMATION).await;
+        match never {}
+    }
+
+    /// The command task (thread mode): RTT down-channel 0 in, replies on up-channel 2.
+    #[embassy_executor::task]
+    async fn commands(
+        source: board::rtt::CommandChannel,
+        replies: board::rtt::ReplyChannel,
+        sleep: BoardSleep,
+        clock: BoardClock,
+    ) {
+        let never: Infallible =
+            fpc::tasks::command_run(source, replies, sleep, clock, &SHARED).await;
+        match never {}
+    }
+
     #[embassy_executor::main]
     async fn main(spawner: Spawner) {
+        let (telemetry_sink, replies, command_source) = board::rtt::init();
+        let reset_cause = board::take_reset_cause();
+        match reset_cause {
+            ResetCause::Watchdog => defmt::error!("reset by the independent watchdog: a task hung"),
+            cause => defmt::info!("boot after {}", cause),
+        }
         let board = board::init();
-        board::start_control_executor().spawn(defmt::unwrap!(control(board.control)));
+        board::start_control_executor().spawn(defmt::unwrap!(control(board.control, reset_cause)));
         spawner.spawn(defmt::unwrap!(supervision(
             board.sleep,
             board.clock,
             board.watchdog
         )));
+        spawner.spawn(defmt::unwrap!(telemetry(telemetry_sink)));
+        spawner.spawn(defmt::unwrap!(commands(
+            command_source,
+            replies,
+            BoardSleep,
+            BoardClock
+        )));
+        defmt::info!("running: control, supervision, telemetry and command tasks");
     }
 }
 

@@ -2,15 +2,20 @@
 //! task, and `hal-sim` runs the very same futures against the simulated plant.
 
 use core::convert::Infallible;
+use core::task::Poll;
 
 use embassy_sync::blocking_mutex::raw::RawMutex;
 
+use crate::command::Refusal;
 use crate::controller::{ControlConfig, ControlStep, CycleInputs};
+use crate::faults::ResetCause;
+use crate::link::{encode_rejection, encode_reply, CommandReader, MAX_REPLY_WIRE};
 use crate::ports::{
-    Clock, ControlPorts, CurrentInput, CycleTrigger, EncoderInput, PressureInput, PwmOutput,
-    QuadratureInput, Sleep, TorqueOutput, Watchdog,
+    ByteSource, Clock, ControlPorts, CurrentInput, CycleTrigger, EncoderInput, FrameSink,
+    PressureInput, PwmOutput, QuadratureInput, Sleep, TorqueOutput, Watchdog,
 };
 use crate::shared::{task_bits, Reply, Shared};
+use crate::telemetry::WIRE_BYTES;
 use crate::units::{DacCode, PerSection, Section};
 
 /// Period of the supervision task, µs.
@@ -19,12 +24,14 @@ pub const SUPERVISION_PERIOD_US: u32 = 1000;
 /// The 20 kHz control task: wait for the sampling burst, read every port, run one
 /// [`ControlStep`], write both sections' PWM and the servo command, publish the status.
 ///
-/// An invalid configuration keeps the outputs off for good (and keeps checking in, so the
-/// watchdog does not reset the board into the same configuration).
+/// `reset_cause` is why the MCU started: after a watchdog reset the machine boots into the
+/// fault state. An invalid configuration keeps the outputs off for good (and keeps checking
+/// in, so the watchdog does not reset the board into the same configuration).
 pub async fn control_run<M, T, E, C, P, Q, S, R>(
     mut ports: ControlPorts<T, E, C, P, Q, S, R>,
     shared: &Shared<M>,
     config: ControlConfig,
+    reset_cause: ResetCause,
 ) -> Infallible
 where
     M: RawMutex,
@@ -45,6 +52,8 @@ where
             shared.check_in(task_bits::CONTROL);
         },
     };
+    step.boot(reset_cause);
+    shared.publish(*step.status());
     let mut enabled = false;
     loop {
         let t = ports.cycle.next_cycle().await;
@@ -82,6 +91,7 @@ where
         }
         ports.servo.write(out.servo);
         shared.publish(*step.status());
+        shared.queue_telemetry(step.status());
         shared.check_in(task_bits::CONTROL);
     }
 }
@@ -106,6 +116,119 @@ where
         sleep.until(next).await;
         if shared.take_checkins(task_bits::ALL) {
             watchdog.feed();
+        }
+    }
+}
+
+/// Yields to a sink that is partly full this many times before a frame is given up.
+const SINK_STALL_LIMIT: u32 = 64;
+
+/// The telemetry task (thread mode): turns telemetry on at one frame every `decimation`
+/// control cycles, then encodes each frame the control task queues and writes it to `sink`
+/// (the RTT up-channel). It never holds up the control task: frames that find the queue
+/// full, or a sink that takes nothing, are dropped and counted in
+/// [`Shared::telemetry_dropped`], and the count rides in every frame.
+pub async fn telemetry_run<M, S>(mut sink: S, shared: &Shared<M>, decimation: u16) -> Infallible
+where
+    M: RawMutex,
+    S: FrameSink,
+{
+    shared.start_telemetry(decimation);
+    let mut buf = [0u8; WIRE_BYTES];
+    loop {
+        let frame = shared.next_frame().await;
+        let Ok(n) = frame.encode(&mut buf) else {
+            shared.count_telemetry_drop();
+            continue;
+        };
+        let mut rest = buf.get(..n).unwrap_or_default();
+        let mut stalls = 0;
+        while !rest.is_empty() {
+            let taken = sink.write(rest).min(rest.len());
+            if taken == 0 {
+                // Nothing of it sent yet: skip it whole (host absent or behind). Part sent:
+                // finish it after letting the host read, so the stream stays decodable.
+                if rest.len() == n || stalls >= SINK_STALL_LIMIT {
+                    shared.count_telemetry_drop();
+                    break;
+                }
+                stalls += 1;
+                yield_now().await;
+            }
+            rest = rest.get(taken..).unwrap_or_default();
+        }
+    }
+}
+
+/// Completes on the second poll, after waking itself: lets the executor run other tasks.
+async fn yield_now() {
+    let mut yielded = false;
+    core::future::poll_fn(|cx| {
+        if yielded {
+            Poll::Ready(())
+        } else {
+            yielded = true;
+            cx.waker().wake_by_ref();
+            Poll::Pending
+        }
+    })
+    .await
+}
+
+/// Period of the command task, µs: the RTT down-channel is polled at 1 kHz.
+pub const COMMAND_POLL_US: u32 = 1000;
+
+/// The command task (thread mode): reads the down-channel, decodes and validates frames
+/// ([`CommandReader`]), posts the commands for the control task and writes every answer to
+/// `replies` — the control task's accept/refuse reply for each command, a `Busy` refusal when
+/// the mailbox is full, and a rejection (with its reason) for each malformed frame. Nothing
+/// here blocks the control task: it only ever `try_`s the shared mailboxes.
+pub async fn command_run<M, B, S, L, K>(
+    mut source: B,
+    mut replies: S,
+    mut sleep: L,
+    clock: K,
+    shared: &Shared<M>,
+) -> Infallible
+where
+    M: RawMutex,
+    B: ByteSource,
+    S: FrameSink,
+    L: Sleep,
+    K: Clock,
+{
+    let mut reader = CommandReader::new();
+    let mut input = [0u8; 64];
+    let mut out = [0u8; MAX_REPLY_WIRE];
+    let mut next = clock.now();
+    loop {
+        next = next.add_us(COMMAND_POLL_US);
+        sleep.until(next).await;
+        let n = source.read(&mut input);
+        for &byte in input.get(..n).unwrap_or_default() {
+            let encoded = match reader.push(byte) {
+                None => continue,
+                Some(Ok(command)) => match shared.post_command(command) {
+                    Ok(()) => continue,
+                    Err(command) => encode_reply(
+                        &Reply {
+                            command,
+                            result: Err(Refusal::Busy),
+                        },
+                        &mut out,
+                    ),
+                },
+                Some(Err(reason)) => encode_rejection(reason, &mut out),
+            };
+            if let Ok(len) = encoded {
+                // A host that does not read its replies loses them, never the machine.
+                let _ = replies.write(out.get(..len).unwrap_or_default());
+            }
+        }
+        while let Some(reply) = shared.take_reply() {
+            if let Ok(len) = encode_reply(&reply, &mut out) {
+                let _ = replies.write(out.get(..len).unwrap_or_default());
+            }
         }
     }
 }

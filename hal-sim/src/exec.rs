@@ -1,8 +1,9 @@
 //! Runs the firmware's task bodies against the simulated board, in lock-step with
 //! simulated time.
 //!
-//! The futures are exactly `fpc::tasks::control_run` and `fpc::tasks::supervision_run`,
-//! polled on this thread with a no-op waker: poll every task until each waits on the
+//! The futures are exactly `fpc::tasks::control_run`, `fpc::tasks::supervision_run` and
+//! `fpc::tasks::telemetry_run` (at `World::telemetry`'s decimation, 0 = off), polled
+//! on this thread with a no-op waker: poll every task until each waits on the
 //! hardware (the next cycle, or a deadline), let the caller observe and command, advance the
 //! world by one control period, repeat. No threads, no wall clock, no sleeps.
 
@@ -15,10 +16,12 @@ use std::task::{Context, Waker};
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use fpc::controller::ControlConfig;
+use fpc::faults::ResetCause;
 use fpc::ports::ControlPorts;
 use fpc::shared::Shared;
-use fpc::tasks::{control_run, supervision_run};
+use fpc::tasks::{control_run, supervision_run, telemetry_run};
 
+use crate::capture::telemetry_sink;
 use crate::world::{
     clock, cycle, peripherals, watchdog, SimCycle, SimPeripherals, World, WorldRef,
 };
@@ -50,7 +53,7 @@ where
     simulate_with(
         world,
         &shared,
-        |io, shared| control_run(io, shared, config),
+        |io, shared| control_run(io, shared, config, ResetCause::PowerOn),
         each_cycle,
     )
 }
@@ -86,10 +89,13 @@ where
             watchdog(&world),
             shared
         ));
+        let decimation = world.borrow().telemetry.decimation;
+        let mut telemetry = pin!(telemetry_run(telemetry_sink(&world), shared, decimation));
         let mut cx = Context::from_waker(Waker::noop());
         loop {
             // The task bodies loop forever; a body that returns simply stops acting.
             let _ = control.as_mut().poll(&mut cx);
+            let _ = telemetry.as_mut().poll(&mut cx);
             let _ = supervision.as_mut().poll(&mut cx);
             let mut w = world.borrow_mut();
             if each_cycle(&mut w, shared).is_break() {

@@ -24,11 +24,32 @@ struct Cli {
 enum Cmd {
     /// Closed-loop simulation with the firmware's tasks in the loop.
     Run(hal_sim::run_cmd::RunArgs),
+    /// The firmware's Savitzky–Golay differentiator over a run log's position.
+    Derive(hal_sim::derive::DeriveArgs),
+    /// Decode a captured telemetry stream into a run log (CSV).
+    Decode(hal_sim::decode_cmd::DecodeArgs),
+    /// Time lag between two logged signals by FFT cross-correlation (Fig. 4).
+    Lag(hal_sim::lag_cmd::LagArgs),
+    /// Velocity without filter, filtfilt, firmware Savitzky-Golay, drive reading (Fig. 7).
+    Filters(hal_sim::filters_cmd::FiltersArgs),
+    /// Inertia force from position against the forces acting (Fig. 8).
+    Forces(hal_sim::forces_cmd::ForcesArgs),
+    /// Motor, inertia, gas and friction work along one stroke (Fig. 9).
+    Energy(hal_sim::energy_cmd::EnergyArgs),
+    /// p-V diagram of both chambers (Fig. 3).
+    Pv(hal_sim::pv_cmd::PvArgs),
 }
 
 fn dispatch(cmd: Cmd) -> CmdResult {
     match cmd {
         Cmd::Run(args) => hal_sim::run_cmd::main(args),
+        Cmd::Derive(args) => hal_sim::derive::main(args),
+        Cmd::Decode(args) => hal_sim::decode_cmd::main(args),
+        Cmd::Lag(args) => hal_sim::lag_cmd::main(args),
+        Cmd::Filters(args) => hal_sim::filters_cmd::main(args),
+        Cmd::Forces(args) => hal_sim::forces_cmd::main(args),
+        Cmd::Energy(args) => hal_sim::energy_cmd::main(args),
+        Cmd::Pv(args) => hal_sim::pv_cmd::main(args),
     }
 }
 

@@ -13,11 +13,11 @@ use fpc::controller::{ControlConfig, ModeKind, Status};
 use fpc::faults::Fault;
 use serde::Serialize;
 
+use crate::chambers::PortMode;
 use crate::exec::{simulate, SimShared};
 use crate::model::MachineModel;
-use crate::plant::{Plant, PlantParams};
 use crate::runlog::{RunLog, REQUIRED};
-use crate::world::{Sensors, World};
+use crate::world::World;
 
 /// Pressure ratio → peak speed of the paper's Fig. 3 (PR, m/s).
 pub const FIG3_SPEEDS: [(f64, f64); 4] = [(3.1, 2.3), (3.7, 2.8), (4.3, 3.5), (5.1, 4.1)];
@@ -46,6 +46,26 @@ pub struct RunOptions {
     pub start_us: u32,
     /// Where the piston rests at power-up, m from head A.
     pub start_position_m: f64,
+    /// Telemetry: one frame every this many control cycles, captured in
+    /// [`RunOutcome::telemetry`]; 0 = off.
+    pub telemetry_decimation: u16,
+    /// Relative error of the controller's model against the plant: its mass and friction
+    /// are (1 + this) × the plant's (the acceptance runs use 0.05).
+    pub model_error: f64,
+    /// The controller's configuration is otherwise the reference; this may change it (tests
+    /// switch the feed-forward off with it).
+    pub configure: Option<fn(&mut ControlConfig)>,
+    /// What the host does during the run, by completed compression cycle.
+    pub schedule: Vec<(u32, HostAction)>,
+}
+
+/// Something the host does at the start of a given cycle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum HostAction {
+    /// Change the discharge-line pressure to this ratio over the suction pressure (the load).
+    SetLinePressureRatio(f64),
+    /// Send a command to the firmware.
+    Command(Command),
 }
 
 impl RunOptions {
@@ -60,6 +80,10 @@ impl RunOptions {
             seed: 1,
             start_us: 0,
             start_position_m: 0.005,
+            telemetry_decimation: 0,
+            model_error: 0.0,
+            configure: None,
+            schedule: Vec::new(),
         }
     }
 
@@ -123,6 +147,10 @@ pub struct Summary {
     /// Max over the last 5 cycles of |p_chamber − p_discharge|/p_discharge at discharge
     /// opening (needs the chamber model).
     pub discharge_open_pressure_error: Option<f64>,
+    /// RMS of (piston position − reference) while compressing, m.
+    pub tracking_error_rms_m: Option<f64>,
+    /// Indicated work per cycle, ∮p·dV over both chambers, mean of the last 5 cycles, J.
+    pub indicated_work_j_per_cycle: Option<f64>,
     /// Max over the last 5 cycles of |reached − target| dead point, m.
     pub dead_point_error_m: Option<f64>,
     /// Smallest distance to a head after homing, m.
@@ -144,10 +172,17 @@ pub struct RunOutcome {
     pub summary: Summary,
     /// The log (what `run.csv` holds).
     pub log: RunLog,
+    /// The bytes the firmware's telemetry task sent (empty when telemetry is off).
+    pub telemetry: Vec<u8>,
+    /// (cycles completed before it, |p_chamber − p_d|/p_d) at every discharge opening.
+    pub opening_errors: Vec<(u32, f64)>,
+    /// Indicated work of each completed cycle, both chambers, J (negative: the gas did
+    /// work, as in an expander).
+    pub cycle_work_j: Vec<f64>,
 }
 
 /// Columns of the simulator's run log: the required ones, then optional ones.
-pub const COLUMNS: [&str; 12] = [
+pub const COLUMNS: [&str; 18] = [
     REQUIRED[0],
     REQUIRED[1],
     REQUIRED[2],
@@ -160,6 +195,13 @@ pub const COLUMNS: [&str; 12] = [
     "theta_ref_rad",
     "v_mps",
     "fault",
+    // The plant's truth (simulator only): chamber pressures and volumes, line pressures.
+    "p_a_true_pa",
+    "p_b_true_pa",
+    "vol_a_m3",
+    "vol_b_m3",
+    "p_suction_pa",
+    "p_discharge_pa",
 ];
 
 /// The controller's configuration for a model: the firmware's reference tuning with the
@@ -168,7 +210,13 @@ pub fn control_config(model: &MachineModel) -> ControlConfig {
     let mut c = ControlConfig::reference();
     c.moving_mass_kg = model.piston.mass_kg as f32;
     c.travel_m = model.piston.travel_m as f32;
-    c.piston_area_m2 = model.piston_area_m2() as f32;
+    c.cylinder = fpc::gas::Cylinder::from_bore(
+        model.piston.bore_m as f32,
+        model.piston.rod_m as f32,
+        model.piston.travel_m as f32,
+        model.piston.dead_length_a_m as f32,
+        model.piston.dead_length_b_m as f32,
+    );
     let f = model.friction();
     c.friction.coulomb_n = f.coulomb_n as f32;
     c.friction.static_n = f.static_n as f32;
@@ -178,26 +226,51 @@ pub fn control_config(model: &MachineModel) -> ControlConfig {
     c.encoder_master.period_m = model.encoder.period_m as f32;
     c.encoder_slave.period_m = model.encoder.period_m as f32;
     c.motor.electrical_period_m = (2.0 * model.motor.pole_pitch_m) as f32;
+    let m = model.motor_sections().master;
+    c.motor.force_constant_n_per_a = m.force_constant_n_per_a as f32;
+    c.motor.resistance_ohm = m.resistance_ohm as f32;
+    c.motor.inductance_h = m.inductance_h as f32;
+    c.motor.bus_voltage_v = m.bus_voltage_v as f32;
+    c.motor.current_limit_a = m.current_limit_a as f32;
+    c.servo.inertia_kgm2 = model.servo.inertia_kgm2 as f32;
+    c.servo.torque_full_scale_nm = model.servo.torque_full_scale_nm as f32;
+    c.servo.counts_per_rev = model.servo.counts_per_rev;
+    c.target_clearance_m = model.limits.target_head_clearance_m as f32;
+    c.force_limit_n = model.limits.force_limit_n as f32;
+    c.max_speed_mps = model.limits.max_speed_mps as f32;
+    // The model's cogging as the compensation map (what the calibration would find).
+    if let Some(cog) = model.cogging() {
+        let mut map = fpc::cogging::HarmonicMap::none();
+        map.period_m = cog.period_m as f32;
+        // A·sin(θ + φ) = A·cos φ·sin θ + A·sin φ·cos θ.
+        map.sin_n[0] = (cog.amplitude_n * cog.phase_rad.cos()) as f32;
+        map.cos_n[0] = (cog.amplitude_n * cog.phase_rad.sin()) as f32;
+        c.allocation.cogging = map;
+    }
     c
 }
 
 /// The simulated board for a model.
+///
+/// The chambers start unloaded (both open to the suction line, the rig's start-up bypass):
+/// during homing the rotation is at rest and the port timing would seal a chamber. The run
+/// closes the bypass (`world.plant.port_mode = PortMode::Timed`) when compression starts.
 pub fn world(model: &MachineModel, seed: u64, start_us: u32, start_position_m: f64) -> World {
-    let mut p = PlantParams::reference();
-    p.mass_kg = model.piston.mass_kg;
-    p.travel_m = model.piston.travel_m;
-    p.friction = model.friction();
-    p.motor.electrical_period_m = 2.0 * model.motor.pole_pitch_m;
-    p.chamber_pressure_pa = model.gas.ambient_pa;
-    let mut s = Sensors::reference();
-    s.encoder_period_m = model.encoder.period_m;
-    World::new(Plant::new(p, start_position_m), s, seed, start_us)
+    let mut w = World::from_model(model, seed, start_us, start_position_m);
+    w.plant.port_mode = PortMode::Unloaded;
+    w
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Phase {
     Homing,
-    Stroking { toward_b: bool, seen_moving: bool },
+    /// The firmware strokes on its own; the host watches the reference turn at each dead
+    /// point (it is noise-free; 20 µm of hysteresis ignores rounding at the ends).
+    Running {
+        toward_b: bool,
+        ref_extreme_m: f64,
+    },
+    Stopping,
     Done,
 }
 
@@ -205,6 +278,14 @@ enum Phase {
 #[derive(Default)]
 struct Metrics {
     dead_point_errors: Vec<f64>,
+    /// (completed cycles, |p_chamber − p_d|/p_d) at each discharge opening (plant truth).
+    opening_errors: Vec<(u32, f64)>,
+    tracking_sq_m2: f64,
+    tracking_n: u64,
+    /// Port phase of the previous cycle, rad.
+    last_phase_rad: Option<f64>,
+    /// Work done on the gas of both chambers at each completed cycle, J (cumulative).
+    work_at_cycle_j: Vec<f64>,
     extreme_m: Option<f64>,
     min_clearance_m: Option<f64>,
     peak_speed_mps: f64,
@@ -218,10 +299,24 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
     opts.validate()?;
     let model = &opts.model;
     let speed = opts.peak_speed_mps();
-    let config = control_config(model);
+    let mut config = control_config(model);
+    // The controller's model of the machine is off by `model_error` in mass and friction.
+    let k = 1.0 + opts.model_error as f32;
+    config.moving_mass_kg *= k;
+    config.friction.coulomb_n *= k;
+    config.friction.static_n *= k;
+    config.friction.viscous_ns_per_m *= k;
+    if let Some(configure) = opts.configure {
+        configure(&mut config);
+    }
+    let mut actions = opts.schedule.clone();
+    actions.sort_by_key(|(cycle, _)| *cycle);
+    let mut actions = actions.into_iter().peekable();
     let dead_a = f64::from(config.target_clearance_m);
     let dead_b = f64::from(config.travel_m - config.target_clearance_m);
-    let world = world(model, opts.seed, opts.start_us, opts.start_position_m);
+    let mut world = world(model, opts.seed, opts.start_us, opts.start_position_m);
+    world.telemetry.decimation = opts.telemetry_decimation;
+    world.plant.lines.set_pressure_ratio(opts.pressure_ratio);
 
     let mut log = RunLog::with_columns(&COLUMNS);
     log.meta.push(("source".into(), "fpc-sim run".into()));
@@ -254,6 +349,12 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
                 f64::from(status.theta_reference_rad),
                 f64::from(status.velocity_mps),
                 f64::from(status.faults.first().map_or(0, |f| f as u8)),
+                w.plant.chambers.a.pressure_pa,
+                w.plant.chambers.b.pressure_pa,
+                w.plant.chambers.a.volume_m3,
+                w.plant.chambers.b.volume_m3,
+                w.plant.lines.suction_pa,
+                w.plant.lines.discharge_pa,
             ]);
         }
         for f in status.faults.iter() {
@@ -262,6 +363,15 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
             }
         }
         metrics.peak_speed_mps = metrics.peak_speed_mps.max(w.plant.v_mps.abs());
+        if matches!(phase, Phase::Running { .. }) {
+            if let Some(e) = discharge_opening(&w.plant, metrics.last_phase_rad) {
+                metrics.opening_errors.push((cycles_done, e));
+            }
+            let e = w.plant.x_m - f64::from(status.reference_m);
+            metrics.tracking_sq_m2 += e * e;
+            metrics.tracking_n += 1;
+        }
+        metrics.last_phase_rad = Some(w.plant.port_phase_rad());
         let faulted = !status.faults.is_empty();
         phase = match phase {
             Phase::Homing if w.cycle() == 0 => {
@@ -269,15 +379,22 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
                 Phase::Homing
             }
             Phase::Homing if status.homed && status.mode == ModeKind::Holding => {
-                post_move(shared, dead_b, speed);
-                Phase::Stroking {
+                // Close the bypass: from now on the rotation times the ports.
+                w.plant.port_mode = PortMode::Timed;
+                while let Some((_, action)) = actions.next_if(|(c, _)| *c == 0) {
+                    act(w, shared, action);
+                }
+                let _ = shared.post_command(Command::Start {
+                    peak_speed_mps: speed as f32,
+                });
+                Phase::Running {
                     toward_b: true,
-                    seen_moving: false,
+                    ref_extreme_m: f64::from(status.reference_m),
                 }
             }
-            Phase::Stroking {
+            Phase::Running {
                 toward_b,
-                seen_moving,
+                ref_extreme_m,
             } => {
                 let x = w.plant.x_m;
                 let c = w.plant.head_clearance_m();
@@ -291,31 +408,48 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
                     Some(e) if toward_b => e.max(x),
                     Some(e) => e.min(x),
                 });
-                let moving = status.mode == ModeKind::Moving;
-                if seen_moving && status.mode == ModeKind::Holding && last.mode == ModeKind::Holding
-                {
+                let r = f64::from(status.reference_m);
+                let turned = if toward_b {
+                    r < ref_extreme_m - 20e-6
+                } else {
+                    r > ref_extreme_m + 20e-6
+                };
+                if turned && status.mode == ModeKind::Running {
                     let target = if toward_b { dead_b } else { dead_a };
                     let reached = metrics.extreme_m.take().unwrap_or(x);
                     metrics.dead_point_errors.push((reached - target).abs());
                     if !toward_b {
                         cycles_done += 1;
+                        while let Some((_, action)) = actions.next_if(|(c, _)| *c <= cycles_done) {
+                            act(w, shared, action);
+                        }
+                        let c = &w.plant.chambers;
+                        metrics
+                            .work_at_cycle_j
+                            .push(c.a.totals.work_on_gas_j + c.b.totals.work_on_gas_j);
                     }
                     if cycles_done >= opts.cycles {
-                        Phase::Done
+                        let _ = shared.post_command(Command::Stop);
+                        Phase::Stopping
                     } else {
-                        post_move(shared, if toward_b { dead_a } else { dead_b }, speed);
-                        Phase::Stroking {
+                        Phase::Running {
                             toward_b: !toward_b,
-                            seen_moving: false,
+                            ref_extreme_m: r,
                         }
                     }
                 } else {
-                    Phase::Stroking {
+                    let ref_extreme_m = if toward_b {
+                        ref_extreme_m.max(r)
+                    } else {
+                        ref_extreme_m.min(r)
+                    };
+                    Phase::Running {
                         toward_b,
-                        seen_moving: seen_moving || moving,
+                        ref_extreme_m,
                     }
                 }
             }
+            Phase::Stopping if status.mode == ModeKind::Holding => Phase::Done,
             other => other,
         };
         last = status;
@@ -339,7 +473,17 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
         },
         cycles: cycles_done,
         pressure_ratio_target: opts.pressure_ratio,
-        discharge_open_pressure_error: None,
+        discharge_open_pressure_error: last_max(
+            &metrics
+                .opening_errors
+                .iter()
+                .map(|(_, e)| *e)
+                .collect::<Vec<_>>(),
+            10,
+        ),
+        tracking_error_rms_m: (metrics.tracking_n > 0)
+            .then(|| (metrics.tracking_sq_m2 / metrics.tracking_n as f64).sqrt()),
+        indicated_work_j_per_cycle: indicated_work(&metrics.work_at_cycle_j),
         dead_point_error_m: metrics
             .dead_point_errors
             .get(last5..)
@@ -355,12 +499,72 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
             .collect(),
         state: last.mode.name().to_string(),
     };
-    Ok(RunOutcome { summary, log })
+    Ok(RunOutcome {
+        summary,
+        log,
+        telemetry: world.telemetry.bytes,
+        opening_errors: metrics.opening_errors,
+        cycle_work_j: metrics
+            .work_at_cycle_j
+            .windows(2)
+            .map(|w| w[1] - w[0])
+            .collect(),
+    })
 }
 
-fn post_move(shared: &SimShared, position_m: f64, speed_mps: f64) {
-    let _ = shared.post_command(Command::MoveTo {
-        position_m: position_m as f32,
-        peak_speed_mps: speed_mps as f32,
-    });
+/// Largest of the last `n` values.
+fn last_max(values: &[f64], n: usize) -> Option<f64> {
+    values
+        .get(values.len().saturating_sub(n)..)
+        .and_then(|v| v.iter().copied().reduce(f64::max))
+}
+
+/// Mean work per cycle over the last 5 cycles, from cumulative work at each cycle end, J.
+fn indicated_work(cumulative_j: &[f64]) -> Option<f64> {
+    let n = cumulative_j.len();
+    let k = 5.min(n.saturating_sub(1));
+    if k == 0 {
+        return None;
+    }
+    let last = cumulative_j.get(n - 1)?;
+    let first = cumulative_j.get(n - 1 - k)?;
+    Some((last - first) / k as f64)
+}
+
+/// If a discharge port's half-open angle was crossed since `last_phase_rad` (forward
+/// rotation: compressor), the relative pressure error of that chamber against the discharge
+/// line at that instant: what a well-timed volume ratio makes zero.
+fn discharge_opening(plant: &crate::plant::Plant, last_phase_rad: Option<f64>) -> Option<f64> {
+    use fpc::port_timing::Port;
+    let last = last_phase_rad?;
+    let now = plant.port_phase_rad();
+    let ports = &plant.chambers.params.ports;
+    let turn = std::f64::consts::TAU;
+    let advance = (now - last).rem_euclid(turn);
+    // Reverse rotation (expander: the discharge port is the admission) or standstill: no
+    // discharge opening to judge.
+    if advance == 0.0 || advance >= std::f64::consts::PI {
+        return None;
+    }
+    for (port, chamber) in [
+        (Port::DischargeA, &plant.chambers.a),
+        (Port::DischargeB, &plant.chambers.b),
+    ] {
+        let to_edge = (ports.half_open_rad(port) - last).rem_euclid(turn);
+        if to_edge > 0.0 && to_edge <= advance {
+            let pd = plant.lines.discharge_pa;
+            return Some((chamber.pressure_pa - pd).abs() / pd);
+        }
+    }
+    None
+}
+
+/// Carries out a scheduled host action.
+fn act(w: &mut World, shared: &SimShared, action: HostAction) {
+    match action {
+        HostAction::SetLinePressureRatio(pr) => w.plant.lines.set_pressure_ratio(pr),
+        HostAction::Command(c) => {
+            let _ = shared.post_command(c);
+        }
+    }
 }

@@ -34,6 +34,13 @@ pub struct RunArgs {
     /// Noise seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Also capture the firmware's telemetry stream into this file (`fpc-sim decode` reads it).
+    #[arg(long)]
+    pub telemetry: Option<PathBuf>,
+    /// Control cycles per telemetry frame (1 = every 50 µs cycle).
+    #[arg(long, default_value_t = fpc::telemetry::DEFAULT_DECIMATION,
+          value_parser = clap::value_parser!(u16).range(1..))]
+    pub telemetry_decimation: u16,
 }
 
 /// Runs `fpc-sim run`.
@@ -52,6 +59,11 @@ pub fn main(args: RunArgs) -> CmdResult {
         speed_mps: args.speed,
         cycles: args.cycles,
         seed: args.seed,
+        telemetry_decimation: if args.telemetry.is_some() {
+            args.telemetry_decimation
+        } else {
+            0
+        },
         ..RunOptions::reference()
     };
     opts.validate().map_err(Failure::bad_input)?;
@@ -65,6 +77,11 @@ pub fn main(args: RunArgs) -> CmdResult {
         .write(&csv)
         .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", csv.display())))?;
     plot_motion(out, &outcome.log).map_err(Failure::runtime)?;
+    plot_pv(out, &outcome.log).map_err(Failure::runtime)?;
+    if let Some(path) = &args.telemetry {
+        std::fs::write(path, &outcome.telemetry)
+            .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", path.display())))?;
+    }
     let s = &outcome.summary;
     eprintln!(
         "fpc-sim run: {} cycles in {:.3} s simulated ({:.0}x real time), state {}, peak speed {:.2} m/s, \
@@ -109,6 +126,37 @@ fn plot_motion(out: &Path, log: &RunLog) -> Result<(), String> {
                 label: "x reference",
                 x: t,
                 y: r,
+            },
+        ],
+    )
+}
+
+/// `pv.svg`: the p–V diagram of both chambers from the plant's true pressures and volumes.
+fn plot_pv(out: &Path, log: &RunLog) -> Result<(), String> {
+    let scaled = |name: &str, k: f64| -> Vec<f64> {
+        log.column(name)
+            .unwrap_or_default()
+            .iter()
+            .map(|v| v * k)
+            .collect()
+    };
+    let (va, vb) = (scaled("vol_a_m3", 1e3), scaled("vol_b_m3", 1e3));
+    let (pa, pb) = (scaled("p_a_true_pa", 1e-6), scaled("p_b_true_pa", 1e-6));
+    lines(
+        &out.join("pv.svg"),
+        "p-V diagram of both chambers",
+        "V, 10⁻³ m³",
+        "p, MPa",
+        &[
+            Series {
+                label: "chamber A",
+                x: &va,
+                y: &pa,
+            },
+            Series {
+                label: "chamber B",
+                x: &vb,
+                y: &pb,
             },
         ],
     )

@@ -54,6 +54,7 @@ mod adc;
 mod clocks;
 mod fault;
 mod pwm;
+pub mod rtt;
 mod servo;
 mod time;
 mod watchdog;
@@ -104,6 +105,22 @@ pub struct Board {
     pub sleep: BoardSleep,
     /// The running watchdog; feed it within [`watchdog::WATCHDOG_TIMEOUT_US`].
     pub watchdog: BoardWatchdog,
+}
+
+/// Reads and clears the reset flags (RCC_CSR): why the MCU started.
+pub fn take_reset_cause() -> fpc::faults::ResetCause {
+    use fpc::faults::ResetCause;
+    let csr = embassy_stm32::pac::RCC.csr().read();
+    let cause = if csr.iwdgrstf() {
+        ResetCause::Watchdog
+    } else if csr.borrstf() {
+        ResetCause::PowerOn
+    } else {
+        ResetCause::External
+    };
+    // Clear the flags so the next reset reports its own cause.
+    embassy_stm32::pac::RCC.csr().modify(|w| w.set_rmvf(true));
+    cause
 }
 
 /// Brings the board up: clocks, debug freeze, servo I/O, ADC burst, PWM (running, outputs
