@@ -149,42 +149,6 @@ impl Real for f32 {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn f32_exp_and_tanh_are_accurate_enough_for_the_friction_law() {
-        use super::Real;
-        let mut worst_exp = 0.0f64;
-        let mut worst_tanh = 0.0f64;
-        for i in -2000..=200 {
-            let x = i as f32 * 0.01;
-            let e = (f64::from(Real::exp(x)) - f64::from(x).exp()).abs() / f64::from(x).exp();
-            worst_exp = worst_exp.max(e);
-            let t = (f64::from(Real::tanh(x)) - f64::from(x).tanh()).abs();
-            worst_tanh = worst_tanh.max(t);
-        }
-        println!(
-            "worst relative exp error {worst_exp:.2e}, worst absolute tanh error {worst_tanh:.2e}"
-        );
-        // 0.3 % of the 20 N Stribeck term is 0.06 N: far below the friction uncertainty.
-        assert!(worst_exp < 3e-3 && worst_tanh < 1e-3);
-    }
-
-    #[test]
-    fn refined_sqrt_is_accurate() {
-        let mut worst = 0.0f64;
-        let mut x = 1e-6f32;
-        while x < 1e7 {
-            let err = (f64::from(super::sqrt_f32(x)) - f64::from(x).sqrt()) / f64::from(x).sqrt();
-            worst = worst.max(err.abs());
-            x *= 1.37;
-        }
-        assert!(worst < 2e-6, "{worst}");
-        assert!(super::sqrt_f32(-1.0).is_nan());
-        assert_eq!(super::sqrt_f32(0.0), 0.0);
-    }
-}
-
 impl Real for f64 {
     const ZERO: f64 = 0.0;
     const ONE: f64 = 1.0;
@@ -232,5 +196,41 @@ impl Real for f64 {
     #[inline]
     fn min(self, other: f64) -> f64 {
         f64::min(self, other)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn f32_exp_and_tanh_are_accurate_enough_for_the_friction_law() {
+        use super::Real;
+        let mut worst_exp = 0.0f64;
+        let mut worst_tanh = 0.0f64;
+        for i in -2000..=200 {
+            let x = i as f32 * 0.01;
+            let e = (f64::from(Real::exp(x)) - f64::from(x).exp()).abs() / f64::from(x).exp();
+            worst_exp = worst_exp.max(e);
+            let t = (f64::from(Real::tanh(x)) - f64::from(x).tanh()).abs();
+            worst_tanh = worst_tanh.max(t);
+        }
+        println!(
+            "worst relative exp error {worst_exp:.2e}, worst absolute tanh error {worst_tanh:.2e}"
+        );
+        // 0.3 % of the 20 N Stribeck term is 0.06 N: far below the friction uncertainty.
+        assert!(worst_exp < 3e-3 && worst_tanh < 1e-3);
+    }
+
+    #[test]
+    fn refined_sqrt_is_accurate() {
+        let mut worst = 0.0f64;
+        let mut x = 1e-6f32;
+        while x < 1e7 {
+            let err = (f64::from(super::sqrt_f32(x)) - f64::from(x).sqrt()) / f64::from(x).sqrt();
+            worst = worst.max(err.abs());
+            x *= 1.37;
+        }
+        assert!(worst < 2e-6, "{worst}");
+        assert!(super::sqrt_f32(-1.0).is_nan());
+        assert_eq!(super::sqrt_f32(0.0), 0.0);
     }
 }
