@@ -48,7 +48,8 @@ mod firmware {
     /// The 1 kHz supervision task (thread mode): the only one that feeds the watchdog.
     #[embassy_executor::task]
     async fn supervision(sleep: BoardSleep, clock: BoardClock, watchdog: BoardWatchdog) {
-        let never: Infallible = fpc::tasks::supervision_run(sleep, clock, watchdog, &SHARED).await;
+        let never: Infallible =
+            fpc::tasks::supervision_run(sleep, clock, watchdog, board::DefmtEvents, &SHARED).await;
         match never {}
     }
 

@@ -148,3 +148,14 @@ pub trait FrameSink {
     /// task then never tears a frame, and counts what it could not send.
     fn write(&mut self, bytes: &[u8]) -> usize;
 }
+
+/// Operator-facing events, reported by the supervision task (never from the 20 kHz path):
+/// the board logs them with defmt at fixed levels, the simulator records them.
+pub trait EventLog {
+    /// A fault was latched (defmt `error`).
+    fn fault_latched(&mut self, fault: crate::faults::Fault);
+    /// A limit became active (defmt `warn`).
+    fn limit_active(&mut self, limits: crate::supervisor::LimitFlags);
+    /// The operating mode changed (defmt `info`).
+    fn mode_changed(&mut self, mode: crate::controller::ModeKind);
+}

@@ -11,7 +11,7 @@ use crate::controller::{ControlConfig, ControlStep, CycleInputs};
 use crate::faults::ResetCause;
 use crate::link::{encode_rejection, encode_reply, CommandReader, MAX_REPLY_WIRE};
 use crate::ports::{
-    ByteSource, Clock, ControlPorts, CurrentInput, CycleTrigger, EncoderInput, FrameSink,
+    ByteSource, Clock, ControlPorts, CurrentInput, CycleTrigger, EncoderInput, EventLog, FrameSink,
     PressureInput, PwmOutput, QuadratureInput, Sleep, TorqueOutput, Watchdog,
 };
 use crate::shared::{task_bits, Reply, Shared};
@@ -97,11 +97,14 @@ where
 }
 
 /// The supervision task (thread mode, 1 kHz): feeds the independent watchdog only when
-/// every task has checked in since the last feed, so a hung task resets the board.
-pub async fn supervision_run<M, L, K, W>(
+/// every task has checked in since the last feed, so a hung task resets the board; and
+/// reports what an operator must know — a fault latched, a limit that became active, a mode
+/// change — to `log` (the 20 kHz path never logs).
+pub async fn supervision_run<M, L, K, W, G>(
     mut sleep: L,
     clock: K,
     mut watchdog: W,
+    mut log: G,
     shared: &Shared<M>,
 ) -> Infallible
 where
@@ -109,14 +112,32 @@ where
     L: Sleep,
     K: Clock,
     W: Watchdog,
+    G: EventLog,
 {
     let mut next = clock.now();
+    let mut seen = shared.status();
     loop {
         next = next.add_us(SUPERVISION_PERIOD_US);
         sleep.until(next).await;
         if shared.take_checkins(task_bits::ALL) {
             watchdog.feed();
         }
+        let now = shared.status();
+        for fault in now.faults.iter().filter(|f| !seen.faults.contains(*f)) {
+            log.fault_latched(fault);
+        }
+        let l = now.limits;
+        let before = seen.limits;
+        if (l.force && !before.force)
+            || (l.voltage && !before.voltage)
+            || (l.envelope && !before.envelope)
+        {
+            log.limit_active(l);
+        }
+        if now.mode != seen.mode {
+            log.mode_changed(now.mode);
+        }
+        seen = now;
     }
 }
 

@@ -23,7 +23,7 @@ use fpc::tasks::{control_run, supervision_run, telemetry_run};
 
 use crate::capture::telemetry_sink;
 use crate::world::{
-    clock, cycle, peripherals, watchdog, SimCycle, SimPeripherals, World, WorldRef,
+    clock, cycle, event_log, peripherals, watchdog, SimCycle, SimPeripherals, World, WorldRef,
 };
 
 /// The shared state as the simulator instantiates it (single thread: no-op mutex).
@@ -87,6 +87,7 @@ where
             clock(&world),
             clock(&world),
             watchdog(&world),
+            event_log(&world),
             shared
         ));
         let decimation = world.borrow().telemetry.decimation;

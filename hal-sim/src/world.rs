@@ -43,6 +43,8 @@ pub struct World {
     pub servo_code: DacCode,
     /// Simulated time of the last watchdog feed, µs since the start.
     pub watchdog_fed_us: u64,
+    /// What the firmware's supervision task reported (the board logs it with defmt).
+    pub events: Vec<Event>,
     /// What the firmware's telemetry task sent up the (simulated) RTT channel.
     pub telemetry: crate::capture::TelemetryCapture,
     noise: Noise,
@@ -81,6 +83,7 @@ impl World {
             enabled: false,
             servo_code: DacCode::MID,
             watchdog_fed_us: 0,
+            events: Vec::new(),
             telemetry: Default::default(),
             noise: Noise::new(seed),
             pressure_alpha,
@@ -336,6 +339,47 @@ pub fn peripherals(world: &WorldRef) -> SimPeripherals {
 /// The time base of `world`.
 pub fn clock(world: &WorldRef) -> SimClock {
     SimClock {
+        world: world.clone(),
+    }
+}
+
+/// What the firmware's supervision task reported, with the simulated time, µs.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Event {
+    /// A fault was latched.
+    FaultLatched(u64, fpc::faults::Fault),
+    /// A limit became active.
+    LimitActive(u64, fpc::supervisor::LimitFlags),
+    /// The mode changed.
+    ModeChanged(u64, fpc::controller::ModeKind),
+}
+
+/// The simulated board's event log: it records what the board would log with defmt.
+pub struct SimEventLog {
+    world: WorldRef,
+}
+
+impl fpc::ports::EventLog for SimEventLog {
+    fn fault_latched(&mut self, fault: fpc::faults::Fault) {
+        let mut w = self.world.borrow_mut();
+        let t = w.time_us();
+        w.events.push(Event::FaultLatched(t, fault));
+    }
+    fn limit_active(&mut self, limits: fpc::supervisor::LimitFlags) {
+        let mut w = self.world.borrow_mut();
+        let t = w.time_us();
+        w.events.push(Event::LimitActive(t, limits));
+    }
+    fn mode_changed(&mut self, mode: fpc::controller::ModeKind) {
+        let mut w = self.world.borrow_mut();
+        let t = w.time_us();
+        w.events.push(Event::ModeChanged(t, mode));
+    }
+}
+
+/// The event log of `world`.
+pub fn event_log(world: &WorldRef) -> SimEventLog {
+    SimEventLog {
         world: world.clone(),
     }
 }

@@ -107,6 +107,22 @@ pub struct Board {
     pub watchdog: BoardWatchdog,
 }
 
+/// Operator events as defmt logs, at the levels the project uses everywhere: error = a fault
+/// latched, warn = a limit became active, info = a mode change.
+pub struct DefmtEvents;
+
+impl fpc::ports::EventLog for DefmtEvents {
+    fn fault_latched(&mut self, fault: fpc::faults::Fault) {
+        defmt::error!("fault latched: {} ({=u8})", fault.name(), fault as u8);
+    }
+    fn limit_active(&mut self, limits: fpc::supervisor::LimitFlags) {
+        defmt::warn!("limit active: {}", limits);
+    }
+    fn mode_changed(&mut self, mode: fpc::controller::ModeKind) {
+        defmt::info!("mode: {}", mode.name());
+    }
+}
+
 /// Reads and clears the reset flags (RCC_CSR): why the MCU started.
 pub fn take_reset_cause() -> fpc::faults::ResetCause {
     use fpc::faults::ResetCause;
