@@ -45,13 +45,13 @@ const CALLS: usize = 1000;
 // Budgets from the issues, instructions per call. `Watch` prints the budget beside the
 // figure; `Enforce` also fails the run above it. Enforcing one is a one-word change here.
 /// Savitzky–Golay velocity + acceleration over a 21-sample window, per sample.
-const SG_DIFFERENTIATOR_21: Budget = Budget::Watch(120);
+const SG_DIFFERENTIATOR_21: Budget = Budget::Enforce(120);
 /// Sin/cos decode, per encoder.
-const ENCODER_DECODE: Budget = Budget::Watch(150);
+const ENCODER_DECODE: Budget = Budget::Enforce(150);
 /// Field-oriented control of both sections, per cycle.
-const FOC_BOTH_SECTIONS: Budget = Budget::Watch(900);
+const FOC_BOTH_SECTIONS: Budget = Budget::Enforce(900);
 /// The whole 20 kHz control step.
-const CONTROL_STEP: Budget = Budget::Watch(2000);
+const CONTROL_STEP: Budget = Budget::Enforce(2000);
 
 /// A function's instruction budget, per call.
 #[derive(Clone, Copy)]
