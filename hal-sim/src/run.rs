@@ -11,6 +11,7 @@ use std::time::Instant;
 use fpc::command::Command;
 use fpc::controller::{ControlConfig, ModeKind, Status};
 use fpc::faults::Fault;
+use fpc::units::CONTROL_PERIOD_S;
 use serde::Serialize;
 
 use crate::chambers::PortMode;
@@ -179,6 +180,8 @@ pub struct RunOutcome {
     /// Indicated work of each completed cycle, both chambers, J (negative: the gas did
     /// work, as in an expander).
     pub cycle_work_j: Vec<f64>,
+    /// Work the motor sections did on the piston in each completed cycle, J.
+    pub cycle_motor_work_j: Vec<f64>,
 }
 
 /// Columns of the simulator's run log: the required ones, then optional ones.
@@ -286,6 +289,10 @@ struct Metrics {
     last_phase_rad: Option<f64>,
     /// Work done on the gas of both chambers at each completed cycle, J (cumulative).
     work_at_cycle_j: Vec<f64>,
+    /// Work the two motor sections did on the piston, J (cumulative since compression began).
+    motor_work_j: f64,
+    /// `motor_work_j` at each completed cycle.
+    motor_work_at_cycle_j: Vec<f64>,
     extreme_m: Option<f64>,
     min_clearance_m: Option<f64>,
     peak_speed_mps: f64,
@@ -369,6 +376,9 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
             }
             let e = w.plant.x_m - f64::from(status.reference_m);
             metrics.tracking_sq_m2 += e * e;
+            metrics.motor_work_j += (w.plant.force_n.master + w.plant.force_n.slave)
+                * w.plant.v_mps
+                * f64::from(CONTROL_PERIOD_S);
             metrics.tracking_n += 1;
         }
         metrics.last_phase_rad = Some(w.plant.port_phase_rad());
@@ -427,6 +437,7 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
                         metrics
                             .work_at_cycle_j
                             .push(c.a.totals.work_on_gas_j + c.b.totals.work_on_gas_j);
+                        metrics.motor_work_at_cycle_j.push(metrics.motor_work_j);
                     }
                     if cycles_done >= opts.cycles {
                         let _ = shared.post_command(Command::Stop);
@@ -506,6 +517,11 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
         opening_errors: metrics.opening_errors,
         cycle_work_j: metrics
             .work_at_cycle_j
+            .windows(2)
+            .map(|w| w[1] - w[0])
+            .collect(),
+        cycle_motor_work_j: metrics
+            .motor_work_at_cycle_j
             .windows(2)
             .map(|w| w[1] - w[0])
             .collect(),

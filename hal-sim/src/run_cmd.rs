@@ -78,6 +78,7 @@ pub fn main(args: RunArgs) -> CmdResult {
         .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", csv.display())))?;
     plot_motion(out, &outcome.log).map_err(Failure::runtime)?;
     plot_pv(out, &outcome.log).map_err(Failure::runtime)?;
+    plot_energy(out, &outcome).map_err(Failure::runtime)?;
     if let Some(path) = &args.telemetry {
         std::fs::write(path, &outcome.telemetry)
             .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", path.display())))?;
@@ -157,6 +158,32 @@ fn plot_pv(out: &Path, log: &RunLog) -> Result<(), String> {
                 label: "chamber B",
                 x: &vb,
                 y: &pb,
+            },
+        ],
+    )
+}
+
+/// Energy per compression cycle: what the motor sections put into the piston and what the
+/// gas received (∮p·dV); the difference is friction and the other losses.
+fn plot_energy(out: &Path, outcome: &crate::run::RunOutcome) -> Result<(), String> {
+    let cycles: Vec<f64> = (0..outcome.cycle_work_j.len())
+        .map(|c| (c + 2) as f64)
+        .collect();
+    lines(
+        &out.join("energy.svg"),
+        "Energy per compression cycle",
+        "cycle",
+        "J",
+        &[
+            Series {
+                label: "motor work on the piston",
+                x: &cycles,
+                y: &outcome.cycle_motor_work_j,
+            },
+            Series {
+                label: "indicated work (both chambers)",
+                x: &cycles,
+                y: &outcome.cycle_work_j,
             },
         ],
     )
