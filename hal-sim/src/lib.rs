@@ -26,6 +26,7 @@
 //! | [`capture`] | the simulated telemetry sink; decoding a capture to a run log |
 //! | [`signal`] | cross-correlation lag, filtfilt, differences, strokes |
 //! | [`analysis`] | what the log-analysis subcommands share |
+//! | [`gap`], [`gap_cmd`] | the model-gap workflow; `fpc-sim gap` |
 //! | [`derive`] | `fpc-sim derive`: the firmware's differentiator over a run log |
 //! | [`decode_cmd`], [`lag_cmd`], [`filters_cmd`], [`forces_cmd`], [`energy_cmd`], [`pv_cmd`] | `fpc-sim decode`, `lag`, `filters`, `forces`, `energy`, `pv` |
 #![warn(missing_docs)]
@@ -41,6 +42,8 @@ pub mod exec;
 pub mod fastmath;
 pub mod filters_cmd;
 pub mod forces_cmd;
+pub mod gap;
+pub mod gap_cmd;
 pub mod inject;
 pub mod kinematic;
 pub mod lag_cmd;

@@ -38,6 +38,8 @@ enum Cmd {
     Energy(hal_sim::energy_cmd::EnergyArgs),
     /// p-V diagram of both chambers (Fig. 3).
     Pv(hal_sim::pv_cmd::PvArgs),
+    /// Find, name and add the effect missing from a model (model-gap workflow).
+    Gap(hal_sim::gap_cmd::GapArgs),
 }
 
 fn dispatch(cmd: Cmd) -> CmdResult {
@@ -50,6 +52,7 @@ fn dispatch(cmd: Cmd) -> CmdResult {
         Cmd::Forces(args) => hal_sim::forces_cmd::main(args),
         Cmd::Energy(args) => hal_sim::energy_cmd::main(args),
         Cmd::Pv(args) => hal_sim::pv_cmd::main(args),
+        Cmd::Gap(args) => hal_sim::gap_cmd::main(args),
     }
 }
 

@@ -1,0 +1,249 @@
+//! The filters the model-gap workflow compares through: the firmware's Savitzky–Golay
+//! acceleration filter, the kernel that smooths forces *exactly* as that filter smooths m·ẍ,
+//! and the zero-phase low-pass that limits every channel to the analysis band.
+//!
+//! Why a force kernel: the SG second-derivative filter `h₂` annihilates constants and ramps,
+//! so `h₂ = Δ² ⋆ g` for a shorter kernel `g` (Δ² the centred second difference over dt²).
+//! Then `h₂ ⋆ x = g ⋆ (Δ²x)`: the firmware's acceleration is the raw second difference
+//! smoothed by `g`. Smoothing every force with the same `g` makes the force balance
+//! `g ⋆ (m·Δ²x − ΣF)` — the same filter on both sides, so no lag or gain differs between
+//! them (the paper's "minimise the phase shift" by construction).
+//!
+//! Why a band: the acceleration noise of a 2 ms SG window sits at 200–2000 Hz and is ten
+//! times the effects looked for (≈ 12 N RMS against a 30 N cogging). Every channel's residual
+//! and every candidate's regressor pass the same windowed-sinc low-pass (default 300 Hz:
+//! above the cogging frequency at 4 m/s), so fits are unbiased and the noise left is ≈ 5 N.
+//! All kernels are symmetric (zero phase) and applied as correlations centred on the sample.
+
+use nalgebra::DMatrix;
+
+/// Longest low-pass kernel, samples (bounds the cost at very low bands).
+pub const MAX_LOWPASS_TAPS: usize = 4001;
+
+/// The Savitzky–Golay weights of derivative `deriv` at the centre of a window of `window`
+/// samples (odd), polynomial `order`, sample time `dt_s`: `y[i] = Σⱼ w[j]·x[i + j − M]`.
+/// These are the weights the firmware's fixed-point differentiator implements (scipy's
+/// `savgol_coeffs(window, order, deriv, delta, use='dot')`). `None` for a bad configuration.
+pub fn sg_weights(window: usize, order: usize, deriv: usize, dt_s: f64) -> Option<Vec<f64>> {
+    if window < 3 || window.is_multiple_of(2) || order >= window || deriv > order {
+        return None;
+    }
+    if !(dt_s.is_finite() && dt_s > 0.0) {
+        return None;
+    }
+    let half = (window / 2) as f64;
+    // Least squares on a centred, unit-spaced abscissa: w = row `deriv` of (JᵀJ)⁻¹Jᵀ.
+    let j = DMatrix::from_fn(window, order + 1, |r, c| (r as f64 - half).powi(c as i32));
+    let jt = j.transpose();
+    let normal = (&jt * &j).try_inverse()?;
+    let pinv = normal * jt;
+    let factorial: f64 = (1..=deriv).map(|k| k as f64).product();
+    let scale = factorial / dt_s.powi(deriv as i32);
+    Some(pinv.row(deriv).iter().map(|w| w * scale).collect())
+}
+
+/// The force kernel `g` of the module header: length `window − 2`, with
+/// `h₂[j]·dt² = g[j] − 2g[j−1] + g[j−2]`. Its sum is 1.
+pub fn force_kernel(h2: &[f64], dt_s: f64) -> Vec<f64> {
+    let n = h2.len().saturating_sub(2);
+    let mut g: Vec<f64> = Vec::with_capacity(n);
+    let (mut g1, mut g2) = (0.0, 0.0); // g[j−1], g[j−2]
+    for &h in h2.iter().take(n) {
+        let v = h * dt_s * dt_s + 2.0 * g1 - g2;
+        g.push(v);
+        g2 = g1;
+        g1 = v;
+    }
+    g
+}
+
+/// A zero-phase windowed-sinc (Blackman) low-pass at `cutoff_hz` for `sample_rate_hz`,
+/// unit DC gain, ≈ 4 cut-off periods long. A single tap (no filtering) when the cut-off
+/// reaches the Nyquist frequency.
+pub fn lowpass(cutoff_hz: f64, sample_rate_hz: f64) -> Vec<f64> {
+    let fc = cutoff_hz / sample_rate_hz;
+    if !(fc.is_finite() && fc > 0.0 && fc < 0.5) {
+        return vec![1.0];
+    }
+    let len = ((4.0 / fc).ceil() as usize | 1).clamp(3, MAX_LOWPASS_TAPS);
+    let m = (len - 1) as f64;
+    let mut h: Vec<f64> = (0..len)
+        .map(|i| {
+            let k = i as f64 - m / 2.0;
+            let sinc = if k == 0.0 {
+                2.0 * fc
+            } else {
+                (2.0 * std::f64::consts::PI * fc * k).sin() / (std::f64::consts::PI * k)
+            };
+            let a = 2.0 * std::f64::consts::PI * i as f64 / m;
+            sinc * (0.42 - 0.5 * a.cos() + 0.08 * (2.0 * a).cos())
+        })
+        .collect();
+    let sum: f64 = h.iter().sum();
+    if sum != 0.0 {
+        h.iter_mut().for_each(|v| *v /= sum);
+    }
+    h
+}
+
+/// Full convolution of two kernels (length `a + b − 1`; symmetric in, symmetric out).
+pub fn convolve(a: &[f64], b: &[f64]) -> Vec<f64> {
+    if a.is_empty() || b.is_empty() {
+        return Vec::new();
+    }
+    let mut out = vec![0.0; a.len() + b.len() - 1];
+    for (i, &x) in a.iter().enumerate() {
+        for (o, &y) in out.iter_mut().skip(i).zip(b) {
+            *o += x * y;
+        }
+    }
+    out
+}
+
+/// A centred, symmetric FIR kernel, applied as a correlation; samples outside the signal
+/// count as zero (the callers mask before filtering, so the ends are consistent).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Kernel {
+    taps: Vec<f64>,
+}
+
+impl Kernel {
+    /// A kernel of odd length (an even one gets a trailing zero).
+    pub fn new(mut taps: Vec<f64>) -> Self {
+        if taps.len().is_multiple_of(2) {
+            taps.push(0.0);
+        }
+        Kernel { taps }
+    }
+
+    /// Half length: samples on each side of the centre.
+    pub fn half(&self) -> usize {
+        self.taps.len() / 2
+    }
+
+    /// The taps.
+    pub fn taps(&self) -> &[f64] {
+        &self.taps
+    }
+
+    /// The filtered value at sample `i`.
+    #[inline]
+    pub fn at(&self, x: &[f64], i: usize) -> f64 {
+        let h = self.half();
+        if i >= h && i + h < x.len() {
+            // Interior: one slice, no bounds juggling in the loop.
+            let window = x.get(i - h..=i + h).unwrap_or_default();
+            return window.iter().zip(&self.taps).map(|(a, b)| a * b).sum();
+        }
+        self.taps
+            .iter()
+            .enumerate()
+            .filter_map(|(j, w)| {
+                let k = (i + j).checked_sub(h)?;
+                x.get(k).map(|v| v * w)
+            })
+            .sum()
+    }
+
+    /// The filtered signal at every sample.
+    pub fn apply(&self, x: &[f64]) -> Vec<f64> {
+        (0..x.len()).map(|i| self.at(x, i)).collect()
+    }
+
+    /// The filtered signal at the samples `idx` only.
+    pub fn apply_at(&self, x: &[f64], idx: &[usize]) -> Vec<f64> {
+        idx.iter().map(|&i| self.at(x, i)).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sg_weights_differentiate_a_parabola_exactly() {
+        let dt = 1e-3;
+        let w = sg_weights(21, 2, 2, dt).unwrap();
+        let x: Vec<f64> = (0..21).map(|i| 3.0 * (i as f64 * dt).powi(2)).collect();
+        let a: f64 = w.iter().zip(&x).map(|(w, x)| w * x).sum();
+        assert!((a - 6.0).abs() < 1e-6, "{a}");
+        let w1 = sg_weights(21, 2, 1, dt).unwrap();
+        let v: f64 = w1.iter().zip(&x).map(|(w, x)| w * x).sum();
+        assert!((v - 6.0 * 10.0 * dt).abs() < 1e-9);
+        assert!(sg_weights(4, 2, 2, dt).is_none() && sg_weights(5, 2, 3, dt).is_none());
+    }
+
+    #[test]
+    fn sg_weights_match_the_firmware_differentiator() {
+        // Push an impulse of one count through the firmware's own filter (centred): its
+        // outputs are the weights times metres per count.
+        use fpc::differentiator::{SavitzkyGolay, SgConfig};
+        let (n, dt, mpc) = (41usize, 50e-6, 1e-6f32);
+        let mut sg = SavitzkyGolay::new(SgConfig {
+            window: n,
+            order: 2,
+            lag: n / 2,
+            sample_time_s: dt as f32,
+            m_per_count: mpc,
+        })
+        .unwrap();
+        let mut out = Vec::new();
+        for i in 0..2 * n {
+            out.push(sg.push(i32::from(i == n)).acceleration_mps2);
+        }
+        let w = sg_weights(n, 2, 2, dt).unwrap();
+        // Output k (k ≥ n) sees the impulse at window position 2n − 1 − k … as a dot product
+        // the impulse at age k − n multiplies weight (n − 1) − (k − n).
+        for (j, wj) in w.iter().enumerate() {
+            let k = n + (n - 1 - j);
+            let fw = f64::from(out[k]) / f64::from(mpc);
+            assert!(
+                (fw - wj).abs() < 1e-5 * wj.abs().max(1e3),
+                "j={j}: {fw} vs {wj}"
+            );
+        }
+    }
+
+    #[test]
+    fn force_kernel_reproduces_the_acceleration_filter() {
+        let dt = 50e-6;
+        let h2 = sg_weights(41, 2, 2, dt).unwrap();
+        let g = force_kernel(&h2, dt);
+        assert!((g.iter().sum::<f64>() - 1.0).abs() < 1e-9);
+        // h₂ ⋆ x == g ⋆ Δ²x on an arbitrary signal.
+        let x: Vec<f64> = (0..200)
+            .map(|i| ((i * i) as f64 * 0.37).sin() * 1e-3 + (i as f64 * 0.01).cos())
+            .collect();
+        let d2: Vec<f64> = (0..x.len())
+            .map(
+                |i| match (i.checked_sub(1).and_then(|k| x.get(k)), x.get(i + 1)) {
+                    (Some(a), Some(c)) => (a - 2.0 * x[i] + c) / (dt * dt),
+                    _ => 0.0,
+                },
+            )
+            .collect();
+        let (kh, kg) = (Kernel::new(h2), Kernel::new(g));
+        for i in 30..170 {
+            let a = kh.at(&x, i);
+            let b = kg.at(&d2, i);
+            assert!((a - b).abs() < 1e-6 * a.abs().max(1.0), "{i}: {a} {b}");
+        }
+    }
+
+    #[test]
+    fn lowpass_passes_dc_and_stops_above_the_band() {
+        let fs = 20_000.0;
+        let k = Kernel::new(lowpass(300.0, fs));
+        let gain = |f: f64| {
+            let x: Vec<f64> = (0..8000)
+                .map(|i| (std::f64::consts::TAU * f * i as f64 / fs).sin())
+                .collect();
+            let y = k.apply(&x);
+            let rms = |v: &[f64]| (v.iter().map(|a| a * a).sum::<f64>() / v.len() as f64).sqrt();
+            rms(&y[2000..6000]) / rms(&x[2000..6000])
+        };
+        assert!((gain(50.0) - 1.0).abs() < 0.01);
+        assert!(gain(1000.0) < 0.01);
+        assert_eq!(lowpass(20_000.0, fs), vec![1.0]);
+    }
+}

@@ -1,0 +1,332 @@
+//! The measured run as the workflow sees it: the columns it needs, the firmware's velocity
+//! and acceleration (centred Savitzky–Golay), the rotation speed, and the masks that say
+//! which samples each channel may be judged on.
+
+use crate::runlog::RunLog;
+use crate::signal::{firmware_derivatives, SgSettings};
+
+use super::band::{sg_weights, Kernel};
+
+/// Length of the differentiator window, s (the firmware's 21 samples at 20 kHz is 1 ms; the
+/// offline analysis may look both ways and uses 2 ms, capped at the firmware's 41 samples).
+pub const SG_SPAN_S: f64 = 2e-3;
+
+/// Shortest and longest rotation-speed window, s.
+pub const ROTATION_SPAN_S: (f64, f64) = (4e-3, 50e-3);
+
+/// Angle counts the rotation-speed window should span at the run's typical speed.
+pub const ROTATION_COUNTS: f64 = 16.0;
+
+/// Below this speed for longer than [`STOP_MIN_S`] the piston is taken as stopped: friction
+/// is then undetermined (stiction holds anything up to F_s) and a head may be touching.
+pub const STOP_SPEED_MPS: f64 = 2e-3;
+
+/// Shortest standstill excluded from the force balance, s (a reversal passes zero speed in
+/// tens of µs and stays in).
+pub const STOP_MIN_S: f64 = 5e-3;
+
+/// How the chambers were connected while the log was taken (`# ports = …`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PortsMeta {
+    /// `closed`: both chambers sealed — the pressure channel is replayed.
+    Closed,
+    /// `open`: ports timed by the logged rotation — the pressure channel is replayed with
+    /// the lines' pressures.
+    Open,
+    /// No `ports` metadata: no pressure channel.
+    Unknown,
+}
+
+/// The measured run, with what the workflow derives from it.
+#[derive(Clone, Debug)]
+pub struct Measured {
+    /// Sample time, s.
+    pub dt_s: f64,
+    /// Time, s.
+    pub t_s: Vec<f64>,
+    /// Master-encoder position, m.
+    pub x_m: Vec<f64>,
+    /// Slave-encoder position, m.
+    pub x_slave_m: Vec<f64>,
+    /// Rotation angle, rad.
+    pub theta_rad: Vec<f64>,
+    /// Master-section force, N.
+    pub f_master_n: Vec<f64>,
+    /// Slave-section force, N.
+    pub f_slave_n: Vec<f64>,
+    /// Chamber A pressure, Pa.
+    pub p_a_pa: Vec<f64>,
+    /// Chamber B pressure, Pa.
+    pub p_b_pa: Vec<f64>,
+    /// Suction-line pressure, Pa, if logged.
+    pub p_suction_pa: Option<Vec<f64>>,
+    /// Discharge-line pressure, Pa, if logged.
+    pub p_discharge_pa: Option<Vec<f64>>,
+    /// Port state of the run.
+    pub ports: PortsMeta,
+    /// Differentiator window, samples.
+    pub sg_window: usize,
+    /// Velocity from the firmware's differentiator, centred, m/s.
+    pub v_mps: Vec<f64>,
+    /// Acceleration from the firmware's differentiator, centred, m/s².
+    pub a_mps2: Vec<f64>,
+    /// Raw centred second difference of x, m/s² (what the force kernel smooths).
+    pub d2x_mps2: Vec<f64>,
+    /// Rotation speed (SG over a window fitted to the angle's resolution), rad/s.
+    pub omega_rad_s: Vec<f64>,
+    /// Rate of the chamber-A reading (SG, the differentiator's window), Pa/s.
+    pub dp_a_pa_per_s: Vec<f64>,
+    /// Rate of the chamber-B reading, Pa/s.
+    pub dp_b_pa_per_s: Vec<f64>,
+    /// 1 where the force balance may be judged (moving, away from the log's ends), else 0.
+    pub moving: Vec<f64>,
+    /// 1 away from the log's ends, else 0.
+    pub inner: Vec<f64>,
+    /// Stretches of motion between standstills (runs of `moving`): an encoder may be zeroed
+    /// again at a standstill (homing), so each stretch has its own encoder offset.
+    pub segments: Vec<std::ops::Range<usize>>,
+}
+
+impl Measured {
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.t_s.len()
+    }
+
+    /// Whether there are no samples.
+    pub fn is_empty(&self) -> bool {
+        self.t_s.is_empty()
+    }
+
+    /// Sample rate, Hz.
+    pub fn sample_rate_hz(&self) -> f64 {
+        1.0 / self.dt_s
+    }
+
+    /// Reads what the workflow needs from a validated log; `encoder_period_m` scales the
+    /// firmware differentiator's counts. The error names the metadata key or column.
+    pub fn from_log(log: &RunLog, encoder_period_m: f64) -> Result<Self, String> {
+        let col = |name: &str| -> Result<Vec<f64>, String> {
+            log.column(name)
+                .map(<[f64]>::to_vec)
+                .ok_or_else(|| format!("column `{name}`: required column is missing"))
+        };
+        let t_s = col("t_s")?;
+        let n = t_s.len();
+        let dt_s = match (t_s.first(), t_s.last()) {
+            (Some(a), Some(b)) if n > 1 && b > a => (b - a) / (n - 1) as f64,
+            _ => return Err("column `t_s`: no usable time step".into()),
+        };
+        let ports = match log.meta("ports").map(str::trim) {
+            Some("closed") => PortsMeta::Closed,
+            Some("open") => PortsMeta::Open,
+            None => PortsMeta::Unknown,
+            Some(other) => {
+                return Err(format!(
+                    "metadata `# ports = {other}`: must be `open` or `closed`"
+                ))
+            }
+        };
+        let x_m = col("x_m")?;
+        let theta_rad = col("theta_rad")?;
+        let fs = 1.0 / dt_s;
+        let sg_window =
+            ((SG_SPAN_S * fs).round() as usize | 1).clamp(5, fpc::differentiator::MAX_WINDOW);
+        if n < 4 * sg_window {
+            return Err(format!(
+                "{n} rows: at least {} needed for a {sg_window}-sample differentiator",
+                4 * sg_window
+            ));
+        }
+        let settings = SgSettings {
+            window: sg_window,
+            order: 2,
+            lag: sg_window / 2,
+        };
+        let (v_mps, a_mps2) = firmware_derivatives(&x_m, dt_s, encoder_period_m, settings)?;
+        // The rotation's angle is coarse (4096 counts per turn: at 1.5 rad/s one count per
+        // millisecond) and its motion slow (servo bandwidth ≈ 30 Hz), so its speed is a
+        // Savitzky–Golay slope (f64: hundreds of radians exceed the firmware
+        // differentiator's counts) over a window that spans about [`ROTATION_COUNTS`]
+        // counts at the run's typical speed, within [`ROTATION_SPAN_S`].
+        let rot_window = rotation_window(&theta_rad, dt_s, n);
+        let w1 = sg_weights(rot_window, 2, 1, dt_s).ok_or("rotation-speed weights")?;
+        let omega_rad_s = Kernel::new(w1).apply(&theta_rad);
+        let w_p = Kernel::new(sg_weights(sg_window, 2, 1, dt_s).ok_or("pressure-rate weights")?);
+        let p_a_pa = col("p_a_pa")?;
+        let p_b_pa = col("p_b_pa")?;
+        let dp_a_pa_per_s = w_p.apply(&p_a_pa);
+        let dp_b_pa_per_s = w_p.apply(&p_b_pa);
+        let d2x_mps2: Vec<f64> = (0..n)
+            .map(|i| {
+                match (
+                    i.checked_sub(1).and_then(|k| x_m.get(k)),
+                    x_m.get(i),
+                    x_m.get(i + 1),
+                ) {
+                    (Some(a), Some(b), Some(c)) => (a - 2.0 * b + c) / (dt_s * dt_s),
+                    _ => 0.0,
+                }
+            })
+            .collect();
+        let edge = 2 * sg_window;
+        let inner: Vec<f64> = (0..n)
+            .map(|i| f64::from(u8::from(i >= edge && i + edge < n)))
+            .collect();
+        let moving = moving_mask(&v_mps, &inner, dt_s, sg_window);
+        let segments = runs(&moving);
+        Ok(Measured {
+            dt_s,
+            t_s,
+            x_slave_m: col("x_slave_m")?,
+            f_master_n: col("f_master_n")?,
+            f_slave_n: col("f_slave_n")?,
+            p_a_pa,
+            p_b_pa,
+            dp_a_pa_per_s,
+            dp_b_pa_per_s,
+            p_suction_pa: log.column("p_suction_pa").map(<[f64]>::to_vec),
+            p_discharge_pa: log.column("p_discharge_pa").map(<[f64]>::to_vec),
+            x_m,
+            theta_rad,
+            ports,
+            sg_window,
+            v_mps,
+            a_mps2,
+            d2x_mps2,
+            omega_rad_s,
+            moving,
+            inner,
+            segments,
+        })
+    }
+
+    /// The first `n` samples (for the pressure candidates' parameter searches, which replay
+    /// the chambers tens of times: a few seconds of a long log pin the parameter as well).
+    /// The end of the copy is an end: its last samples leave the masks like the log's.
+    pub fn head(&self, n: usize) -> Measured {
+        let n = n.min(self.len());
+        let cut = |v: &Vec<f64>| v.get(..n).unwrap_or(v).to_vec();
+        let edge = 2 * self.sg_window;
+        let mut inner = cut(&self.inner);
+        let mut moving = cut(&self.moving);
+        for v in [&mut inner, &mut moving] {
+            if let Some(tail) = v.get_mut(n.saturating_sub(edge)..) {
+                tail.fill(0.0);
+            }
+        }
+        let segments = runs(&moving);
+        Measured {
+            dt_s: self.dt_s,
+            t_s: cut(&self.t_s),
+            x_m: cut(&self.x_m),
+            x_slave_m: cut(&self.x_slave_m),
+            theta_rad: cut(&self.theta_rad),
+            f_master_n: cut(&self.f_master_n),
+            f_slave_n: cut(&self.f_slave_n),
+            p_a_pa: cut(&self.p_a_pa),
+            p_b_pa: cut(&self.p_b_pa),
+            p_suction_pa: self.p_suction_pa.as_ref().map(cut),
+            p_discharge_pa: self.p_discharge_pa.as_ref().map(cut),
+            ports: self.ports,
+            sg_window: self.sg_window,
+            v_mps: cut(&self.v_mps),
+            a_mps2: cut(&self.a_mps2),
+            d2x_mps2: cut(&self.d2x_mps2),
+            omega_rad_s: cut(&self.omega_rad_s),
+            dp_a_pa_per_s: cut(&self.dp_a_pa_per_s),
+            dp_b_pa_per_s: cut(&self.dp_b_pa_per_s),
+            moving,
+            inner,
+            segments,
+        }
+    }
+
+    /// `raw` with its mean over each motion stretch removed inside that stretch (samples
+    /// outside every stretch are left as they are: no channel judges them).
+    pub fn demean_segments(&self, raw: &[f64]) -> Vec<f64> {
+        let mut out = raw.to_vec();
+        for seg in &self.segments {
+            if let Some(s) = out.get_mut(seg.clone()) {
+                let mean = s.iter().sum::<f64>() / s.len().max(1) as f64;
+                s.iter_mut().for_each(|v| *v -= mean);
+            }
+        }
+        out
+    }
+}
+
+/// The rotation-speed window, samples (odd): the angle's step (its smallest nonzero change
+/// between samples) times [`ROTATION_COUNTS`] over its median speed while turning, clamped to
+/// [`ROTATION_SPAN_S`] and to a quarter of the log.
+fn rotation_window(theta_rad: &[f64], dt_s: f64, n: usize) -> usize {
+    let steps: Vec<f64> = theta_rad
+        .windows(2)
+        .map(|w| (w[1] - w[0]).abs())
+        .filter(|d| *d > 1e-12)
+        .collect();
+    let quantum = steps.iter().copied().fold(f64::INFINITY, f64::min);
+    // Median speed over 10 ms spans, counting only spans that turn.
+    let span = ((0.01 / dt_s).round() as usize).max(1);
+    let mut speeds: Vec<f64> = theta_rad
+        .chunks(span)
+        .filter_map(|c| Some((c.last()? - c.first()?).abs() / (dt_s * c.len() as f64)))
+        .filter(|w| *w > 0.0)
+        .collect();
+    speeds.sort_by(f64::total_cmp);
+    let median = speeds.get(speeds.len() / 2).copied().unwrap_or(0.0);
+    let (lo, hi) = ROTATION_SPAN_S;
+    let t = if quantum.is_finite() && median > 0.0 {
+        (ROTATION_COUNTS * quantum / median).clamp(lo, hi)
+    } else {
+        lo
+    };
+    ((t / dt_s).round() as usize | 1).clamp(5, (n / 4) | 1)
+}
+
+/// Maximal runs of samples where `mask > 0`.
+fn runs(mask: &[f64]) -> Vec<std::ops::Range<usize>> {
+    let mut out = Vec::new();
+    let mut start = None;
+    for (i, w) in mask.iter().enumerate() {
+        match (start, *w > 0.0) {
+            (None, true) => start = Some(i),
+            (Some(s), false) => {
+                out.push(s..i);
+                start = None;
+            }
+            _ => {}
+        }
+    }
+    if let Some(s) = start {
+        out.push(s..mask.len());
+    }
+    out
+}
+
+/// 1 where the piston moves: `inner`, minus every standstill longer than [`STOP_MIN_S`]
+/// widened by the differentiator window on both sides (its estimates there mix the stop in).
+fn moving_mask(v_mps: &[f64], inner: &[f64], dt_s: f64, window: usize) -> Vec<f64> {
+    let n = v_mps.len();
+    let mut w = inner.to_vec();
+    let min_len = (STOP_MIN_S / dt_s).ceil() as usize;
+    let mut i = 0;
+    while i < n {
+        if v_mps.get(i).is_some_and(|v| v.abs() < STOP_SPEED_MPS) {
+            let start = i;
+            while v_mps.get(i).is_some_and(|v| v.abs() < STOP_SPEED_MPS) {
+                i += 1;
+            }
+            if i - start >= min_len {
+                let lo = start.saturating_sub(window);
+                let hi = (i + window).min(n);
+                if let Some(s) = w.get_mut(lo..hi) {
+                    s.fill(0.0);
+                }
+            }
+        } else {
+            i += 1;
+        }
+    }
+    w
+}

@@ -1,0 +1,227 @@
+//! The numerical tools of the effect fits: linear least squares (nalgebra), a bracketing
+//! 1-D minimiser for the nonlinear parameters (period, lag, velocity scale, UA, area), and
+//! a damped Gauss–Newton step for the two leak coefficients.
+
+use nalgebra::{DMatrix, DVector};
+
+/// Least squares `y ≈ Σ θⱼ·colⱼ`: the coefficients and the residual sum of squares. `None`
+/// when the columns are empty, of unequal length or singular.
+pub fn lstsq(cols: &[Vec<f64>], y: &[f64]) -> Option<(Vec<f64>, f64)> {
+    let k = cols.len();
+    let n = y.len();
+    if k == 0 || n < k || cols.iter().any(|c| c.len() != n) {
+        return None;
+    }
+    let x = DMatrix::from_fn(n, k, |r, c| {
+        cols.get(c).and_then(|v| v.get(r)).copied().unwrap_or(0.0)
+    });
+    let yv = DVector::from_column_slice(y);
+    // Normal equations with Cholesky (k ≤ 7, well-scaled columns): fast for the grids; a
+    // singular set falls back to the SVD.
+    let xtx = x.transpose() * &x;
+    let xty = x.transpose() * &yv;
+    let theta = match xtx.clone().cholesky() {
+        Some(ch) => ch.solve(&xty),
+        None => xtx.svd(true, true).solve(&xty, 1e-12).ok()?,
+    };
+    if theta.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let fitted = &x * &theta;
+    let rss = (yv - fitted).iter().map(|e| e * e).sum();
+    Some((theta.iter().copied().collect(), rss))
+}
+
+/// Sum of squares.
+pub fn sumsq(v: &[f64]) -> f64 {
+    v.iter().map(|a| a * a).sum()
+}
+
+/// Pearson correlation of two equally long vectors (0 if either is constant).
+pub fn correlation(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    if n < 2 {
+        return 0.0;
+    }
+    let ma = a.iter().take(n).sum::<f64>() / n as f64;
+    let mb = b.iter().take(n).sum::<f64>() / n as f64;
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b).take(n) {
+        sab += (x - ma) * (y - mb);
+        saa += (x - ma) * (x - ma);
+        sbb += (y - mb) * (y - mb);
+    }
+    if saa > 0.0 && sbb > 0.0 {
+        sab / (saa * sbb).sqrt()
+    } else {
+        0.0
+    }
+}
+
+/// Minimises `f` over `[lo, hi]`: a grid of `grid` points, then golden-section search in the
+/// cells around the best point for `iters` steps. Returns (argmin, min). Points where `f` is
+/// `None` count as +∞.
+pub fn minimise_1d(
+    lo: f64,
+    hi: f64,
+    grid: usize,
+    iters: usize,
+    mut f: impl FnMut(f64) -> Option<f64>,
+) -> Option<(f64, f64)> {
+    let grid = grid.max(3);
+    let step = (hi - lo) / (grid - 1) as f64;
+    let mut eval = |x: f64| f(x).filter(|v| v.is_finite()).unwrap_or(f64::INFINITY);
+    let (mut best_i, mut best) = (0usize, f64::INFINITY);
+    for i in 0..grid {
+        let v = eval(lo + step * i as f64);
+        if v < best {
+            best = v;
+            best_i = i;
+        }
+    }
+    if !best.is_finite() {
+        return None;
+    }
+    let mut a = lo + step * best_i.saturating_sub(1) as f64;
+    let mut b = (lo + step * (best_i + 1) as f64).min(hi);
+    let mut best_x = lo + step * best_i as f64;
+    let r = 0.5 * (5f64.sqrt() - 1.0);
+    let mut c = b - r * (b - a);
+    let mut d = a + r * (b - a);
+    let (mut fc, mut fd) = (eval(c), eval(d));
+    for _ in 0..iters {
+        if fc < fd {
+            b = d;
+            d = c;
+            fd = fc;
+            c = b - r * (b - a);
+            fc = eval(c);
+        } else {
+            a = c;
+            c = d;
+            fc = fd;
+            d = a + r * (b - a);
+            fd = eval(d);
+        }
+    }
+    for (x, v) in [(c, fc), (d, fd)] {
+        if v < best {
+            best = v;
+            best_x = x;
+        }
+    }
+    // One parabolic step through the two inner points and the better bracket end: golden
+    // section narrows slowly, a smooth minimum is nearly a parabola.
+    let (fa, fb) = (eval(a), eval(b));
+    let (x0, f0, x1, f1, x2, f2) = if fc < fd {
+        (a, fa, c, fc, d, fd)
+    } else {
+        (c, fc, d, fd, b, fb)
+    };
+    let den = (x1 - x0) * (f1 - f2) - (x1 - x2) * (f1 - f0);
+    if den.abs() > 0.0 {
+        let num = (x1 - x0).powi(2) * (f1 - f2) - (x1 - x2).powi(2) * (f1 - f0);
+        let xv = x1 - 0.5 * num / den;
+        if xv.is_finite() && xv > x0.min(x2) && xv < x0.max(x2) {
+            let fv = eval(xv);
+            if fv < best {
+                best = fv;
+                best_x = xv;
+            }
+        }
+    }
+    Some((best_x, best))
+}
+
+/// Damped Gauss–Newton on non-negative parameters `u` minimising ‖r(u)‖², with forward
+/// differences of step `steps[j]`. `r` returns the residual vector (`None`: invalid point).
+pub fn gauss_newton_nonneg(
+    mut u: Vec<f64>,
+    steps: &[f64],
+    iters: usize,
+    mut r: impl FnMut(&[f64]) -> Option<Vec<f64>>,
+) -> Option<(Vec<f64>, f64)> {
+    let mut res = r(&u)?;
+    let mut cost = sumsq(&res);
+    let mut damping = 1e-3;
+    for _ in 0..iters {
+        let mut cols = Vec::with_capacity(u.len());
+        for (j, h) in steps.iter().enumerate() {
+            let mut up = u.clone();
+            if let Some(v) = up.get_mut(j) {
+                *v += h;
+            }
+            let rp = r(&up)?;
+            cols.push(
+                rp.iter()
+                    .zip(&res)
+                    .map(|(a, b)| (a - b) / h)
+                    .collect::<Vec<f64>>(),
+            );
+        }
+        let k = cols.len();
+        let jtj = DMatrix::from_fn(k, k, |a, b| dot(&cols[a], &cols[b]));
+        let jtr = DVector::from_fn(k, |a, _| dot(&cols[a], &res));
+        let mut improved = false;
+        for _ in 0..6 {
+            let mut m = jtj.clone();
+            for d in 0..k {
+                m[(d, d)] *= 1.0 + damping;
+            }
+            let Some(delta) = m.clone().lu().solve(&(-&jtr)) else {
+                damping *= 10.0;
+                continue;
+            };
+            let trial: Vec<f64> = u
+                .iter()
+                .zip(delta.iter())
+                .map(|(a, d)| (a + d).max(0.0))
+                .collect();
+            if let Some(rt) = r(&trial) {
+                let ct = sumsq(&rt);
+                if ct < cost {
+                    u = trial;
+                    res = rt;
+                    cost = ct;
+                    damping = (damping * 0.3).max(1e-6);
+                    improved = true;
+                    break;
+                }
+            }
+            damping *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    Some((u, cost))
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn least_squares_recovers_a_line_and_the_minimiser_a_parabola() {
+        let x: Vec<f64> = (0..50).map(f64::from).collect();
+        let y: Vec<f64> = x.iter().map(|v| 2.0 + 0.5 * v).collect();
+        let (th, rss) = lstsq(&[vec![1.0; 50], x.clone()], &y).unwrap();
+        assert!((th[0] - 2.0).abs() < 1e-9 && (th[1] - 0.5).abs() < 1e-9 && rss < 1e-12);
+        let (xm, _) = minimise_1d(0.0, 10.0, 11, 40, |x| Some((x - 3.3).powi(2))).unwrap();
+        assert!((xm - 3.3).abs() < 1e-6);
+        assert!((correlation(&x, &y) - 1.0).abs() < 1e-12);
+        let (u, _) = gauss_newton_nonneg(vec![0.0], &[0.1], 20, |u| {
+            Some(
+                x.iter()
+                    .map(|v| (1.0 + u[0] * 2.5).ln() * v - 1.2f64.ln() * v)
+                    .collect(),
+            )
+        })
+        .unwrap();
+        assert!((u[0] - 0.08).abs() < 1e-6, "{u:?}");
+    }
+}

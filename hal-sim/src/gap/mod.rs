@@ -1,0 +1,262 @@
+//! The model-gap workflow (`fpc-sim gap`, `formats.md` §3): find where the model and a
+//! measured run disagree, name the missing effect, fit it, add it to the model and show the
+//! gap shrink.
+//!
+//! 1. **Residuals per channel** ([`residuals`]): force balance, slave against master force,
+//!    slave against master encoder, chamber pressures replayed along the measured motion —
+//!    each limited to the analysis band ([`band`]), velocity and acceleration from the
+//!    firmware's own differentiator ([`data`]).
+//! 2. **Where they disagree** ([`report`]): residual maps by position (and modulo the pole
+//!    and N–N pitches), velocity, acceleration and pressure difference; lags by FFT
+//!    cross-correlation ([`crate::signal::xcorr_lag`]).
+//! 3. **Named candidates** ([`effects`]) fitted by least squares or small 1-D/Gauss–Newton
+//!    searches ([`fit`]), **selected** forward by BIC with a practical floor ([`select`]).
+//! 4. **Add and show**: the augmented model document ([`doc`]), the comparison re-run with
+//!    it, per-channel RMS before and after, and the report.
+//!
+//! [`synth`] makes the measured runs the proofs, the benchmark and the docs use.
+
+pub mod band;
+pub mod data;
+pub mod doc;
+pub mod effects;
+pub mod fit;
+pub mod report;
+pub mod residuals;
+pub mod select;
+pub mod synth;
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use crate::cli::Failure;
+use crate::runlog::RunLog;
+
+use data::Measured;
+use doc::ModelDoc;
+use effects::{Ctx, EffectKind};
+use residuals::{channel_raw, full_rms, Band, ChannelId};
+use select::{select, Selection};
+
+/// Default upper edge of the analysis band, Hz: above the cogging frequency at 4 m/s
+/// (4 m/s / 24 mm = 170 Hz), below the differentiator's noise.
+pub const DEFAULT_BAND_HZ: f64 = 300.0;
+
+/// Stribeck's region, in Stribeck velocities: where its residual RMS is reported.
+pub const STRIBECK_REGION: f64 = 3.0;
+
+/// Settings of an analysis.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GapOptions {
+    /// Upper edge of the analysis band, Hz.
+    pub band_hz: f64,
+}
+
+impl Default for GapOptions {
+    fn default() -> Self {
+        GapOptions {
+            band_hz: DEFAULT_BAND_HZ,
+        }
+    }
+}
+
+/// A channel's RMS before and after (`formats.md` §3).
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct ChannelJson {
+    /// Channel name.
+    pub name: String,
+    /// Unit of the residual.
+    pub unit: String,
+    /// RMS of the band-limited residual with the input model.
+    pub rms_before: f64,
+    /// The same with the augmented model.
+    pub rms_after: f64,
+}
+
+/// An effect added (`formats.md` §3).
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct EffectJson {
+    /// Effect name.
+    pub name: String,
+    /// The channel it shows in.
+    pub channel: String,
+    /// Fitted parameters, SI, the model file's keys.
+    pub params: BTreeMap<String, f64>,
+    /// Channel RMS before adding it.
+    pub rms_before: f64,
+    /// Channel RMS after adding it.
+    pub rms_after: f64,
+    /// BIC improvement when it was added.
+    pub delta_bic: f64,
+    /// Share of the residual explained where it acts.
+    pub explained: f64,
+    /// Stribeck only: channel RMS in its low-speed region before adding it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub region_rms_before: Option<f64>,
+    /// Stribeck only: the same after.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub region_rms_after: Option<f64>,
+}
+
+/// The JSON `fpc-sim gap --json` prints.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct GapJson {
+    /// Per-channel RMS before and after.
+    pub channels: Vec<ChannelJson>,
+    /// Effects added, most significant first (empty: nothing significant is missing).
+    pub effects: Vec<EffectJson>,
+    /// Where the augmented model was written (empty if it was not).
+    pub model_out: String,
+    /// Warnings (collinear candidates, channels not formed).
+    pub warnings: Vec<String>,
+}
+
+/// Everything an analysis produced.
+#[derive(Clone, Debug)]
+pub struct GapOutcome {
+    /// The JSON summary (`model_out` filled in by the caller that writes the model).
+    pub json: GapJson,
+    /// The augmented model file's text.
+    pub model_text: String,
+    /// The input model document.
+    pub input: ModelDoc,
+    /// The measured run.
+    pub measured: Measured,
+    /// The band.
+    pub band: Band,
+    /// The selection.
+    pub selection: Selection,
+}
+
+/// Runs the workflow on a validated log and model text. Bad input (a model or a log the
+/// workflow cannot use) is exit 2; the rest is exit 1.
+pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapOutcome, Failure> {
+    let input = ModelDoc::parse(model_text).map_err(Failure::bad_input)?;
+    let model = input.model().map_err(Failure::bad_input)?;
+    if !(opts.band_hz.is_finite() && opts.band_hz > 0.0) {
+        return Err(Failure::bad_input(format!(
+            "--band-hz {}: must be positive",
+            opts.band_hz
+        )));
+    }
+    let measured = Measured::from_log(log, model.encoder.period_m).map_err(Failure::bad_input)?;
+    let band = Band::new(&measured, opts.band_hz).map_err(Failure::runtime)?;
+    let ctx = Ctx {
+        data: &measured,
+        band: &band,
+    };
+    let selection = select(&ctx, &input).map_err(Failure::runtime)?;
+    let model_text = format!(
+        "# Augmented by `fpc-sim gap`: {}\n{}",
+        if selection.added.is_empty() {
+            "nothing significant was missing".to_string()
+        } else {
+            selection
+                .added
+                .iter()
+                .map(|a| a.proposal.kind.name())
+                .collect::<Vec<_>>()
+                .join(", ")
+                + " added"
+        },
+        selection.doc.to_text().map_err(Failure::runtime)?
+    );
+    // Re-run the comparison with the model exactly as written.
+    let after_model = crate::model::MachineModel::parse(&model_text)
+        .map_err(|e| Failure::runtime(format!("augmented model does not load: {e}")))?;
+    let mut warnings = selection.warnings.clone();
+    if measured.ports == data::PortsMeta::Unknown {
+        warnings.push(
+            "no `# ports = open|closed` metadata: the pressure channel is not compared".into(),
+        );
+    }
+    let mut channels = Vec::new();
+    for ch in ChannelId::ALL {
+        let (Some(b), Some(a)) = (
+            channel_raw(&measured, &model, ch),
+            channel_raw(&measured, &after_model, ch),
+        ) else {
+            continue;
+        };
+        channels.push(ChannelJson {
+            name: ch.name().into(),
+            unit: ch.unit().into(),
+            rms_before: full_rms(&measured, &band, ch, &b),
+            rms_after: full_rms(&measured, &band, ch, &a),
+        });
+    }
+    let effects = effect_rows(&ctx, &selection).map_err(Failure::runtime)?;
+    Ok(GapOutcome {
+        json: GapJson {
+            channels,
+            effects,
+            model_out: String::new(),
+            warnings,
+        },
+        model_text,
+        input,
+        measured,
+        band,
+        selection,
+    })
+}
+
+/// Each added effect's channel RMS just before and just after it was added (the models of
+/// the selection's steps), with its final parameters.
+fn effect_rows(ctx: &Ctx<'_>, selection: &Selection) -> Result<Vec<EffectJson>, String> {
+    let mut rows = Vec::new();
+    for (a, (before, after)) in selection.added.iter().zip(&selection.steps) {
+        let kind = a.proposal.kind;
+        let ch = kind.channel();
+        let raw_b = channel_raw(ctx.data, &before.model()?, ch).unwrap_or_default();
+        let raw_a = channel_raw(ctx.data, &after.model()?, ch).unwrap_or_default();
+        let (region_rms_before, region_rms_after) = if kind == EffectKind::StribeckFriction {
+            let vs = a
+                .proposal
+                .params
+                .iter()
+                .find(|p| p.0 == "velocity_mps")
+                .map_or(0.02, |p| p.1);
+            (
+                Some(low_speed_rms(ctx, &raw_b, vs)),
+                Some(low_speed_rms(ctx, &raw_a, vs)),
+            )
+        } else {
+            (None, None)
+        };
+        rows.push(EffectJson {
+            name: kind.name().into(),
+            channel: ch.name().into(),
+            params: a
+                .proposal
+                .params
+                .iter()
+                .map(|(k, v)| (k.to_string(), *v))
+                .collect(),
+            rms_before: full_rms(ctx.data, ctx.band, ch, &raw_b),
+            rms_after: full_rms(ctx.data, ctx.band, ch, &raw_a),
+            delta_bic: a.delta_bic,
+            explained: a.explained,
+            region_rms_before,
+            region_rms_after,
+        });
+    }
+    Ok(rows)
+}
+
+/// RMS of the band-limited force residual where `0 < |v| < STRIBECK_REGION·v_s`, N.
+pub fn low_speed_rms(ctx: &Ctx<'_>, raw: &[f64], vs_mps: f64) -> f64 {
+    let full = ctx.band.full(ctx.data, ChannelId::Force, raw);
+    let (s, c) = full
+        .iter()
+        .zip(&ctx.data.v_mps)
+        .zip(&ctx.data.moving)
+        .filter(|((_, v), w)| **w > 0.0 && v.abs() < STRIBECK_REGION * vs_mps)
+        .fold((0.0, 0usize), |(s, c), ((r, _), _)| (s + r * r, c + 1));
+    if c == 0 {
+        0.0
+    } else {
+        (s / c as f64).sqrt()
+    }
+}

@@ -1,0 +1,447 @@
+//! Where the model and the run disagree, and what adding the effects changed: residual maps
+//! (binned means), lags by FFT cross-correlation, and the report in `--out` — Markdown with
+//! SVG plots (residual maps, before/after overlays, the p–V replay).
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use crate::model::MachineModel;
+use crate::plot::{lines, Series};
+
+use super::effects::{acting_force_lag, slave_force_lag, Ctx};
+use super::residuals::{channel_raw, full_of_raw, replay_pressures, ChannelId};
+use super::GapOutcome;
+
+/// Bins of a residual map.
+pub const BINS: usize = 24;
+
+/// What a map bins the residual by.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MapBy {
+    /// Position, m.
+    Position,
+    /// Position modulo the pole pitch, m.
+    PolePitch,
+    /// Position modulo the N–N pitch (twice the pole pitch), m.
+    NnPitch,
+    /// Velocity (signed), m/s.
+    Velocity,
+    /// Acceleration, m/s².
+    Acceleration,
+    /// Pressure difference p_A − p_B, Pa.
+    PressureDifference,
+}
+
+impl MapBy {
+    /// Every map.
+    pub const ALL: [MapBy; 6] = [
+        MapBy::Position,
+        MapBy::PolePitch,
+        MapBy::NnPitch,
+        MapBy::Velocity,
+        MapBy::Acceleration,
+        MapBy::PressureDifference,
+    ];
+
+    /// Label with unit.
+    pub fn label(self) -> &'static str {
+        match self {
+            MapBy::Position => "x, m",
+            MapBy::PolePitch => "x mod pole pitch, m",
+            MapBy::NnPitch => "x mod N-N pitch, m",
+            MapBy::Velocity => "v, m/s",
+            MapBy::Acceleration => "a, m/s^2",
+            MapBy::PressureDifference => "p_A - p_B, Pa",
+        }
+    }
+
+    fn slug(self) -> &'static str {
+        match self {
+            MapBy::Position => "x",
+            MapBy::PolePitch => "x_mod_pole",
+            MapBy::NnPitch => "x_mod_nn",
+            MapBy::Velocity => "v",
+            MapBy::Acceleration => "a",
+            MapBy::PressureDifference => "dp",
+        }
+    }
+}
+
+/// A residual map: bin centres, mean residual per bin, and the share of the residual's
+/// variance the bin means explain (near 0: no structure along this variable).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Map {
+    /// By what.
+    pub by: MapBy,
+    /// Bin centres.
+    pub centres: Vec<f64>,
+    /// Mean residual in each bin (NaN where empty).
+    pub means: Vec<f64>,
+    /// Variance share explained by the bin means.
+    pub structure: f64,
+}
+
+/// Bins `resid` (judged where `mask > 0`) by `key`.
+pub fn map(by: MapBy, key: &[f64], resid: &[f64], mask: &[f64], range: (f64, f64)) -> Map {
+    let (lo, hi) = range;
+    let width = (hi - lo) / BINS as f64;
+    let mut sum = [0.0; BINS];
+    let mut cnt = [0usize; BINS];
+    let (mut total, mut total_sq, mut n) = (0.0, 0.0, 0usize);
+    for ((k, r), w) in key.iter().zip(resid).zip(mask) {
+        if *w <= 0.0 || width.is_nan() || width <= 0.0 {
+            continue;
+        }
+        let b = ((k - lo) / width).floor();
+        if b < 0.0 || b >= BINS as f64 {
+            continue;
+        }
+        let b = b as usize;
+        if let (Some(s), Some(c)) = (sum.get_mut(b), cnt.get_mut(b)) {
+            *s += r;
+            *c += 1;
+        }
+        total += r;
+        total_sq += r * r;
+        n += 1;
+    }
+    let means: Vec<f64> = sum
+        .iter()
+        .zip(&cnt)
+        .map(|(s, &c)| if c > 0 { s / c as f64 } else { f64::NAN })
+        .collect();
+    let mean = if n > 0 { total / n as f64 } else { 0.0 };
+    let var = if n > 0 {
+        total_sq / n as f64 - mean * mean
+    } else {
+        0.0
+    };
+    let between: f64 = means
+        .iter()
+        .zip(&cnt)
+        .filter(|(m, _)| m.is_finite())
+        .map(|(m, &c)| c as f64 * (m - mean) * (m - mean))
+        .sum::<f64>()
+        / n.max(1) as f64;
+    Map {
+        by,
+        centres: (0..BINS).map(|i| lo + width * (i as f64 + 0.5)).collect(),
+        means,
+        structure: if var > 0.0 {
+            (between / var).clamp(0.0, 1.0)
+        } else {
+            0.0
+        },
+    }
+}
+
+/// The keys of every map for the samples of one channel half (pressure: per chamber).
+fn keys(ctx: &Ctx<'_>, model: &MachineModel, by: MapBy) -> (Vec<f64>, (f64, f64)) {
+    let d = ctx.data;
+    let range = |v: &[f64]| {
+        let (lo, hi) = v
+            .iter()
+            .zip(&d.inner)
+            .filter(|(_, w)| **w > 0.0)
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), (x, _)| {
+                (a.min(*x), b.max(*x))
+            });
+        if lo.is_finite() && hi > lo {
+            (lo, hi + 1e-12 * (hi - lo).abs().max(1.0))
+        } else {
+            (0.0, 1.0)
+        }
+    };
+    let pole = model.motor.pole_pitch_m;
+    match by {
+        MapBy::Position => (d.x_m.clone(), range(&d.x_m)),
+        MapBy::PolePitch => (
+            d.x_m.iter().map(|x| x.rem_euclid(pole)).collect(),
+            (0.0, pole),
+        ),
+        MapBy::NnPitch => (
+            d.x_m.iter().map(|x| x.rem_euclid(2.0 * pole)).collect(),
+            (0.0, 2.0 * pole),
+        ),
+        MapBy::Velocity => (d.v_mps.clone(), range(&d.v_mps)),
+        MapBy::Acceleration => (d.a_mps2.clone(), range(&d.a_mps2)),
+        MapBy::PressureDifference => {
+            let dp: Vec<f64> = d.p_a_pa.iter().zip(&d.p_b_pa).map(|(a, b)| a - b).collect();
+            let r = range(&dp);
+            (dp, r)
+        }
+    }
+}
+
+/// Maps of one channel's band-limited residual `full` (pressure: A's half then B's).
+pub fn maps(ctx: &Ctx<'_>, model: &MachineModel, ch: ChannelId, full: &[f64]) -> Vec<Map> {
+    let n = ctx.data.len();
+    let mask = ctx.band.mask(ctx.data, ch);
+    MapBy::ALL
+        .iter()
+        .map(|&by| {
+            let (key, range) = keys(ctx, model, by);
+            if ch == ChannelId::Pressure {
+                // Both chambers on one map: keys repeat for B's half.
+                let key2: Vec<f64> = key.iter().chain(key.iter()).copied().collect();
+                let mask2: Vec<f64> = mask.iter().chain(mask.iter()).copied().collect();
+                map(by, &key2, full, &mask2, range)
+            } else {
+                map(by, &key, full.get(..n).unwrap_or(full), mask, range)
+            }
+        })
+        .collect()
+}
+
+/// Writes the report (`report.md` and SVGs) into `dir`.
+pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
+    let ctx = Ctx {
+        data: &out.measured,
+        band: &out.band,
+    };
+    let d = &out.measured;
+    let before = out.input.model()?;
+    let after = out.selection.doc.model()?;
+    let mut md = String::new();
+    let _ = writeln!(md, "# Model-gap report\n");
+    let _ = writeln!(
+        md,
+        "{} samples at {:.0} Hz ({:.2} s); differentiator window {} samples (centred); \
+         analysis band 0–{:.0} Hz; ports: {:?}.\n",
+        d.len(),
+        d.sample_rate_hz(),
+        d.dt_s * d.len() as f64,
+        d.sg_window,
+        out.band.band_hz,
+        d.ports
+    );
+    let _ = writeln!(md, "## Channels (band-limited residual RMS)\n");
+    let _ = writeln!(
+        md,
+        "| channel | unit | before | after | change |\n|---|---|---|---|---|"
+    );
+    for c in &out.json.channels {
+        let change = if c.rms_before > 0.0 {
+            format!("{:+.0} %", 100.0 * (c.rms_after / c.rms_before - 1.0))
+        } else {
+            "—".into()
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {} | {:.4e} | {:.4e} | {change} |",
+            c.name, c.unit, c.rms_before, c.rms_after
+        );
+    }
+    let _ = writeln!(md, "\n## Effects added (most significant first)\n");
+    if out.json.effects.is_empty() {
+        let _ = writeln!(md, "None: nothing significant is missing from the model.\n");
+    } else {
+        let _ = writeln!(md, "| effect | channel | parameters | RMS before | RMS after | ΔBIC | explained |\n|---|---|---|---|---|---|---|");
+        for e in &out.json.effects {
+            let params: Vec<String> = e
+                .params
+                .iter()
+                .map(|(k, v)| format!("{k} = {v:.5}"))
+                .collect();
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {:.4e} | {:.4e} | {:.0} | {:.0} % |",
+                e.name,
+                e.channel,
+                params.join(", "),
+                e.rms_before,
+                e.rms_after,
+                e.delta_bic,
+                100.0 * e.explained
+            );
+        }
+    }
+    let _ = writeln!(md, "\n## Every candidate at the first step\n");
+    let _ = writeln!(md, "| candidate | channel | fitted | ΔBIC | explained (all) | explained where it acts | acts on (kept samples) | change RMS / resolution | significant |\n|---|---|---|---|---|---|---|---|---|");
+    for j in &out.selection.first_step {
+        let fitted: Vec<String> = j
+            .proposal
+            .params
+            .iter()
+            .map(|(k, v)| format!("{k} = {v:.4e}"))
+            .collect();
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {:.1} | {:.1} % | {:.1} % | {} | {:.2} | {} |",
+            j.proposal.kind.name(),
+            j.proposal.kind.channel().name(),
+            fitted.join(", "),
+            j.delta_bic,
+            100.0 * j.explained_total,
+            100.0 * j.explained,
+            j.support,
+            j.change_rms / j.resolution.max(f64::MIN_POSITIVE),
+            if j.significant() { "yes" } else { "no" }
+        );
+    }
+    let _ = writeln!(md, "\n## Lags (FFT cross-correlation)\n");
+    let _ = writeln!(md, "| what | lag, ms | correlation |\n|---|---|---|");
+    if let Some(l) = slave_force_lag(d) {
+        let _ = writeln!(
+            md,
+            "| slave force behind master force | {:.4} | {:.3} |",
+            l.seconds * 1e3,
+            l.correlation
+        );
+    }
+    for (label, doc) in [
+        ("input model", &out.input),
+        ("augmented model", &out.selection.doc),
+    ] {
+        if let Some(l) = acting_force_lag(&ctx, doc) {
+            let _ = writeln!(
+                md,
+                "| acting force behind reported force ({label}) | {:.4} | {:.3} |",
+                l.seconds * 1e3,
+                l.correlation
+            );
+        }
+    }
+    if !out.json.warnings.is_empty() {
+        let _ = writeln!(md, "\n## Warnings\n");
+        for w in &out.json.warnings {
+            let _ = writeln!(md, "- {w}");
+        }
+    }
+    let _ = writeln!(md, "\n## Residual maps\n");
+    let _ = writeln!(md, "Share of each channel's residual variance explained by its mean along each variable (before → after).\n");
+    let _ = writeln!(md, "| channel | x | x mod pole | x mod N–N | v | a | p_A − p_B |\n|---|---|---|---|---|---|---|");
+    let mut overlays = Vec::new();
+    for ch in ChannelId::ALL {
+        let (Some(rb), Some(ra)) = (channel_raw(d, &before, ch), channel_raw(d, &after, ch)) else {
+            continue;
+        };
+        let fb = full_of_raw(d, &out.band, ch, &rb);
+        let fa = full_of_raw(d, &out.band, ch, &ra);
+        let mb = maps(&ctx, &before, ch, &fb);
+        let ma = maps(&ctx, &after, ch, &fa);
+        let cells: Vec<String> = mb
+            .iter()
+            .zip(&ma)
+            .map(|(b, a)| format!("{:.2} → {:.2}", b.structure, a.structure))
+            .collect();
+        let _ = writeln!(md, "| {} | {} |", ch.name(), cells.join(" | "));
+        for (b, a) in mb.iter().zip(&ma) {
+            let file = format!("map_{}_{}.svg", ch.name(), b.by.slug());
+            let keep = |m: &super::report::Map| -> (Vec<f64>, Vec<f64>) {
+                m.centres
+                    .iter()
+                    .zip(&m.means)
+                    .filter(|(_, v)| v.is_finite())
+                    .map(|(c, v)| (*c, *v))
+                    .unzip()
+            };
+            let (xb, yb) = keep(b);
+            let (xa, ya) = keep(a);
+            lines(
+                &dir.join(&file),
+                &format!("{} residual by {}", ch.name(), b.by.label()),
+                b.by.label(),
+                &format!("mean residual, {}", ch.unit()),
+                &[
+                    Series {
+                        label: "input model",
+                        x: &xb,
+                        y: &yb,
+                    },
+                    Series {
+                        label: "augmented model",
+                        x: &xa,
+                        y: &ya,
+                    },
+                ],
+            )?;
+        }
+        // Before/after overlay in time.
+        let n = d.len();
+        let t = &d.t_s;
+        let file = format!("overlay_{}.svg", ch.name());
+        lines(
+            &dir.join(&file),
+            &format!(
+                "{} residual (band-limited){}",
+                ch.name(),
+                if ch == ChannelId::Pressure {
+                    ", chamber A"
+                } else {
+                    ""
+                }
+            ),
+            "t, s",
+            ch.unit(),
+            &[
+                Series {
+                    label: "input model",
+                    x: t,
+                    y: fb.get(..n).unwrap_or(&fb),
+                },
+                Series {
+                    label: "augmented model",
+                    x: t,
+                    y: fa.get(..n).unwrap_or(&fa),
+                },
+            ],
+        )?;
+        overlays.push(format!("![{0} overlay](overlay_{0}.svg)", ch.name()));
+    }
+    for o in &overlays {
+        let _ = writeln!(md, "\n{o}");
+    }
+    if let (Some((pa0, pb0)), Some((pa1, pb1))) =
+        (replay_pressures(d, &before), replay_pressures(d, &after))
+    {
+        let cyl = after.cylinder();
+        let va: Vec<f64> = d.x_m.iter().map(|&x| cyl.volume_a_m3(x)).collect();
+        let vb: Vec<f64> = d.x_m.iter().map(|&x| cyl.volume_b_m3(x)).collect();
+        lines(
+            &dir.join("pv_replay.svg"),
+            "p-V: measured and replayed along the measured motion",
+            "V, m^3",
+            "p, Pa",
+            &[
+                Series {
+                    label: "A measured",
+                    x: &va,
+                    y: &d.p_a_pa,
+                },
+                Series {
+                    label: "A input model",
+                    x: &va,
+                    y: &pa0,
+                },
+                Series {
+                    label: "A augmented",
+                    x: &va,
+                    y: &pa1,
+                },
+                Series {
+                    label: "B measured",
+                    x: &vb,
+                    y: &d.p_b_pa,
+                },
+                Series {
+                    label: "B input model",
+                    x: &vb,
+                    y: &pb0,
+                },
+                Series {
+                    label: "B augmented",
+                    x: &vb,
+                    y: &pb1,
+                },
+            ],
+        )?;
+        let _ = writeln!(md, "\n![p-V replay](pv_replay.svg)\n");
+    }
+    let _ = writeln!(
+        md,
+        "\nMaps: `map_<channel>_<variable>.svg`. Augmented model: `model.toml`."
+    );
+    std::fs::write(dir.join("report.md"), md)
+        .map_err(|e| format!("cannot write {}: {e}", dir.join("report.md").display()))
+}

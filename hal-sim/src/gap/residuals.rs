@@ -1,0 +1,502 @@
+//! Residuals per channel: what the measured run shows minus what the model predicts from the
+//! same measured inputs, limited to the analysis band ([`super::band`]).
+//!
+//! | channel | residual (sample-wise, before the band filter) |
+//! |---|---|
+//! | `force` | `m·Δ²x − (F_master + F_slave [realigned to the row's time, delayed by the actuator lag] + (p_A − p_B)·A_eff − F_fr(v, ω) + F_cog(x))`, smoothed by the force kernel: the force no model term explains, toward +x |
+//! | `slave_force` | `F_slave − F_master` delayed by the model's slave lag (none: not delayed) |
+//! | `encoder` | `x_slave − x_master` minus the model's pitch error, judged while moving, mean removed per stretch of motion (a constant offset between the encoders is a zero, not an effect, and homing may set it anew at each standstill) |
+//! | `pressure` | `p_A, p_B` minus the chambers replayed along the measured x(t) (and rotation, with open ports) through the model's chambers and pressure sensors |
+//!
+//! Friction acts against the sliding velocity `(ẋ, ω·r)` of the turning piston, as in the
+//! plant (`plant.rs`): its axial part is `F_fr(|u|)·ẋ/|u|`.
+
+use fpc::friction::FrictionParams;
+
+use crate::chambers::{Chambers, Lines, PortMode};
+use crate::model::MachineModel;
+use crate::plant::PlantParams;
+use crate::sensors::PitchError;
+use crate::signal::delayed;
+
+use super::band::{force_kernel, lowpass, sg_weights, Kernel};
+use super::data::{Measured, PortsMeta};
+
+/// The channels compared.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum ChannelId {
+    /// The force balance on the piston.
+    Force,
+    /// Slave-section force against the master's.
+    SlaveForce,
+    /// Slave encoder against the master encoder.
+    Encoder,
+    /// Chamber pressures against the replay.
+    Pressure,
+}
+
+impl ChannelId {
+    /// Every channel, in report order.
+    pub const ALL: [ChannelId; 4] = [
+        ChannelId::Force,
+        ChannelId::SlaveForce,
+        ChannelId::Encoder,
+        ChannelId::Pressure,
+    ];
+
+    /// Name in the JSON and the report.
+    pub fn name(self) -> &'static str {
+        match self {
+            ChannelId::Force => "force",
+            ChannelId::SlaveForce => "slave_force",
+            ChannelId::Encoder => "encoder",
+            ChannelId::Pressure => "pressure",
+        }
+    }
+
+    /// Unit of the residual.
+    pub fn unit(self) -> &'static str {
+        match self {
+            ChannelId::Force | ChannelId::SlaveForce => "N",
+            ChannelId::Encoder => "m",
+            ChannelId::Pressure => "Pa",
+        }
+    }
+}
+
+/// The analysis band and the sample sets the statistics use.
+///
+/// Terms are filtered unmasked and judged only where the whole kernel lies on samples the
+/// channel may be judged on (the mask eroded by the kernel's half length): the force kernel
+/// turns a raw second difference (kN of noise per sample) into an acceleration only over its
+/// whole window, so a kernel cut at a mask edge would leave hundreds of newtons.
+#[derive(Clone, Debug)]
+pub struct Band {
+    /// Upper edge of the band, Hz.
+    pub band_hz: f64,
+    /// Low-pass then force kernel: what the force channel's terms pass through.
+    pub force: Kernel,
+    /// The low-pass alone: what the other channels pass through.
+    pub plain: Kernel,
+    /// Decimation stride: about one sample per half period at the band edge, so that the
+    /// residual noise left in the band is roughly independent from one kept sample to the
+    /// next (the statistics count these samples).
+    pub stride: usize,
+    /// Where the force channel is judged (1) or not (0).
+    pub mask_force: Vec<f64>,
+    /// Where the encoder channel is judged (while moving, like the force channel).
+    pub mask_encoder: Vec<f64>,
+    /// Where the slave-force and pressure channels are judged.
+    pub mask_inner: Vec<f64>,
+    /// Kept samples of the force channel.
+    pub idx_force: Vec<usize>,
+    /// Kept samples of the encoder channel.
+    pub idx_encoder: Vec<usize>,
+    /// Kept samples of the slave-force and pressure channels.
+    pub idx_inner: Vec<usize>,
+}
+
+/// `mask` eroded by `half` samples on each side: 1 only where every sample within `half`
+/// is 1.
+pub fn erode(mask: &[f64], half: usize) -> Vec<f64> {
+    let n = mask.len();
+    let mut bad = vec![0usize; n + 1];
+    for (i, w) in mask.iter().enumerate() {
+        bad[i + 1] = bad[i] + usize::from(*w <= 0.0);
+    }
+    (0..n)
+        .map(|i| {
+            let lo = i.saturating_sub(half);
+            let hi = (i + half + 1).min(n);
+            let ok = i >= half && i + half < n && bad.get(hi) == bad.get(lo);
+            f64::from(u8::from(ok))
+        })
+        .collect()
+}
+
+impl Band {
+    /// The band of `band_hz` for `data`.
+    pub fn new(data: &Measured, band_hz: f64) -> Result<Self, String> {
+        let dt = data.dt_s;
+        let h2 = sg_weights(data.sg_window, 2, 2, dt).ok_or("differentiator weights")?;
+        let g = force_kernel(&h2, dt);
+        let lp = lowpass(band_hz, data.sample_rate_hz());
+        let force = Kernel::new(super::band::convolve(&lp, &g));
+        let plain = Kernel::new(lp);
+        let stride = ((data.sample_rate_hz() / (2.0 * band_hz)).round() as usize).max(1);
+        let mask_force = erode(&data.moving, force.half());
+        let mask_inner = erode(&data.inner, plain.half());
+        let mask_encoder = erode(&data.moving, plain.half());
+        let pick = |mask: &[f64]| -> Vec<usize> {
+            (0..mask.len())
+                .step_by(stride)
+                .filter(|&i| mask.get(i).is_some_and(|&w| w > 0.0))
+                .collect()
+        };
+        Ok(Band {
+            band_hz,
+            idx_force: pick(&mask_force),
+            idx_inner: pick(&mask_inner),
+            idx_encoder: pick(&mask_encoder),
+            mask_encoder,
+            force,
+            plain,
+            stride,
+            mask_force,
+            mask_inner,
+        })
+    }
+
+    /// The kernel, judging mask and kept samples of a channel.
+    fn route(&self, ch: ChannelId) -> (&Kernel, &[f64], &[usize]) {
+        match ch {
+            ChannelId::Force => (&self.force, &self.mask_force, &self.idx_force),
+            ChannelId::Encoder => (&self.plain, &self.mask_encoder, &self.idx_encoder),
+            _ => (&self.plain, &self.mask_inner, &self.idx_inner),
+        }
+    }
+
+    /// A raw per-sample term of channel `ch`, band-filtered, at the kept samples.
+    pub fn kept(&self, _data: &Measured, ch: ChannelId, raw: &[f64]) -> Vec<f64> {
+        let (k, _, idx) = self.route(ch);
+        k.apply_at(raw, idx)
+    }
+
+    /// The same at every sample (zero where the channel is not judged).
+    pub fn full(&self, _data: &Measured, ch: ChannelId, raw: &[f64]) -> Vec<f64> {
+        let (k, mask, _) = self.route(ch);
+        mask.iter()
+            .enumerate()
+            .map(|(i, w)| if *w > 0.0 { k.at(raw, i) } else { 0.0 })
+            .collect()
+    }
+
+    /// Where the channel is judged.
+    pub fn mask<'a>(&'a self, _data: &'a Measured, ch: ChannelId) -> &'a [f64] {
+        self.route(ch).1
+    }
+}
+
+/// One channel's residual for one model.
+#[derive(Clone, Debug)]
+pub struct Residual {
+    /// Which channel.
+    pub channel: ChannelId,
+    /// The raw per-sample residual (for `pressure`: chamber A's samples then B's).
+    pub raw: Vec<f64>,
+    /// Band-filtered at the kept samples (for `pressure`: A's then B's).
+    pub kept: Vec<f64>,
+}
+
+impl Residual {
+    /// Sum of squares over the kept samples.
+    pub fn rss(&self) -> f64 {
+        self.kept.iter().map(|v| v * v).sum()
+    }
+
+    /// RMS over the kept samples.
+    pub fn rms(&self) -> f64 {
+        if self.kept.is_empty() {
+            0.0
+        } else {
+            (self.rss() / self.kept.len() as f64).sqrt()
+        }
+    }
+}
+
+/// How much older the section forces in a run-log row are than its position, s: the
+/// firmware's status reports each section's force from the current measured in the previous
+/// control cycle (`controller.rs`: "last cycle's state"), one control period behind the
+/// position sampled in the same cycle. The force balance realigns them.
+pub const FORCE_REPORT_LAG_S: f64 = fpc::units::CONTROL_PERIOD_S as f64;
+
+/// `x` shifted later by `samples` (fractional: linear interpolation; negative: earlier),
+/// holding the end values beyond the ends.
+pub fn shifted(x: &[f64], samples: f64) -> Vec<f64> {
+    let n = x.len();
+    let (first, last) = match (x.first(), x.last()) {
+        (Some(&f), Some(&l)) => (f, l),
+        _ => return Vec::new(),
+    };
+    (0..n)
+        .map(|i| {
+            let t = i as f64 - samples;
+            if t <= 0.0 {
+                return first;
+            }
+            if t >= (n - 1) as f64 {
+                return last;
+            }
+            let k = t.floor() as usize;
+            let f = t - k as f64;
+            match (x.get(k), x.get(k + 1)) {
+                (Some(a), Some(b)) => a + f * (b - a),
+                _ => last,
+            }
+        })
+        .collect()
+}
+
+/// The motor forces as they act on the piston at each row, N: the reported forces
+/// realigned by [`FORCE_REPORT_LAG_S`] and late by the model's actuator lag `delay_s`.
+pub fn acting_motor_force_n(data: &Measured, delay_s: f64) -> Vec<f64> {
+    let motors: Vec<f64> = data
+        .f_master_n
+        .iter()
+        .zip(&data.f_slave_n)
+        .map(|(a, b)| a + b)
+        .collect();
+    shifted(&motors, (delay_s - FORCE_REPORT_LAG_S) / data.dt_s)
+}
+
+/// Axial friction of the turning piston, N: the law at the sliding speed `|(v, ω·r)|`,
+/// along the axial direction (`plant.rs`).
+#[inline]
+pub fn axial_friction_n(law: &FrictionParams<f64>, v_mps: f64, tangential_mps: f64) -> f64 {
+    let slip = (v_mps * v_mps + tangential_mps * tangential_mps).sqrt();
+    if slip <= 0.0 {
+        return 0.0;
+    }
+    law.force_n(slip) * v_mps / slip
+}
+
+/// The tangential sliding speed ω·r at every sample, m/s.
+pub fn tangential_mps(data: &Measured, model: &MachineModel) -> Vec<f64> {
+    let r = 0.5 * model.piston.bore_m;
+    data.omega_rad_s.iter().map(|w| w * r).collect()
+}
+
+/// Everything the model's force terms add up to at every sample, toward +x (motor forces as
+/// they act, gas, cogging, minus friction), N.
+pub fn model_force_n(data: &Measured, model: &MachineModel) -> Vec<f64> {
+    let n = data.len();
+    let delay = model
+        .effects
+        .actuator_lag
+        .as_ref()
+        .map_or(0.0, |l| l.delay_s);
+    let acting = acting_motor_force_n(data, delay);
+    let cyl = model.cylinder();
+    let law = model.friction();
+    let cog = model.cogging();
+    let tang = tangential_mps(data, model);
+    // The gas force acts with the chambers' true pressures: the readings less the model's
+    // sensor offsets, with the sensors' first-order lag undone (p = p_read + τ·ṗ_read).
+    // Left in, the lag reads as friction (it follows the stroke direction) or as an actuator
+    // lag (it follows the force's rate).
+    let sensor = &model.sensors.pressure;
+    let tau = sensor.time_constant_s;
+    (0..n)
+        .map(|i| {
+            let g = |v: &[f64]| v.get(i).copied().unwrap_or(0.0);
+            let pa = g(&data.p_a_pa) - sensor.offset_a_pa + tau * g(&data.dp_a_pa_per_s);
+            let pb = g(&data.p_b_pa) - sensor.offset_b_pa + tau * g(&data.dp_b_pa_per_s);
+            let gas = cyl.gas_force_n(pa, pb);
+            let fr = axial_friction_n(&law, g(&data.v_mps), g(&tang));
+            let c = cog.map_or(0.0, |c| c.force_n(g(&data.x_m)));
+            g(&acting) + gas - fr + c
+        })
+        .collect()
+}
+
+/// The raw force-balance residual `m·Δ²x − ΣF_model`, N.
+pub fn force_raw(data: &Measured, model: &MachineModel) -> Vec<f64> {
+    let m = model.piston.mass_kg;
+    model_force_n(data, model)
+        .into_iter()
+        .zip(&data.d2x_mps2)
+        .map(|(f, a)| m * a - f)
+        .collect()
+}
+
+/// The slave force the model predicts from the master's, N.
+pub fn slave_force_prediction(data: &Measured, model: &MachineModel) -> Vec<f64> {
+    match model.slave_lag_s() {
+        Some(d) if d > 0.0 => delayed(&data.f_master_n, d / data.dt_s),
+        _ => data.f_master_n.clone(),
+    }
+}
+
+/// What the model says the slave encoder reads minus the master's, m.
+pub fn encoder_prediction(data: &Measured, model: &MachineModel) -> Vec<f64> {
+    match &model.effects.encoder_pitch_error {
+        Some(e) => {
+            let p = PitchError::new(e);
+            data.x_m.iter().map(|&x| p.read_m(x) - x).collect()
+        }
+        None => vec![0.0; data.len()],
+    }
+}
+
+/// Longest chamber step of the replay, s: the plant's (one control period).
+pub const REPLAY_STEP_S: f64 = fpc::units::CONTROL_PERIOD_S as f64;
+
+/// The chambers replayed along the measured motion through the model, as the model's
+/// pressure sensors would read them: (p_A, p_B), Pa. `None` without `# ports`.
+pub fn replay_pressures(data: &Measured, model: &MachineModel) -> Option<(Vec<f64>, Vec<f64>)> {
+    let mode = match data.ports {
+        PortsMeta::Closed => PortMode::Closed,
+        PortsMeta::Open => PortMode::Timed,
+        PortsMeta::Unknown => return None,
+    };
+    let n = data.len();
+    let params = PlantParams::from_model(model).chambers;
+    let gas = params.gas;
+    let t_gas = model.gas.temperature_k;
+    let sensor = &model.sensors.pressure;
+    // Start from what the sensors read while the piston still rests (up to 20 ms), less
+    // their offsets, at the wall temperature: the log is taken to start in equilibrium.
+    let x0 = data.x_m.first().copied().unwrap_or(0.0);
+    let rest = data
+        .x_m
+        .iter()
+        .take((0.02 / data.dt_s).ceil() as usize)
+        .take_while(|x| (*x - x0).abs() < 20e-6)
+        .count()
+        .max(1);
+    let mean = |p: &[f64]| p.iter().take(rest).sum::<f64>() / rest as f64;
+    let p0a = mean(&data.p_a_pa) - sensor.offset_a_pa;
+    let p0b = mean(&data.p_b_pa) - sensor.offset_b_pa;
+    let mut ch = Chambers::new(params, x0, p0a.max(1.0), t_gas);
+    ch.b.pressure_pa = p0b.max(1.0);
+    ch.b.mass_kg = ch.b.pressure_pa * ch.b.volume_m3 / (gas.gas_constant_j_per_kg_k * t_gas);
+    let mut lines = Lines::new(
+        model.lines.suction_pa,
+        t_gas,
+        model.lines.pressure_ratio,
+        gas.gamma,
+    );
+    let alpha = if sensor.time_constant_s > 0.0 {
+        1.0 - (-data.dt_s / sensor.time_constant_s).exp()
+    } else {
+        1.0
+    };
+    let (mut la, mut lb) = (ch.a.pressure_pa, ch.b.pressure_pa);
+    let mut pa = Vec::with_capacity(n);
+    let mut pb = Vec::with_capacity(n);
+    let tau = std::f64::consts::TAU;
+    // The plant steps its chambers every control period; a slower log is replayed in as
+    // many sub-steps, along x and θ interpolated linearly (the chambers' port flow is stiff
+    // and its step is made for 25–50 µs).
+    let substeps = (data.dt_s / REPLAY_STEP_S - 1e-9).ceil().max(1.0) as usize;
+    let h = data.dt_s / substeps as f64;
+    for i in 0..n {
+        if i > 0 {
+            // Set the lines only when the logged pressures change (each set costs a powf).
+            if let Some(ps) = data.p_suction_pa.as_ref().and_then(|p| p.get(i)) {
+                if *ps > 0.0 && *ps != lines.suction_pa {
+                    lines.set_suction_pa(*ps);
+                }
+            }
+            if let Some(pd) = data.p_discharge_pa.as_ref().and_then(|p| p.get(i)) {
+                if *pd > 0.0 && *pd != lines.discharge_pa {
+                    lines.set_discharge_pa(*pd);
+                }
+            }
+            let at = |v: &[f64], k: usize| v.get(k).copied().unwrap_or(0.0);
+            let (x1, x2) = (at(&data.x_m, i - 1), at(&data.x_m, i));
+            let (t1, t2) = (at(&data.theta_rad, i - 1), at(&data.theta_rad, i));
+            for k in 1..=substeps {
+                let f = k as f64 / substeps as f64;
+                let x = x1 + f * (x2 - x1);
+                let phase = (t1 + f * (t2 - t1)).rem_euclid(tau);
+                ch.step(x, phase, &lines, mode, h);
+            }
+        }
+        la += alpha * (ch.a.pressure_pa - la);
+        lb += alpha * (ch.b.pressure_pa - lb);
+        pa.push(la + sensor.offset_a_pa);
+        pb.push(lb + sensor.offset_b_pa);
+    }
+    Some((pa, pb))
+}
+
+/// The raw residual of `ch` for `model` (`None`: the channel cannot be formed from this log).
+pub fn channel_raw(data: &Measured, model: &MachineModel, ch: ChannelId) -> Option<Vec<f64>> {
+    match ch {
+        ChannelId::Force => Some(force_raw(data, model)),
+        ChannelId::SlaveForce => Some(
+            slave_force_prediction(data, model)
+                .iter()
+                .zip(&data.f_slave_n)
+                .map(|(p, s)| s - p)
+                .collect(),
+        ),
+        ChannelId::Encoder => {
+            let pred = encoder_prediction(data, model);
+            let diff: Vec<f64> = data
+                .x_slave_m
+                .iter()
+                .zip(&data.x_m)
+                .zip(&pred)
+                .map(|((s, m), p)| s - m - p)
+                .collect();
+            Some(data.demean_segments(&diff))
+        }
+        ChannelId::Pressure => {
+            let (pa, pb) = replay_pressures(data, model)?;
+            let ra = data.p_a_pa.iter().zip(&pa).map(|(m, p)| m - p);
+            let rb = data.p_b_pa.iter().zip(&pb).map(|(m, p)| m - p);
+            Some(ra.chain(rb).collect())
+        }
+    }
+}
+
+/// The residual of `ch` for `model`.
+pub fn residual(
+    data: &Measured,
+    band: &Band,
+    model: &MachineModel,
+    ch: ChannelId,
+) -> Option<Residual> {
+    let raw = channel_raw(data, model, ch)?;
+    let kept = kept_of_raw(data, band, ch, &raw);
+    Some(Residual {
+        channel: ch,
+        raw,
+        kept,
+    })
+}
+
+/// Band-filters a raw residual (or regressor) of `ch` at the kept samples; the pressure
+/// channel's two halves are filtered separately and concatenated.
+pub fn kept_of_raw(data: &Measured, band: &Band, ch: ChannelId, raw: &[f64]) -> Vec<f64> {
+    let n = data.len();
+    if ch == ChannelId::Pressure {
+        let (a, b) = raw.split_at(n.min(raw.len()));
+        let mut out = band.kept(data, ch, a);
+        out.extend(band.kept(data, ch, b));
+        out
+    } else {
+        band.kept(data, ch, raw)
+    }
+}
+
+/// Band-filters a raw residual of `ch` at every sample (pressure: A's then B's).
+pub fn full_of_raw(data: &Measured, band: &Band, ch: ChannelId, raw: &[f64]) -> Vec<f64> {
+    let n = data.len();
+    if ch == ChannelId::Pressure {
+        let (a, b) = raw.split_at(n.min(raw.len()));
+        let mut out = band.full(data, ch, a);
+        out.extend(band.full(data, ch, b));
+        out
+    } else {
+        band.full(data, ch, raw)
+    }
+}
+
+/// RMS of the band-filtered residual over every sample the channel is judged on.
+pub fn full_rms(data: &Measured, band: &Band, ch: ChannelId, raw: &[f64]) -> f64 {
+    let full = full_of_raw(data, band, ch, raw);
+    let mask = band.mask(data, ch);
+    let (s, c) = full
+        .iter()
+        .zip(mask.iter().cycle())
+        .filter(|(_, w)| **w > 0.0)
+        .fold((0.0, 0usize), |(s, c), (v, _)| (s + v * v, c + 1));
+    if c == 0 {
+        0.0
+    } else {
+        (s / c as f64).sqrt()
+    }
+}

@@ -1,0 +1,314 @@
+//! Forward selection: at each step every candidate not yet added is fitted on top of the
+//! current model, the one with the largest evidence is added if it is significant, each
+//! effect added so far is fitted once more with the others in place (back-fitting), and the
+//! step repeats until nothing significant is left.
+//!
+//! **Significance.** An effect is added only if both hold:
+//! - the Bayesian information criterion improves by at least [`MIN_DELTA_BIC`]:
+//!   `ΔBIC = n·ln(RSS₀/RSS₁) − k·ln n` over the channel's kept samples (decimated to about
+//!   one per half period of the band edge, so that the noise left is roughly independent from
+//!   sample to sample and `n` counts independent evidence);
+//! - it explains at least [`MIN_EXPLAINED_TOTAL`] of the channel's residual sum of squares,
+//!   and at least [`MIN_EXPLAINED`] of it *where it acts* (the kept samples where it changes
+//!   the residual by more than a tenth of its largest change): practical floors, so that a
+//!   systematic but negligible mismatch (a logging offset of one sample, the rotation's
+//!   quantised speed in the friction near a reversal) is not named on long, quiet logs;
+//! - it changes the channel's residual by more than the channel's resolution
+//!   ([`resolution`]: what the sensors behind it can tell apart) in RMS.
+//!
+//! **Collinearity.** Two candidates of one channel whose changes to the residual correlate
+//! by more than [`COLLINEAR`], and that explain nearly as much (the other at least half of
+//! what the added one does), cannot be told apart by this run; when one is added, a warning
+//! says so.
+
+use super::doc::ModelDoc;
+use super::effects::{Ctx, EffectKind, Proposal};
+use super::fit::correlation;
+use super::residuals::{residual, ChannelId, Residual};
+
+/// Smallest BIC improvement that adds an effect ("very strong" evidence on Kass and
+/// Raftery's scale).
+pub const MIN_DELTA_BIC: f64 = 10.0;
+
+/// Smallest share of the residual's sum of squares, where the effect acts, it must explain.
+pub const MIN_EXPLAINED: f64 = 0.20;
+
+/// Smallest share of the channel's whole residual sum of squares it must explain.
+pub const MIN_EXPLAINED_TOTAL: f64 = 0.05;
+
+/// Smallest RMS change of the force channels an effect must make, N: below the force the
+/// drives can resolve (one current-sensor code is 4 N per phase) averaged over the band.
+pub const FORCE_RESOLUTION_N: f64 = 2.0;
+
+/// Smallest RMS change of the pressure channel, Pa (a third of the reference sensor's
+/// 305 Pa code).
+pub const PRESSURE_RESOLUTION_PA: f64 = 100.0;
+
+/// The smallest RMS change of a channel's residual worth naming: what its sensors resolve.
+/// The encoder's is one step of the sin/cos interpolation, `λ/(2π·amplitude)` (≈ 2.4 µm
+/// on the reference encoder): patterns below it are the interpolation's own rounding.
+pub fn resolution(ch: ChannelId, model: &crate::model::MachineModel) -> f64 {
+    match ch {
+        ChannelId::Force | ChannelId::SlaveForce => FORCE_RESOLUTION_N,
+        ChannelId::Encoder => {
+            let amp = model.sensors.encoder_master.amplitude_codes.max(1.0);
+            model.encoder.period_m / (std::f64::consts::TAU * amp)
+        }
+        ChannelId::Pressure => PRESSURE_RESOLUTION_PA,
+    }
+}
+
+/// Fewest kept samples an effect must act on.
+pub const MIN_SUPPORT: usize = 8;
+
+/// Correlation above which two candidates are reported as collinear.
+pub const COLLINEAR: f64 = 0.9;
+
+/// Most effects added to one model.
+pub const MAX_EFFECTS: usize = 8;
+
+/// One candidate judged at one step.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Judged {
+    /// The fitted candidate.
+    pub proposal: Proposal,
+    /// RSS of its channel before, at the kept samples.
+    pub rss_before: f64,
+    /// RSS after adding it.
+    pub rss_after: f64,
+    /// Kept samples of the channel.
+    pub n: usize,
+    /// BIC improvement.
+    pub delta_bic: f64,
+    /// Share of the residual's sum of squares explained where it acts.
+    pub explained: f64,
+    /// Share of the channel's whole residual sum of squares explained.
+    pub explained_total: f64,
+    /// Kept samples where it acts.
+    pub support: usize,
+    /// RMS of its change to the residual.
+    pub change_rms: f64,
+    /// The channel's resolution ([`resolution`]).
+    pub resolution: f64,
+    /// Its change to the residual at the kept samples (for the collinearity check).
+    pub change: Vec<f64>,
+}
+
+impl Judged {
+    /// Whether it passes both tests of the module header.
+    pub fn significant(&self) -> bool {
+        self.delta_bic >= MIN_DELTA_BIC
+            && self.explained >= MIN_EXPLAINED
+            && self.explained_total >= MIN_EXPLAINED_TOTAL
+            && self.support >= MIN_SUPPORT
+            && self.change_rms >= self.resolution
+    }
+}
+
+/// The result of the selection.
+#[derive(Clone, Debug)]
+pub struct Selection {
+    /// The augmented model.
+    pub doc: ModelDoc,
+    /// What was added, in the order added (most significant first), with final parameters.
+    pub added: Vec<Judged>,
+    /// The model just before and just after each was added (selection-time parameters).
+    pub steps: Vec<(ModelDoc, ModelDoc)>,
+    /// Every candidate judged at the first step (the report's table).
+    pub first_step: Vec<Judged>,
+    /// Warnings (collinear candidates).
+    pub warnings: Vec<String>,
+}
+
+/// Judges `kind` on top of `doc`, whose residual of the effect's channel is `before`.
+pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual) -> Option<Judged> {
+    let proposal = kind.propose(ctx, doc)?;
+    let model = doc.with(&proposal.edits).model().ok()?;
+    let after = residual(ctx.data, ctx.band, &model, kind.channel())?;
+    let model = doc.model().ok()?;
+    let n = before.kept.len().min(after.kept.len());
+    if n < 2 {
+        return None;
+    }
+    let rss_before = before.rss();
+    let rss_after = after.rss();
+    let change: Vec<f64> = after
+        .kept
+        .iter()
+        .zip(&before.kept)
+        .map(|(a, b)| a - b)
+        .collect();
+    let peak = change.iter().fold(0.0f64, |m, c| m.max(c.abs()));
+    let (mut s0, mut s1, mut support) = (0.0, 0.0, 0usize);
+    for ((c, b), a) in change.iter().zip(&before.kept).zip(&after.kept) {
+        if peak > 0.0 && c.abs() > 0.1 * peak {
+            s0 += b * b;
+            s1 += a * a;
+            support += 1;
+        }
+    }
+    let explained = if s0 > 0.0 { (s0 - s1) / s0 } else { 0.0 };
+    let nf = n as f64;
+    let delta_bic = if rss_after > 0.0 && rss_before > 0.0 {
+        nf * (rss_before / rss_after).ln() - proposal.k as f64 * nf.ln()
+    } else {
+        f64::NEG_INFINITY
+    };
+    Some(Judged {
+        proposal,
+        rss_before,
+        rss_after,
+        n,
+        delta_bic,
+        explained,
+        explained_total: if rss_before > 0.0 {
+            (rss_before - rss_after) / rss_before
+        } else {
+            0.0
+        },
+        support,
+        change_rms: (super::fit::sumsq(&change) / n as f64).sqrt(),
+        resolution: resolution(kind.channel(), &model),
+        change,
+    })
+}
+
+/// Judgements by candidate, with the channel residual they were made on.
+type Cache = Vec<(EffectKind, Vec<f64>, Judged)>;
+
+/// [`judge`], reusing the last judgement of `kind` if its channel's residual is unchanged.
+fn cached_judge(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    kind: EffectKind,
+    before: &Residual,
+    cache: &mut Cache,
+) -> Option<Judged> {
+    if let Some((_, _, j)) = cache
+        .iter()
+        .find(|(k, kept, _)| *k == kind && *kept == before.kept)
+    {
+        return Some(j.clone());
+    }
+    let j = judge(ctx, doc, kind, before)?;
+    cache.retain(|(k, _, _)| *k != kind);
+    cache.push((kind, before.kept.clone(), j.clone()));
+    Some(j)
+}
+
+/// Runs the forward selection from `doc` over the channels this log has.
+pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
+    let mut doc = doc.clone();
+    let mut added: Vec<Judged> = Vec::new();
+    let mut steps: Vec<(ModelDoc, ModelDoc)> = Vec::new();
+    let mut first_step: Vec<Judged> = Vec::new();
+    // A candidate's fit depends only on its own channel: while that channel's residual is
+    // unchanged (an effect was added elsewhere), its last judgement stands. The pressure
+    // candidates replay the chambers tens of times each; this keeps the steps cheap.
+    let mut cache: Cache = Vec::new();
+    for step in 0..MAX_EFFECTS {
+        let model = doc.model()?;
+        let mut best: Option<Judged> = None;
+        let mut judged = Vec::new();
+        let befores: Vec<(ChannelId, Residual)> = ChannelId::ALL
+            .iter()
+            .filter_map(|&c| Some((c, residual(ctx.data, ctx.band, &model, c)?)))
+            .collect();
+        for kind in EffectKind::ALL {
+            if added.iter().any(|a| a.proposal.kind == kind) {
+                continue;
+            }
+            let Some((_, before)) = befores.iter().find(|(c, _)| *c == kind.channel()) else {
+                continue;
+            };
+            let Some(j) = cached_judge(ctx, &doc, kind, before, &mut cache) else {
+                continue;
+            };
+            if j.significant() && best.as_ref().is_none_or(|b| j.delta_bic > b.delta_bic) {
+                best = Some(j.clone());
+            }
+            judged.push(j);
+        }
+        if step == 0 {
+            first_step = judged;
+        }
+        let Some(b) = best else { break };
+        let next = doc.with(&b.proposal.edits);
+        steps.push((doc, next.clone()));
+        doc = next;
+        added.push(b);
+        // Back-fitting: each effect added so far once more with all the others in place,
+        // so that one fitted while another was still missing is corrected before the next
+        // step looks at what is left.
+        if added.len() > 1 {
+            doc = backfit(ctx, doc, &mut added, &mut cache)?;
+        }
+    }
+    let mut warnings = Vec::new();
+    for a in &added {
+        for other in &first_step {
+            let k = other.proposal.kind;
+            if k == a.proposal.kind || k.channel() != a.proposal.kind.channel() {
+                continue;
+            }
+            let mine = first_step
+                .iter()
+                .find(|j| j.proposal.kind == a.proposal.kind);
+            let Some(mine) = mine else { continue };
+            let rho = correlation(&mine.change, &other.change);
+            // Collinear *and* nearly as good: the run cannot tell them apart. (A candidate
+            // that merely mimics the missing effect correlates too, but explains far less.)
+            let gain = |j: &Judged| j.rss_before - j.rss_after;
+            if rho.abs() > COLLINEAR && gain(other) >= 0.5 * gain(mine) {
+                warnings.push(format!(
+                    "{} and {} are collinear in this run (|ρ| = {:.2}): it cannot tell them \
+                     apart; a run with more varied motion would",
+                    a.proposal.kind.name(),
+                    k.name(),
+                    rho.abs()
+                ));
+            }
+        }
+    }
+    Ok(Selection {
+        doc,
+        added,
+        steps,
+        first_step,
+        warnings,
+    })
+}
+
+/// Fits each effect of `added` again on top of `doc` (which holds them all), keeping a refit
+/// that lowers its channel's residual; returns the updated model.
+fn backfit(
+    ctx: &Ctx<'_>,
+    mut doc: ModelDoc,
+    added: &mut [Judged],
+    cache: &mut Cache,
+) -> Result<ModelDoc, String> {
+    for a in added.iter_mut() {
+        let kind = a.proposal.kind;
+        let model = doc.model()?;
+        let Some(before) = residual(ctx.data, ctx.band, &model, kind.channel()) else {
+            continue;
+        };
+        if let Some(j) = cached_judge(ctx, &doc, kind, &before, cache) {
+            if j.rss_after < j.rss_before {
+                doc = doc.with(&j.proposal.edits);
+                a.proposal.params = j.proposal.params;
+                a.proposal.edits = j.proposal.edits;
+            }
+        }
+    }
+    Ok(doc)
+}
+
+/// Channels that this log has, with their residuals for `doc`.
+pub fn channels(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Vec<Residual>, String> {
+    let model = doc.model()?;
+    Ok(ChannelId::ALL
+        .iter()
+        .filter_map(|&c| residual(ctx.data, ctx.band, &model, c))
+        .collect())
+}

@@ -1,0 +1,258 @@
+//! Synthetic "measured" runs for the model-gap proofs, the benchmark and the docs: the plant
+//! of a *truth* model driven along a prescribed motion (`Plant::advance_kinematic`), sensed
+//! as the rig senses it (encoder noise, pressure-sensor lag, offset, noise and 12-bit
+//! codes), with the motor force the motion needed logged as the drives would report it.
+//!
+//! Closed-loop runs with the firmware in the loop come from [`crate::run::run`]; these
+//! prescribed runs cover what the closed loop cannot do: the paper's closed-port campaign
+//! (compress, hold, let the pressure decay) and timed ports along a known rotation.
+
+use std::f64::consts::PI;
+
+use crate::chambers::PortMode;
+use crate::kinematic::CycleDrive;
+use crate::model::MachineModel;
+use crate::plant::{Plant, PlantParams};
+use crate::runlog::{RunLog, REQUIRED};
+use crate::sensors::{Noise, Sensors};
+
+use super::residuals::axial_friction_n;
+
+/// Sample time of the synthetic runs, s (the simulator's 20 kHz).
+pub const SAMPLE_TIME_S: f64 = 50e-6;
+
+/// Encoder noise after interpolation, m RMS (`machine.md`: σ ≈ 1 µm).
+pub const ENCODER_NOISE_M: f64 = 1e-6;
+
+/// Noise of a reported section force, N RMS.
+pub const FORCE_NOISE_N: f64 = 2.0;
+
+/// One segment of a prescribed closed-port motion.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Move {
+    /// Where to go, m.
+    pub to_m: f64,
+    /// How long the move takes (cosine profile), s.
+    pub duration_s: f64,
+    /// How long to hold there afterwards, s.
+    pub hold_s: f64,
+}
+
+/// The paper's first campaign, reproduced: from the middle, compress chamber B to ≈ 5 bar
+/// and hold while it leaks, back to the middle, compress A, hold, back — `repeats` times.
+pub fn closed_port_moves(model: &MachineModel, repeats: usize) -> (f64, Vec<Move>) {
+    let travel = model.piston.travel_m;
+    let mid = 0.5 * travel;
+    let one = [
+        Move {
+            to_m: 0.82 * travel,
+            duration_s: 0.06,
+            hold_s: 0.5,
+        },
+        Move {
+            to_m: mid,
+            duration_s: 0.06,
+            hold_s: 0.2,
+        },
+        Move {
+            to_m: 0.18 * travel,
+            duration_s: 0.06,
+            hold_s: 0.5,
+        },
+        Move {
+            to_m: mid,
+            duration_s: 0.06,
+            hold_s: 0.2,
+        },
+    ];
+    (
+        mid,
+        one.iter()
+            .copied()
+            .cycle()
+            .take(4 * repeats.max(1))
+            .collect(),
+    )
+}
+
+/// Position (m), velocity (m/s), acceleration (m/s²) along `moves` at `t_s`.
+fn along(start_m: f64, moves: &[Move], t_s: f64) -> (f64, f64, f64) {
+    let mut from = start_m;
+    let mut t0 = 0.1; // rest first: the replay starts from what the sensors read at rest
+    if t_s < t0 {
+        return (from, 0.0, 0.0);
+    }
+    for m in moves {
+        let tau = t_s - t0;
+        if tau < m.duration_s {
+            let w = PI / m.duration_s;
+            let h = 0.5 * (m.to_m - from);
+            return (
+                from + h * (1.0 - (w * tau).cos()),
+                h * w * (w * tau).sin(),
+                h * w * w * (w * tau).cos(),
+            );
+        }
+        if tau < m.duration_s + m.hold_s {
+            return (m.to_m, 0.0, 0.0);
+        }
+        t0 += m.duration_s + m.hold_s;
+        from = m.to_m;
+    }
+    (from, 0.0, 0.0)
+}
+
+/// Duration of a closed-port motion, s.
+pub fn moves_duration_s(moves: &[Move]) -> f64 {
+    0.1 + moves.iter().map(|m| m.duration_s + m.hold_s).sum::<f64>()
+}
+
+/// A closed-port run of the truth model along `moves` from `start_m` (`# ports = closed`).
+pub fn closed_port_run(truth: &MachineModel, start_m: f64, moves: &[Move], seed: u64) -> RunLog {
+    let end = moves_duration_s(moves);
+    prescribed(truth, seed, PortMode::Closed, end, start_m, |t| {
+        let (x, v, a) = along(start_m, moves, t);
+        (x, v, a, 0.0, 0.0)
+    })
+}
+
+/// An open-port compressor run of the truth model: the prescribed cycle of
+/// [`CycleDrive`] (sinusoidal stroke, discharge timed for `pressure_ratio`) for `cycles`
+/// cycles at peak speed `v_max_mps` (`# ports = open`, line pressures logged).
+pub fn open_port_run(
+    truth: &MachineModel,
+    pressure_ratio: f64,
+    v_max_mps: f64,
+    cycles: f64,
+    seed: u64,
+) -> RunLog {
+    let drive = CycleDrive::new(
+        truth,
+        truth.limits.target_head_clearance_m,
+        v_max_mps,
+        pressure_ratio,
+    );
+    let end = cycles * drive.period_s();
+    let dt = SAMPLE_TIME_S;
+    let x0 = drive.at(0.0).0;
+    let mut log = prescribed(truth, seed, PortMode::Timed, end, x0, |t| {
+        let (x, th) = drive.at(t);
+        let (xp, thp) = drive.at(t + 0.5 * dt);
+        let (xm, thm) = drive.at(t - 0.5 * dt);
+        let v = (xp - xm) / dt;
+        let a = drive.omega_rad_s * drive.omega_rad_s * (drive.x_mid_m - x);
+        (x, v, a, th, (thp - thm) / dt)
+    });
+    log.meta
+        .push(("pressure_ratio".into(), pressure_ratio.to_string()));
+    log
+}
+
+/// Drives the truth plant along `path(t) = (x, v, a, θ, ω)` and logs it as sensed.
+fn prescribed(
+    truth: &MachineModel,
+    seed: u64,
+    mode: PortMode,
+    end_s: f64,
+    x0: f64,
+    path: impl Fn(f64) -> (f64, f64, f64, f64, f64),
+) -> RunLog {
+    let dt = SAMPLE_TIME_S;
+    let mut plant = Plant::new(PlantParams::from_model(truth), x0);
+    plant.port_mode = mode;
+    let sensors = Sensors::from_model(truth);
+    let ps = &sensors.pressure;
+    let mut noise = Noise::new(seed);
+    let alpha = if ps.time_constant_s > 0.0 {
+        1.0 - (-dt / ps.time_constant_s).exp()
+    } else {
+        1.0
+    };
+    let law = truth.friction();
+    let cyl = truth.cylinder();
+    let cog = truth.cogging();
+    let r = 0.5 * truth.piston.bore_m;
+    let mut cols = REQUIRED.to_vec();
+    cols.extend(["p_suction_pa", "p_discharge_pa"]);
+    let mut log = RunLog::with_columns(&cols);
+    log.meta.push((
+        "ports".into(),
+        if mode == PortMode::Closed {
+            "closed"
+        } else {
+            "open"
+        }
+        .into(),
+    ));
+    log.meta.push((
+        "source".into(),
+        "fpc-sim gap synth (prescribed motion)".into(),
+    ));
+    log.meta
+        .push(("sample_rate_hz".into(), (1.0 / dt).round().to_string()));
+    let mut lagged = [plant.chambers.a.pressure_pa, plant.chambers.b.pressure_pa];
+    // The drives' forces are reported as the firmware reports them: one control period
+    // behind the row's position (`gap::residuals::FORCE_REPORT_LAG_S`).
+    let mut reported: Option<f64> = None;
+    let steps = (end_s / dt).round() as usize;
+    for k in 0..=steps {
+        let t = k as f64 * dt;
+        let (x, v, a, theta, omega) = path(t);
+        if k > 0 {
+            plant.advance_kinematic(x, theta, dt);
+        }
+        let (pa, pb) = (plant.chambers.a.pressure_pa, plant.chambers.b.pressure_pa);
+        let gas = cyl.gas_force_n(pa, pb);
+        let fr = axial_friction_n(&law, v, omega * r);
+        let c = cog.map_or(0.0, |c| c.force_n(x));
+        let now = truth.piston.mass_kg * a - gas + fr - c;
+        let motors = reported.replace(now).unwrap_or(now);
+        let mut read = |i: usize, p: f64, off: f64, noise: &mut Noise| {
+            let l = lagged.get_mut(i).map_or(p, |l| {
+                *l += alpha * (p - *l);
+                *l
+            });
+            let code = ps
+                .calibration
+                .code_for((l + off + noise.scaled(ps.noise_pa)) as f32);
+            f64::from(ps.calibration.convert(code).pressure_pa)
+        };
+        let p_a = read(0, pa, ps.offset_pa[0], &mut noise);
+        let p_b = read(1, pb, ps.offset_pa[1], &mut noise);
+        let xm = x + noise.scaled(ENCODER_NOISE_M);
+        let x_true_slave = sensors.slave_pitch_error.map_or(x, |e| e.read_m(x));
+        let xs = x_true_slave + noise.scaled(ENCODER_NOISE_M);
+        let fm = 0.5 * motors + noise.scaled(FORCE_NOISE_N);
+        let fs = 0.5 * motors + noise.scaled(FORCE_NOISE_N);
+        log.push_row(&[
+            t,
+            xm,
+            xs,
+            theta,
+            fm,
+            fs,
+            p_a,
+            p_b,
+            plant.lines.suction_pa,
+            plant.lines.discharge_pa,
+        ]);
+    }
+    log
+}
+
+/// Resamples a run log to every `factor`-th row (e.g. 20 kHz → 10 kHz), metadata kept.
+pub fn decimate(log: &RunLog, factor: usize) -> RunLog {
+    let f = factor.max(1);
+    let mut out = log.clone();
+    for c in &mut out.columns {
+        *c = c.iter().copied().step_by(f).collect();
+    }
+    for (k, v) in &mut out.meta {
+        if k == "sample_rate_hz" {
+            if let Ok(r) = v.parse::<f64>() {
+                *v = (r / f as f64).to_string();
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,122 @@
+//! `fpc-sim gap` refuses what it cannot use (`faults.md` #17–18): exit 2, one line naming
+//! the key or the line and column, and nothing written.
+
+use std::path::{Path, PathBuf};
+
+use hal_sim::gap_cmd::{main, GapArgs};
+use hal_sim::model::REFERENCE_TOML;
+use hal_sim::runlog::{RunLog, REQUIRED};
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join("gap_refuses_bad_input")
+        .join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A plausible little log: a slow sine stroke.
+fn log_text(ports: Option<&str>) -> String {
+    let mut log = RunLog::with_columns(&REQUIRED);
+    if let Some(p) = ports {
+        log.meta.push(("ports".into(), p.into()));
+    }
+    for i in 0..2000 {
+        let t = i as f64 * 1e-4;
+        let x = 0.1 + 0.05 * (6.0 * t).sin();
+        log.push_row(&[t, x, x, 0.0, 10.0, 10.0, 1e5, 1e5]);
+    }
+    log.to_csv()
+}
+
+fn gap(dir: &Path, model: &str, log: &str) -> (u8, String, bool) {
+    let (m, l, out) = (dir.join("model.toml"), dir.join("run.csv"), dir.join("out"));
+    std::fs::write(&m, model).unwrap();
+    std::fs::write(&l, log).unwrap();
+    let r = main(GapArgs {
+        model: m,
+        measured: l,
+        out: out.clone(),
+        json: false,
+        band_hz: 300.0,
+    });
+    match r {
+        Ok(()) => (0, String::new(), out.exists()),
+        Err(f) => (f.code, f.message, out.exists()),
+    }
+}
+
+#[test]
+fn gap_refuses_bad_model_files_naming_the_key() {
+    let dir = scratch("model");
+    let log = log_text(None);
+    for (bad, key) in [
+        (
+            REFERENCE_TOML.replace("mass_kg = 12.0", "mass_kg = -1.0"),
+            "piston.mass_kg",
+        ),
+        (
+            REFERENCE_TOML.replace("coulomb_n = 40.0", "colomb_n = 40.0"),
+            "colomb_n",
+        ),
+        (
+            REFERENCE_TOML.replace("period_m = 0.024 ", "period_m = 0.0 "),
+            "period_m",
+        ),
+        (REFERENCE_TOML.replace("mass_kg = 12.0", ""), "mass_kg"),
+    ] {
+        let (code, msg, wrote) = gap(&dir, &bad, &log);
+        assert_eq!(code, 2, "{msg}");
+        assert!(msg.contains(key), "`{msg}` should name {key}");
+        assert!(!msg.contains('\n'));
+        assert!(!wrote, "nothing may be written on bad input");
+    }
+}
+
+#[test]
+fn gap_refuses_bad_logs_naming_line_and_column() {
+    let dir = scratch("log");
+    let good = log_text(None);
+    let lines: Vec<&str> = good.lines().collect();
+    let mut text = lines.clone();
+    text[10] = "0.0009,abc,0.1,0,10,10,1e5,1e5";
+    let mut nan = lines.clone();
+    nan[20] = "0.0019,0.1,NaN,0,10,10,1e5,1e5";
+    let mut back = lines.clone();
+    back[30] = "0.0001,0.1,0.1,0,10,10,1e5,1e5";
+    let mut short = lines.clone();
+    short[40] = "0.0039,0.1";
+    for (bad, want) in [
+        (text.join("\n"), "line 11, column `x_m`"),
+        (nan.join("\n"), "column `x_slave_m`"),
+        (back.join("\n"), "column `t_s`"),
+        (short.join("\n"), "line 41"),
+        (log_text(Some("ajar")), "ports"),
+    ] {
+        let (code, msg, wrote) = gap(&dir, REFERENCE_TOML, &bad);
+        assert_eq!(code, 2, "{msg}");
+        assert!(msg.contains(want), "`{msg}` should contain {want}");
+        assert!(!wrote, "nothing may be written on bad input");
+    }
+}
+
+#[test]
+fn gap_writes_the_augmented_model_and_the_report() {
+    let dir = scratch("ok");
+    let (code, msg, wrote) = gap(&dir, REFERENCE_TOML, &log_text(Some("closed")));
+    assert_eq!(code, 0, "{msg}");
+    assert!(wrote);
+    let out = dir.join("out");
+    for f in [
+        "model.toml",
+        "report.md",
+        "gap.json",
+        "overlay_force.svg",
+        "pv_replay.svg",
+    ] {
+        assert!(out.join(f).exists(), "{f} missing");
+    }
+    // The augmented model loads as `fpc-sim run --model` would load it.
+    hal_sim::model::MachineModel::read(&out.join("model.toml")).unwrap();
+}
