@@ -243,10 +243,7 @@ impl Plant {
         self.cogging_force_n = p.cogging.as_ref().map_or(0.0, |c| c.force_n(self.x_m));
         let r = p.friction_radius_m;
         let tangential = self.rotation.piston_speed_rad_s * r;
-        let slip = (self.v_mps * self.v_mps + tangential * tangential)
-            .sqrt()
-            .max(1e-9);
-        let secant = p.friction.force_n(slip) / slip;
+        let secant = p.friction.sliding_secant(self.v_mps, tangential);
         let driving = self.force_n.master
             + self.force_n.slave
             + self.chambers.gas_force_n()

@@ -250,14 +250,11 @@ pub fn acting_motor_force_n(data: &Measured, delay_s: f64) -> Vec<f64> {
 }
 
 /// Axial friction of the turning piston, N: the law at the sliding speed `|(v, ω·r)|`,
-/// along the axial direction (`plant.rs`).
+/// along the axial direction.
 #[inline]
 pub fn axial_friction_n(law: &FrictionParams<f64>, v_mps: f64, tangential_mps: f64) -> f64 {
-    let slip = (v_mps * v_mps + tangential_mps * tangential_mps).sqrt();
-    if slip <= 0.0 {
-        return 0.0;
-    }
-    law.force_n(slip) * v_mps / slip
+    // The plant's own law (fpc::friction), so model and plant can never disagree.
+    law.sliding_secant(v_mps, tangential_mps) * v_mps
 }
 
 /// The tangential sliding speed ω·r at every sample, m/s.
