@@ -36,8 +36,9 @@ impl AllocationConfig {
 }
 
 /// The forces to command, per section, for a total `force_n` at position `x_m`. NaN in, zero
-/// out; each share saturates at its section's limit.
-#[inline]
+/// out; each share saturates at its section's limit. Always inlined: it is part of the
+/// control step (the calibration calls it too).
+#[inline(always)]
 pub fn allocate(config: &AllocationConfig, force_n: f32, x_m: f32) -> PerSection<f32> {
     let wanted = force_n - config.cogging.force_n(x_m);
     if wanted.is_nan() {

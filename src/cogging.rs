@@ -67,8 +67,9 @@ impl HarmonicMap {
     }
 
     /// Cogging force the map predicts at `x_m`, N. Uses one sin/cos and the angle-addition
-    /// recurrence for the higher harmonics (cheap on the MCU).
-    #[inline]
+    /// recurrence for the higher harmonics (cheap on the MCU). Always inlined: it is part of
+    /// the control step's allocation (the calibration calls that too).
+    #[inline(always)]
     pub fn force_n(&self, x_m: f32) -> f32 {
         if self.period_m <= 0.0 || self.is_empty() {
             return 0.0;

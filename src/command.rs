@@ -4,6 +4,7 @@
 //! refused command carries the reason and leaves the state as it was. The binary codec for
 //! the RTT down-channel encodes exactly these values.
 
+use crate::calibration::Routine;
 use crate::synchroniser::Rotation;
 use crate::volume_ratio::RatioTarget;
 
@@ -41,6 +42,13 @@ pub enum Command {
         /// The target.
         target: RatioTarget,
     },
+    /// Set one tunable parameter (validated against its limits; refused while running).
+    SetParameter {
+        /// Which one.
+        parameter: Parameter,
+        /// The new value, in the parameter's unit.
+        value: f32,
+    },
     /// Stop: a running machine finishes its stroke and holds at that dead point; a moving
     /// one stops on the braking deceleration and holds.
     Stop,
@@ -48,6 +56,59 @@ pub enum Command {
     Heartbeat,
     /// Clear latched faults (refused while a cause persists).
     ClearFaults,
+    /// Run a calibration routine (idle or holding machine; the sweeping ones homed) and load
+    /// its result; the machine then holds (homed) or goes idle.
+    Calibrate {
+        /// The routine.
+        routine: Routine,
+    },
+}
+
+/// The parameters the host may set at run time, with stable numbers (the command codec
+/// carries the number) and their limits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[repr(u8)]
+pub enum Parameter {
+    /// Position-loop stiffness, N/m.
+    PositionKp = 1,
+    /// Position-loop damping, N·s/m.
+    PositionKd = 2,
+    /// Host heartbeat timeout before the piston parks, s.
+    HeartbeatTimeout = 3,
+    /// Park position, m from head A.
+    ParkPosition = 4,
+    /// Fraction of a dead-point error corrected per stroke.
+    DeadPointGain = 5,
+}
+
+impl Parameter {
+    /// Every parameter, in number order.
+    pub const ALL: [Parameter; 5] = [
+        Parameter::PositionKp,
+        Parameter::PositionKd,
+        Parameter::HeartbeatTimeout,
+        Parameter::ParkPosition,
+        Parameter::DeadPointGain,
+    ];
+
+    /// The parameter with number `code`.
+    pub fn from_code(code: u8) -> Option<Parameter> {
+        Parameter::ALL.iter().copied().find(|p| *p as u8 == code)
+    }
+
+    /// Accepted range (inclusive). Loop gains within a factor of about 3 of the reference
+    /// tuning (beyond it the loop's stability margin against the real delays is not shown);
+    /// the park position keeps 5 mm from either head of the reference travel.
+    pub const fn range(self) -> (f32, f32) {
+        match self {
+            Parameter::PositionKp => (2.0e5, 2.5e6),
+            Parameter::PositionKd => (1.5e3, 1.5e4),
+            Parameter::HeartbeatTimeout => (0.05, 10.0),
+            Parameter::ParkPosition => (0.005, 0.2),
+            Parameter::DeadPointGain => (0.0, 1.0),
+        }
+    }
 }
 
 /// Why a command was refused. Nothing changed.
@@ -66,6 +127,8 @@ pub enum Refusal {
     Busy,
     /// The cause of a latched fault is still present.
     CausePersists,
+    /// The phase currents read a current with the outputs off: a current-sense offset.
+    CurrentSenseOffset,
 }
 
 impl Refusal {
@@ -78,6 +141,9 @@ impl Refusal {
             Refusal::FaultActive => "a fault is latched: clear it first",
             Refusal::Busy => "busy: wait for the current operation to finish or stop it",
             Refusal::CausePersists => "the cause of the fault is still present",
+            Refusal::CurrentSenseOffset => {
+                "phase currents read non-zero with the outputs off: run the current-sense calibration"
+            }
         }
     }
 }

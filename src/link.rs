@@ -27,6 +27,8 @@
 //! | `0x16` | [`Command::SetSpeed`] | `peak_speed_mps: f32` |
 //! | `0x17` | [`Command::SetRotation`] | `rotation: u8` (0 compressor, 1 expander) |
 //! | `0x18` | [`Command::SetVolumeRatio`] | `0` (follow measured) or `1` ‖ `pressure_ratio: f32` (fixed) |
+//! | `0x19` | [`Command::Calibrate`] | `routine: u8` ([`crate::calibration::Routine`] as number) |
+//! | `0x1A` | [`Command::SetParameter`] | `parameter: u8` ([`crate::command::Parameter`] as number), `value: f32` |
 //!
 //! Tags are part of the wire contract: never reuse or renumber. The codec checks only the
 //! form; NaN, infinities and out-of-range values decode as sent, and the controller refuses
@@ -39,7 +41,8 @@
 //! | `0x02` | [`Reply`] | `result: u8` (0 accepted, else [`refusal_code`]) ‖ the command's payload |
 //! | `0x03` | command frame rejected | `reason: u8` ([`FrameError`] as number) |
 
-use crate::command::{Command, Refusal};
+use crate::calibration::Routine;
+use crate::command::{Command, Parameter, Refusal};
 use crate::shared::Reply;
 use crate::synchroniser::Rotation;
 use crate::volume_ratio::RatioTarget;
@@ -74,6 +77,10 @@ pub mod tag {
     pub const SET_ROTATION: u8 = 0x17;
     /// [`crate::command::Command::SetVolumeRatio`].
     pub const SET_VOLUME_RATIO: u8 = 0x18;
+    /// [`crate::command::Command::Calibrate`].
+    pub const CALIBRATE: u8 = 0x19;
+    /// [`crate::command::Command::SetParameter`].
+    pub const SET_PARAMETER: u8 = 0x1A;
 }
 
 /// Largest command payload (tag + two f32).
@@ -413,6 +420,15 @@ fn command_payload(command: &Command, out: &mut [u8; MAX_COMMAND_PAYLOAD]) -> us
         Command::Stop => w.byte(tag::STOP),
         Command::Heartbeat => w.byte(tag::HEARTBEAT),
         Command::ClearFaults => w.byte(tag::CLEAR_FAULTS),
+        Command::Calibrate { routine } => {
+            w.byte(tag::CALIBRATE);
+            w.byte(routine as u8);
+        }
+        Command::SetParameter { parameter, value } => {
+            w.byte(tag::SET_PARAMETER);
+            w.byte(parameter as u8);
+            w.f32(value);
+        }
     }
     w.len
 }
@@ -480,6 +496,23 @@ pub fn decode_command(payload: &[u8]) -> Result<Command, FrameError> {
             [0 | 1, ..] | [] => Err(FrameError::BadLength),
             _ => Err(FrameError::BadValue),
         },
+        tag::CALIBRATE => match fields {
+            [code] => Routine::from_code(*code)
+                .map(|routine| Command::Calibrate { routine })
+                .ok_or(FrameError::BadValue),
+            _ => Err(FrameError::BadLength),
+        },
+        tag::SET_PARAMETER => match fields {
+            [code, value @ ..] if value.len() == 4 => Parameter::from_code(*code)
+                .ok_or(FrameError::BadValue)
+                .and_then(|parameter| {
+                    Ok(Command::SetParameter {
+                        parameter,
+                        value: f32_at(value, 0)?,
+                    })
+                }),
+            _ => Err(FrameError::BadLength),
+        },
         _ => Err(FrameError::UnknownKind),
     }
 }
@@ -493,6 +526,7 @@ pub const fn refusal_code(refusal: Refusal) -> u8 {
         Refusal::FaultActive => 4,
         Refusal::Busy => 5,
         Refusal::CausePersists => 6,
+        Refusal::CurrentSenseOffset => 7,
     }
 }
 
@@ -505,6 +539,7 @@ pub fn refusal_from_code(code: u8) -> Option<Refusal> {
         Refusal::FaultActive,
         Refusal::Busy,
         Refusal::CausePersists,
+        Refusal::CurrentSenseOffset,
     ]
     .into_iter()
     .find(|r| refusal_code(*r) == code)
@@ -658,7 +693,43 @@ pub(crate) mod tests {
             Command::Stop,
             Command::Heartbeat,
             Command::ClearFaults,
+            Command::Calibrate {
+                routine: Routine::CurrentSense,
+            },
+            Command::Calibrate {
+                routine: Routine::Cogging,
+            },
+            Command::SetParameter {
+                parameter: Parameter::PositionKp,
+                value: 7.5e5,
+            },
+            Command::SetParameter {
+                parameter: Parameter::DeadPointGain,
+                value: 0.6,
+            },
         ]
+    }
+
+    #[test]
+    fn a_calibrate_command_names_a_known_routine() {
+        for routine in Routine::ALL {
+            assert_eq!(
+                decode_command(&[tag::CALIBRATE, routine as u8]),
+                Ok(Command::Calibrate { routine })
+            );
+        }
+        assert_eq!(
+            decode_command(&[tag::CALIBRATE, 4]),
+            Err(FrameError::BadValue)
+        );
+        assert_eq!(
+            decode_command(&[tag::CALIBRATE]),
+            Err(FrameError::BadLength)
+        );
+        assert_eq!(
+            refusal_from_code(refusal_code(Refusal::CurrentSenseOffset)),
+            Some(Refusal::CurrentSenseOffset)
+        );
     }
 
     #[test]

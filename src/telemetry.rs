@@ -83,6 +83,7 @@ pub const fn mode_code(mode: ModeKind) -> u8 {
         ModeKind::Stopping => 4,
         ModeKind::Faulted => 5,
         ModeKind::Running => 6,
+        ModeKind::Calibrating => 7,
     }
 }
 
@@ -96,6 +97,7 @@ pub fn mode_from_code(code: u8) -> Option<ModeKind> {
         ModeKind::Stopping,
         ModeKind::Faulted,
         ModeKind::Running,
+        ModeKind::Calibrating,
     ]
     .into_iter()
     .find(|m| mode_code(*m) == code)
@@ -295,7 +297,7 @@ mod tests {
                 assert_eq!(mode_code(m), c);
             }
         }
-        assert_eq!((0..=255u8).filter_map(mode_from_code).count(), 7);
+        assert_eq!((0..=255u8).filter_map(mode_from_code).count(), 8);
     }
 
     proptest! {
