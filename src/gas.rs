@@ -242,6 +242,10 @@ pub struct Nozzle<T> {
     s0: T,
     /// Node spacing in s.
     ds: T,
+    /// 1/ds (the plant evaluates this law every step: a multiply, not a division).
+    inv_ds: T,
+    /// dψ/dr of the linear part above the linear ratio.
+    slope_linear: T,
     /// ψ at the nodes.
     psi: [T; TABLE_INTERVALS + 1],
     /// dψ/ds at the nodes.
@@ -268,16 +272,19 @@ impl<T: Real> Nozzle<T> {
             // dr/ds = −2s.
             *d = slope_r * (T::of(-2.0) * s);
         }
+        let psi_linear = exact_flow_function(k, inv_gamma, linear_ratio).0;
         Nozzle {
             gas,
             inv_gamma,
             k,
             critical_ratio,
             psi_critical: exact_flow_function(k, inv_gamma, critical_ratio).0,
-            psi_linear: exact_flow_function(k, inv_gamma, linear_ratio).0,
+            psi_linear,
             linear_ratio,
             s0,
             ds,
+            inv_ds: T::ONE / ds,
+            slope_linear: -psi_linear / (T::ONE - linear_ratio),
             psi,
             dpsi_ds,
         }
@@ -302,7 +309,7 @@ impl<T: Real> Nozzle<T> {
         if r <= self.critical_ratio {
             return (self.psi_critical, T::ZERO);
         }
-        let slope_linear = -self.psi_linear / (T::ONE - self.linear_ratio);
+        let slope_linear = self.slope_linear;
         if r >= T::ONE {
             return (T::ZERO, slope_linear);
         }
@@ -310,7 +317,7 @@ impl<T: Real> Nozzle<T> {
             return (slope_linear * (r - T::ONE), slope_linear);
         }
         let s = (T::ONE - r).sqrt();
-        let u = ((s - self.s0) / self.ds).max(T::ZERO);
+        let u = ((s - self.s0) * self.inv_ds).max(T::ZERO);
         let i = (u.to_f32() as usize).min(TABLE_INTERVALS - 1);
         let t = u - T::of(i as f32);
         let node = |j: usize| {
@@ -329,7 +336,7 @@ impl<T: Real> Nozzle<T> {
             + (three * t2 - two * t3) * p1
             + (t3 - t2) * h * m1;
         let six = T::of(6.0);
-        let dpsi_ds = (six * t2 - six * t) / h * (p0 - p1)
+        let dpsi_ds = (six * t2 - six * t) * self.inv_ds * (p0 - p1)
             + (three * t2 - T::of(4.0) * t + T::ONE) * m0
             + (three * t2 - two * t) * m1;
         (psi, dpsi_ds / (T::of(-2.0) * s))

@@ -173,6 +173,23 @@ impl Chamber {
     }
 }
 
+/// Updates both temperatures after the gas moved. When both masses changed, their `1/(m·R)`
+/// come from one division, `D = 1/(m_A·m_B·R)`: `1/(m_A·R) = m_B·D`, `1/(m_B·R) = m_A·D`.
+#[inline]
+fn update_temperatures(a: &mut Chamber, b: &mut Chamber, r: f64) {
+    let (ma, mb) = (a.mass_kg, b.mass_kg);
+    if a.inverse.0 != ma && b.inverse.0 != mb {
+        let product = ma * mb * r;
+        if product > 0.0 && product.is_finite() {
+            let d = 1.0 / product;
+            a.inverse = (ma, mb * d);
+            b.inverse = (mb, ma * d);
+        }
+    }
+    a.update_temperature(r);
+    b.update_temperature(r);
+}
+
 /// Parameters of the chambers and what connects them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ChamberParams {
@@ -211,6 +228,8 @@ pub struct Chambers {
     pub openings: PortOpenings<f64>,
     nozzle: Nozzle<f64>,
     cp: f64,
+    /// 1/(γ − 1).
+    inv_gm1: f64,
 }
 
 impl Chambers {
@@ -233,6 +252,7 @@ impl Chambers {
         Chambers {
             nozzle: Nozzle::new(g),
             cp: g.cp_j_per_kg_k(),
+            inv_gm1: 1.0 / (g.gamma - 1.0),
             params,
             a,
             b,
@@ -260,6 +280,8 @@ impl Chambers {
         let (mid_a, mid_b) = (0.5 * (self.a.volume_m3 + va), 0.5 * (self.b.volume_m3 + vb));
         compress(&mut self.a, &g, mid_a);
         compress(&mut self.b, &g, mid_b);
+        // Steps 2–4 act at these volumes: their reciprocals once (divisions dominate the cost).
+        let (inv_va, inv_vb) = (1.0 / mid_a, 1.0 / mid_b);
 
         self.openings = match mode {
             PortMode::Timed => self.params.ports.openings(phase_rad),
@@ -290,16 +312,24 @@ impl Chambers {
             ambient_temperature_k: self.params.ambient_temperature_k,
             dt_s,
         };
-        ctx.flow_step(&mut self.a, ia, da);
-        ctx.flow_step(&mut self.b, ib, db);
+        ctx.flow_step(&mut self.a, ia, da, inv_va);
+        ctx.flow_step(&mut self.b, ib, db, inv_vb);
+        let r = g.gas_constant_j_per_kg_k;
+        update_temperatures(&mut self.a, &mut self.b, r);
 
         if let Some(leak) = &self.params.piston_leak {
-            piston_leak(&mut self.a, &mut self.b, leak, &g, self.cp, dt_s);
+            let inv_v = (inv_va, inv_vb);
+            piston_leak(&mut self.a, &mut self.b, leak, &g, self.cp, dt_s, inv_v);
+            update_temperatures(&mut self.a, &mut self.b, r);
         }
         if self.params.ua_w_per_k > 0.0 {
-            let (ua, tw) = (self.params.ua_w_per_k, self.params.wall_temperature_k);
-            heat(&mut self.a, &g, ua, tw, dt_s);
-            heat(&mut self.b, &g, ua, tw, dt_s);
+            let wall = Wall {
+                ua_w_per_k: self.params.ua_w_per_k,
+                temperature_k: self.params.wall_temperature_k,
+                inv_gm1: self.inv_gm1,
+            };
+            wall.heat(&mut self.a, &g, dt_s, inv_va);
+            wall.heat(&mut self.b, &g, dt_s, inv_vb);
         }
         compress(&mut self.a, &g, va);
         compress(&mut self.b, &g, vb);
@@ -328,8 +358,9 @@ struct FlowContext<'a> {
 }
 
 impl FlowContext<'_> {
-    /// The linearly implicit port-and-rod-leak step of one chamber (module header, step 2).
-    fn flow_step(&self, c: &mut Chamber, intake_area_m2: f64, discharge_area_m2: f64) {
+    /// The linearly implicit port-and-rod-leak step of one chamber (module header, step 2),
+    /// at the volume whose reciprocal is `inv_v`. The temperature is left to the caller.
+    fn flow_step(&self, c: &mut Chamber, intake_area_m2: f64, discharge_area_m2: f64, inv_v: f64) {
         let (p, t) = (c.pressure_pa, c.temperature_k);
         let l = self.lines;
         let closed = Flow::default();
@@ -376,12 +407,13 @@ impl FlowContext<'_> {
         if in_kg_k == 0.0 && out_kg == 0.0 {
             return;
         }
-        let v = c.volume_m3;
+        // The energy equation per unit volume, times 1/V.
         let g = self
             .gas
-            .pressure_rate_pa_per_s(v, 0.0, p, t, in_kg_k, out_kg, 0.0);
+            .pressure_rate_pa_per_s(1.0, 0.0, p, t, in_kg_k, out_kg, 0.0)
+            * inv_v;
         // ∂g/∂p with the upstream temperatures held; ≤ 0 for every law used here.
-        let dg_dp = self.gas.gamma * self.gas.gas_constant_j_per_kg_k * slope / v;
+        let dg_dp = self.gas.gamma * self.gas.gas_constant_j_per_kg_k * slope * inv_v;
         let dt = self.dt_s;
         let implicit_dt = dt / (1.0 - dt * dg_dp).max(1.0);
         let step = implicit_dt * g;
@@ -413,11 +445,11 @@ impl FlowContext<'_> {
         tot.leak_j -= cp * tl * dml;
         c.mass_kg += dmi + dmd + dml;
         c.pressure_pa = p_new;
-        c.update_temperature(self.gas.gas_constant_j_per_kg_k);
     }
 }
 
-/// The explicit piston-seal leak between the chambers (module header, step 3).
+/// The explicit piston-seal leak between the chambers (module header, step 3); `inv_v` are
+/// the reciprocal volumes. The temperatures are left to the caller.
 fn piston_leak(
     a: &mut Chamber,
     b: &mut Chamber,
@@ -425,6 +457,7 @@ fn piston_leak(
     g: &GasProperties<f64>,
     cp: f64,
     dt_s: f64,
+    inv_v: (f64, f64),
 ) {
     let f = leak.flow_between(
         g,
@@ -443,7 +476,7 @@ fn piston_leak(
         b.temperature_k
     };
     let k = g.gamma * g.gas_constant_j_per_kg_k * t_up;
-    let (ka, kb) = (k / a.volume_m3, k / b.volume_m3);
+    let (ka, kb) = (k * inv_v.0, k * inv_v.1);
     let mut dm = m * dt_s;
     let diff = a.pressure_pa - b.pressure_pa;
     if (diff - (ka + kb) * dm) * diff < 0.0 {
@@ -459,21 +492,30 @@ fn piston_leak(
     b.pressure_pa += kb * dm;
     b.totals.leak_kg -= dm;
     b.totals.leak_j -= dh;
-    a.update_temperature(g.gas_constant_j_per_kg_k);
-    b.update_temperature(g.gas_constant_j_per_kg_k);
 }
 
-/// Heat transfer to the wall at constant volume and mass, backward Euler (step 4).
-fn heat(c: &mut Chamber, g: &GasProperties<f64>, ua_w_per_k: f64, wall_k: f64, dt_s: f64) {
-    let gm1 = g.gamma - 1.0;
-    let v = c.volume_m3;
-    // dp/dt = (γ−1)/V·UA·(T_w − p·V/(m·R)) = c1 − c2·p, backward Euler.
-    let c2 = gm1 * ua_w_per_k * c.inverse_mass_r(g.gas_constant_j_per_kg_k);
-    let c1 = gm1 * ua_w_per_k * wall_k / v;
-    let p = (c.pressure_pa + dt_s * c1) / (1.0 + dt_s * c2);
-    c.totals.heat_in_j += (p - c.pressure_pa) * v / gm1;
-    c.pressure_pa = p;
-    c.update_temperature(g.gas_constant_j_per_kg_k);
+/// The chambers' wall (heat transfer).
+struct Wall {
+    ua_w_per_k: f64,
+    temperature_k: f64,
+    /// 1/(γ − 1).
+    inv_gm1: f64,
+}
+
+impl Wall {
+    /// Heat transfer to the wall at constant volume and mass, backward Euler (step 4), at the
+    /// volume whose reciprocal is `inv_v`.
+    fn heat(&self, c: &mut Chamber, g: &GasProperties<f64>, dt_s: f64, inv_v: f64) {
+        let gm1 = g.gamma - 1.0;
+        let ua = self.ua_w_per_k;
+        // dp/dt = (γ−1)/V·UA·(T_w − p·V/(m·R)) = c1 − c2·p, backward Euler.
+        let c2 = gm1 * ua * c.inverse_mass_r(g.gas_constant_j_per_kg_k);
+        let c1 = gm1 * ua * self.temperature_k * inv_v;
+        let p = (c.pressure_pa + dt_s * c1) / (1.0 + dt_s * c2);
+        c.totals.heat_in_j += (p - c.pressure_pa) * c.volume_m3 * self.inv_gm1;
+        c.pressure_pa = p;
+        c.update_temperature(g.gas_constant_j_per_kg_k);
+    }
 }
 
 #[cfg(test)]

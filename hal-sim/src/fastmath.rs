@@ -49,9 +49,42 @@ pub fn sin_cos(x: f64) -> (f64, f64) {
     }
 }
 
+/// `⌊x⌋` as an integer, by conversion (`f64::floor` is a library call on baseline x86-64).
+/// Exact for |x| < 2⁶³; saturates beyond, and NaN gives 0, as `x.floor() as i64` does.
+#[inline]
+pub fn floor_i64(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) > x {
+        t.saturating_sub(1)
+    } else {
+        t
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn floor_i64_is_floor() {
+        for x in [
+            -2.5,
+            -2.0,
+            -1e-300,
+            -0.0,
+            0.0,
+            1e-300,
+            0.5,
+            1.0,
+            82_245.7,
+            -82_245.7,
+            1e300,
+            -1e300,
+            f64::NAN,
+        ] {
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+        }
+    }
 
     #[test]
     fn matches_std_over_the_plant_range() {

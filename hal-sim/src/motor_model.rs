@@ -53,6 +53,33 @@ impl DelayLine {
     }
 }
 
+/// `1/x` for the last `x` asked for.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Reciprocal {
+    x: f64,
+    inv: f64,
+}
+
+impl Default for Reciprocal {
+    /// Computed at the first use (NaN equals nothing).
+    fn default() -> Self {
+        Reciprocal {
+            x: f64::NAN,
+            inv: f64::NAN,
+        }
+    }
+}
+
+impl Reciprocal {
+    #[inline]
+    fn of(&mut self, x: f64) -> f64 {
+        if self.x != x {
+            *self = Reciprocal { x, inv: 1.0 / x };
+        }
+        self.inv
+    }
+}
+
 /// Parameters of both sections.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SectionParams {
@@ -77,6 +104,12 @@ pub struct Sections {
     pub force_n: PerSection<f64>,
     /// sin/cos of each section's electrical angle at the plant's current position.
     angle: PerSection<(f64, f64)>,
+    /// The position `angle` is for, m.
+    angle_x_m: f64,
+    /// Per section: 1/period (rad/m after ×2π) and 1/L, kept for the parameters in use
+    /// (divisions dominate the step's cost).
+    inv_period: PerSection<Reciprocal>,
+    inv_inductance: PerSection<Reciprocal>,
     /// sin/cos of the slave's misalignment angle.
     offset: (f64, f64),
     follower: Option<DelayLine>,
@@ -92,6 +125,9 @@ impl Sections {
             current: PerSection::default(),
             force_n: PerSection::default(),
             angle: PerSection::default(),
+            angle_x_m: f64::NAN,
+            inv_period: PerSection::default(),
+            inv_inductance: PerSection::default(),
             offset: delta.sin_cos(),
             follower: params.slave_lag_s.map(|d| DelayLine::new(d, dt_s)),
             force_lag: params.actuator_lag_s.map(|d| PerSection {
@@ -107,13 +143,22 @@ impl Sections {
     /// Recomputes the electrical angles for a piston at `x_m` (once per sub-step).
     #[inline]
     pub fn set_position(&mut self, x_m: f64) {
+        self.angle_x_m = x_m;
         let period = self.params.motor.master.electrical_period_m;
-        let (s, c) = sin_cos(std::f64::consts::TAU * x_m / period);
+        let per_m = self.inv_period.master.of(period);
+        let (s, c) = sin_cos(std::f64::consts::TAU * per_m * x_m);
         let (so, co) = self.offset;
         self.angle = PerSection {
             master: (s, c),
             slave: (s * co + c * so, c * co - s * so),
         };
+    }
+
+    /// sin/cos of the master section's electrical angle `2π·x/period`, if the last
+    /// [`Sections::set_position`] was for `x_m` (the plant reuses it for the cogging).
+    #[inline]
+    pub fn master_angle_at(&self, x_m: f64) -> Option<(f64, f64)> {
+        (self.angle_x_m == x_m).then_some(self.angle.master)
     }
 
     /// Phase currents of `section`, A.
@@ -139,14 +184,16 @@ impl Sections {
                 (_, _, None) => Dq::default(),
                 (_, _, Some(v)) => {
                     let v = park(*v.get(section), s, c);
-                    let we = m.electrical_speed(v_mps);
+                    let per_m = self.inv_period.get_mut(section).of(m.electrical_period_m);
+                    let we = std::f64::consts::TAU * per_m * v_mps;
                     let l = m.inductance_h;
-                    let did = (v.d - m.resistance_ohm * i.d + we * l * i.q) / l;
+                    let inv_l = self.inv_inductance.get_mut(section).of(l);
+                    let did = (v.d - m.resistance_ohm * i.d + we * l * i.q) * inv_l;
                     let diq = (v.q
                         - m.resistance_ohm * i.q
                         - we * l * i.d
                         - m.back_emf_v_per_mps() * v_mps)
-                        / l;
+                        * inv_l;
                     Dq {
                         d: i.d + did * dt_s,
                         q: i.q + diq * dt_s,

@@ -72,8 +72,9 @@ impl RunLog {
     /// Appends a row (one value per column, in column order; extra values are ignored and
     /// missing ones are NaN).
     pub fn push_row(&mut self, row: &[f64]) {
-        for (i, col) in self.columns.iter_mut().enumerate() {
-            col.push(row.get(i).copied().unwrap_or(f64::NAN));
+        let padded = row.iter().chain(std::iter::repeat(&f64::NAN));
+        for (col, v) in self.columns.iter_mut().zip(padded) {
+            col.push(*v);
         }
     }
 

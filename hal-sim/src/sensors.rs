@@ -134,10 +134,11 @@ impl Noise {
     }
 }
 
-/// A 12-bit ADC conversion of a value in codes (rounded, clamped to the range).
+/// A 12-bit ADC conversion of a value in codes (rounded, clamped to the range; NaN reads 0).
 #[inline]
 pub fn adc(code: f64) -> AdcCode {
-    AdcCode((code + 0.5).clamp(0.0, 4095.0) as u16)
+    // `as` saturates (below 0 and NaN → 0), so only the top needs a bound.
+    AdcCode(((code + 0.5) as u16).min(4095))
 }
 
 /// One sin/cos encoder at the ADC.
@@ -182,9 +183,21 @@ impl EncoderModel {
     /// encoder reads, `x_read_m`.
     #[inline]
     pub fn signals(&self, x_read_m: f64) -> (f64, f64) {
-        let th = std::f64::consts::TAU * x_read_m / self.period_m;
+        let th = self.angle_rad(x_read_m);
+        self.signals_at(th, sin_cos(th))
+    }
+
+    /// The signal angle `2π·x/λ` at the position the encoder reads, rad.
+    #[inline]
+    pub fn angle_rad(&self, x_read_m: f64) -> f64 {
+        std::f64::consts::TAU * x_read_m / self.period_m
+    }
+
+    /// [`EncoderModel::signals`] at the signal angle `th` with its `(sin, cos)` given (both
+    /// encoders read the same angle when they have the same period and no pitch error).
+    #[inline]
+    pub fn signals_at(&self, th: f64, (s, c): (f64, f64)) -> (f64, f64) {
         let a = self.amplitude_codes;
-        let (s, c) = sin_cos(th);
         let c = if self.quadrature_error_rad == 0.0 {
             c
         } else {
@@ -348,6 +361,16 @@ mod tests {
         let mut again = Noise::new(7);
         assert!(xs.iter().take(100).all(|&x| x == again.normal()));
         assert!((inverse_normal_cdf(0.975) - 1.959_964).abs() < 1e-6);
+    }
+
+    #[test]
+    fn the_adc_rounds_and_clamps() {
+        for x in [
+            -1e9, -0.6, -0.5, -0.4, 0.0, 0.49, 0.5, 2047.5, 4094.6, 4095.4, 4095.6, 7e4, 1e30,
+        ] {
+            assert_eq!(adc(x).0, (x + 0.5).clamp(0.0, 4095.0) as u16, "{x}");
+        }
+        assert_eq!(adc(f64::NAN).0, 0);
     }
 
     #[test]

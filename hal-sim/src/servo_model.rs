@@ -37,7 +37,9 @@ impl ServoParams {
             friction: FrictionParams {
                 coulomb_n: s.coulomb_nm,
                 static_n: s.coulomb_nm,
-                stribeck_velocity_mps: 1.0,
+                // No Stribeck dip (static = Coulomb), so its velocity changes nothing; a tiny
+                // one lets the law skip its exponential (it does past 16 of them).
+                stribeck_velocity_mps: 1e-12,
                 stribeck_exponent: 1.0,
                 viscous_ns_per_m: s.viscous_nms_per_rad,
                 sign_velocity_mps: 1e-2,
@@ -66,15 +68,44 @@ pub struct Rotation {
     /// Friction torque of the piston's sliding surface on the drive train in the last step,
     /// N·m (opposing the rotation).
     pub load_torque_nm: f64,
+    /// Factors of the step that depend only on the step and the parameters.
+    factors: StepFactors,
+}
+
+/// `dt/(τ + dt)`, `dt/J` and `1/dt` for the `(dt, τ, J)` they were computed for: the step is
+/// the same every period, and divisions dominate its cost.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct StepFactors {
+    key: (f64, f64, f64),
+    lag: f64,
+    dt_over_inertia: f64,
+    inv_dt: f64,
+}
+
+impl StepFactors {
+    #[inline]
+    fn for_step(&mut self, p: &ServoParams, dt_s: f64) -> StepFactors {
+        let key = (dt_s, p.torque_time_constant_s, p.inertia_kgm2);
+        if self.key != key {
+            *self = StepFactors {
+                key,
+                lag: dt_s / (p.torque_time_constant_s + dt_s),
+                dt_over_inertia: dt_s / p.inertia_kgm2,
+                inv_dt: 1.0 / dt_s,
+            };
+        }
+        *self
+    }
 }
 
 impl Rotation {
     /// Advances by `dt_s` with the drive commanded `command_nm` and the piston's sliding
     /// friction acting as `load_nms_per_rad`·ω (its secant coefficient, ≥ 0).
     pub fn step(&mut self, p: &ServoParams, command_nm: f64, load_nms_per_rad: f64, dt_s: f64) {
+        let k = self.factors.for_step(p, dt_s);
         let cmd = command_nm.clamp(-p.torque_limit_nm, p.torque_limit_nm);
         self.torque_nm = if p.torque_time_constant_s > 0.0 {
-            self.torque_nm + (cmd - self.torque_nm) * dt_s / (p.torque_time_constant_s + dt_s)
+            self.torque_nm + (cmd - self.torque_nm) * k.lag
         } else {
             cmd
         };
@@ -91,8 +122,7 @@ impl Rotation {
         if engaged {
             c += load_nms_per_rad;
         }
-        let w_new =
-            (w + dt_s * self.torque_nm / p.inertia_kgm2) / (1.0 + dt_s * c / p.inertia_kgm2);
+        let w_new = (w + k.dt_over_inertia * self.torque_nm) / (1.0 + k.dt_over_inertia * c);
         self.load_torque_nm = if engaged {
             load_nms_per_rad * w_new
         } else {
@@ -104,7 +134,7 @@ impl Rotation {
         self.piston_angle_rad = self
             .piston_angle_rad
             .clamp(self.servo_angle_rad - half, self.servo_angle_rad + half);
-        self.piston_speed_rad_s = (self.piston_angle_rad - before) / dt_s;
+        self.piston_speed_rad_s = (self.piston_angle_rad - before) * k.inv_dt;
     }
 }
 
