@@ -13,7 +13,10 @@
 //! cycle → servo loop.
 
 use crate::allocation::{allocate, AllocationConfig};
-use crate::command::{Command, Refusal};
+use crate::calibration::{
+    Calibrated, Calibration, CalibrationConfig, Demand, Measurements, Routine, SenseMonitor,
+};
+use crate::command::{Command, Parameter, Refusal};
 use crate::differentiator::{Derivatives, SavitzkyGolay, SgConfig, SgError};
 use crate::encoder::{EncoderConfig, EncoderReading, SinCosDecoder};
 use crate::faults::{Fault, FaultSet, ResetCause};
@@ -24,7 +27,7 @@ use crate::homing::{Homing, HomingConfig, HomingStep};
 use crate::motor::{Dq, MotorParams};
 use crate::port_timing::PortGeometry;
 use crate::ports::{EncoderCodes, PhaseCurrentCodes, PressureCodes};
-use crate::pressure::PressureCalibration;
+use crate::pressure::{PressureCalibration, StuckConfig, StuckMonitor};
 use crate::quadrature::QuadratureCounter;
 use crate::real::{clamp_f32, max_f32};
 use crate::servo::{RotarySetpoint, ServoConfig, ServoController};
@@ -32,8 +35,17 @@ use crate::stroke::{DeadPoint, StrokeConfig, StrokeGenerator};
 use crate::supervisor::{LimitFlags, Observation, Supervisor, SupervisorConfig};
 use crate::synchroniser::{Rotation, Synchroniser};
 use crate::trajectory::{PointToPoint, Setpoint};
-use crate::units::{DacCode, PerSection, PhaseDuties, Section, Ticks, CONTROL_PERIOD_US};
+use crate::units::{AdcCode, DacCode, PerSection, PhaseDuties, Section, Ticks, CONTROL_PERIOD_US};
 use crate::volume_ratio::{Chamber, RatioTarget, VolumeRatio, VolumeRatioConfig};
+
+/// The window over which holding the stopped piston must need (almost) no force before SS1
+/// switches the outputs off, s: 50 ms, ten times the force's settling after the stop ramp.
+pub const HOLD_RELEASE_S: f32 = 0.05;
+
+/// Time constant of the controlled stop's disturbance observer, s: 2 ms, four differentiator
+/// windows (its acceleration is the noisiest input) and still fast next to the 10–30 ms a
+/// stop takes.
+pub const DOB_TIME_S: f32 = 0.5e-3;
 
 /// Everything the control step needs to know about the machine, in SI units.
 #[derive(Clone, Debug, PartialEq)]
@@ -103,6 +115,8 @@ pub struct ControlConfig {
     pub supervisor: SupervisorConfig,
     /// The periodic stroke (its peak speed is set by the start command).
     pub stroke: StrokeConfig,
+    /// The calibration routines.
+    pub calibration: CalibrationConfig,
 }
 
 impl ControlConfig {
@@ -148,6 +162,7 @@ impl ControlConfig {
             heartbeat_timeout_s: 0.5,
             supervisor: SupervisorConfig::reference(),
             stroke: StrokeConfig::reference(2.3),
+            calibration: CalibrationConfig::reference(),
         }
     }
 }
@@ -203,6 +218,8 @@ pub enum ModeKind {
     Stopping,
     /// A fault is latched; outputs off.
     Faulted,
+    /// Running a calibration routine.
+    Calibrating,
 }
 
 impl ModeKind {
@@ -216,6 +233,7 @@ impl ModeKind {
             ModeKind::Running => "running",
             ModeKind::Stopping => "stopping",
             ModeKind::Faulted => "faulted",
+            ModeKind::Calibrating => "calibrating",
         }
     }
 }
@@ -307,6 +325,7 @@ enum Mode {
     Running(StrokeGenerator),
     Stopping { setpoint: Setpoint, then: AfterStop },
     Faulted,
+    Calibrating(Calibration),
 }
 
 /// The control step and all its state.
@@ -346,9 +365,39 @@ pub struct ControlStep {
     shares: PerSection<f32>,
     /// Consecutive cycles with an invalid chamber-pressure sample.
     pressure_bad: u8,
+    /// Chamber A and B readings watched for following the volume while running (a stuck
+    /// sensor); one of the two is updated per cycle.
+    stuck: [StuckMonitor; 2],
+    /// Cycles counted for the pressure plausibility check (it runs every 8th cycle).
+    stuck_cycles: u8,
+    /// The chamber pressures may be used in the feed-forward (false once one is found stuck).
+    pressures_trusted: bool,
+    /// The encoder that failed while the other still gives the position (its section is
+    /// dropped); `None` while both are good.
+    lost_encoder: Option<Section>,
+    /// Master minus slave position, counts, when the master encoder was lost (the slave
+    /// stands in for it at this offset).
+    slave_offset_counts: i32,
+    /// SS1's hold: time into the current averaging window, s, and the integrals over it of
+    /// the motor force and of the measured gas force, N·s.
+    hold_quiet_s: f32,
+    hold_motor_ns: f32,
+    hold_gas_ns: f32,
+    /// Each section's capability as configured (restored when faults are cleared).
+    nominal_capability: PerSection<f32>,
+    /// After a watchdog reset: cycles until the piston is braked (`None`: no reset, or done).
+    brake_after_reset_in: Option<u16>,
+    /// Deceleration of the controlled stop in progress, m/s².
+    stop_decel_mps2: f32,
+    /// The stop's estimate of the force the model does not explain, N (toward +x).
+    disturbance_n: f32,
     limits: LimitFlags,
     faults: FaultSet,
     status: Status,
+    /// What the calibration routines have loaded.
+    calibrated: Calibrated,
+    /// The phase currents while the outputs are off (current-sense offset detection).
+    sense_monitor: SenseMonitor,
 }
 
 impl ControlStep {
@@ -416,21 +465,73 @@ impl ControlStep {
             planned_discharge_pa: f32::NAN,
             shares: PerSection::default(),
             pressure_bad: 0,
+            stuck: [StuckMonitor::new(StuckConfig::reference()); 2],
+            stuck_cycles: 0,
+            pressures_trusted: true,
+            lost_encoder: None,
+            slave_offset_counts: 0,
+            hold_quiet_s: 0.0,
+            hold_motor_ns: 0.0,
+            hold_gas_ns: 0.0,
+            nominal_capability: config.allocation.capability,
+            brake_after_reset_in: None,
+            stop_decel_mps2: config.supervisor.brake_deceleration_mps2,
+            disturbance_n: 0.0,
             limits: LimitFlags::default(),
             faults: FaultSet::new(),
             status: Status::INIT,
+            calibrated: Calibrated::default(),
+            sense_monitor: SenseMonitor::new(),
             config,
         })
     }
 
     /// Applies the cause of the last reset: after a watchdog reset the machine starts in
     /// the fault state (outputs off, restart inhibited until the fault is cleared).
+    ///
+    /// The piston may still be moving (a task hung at speed, the outputs held for up to the
+    /// watchdog's timeout): once the differentiator has a full window of samples the step
+    /// brakes it in the encoders' own frame (the sin/cos angle commutates without the zero,
+    /// the incremental position holds it), as SS1 does, and releases the outputs once holding
+    /// needs no force. Where the heads are is unknown until homing; the fault stays latched.
     pub fn boot(&mut self, cause: ResetCause) {
         if cause == ResetCause::Watchdog {
             self.latch(Fault::WatchdogReset);
             self.status.faults = self.faults;
             self.status.mode = self.mode_kind();
+            self.brake_after_reset_in = Some(self.config.sg_window.saturating_add(5) as u16);
         }
+    }
+
+    /// After a watchdog reset: counts the cycles until the velocity estimate is valid, then
+    /// starts the controlled stop (see [`ControlStep::boot`]).
+    #[cold]
+    #[inline(never)]
+    fn brake_after_reset(&mut self) {
+        let left = self.brake_after_reset_in.unwrap_or(0);
+        if left > 0 {
+            self.brake_after_reset_in = Some(left - 1);
+            return;
+        }
+        self.brake_after_reset_in = None;
+        if self.faults.contains(Fault::EncoderSignal)
+            || self.faults.contains(Fault::EncoderMismatch)
+        {
+            return;
+        }
+        self.hold_quiet_s = 0.0;
+        self.hold_motor_ns = 0.0;
+        self.hold_gas_ns = 0.0;
+        self.stop_decel_mps2 = self.stop_deceleration(self.status.position_m, 0.0);
+        self.disturbance_n = 0.0;
+        self.mode = Mode::Stopping {
+            setpoint: Setpoint {
+                position_m: self.status.position_m,
+                velocity_mps: self.status.velocity_mps,
+                acceleration_mps2: 0.0,
+            },
+            then: AfterStop::Off,
+        };
     }
 
     /// The configuration in use.
@@ -441,6 +542,27 @@ impl ControlStep {
     /// The snapshot of the last step.
     pub fn status(&self) -> &Status {
         &self.status
+    }
+
+    /// What the calibration routines have measured and loaded (and the last failure).
+    pub fn calibrated(&self) -> &Calibrated {
+        &self.calibrated
+    }
+
+    /// The largest mean phase current seen with the outputs off, A, once enough samples
+    /// were seen (the current-sense offset check).
+    pub fn current_sense_residual_a(&self) -> Option<f32> {
+        self.sense_monitor.residual_a(&self.config)
+    }
+
+    /// Refuses to switch the outputs on while the phase currents read a current with the
+    /// outputs off: the current loops would drive that offset into the motor.
+    fn check_current_sense(&self) -> Result<(), Refusal> {
+        if self.sense_monitor.offset_detected(&self.config) {
+            Err(Refusal::CurrentSenseOffset)
+        } else {
+            Ok(())
+        }
     }
 
     /// The last dead point reached by the running strokes (target and reached, m).
@@ -471,6 +593,7 @@ impl ControlStep {
                 if !self.faults.is_empty() {
                     return Err(Refusal::FaultActive);
                 }
+                self.check_current_sense()?;
                 if !matches!(self.mode, Mode::Idle | Mode::Holding(_)) {
                     return Err(Refusal::Busy);
                 }
@@ -523,6 +646,10 @@ impl ControlStep {
                 let generator = StrokeGenerator::new(stroke, sp.position_m);
                 self.begin_half(&generator);
                 self.mode = Mode::Running(generator);
+                // The plausibility of the chamber pressures is judged over running strokes.
+                for m in &mut self.stuck {
+                    m.reset();
+                }
                 Ok(())
             }
             Command::SetSpeed { peak_speed_mps } => {
@@ -534,6 +661,28 @@ impl ControlStep {
                     }
                     _ => Err(Refusal::Busy),
                 }
+            }
+            Command::SetParameter { parameter, value } => {
+                if !value.is_finite() {
+                    return Err(Refusal::NotFinite);
+                }
+                let (lo, hi) = parameter.range();
+                if !(lo..=hi).contains(&value) {
+                    return Err(Refusal::OutOfRange);
+                }
+                // Not while compressing: a gain change mid-stroke is not a tested transition.
+                if matches!(self.mode, Mode::Running(_)) {
+                    return Err(Refusal::Busy);
+                }
+                let c = &mut self.config;
+                match parameter {
+                    Parameter::PositionKp => c.position_kp_n_per_m = value,
+                    Parameter::PositionKd => c.position_kd_ns_per_m = value,
+                    Parameter::HeartbeatTimeout => c.heartbeat_timeout_s = value,
+                    Parameter::ParkPosition => c.park_position_m = value,
+                    Parameter::DeadPointGain => c.stroke.correction_gain = value,
+                }
+                Ok(())
             }
             Command::SetRotation { rotation } => {
                 self.rotation = rotation;
@@ -558,11 +707,40 @@ impl ControlStep {
                 }
                 Ok(())
             }
+            Command::Calibrate { routine } => {
+                if !self.faults.is_empty() {
+                    return Err(Refusal::FaultActive);
+                }
+                if routine != Routine::CurrentSense {
+                    self.check_current_sense()?;
+                }
+                let homed = self.zero_raw_m.is_some();
+                if routine.needs_homing() && !homed {
+                    return Err(Refusal::NotHomed);
+                }
+                let from = match &self.mode {
+                    Mode::Holding(sp) => sp.position_m,
+                    Mode::Idle => self.status.position_m,
+                    _ => return Err(Refusal::Busy),
+                };
+                let calibration = Calibration::new(routine, &self.config, homed.then_some(from))
+                    .map_err(|_| Refusal::OutOfRange)?;
+                self.mode = Mode::Calibrating(calibration);
+                Ok(())
+            }
             Command::ClearFaults => {
                 if self.faults.is_empty() {
                     return Ok(());
                 }
-                if self.encoders.master.cause_present() || self.encoders.slave.cause_present() {
+                // A controlled stop ends on its own (outputs off once holding the piston needs
+                // no force): switching off earlier could let the gas throw the piston.
+                if matches!(self.mode, Mode::Stopping { .. }) {
+                    return Err(Refusal::Busy);
+                }
+                if self.encoders.master.cause_present()
+                    || self.encoders.slave.cause_present()
+                    || self.pressure_bad > 0
+                {
                     return Err(Refusal::CausePersists);
                 }
                 self.encoders.master.clear_fault();
@@ -571,6 +749,9 @@ impl ControlStep {
                 if self.faults.contains(Fault::EncoderSignal) {
                     self.zero_raw_m = None;
                 }
+                self.config.allocation.capability = self.nominal_capability;
+                self.lost_encoder = None;
+                self.pressures_trusted = true;
                 self.faults.clear();
                 self.mode = Mode::Idle;
                 Ok(())
@@ -583,16 +764,18 @@ impl ControlStep {
         let dt = self.config.sample_time_s;
         if let Some(last) = self.last_t {
             // A gap of more than 1.5 periods means at least one cycle was missed.
-            if inputs.t.since_us(last) > (CONTROL_PERIOD_US * 3 / 2) as i32 {
+            let gap_us = inputs.t.since_us(last);
+            if gap_us > (CONTROL_PERIOD_US * 3 / 2) as i32 {
                 self.latch(Fault::Deadline);
+                self.catch_up(gap_us);
             }
         }
         self.last_t = Some(inputs.t);
 
-        let master = self.encoders.master.update(inputs.encoders.master);
-        let slave = self.encoders.slave.update(inputs.encoders.slave);
-        if master.signal_fault || slave.signal_fault {
-            self.latch(Fault::EncoderSignal);
+        let mut master = self.encoders.master.update(inputs.encoders.master);
+        let mut slave = self.encoders.slave.update(inputs.encoders.slave);
+        if master.signal_fault || slave.signal_fault || self.lost_encoder.is_some() {
+            (master.position, slave.position) = self.encoder_fault(&master, &slave);
         }
         let derivatives = self.differentiator.push(master.position);
         let m_per_count = self.config.encoder_master.m_per_count();
@@ -605,7 +788,7 @@ impl ControlStep {
         let pa = cal.convert(inputs.pressures.chamber_a);
         let pb = cal.convert(inputs.pressures.chamber_b);
         let gas_force_n = match (pa.valid(), pb.valid()) {
-            (Some(a), Some(b)) => self.config.cylinder.gas_force_n(a, b),
+            (Some(a), Some(b)) if self.pressures_trusted => self.config.cylinder.gas_force_n(a, b),
             _ => 0.0,
         };
 
@@ -636,6 +819,12 @@ impl ControlStep {
         if self.pressure_bad >= 2 {
             self.latch(Fault::PressureSensor);
         }
+        if matches!(self.mode, Mode::Running(_)) {
+            self.stuck_cycles = self.stuck_cycles.wrapping_add(1);
+            if self.stuck_cycles & 7 == 0 {
+                self.check_pressures_follow_volume(inputs, position_m);
+            }
+        }
 
         let homed = self.zero_raw_m.is_some();
         let driving = !matches!(self.mode, Mode::Idle | Mode::Faulted);
@@ -653,7 +842,9 @@ impl ControlStep {
             ),
             commanded_n: [self.shares.master, self.shares.slave],
             delivered_n: [force_master, force_slave],
-            rotation_error_rad: if driving {
+            // The rotation times the ports only while compressing; in a stop it only holds
+            // (or, after a reset, coasts down), whatever the linear motion does.
+            rotation_error_rad: if matches!(self.mode, Mode::Running(_)) {
                 self.theta_reference_rad - self.servo.angle_rad()
             } else {
                 0.0
@@ -670,7 +861,11 @@ impl ControlStep {
                 let s = self.currents.slave.state().peak_phase_a;
                 self.drop_section(if m >= s { 0 } else { 1 });
             }
-            self.latch(fault);
+            if fault == Fault::EncoderMismatch {
+                self.encoder_mismatch(&master, &slave);
+            } else {
+                self.latch(fault);
+            }
         }
 
         if let Some(elapsed) = self.heartbeat_s.as_mut() {
@@ -708,11 +903,14 @@ impl ControlStep {
                     || self.currents.slave.state().voltage_limited;
                 Some(duties)
             }
+            // A calibration drives the outputs itself, at the end of the step.
+            None if matches!(self.mode, Mode::Calibrating(_)) => None,
             None => {
                 self.currents.master.reset();
                 self.currents.slave.reset();
                 self.shares = PerSection::default();
                 self.status.force_command_n = 0.0;
+                self.sense_monitor.observe(&inputs.currents);
                 None
             }
         };
@@ -766,6 +964,10 @@ impl ControlStep {
             faults: self.faults,
             limits: self.limits,
         };
+        if matches!(self.mode, Mode::Calibrating(_)) {
+            let pwm = self.calibration_cycle(inputs);
+            return CycleOutputs { pwm, servo };
+        }
         CycleOutputs { pwm, servo }
     }
 
@@ -778,6 +980,7 @@ impl ControlStep {
             Mode::Running(_) => ModeKind::Running,
             Mode::Stopping { .. } => ModeKind::Stopping,
             Mode::Faulted => ModeKind::Faulted,
+            Mode::Calibrating(_) => ModeKind::Calibrating,
         }
     }
 
@@ -790,14 +993,210 @@ impl ControlStep {
         self.status.position_m + self.zero_raw_m.unwrap_or(0.0)
     }
 
+    /// Latches `fault` and starts its reaction: SS1 while the position can be trusted,
+    /// STO when it cannot (see [`Fault::position_trusted`]).
     fn latch(&mut self, fault: Fault) {
-        if self.faults.latch(fault) {
-            if fault.position_trusted() && self.zero_raw_m.is_some() {
-                self.begin_stop(AfterStop::Off);
-            } else {
-                self.mode = Mode::Faulted;
+        self.latch_as(fault, fault.position_trusted());
+    }
+
+    /// The one place that moves the machine to its safe state: latches `fault`; with the
+    /// position trusted (and known: homed) a controlled stop on the braking envelope that
+    /// ends with the outputs off (SS1), otherwise the outputs off at once (STO) — also when
+    /// the fault was already latched with the position still trusted then.
+    #[cold]
+    #[inline(never)]
+    fn latch_as(&mut self, fault: Fault, position_trusted: bool) {
+        let new = self.faults.latch(fault);
+        if !(position_trusted && self.zero_raw_m.is_some()) {
+            self.mode = Mode::Faulted;
+        } else if new {
+            self.begin_stop(AfterStop::Off);
+        }
+    }
+
+    /// An encoder's error-rate filter tripped, or one was lost before; returns the master
+    /// and slave positions, counts, to use from now on. One encoder lost while the other is
+    /// good: the good one gives both positions, at the offset between them when the other
+    /// was lost (it had extrapolated its last rejected samples, so the position runs on
+    /// without a jump and the master/slave cross-check, which has nothing left to compare,
+    /// stays quiet); the lost one's section is dropped (its commutation angle is gone) and
+    /// the other section stops the piston (SS1). Both lost: nothing tells where the piston
+    /// is (STO).
+    #[cold]
+    #[inline(never)]
+    fn encoder_fault(&mut self, master: &EncoderReading, slave: &EncoderReading) -> (i32, i32) {
+        let both = (master.position, slave.position);
+        let failed = match (master.signal_fault, slave.signal_fault) {
+            (true, true) => {
+                self.latch_as(Fault::EncoderSignal, false);
+                return both;
+            }
+            (true, false) => Some(Section::Master),
+            (false, true) => Some(Section::Slave),
+            // Lost earlier by the cross-check.
+            (false, false) => None,
+        };
+        match (failed, self.lost_encoder) {
+            (Some(f), Some(lost)) if f != lost => {
+                // The other one was lost before: none is left.
+                self.latch_as(Fault::EncoderSignal, false);
+                return both;
+            }
+            (Some(f), None) => {
+                let trusted = !self.faults.contains(Fault::EncoderMismatch);
+                self.lose_encoder(f, master, slave);
+                self.latch_as(Fault::EncoderSignal, trusted);
+            }
+            _ => {}
+        }
+        let offset = self.slave_offset_counts;
+        match self.lost_encoder {
+            Some(Section::Master) => (slave.position.wrapping_add(offset), slave.position),
+            Some(Section::Slave) => (master.position, master.position.wrapping_sub(offset)),
+            None => both,
+        }
+    }
+
+    /// Takes `failed` out: the other encoder stands in for it from now on, at their present
+    /// offset, and its section is dropped. The slave's zero moves to where the two agree
+    /// now: the master/slave cross-check has nothing left to compare.
+    fn lose_encoder(&mut self, failed: Section, master: &EncoderReading, slave: &EncoderReading) {
+        self.lost_encoder = Some(failed);
+        self.slave_offset_counts = master.position.wrapping_sub(slave.position);
+        let master_raw_m = master.position as f32 * self.config.encoder_master.m_per_count();
+        let slave_raw_m = slave.position as f32 * self.config.encoder_slave.m_per_count();
+        self.zero_slave_raw_m = slave_raw_m - (master_raw_m - self.zero_raw_m.unwrap_or(0.0));
+        self.drop_section(if failed == Section::Master { 0 } else { 1 });
+    }
+
+    /// The two encoders disagree. If one of them looks wrong — its error-rate filter is up,
+    /// or its amplitude is off nominal by more than 20 % in power while the other's is within
+    /// 10 % (a stuck channel passes the amplitude window near the axes and drifts before
+    /// the filter trips) — and the other does not, the other is trusted: the suspect is lost
+    /// as if its filter had tripped, and SS1 runs on the other (the position carries at most
+    /// the disagreement, 2 mm). Otherwise nothing says which one is right: STO.
+    #[cold]
+    #[inline(never)]
+    fn encoder_mismatch(&mut self, master: &EncoderReading, slave: &EncoderReading) {
+        let odd = |r: &EncoderReading, d: &SinCosDecoder| {
+            d.cause_present() || (r.amplitude_squared - 1.0).abs() > 0.2
+        };
+        let sound = |r: &EncoderReading, d: &SinCosDecoder| {
+            !d.cause_present() && (r.amplitude_squared - 1.0).abs() < 0.1
+        };
+        let (dm, ds) = (&self.encoders.master, &self.encoders.slave);
+        let suspect = if odd(master, dm) && sound(slave, ds) {
+            Some(Section::Master)
+        } else if odd(slave, ds) && sound(master, dm) {
+            Some(Section::Slave)
+        } else {
+            None
+        };
+        match (suspect, self.lost_encoder) {
+            (Some(s), None) => {
+                self.lose_encoder(s, master, slave);
+                self.latch_as(Fault::EncoderMismatch, true);
+            }
+            _ => self.latch_as(Fault::EncoderMismatch, false),
+        }
+    }
+
+    /// The step missed cycles (`gap_us` since the last one): the encoders moved on
+    /// meanwhile, and their decoders expect one period per sample. Feed each decoder (and
+    /// the differentiator) the samples it missed as the last velocity predicts them, so the
+    /// real sample that follows is judged against where the piston now is, not rejected as
+    /// a jump. Up to 40 missed samples (2 ms); beyond that the extrapolation means nothing
+    /// and the decoders judge the new sample as they would after a glitch.
+    #[cold]
+    #[inline(never)]
+    fn catch_up(&mut self, gap_us: i32) {
+        let period = CONTROL_PERIOD_US as i32;
+        let missed = ((gap_us + period / 2) / period - 1).clamp(0, 40) as u32;
+        let v = self.status.velocity_mps;
+        let zero = self.zero_raw_m.unwrap_or(0.0);
+        for section in Section::ALL {
+            let (config, decoder, raw_m) = match section {
+                Section::Master => (
+                    self.config.encoder_master,
+                    &mut self.encoders.master,
+                    self.status.position_m + zero,
+                ),
+                Section::Slave => (
+                    self.config.encoder_slave,
+                    &mut self.encoders.slave,
+                    self.status.slave_position_m + self.zero_slave_raw_m,
+                ),
+            };
+            // The last angle from the last position (its 20 fraction bits are the angle's top
+            // bits), and the step per period, in 2⁻³² periods (wrapping).
+            let counts = (raw_m / config.m_per_count()) as i32;
+            let mut angle = (counts as u32) << (32 - crate::encoder::POSITION_FRAC_BITS);
+            let turns = v * self.config.sample_time_s / config.period_m;
+            let step = (turns * 4_294_967_296.0) as i64 as u32;
+            for _ in 0..missed {
+                angle = angle.wrapping_add(step);
+                let theta_rad = angle as f32 * (core::f32::consts::TAU / 4_294_967_296.0);
+                let (s, c) = config.calibration.codes_at(theta_rad);
+                let code = |x: f32| AdcCode(clamp_f32(x + 0.5, 0.0, 4095.0) as u16);
+                let reading = decoder.update(crate::ports::SinCosCodes {
+                    sin: code(s),
+                    cos: code(c),
+                });
+                if section == Section::Master {
+                    self.differentiator.push(reading.position);
+                }
             }
         }
+    }
+
+    /// The chamber pressures must follow the volume while the piston strokes: a reading that
+    /// stays flat over half a stroke each way is stuck (`pressure::StuckMonitor`), and from
+    /// then on neither chamber pressure feeds the control law. Called every 8th cycle, for
+    /// chamber A and B in turn (each every 0.8 ms: 3 mm of travel at 4 m/s, nothing next to
+    /// the 0.1 m the check needs) to keep the 20 kHz step cheap.
+    #[cold]
+    #[inline(never)]
+    fn check_pressures_follow_volume(&mut self, inputs: &CycleInputs, position_m: f32) {
+        let (monitor, code) = if self.stuck_cycles & 8 == 0 {
+            (&mut self.stuck[0], inputs.pressures.chamber_a)
+        } else {
+            (&mut self.stuck[1], inputs.pressures.chamber_b)
+        };
+        if monitor.update(code, position_m) {
+            self.pressures_trusted = false;
+            self.latch(Fault::PressurePlausibility);
+        }
+    }
+
+    /// SS1's end: the piston is at rest and held; the outputs go off only once, averaged
+    /// over [`HOLD_RELEASE_S`] (the damping term's velocity noise averages out), holding it
+    /// needs no more than the static friction and the measured gas force is below half of
+    /// it, so friction alone keeps it still. Released earlier, the gas of a compressed
+    /// chamber (or an external load) would throw the piston into a head with nothing to stop
+    /// it. Until then it stays held, and a new window starts.
+    #[cold]
+    #[inline(never)]
+    fn hold_released(&mut self, dt: f32) -> bool {
+        let gas_n = if self.pressures_trusted && self.pressure_bad == 0 {
+            self.config
+                .cylinder
+                .gas_force_n(self.status.pressure_a_pa, self.status.pressure_b_pa)
+        } else {
+            0.0
+        };
+        self.hold_quiet_s += dt;
+        self.hold_motor_ns += self.status.force_command_n * dt;
+        self.hold_gas_ns += gas_n * dt;
+        if self.hold_quiet_s < HOLD_RELEASE_S {
+            return false;
+        }
+        let window = self.hold_quiet_s;
+        let (motor, gas) = (self.hold_motor_ns / window, self.hold_gas_ns / window);
+        self.hold_quiet_s = 0.0;
+        self.hold_motor_ns = 0.0;
+        self.hold_gas_ns = 0.0;
+        let stiction = self.config.friction.static_n;
+        motor.abs() <= stiction && gas.abs() <= 0.5 * stiction
     }
 
     /// Starts a controlled stop on the braking deceleration from the measured position and
@@ -811,6 +1210,9 @@ impl ControlStep {
             };
             return;
         }
+        self.hold_quiet_s = 0.0;
+        self.hold_motor_ns = 0.0;
+        self.hold_gas_ns = 0.0;
         let setpoint = match &self.mode {
             // Already stopping: keep the ramp, take the stronger reaction.
             Mode::Stopping { setpoint, then: t } => {
@@ -827,7 +1229,64 @@ impl ControlStep {
                 acceleration_mps2: 0.0,
             },
         };
+        self.stop_decel_mps2 = self.stop_deceleration(setpoint.position_m, setpoint.velocity_mps);
+        self.disturbance_n = 0.0;
         self.mode = Mode::Stopping { setpoint, then };
+    }
+
+    /// The disturbance observer of a controlled stop: the force on the piston that the model
+    /// does not explain, `m·a − (F_motor + F_gas − F_friction(v))` from the measured
+    /// acceleration, motor force (q-currents) and gas force (when the pressures are valid;
+    /// otherwise the gas is part of what it estimates), low-passed over [`DOB_TIME_S`]. N,
+    /// toward +x.
+    #[cold]
+    #[inline(never)]
+    fn observe_disturbance(&mut self, motor_force_n: f32, dt: f32) -> f32 {
+        let c = &self.config;
+        let st = &self.status;
+        let gas_n = if self.pressures_trusted && self.pressure_bad == 0 {
+            c.cylinder.gas_force_n(st.pressure_a_pa, st.pressure_b_pa)
+        } else {
+            0.0
+        };
+        let unexplained = c.moving_mass_kg * st.acceleration_mps2 - motor_force_n - gas_n
+            + c.friction.force_n(st.velocity_mps);
+        if unexplained.is_finite() {
+            let alpha = clamp_f32(dt / DOB_TIME_S, 0.0, 1.0);
+            self.disturbance_n += alpha * (unexplained - self.disturbance_n);
+        }
+        // Never more than the sections can push against.
+        let limit = c.force_limit_n;
+        self.disturbance_n = clamp_f32(self.disturbance_n, -limit, limit);
+        self.disturbance_n
+    }
+
+    /// The deceleration of a controlled stop from `velocity_mps` at `position_m`: the
+    /// braking envelope's `a_brake`, or more when the piston is closer to the head it moves
+    /// toward than that needs (a disturbance pushed it past the envelope, which is what
+    /// tripped): enough to stop 1 mm short of the minimum clearance with 25 % in hand, up to
+    /// `a_brake` per healthy section (`a_brake` is what one section alone guarantees). Without
+    /// the zero (after a watchdog reset) the heads' distance is unknown: the most there is.
+    fn stop_deceleration(&self, position_m: f32, velocity_mps: f32) -> f32 {
+        let c = &self.config.supervisor;
+        let cap = self.config.allocation.capability;
+        let sections = clamp_f32(cap.master, 0.0, 1.0) + clamp_f32(cap.slave, 0.0, 1.0);
+        let a_max = c.brake_deceleration_mps2 * max_f32(sections, 1.0);
+        if self.zero_raw_m.is_none() {
+            return a_max;
+        }
+        let distance = if velocity_mps >= 0.0 {
+            c.travel_m - position_m
+        } else {
+            position_m
+        };
+        let room = distance - c.min_clearance_m - 1e-3;
+        let needed = if room > 1e-4 {
+            1.25 * velocity_mps * velocity_mps / (2.0 * room)
+        } else {
+            a_max
+        };
+        clamp_f32(needed, c.brake_deceleration_mps2, a_max)
     }
 
     /// Advances the mode; returns the setpoint (position frame after homing) and the force
@@ -841,7 +1300,12 @@ impl ControlStep {
     ) -> Option<(Setpoint, f32)> {
         let limit = self.config.force_limit_n;
         match &mut self.mode {
-            Mode::Idle | Mode::Faulted => None,
+            // Calibration drives the outputs itself (`calibration_cycle`).
+            Mode::Faulted if self.brake_after_reset_in.is_some() => {
+                self.brake_after_reset();
+                None
+            }
+            Mode::Idle | Mode::Faulted | Mode::Calibrating(_) => None,
             Mode::Homing(h) => match h.step(raw_m, measured_force_n, dt) {
                 HomingStep::Creep {
                     reference_m,
@@ -888,7 +1352,7 @@ impl ControlStep {
                 Some((sp, limit))
             }
             Mode::Stopping { setpoint, then } => {
-                let brake = self.config.supervisor.brake_deceleration_mps2;
+                let brake = self.stop_decel_mps2;
                 let v = setpoint.velocity_mps;
                 let dv = brake * dt;
                 let (v_next, a) = if v.abs() <= dv {
@@ -901,9 +1365,17 @@ impl ControlStep {
                 setpoint.position_m += 0.5 * (v + v_next) * dt;
                 setpoint.velocity_mps = v_next;
                 setpoint.acceleration_mps2 = a;
-                let sp = *setpoint;
+                let mut sp = *setpoint;
+                let then = *then;
+                // The force the model does not know (an external load, the gas of a chamber
+                // whose sensor failed) is estimated and cancelled through the feed-forward:
+                // the position loop alone would yield 4 mm to 3 kN, near a head too much.
+                sp.acceleration_mps2 -=
+                    self.observe_disturbance(measured_force_n, dt) / self.config.moving_mass_kg;
                 if v_next == 0.0 {
-                    let then = *then;
+                    if then == AfterStop::Off && !self.hold_released(dt) {
+                        return Some((sp, limit));
+                    }
                     self.mode = match then {
                         AfterStop::Off => Mode::Faulted,
                         AfterStop::Hold => Mode::Holding(Setpoint::at_rest(sp.position_m)),
@@ -975,6 +1447,147 @@ impl ControlStep {
         );
     }
 
+    /// One cycle of a calibration routine, after the rest of the step (supervision, status):
+    /// the routine says what to do with the outputs (off, forced current vectors, or
+    /// position control along its sweep); when it is done its parameters are loaded and the
+    /// machine holds (homed) or goes idle. It reads what it needs from the status this step
+    /// has just written, so the normal step carries nothing for it; the rotation is not
+    /// driven meanwhile.
+    #[cold]
+    #[inline(never)]
+    fn calibration_cycle(&mut self, inputs: &CycleInputs) -> Option<PerSection<PhaseDuties>> {
+        let s = self.status;
+        // The encoders' electrical angles from the raw positions (20-bit resolution within
+        // the period, 23 nm: far finer than any calibration needs).
+        let raw_m = s.position_m + self.zero_raw_m.unwrap_or(0.0);
+        let slave_raw_m = s.slave_position_m + self.zero_slave_raw_m;
+        let angle_of = |x_m: f32, period_m: f32| crate::angle::turns(x_m / period_m);
+        let [pa, pb, _, _] = self.pressures_pa;
+        let gas_force_n = if pa.is_finite() && pb.is_finite() {
+            self.config.cylinder.gas_force_n(pa, pb)
+        } else {
+            0.0
+        };
+        let position_m = s.position_m;
+        let Mode::Calibrating(calibration) = &mut self.mode else {
+            return None;
+        };
+        let routine = calibration.routine();
+        let measured = Measurements {
+            position_m,
+            velocity_mps: s.velocity_mps,
+            angle: PerSection {
+                master: angle_of(raw_m, self.config.encoder_master.period_m),
+                slave: angle_of(slave_raw_m, self.config.encoder_slave.period_m),
+            },
+            currents: &inputs.currents,
+            force_n: PerSection {
+                master: s.force_master_n,
+                slave: s.force_slave_n,
+            },
+            gas_force_n,
+        };
+        let mut demand = calibration.step(&self.config, &measured);
+        if let Demand::Done(result) = demand {
+            if let Ok(outcome) = &result {
+                outcome.apply(&mut self.config);
+            }
+            self.calibrated.record(routine, result);
+            let hold = Setpoint::at_rest(position_m);
+            (self.mode, demand) = if self.zero_raw_m.is_some() {
+                let track = Demand::Track {
+                    setpoint: hold,
+                    master_only: false,
+                    slave_d_a: 0.0,
+                };
+                (Mode::Holding(hold), track)
+            } else {
+                (Mode::Idle, Demand::Off)
+            };
+            self.status.mode = self.mode_kind();
+        }
+        self.shares = PerSection::default();
+        let inv_kf = 1.0 / self.config.motor.force_constant_n_per_a;
+        let o = self.config.angle_offset;
+        let own_frame = PerSection {
+            master: measured.angle.master.wrapping_add(o.master),
+            slave: measured.angle.slave.wrapping_add(o.slave),
+        };
+        // Each section's angle (forced, or its encoder's with its offset) and d/q reference.
+        let frames = match demand {
+            Demand::Forced(forced) => {
+                let frame = |f: Option<crate::calibration::Forced>, own: u32| {
+                    f.map_or((own, Dq::default()), |f| (f.angle, f.current))
+                };
+                PerSection {
+                    master: frame(forced.master, own_frame.master),
+                    slave: frame(forced.slave, own_frame.slave),
+                }
+            }
+            Demand::Track {
+                setpoint,
+                master_only,
+                slave_d_a,
+            } => {
+                // The position loop as in any mode (the next cycle's supervision checks the
+                // following error against this setpoint).
+                self.setpoint = Some(setpoint);
+                let limit = self.config.force_limit_n;
+                let derivatives = Derivatives {
+                    velocity_mps: s.velocity_mps,
+                    acceleration_mps2: s.acceleration_mps2,
+                };
+                let force =
+                    self.position_loop(&setpoint, position_m, &derivatives, gas_force_n, limit);
+                let mut allocation = self.config.allocation;
+                if master_only {
+                    allocation.capability.slave = 0.0;
+                }
+                self.shares = allocate(&allocation, force, position_m);
+                self.status.reference_m = setpoint.position_m;
+                self.status.force_command_n = force;
+                self.status.limits.force = force.abs() >= limit;
+                PerSection {
+                    master: (
+                        own_frame.master,
+                        Dq {
+                            d: 0.0,
+                            q: self.shares.master * inv_kf,
+                        },
+                    ),
+                    slave: (
+                        own_frame.slave,
+                        Dq {
+                            d: slave_d_a,
+                            q: self.shares.slave * inv_kf,
+                        },
+                    ),
+                }
+            }
+            Demand::Off | Demand::Done(_) => {
+                self.currents.master.reset();
+                self.currents.slave.reset();
+                return None;
+            }
+        };
+        let mut out = PerSection::<PhaseDuties>::default();
+        for section in Section::ALL {
+            let (angle, reference) = *frames.get(section);
+            let amps = self
+                .config
+                .current_sense
+                .get(section)
+                .amps(inputs.currents.get(section));
+            *out.get_mut(section) =
+                self.currents
+                    .get_mut(section)
+                    .step(amps, angle, reference, s.velocity_mps);
+        }
+        self.status.limits.voltage = self.currents.master.state().voltage_limited
+            || self.currents.slave.state().voltage_limited;
+        Some(out)
+    }
+
     /// Takes a section out of the allocation (lost, or switched off after an overcurrent).
     fn drop_section(&mut self, index: usize) {
         let cap = &mut self.config.allocation.capability;
@@ -986,6 +1599,9 @@ impl ControlStep {
     }
 
     /// Position loop with model feed-forward: total motor force, N, saturated at `limit`.
+    /// Always inlined: the calibration calls it too, and a second call site must not take
+    /// it out of the step.
+    #[inline(always)]
     fn position_loop(
         &self,
         sp: &Setpoint,
@@ -1045,5 +1661,39 @@ impl ControlStep {
                     .step(amps, angle, reference, velocity_mps);
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn set_parameter_validates_and_changes_only_what_it_names() {
+        let mut step = ControlStep::new(ControlConfig::reference()).unwrap();
+        let before = step.config().clone();
+        for (parameter, value, refusal) in [
+            (Parameter::PositionKp, f32::NAN, Refusal::NotFinite),
+            (Parameter::PositionKp, f32::INFINITY, Refusal::NotFinite),
+            (Parameter::PositionKp, 1.0e9, Refusal::OutOfRange),
+            (Parameter::ParkPosition, -0.01, Refusal::OutOfRange),
+            (Parameter::DeadPointGain, 1.5, Refusal::OutOfRange),
+        ] {
+            assert_eq!(
+                step.command(Command::SetParameter { parameter, value }),
+                Err(refusal)
+            );
+            assert_eq!(step.config(), &before, "a refused command changes nothing");
+        }
+        assert_eq!(
+            step.command(Command::SetParameter {
+                parameter: Parameter::HeartbeatTimeout,
+                value: 1.5
+            }),
+            Ok(())
+        );
+        let mut expected = before;
+        expected.heartbeat_timeout_s = 1.5;
+        assert_eq!(step.config(), &expected);
     }
 }

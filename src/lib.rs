@@ -19,6 +19,7 @@
 //! | [`cogging`] | cogging force: the law, and the calibrated compensation map |
 //! | [`motor`] | linear-motor parameters and Clarke/Park |
 //! | [`allocation`] | one force command split over both sections, cogging cancelled |
+//! | [`calibration`] | the calibration routines: offsets, alignment, misalignment, cogging map |
 //! | [`foc`] | current loops and modulation of one section |
 //! | [`servo`] | rotation servo loop |
 //! | [`trajectory`] | reference setpoints and moves |
@@ -54,6 +55,7 @@
 
 pub mod allocation;
 pub mod angle;
+pub mod calibration;
 pub mod cogging;
 pub mod command;
 pub mod controller;

@@ -35,8 +35,9 @@ fn mode_changes_and_a_latched_fault_are_reported_once_each() {
         if !status.faults.is_empty() && fault_at.is_none() {
             fault_at = Some(w.time_s());
         }
-        // A few supervision periods after the fault, so the 1 kHz task has seen it.
-        if fault_at.is_some_and(|t| w.time_s() > t + 0.01) || w.time_s() > 3.0 {
+        // Until SS1 has ended (the stop, then 50 ms of holding with no force before the
+        // outputs go off) and the 1 kHz task has seen it.
+        if fault_at.is_some_and(|t| w.time_s() > t + 0.2) || w.time_s() > 3.0 {
             ControlFlow::Break(())
         } else {
             ControlFlow::Continue(())

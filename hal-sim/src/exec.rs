@@ -6,6 +6,12 @@
 //! on this thread with a no-op waker: poll every task until each waits on the
 //! hardware (the next cycle, or a deadline), let the caller observe and command, advance the
 //! world by one control period, repeat. No threads, no wall clock, no sleeps.
+//!
+//! [`simulate_board`] adds what the board does beyond running the tasks, for the fault
+//! scenarios of `faults.md`: a control step that overruns (the task is not polled for some
+//! periods, the outputs hold), a task that hangs, and the independent watchdog, which resets
+//! the MCU when the supervision task stops feeding it: outputs off, the shared RAM and every
+//! task started afresh with [`ResetCause::Watchdog`], while the plant keeps moving.
 
 use std::cell::RefCell;
 use std::future::Future;
@@ -21,10 +27,35 @@ use fpc::ports::ControlPorts;
 use fpc::shared::Shared;
 use fpc::tasks::{control_run, supervision_run, telemetry_run};
 
+use fpc::units::DacCode;
+
 use crate::capture::telemetry_sink;
 use crate::world::{
     clock, cycle, event_log, peripherals, watchdog, SimCycle, SimPeripherals, World, WorldRef,
 };
+
+/// Timeout of the board's independent watchdog, µs (`src/board/watchdog.rs`: 20 supervision
+/// periods; the board module only builds for the MCU, hence the copy).
+pub const WATCHDOG_TIMEOUT_US: u64 = 20_000;
+
+/// The board's execution beyond polling the tasks: overruns, hangs and the watchdog.
+/// [`simulate_board`] hands it to the caller every period, so a fault scenario can change
+/// it at any instant.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Execution {
+    /// Timeout of the independent watchdog, µs; `None`: not running (the default, so a test
+    /// body that never checks in is not reset).
+    pub watchdog_timeout_us: Option<u64>,
+    /// Periods the control task is still busy with its current step: it is not polled, it
+    /// misses those cycle triggers and the outputs hold (an overrunning step).
+    pub control_busy_periods: u32,
+    /// The control task is never polled again (hung) until the next reset.
+    pub control_hung: bool,
+    /// The supervision task is never polled again (hung) until the next reset.
+    pub supervision_hung: bool,
+    /// Simulated time of every watchdog reset so far, µs.
+    pub resets_us: Vec<u64>,
+}
 
 /// The shared state as the simulator instantiates it (single thread: no-op mutex).
 pub type SimShared = Shared<NoopRawMutex>;
@@ -107,4 +138,90 @@ where
     }
     // The task futures, the only other holders, were dropped above, so this never clones.
     Rc::try_unwrap(world).map_or_else(|rc| rc.borrow().clone(), RefCell::into_inner)
+}
+
+/// Runs the firmware's control, supervision and telemetry tasks on `world` as
+/// [`simulate`] does, with the board's [`Execution`]: `each_cycle` may make the control
+/// step overrun or a task hang, and when the watchdog is running and not fed for its timeout
+/// the board resets.
+///
+/// A reset, as the MCU does it: the motor outputs go off and the servo command to zero at
+/// once (the pins float, the gate drivers' pull-downs hold them low), the shared state is
+/// lost, and every task starts again from its entry with [`ResetCause::Watchdog`] at the
+/// next period. The plant is not reset: the piston keeps whatever speed it had. Returns the
+/// world and the execution at the end.
+pub fn simulate_board<F>(
+    world: World,
+    config: ControlConfig,
+    execution: Execution,
+    mut each_cycle: F,
+) -> (World, Execution)
+where
+    F: FnMut(&mut World, &SimShared, &mut Execution) -> ControlFlow<()>,
+{
+    let world: WorldRef = Rc::new(RefCell::new(world));
+    let mut execution = execution;
+    let mut cause = ResetCause::PowerOn;
+    let mut cx = Context::from_waker(Waker::noop());
+    'boot: loop {
+        // RAM starts afresh at every boot.
+        let shared = SimShared::new();
+        let io = ControlPorts {
+            cycle: cycle(&world),
+            encoders: peripherals(&world),
+            currents: peripherals(&world),
+            pwm: peripherals(&world),
+            quadrature: peripherals(&world),
+            servo: peripherals(&world),
+            pressures: peripherals(&world),
+        };
+        let mut control = pin!(control_run(io, &shared, config.clone(), cause));
+        let mut supervision = pin!(supervision_run(
+            clock(&world),
+            clock(&world),
+            watchdog(&world),
+            event_log(&world),
+            &shared
+        ));
+        let decimation = world.borrow().telemetry.decimation;
+        let mut telemetry = pin!(telemetry_run(telemetry_sink(&world), &shared, decimation));
+        loop {
+            if !execution.control_hung {
+                if execution.control_busy_periods == 0 {
+                    let _ = control.as_mut().poll(&mut cx);
+                } else {
+                    execution.control_busy_periods -= 1;
+                }
+            }
+            let _ = telemetry.as_mut().poll(&mut cx);
+            if !execution.supervision_hung {
+                let _ = supervision.as_mut().poll(&mut cx);
+            }
+            let mut w = world.borrow_mut();
+            if each_cycle(&mut w, &shared, &mut execution).is_break() {
+                break 'boot;
+            }
+            let starved = execution
+                .watchdog_timeout_us
+                .is_some_and(|timeout| w.time_us().saturating_sub(w.watchdog_fed_us) >= timeout);
+            if starved {
+                w.enabled = false;
+                w.duties = Default::default();
+                w.servo_code = DacCode::MID;
+                // Started again by the boot, as the firmware's init does.
+                w.watchdog_fed_us = w.time_us();
+                execution.resets_us.push(w.time_us());
+                execution.control_hung = false;
+                execution.supervision_hung = false;
+                execution.control_busy_periods = 0;
+                cause = ResetCause::Watchdog;
+                w.advance();
+                continue 'boot;
+            }
+            w.advance();
+        }
+    }
+    // The task futures, the only other holders, were dropped above, so this never clones.
+    let world = Rc::try_unwrap(world).map_or_else(|rc| rc.borrow().clone(), RefCell::into_inner);
+    (world, execution)
 }

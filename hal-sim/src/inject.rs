@@ -11,7 +11,8 @@ use std::fmt;
 /// through the command, model and log readers).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum FaultKind {
-    /// #1: sin/cos amplitude scaled (`gain`, default 0.2) on the master encoder.
+    /// #1: sin/cos amplitude scaled (`gain`, default 0.2) on one encoder or both (`encoder`
+    /// = master|slave|both, default master).
     EncoderAmplitude,
     /// #2: one channel (`channel` = sin|cos, default sin) frozen at mid-scale.
     EncoderStuck,
@@ -35,7 +36,7 @@ pub enum FaultKind {
     LoadStep,
     /// #11: the control step takes `cycles` (3) periods once.
     Overrun,
-    /// #12: the control task stops forever.
+    /// #12: a task (`task` = control|supervision, default control) stops forever.
     TaskHang,
     /// #13: the host heartbeat stops.
     CommandLoss,
@@ -81,7 +82,7 @@ impl FaultKind {
     /// parameters (`channel`, `section`, `chamber`) are encoded as 0/1.
     pub fn parameters(self) -> &'static [(&'static str, f64, f64, f64)] {
         match self {
-            FaultKind::EncoderAmplitude => &[("gain", 0.2, 0.0, 10.0)],
+            FaultKind::EncoderAmplitude => &[("gain", 0.2, 0.0, 10.0), ("encoder", 0.0, 0.0, 2.0)],
             FaultKind::EncoderStuck => &[("channel", 0.0, 0.0, 1.0)],
             FaultKind::EncoderGlitch => {
                 &[("jump_rad", 2.0, -std::f64::consts::PI, std::f64::consts::PI)]
@@ -100,8 +101,8 @@ impl FaultKind {
                 ("force_n", 300.0, 0.0, 5000.0),
                 ("duration_s", 0.005, 0.0, 1.0),
             ],
+            FaultKind::TaskHang => &[("task", 0.0, 0.0, 1.0)],
             FaultKind::ServoStall
-            | FaultKind::TaskHang
             | FaultKind::CommandLoss
             | FaultKind::HomingNoStop
             | FaultKind::CounterWrap => &[],
@@ -144,13 +145,18 @@ impl fmt::Display for SpecError {
 impl std::error::Error for SpecError {}
 
 /// Text values some parameters take, and their numeric code.
-const WORDS: [(&str, &str, f64); 6] = [
+const WORDS: [(&str, &str, f64); 11] = [
     ("channel", "sin", 0.0),
     ("channel", "cos", 1.0),
     ("section", "master", 0.0),
     ("section", "slave", 1.0),
     ("chamber", "a", 0.0),
     ("chamber", "b", 1.0),
+    ("task", "control", 0.0),
+    ("task", "supervision", 1.0),
+    ("encoder", "master", 0.0),
+    ("encoder", "slave", 1.0),
+    ("encoder", "both", 2.0),
 ];
 
 /// Parses `NAME@T[:k=v,…]`.

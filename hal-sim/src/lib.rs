@@ -17,6 +17,7 @@
 //! | [`world`] | the simulated board: time, sampling, outputs, the port impls |
 //! | [`exec`] | running the firmware's task bodies in simulated time |
 //! | [`inject`] | `--fault` specifications of the fault scenarios |
+//! | [`fault_apply`] | the fault scenarios applied to a running simulation, and what they did |
 //! | [`model`] | the machine-model TOML |
 //! | [`runlog`] | the run-log CSV |
 //! | [`cli`] | what every subcommand shares: failures and exit codes |
@@ -40,6 +41,7 @@ pub mod derive;
 pub mod energy_cmd;
 pub mod exec;
 pub mod fastmath;
+pub mod fault_apply;
 pub mod filters_cmd;
 pub mod forces_cmd;
 pub mod gap;

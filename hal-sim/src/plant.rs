@@ -154,6 +154,8 @@ pub struct Plant {
     pub lines: Lines,
     /// How the chambers connect to the lines (an input).
     pub port_mode: PortMode,
+    /// Faults injected into the machine (`fpc-sim run --fault`; none by default).
+    pub injected: crate::fault_apply::PlantFaults,
     /// Stator-frame voltages of the period being simulated.
     voltages: PerSection<AlphaBeta<f64>>,
 }
@@ -181,6 +183,7 @@ impl Plant {
             chambers,
             lines,
             port_mode: PortMode::Timed,
+            injected: Default::default(),
             voltages: PerSection::default(),
             params,
         }
@@ -201,7 +204,7 @@ impl Plant {
         let turn = std::f64::consts::TAU;
         let a = self.rotation.piston_angle_rad;
         // floor by conversion (cheaper than `rem_euclid`'s fmod); exact for |a| < 2⁶³ turns.
-        let turns = (a / turn) as i64 as f64;
+        let turns = (a * (1.0 / turn)) as i64 as f64;
         let phase = a - turns * turn;
         if phase < 0.0 {
             phase + turn
@@ -234,13 +237,19 @@ impl Plant {
         let voltages = self.voltages;
         self.motors
             .step(powered.then_some(&voltages), self.v_mps, dt);
+        if self.injected.any_section_dead() {
+            self.injected.kill_sections(&mut self.motors);
+        }
         self.current = self.motors.current;
         self.force_n = self.motors.force_n;
 
         let p = &self.params;
         let stop = self.stop_force();
         self.stop_force_n = stop;
-        self.cogging_force_n = p.cogging.as_ref().map_or(0.0, |c| c.force_n(self.x_m));
+        self.cogging_force_n = match &p.cogging {
+            Some(c) => cogging_force_n(c, &self.motors, self.x_m),
+            None => 0.0,
+        };
         let r = p.friction_radius_m;
         let tangential = self.rotation.piston_speed_rad_s * r;
         let secant = p.friction.sliding_secant(self.v_mps, tangential);
@@ -248,20 +257,29 @@ impl Plant {
             + self.force_n.slave
             + self.chambers.gas_force_n()
             + self.cogging_force_n
-            + stop;
-        let m = p.mass_kg;
-        let v_new = (self.v_mps + dt * driving / m) / (1.0 + dt * secant / m);
+            + stop
+            + self.injected.external_force_n;
+        let dt_over_m = dt / p.mass_kg;
+        let v_new = (self.v_mps + dt_over_m * driving) / (1.0 + dt_over_m * secant);
         self.friction_force_n = secant * v_new;
         self.a_mps2 = (v_new - self.v_mps) / dt;
         self.v_mps = v_new;
         self.x_m += v_new * dt;
 
-        self.rotation
-            .step(&p.servo, servo_torque_nm, secant * r * r, dt);
+        if self.injected.rotation_blocked {
+            self.rotation.servo_speed_rad_s = 0.0;
+            self.rotation.piston_speed_rad_s = 0.0;
+        } else {
+            self.rotation
+                .step(&p.servo, servo_torque_nm, secant * r * r, dt);
+        }
         self.motors.set_position(self.x_m);
         let phase = self.port_phase_rad();
         self.chambers
             .step(self.x_m, phase, &self.lines, self.port_mode, dt);
+        if self.injected.any_vented() {
+            self.injected.vent(&mut self.chambers);
+        }
     }
 
     /// Moves the piston along a prescribed path (kinematic drive, for physics checks): the
@@ -299,5 +317,36 @@ impl Plant {
     /// Distance to the nearer head, m (negative when in contact).
     pub fn head_clearance_m(&self) -> f64 {
         self.x_m.min(self.params.travel_m - self.x_m)
+    }
+}
+
+/// The cogging law [`CoggingParams::force_n`], `A·sin(2π·x/p + φ)`, at `x_m`. Without a
+/// phase and at the motor's electrical period, `sin(2π·x/p)` is the motors' electrical angle
+/// at this position, already computed: no trigonometry here.
+#[inline]
+fn cogging_force_n(c: &CoggingParams<f64>, motors: &Sections, x_m: f64) -> f64 {
+    if c.phase_rad == 0.0 && c.period_m == motors.electrical_period_m() {
+        if let Some((sin, _)) = motors.master_angle_at(x_m) {
+            return c.amplitude_n * sin;
+        }
+    }
+    c.force_n(x_m)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cogging_from_the_motor_angle_is_the_law() {
+        let params = PlantParams::reference();
+        let law = params.cogging.expect("the reference machine cogs");
+        let mut plant = Plant::new(params, 0.0);
+        for i in 0..2000 {
+            let x = -0.01 + i as f64 * 1.13e-4;
+            plant.motors.set_position(x);
+            let f = cogging_force_n(&law, &plant.motors, x);
+            assert!((f - law.force_n(x)).abs() < 1e-9 * law.amplitude_n, "x={x}");
+        }
     }
 }

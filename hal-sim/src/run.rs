@@ -15,7 +15,9 @@ use fpc::units::CONTROL_PERIOD_S;
 use serde::Serialize;
 
 use crate::chambers::PortMode;
-use crate::exec::{simulate, SimShared};
+use crate::exec::{simulate_board, Execution, SimShared, WATCHDOG_TIMEOUT_US};
+use crate::fault_apply::{InjectionReport, Injector};
+use crate::inject::FaultSpec;
 use crate::model::MachineModel;
 use crate::runlog::{RunLog, REQUIRED};
 use crate::world::World;
@@ -58,6 +60,13 @@ pub struct RunOptions {
     pub configure: Option<fn(&mut ControlConfig)>,
     /// What the host does during the run, by completed compression cycle.
     pub schedule: Vec<(u32, HostAction)>,
+    /// Faults injected during the run (`--fault`; `faults.md` scenarios). With faults the
+    /// run does not end at the first latched fault: it runs on until each fault's outcome
+    /// (the stop, the piston at rest, homing's end) is known.
+    pub faults: Vec<FaultSpec>,
+    /// Timeout of the board's independent watchdog, µs (the board's
+    /// [`crate::exec::WATCHDOG_TIMEOUT_US`]; a run may try another).
+    pub watchdog_timeout_us: u64,
 }
 
 /// Something the host does at the start of a given cycle.
@@ -85,6 +94,8 @@ impl RunOptions {
             model_error: 0.0,
             configure: None,
             schedule: Vec::new(),
+            faults: Vec::new(),
+            watchdog_timeout_us: WATCHDOG_TIMEOUT_US,
         }
     }
 
@@ -182,6 +193,8 @@ pub struct RunOutcome {
     pub cycle_work_j: Vec<f64>,
     /// Work the motor sections did on the piston in each completed cycle, J.
     pub cycle_motor_work_j: Vec<f64>,
+    /// What the injected faults did (empty without faults).
+    pub injection: InjectionReport,
 }
 
 /// Columns of the simulator's run log: the required ones, then optional ones.
@@ -321,7 +334,15 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
     let mut actions = actions.into_iter().peekable();
     let dead_a = f64::from(config.target_clearance_m);
     let dead_b = f64::from(config.travel_m - config.target_clearance_m);
-    let mut world = world(model, opts.seed, opts.start_us, opts.start_position_m);
+    let mut injector = Injector::new(&opts.faults, &config, opts.seed);
+    let heartbeat_timeout_s = config.heartbeat_timeout_s;
+    let mut world = world(
+        model,
+        opts.seed,
+        injector.start_us(opts.start_us),
+        injector.start_position_m(opts.start_position_m),
+    );
+    injector.prepare(&mut world);
     world.telemetry.decimation = opts.telemetry_decimation;
     world.plant.lines.set_pressure_ratio(opts.pressure_ratio);
 
@@ -336,33 +357,23 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
     let mut cycles_done = 0u32;
     // Homing creeps at 10 mm/s over at most the travel; strokes take well under 1 s each.
     let limit_s = 2.0 + model.piston.travel_m / 0.01 + f64::from(opts.cycles) * 2.0;
+    let mut capture = Capture::new(limit_s);
     let mut last = Status::INIT;
     let started = Instant::now();
 
-    let world = simulate(world, config, |w, shared: &SimShared| {
+    // The board's independent watchdog runs as on the MCU (only a hung task starves it).
+    let execution = Execution {
+        watchdog_timeout_us: Some(opts.watchdog_timeout_us),
+        ..Execution::default()
+    };
+    let each_cycle = |w: &mut World, shared: &SimShared, exec: &mut Execution| {
+        if !injector.is_empty() {
+            injector.step(w, shared, exec);
+        }
         let status = shared.status();
         let t = w.time_s();
         if w.cycle() > 0 {
-            log.push_row(&[
-                t,
-                f64::from(status.position_m),
-                f64::from(status.slave_position_m),
-                f64::from(status.theta_rad),
-                f64::from(status.force_master_n),
-                f64::from(status.force_slave_n),
-                f64::from(status.pressure_a_pa),
-                f64::from(status.pressure_b_pa),
-                f64::from(status.reference_m),
-                f64::from(status.theta_reference_rad),
-                f64::from(status.velocity_mps),
-                f64::from(status.faults.first().map_or(0, |f| f as u8)),
-                w.plant.chambers.a.pressure_pa,
-                w.plant.chambers.b.pressure_pa,
-                w.plant.chambers.a.volume_m3,
-                w.plant.chambers.b.volume_m3,
-                w.plant.lines.suction_pa,
-                w.plant.lines.discharge_pa,
-            ]);
+            capture.push(&status, w);
         }
         for f in status.faults.iter() {
             if !metrics.faults.contains(&f) {
@@ -464,14 +475,22 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
             other => other,
         };
         last = status;
-        if phase == Phase::Done || faulted || t > limit_s {
+        let outcome_known = if injector.is_empty() {
+            faulted
+        } else {
+            injector.finished(w.time_us(), heartbeat_timeout_s)
+        };
+        if phase == Phase::Done || outcome_known || t > limit_s {
             ControlFlow::Break(())
         } else {
             ControlFlow::Continue(())
         }
-    });
+    };
+    let (world, _) = simulate_board(world, config, execution, each_cycle);
 
     let wall = started.elapsed().as_secs_f64();
+    // Making the columns is part of writing the log, as the CSV is: outside the timing.
+    capture.into_log(&mut log);
     let sim_time_s = world.time_s();
     let last5 = metrics.dead_point_errors.len().saturating_sub(10);
     let summary = Summary {
@@ -525,7 +544,106 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
             .windows(2)
             .map(|w| w[1] - w[0])
             .collect(),
+        injection: injector.report().clone(),
     })
+}
+
+/// The run log as the loop records it, made into [`COLUMNS`] after the loop (with the CSV).
+///
+/// A row is 80 bytes instead of 18 separate `f64` pushes (144): the status fields as the
+/// firmware has them (`f32`), the cycle instead of the time, the line pressures only when
+/// they change. Each fresh page costs a fault, which costs more than the rest of the
+/// recording; the buffer is reserved for the longest run so it never moves.
+struct Capture {
+    rows: Vec<CapturedRow>,
+    /// (first row, p_suction, p_discharge) at each change of the line pressures.
+    lines: Vec<(usize, f64, f64)>,
+}
+
+/// One control cycle of [`Capture`].
+#[derive(Clone, Copy, Debug)]
+struct CapturedRow {
+    /// x, x_slave, θ, F_master, F_slave, p_A, p_B, x_ref, θ_ref, v as in [`COLUMNS`].
+    status: [f32; 10],
+    cycle: u32,
+    fault: u8,
+    /// p_A, p_B, V_A, V_B (plant truth) as in [`COLUMNS`].
+    truth: [f64; 4],
+}
+
+/// Rows [`Capture`] reserves at most (80 MB of address space; it grows beyond).
+const MAX_RESERVED_ROWS: usize = 1 << 20;
+
+impl Capture {
+    /// Room for a run of at most `limit_s` simulated seconds (untouched capacity costs no
+    /// memory).
+    fn new(limit_s: f64) -> Self {
+        let rows = (limit_s / f64::from(CONTROL_PERIOD_S)) as usize;
+        Capture {
+            rows: Vec::with_capacity(rows.min(MAX_RESERVED_ROWS)),
+            lines: Vec::new(),
+        }
+    }
+
+    #[inline]
+    fn push(&mut self, status: &Status, w: &World) {
+        let (c, l) = (&w.plant.chambers, &w.plant.lines);
+        let line_pa = (l.suction_pa, l.discharge_pa);
+        if self.lines.last().is_none_or(|&(_, s, d)| (s, d) != line_pa) {
+            self.lines.push((self.rows.len(), line_pa.0, line_pa.1));
+        }
+        self.rows.push(CapturedRow {
+            status: [
+                status.position_m,
+                status.slave_position_m,
+                status.theta_rad,
+                status.force_master_n,
+                status.force_slave_n,
+                status.pressure_a_pa,
+                status.pressure_b_pa,
+                status.reference_m,
+                status.theta_reference_rad,
+                status.velocity_mps,
+            ],
+            cycle: u32::try_from(w.cycle()).unwrap_or(u32::MAX),
+            fault: status.faults.first().map_or(0, |f| f as u8),
+            truth: [
+                c.a.pressure_pa,
+                c.b.pressure_pa,
+                c.a.volume_m3,
+                c.b.volume_m3,
+            ],
+        });
+    }
+
+    /// Appends the rows to `log` (which has [`COLUMNS`]), one column at a time.
+    fn into_log(self, log: &mut RunLog) {
+        let n = self.rows.len();
+        let rows = &self.rows;
+        for (j, column) in log.columns.iter_mut().enumerate() {
+            column.reserve_exact(n);
+            match j {
+                0 => column.extend(rows.iter().map(|r| World::time_s_at(u64::from(r.cycle)))),
+                1..=10 => column.extend(
+                    rows.iter()
+                        .map(|r| r.status.get(j - 1).copied().map_or(f64::NAN, f64::from)),
+                ),
+                11 => column.extend(rows.iter().map(|r| f64::from(r.fault))),
+                12..=15 => column.extend(
+                    rows.iter()
+                        .map(|r| r.truth.get(j - 12).copied().unwrap_or(f64::NAN)),
+                ),
+                _ => {
+                    // Each line pressure holds from its change to the next.
+                    let ends = self.lines.iter().skip(1).map(|l| l.0).chain([n]);
+                    for (&(start, suction, discharge), end) in self.lines.iter().zip(ends) {
+                        let v = if j == 16 { suction } else { discharge };
+                        column.extend(std::iter::repeat_n(v, end.saturating_sub(start)));
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// Largest of the last `n` values.
@@ -555,8 +673,7 @@ fn discharge_opening(plant: &crate::plant::Plant, last_phase_rad: Option<f64>) -
     let last = last_phase_rad?;
     let now = plant.port_phase_rad();
     let ports = &plant.chambers.params.ports;
-    let turn = std::f64::consts::TAU;
-    let advance = (now - last).rem_euclid(turn);
+    let advance = wrap_turn(now - last);
     // Reverse rotation (expander: the discharge port is the admission) or standstill: no
     // discharge opening to judge.
     if advance == 0.0 || advance >= std::f64::consts::PI {
@@ -566,13 +683,27 @@ fn discharge_opening(plant: &crate::plant::Plant, last_phase_rad: Option<f64>) -
         (Port::DischargeA, &plant.chambers.a),
         (Port::DischargeB, &plant.chambers.b),
     ] {
-        let to_edge = (ports.half_open_rad(port) - last).rem_euclid(turn);
+        let to_edge = wrap_turn(ports.half_open_rad(port) - last);
         if to_edge > 0.0 && to_edge <= advance {
             let pd = plant.lines.discharge_pa;
             return Some((chamber.pressure_pa - pd).abs() / pd);
         }
     }
     None
+}
+
+/// `x.rem_euclid(2π)`: within one turn of the range (the phases here are in [0, 2π)) one add
+/// does it, bit for bit, without `rem_euclid`'s `fmod` (a slow library loop).
+#[inline]
+fn wrap_turn(x: f64) -> f64 {
+    let turn = std::f64::consts::TAU;
+    if (0.0..turn).contains(&x) {
+        x
+    } else if x > -turn && x < 0.0 {
+        x + turn
+    } else {
+        x.rem_euclid(turn)
+    }
 }
 
 /// Carries out a scheduled host action.

@@ -41,6 +41,10 @@ pub struct RunArgs {
     #[arg(long, default_value_t = fpc::telemetry::DEFAULT_DECIMATION,
           value_parser = clap::value_parser!(u16).range(1..))]
     pub telemetry_decimation: u16,
+    /// Inject a fault: `NAME@T[:k=v,…]` (`faults.md`; repeat for several). An unknown name or
+    /// a malformed specification exits 2 naming it.
+    #[arg(long = "fault", value_name = "SPEC")]
+    pub faults: Vec<String>,
 }
 
 /// Runs `fpc-sim run`.
@@ -52,9 +56,16 @@ pub fn main(args: RunArgs) -> CmdResult {
         ),
         None => (MachineModel::reference(), "reference".to_string()),
     };
+    let faults = args
+        .faults
+        .iter()
+        .map(|spec| crate::inject::parse(spec))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| Failure::bad_input(e.0))?;
     let opts = RunOptions {
         model,
         model_name,
+        faults,
         pressure_ratio: args.pressure_ratio,
         speed_mps: args.speed,
         cycles: args.cycles,
@@ -97,6 +108,26 @@ pub fn main(args: RunArgs) -> CmdResult {
         s.faults.join(", "),
         csv.display()
     );
+    let r = &outcome.injection;
+    if let Some(onset_us) = r.first_onset_us() {
+        let detected = r.first_fault_after_onset().map_or_else(
+            || "no fault latched".to_string(),
+            |(t_us, f)| {
+                format!(
+                    "{} after {:.2} ms",
+                    f.name(),
+                    (t_us - onset_us) as f64 * 1e-3
+                )
+            },
+        );
+        eprintln!(
+            "fpc-sim run: injected fault from {:.4} s: {detected}; min head clearance since {}; \
+             watchdog resets {}",
+            onset_us as f64 * 1e-6,
+            fmt_mm(r.min_clearance_m),
+            r.resets_us.len()
+        );
+    }
     if args.json {
         let text = serde_json::to_string_pretty(s).map_err(|e| Failure::runtime(e.to_string()))?;
         println!("{text}");

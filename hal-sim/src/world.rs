@@ -20,6 +20,7 @@ use fpc::ports::{
 use fpc::servo::torque_of_code;
 use fpc::units::{DacCode, PerSection, PhaseDuties, Section, Ticks, CONTROL_PERIOD_US};
 
+use crate::fastmath::{floor_i64, sin_cos};
 use crate::model::MachineModel;
 use crate::plant::{Drive, Plant, PlantParams};
 pub use crate::sensors::Sensors;
@@ -45,6 +46,9 @@ pub struct World {
     pub watchdog_fed_us: u64,
     /// What the firmware's supervision task reported (the board logs it with defmt).
     pub events: Vec<Event>,
+    /// Sensor faults injected into every burst right after sampling (`fpc-sim run --fault`;
+    /// none by default).
+    pub corruption: crate::fault_apply::SensorCorruption,
     /// What the firmware's telemetry task sent up the (simulated) RTT channel.
     pub telemetry: crate::capture::TelemetryCapture,
     noise: Noise,
@@ -84,6 +88,7 @@ impl World {
             servo_code: DacCode::MID,
             watchdog_fed_us: 0,
             events: Vec::new(),
+            corruption: Default::default(),
             telemetry: Default::default(),
             noise: Noise::new(seed),
             pressure_alpha,
@@ -111,8 +116,13 @@ impl World {
 
     /// Simulated time, s.
     pub fn time_s(&self) -> f64 {
+        Self::time_s_at(self.cycle)
+    }
+
+    /// Simulated time at the start of control cycle `cycle`, s.
+    pub fn time_s_at(cycle: u64) -> f64 {
         // Divide (correctly rounded) rather than multiply by 1e-6, so times print short.
-        self.time_us() as f64 / 1e6
+        (cycle * u64::from(CONTROL_PERIOD_US)) as f64 / 1e6
     }
 
     /// Simulated time, µs since the start.
@@ -146,24 +156,29 @@ impl World {
         let plant = &self.plant;
         let noise = &mut self.noise;
         let x = plant.x_m;
-        let encoder = |m: &EncoderModel, x_read: f64, noise: &mut Noise| {
-            let (sin, cos) = m.signals(x_read);
-            SinCosCodes {
-                sin: adc(sin + noise.scaled(m.noise_codes)),
-                cos: adc(cos + noise.scaled(m.noise_codes)),
-            }
+        let encoder = |m: &EncoderModel, (sin, cos): (f64, f64), noise: &mut Noise| SinCosCodes {
+            sin: adc(sin + noise.scaled(m.noise_codes)),
+            cos: adc(cos + noise.scaled(m.noise_codes)),
         };
-        let master = encoder(&s.encoder_master, x, noise);
-        let x_slave = s.slave_pitch_error.map_or(x, |e| e.read_m(x));
-        let slave = encoder(&s.encoder_slave, x_slave, noise);
+        let (em, es) = (&s.encoder_master, &s.encoder_slave);
+        let th = em.angle_rad(x);
+        let sin_cos_th = sin_cos(th);
+        let master = encoder(em, em.signals_at(th, sin_cos_th), noise);
+        let slave_signals = match s.slave_pitch_error {
+            // Same scale, same position: the same angle (one sin/cos for both).
+            None if es.period_m == em.period_m => es.signals_at(th, sin_cos_th),
+            None => es.signals(x),
+            Some(e) => es.signals(e.read_m(x)),
+        };
+        let slave = encoder(es, slave_signals, noise);
 
-        let per_code = f64::from(s.current.a_per_code);
+        let codes_per_a = 1.0 / f64::from(s.current.a_per_code);
         let mut current = |section: Section| {
             let offsets = s.current_offset_a.get(section);
             let i = plant.phase_currents(section);
             let mut codes = [adc(0.0); 3];
             for ((code, a), off) in codes.iter_mut().zip(i).zip(offsets) {
-                *code = adc(2048.0 + (a + off + noise.scaled(s.current_noise_a)) / per_code);
+                *code = adc(2048.0 + (a + off + noise.scaled(s.current_noise_a)) * codes_per_a);
             }
             codes
         };
@@ -193,7 +208,7 @@ impl World {
             encoders: EncoderCodes { master, slave },
             currents,
             // The hardware counter wraps at 16 bits.
-            quadrature: counts.floor() as i64 as u16,
+            quadrature: floor_i64(counts) as u16,
             pressures: PressureCodes {
                 chamber_a,
                 chamber_b,
@@ -201,6 +216,11 @@ impl World {
                 discharge,
             },
         };
+        if self.corruption.active() {
+            let b = &mut self.burst;
+            self.corruption
+                .apply(&mut b.encoders, &mut b.pressures, &mut b.quadrature);
+        }
     }
 }
 

@@ -429,8 +429,8 @@ impl IdealPlant {
 }
 
 /// One burst of samples for the piston at raw position `raw_m` with a total motor force of
-/// `force_n` (split evenly), the servo at `quadrature`, pressures at 1 bar, a little noise on the encoder and current
-/// channels.
+/// `force_n` (split evenly), the servo at `quadrature`, the chamber pressures following the
+/// piston and the lines at 1 bar, a little noise on the encoder and current channels.
 fn cycle_inputs(
     config: &ControlConfig,
     t: Ticks,
@@ -451,7 +451,14 @@ fn cycle_inputs(
     let q_a = 0.5 * force_n / config.motor.force_constant_n_per_a;
     let amps = inverse_clarke(inverse_park(Dq { d: 0.0, q: q_a }, sin, cos));
     let currents = amps.map(|a| code(a / config.current_sense.master.a_per_code, 3.0));
-    let bar = PressureCalibration::reference().code_for(1.0e5);
+    let cal = PressureCalibration::reference();
+    let bar = cal.code_for(1.0e5);
+    // The chamber pressures follow the piston (±0.2 bar per 0.1 m from where it homes, each
+    // chamber its own way): live sensors. Readings that stay flat while the piston strokes
+    // are a stuck sensor, and the step latches `pressure_plausibility` for them.
+    let dp = 2.0e5 * (raw_m - 0.002);
+    let chamber_a = cal.code_for(1.0e5 + dp);
+    let chamber_b = cal.code_for(1.0e5 - dp);
     CycleInputs {
         t,
         encoders: EncoderCodes {
@@ -464,8 +471,8 @@ fn cycle_inputs(
         },
         quadrature,
         pressures: PressureCodes {
-            chamber_a: bar,
-            chamber_b: bar,
+            chamber_a,
+            chamber_b,
             suction: bar,
             discharge: bar,
         },

@@ -1,0 +1,249 @@
+//! Every parser of outside input refuses garbage cleanly and never panics (`faults.md` #17–19,
+//! the no-panic policy): a bounded, seeded random fuzzer that runs in CI. Each input is a
+//! valid document mangled by byte flips, insertions of the format's own tokens and of
+//! special numbers, deletions, duplications, truncation and line swaps — or plain random
+//! text. Parsers covered here: run logs (`RunLog::parse`), machine-model files
+//! (`MachineModel::parse`) and `--fault` specifications (`inject::parse`). The command and
+//! telemetry frame decoders have their own 10⁶-input fuzzers next to them
+//! (`src/link.rs`, `src/telemetry.rs`).
+//!
+//! 10⁶ inputs per parser are `#[ignore]` (CI runs them with `cargo test --release --
+//! --ignored`); 20,000 per parser run by default.
+
+use hal_sim::inject;
+use hal_sim::model::{MachineModel, REFERENCE_TOML};
+use hal_sim::runlog::RunLog;
+
+/// xorshift64*: seeded, the same inputs on every machine.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n.max(1) as u64) as usize
+    }
+}
+
+/// Tokens every format shares, and numbers that break naive readers.
+const TOKENS: [&str; 28] = [
+    ",",
+    "\n",
+    "\r\n",
+    "=",
+    "[",
+    "]",
+    "#",
+    "\"",
+    "@",
+    ":",
+    ".",
+    "-",
+    "e",
+    "_",
+    " ",
+    "nan",
+    "NaN",
+    "inf",
+    "-inf",
+    "1e309",
+    "-0",
+    "0",
+    "1e-320",
+    "18446744073709551616",
+    "0x10",
+    "é",
+    "[effects.cogging]",
+    "# x = 1",
+];
+
+/// One mangled version of `seed`.
+fn mutate(rng: &mut Rng, seed: &str) -> String {
+    if rng.below(16) == 0 {
+        // Random text.
+        let n = rng.below(200);
+        let bytes: Vec<u8> = (0..n).map(|_| rng.next() as u8).collect();
+        return String::from_utf8_lossy(&bytes).into_owned();
+    }
+    let mut bytes = seed.as_bytes().to_vec();
+    for _ in 0..1 + rng.below(4) {
+        let len = bytes.len();
+        let at = rng.below(len + 1);
+        match rng.below(7) {
+            0 if len > 0 => {
+                let i = rng.below(len);
+                bytes[i] ^= 1 << rng.below(8);
+            }
+            1 => {
+                let t = TOKENS[rng.below(TOKENS.len())];
+                bytes.splice(at..at, t.bytes());
+            }
+            2 if len > 0 => {
+                let end = (at + 1 + rng.below(40)).min(len);
+                bytes.drain(at.min(end)..end);
+            }
+            3 if len > 0 => {
+                let end = (at + 1 + rng.below(60)).min(len);
+                let piece = bytes[at.min(end)..end].to_vec();
+                let to = rng.below(len + 1);
+                bytes.splice(to..to, piece);
+            }
+            4 => bytes.truncate(at),
+            5 => {
+                // Swap two lines.
+                let text = String::from_utf8_lossy(&bytes).into_owned();
+                let mut lines: Vec<&str> = text.split('\n').collect();
+                if lines.len() > 1 {
+                    let (a, b) = (rng.below(lines.len()), rng.below(lines.len()));
+                    lines.swap(a, b);
+                }
+                bytes = lines.join("\n").into_bytes();
+            }
+            _ => {
+                // A number replaced by a special one.
+                let t = ["nan", "inf", "-1", "0", "1e400", "-0.0", "abc"][rng.below(7)];
+                if let Some(p) = bytes.iter().skip(at).position(|b| b.is_ascii_digit()) {
+                    let i = at + p;
+                    let end = i + bytes[i..]
+                        .iter()
+                        .position(|b| !(b.is_ascii_digit() || *b == b'.'))
+                        .unwrap_or(bytes.len() - i);
+                    bytes.splice(i..end, t.bytes());
+                }
+            }
+        }
+    }
+    String::from_utf8_lossy(&bytes).into_owned()
+}
+
+/// Feeds `n` inputs mangled from `seeds` to `parse`; returns (accepted, refused).
+fn fuzz(n: u32, seed: u64, seeds: &[String], parse: impl Fn(&str) -> bool) -> (u32, u32) {
+    let mut rng = Rng(seed);
+    let (mut ok, mut refused) = (0, 0);
+    for _ in 0..n {
+        let base = &seeds[rng.below(seeds.len())];
+        if parse(&mutate(&mut rng, base)) {
+            ok += 1;
+        } else {
+            refused += 1;
+        }
+    }
+    (ok, refused)
+}
+
+/// A valid run log: the required columns and the fault column, 100 rows.
+fn run_log() -> String {
+    let mut s = String::from("# source = fuzz\n# sample_rate_hz = 20000\n");
+    s.push_str("t_s,x_m,x_slave_m,theta_rad,f_master_n,f_slave_n,p_a_pa,p_b_pa,fault\n");
+    for k in 0..100 {
+        s.push_str(&format!("{},0.1,0.1,0,1,-1,1e5,2e5,0\n", k as f64 * 5e-5));
+    }
+    s
+}
+
+/// The minimal model file of `formats.md` §2.
+const MINIMAL_MODEL: &str = "[piston]\nmass_kg = 12.0\nbore_m = 0.090\nrod_m = 0.020\n\
+travel_m = 0.205\ndead_length_a_m = 0.0005\ndead_length_b_m = 0.0005\n\n[friction]\n\
+coulomb_n = 40.0\nviscous_ns_per_m = 25.0\n\n[gas]\ngamma = 1.4\n\
+gas_constant_j_per_kg_k = 287.0\ntemperature_k = 293.15\nambient_pa = 101325.0\n\n\
+[motor]\npole_pitch_m = 0.012\nslave_follows_master = true\n\n[encoder]\nperiod_m = 0.024\n\
+\n[effects.cogging]\namplitude_n = 30.0\nperiod_m = 0.012\n";
+
+fn fault_specs() -> Vec<String> {
+    let mut v: Vec<String> = inject::FaultKind::ALL
+        .iter()
+        .map(|(kind, name)| {
+            let params: Vec<String> = kind
+                .parameters()
+                .iter()
+                .map(|(p, default, _, _)| {
+                    // Text-valued parameters take their words.
+                    let word = match *p {
+                        "channel" => Some("cos"),
+                        "section" => Some("master"),
+                        "chamber" => Some("b"),
+                        "task" => Some("supervision"),
+                        "encoder" => Some("both"),
+                        _ => None,
+                    };
+                    word.map_or_else(|| format!("{p}={default}"), |w| format!("{p}={w}"))
+                })
+                .collect();
+            format!("{name}@1.25:{}", params.join(","))
+        })
+        .collect();
+    v.push("section_loss@0.5:section=master".into());
+    v.push("encoder_amplitude@2:gain=1.5,encoder=both".into());
+    v
+}
+
+fn run_logs(n: u32) -> (u32, u32) {
+    let seeds = [run_log()];
+    fuzz(n, 0x5EED_0001, &seeds, |t| RunLog::parse(t).is_ok())
+}
+
+fn model_files(n: u32) -> (u32, u32) {
+    // The minimal file mostly (fast), the full reference file one time in eight.
+    let mut seeds = vec![MINIMAL_MODEL.to_string(); 7];
+    seeds.push(REFERENCE_TOML.to_string());
+    fuzz(n, 0x5EED_0002, &seeds, |t| MachineModel::parse(t).is_ok())
+}
+
+fn fault_spec_texts(n: u32) -> (u32, u32) {
+    let seeds = fault_specs();
+    fuzz(n, 0x5EED_0003, &seeds, |t| inject::parse(t).is_ok())
+}
+
+#[test]
+fn the_seeds_are_valid() {
+    assert!(RunLog::parse(&run_log()).is_ok());
+    assert!(MachineModel::parse(MINIMAL_MODEL).is_ok());
+    for s in fault_specs() {
+        assert!(inject::parse(&s).is_ok(), "{s}");
+    }
+}
+
+#[test]
+fn parsers_refuse_fuzzed_input_without_panic() {
+    for (name, f) in [
+        ("run log", run_logs as fn(u32) -> (u32, u32)),
+        ("model file", model_files),
+        ("--fault spec", fault_spec_texts),
+    ] {
+        let (ok, refused) = f(20_000);
+        println!("{name}: 20000 fuzzed inputs, {ok} accepted, {refused} refused, no panic");
+        assert!(
+            refused > 1000 && ok > 0,
+            "{name}: the mutations reach both outcomes"
+        );
+    }
+}
+
+#[test]
+#[ignore = "slow: 10⁶ fuzzed run logs (≈ 30 s in release)"]
+fn a_million_fuzzed_run_logs_never_panic() {
+    let (ok, refused) = run_logs(1_000_000);
+    println!("run log: 10⁶ fuzzed inputs, {ok} accepted, {refused} refused, no panic");
+    assert_eq!(ok + refused, 1_000_000);
+}
+
+#[test]
+#[ignore = "slow: 10⁶ fuzzed model files (≈ 30 s in release)"]
+fn a_million_fuzzed_model_files_never_panic() {
+    let (ok, refused) = model_files(1_000_000);
+    println!("model file: 10⁶ fuzzed inputs, {ok} accepted, {refused} refused, no panic");
+    assert_eq!(ok + refused, 1_000_000);
+}
+
+#[test]
+#[ignore = "slow: 10⁶ fuzzed --fault specifications (≈ 2 s in release)"]
+fn a_million_fuzzed_fault_specs_never_panic() {
+    let (ok, refused) = fault_spec_texts(1_000_000);
+    println!("--fault spec: 10⁶ fuzzed inputs, {ok} accepted, {refused} refused, no panic");
+    assert_eq!(ok + refused, 1_000_000);
+}
