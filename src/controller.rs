@@ -343,6 +343,8 @@ pub struct ControlStep {
     /// Raw slave position at x = 0, m.
     zero_slave_raw_m: f32,
     theta_reference_rad: f32,
+    /// Speed of the rotation reference, rad/s.
+    theta_reference_speed_rad_s: f32,
     last_t: Option<Ticks>,
     supervisor: Supervisor,
     /// Time since the last heartbeat, s; `None` until the host sends one.
@@ -452,6 +454,7 @@ impl ControlStep {
             zero_raw_m: None,
             zero_slave_raw_m: 0.0,
             theta_reference_rad: 0.0,
+            theta_reference_speed_rad_s: 0.0,
             last_t: None,
             supervisor: Supervisor::new(),
             heartbeat_s: None,
@@ -828,6 +831,19 @@ impl ControlStep {
 
         let homed = self.zero_raw_m.is_some();
         let driving = !matches!(self.mode, Mode::Idle | Mode::Faulted);
+        // The rotation times the ports only while compressing; in a stop it only holds (or,
+        // after a reset, coasts down), whatever the linear motion does.
+        let running = matches!(self.mode, Mode::Running(_));
+        let rotation_error_rad = if running {
+            self.theta_reference_rad - self.servo.angle_rad()
+        } else {
+            0.0
+        };
+        // Only looked at once the error is large (never in normal running: the step stays
+        // cheap).
+        let rotation_stalled = rotation_error_rad.abs()
+            > self.config.supervisor.rotation_stall_error_rad
+            && self.rotation_stalled();
         let observation = Observation {
             dt_s: dt,
             homed,
@@ -842,13 +858,8 @@ impl ControlStep {
             ),
             commanded_n: [self.shares.master, self.shares.slave],
             delivered_n: [force_master, force_slave],
-            // The rotation times the ports only while compressing; in a stop it only holds
-            // (or, after a reset, coasts down), whatever the linear motion does.
-            rotation_error_rad: if matches!(self.mode, Mode::Running(_)) {
-                self.theta_reference_rad - self.servo.angle_rad()
-            } else {
-                0.0
-            },
+            rotation_error_rad,
+            rotation_stalled,
         };
         let verdict = self.supervisor.check(&self.config.supervisor, &observation);
         if let Some(section) = verdict.lost_section {
@@ -927,6 +938,7 @@ impl ControlStep {
                 },
             };
             self.theta_reference_rad = rotary.angle_rad;
+            self.theta_reference_speed_rad_s = rotary.velocity_rad_s;
             if let Some(edge) = self.synchroniser.crossed(self.servo.angle_rad()) {
                 self.edge_crossed(edge.chamber, edge.rotation);
             }
@@ -1232,6 +1244,13 @@ impl ControlStep {
         self.stop_decel_mps2 = self.stop_deceleration(setpoint.position_m, setpoint.velocity_mps);
         self.disturbance_n = 0.0;
         self.mode = Mode::Stopping { setpoint, then };
+    }
+
+    /// Whether the rotation turns at less than a quarter of its reference's speed.
+    #[cold]
+    #[inline(never)]
+    fn rotation_stalled(&self) -> bool {
+        self.servo.velocity_rad_s().abs() < 0.25 * self.theta_reference_speed_rad_s.abs()
     }
 
     /// The disturbance observer of a controlled stop: the force on the piston that the model

@@ -87,7 +87,9 @@ impl Fault {
     }
 
     /// Whether the position is still trustworthy under this fault, so a controlled stop
-    /// (SS1) is possible; otherwise outputs go off at once (STO).
+    /// (SS1) is possible; otherwise outputs go off at once (STO). For the encoder faults the
+    /// controller knows more than the kind: with one encoder lost and the other good, the
+    /// good one gives the position and the reaction is SS1 on its section.
     pub const fn position_trusted(self) -> bool {
         !matches!(
             self,

@@ -3,8 +3,11 @@
 //! Each check is a small filter over one measured quantity; a check that trips names a
 //! [`Fault`]. The controller latches it and chooses the reaction from
 //! [`Fault::position_trusted`]: a controlled stop on the braking envelope (SS1) while the
-//! position can be trusted, outputs off at once (STO) when it cannot. Limits that are merely
-//! active (force saturated, envelope clamp) are [`LimitFlags`], not faults.
+//! position can be trusted, outputs off at once (STO) when it cannot. SS1 ends in a hold
+//! that releases the outputs only once holding needs no force (a compressed chamber would
+//! otherwise throw the piston). Limits that are merely active (force saturated, envelope
+//! clamp) are [`LimitFlags`], not faults. The rotation check only applies while compressing:
+//! then the ports need the rotation; in a stop it only holds.
 //!
 //! The braking envelope (`faults.md`): at every instant
 //! `|v| ≤ √(2·a_brake·(d − d_min))`, with `d` the distance to the head the piston moves
@@ -40,6 +43,9 @@ pub struct SupervisorConfig {
     pub section_time_s: f32,
     /// Rotation error that trips `RotationSync`, rad.
     pub rotation_error_rad: f32,
+    /// Rotation error that trips `RotationSync` when the rotation has (all but) stopped
+    /// while its reference moves on — a blocked rotation — rad.
+    pub rotation_stall_error_rad: f32,
     /// Time the rotation error must persist, s.
     pub rotation_time_s: f32,
 }
@@ -48,10 +54,10 @@ impl SupervisorConfig {
     /// Reference limits: 150 m/s² braking (one 5 kN section against 2.5 kN of gas force on
     /// 13.2 kg, i.e. the mass +10 %, with margin), overspeed at 1.2 × 4.5 m/s, 70 A,
     /// 2 mm encoder mismatch (the paper saw up to 1 mm at the magnetic pitch); rotation
-    /// sync at 0.25 rad for 1 ms (the servo tracks within 0.065 rad at 4.1 m/s on the reference
-    /// machine, but 0.15 rad tripped on legitimate off-nominal plants — a 25 % heavier piston
-    /// or four times the viscous friction; 0.25 rad still catches a blocked rotation within
-    /// 5 ms mid-stroke).
+    /// sync for 1 ms at 0.35 rad (the servo tracks within 0.07 rad on the reference machine,
+    /// 0.21 rad at 4.5 m/s with a 0.5 ms actuator lag), or at 0.1 rad while the rotation
+    /// turns at less than a quarter of its reference's speed: a blocked rotation trips within
+    /// 5 ms once its reference moves at ≥ 25 rad/s (mid-stroke: 40–65 rad/s).
     pub const fn reference() -> Self {
         SupervisorConfig {
             travel_m: 0.205,
@@ -64,7 +70,8 @@ impl SupervisorConfig {
             following_error_time_s: 5e-3,
             section_shortfall_n: 400.0,
             section_time_s: 5e-3,
-            rotation_error_rad: 0.25,
+            rotation_error_rad: 0.35,
+            rotation_stall_error_rad: 0.1,
             rotation_time_s: 1e-3,
         }
     }
@@ -142,6 +149,9 @@ pub struct Observation {
     pub delivered_n: [f32; 2],
     /// Rotation reference minus measured angle, rad (0 when the servo is not controlled).
     pub rotation_error_rad: f32,
+    /// The rotation has (all but) stopped while its reference moves on: it turns at less
+    /// than a quarter of the reference's speed.
+    pub rotation_stalled: bool,
 }
 
 /// Supervision state (the persistence timers).
@@ -226,9 +236,13 @@ impl Supervisor {
                     }
                 }
             }
+            let error = o.rotation_error_rad.abs();
+            // A blocked rotation: the reference moves on, the rotation does not — caught at a
+            // smaller error than a rotation that merely lags.
+            let stalled = o.rotation_stalled && error > c.rotation_stall_error_rad;
             self.rotation_s = persist(
                 self.rotation_s,
-                o.rotation_error_rad.abs() > c.rotation_error_rad,
+                error > c.rotation_error_rad || stalled,
                 o.dt_s,
             );
             if self.rotation_s >= c.rotation_time_s {
@@ -323,6 +337,39 @@ mod tests {
         }
         assert_eq!(v.fault, Some(Fault::SectionFault));
         assert_eq!(v.lost_section, Some(1));
+    }
+
+    #[test]
+    fn the_root_free_envelope_check_is_the_envelope_with_its_margin() {
+        let c = SupervisorConfig::reference();
+        for i in 0..=400 {
+            let x = c.travel_m * i as f32 / 400.0;
+            for j in -60..=60 {
+                let v = j as f32 * 0.1;
+                let by_root = v.abs() > c.envelope_speed_mps(x, v) * 1.05 + 0.02;
+                // Within rounding of the boundary the two may differ; elsewhere never.
+                let near = (v.abs() - (c.envelope_speed_mps(x, v) * 1.05 + 0.02)).abs() < 1e-3;
+                assert!(near || by_root == c.envelope_violated(x, v), "x {x} v {v}");
+            }
+        }
+        assert!(!c.envelope_violated(0.1, f32::NAN));
+    }
+
+    #[test]
+    fn a_blocked_rotation_trips_at_a_smaller_error_than_a_lagging_one() {
+        let c = SupervisorConfig::reference();
+        let mut s = Supervisor::new();
+        let mut o = obs();
+        // Lagging 0.2 rad behind a moving reference: within the limit.
+        o.rotation_error_rad = 0.2;
+        for _ in 0..200 {
+            assert_eq!(s.check(&c, &o).fault, None);
+        }
+        // The same error with the rotation stopped: 1 ms later (20 cycles, ±1 for the f32
+        // sum of the steps), RotationSync.
+        o.rotation_stalled = true;
+        let n = (0..100).position(|_| s.check(&c, &o).fault == Some(Fault::RotationSync));
+        assert!(matches!(n, Some(18..=20)), "{n:?}");
     }
 
     #[test]

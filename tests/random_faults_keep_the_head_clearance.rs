@@ -11,7 +11,7 @@
 //! counter wrap (no instant to randomise).
 //!
 //! The full sweep (1,000 runs) is `#[ignore]`: CI runs it with
-//! `cargo test --workspace --release -- --ignored` (≈ 1 min on two cores). A 24-run slice runs
+//! `cargo test --workspace --release -- --ignored` (≈ 30 s on two cores). A 24-run slice runs
 //! by default.
 
 use std::sync::OnceLock;
@@ -229,7 +229,7 @@ fn a_slice_of_random_faults_keeps_the_head_clearance() {
 }
 
 #[test]
-#[ignore = "slow: 1,000 closed-loop runs (≈ 1 min in release on two cores)"]
+#[ignore = "slow: 1,000 closed-loop runs (≈ 30 s in release on two cores)"]
 fn a_thousand_random_faults_keep_the_head_clearance() {
     let outcomes = sweep(1000);
     assert_eq!(outcomes.len(), 1000);

@@ -266,7 +266,7 @@ pub struct InjectionReport {
     pub peak_q_current_a: f64,
     /// Mode changes from the first onset on.
     pub modes: Vec<(u64, ModeKind)>,
-    /// The last status and true position seen.
+    /// Mode of the last status seen.
     pub final_mode: Option<ModeKind>,
     /// True piston position at the end, m.
     pub final_x_m: f64,
@@ -625,5 +625,89 @@ impl Injector {
     /// What happened so far.
     pub fn report(&self) -> &InjectionReport {
         &self.report
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn burst(sin: u16, cos: u16, chamber_a: u16) -> (EncoderCodes, PressureCodes, u16) {
+        let codes = SinCosCodes {
+            sin: AdcCode(sin),
+            cos: AdcCode(cos),
+        };
+        let p = PressureCodes {
+            chamber_a: AdcCode(chamber_a),
+            chamber_b: AdcCode(1000),
+            suction: AdcCode(1000),
+            discharge: AdcCode(1000),
+        };
+        (
+            EncoderCodes {
+                master: codes,
+                slave: codes,
+            },
+            p,
+            65_500,
+        )
+    }
+
+    #[test]
+    fn nothing_set_is_inactive() {
+        assert!(!SensorCorruption::seeded(1).active());
+    }
+
+    #[test]
+    fn a_phase_jump_moves_the_angle_and_keeps_the_amplitude_once() {
+        let mut c = SensorCorruption::seeded(1);
+        c.master_phase_jump_rad = Some(std::f64::consts::FRAC_PI_2);
+        assert!(c.active());
+        let (mut e, mut p, mut q) = burst(2048, 3648, 1000);
+        c.apply(&mut e, &mut p, &mut q);
+        // (sin, cos) = (0, 1) turned by π/2 is (1, 0); the slave is untouched.
+        assert_eq!((e.master.sin.0, e.master.cos.0), (3648, 2048));
+        assert_eq!((e.slave.sin.0, e.slave.cos.0), (2048, 3648));
+        assert!(!c.active(), "one sample only");
+    }
+
+    #[test]
+    fn pressure_channels_open_short_and_freeze() {
+        let mut c = SensorCorruption::seeded(1);
+        c.chambers = [PressureHold::FreezeNext, PressureHold::Code(4095)];
+        let (mut e, mut p, mut q) = burst(2048, 3648, 1234);
+        c.apply(&mut e, &mut p, &mut q);
+        assert_eq!((p.chamber_a.0, p.chamber_b.0), (1234, 4095));
+        let (mut e, mut p, mut q) = burst(2048, 3648, 2000);
+        c.apply(&mut e, &mut p, &mut q);
+        assert_eq!(p.chamber_a.0, 1234, "frozen at the first reading");
+    }
+
+    #[test]
+    fn the_quadrature_offset_wraps_the_counter() {
+        let mut c = SensorCorruption::seeded(1);
+        c.quadrature_offset = 100;
+        let (mut e, mut p, mut q) = burst(2048, 3648, 1000);
+        c.apply(&mut e, &mut p, &mut q);
+        assert_eq!(q, 65_500u16.wrapping_add(100));
+    }
+
+    #[test]
+    fn a_burst_corrupts_its_first_sample_and_ends() {
+        let mut c = SensorCorruption::seeded(3);
+        c.burst = Some(NoiseBurst {
+            samples_left: 4,
+            fraction: 0.0,
+            started: false,
+        });
+        let (mut e, mut p, mut q) = burst(2048, 3648, 1000);
+        c.apply(&mut e, &mut p, &mut q);
+        assert_ne!((e.master.sin.0, e.master.cos.0), (2048, 3648));
+        for _ in 0..3 {
+            let (mut e, mut p, mut q) = burst(2048, 3648, 1000);
+            c.apply(&mut e, &mut p, &mut q);
+            assert_eq!((e.master.sin.0, e.master.cos.0), (2048, 3648));
+        }
+        assert!(c.burst.is_none());
     }
 }

@@ -3,7 +3,8 @@
 //! A specification names a scenario, the simulated time it starts at and optional
 //! parameters. Parsing is strict: an unknown name, a malformed time, an unknown parameter or
 //! a value out of its range is refused with a message naming it (exit code 2), so a typo
-//! can never silently run a fault-free simulation.
+//! can never silently run a fault-free simulation. Applying a parsed specification to a
+//! running simulation is [`crate::fault_apply`].
 
 use std::fmt;
 

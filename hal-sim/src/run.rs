@@ -4,6 +4,10 @@
 //! between the two dead points (1 mm from each head) at the requested peak speed for the
 //! requested number of cycles, exactly as it would over the RTT command channel. Everything
 //! the firmware does, it does in its own task bodies against the simulated board.
+//!
+//! With fault specifications (`--fault`, [`crate::fault_apply`]) the faults are injected as
+//! the run goes, the board's watchdog can reset it ([`crate::exec::simulate_board`]), and the
+//! run goes on past the first latched fault until each fault's outcome is known.
 
 use std::ops::ControlFlow;
 use std::time::Instant;
