@@ -60,6 +60,19 @@ pub struct Execution {
 /// The shared state as the simulator instantiates it (single thread: no-op mutex).
 pub type SimShared = Shared<NoopRawMutex>;
 
+/// Every control-task port of `world`'s simulated board (one place, for each boot).
+fn control_ports(world: &WorldRef) -> SimControlPorts {
+    ControlPorts {
+        cycle: cycle(world),
+        encoders: peripherals(world),
+        currents: peripherals(world),
+        pwm: peripherals(world),
+        quadrature: peripherals(world),
+        servo: peripherals(world),
+        pressures: peripherals(world),
+    }
+}
+
 /// The control-task ports of the simulated board.
 pub type SimControlPorts = ControlPorts<
     SimCycle,
@@ -103,15 +116,7 @@ where
     Fut: Future,
 {
     let world: WorldRef = Rc::new(RefCell::new(world));
-    let io = ControlPorts {
-        cycle: cycle(&world),
-        encoders: peripherals(&world),
-        currents: peripherals(&world),
-        pwm: peripherals(&world),
-        quadrature: peripherals(&world),
-        servo: peripherals(&world),
-        pressures: peripherals(&world),
-    };
+    let io = control_ports(&world);
     {
         let mut control = pin!(control(io, shared));
         let mut supervision = pin!(supervision_run(
@@ -166,15 +171,7 @@ where
     'boot: loop {
         // RAM starts afresh at every boot.
         let shared = SimShared::new();
-        let io = ControlPorts {
-            cycle: cycle(&world),
-            encoders: peripherals(&world),
-            currents: peripherals(&world),
-            pwm: peripherals(&world),
-            quadrature: peripherals(&world),
-            servo: peripherals(&world),
-            pressures: peripherals(&world),
-        };
+        let io = control_ports(&world);
         let mut control = pin!(control_run(io, &shared, config.clone(), cause));
         let mut supervision = pin!(supervision_run(
             clock(&world),
