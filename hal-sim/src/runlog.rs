@@ -128,7 +128,7 @@ impl RunLog {
                 if i > 0 {
                     out.push(',');
                 }
-                out.push_str(&format_value(
+                out.push_str(format_value(
                     col.get(r).copied().unwrap_or(f64::NAN),
                     &mut float,
                     &mut int,
@@ -296,7 +296,7 @@ pub fn meta_map(log: &RunLog) -> BTreeMap<&str, &str> {
 /// `Display` with the same shortest-digit guarantee.
 fn format_value<'b>(v: f64, float: &'b mut ryu::Buffer, int: &'b mut itoa::Buffer) -> &'b str {
     const EXACT: f64 = 9_007_199_254_740_992.0; // 2⁵³
-    // Range first: the conversion below is then exact for whole numbers.
+                                                // Range first: the conversion below is then exact for whole numbers.
     if v.abs() < EXACT && v == (v as i64) as f64 && !(v == 0.0 && v.is_sign_negative()) {
         int.format(v as i64)
     } else if f64::from(v as f32) == v {
@@ -329,7 +329,11 @@ mod tests {
             let back: f64 = text.parse().unwrap();
             if f64::from(v as f32) == v {
                 // Written to the precision it was computed in: the same f32 comes back.
-                assert_eq!((back as f32).to_bits(), (v as f32).to_bits(), "{v} wrote {text}");
+                assert_eq!(
+                    (back as f32).to_bits(),
+                    (v as f32).to_bits(),
+                    "{v} wrote {text}"
+                );
             } else {
                 assert_eq!(back.to_bits(), v.to_bits(), "{v} wrote {text}");
             }

@@ -12,6 +12,7 @@ use std::future::poll_fn;
 use std::rc::Rc;
 use std::task::Poll;
 
+use fpc::controller::CycleInputs;
 use fpc::ports::{
     Clock, CurrentInput, CycleTrigger, EncoderCodes, EncoderInput, PhaseCurrentCodes,
     PressureCodes, PressureInput, PwmOutput, QuadratureInput, SinCosCodes, Sleep, TorqueOutput,
@@ -138,17 +139,35 @@ impl World {
     /// Advances one control period: the plant runs with the latched outputs, then the next
     /// burst is sampled.
     pub fn advance(&mut self) {
-        let drive = Drive {
+        let drive = self.drive();
+        self.plant
+            .advance(&drive, f64::from(CONTROL_PERIOD_US) * 1e-6);
+        self.cycle += 1;
+        self.sample();
+    }
+
+    /// What the latched outputs apply to the plant during the next period: the duties while
+    /// the outputs are enabled, and the servo torque the DAC code commands.
+    pub fn drive(&self) -> Drive {
+        Drive {
             duties: self.enabled.then_some(self.duties),
             servo_torque_nm: f64::from(torque_of_code(
                 self.servo_code,
                 self.plant.params.servo.torque_full_scale_nm as f32,
             )),
-        };
-        self.plant
-            .advance(&drive, f64::from(CONTROL_PERIOD_US) * 1e-6);
-        self.cycle += 1;
-        self.sample();
+        }
+    }
+
+    /// What the control task reads in this period: the time base and the sampling burst.
+    pub fn cycle_inputs(&self) -> CycleInputs {
+        let b = &self.burst;
+        CycleInputs {
+            t: self.ticks(),
+            encoders: b.encoders,
+            currents: b.currents,
+            quadrature: b.quadrature,
+            pressures: b.pressures,
+        }
     }
 
     fn sample(&mut self) {

@@ -12,7 +12,18 @@
 
 use std::time::Instant;
 
-use hal_sim::run::{run, RunOptions};
+use std::hint::black_box;
+use std::ops::ControlFlow;
+
+use fpc::command::Command;
+use fpc::controller::{ControlStep, CycleInputs, ModeKind};
+use fpc::faults::ResetCause;
+use fpc::units::{DacCode, CONTROL_PERIOD_S, CONTROL_PERIOD_US};
+use hal_sim::chambers::PortMode;
+use hal_sim::exec::simulate;
+use hal_sim::model::MachineModel;
+use hal_sim::plant::Drive;
+use hal_sim::run::{control_config, run, world, RunOptions};
 
 fn env_number(name: &str) -> Option<f64> {
     std::env::var(name).ok().and_then(|v| v.trim().parse().ok())
@@ -64,4 +75,208 @@ fn closed_loop_realtime_factor() {
             "best realtime factor {best_loop:.1} is below FPC_MIN_REALTIME = {min}"
         );
     }
+}
+
+/// One control cycle of the closed loop, as recorded for the replays.
+struct Recorded {
+    /// What the control task read.
+    inputs: CycleInputs,
+    /// What the host posted after the tasks ran (taken at the next cycle).
+    commands: Vec<Command>,
+    /// What the latched outputs applied to the plant during the period that followed.
+    drive: Drive,
+    /// The latched servo code behind `drive`.
+    servo: DacCode,
+    /// How the chambers connected to the lines during that period.
+    ports: PortMode,
+}
+
+/// Benchmark: where the time of one simulated control cycle goes. The reference machine is
+/// run closed-loop (homing, then strokes at the reference speed) through `simulate`, the
+/// firmware's tasks against the simulated board without `run`'s bookkeeping, and every
+/// cycle's inputs, commands and outputs are recorded. Then each part is replayed alone on
+/// exactly that trajectory — the firmware's `ControlStep` on the recorded inputs, the
+/// `World` (plant and sensors) and the bare `Plant` on the recorded outputs — and checked
+/// to reproduce the closed loop bit for bit before its time counts. Prints ns per cycle for
+/// each part against the 250 ns that 200× real time allows. `FPC_BENCH_MODEL=M.toml` measures
+/// another machine model (e.g. one without the optional `[effects.*]`).
+///
+/// ```text
+/// cargo test --release -p hal-sim --test realtime -- --ignored --nocapture
+/// ```
+#[test]
+#[ignore = "benchmark: run with --release --ignored --nocapture"]
+fn where_the_cycle_time_goes() {
+    const CYCLES: u64 = 88_000;
+    let runs = env_number("FPC_BENCH_RUNS").map_or(9, |n| n.max(1.0) as usize);
+    let mut opts = RunOptions::reference();
+    if let Ok(path) = std::env::var("FPC_BENCH_MODEL") {
+        opts.model = MachineModel::read(std::path::Path::new(&path)).expect("FPC_BENCH_MODEL");
+        opts.model_name = path;
+    }
+    let config = control_config(&opts.model);
+    let speed = opts.peak_speed_mps() as f32;
+    let fresh_world = || world(&opts.model, opts.seed, opts.start_us, opts.start_position_m);
+
+    // The closed loop, recorded once and then timed without recording.
+    let closed_loop = |record: &mut Option<Vec<Recorded>>| {
+        let mut started = false;
+        simulate(fresh_world(), config.clone(), |w, shared| {
+            let mut commands = Vec::new();
+            let status = shared.status();
+            if w.cycle() == 0 {
+                commands.push(Command::Home);
+            } else if !started && status.homed && status.mode == ModeKind::Holding {
+                w.plant.port_mode = PortMode::Timed;
+                commands.push(Command::Start {
+                    peak_speed_mps: speed,
+                });
+                started = true;
+            }
+            for &c in &commands {
+                shared.post_command(c).expect("the command queue has room");
+            }
+            if let Some(r) = record.as_mut() {
+                r.push(Recorded {
+                    inputs: w.cycle_inputs(),
+                    commands,
+                    drive: w.drive(),
+                    servo: w.servo_code,
+                    ports: w.plant.port_mode,
+                });
+            }
+            if w.cycle() + 1 >= CYCLES {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        })
+    };
+    let mut record = Some(Vec::with_capacity(CYCLES as usize));
+    let reference = closed_loop(&mut record);
+    let record = record.unwrap_or_default();
+    // The loop stopped before the plant ran its last recorded period.
+    let periods = &record[..record.len() - 1];
+    assert!(
+        reference.plant.chambers.a.totals.discharge_kg > 0.0,
+        "the recorded run must compress"
+    );
+
+    let best_ns = |f: &mut dyn FnMut()| {
+        (0..runs)
+            .map(|_| {
+                let t = Instant::now();
+                f();
+                t.elapsed().as_secs_f64() * 1e9 / CYCLES as f64
+            })
+            .fold(f64::INFINITY, f64::min)
+    };
+
+    let loop_ns = best_ns(&mut || {
+        black_box(closed_loop(&mut None));
+    });
+
+    // The firmware's step alone, on the recorded inputs (the control task steps from cycle 1
+    // on, taking the commands posted in the cycle before).
+    let firmware = |check: bool| {
+        let mut step = ControlStep::new(config.clone()).expect("the reference config is valid");
+        step.boot(ResetCause::PowerOn);
+        for pair in record.windows(2) {
+            let (before, now) = (&pair[0], &pair[1]);
+            for &c in &before.commands {
+                let _ = step.command(c);
+            }
+            let out = step.step(black_box(&now.inputs));
+            if check {
+                assert_eq!(out.pwm, now.drive.duties, "cycle {}", now.inputs.t.0);
+            }
+            black_box(out);
+        }
+    };
+    firmware(true);
+    let firmware_ns = best_ns(&mut || firmware(false));
+
+    // The simulated board (plant and sensors) alone, driven by the recorded outputs.
+    let board = |check: bool| {
+        let mut w = fresh_world();
+        for r in periods {
+            if check {
+                assert_eq!(w.cycle_inputs(), r.inputs, "cycle {}", w.cycle());
+            }
+            w.plant.port_mode = r.ports;
+            w.enabled = r.drive.duties.is_some();
+            if let Some(d) = r.drive.duties {
+                w.duties = d;
+            }
+            w.servo_code = r.servo;
+            w.advance();
+        }
+        black_box(w)
+    };
+    let replayed = board(true);
+    assert_eq!(
+        replayed.plant, reference.plant,
+        "the replay reproduces the plant"
+    );
+    let board_ns = best_ns(&mut || {
+        board(false);
+    });
+
+    // The bare plant: the same periods without the sensors.
+    let plant = || {
+        let mut p = fresh_world().plant;
+        for r in periods {
+            p.port_mode = r.ports;
+            p.advance(&r.drive, f64::from(CONTROL_PERIOD_US) * 1e-6);
+        }
+        black_box(p)
+    };
+    assert_eq!(
+        plant(),
+        reference.plant,
+        "the bare plant reproduces the plant"
+    );
+    let plant_ns = best_ns(&mut || {
+        plant();
+    });
+
+    let run_ns = {
+        let mut best: f64 = 0.0;
+        for _ in 0..runs {
+            best = best.max(
+                run(&opts)
+                    .expect("the reference run is valid")
+                    .summary
+                    .realtime_factor,
+            );
+        }
+        1e9 * f64::from(CONTROL_PERIOD_S) / best
+    };
+    let budget_ns = 1e9 * f64::from(CONTROL_PERIOD_S) / 200.0;
+    println!(
+        "ns per 50 us control cycle, best of {runs} (model {}, {CYCLES} cycles):",
+        opts.model_name
+    );
+    println!("  fpc-sim run's loop (run()):               {run_ns:6.1}");
+    println!("  closed loop (simulate, no bookkeeping):   {loop_ns:6.1}");
+    println!("    firmware ControlStep::step alone:       {firmware_ns:6.1}");
+    println!("    plant alone:                            {plant_ns:6.1}");
+    println!(
+        "    sensors (board − plant):                {:6.1}",
+        board_ns - plant_ns
+    );
+    println!(
+        "    task polling and ports (rest):          {:6.1}",
+        loop_ns - firmware_ns - board_ns
+    );
+    println!(
+        "  run()'s bookkeeping and run log:          {:6.1}",
+        run_ns - loop_ns
+    );
+    println!(
+        "  200x real time allows {budget_ns:.0} ns; with the firmware's step that leaves {:.0} ns \
+         for the plant, its sensors and everything else ({:.0} now)",
+        budget_ns - firmware_ns,
+        run_ns - firmware_ns
+    );
 }
