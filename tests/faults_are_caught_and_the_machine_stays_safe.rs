@@ -16,8 +16,8 @@
 //! rather than hidden: a 10 % noise burst latches at its second corrupt sample, which comes
 //! within 20 samples in most bursts but not all (#4); STO at full speed lets the piston coast
 //! into the gas of the chamber ahead, which does not always stop it (#1, both encoders); a
-//! hung control task holds its last PWM duties until the board's 20 ms watchdog resets it
-//! (#12).
+//! hung control task holds its last PWM duties until the board's 3 ms watchdog resets it
+//! (#12; 20 ms was not short enough).
 
 use std::ops::ControlFlow;
 use std::sync::OnceLock;
@@ -407,16 +407,16 @@ fn s12_a_hung_task_resets_the_board_into_the_fault_state() {
 }
 
 #[test]
-fn s12_a_hang_at_full_speed_keeps_the_clearance_with_a_3_ms_watchdog() {
-    // The board's IWDG times out after 20 ms; a hung control task holds its last duties
-    // that long, and whether the piston then stays clear is physics. With a 3 ms timeout
-    // (the supervision task feeds it at 1 kHz) the reset comes in time at every phase
-    // tried, and the boot brakes the piston. Printed for both; asserted for 3 ms.
+fn s12_a_hang_at_any_phase_of_a_stroke_keeps_the_clearance() {
+    // A hung control task holds its last duties until the watchdog resets the board, and
+    // whether the piston then stays clear is physics: with the board's 3 ms watchdog the
+    // reset comes in time at every phase tried and the boot brakes the piston; with the
+    // 20 ms the board first had it does not (printed, to show why the timeout is short).
     let i = instants();
     let mut worst = [f64::INFINITY; 2];
     for k in 0..12 {
         let at = i.toward_b_s + 0.016 * k as f64;
-        for (w, timeout_us) in [WATCHDOG_TIMEOUT_US, 3_000].into_iter().enumerate() {
+        for (w, timeout_us) in [WATCHDOG_TIMEOUT_US, 20_000].into_iter().enumerate() {
             let mut o = options(20, vec![parse(&format!("task_hang@{at:.5}")).unwrap()]);
             o.watchdog_timeout_us = timeout_us;
             let r = run(&o).unwrap().injection;
@@ -425,11 +425,12 @@ fn s12_a_hang_at_full_speed_keeps_the_clearance_with_a_3_ms_watchdog() {
     }
     println!(
         "#12 task_hang at 12 phases of a stroke cycle: min head clearance {:.3} mm with the \
-         20 ms watchdog, {:.3} mm with 3 ms",
+         board's {} ms watchdog, {:.3} mm with 20 ms",
         worst[0] * 1e3,
+        WATCHDOG_TIMEOUT_US / 1000,
         worst[1] * 1e3
     );
-    assert!(worst[1] >= MIN_CLEARANCE_M);
+    assert!(worst[0] >= MIN_CLEARANCE_M);
 }
 
 #[test]

@@ -34,17 +34,22 @@ use crate::world::{
     clock, cycle, event_log, peripherals, watchdog, SimCycle, SimPeripherals, World, WorldRef,
 };
 
-/// Timeout of the board's independent watchdog, µs (`src/board/watchdog.rs`: 20 supervision
-/// periods; the board module only builds for the MCU, hence the copy).
-pub const WATCHDOG_TIMEOUT_US: u64 = 20_000;
+/// Timeout of the board's independent watchdog once running, µs
+/// ([`fpc::tasks::WATCHDOG_TIMEOUT_US`]).
+pub const WATCHDOG_TIMEOUT_US: u64 = fpc::tasks::WATCHDOG_TIMEOUT_US as u64;
+
+/// Timeout of the board's watchdog from a boot to its first feed, µs
+/// ([`fpc::tasks::BOOT_WATCHDOG_TIMEOUT_US`]).
+pub const BOOT_WATCHDOG_TIMEOUT_US: u64 = fpc::tasks::BOOT_WATCHDOG_TIMEOUT_US as u64;
 
 /// The board's execution beyond polling the tasks: overruns, hangs and the watchdog.
 /// [`simulate_board`] hands it to the caller every period, so a fault scenario can change
 /// it at any instant.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Execution {
-    /// Timeout of the independent watchdog, µs; `None`: not running (the default, so a test
-    /// body that never checks in is not reset).
+    /// Timeout of the independent watchdog once it has been fed, µs; `None`: not running
+    /// (the default, so a test body that never checks in is not reset). From a boot to the
+    /// first feed the board's longer [`BOOT_WATCHDOG_TIMEOUT_US`] applies, as on the MCU.
     pub watchdog_timeout_us: Option<u64>,
     /// Periods the control task is still busy with its current step: it is not polled, it
     /// misses those cycle triggers and the outputs hold (an overrunning step).
@@ -198,15 +203,21 @@ where
             if each_cycle(&mut w, &shared, &mut execution).is_break() {
                 break 'boot;
             }
-            let starved = execution
-                .watchdog_timeout_us
-                .is_some_and(|timeout| w.time_us().saturating_sub(w.watchdog_fed_us) >= timeout);
+            let starved = execution.watchdog_timeout_us.is_some_and(|timeout| {
+                let window = if w.watchdog_fed_since_boot {
+                    timeout
+                } else {
+                    timeout.max(BOOT_WATCHDOG_TIMEOUT_US)
+                };
+                w.time_us().saturating_sub(w.watchdog_fed_us) >= window
+            });
             if starved {
                 w.enabled = false;
                 w.duties = Default::default();
                 w.servo_code = DacCode::MID;
-                // Started again by the boot, as the firmware's init does.
+                // Started again by the boot, in its boot window, as the firmware's init does.
                 w.watchdog_fed_us = w.time_us();
+                w.watchdog_fed_since_boot = false;
                 execution.resets_us.push(w.time_us());
                 execution.control_hung = false;
                 execution.supervision_hung = false;

@@ -22,6 +22,8 @@ use fpc::controller::{ControlConfig, ModeKind, Status};
 use fpc::faults::Fault;
 use fpc::ports::{EncoderCodes, PressureCodes, SinCosCodes};
 use fpc::units::{AdcCode, PerSection, Section, CONTROL_PERIOD_US};
+use rand::{Rng as _, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 
 use crate::exec::{Execution, SimShared};
 use crate::inject::{FaultKind, FaultSpec};
@@ -126,14 +128,14 @@ pub struct SensorCorruption {
     pub chambers: [PressureHold; 2],
     /// Added to the quadrature counter (wrapping): starts it just before its wrap.
     pub quadrature_offset: u16,
-    rng: SplitMix,
+    rng: BurstRng,
 }
 
 impl SensorCorruption {
     /// No corruption yet, with its own random stream (noise bursts) from `seed`.
     pub fn seeded(seed: u64) -> Self {
         SensorCorruption {
-            rng: SplitMix(seed ^ 0x5EED_FA17_0000_0000),
+            rng: BurstRng(ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_FA17_0000_0000)),
             ..Default::default()
         }
     }
@@ -179,9 +181,10 @@ impl SensorCorruption {
             None => {}
         }
         if let Some(b) = self.burst.as_mut() {
-            if !b.started || self.rng.uniform() < b.fraction {
-                m.sin = AdcCode((self.rng.next() % 4096) as u16);
-                m.cos = AdcCode((self.rng.next() % 4096) as u16);
+            let rng = &mut self.rng.0;
+            if !b.started || rng.random::<f64>() < b.fraction {
+                m.sin = AdcCode(rng.random_range(0..4096));
+                m.cos = AdcCode(rng.random_range(0..4096));
             }
             b.started = true;
             b.samples_left = b.samples_left.saturating_sub(1);
@@ -214,21 +217,13 @@ fn map_codes(codes: SinCosCodes, f: impl Fn(f64, f64) -> (f64, f64)) -> SinCosCo
     }
 }
 
-/// SplitMix64: small, seeded, deterministic.
-#[derive(Clone, Debug, Default)]
-struct SplitMix(u64);
+/// The noise bursts' random stream (its own, so a burst does not shift the sensor noise).
+#[derive(Clone, Debug)]
+struct BurstRng(ChaCha8Rng);
 
-impl SplitMix {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    fn uniform(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+impl Default for BurstRng {
+    fn default() -> Self {
+        BurstRng(ChaCha8Rng::seed_from_u64(0))
     }
 }
 

@@ -45,6 +45,8 @@ pub struct World {
     pub servo_code: DacCode,
     /// Simulated time of the last watchdog feed, µs since the start.
     pub watchdog_fed_us: u64,
+    /// The watchdog has been fed since the last boot (its running window is in force).
+    pub watchdog_fed_since_boot: bool,
     /// What the firmware's supervision task reported (the board logs it with defmt).
     pub events: Vec<Event>,
     /// Sensor faults injected into every burst right after sampling (`fpc-sim run --fault`;
@@ -88,6 +90,7 @@ impl World {
             enabled: false,
             servo_code: DacCode::MID,
             watchdog_fed_us: 0,
+            watchdog_fed_since_boot: false,
             events: Vec::new(),
             corruption: Default::default(),
             telemetry: Default::default(),
@@ -357,6 +360,7 @@ impl Watchdog for SimWatchdog {
     fn feed(&mut self) {
         let mut w = self.world.borrow_mut();
         w.watchdog_fed_us = w.time_us();
+        w.watchdog_fed_since_boot = true;
     }
 }
 

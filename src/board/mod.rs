@@ -103,7 +103,8 @@ pub struct Board {
     pub clock: BoardClock,
     /// Waiting for the supervision task.
     pub sleep: BoardSleep,
-    /// The running watchdog; feed it within [`watchdog::WATCHDOG_TIMEOUT_US`].
+    /// The running watchdog; feed it within [`watchdog::WATCHDOG_TIMEOUT_US`] (after a first
+    /// feed within [`watchdog::BOOT_WATCHDOG_TIMEOUT_US`] of power-up).
     pub watchdog: BoardWatchdog,
 }
 

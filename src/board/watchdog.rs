@@ -1,28 +1,58 @@
 //! The independent watchdog (IWDG, LSI-clocked), fed only by the supervision task.
+//!
+//! Two windows: [`BOOT_WATCHDOG_TIMEOUT_US`] from power-up to the first feed (board bring-up
+//! and building the control step come first, with the outputs off), then
+//! [`WATCHDOG_TIMEOUT_US`] for good: the first feed shortens the reload value.
 
+use embassy_stm32::pac;
+use embassy_stm32::pac::iwdg::vals::Key;
 use embassy_stm32::peripherals::IWDG;
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::Peri;
 use fpc::ports::Watchdog;
+pub use fpc::tasks::{BOOT_WATCHDOG_TIMEOUT_US, WATCHDOG_TIMEOUT_US};
 
-/// Watchdog timeout, µs: 20 supervision periods of 1 ms. The LSI (32 kHz nominal,
-/// 29.5–34 kHz over temperature) makes the real timeout 18.8–21.7 ms.
-pub const WATCHDOG_TIMEOUT_US: u32 = 20_000;
+/// IWDG tick with the /4 prescaler embassy chooses for the boot window (the smallest that
+/// reaches it; /4 covers up to 512 ms), µs at the nominal 32 kHz LSI.
+const TICK_US: u32 = 125;
+const _: () = assert!(
+    BOOT_WATCHDOG_TIMEOUT_US <= 512_000,
+    "the /4 prescaler must hold"
+);
+const _: () =
+    assert!(WATCHDOG_TIMEOUT_US.is_multiple_of(TICK_US) && WATCHDOG_TIMEOUT_US >= 2 * TICK_US);
+
+/// Reload value of the running window (LSI 29.5–34 kHz over temperature: 2.8–3.3 ms).
+const RELOAD: u16 = (WATCHDOG_TIMEOUT_US / TICK_US - 1) as u16;
 
 /// The running IWDG. Once started it cannot be stopped (hardware), only fed.
-pub struct BoardWatchdog(IndependentWatchdog<'static, IWDG>);
+pub struct BoardWatchdog {
+    wdg: IndependentWatchdog<'static, IWDG>,
+    /// The running window is in force (after the first feed).
+    running_window: bool,
+}
 
 impl BoardWatchdog {
-    /// Configures the IWDG for [`WATCHDOG_TIMEOUT_US`] and starts it.
+    /// Configures the IWDG for the boot window and starts it.
     pub fn start(iwdg: Peri<'static, IWDG>) -> Self {
-        let mut wdg = IndependentWatchdog::new(iwdg, WATCHDOG_TIMEOUT_US);
+        let mut wdg = IndependentWatchdog::new(iwdg, BOOT_WATCHDOG_TIMEOUT_US);
         wdg.unleash();
-        BoardWatchdog(wdg)
+        BoardWatchdog {
+            wdg,
+            running_window: false,
+        }
     }
 }
 
 impl Watchdog for BoardWatchdog {
     fn feed(&mut self) {
-        self.0.pet();
+        if !self.running_window {
+            // Unlock and write the shorter reload; the IWDG takes it over within a few LSI
+            // cycles (RVU), so at the latest the next feed reloads the counter with it.
+            pac::IWDG.kr().write(|w| w.set_key(Key::ENABLE));
+            pac::IWDG.rlr().write(|w| w.set_rl(RELOAD));
+            self.running_window = true;
+        }
+        self.wdg.pet();
     }
 }

@@ -52,6 +52,10 @@ const ENCODER_DECODE: Budget = Budget::Enforce(150);
 const FOC_BOTH_SECTIONS: Budget = Budget::Enforce(900);
 /// The whole 20 kHz control step.
 const CONTROL_STEP: Budget = Budget::Enforce(2000);
+/// Building the control step at boot, once: it must end well inside the watchdog's 20 ms
+/// boot window (`fpc::tasks::BOOT_WATCHDOG_TIMEOUT_US`, 3.4 M cycles at 170 MHz); 1 M
+/// instructions leaves room for flash wait states and the rest of the bring-up.
+const CONTROL_STEP_NEW: Budget = Budget::Enforce(1_000_000);
 
 /// A function's instruction budget, per call.
 #[derive(Clone, Copy)]
@@ -139,6 +143,14 @@ fn main() -> ! {
             out.slave = c.slave.step(amps, s.angle, reference, v);
         },
     );
+
+    // Start-up: the control task builds its step (the differentiator's coefficients in f64
+    // soft-float among it) before its first check-in, while the watchdog already runs.
+    let start = timer::now();
+    let built = black_box(ControlStep::new(black_box(config.clone())));
+    let startup = timer::instructions_since(start);
+    drop(built);
+    ok &= report("control_step_new", CONTROL_STEP_NEW, startup, 1);
 
     // The whole step, in closed loop with an ideal plant (its work is not counted), in its
     // two steady regimes: holding at the park position, and compressing (continuous strokes
