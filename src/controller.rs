@@ -196,6 +196,10 @@ pub struct CycleInputs {
 pub struct CycleOutputs {
     /// Duties of both sections, or `None`: all motor outputs off (safe torque off).
     pub pwm: Option<PerSection<PhaseDuties>>,
+    /// While `pwm` is `Some`, the sections whose bridges switch: `false` for a section taken
+    /// out of service (after an overcurrent, or with its encoder lost), whose six gates are
+    /// then held low while the other section drives.
+    pub sections: PerSection<bool>,
     /// Servo torque command.
     pub servo: DacCode,
 }
@@ -976,11 +980,29 @@ impl ControlStep {
             faults: self.faults,
             limits: self.limits,
         };
+        let sections = self.sections_in_service();
         if matches!(self.mode, Mode::Calibrating(_)) {
             let pwm = self.calibration_cycle(inputs);
-            return CycleOutputs { pwm, servo };
+            return CycleOutputs {
+                pwm,
+                sections,
+                servo,
+            };
         }
-        CycleOutputs { pwm, servo }
+        CycleOutputs {
+            pwm,
+            sections,
+            servo,
+        }
+    }
+
+    /// The sections still in the allocation (a dropped one has capability 0).
+    fn sections_in_service(&self) -> PerSection<bool> {
+        let cap = &self.config.allocation.capability;
+        PerSection {
+            master: cap.master > 0.0,
+            slave: cap.slave > 0.0,
+        }
     }
 
     fn mode_kind(&self) -> ModeKind {

@@ -10,7 +10,7 @@
 //! `read` methods then return the samples of that burst; they never block.
 #![allow(async_fn_in_trait)] // single-core executors: the futures never need `Send`.
 
-use crate::units::{AdcCode, DacCode, PhaseDuties, Section, Ticks};
+use crate::units::{AdcCode, DacCode, PerSection, PhaseDuties, Section, Ticks};
 
 /// Sin and cos channels of one 1 Vpp sin/cos encoder, as raw ADC codes.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -85,8 +85,10 @@ pub trait PwmOutput {
     fn write(&mut self, section: Section, duties: PhaseDuties);
     /// Switches every output of every section off (all six gates low): safe torque off.
     fn disable(&mut self);
-    /// Re-enables the outputs after [`PwmOutput::disable`].
-    fn enable(&mut self);
+    /// Switches the outputs of the sections marked `true` on and of the others off: a
+    /// section taken out of service (overcurrent, its encoder lost) stops switching while
+    /// the other one drives.
+    fn enable(&mut self, sections: PerSection<bool>);
 }
 
 /// The servo's quadrature counter (hardware 16-bit, wrapping).

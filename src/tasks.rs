@@ -66,7 +66,8 @@ where
     };
     step.boot(reset_cause);
     shared.publish(*step.status());
-    let mut enabled = false;
+    // Which sections' outputs are switching (None: all off).
+    let mut switching: Option<PerSection<bool>> = None;
     loop {
         let t = ports.cycle.next_cycle().await;
         while let Some(command) = shared.take_command() {
@@ -89,15 +90,15 @@ where
                 // Both sections in the same cycle, from the same force command.
                 ports.pwm.write(Section::Master, duties.master);
                 ports.pwm.write(Section::Slave, duties.slave);
-                if !enabled {
-                    ports.pwm.enable();
-                    enabled = true;
+                if switching != Some(out.sections) {
+                    ports.pwm.enable(out.sections);
+                    switching = Some(out.sections);
                 }
             }
             None => {
-                if enabled {
+                if switching.is_some() {
                     ports.pwm.disable();
-                    enabled = false;
+                    switching = None;
                 }
             }
         }

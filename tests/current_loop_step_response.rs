@@ -10,7 +10,7 @@ use fpc::encoder::SinCosDecoder;
 use fpc::foc::CurrentController;
 use fpc::motor::Dq;
 use fpc::ports::{CurrentInput, CycleTrigger, EncoderInput, PwmOutput};
-use fpc::units::{Duty, Section};
+use fpc::units::{Duty, PerSection, Section};
 use hal_sim::exec::{simulate_with, SimControlPorts, SimShared};
 use hal_sim::model::MachineModel;
 use hal_sim::run::world;
@@ -44,7 +44,10 @@ fn step_response(amps: f32, duration_s: f64) -> Vec<(f64, f64)> {
                 let duties = cc.step(current, angle, Dq { d: 0.0, q }, 0.0);
                 io.pwm.write(Section::Master, duties);
                 io.pwm.write(Section::Slave, [Duty::HALF; 3]);
-                io.pwm.enable();
+                io.pwm.enable(PerSection {
+                    master: true,
+                    slave: true,
+                });
                 t_s += f64::from(config.sample_time_s);
             }
         }

@@ -121,7 +121,7 @@ async fn control_with_probe(
             Some(d) => {
                 PwmOutput::write(&mut io.pwm, Section::Master, d.master);
                 PwmOutput::write(&mut io.pwm, Section::Slave, d.slave);
-                io.pwm.enable();
+                io.pwm.enable(out.sections);
             }
             None => io.pwm.disable(),
         }

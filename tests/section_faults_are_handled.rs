@@ -5,8 +5,9 @@
 //!   calibration has loaded new offsets — and a sensor whose zero is beyond the plausible
 //!   range is refused by that calibration, so the refusal stays;
 //! - an **overcurrent** in one section latches the fault at once, takes that section out of
-//!   the allocation (its current loop holds zero current) and the other section alone stops
-//!   the piston on the braking envelope (SS1), clearance kept;
+//!   the allocation and switches its bridge off (six gates low; the other keeps switching),
+//!   and the other section alone stops the piston on the braking envelope (SS1), clearance
+//!   kept;
 //! - a **section loss** (its bridge open: no current, no force) shows as the force it
 //!   delivers falling short of its share; the allocation drops it, the other section carries
 //!   the whole force and stops the piston (SS1), clearance kept.
@@ -102,6 +103,8 @@ fn an_overcurrent_switches_its_section_off_and_the_other_stops_the_piston() {
     let t0 = bench.time_s();
     let (mut detected_s, mut min_clearance, mut max_master_after) = (None, f64::MAX, 0.0f64);
     let (mut slave_force, mut at_rest_s, mut x0) = (0.0f64, 0.0, None);
+    // Cycles, from the detection on, with the master bridge still switching / the slave's.
+    let (mut master_switching, mut slave_switching) = (0u32, 0u32);
     let ended = bench.run_until(2.0, |w, s| {
         x0.get_or_insert(w.plant.x_m);
         let t = w.time_s() - t0;
@@ -115,6 +118,9 @@ fn an_overcurrent_switches_its_section_off_and_the_other_stops_the_piston() {
         }
         if detected_s.is_some() {
             slave_force = slave_force.max(w.plant.force_n.slave.abs());
+            let drive = w.drive();
+            master_switching += u32::from(drive.duties.master.is_some());
+            slave_switching += u32::from(drive.duties.slave.is_some());
         }
         // Stopped: at rest for 20 ms (SS1 then switches the outputs off once holding needs
         // no force; with the chambers still under pressure it holds).
@@ -129,7 +135,8 @@ fn an_overcurrent_switches_its_section_off_and_the_other_stops_the_piston() {
     println!(
         "overcurrent at {:.1} mm: detected after {:.2} ms, {:?}; master section's current \
          after 5 ms ≤ {:.2} A; slave alone carries up to {:.0} N; min clearance {:.3} mm; \
-         final mode {}, outputs {}",
+         final mode {}, outputs {}; after the detection the master bridge switched in {} \
+         cycles, the slave's in {}",
         x0.unwrap_or(f64::NAN) * 1e3,
         detected_s.unwrap_or(f64::NAN) * 1e3,
         s.faults.iter().map(|f| f.name()).collect::<Vec<_>>(),
@@ -137,7 +144,9 @@ fn an_overcurrent_switches_its_section_off_and_the_other_stops_the_piston() {
         slave_force,
         min_clearance * 1e3,
         s.mode.name(),
-        if bench.world().enabled { "on" } else { "off" }
+        if bench.world().enabled { "on" } else { "off" },
+        master_switching,
+        slave_switching
     );
     assert!(ended, "no stop");
     assert_eq!(s.faults.first(), Some(Fault::Overcurrent));
@@ -146,6 +155,10 @@ fn an_overcurrent_switches_its_section_off_and_the_other_stops_the_piston() {
         max_master_after < 2.0,
         "the master section still carries current"
     );
+    // The cycle that sees the surge drops the section: its bridge is off from the next on,
+    // while the slave's keeps switching to stop the piston.
+    assert!(master_switching <= 1, "the master bridge kept switching");
+    assert!(slave_switching > 100, "the slave drives the stop");
     // Against the compressed chamber B the stop needs the motor to push on: the slave alone.
     assert!(slave_force > 1000.0, "the slave carries the force");
     assert!(min_clearance >= 0.3e-3);

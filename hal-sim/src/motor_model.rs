@@ -167,14 +167,14 @@ impl Sections {
         inverse_clarke(inverse_park(*self.current.get(section), s, c))
     }
 
-    /// One sub-step of the currents with stator-frame voltages `voltage` (None: bridge off)
-    /// at piston speed `v_mps`. Updates the forces.
-    pub fn step(&mut self, voltage: Option<&PerSection<AlphaBeta<f64>>>, v_mps: f64, dt_s: f64) {
+    /// One sub-step of the currents with each section's stator-frame voltages (`None`: that
+    /// bridge is off) at piston speed `v_mps`. Updates the forces.
+    pub fn step(&mut self, voltage: &PerSection<Option<AlphaBeta<f64>>>, v_mps: f64, dt_s: f64) {
         for section in Section::ALL {
             let m = self.params.motor.get(section);
             let i = *self.current.get(section);
             let (s, c) = *self.angle.get(section);
-            let next = match (section, &mut self.follower, voltage) {
+            let next = match (section, &mut self.follower, voltage.get(section)) {
                 (Section::Slave, Some(delay), _) => Dq {
                     d: 0.0,
                     q: delay.push(self.current.master.q),
@@ -183,7 +183,7 @@ impl Sections {
                 // within a few µs — modelled as zero current.
                 (_, _, None) => Dq::default(),
                 (_, _, Some(v)) => {
-                    let v = park(*v.get(section), s, c);
+                    let v = park(*v, s, c);
                     let per_m = self.inv_period.get_mut(section).of(m.electrical_period_m);
                     let we = std::f64::consts::TAU * per_m * v_mps;
                     let l = m.inductance_h;
@@ -242,16 +242,16 @@ mod tests {
         let dt = 25e-6;
         let mut s = Sections::new(p, 0.1, dt);
         let v = PerSection {
-            master: AlphaBeta {
+            master: Some(AlphaBeta {
                 alpha: 0.0,
                 beta: 0.0,
-            },
-            slave: AlphaBeta::default(),
+            }),
+            slave: Some(AlphaBeta::default()),
         };
         s.current.master.q = 10.0;
         let mut trace = Vec::new();
         for _ in 0..60 {
-            s.step(Some(&v), 0.0, dt);
+            s.step(&v, 0.0, dt);
             trace.push((s.current.master.q, s.current.slave.q));
         }
         // 0.75 ms = 30 sub-steps.

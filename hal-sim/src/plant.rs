@@ -117,8 +117,8 @@ impl PlantParams {
 /// What the controller applies to the plant during one period.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Drive {
-    /// Duties of both sections, or `None` when the outputs are off.
-    pub duties: Option<PerSection<PhaseDuties>>,
+    /// Duties of each section, or `None` for a section whose outputs are off.
+    pub duties: PerSection<Option<PhaseDuties>>,
     /// Servo torque command, N·m.
     pub servo_torque_nm: f64,
 }
@@ -156,8 +156,8 @@ pub struct Plant {
     pub port_mode: PortMode,
     /// Faults injected into the machine (`fpc-sim run --fault`; none by default).
     pub injected: crate::fault_apply::PlantFaults,
-    /// Stator-frame voltages of the period being simulated.
-    voltages: PerSection<AlphaBeta<f64>>,
+    /// Stator-frame voltages of the period being simulated (`None`: that bridge is off).
+    voltages: PerSection<Option<AlphaBeta<f64>>>,
 }
 
 impl Plant {
@@ -217,26 +217,28 @@ impl Plant {
     pub fn advance(&mut self, drive: &Drive, period_s: f64) {
         let n = self.params.substeps.max(1);
         let dt = period_s / f64::from(n);
-        if let Some(d) = &drive.duties {
-            // The duties are held over the period: their stator-frame voltages once.
-            let ab = |s: Section| {
-                let bus = self.params.sections.motor.get(s).bus_voltage_v;
-                clarke(phase_voltages(d.get(s), bus))
-            };
-            self.voltages = PerSection {
-                master: ab(Section::Master),
-                slave: ab(Section::Slave),
-            };
-        }
+        // The duties are held over the period: their stator-frame voltages once (none for a
+        // section whose bridge is off).
+        let ab = |s: Section| {
+            let bus = self.params.sections.motor.get(s).bus_voltage_v;
+            drive
+                .duties
+                .get(s)
+                .as_ref()
+                .map(|d| clarke(phase_voltages(d, bus)))
+        };
+        self.voltages = PerSection {
+            master: ab(Section::Master),
+            slave: ab(Section::Slave),
+        };
         for _ in 0..n {
-            self.substep(drive.duties.is_some(), drive.servo_torque_nm, dt);
+            self.substep(drive.servo_torque_nm, dt);
         }
     }
 
-    fn substep(&mut self, powered: bool, servo_torque_nm: f64, dt: f64) {
+    fn substep(&mut self, servo_torque_nm: f64, dt: f64) {
         let voltages = self.voltages;
-        self.motors
-            .step(powered.then_some(&voltages), self.v_mps, dt);
+        self.motors.step(&voltages, self.v_mps, dt);
         if self.injected.any_section_dead() {
             self.injected.kill_sections(&mut self.motors);
         }

@@ -41,6 +41,8 @@ pub struct World {
     pub duties: PerSection<PhaseDuties>,
     /// Motor outputs enabled.
     pub enabled: bool,
+    /// While enabled, which sections' bridges switch (a section out of service is off).
+    pub sections_on: PerSection<bool>,
     /// Servo command latched by the control task.
     pub servo_code: DacCode,
     /// Simulated time of the last watchdog feed, µs since the start.
@@ -88,6 +90,10 @@ impl World {
             burst: Burst::default(),
             duties: PerSection::default(),
             enabled: false,
+            sections_on: PerSection {
+                master: true,
+                slave: true,
+            },
             servo_code: DacCode::MID,
             watchdog_fed_us: 0,
             watchdog_fed_since_boot: false,
@@ -149,11 +155,16 @@ impl World {
         self.sample();
     }
 
-    /// What the latched outputs apply to the plant during the next period: the duties while
-    /// the outputs are enabled, and the servo torque the DAC code commands.
+    /// What the latched outputs apply to the plant during the next period: each section's
+    /// duties while its outputs are on, and the servo torque the DAC code commands.
     pub fn drive(&self) -> Drive {
+        let on =
+            |s: Section| (self.enabled && *self.sections_on.get(s)).then(|| *self.duties.get(s));
         Drive {
-            duties: self.enabled.then_some(self.duties),
+            duties: PerSection {
+                master: on(Section::Master),
+                slave: on(Section::Slave),
+            },
             servo_torque_nm: f64::from(torque_of_code(
                 self.servo_code,
                 self.plant.params.servo.torque_full_scale_nm as f32,
@@ -328,8 +339,10 @@ impl PwmOutput for SimPeripherals {
     fn disable(&mut self) {
         self.world.borrow_mut().enabled = false;
     }
-    fn enable(&mut self) {
-        self.world.borrow_mut().enabled = true;
+    fn enable(&mut self, sections: PerSection<bool>) {
+        let mut w = self.world.borrow_mut();
+        w.enabled = true;
+        w.sections_on = sections;
     }
 }
 

@@ -18,7 +18,7 @@ use std::ops::ControlFlow;
 use fpc::command::Command;
 use fpc::controller::{ControlStep, CycleInputs, ModeKind};
 use fpc::faults::ResetCause;
-use fpc::units::{DacCode, CONTROL_PERIOD_S, CONTROL_PERIOD_US};
+use fpc::units::{DacCode, PerSection, PhaseDuties, CONTROL_PERIOD_S, CONTROL_PERIOD_US};
 use hal_sim::chambers::PortMode;
 use hal_sim::exec::simulate;
 use hal_sim::model::MachineModel;
@@ -85,8 +85,8 @@ struct Recorded {
     commands: Vec<Command>,
     /// What the latched outputs applied to the plant during the period that followed.
     drive: Drive,
-    /// The latched servo code behind `drive`.
-    servo: DacCode,
+    /// The latched outputs behind `drive`: enabled, sections on, duties, servo code.
+    latched: (bool, PerSection<bool>, PerSection<PhaseDuties>, DacCode),
     /// How the chambers connected to the lines during that period.
     ports: PortMode,
 }
@@ -141,7 +141,7 @@ fn where_the_cycle_time_goes() {
                     inputs: w.cycle_inputs(),
                     commands,
                     drive: w.drive(),
-                    servo: w.servo_code,
+                    latched: (w.enabled, w.sections_on, w.duties, w.servo_code),
                     ports: w.plant.port_mode,
                 });
             }
@@ -188,7 +188,11 @@ fn where_the_cycle_time_goes() {
             }
             let out = step.step(black_box(&now.inputs));
             if check {
-                assert_eq!(out.pwm, now.drive.duties, "cycle {}", now.inputs.t.0);
+                let (enabled, sections, duties, servo) = now.latched;
+                let latched = enabled.then_some((duties, sections));
+                let stepped = out.pwm.map(|d| (d, out.sections));
+                assert_eq!(stepped, latched, "cycle {}", now.inputs.t.0);
+                assert_eq!(out.servo, servo, "cycle {}", now.inputs.t.0);
             }
             black_box(out);
         }
@@ -204,11 +208,7 @@ fn where_the_cycle_time_goes() {
                 assert_eq!(w.cycle_inputs(), r.inputs, "cycle {}", w.cycle());
             }
             w.plant.port_mode = r.ports;
-            w.enabled = r.drive.duties.is_some();
-            if let Some(d) = r.drive.duties {
-                w.duties = d;
-            }
-            w.servo_code = r.servo;
+            (w.enabled, w.sections_on, w.duties, w.servo_code) = r.latched;
             w.advance();
         }
         black_box(w)

@@ -27,7 +27,7 @@ use embassy_stm32::pac::timer::TimAdv;
 use embassy_stm32::peripherals::{TIM1, TIM8};
 use embassy_stm32::timer::complementary_pwm::ComplementaryPwm;
 use fpc::ports::PwmOutput;
-use fpc::units::{PhaseDuties, Section};
+use fpc::units::{PerSection, PhaseDuties, Section};
 
 use super::clocks::SYSCLK_HZ;
 
@@ -198,10 +198,12 @@ impl PwmOutput for MotorPwm {
         super::safe_pwm_off();
     }
 
-    fn enable(&mut self) {
-        // Until the next update the previous duties (50 % at start) are still active.
+    fn enable(&mut self, sections: PerSection<bool>) {
+        // Until the next update the previous duties (50 % at start) are still active. Each
+        // section has its own timer, so its main output enable switches it alone.
         for section in Section::ALL {
-            timer(section).bdtr().modify(|w| w.set_moe(true));
+            let on = *sections.get(section);
+            timer(section).bdtr().modify(|w| w.set_moe(on));
         }
     }
 }

@@ -87,10 +87,9 @@ impl Bench {
             Some(d) => {
                 PwmOutput::write(io, Section::Master, d.master);
                 PwmOutput::write(io, Section::Slave, d.slave);
-                if !self.enabled {
-                    PwmOutput::enable(io);
-                    self.enabled = true;
-                }
+                // Idempotent on the simulated board: the sections in service every cycle.
+                PwmOutput::enable(io, out.sections);
+                self.enabled = true;
             }
             None => {
                 if self.enabled {
