@@ -337,10 +337,22 @@ impl<const N: usize> Deframer<N> {
         Ok(body)
     }
 
-    /// Counts a frame that passed framing but failed its payload check (typed readers).
-    pub fn reject_payload(&mut self) {
-        self.stats.accepted = self.stats.accepted.wrapping_sub(1);
-        self.stats.rejected = self.stats.rejected.wrapping_add(1);
+    /// As [`Deframer::push`], with the payload decoded by `decode` (the typed readers): a
+    /// frame that passed framing but whose payload `decode` refuses counts as rejected.
+    pub fn push_decoded<T>(
+        &mut self,
+        byte: u8,
+        decode: impl FnOnce(&[u8]) -> Result<T, FrameError>,
+    ) -> Option<Result<T, FrameError>> {
+        let decoded = match self.push(byte)? {
+            Ok(payload) => decode(payload),
+            Err(e) => return Some(Err(e)),
+        };
+        if decoded.is_err() {
+            self.stats.accepted = self.stats.accepted.wrapping_sub(1);
+            self.stats.rejected = self.stats.rejected.wrapping_add(1);
+        }
+        Some(decoded)
     }
 }
 
@@ -615,14 +627,7 @@ impl CommandReader {
 
     /// Feeds one byte; at the end of a frame returns the command or why it was rejected.
     pub fn push(&mut self, byte: u8) -> Option<Result<Command, FrameError>> {
-        let decoded = match self.deframer.push(byte)? {
-            Ok(payload) => decode_command(payload),
-            Err(e) => return Some(Err(e)),
-        };
-        if decoded.is_err() {
-            self.deframer.reject_payload();
-        }
-        Some(decoded)
+        self.deframer.push_decoded(byte, decode_command)
     }
 
     /// Frames accepted and rejected so far.

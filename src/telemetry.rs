@@ -230,14 +230,7 @@ impl TelemetryDecoder {
 
     /// Feeds one byte; at the end of a frame returns it, or why it was rejected.
     pub fn push(&mut self, byte: u8) -> Option<Result<Frame, FrameError>> {
-        let decoded = match self.deframer.push(byte)? {
-            Ok(payload) => Frame::from_payload(payload),
-            Err(e) => return Some(Err(e)),
-        };
-        if decoded.is_err() {
-            self.deframer.reject_payload();
-        }
-        Some(decoded)
+        self.deframer.push_decoded(byte, Frame::from_payload)
     }
 
     /// Frames accepted and rejected so far.

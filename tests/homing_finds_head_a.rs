@@ -50,13 +50,7 @@ fn home(
             let _ = shared.post_command(Command::Home);
         }
         disturb(w, &status);
-        let q = w
-            .plant
-            .current
-            .master
-            .q
-            .abs()
-            .max(w.plant.current.slave.q.abs());
+        let q = w.plant.largest_q_current_a();
         out.peak_current_a = out.peak_current_a.max(q);
         out.travel_m = out.travel_m.max(start_m - w.plant.x_m);
         if status.homed && out.at_s.is_none() {

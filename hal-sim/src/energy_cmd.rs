@@ -17,7 +17,7 @@ use serde::Serialize;
 use crate::analysis::{out_dir, read_log, read_model, sample_time_s, Steps, ZeroPhaseArgs};
 use crate::cli::{CmdResult, Failure};
 use crate::forces_cmd::{force_balance, ForceBalance};
-use crate::plot::{lines, Series};
+use crate::plot::curves;
 use crate::signal::strokes;
 
 /// Energy transformation during one stroke (Fig. 9).
@@ -142,17 +142,14 @@ pub fn main(args: EnergyArgs) -> CmdResult {
         ("gas force", kn(&fb.gas_n)),
         ("friction force", kn(&fb.friction_n)),
     ];
-    let series: Vec<Series> = forces
-        .iter()
-        .map(|(label, y)| Series { label, x, y })
-        .collect();
     let path = args.out.join("energy.svg");
-    lines(
+    curves(
         &path,
         "Forces along one stroke (Fig. 9)",
         "x, m",
         "force, kN",
-        &series,
+        x,
+        &forces,
     )
     .map_err(Failure::runtime)?;
     let cumulative = |f: &[f64]| -> Vec<f64> {
@@ -169,17 +166,14 @@ pub fn main(args: EnergyArgs) -> CmdResult {
         ("gas work on the piston", cumulative(&fb.gas_n)),
         ("friction work", cumulative(&fb.friction_n)),
     ];
-    let series: Vec<Series> = works
-        .iter()
-        .map(|(label, y)| Series { label, x, y })
-        .collect();
     let work_path = args.out.join("energy_work.svg");
-    lines(
+    curves(
         &work_path,
         "Work along one stroke",
         "x, m",
         "work, J",
-        &series,
+        x,
+        &works,
     )
     .map_err(Failure::runtime)?;
     steps.finish();

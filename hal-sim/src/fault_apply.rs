@@ -538,13 +538,7 @@ impl Injector {
                 r.faults.push((now, fault));
             }
         }
-        let q = w
-            .plant
-            .current
-            .master
-            .q
-            .abs()
-            .max(w.plant.current.slave.q.abs());
+        let q = w.plant.largest_q_current_a();
         r.peak_q_current_a = r.peak_q_current_a.max(q);
         let homed_hold = status.homed && status.mode == ModeKind::Holding;
         if homed_hold && r.zero_error_m.is_none() {

@@ -20,7 +20,7 @@ use crate::analysis::{
 };
 use crate::cli::{CmdResult, Failure};
 use crate::model::MachineModel;
-use crate::plot::{lines, Series};
+use crate::plot;
 use crate::runlog::RunLog;
 use crate::signal::{
     central_difference, filtfilt, firmware_derivatives, rms_difference, second_difference, strokes,
@@ -151,17 +151,14 @@ pub fn main(args: ForcesArgs) -> CmdResult {
         ("firmware Savitzky-Golay", kn(&fb.inertia_firmware_n)),
         ("expected inertia force", kn(&fb.expected_inertia_n)),
     ];
-    let series: Vec<Series> = curves
-        .iter()
-        .map(|(label, y)| Series { label, x: tw, y })
-        .collect();
     let path = args.out.join("forces.svg");
-    lines(
+    plot::curves(
         &path,
         "Inertia force from position (Fig. 8)",
         "t, s",
         "m·a, kN",
-        &series,
+        tw,
+        &curves,
     )
     .map_err(Failure::runtime)?;
     steps.finish();

@@ -1123,33 +1123,7 @@ mod tests {
     use super::*;
 
     /// The minimal file of `formats.md` §2.
-    pub const MINIMAL: &str = r#"
-[piston]
-mass_kg = 12.0
-bore_m = 0.090
-rod_m = 0.020
-travel_m = 0.205          # head to head; x in [0, travel_m]
-dead_length_a_m = 0.0005  # dead volume of chamber A as a length of bore
-dead_length_b_m = 0.0005
-
-[friction]
-coulomb_n = 40.0
-viscous_ns_per_m = 25.0
-# optional Stribeck: static_n, stribeck_velocity_mps, stribeck_exponent
-
-[gas]
-gamma = 1.4
-gas_constant_j_per_kg_k = 287.0
-temperature_k = 293.15
-ambient_pa = 101325.0
-
-[motor]
-pole_pitch_m = 0.012
-slave_follows_master = true   # the slave section is commanded with the master's force
-
-[encoder]
-period_m = 0.024
-"#;
+    pub const MINIMAL: &str = include_str!("../tests/data/minimal_model.toml");
 
     #[test]
     fn the_minimal_file_loads_with_reference_defaults_and_no_effects() {

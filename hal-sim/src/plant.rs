@@ -194,6 +194,11 @@ impl Plant {
         std::f64::consts::TAU * self.x_m / self.motors.electrical_period_m()
     }
 
+    /// The larger force-producing (q) current of the two sections, magnitude, A.
+    pub fn largest_q_current_a(&self) -> f64 {
+        self.current.master.q.abs().max(self.current.slave.q.abs())
+    }
+
     /// Phase currents of `section`, A.
     pub fn phase_currents(&self, section: Section) -> [f64; 3] {
         self.motors.phase_currents(section)

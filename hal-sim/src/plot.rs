@@ -14,6 +14,22 @@ pub struct Series<'a> {
     pub y: &'a [f64],
 }
 
+/// Draws named curves over one shared x axis as lines into an SVG at `path` (as [`lines`]).
+pub fn curves(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    x: &[f64],
+    curves: &[(&str, Vec<f64>)],
+) -> Result<(), String> {
+    let series: Vec<Series> = curves
+        .iter()
+        .map(|(label, y)| Series { label, x, y })
+        .collect();
+    lines(path, title, x_label, y_label, &series)
+}
+
 const COLORS: [RGBColor; 6] = [BLUE, RED, GREEN, MAGENTA, CYAN, BLACK];
 
 /// Draws `series` as lines into an SVG at `path`.
