@@ -3,14 +3,14 @@
 //! force during 4 m/s strokes — on a machine whose misalignment and current-sense offsets
 //! were calibrated, not given. The published rig's case is reproduced for contrast: the
 //! slave's drive following the master's force setpoint 0.75 ms late
-//! (`[motor] slave_follows_master = true`) gives the paper's lag and its force difference,
+//! (`[motor] slave_follows_master = true` with `[effects.slave_lag]` 0.75 ms) gives the paper's lag and its force difference,
 //! largest where the force changes fastest.
 
 mod drive_support;
 
 use drive_support::*;
 use fpc::calibration::Calibrated;
-use hal_sim::model::MachineModel;
+use hal_sim::model::{DelayEffect, MachineModel, PAPER_SLAVE_LAG_S};
 
 /// The true section forces over 4 strokes, from the cycle the first stroke is under way.
 struct Forces {
@@ -112,6 +112,9 @@ fn the_paper_s_following_slave_lags_and_the_forces_part_at_high_force_rates() {
     // The published rig: PR 5.1 at 4.1 m/s (Fig. 3), where the gas forces are largest.
     let mut model = MachineModel::reference();
     model.motor.slave_follows_master = true;
+    model.effects.slave_lag = Some(DelayEffect {
+        delay_s: PAPER_SLAVE_LAG_S,
+    });
     let paper = stroke(&model, &Calibrated::default(), 5.1, 4.1);
     paper.show("slave follows the master (the paper's rig), PR 5.1 at 4.1 m/s");
     println!(
@@ -126,6 +129,7 @@ fn the_paper_s_following_slave_lags_and_the_forces_part_at_high_force_rates() {
 
     // The same machine with this board commutating both sections: no lag, no difference.
     model.motor.slave_follows_master = false;
+    model.effects.slave_lag = None;
     let ours = stroke(&model, &Calibrated::default(), 5.1, 4.1);
     ours.show("both commutated by this board, same strokes");
     assert!(ours.lag_s() < 0.1e-3);

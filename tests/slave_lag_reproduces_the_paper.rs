@@ -1,9 +1,9 @@
-//! With `[motor] slave_follows_master = true` the slave section is driven as on the
+//! With `[motor] slave_follows_master = true` and the paper's `[effects.slave_lag]` the slave section is driven as on the
 //! published rig: its drive imposes the master's q-current 0.75 ms late. The logged forces
 //! then show the paper's lag (Fig. 4) and the master–slave force difference it causes
 //! (Fig. 5); our own commutation of both sections (the reference) shows neither.
 
-use hal_sim::model::MachineModel;
+use hal_sim::model::{DelayEffect, MachineModel, PAPER_SLAVE_LAG_S};
 use hal_sim::run::{run, RunOptions};
 
 /// (lag of f_slave behind f_master from the cross-correlation, s; peak |difference|, N;
@@ -11,6 +11,11 @@ use hal_sim::run::{run, RunOptions};
 fn forces(slave_follows_master: bool) -> (f64, f64, f64) {
     let mut model = MachineModel::reference();
     model.motor.slave_follows_master = slave_follows_master;
+    if slave_follows_master {
+        model.effects.slave_lag = Some(DelayEffect {
+            delay_s: PAPER_SLAVE_LAG_S,
+        });
+    }
     let opts = RunOptions {
         model,
         pressure_ratio: 5.1,

@@ -21,8 +21,10 @@ use serde::Deserialize;
 /// The reference machine's model file, embedded.
 pub const REFERENCE_TOML: &str = include_str!("reference.toml");
 
-/// Delay of the slave drive behind the master when the slave follows the master's force and
-/// no `[effects.slave_lag]` gives another, s (**P**: 0.75 ms, paper Fig. 4).
+/// Delay of the published rig's slave drive behind its master, s (**P**: 0.75 ms, paper
+/// Fig. 4): what `[effects.slave_lag] delay_s` is set to to simulate that rig. It is not a
+/// default: `slave_follows_master = true` alone means the slave is commanded with the
+/// master's force (`formats.md` §2), on time.
 pub const PAPER_SLAVE_LAG_S: f64 = 0.75e-3;
 
 /// `[piston]`.
@@ -1029,11 +1031,14 @@ impl MachineModel {
     }
 
     /// Delay of the slave section's force behind the master's, if the slave follows the
-    /// master (`[motor] slave_follows_master`, or `[effects.slave_lag]` present), s.
+    /// master (`[motor] slave_follows_master`, or `[effects.slave_lag]` present), s: the
+    /// effect's `delay_s`, or 0 when the slave follows with no `[effects.slave_lag]` (the
+    /// contract's nominal model: "commanded with the master's force" says nothing of a lag,
+    /// so a model without the effect must not carry one).
     pub fn slave_lag_s(&self) -> Option<f64> {
         match (&self.effects.slave_lag, self.motor.slave_follows_master) {
             (Some(l), _) => Some(l.delay_s),
-            (None, true) => Some(PAPER_SLAVE_LAG_S),
+            (None, true) => Some(0.0),
             (None, false) => None,
         }
     }
@@ -1131,7 +1136,7 @@ mod tests {
         assert!((m.piston_area_m2() - 6.05e-3).abs() < 0.05e-3);
         assert_eq!(m.ports, Ports::default());
         assert_eq!(m.effects, Effects::default());
-        assert_eq!(m.slave_lag_s(), Some(PAPER_SLAVE_LAG_S));
+        assert_eq!(m.slave_lag_s(), Some(0.0));
         let r = MachineModel::reference();
         assert!(r.cogging().is_some() && r.effects.leakage.is_some());
         assert_eq!(r.slave_lag_s(), None);

@@ -34,6 +34,11 @@ pub const PRESSURE_RATIO_RANGE: (f64, f64) = (1.0, 6.0);
 /// Accepted peak speeds, m/s.
 pub const SPEED_RANGE_MPS: (f64, f64) = (0.05, 4.5);
 
+/// How far the section forces in a run-log row lag its position, s (`# force_delay_s`):
+/// one control period — the firmware's status reports each section's force from the current
+/// measured in the previous cycle.
+pub const FIRMWARE_FORCE_DELAY_S: f64 = 50e-6;
+
 /// Options of a run.
 #[derive(Clone, Debug)]
 pub struct RunOptions {
@@ -355,6 +360,10 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
     log.meta.push(("sample_rate_hz".into(), "20000".into()));
     log.meta.push(("model".into(), opts.model_name.clone()));
     log.meta.push(("seed".into(), opts.seed.to_string()));
+    log.meta.push((
+        "force_delay_s".into(),
+        format!("{FIRMWARE_FORCE_DELAY_S:e}"),
+    ));
 
     let mut phase = Phase::Homing;
     let mut metrics = Metrics::default();

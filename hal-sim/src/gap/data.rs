@@ -25,6 +25,21 @@ pub const STOP_SPEED_MPS: f64 = 2e-3;
 /// tens of µs and stays in).
 pub const STOP_MIN_S: f64 = 5e-3;
 
+/// Widest alignment between the logged forces and the logged position a logging
+/// convention can explain, in sample periods either way: one period late (a firmware
+/// reporting last cycle's current), on time, half a period (a command held over the period
+/// acts, on average, half a period after its row).
+pub const ALIGN_WINDOW_SAMPLES: f64 = 1.5;
+
+/// The alignment taken for a log that does not declare `# force_delay_s`, in sample
+/// periods: the forces act half a period after their row — the common case of a sampled
+/// controller logging the command it holds over the next period. It is only the reference
+/// an actuator lag is reported from; the alignment itself is estimated ([`Measured`]).
+pub const UNDECLARED_ALIGN_SAMPLES: f64 = 0.5;
+
+/// Longest `# force_delay_s` accepted, s (a logging convention is samples, not strokes).
+pub const MAX_FORCE_DELAY_S: f64 = 10e-3;
+
 /// How the chambers were connected while the log was taken (`# ports = …`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PortsMeta {
@@ -64,6 +79,13 @@ pub struct Measured {
     pub p_discharge_pa: Option<Vec<f64>>,
     /// Port state of the run.
     pub ports: PortsMeta,
+    /// `# force_delay_s`, if the log declares how far its forces lag its position, s.
+    pub force_delay_s: Option<f64>,
+    /// How far the forces act behind the row they are logged in, by the log's convention
+    /// (a nuisance, not physics), s: `−force_delay_s` when declared, else estimated by the
+    /// workflow within ±[`ALIGN_WINDOW_SAMPLES`] (starting at
+    /// [`UNDECLARED_ALIGN_SAMPLES`]). The force balance realigns the forces by it.
+    pub force_align_s: f64,
     /// Differentiator window, samples.
     pub sg_window: usize,
     /// Velocity from the firmware's differentiator, centred, m/s.
@@ -127,6 +149,20 @@ impl Measured {
                 ))
             }
         };
+        let force_delay_s = match log.meta("force_delay_s").map(str::trim) {
+            None => None,
+            Some(v) => match v.parse::<f64>() {
+                Ok(d) if d.is_finite() && d.abs() <= MAX_FORCE_DELAY_S => Some(d),
+                _ => {
+                    return Err(format!(
+                        "metadata `# force_delay_s = {}`: must be a number of seconds within \
+                         ±{MAX_FORCE_DELAY_S}",
+                        v.chars().take(40).collect::<String>()
+                    ))
+                }
+            },
+        };
+        let force_align_s = force_delay_s.map_or(UNDECLARED_ALIGN_SAMPLES * dt_s, |d| -d);
         let x_m = col("x_m")?;
         let theta_rad = col("theta_rad")?;
         let fs = 1.0 / dt_s;
@@ -190,6 +226,8 @@ impl Measured {
             x_m,
             theta_rad,
             ports,
+            force_delay_s,
+            force_align_s,
             sg_window,
             v_mps,
             a_mps2,
@@ -229,6 +267,8 @@ impl Measured {
             p_suction_pa: self.p_suction_pa.as_ref().map(cut),
             p_discharge_pa: self.p_discharge_pa.as_ref().map(cut),
             ports: self.ports,
+            force_delay_s: self.force_delay_s,
+            force_align_s: self.force_align_s,
             sg_window: self.sg_window,
             v_mps: cut(&self.v_mps),
             a_mps2: cut(&self.a_mps2),

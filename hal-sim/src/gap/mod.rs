@@ -16,6 +16,7 @@
 //!
 //! [`synth`] makes the measured runs the proofs, the benchmark and the docs use.
 
+pub mod align;
 pub mod band;
 pub mod data;
 pub mod doc;
@@ -110,6 +111,11 @@ pub struct GapJson {
     pub model_out: String,
     /// Warnings (collinear candidates, channels not formed).
     pub warnings: Vec<String>,
+    /// How long the logged forces act after their row by the log's convention, s: the
+    /// declared `−force_delay_s`, or the fitted alignment ([`align`]).
+    pub force_align_s: f64,
+    /// Whether `force_align_s` was fitted (no `# force_delay_s` in the log).
+    pub force_align_fitted: bool,
 }
 
 /// Everything an analysis produced.
@@ -140,13 +146,49 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
             opts.band_hz
         )));
     }
-    let measured = Measured::from_log(log, model.encoder.period_m).map_err(Failure::bad_input)?;
+    let mut measured =
+        Measured::from_log(log, model.encoder.period_m).map_err(Failure::bad_input)?;
     let band = Band::new(&measured, opts.band_hz).map_err(Failure::runtime)?;
+    let mut fitted_alignment = if measured.force_delay_s.is_none() {
+        align::estimate(&measured, &band, &model)
+    } else {
+        None
+    };
+    if let Some(a) = fitted_alignment {
+        measured.force_align_s = a.used_s;
+    }
+    let mut selection = select(
+        &Ctx {
+            data: &measured,
+            band: &band,
+        },
+        &input,
+    )
+    .map_err(Failure::runtime)?;
+    // The alignment was fitted with the input model, whose missing effects bias it. Fit it
+    // again with the augmented model; if it moves, select again from the input model with
+    // the better alignment (once: the second fit sees the effects that biased the first).
+    if let Some(first) = fitted_alignment {
+        let augmented = selection.doc.model().map_err(Failure::runtime)?;
+        if let Some(second) = align::estimate(&measured, &band, &augmented) {
+            if (second.used_s - first.used_s).abs() > 0.05 * measured.dt_s {
+                measured.force_align_s = second.used_s;
+                fitted_alignment = Some(second);
+                selection = select(
+                    &Ctx {
+                        data: &measured,
+                        band: &band,
+                    },
+                    &input,
+                )
+                .map_err(Failure::runtime)?;
+            }
+        }
+    }
     let ctx = Ctx {
         data: &measured,
         band: &band,
     };
-    let selection = select(&ctx, &input).map_err(Failure::runtime)?;
     let model_text = format!(
         "# Augmented by `fpc-sim gap`: {}\n{}",
         if selection.added.is_empty() {
@@ -193,6 +235,8 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
             effects,
             model_out: String::new(),
             warnings,
+            force_align_s: measured.force_align_s,
+            force_align_fitted: fitted_alignment.is_some(),
         },
         model_text,
         input,

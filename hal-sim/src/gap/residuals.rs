@@ -204,12 +204,6 @@ impl Residual {
     }
 }
 
-/// How much older the section forces in a run-log row are than its position, s: the
-/// firmware's status reports each section's force from the current measured in the previous
-/// control cycle (`controller.rs`: "last cycle's state"), one control period behind the
-/// position sampled in the same cycle. The force balance realigns them.
-pub const FORCE_REPORT_LAG_S: f64 = fpc::units::CONTROL_PERIOD_S as f64;
-
 /// `x` shifted later by `samples` (fractional: linear interpolation; negative: earlier),
 /// holding the end values beyond the ends.
 pub fn shifted(x: &[f64], samples: f64) -> Vec<f64> {
@@ -238,7 +232,8 @@ pub fn shifted(x: &[f64], samples: f64) -> Vec<f64> {
 }
 
 /// The motor forces as they act on the piston at each row, N: the reported forces
-/// realigned by [`FORCE_REPORT_LAG_S`] and late by the model's actuator lag `delay_s`.
+/// realigned by the log's convention (`data.force_align_s`) and late by the model's
+/// actuator lag `delay_s`.
 pub fn acting_motor_force_n(data: &Measured, delay_s: f64) -> Vec<f64> {
     let motors: Vec<f64> = data
         .f_master_n
@@ -246,7 +241,7 @@ pub fn acting_motor_force_n(data: &Measured, delay_s: f64) -> Vec<f64> {
         .zip(&data.f_slave_n)
         .map(|(a, b)| a + b)
         .collect();
-    shifted(&motors, (delay_s - FORCE_REPORT_LAG_S) / data.dt_s)
+    shifted(&motors, (delay_s + data.force_align_s) / data.dt_s)
 }
 
 /// Axial friction of the turning piston, N: the law at the sliding speed `|(v, ω·r)|`,

@@ -5,9 +5,10 @@
 //!
 //! **Significance.** An effect is added only if both hold:
 //! - the Bayesian information criterion improves by at least [`MIN_DELTA_BIC`]:
-//!   `ΔBIC = n·ln(RSS₀/RSS₁) − k·ln n` over the channel's kept samples (decimated to about
-//!   one per half period of the band edge, so that the noise left is roughly independent from
-//!   sample to sample and `n` counts independent evidence);
+//!   `ΔBIC = n_eff·ln(RSS₀/RSS₁) − k·ln n_eff` over the channel's kept samples (decimated to
+//!   about one per half period of the band edge), with `n_eff` the effective number of
+//!   independent samples of what is left after the fit ([`effective_n`]): the residual is
+//!   coloured (differentiator, band filter, controller), and raw counts over-count evidence;
 //! - it explains at least [`MIN_EXPLAINED_TOTAL`] of the channel's residual sum of squares,
 //!   and at least [`MIN_EXPLAINED`] of it *where it acts* (the kept samples where it changes
 //!   the residual by more than a tenth of its largest change): practical floors, so that a
@@ -148,7 +149,7 @@ pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual)
         }
     }
     let explained = if s0 > 0.0 { (s0 - s1) / s0 } else { 0.0 };
-    let nf = n as f64;
+    let nf = effective_n(&after.kept);
     let delta_bic = if rss_after > 0.0 && rss_before > 0.0 {
         nf * (rss_before / rss_after).ln() - proposal.k as f64 * nf.ln()
     } else {
@@ -171,6 +172,50 @@ pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual)
         resolution: resolution(kind.channel(), &model),
         change,
     })
+}
+
+/// The number of independent samples a residual's kept samples are worth: `n / (1 + 2·Σρ_k)`
+/// over its autocorrelation's initial positive sequence (Geyer's estimator).
+///
+/// What is left after a fit is not white: the differentiator and the band filter smooth
+/// it, a controller colours it, and a slightly wrong model leaves slow patterns. Counting
+/// raw samples in the BIC then over-counts the evidence in proportion to the sample rate
+/// and the smoothing, so that null logs at 20 kHz named effects that 5 kHz logs did not;
+/// the effective count makes `ΔBIC` the same evidence at any rate.
+pub fn effective_n(kept: &[f64]) -> f64 {
+    let n = kept.len();
+    if n < 4 {
+        return n as f64;
+    }
+    let mean = kept.iter().sum::<f64>() / n as f64;
+    let c: Vec<f64> = kept.iter().map(|v| v - mean).collect();
+    let g0 = sumsq_of(&c);
+    if g0 <= 0.0 {
+        return n as f64;
+    }
+    let rho = |k: usize| -> f64 {
+        c.iter()
+            .zip(c.iter().skip(k))
+            .map(|(a, b)| a * b)
+            .sum::<f64>()
+            / g0
+    };
+    // Sum pairs ρ(2m−1) + ρ(2m) while they stay positive (the initial positive sequence).
+    let mut sum = 0.0;
+    let mut k = 1;
+    while k + 1 < n / 4 {
+        let pair = rho(k) + rho(k + 1);
+        if pair <= 0.0 {
+            break;
+        }
+        sum += pair;
+        k += 2;
+    }
+    (n as f64 / (1.0 + 2.0 * sum)).clamp(2.0, n as f64)
+}
+
+fn sumsq_of(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum()
 }
 
 /// Judgements by candidate, with the channel residual they were made on.

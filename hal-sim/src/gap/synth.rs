@@ -190,9 +190,13 @@ fn prescribed(
     ));
     log.meta
         .push(("sample_rate_hz".into(), (1.0 / dt).round().to_string()));
+    log.meta.push((
+        "force_delay_s".into(),
+        format!("{:e}", crate::run::FIRMWARE_FORCE_DELAY_S),
+    ));
     let mut lagged = [plant.chambers.a.pressure_pa, plant.chambers.b.pressure_pa];
     // The drives' forces are reported as the firmware reports them: one control period
-    // behind the row's position (`gap::residuals::FORCE_REPORT_LAG_S`).
+    // behind the row's position (declared as `# force_delay_s`).
     let mut reported: Option<f64> = None;
     let steps = (end_s / dt).round() as usize;
     for k in 0..=steps {
