@@ -24,6 +24,9 @@ pub const REQUIRED: [&str; 8] = [
 /// Fewest data rows a reader accepts.
 pub const MIN_ROWS: usize = 100;
 
+/// The first two bytes of a gzip stream (RFC 1952).
+const GZIP_MAGIC: [u8; 2] = [0x1f, 0x8b];
+
 /// A run log in memory: metadata and named columns of equal length.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct RunLog {
@@ -144,12 +147,31 @@ impl RunLog {
         std::fs::write(path, self.to_csv())
     }
 
-    /// Reads and validates a run log from `path`.
+    /// Reads and validates a run log from `path`, gzipped or not (recognised by the gzip
+    /// magic bytes, whatever the file is called).
     pub fn read(path: &Path) -> Result<RunLog, LogError> {
-        let text = std::fs::read_to_string(path).map_err(|e| LogError {
+        let fail = |what: String| LogError {
             line: 0,
             column: None,
-            message: format!("cannot read {}: {e}", path.display()),
+            message: format!("cannot read {}: {what}", path.display()),
+        };
+        let bytes = std::fs::read(path).map_err(|e| fail(e.to_string()))?;
+        let bytes = if bytes.starts_with(&GZIP_MAGIC) {
+            let mut out = Vec::new();
+            std::io::Read::read_to_end(
+                &mut flate2::read::MultiGzDecoder::new(&bytes[..]),
+                &mut out,
+            )
+            .map_err(|e| fail(format!("not a valid gzip stream ({e})")))?;
+            out
+        } else {
+            bytes
+        };
+        let text = String::from_utf8(bytes).map_err(|e| {
+            fail(format!(
+                "not UTF-8 text (invalid byte at offset {})",
+                e.utf8_error().valid_up_to()
+            ))
         })?;
         Self::parse(&text)
     }
