@@ -79,6 +79,10 @@ pub struct Measured {
     pub p_discharge_pa: Option<Vec<f64>>,
     /// Port state of the run.
     pub ports: PortsMeta,
+    /// `# ports_from_s`: the time from which `ports` holds, s; before it both chambers
+    /// breathe to the suction line through their intakes (the start-up unloader of our own
+    /// runs, `PortMode::Unloaded`). Absent: `ports` holds for the whole log.
+    pub ports_from_s: Option<f64>,
     /// `# force_delay_s`, if the log declares how far its forces lag its position, s.
     pub force_delay_s: Option<f64>,
     /// How far the forces act behind the row they are logged in, by the log's convention
@@ -162,6 +166,18 @@ impl Measured {
                 }
             },
         };
+        let ports_from_s = match log.meta("ports_from_s").map(str::trim) {
+            None => None,
+            Some(v) => match v.parse::<f64>() {
+                Ok(t) if t.is_finite() => Some(t),
+                _ => {
+                    return Err(format!(
+                        "metadata `# ports_from_s = {}`: must be a time in seconds",
+                        v.chars().take(40).collect::<String>()
+                    ))
+                }
+            },
+        };
         let force_align_s = force_delay_s.map_or(UNDECLARED_ALIGN_SAMPLES * dt_s, |d| -d);
         let x_m = col("x_m")?;
         let theta_rad = col("theta_rad")?;
@@ -226,6 +242,7 @@ impl Measured {
             x_m,
             theta_rad,
             ports,
+            ports_from_s,
             force_delay_s,
             force_align_s,
             sg_window,
@@ -267,6 +284,7 @@ impl Measured {
             p_suction_pa: self.p_suction_pa.as_ref().map(cut),
             p_discharge_pa: self.p_discharge_pa.as_ref().map(cut),
             ports: self.ports,
+            ports_from_s: self.ports_from_s,
             force_delay_s: self.force_delay_s,
             force_align_s: self.force_align_s,
             sg_window: self.sg_window,
@@ -369,4 +387,46 @@ fn moving_mask(v_mps: &[f64], inner: &[f64], dt_s: f64, window: usize) -> Vec<f6
         }
     }
     w
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 1 kHz log of a slow sine stroke with the given metadata.
+    fn log(meta: &[(&str, &str)]) -> RunLog {
+        let mut log = RunLog::with_columns(&crate::runlog::REQUIRED);
+        for (k, v) in meta {
+            log.meta.push(((*k).into(), (*v).into()));
+        }
+        for i in 0..2000 {
+            let t = i as f64 * 1e-3;
+            let x = 0.1 + 0.05 * (std::f64::consts::TAU * t).sin();
+            log.push_row(&[t, x, x, 0.0, 0.0, 0.0, 1e5, 1e5]);
+        }
+        log
+    }
+
+    #[test]
+    fn the_log_s_timing_metadata_is_read_or_refused_by_name() {
+        let m = Measured::from_log(&log(&[]), 0.024).unwrap();
+        assert_eq!(m.force_delay_s, None);
+        assert!((m.force_align_s - UNDECLARED_ALIGN_SAMPLES * 1e-3).abs() < 1e-12);
+        let m = Measured::from_log(
+            &log(&[("force_delay_s", "5e-5"), ("ports_from_s", "0.5")]),
+            0.024,
+        )
+        .unwrap();
+        assert_eq!(m.force_delay_s, Some(5e-5));
+        assert!((m.force_align_s + 5e-5).abs() < 1e-15);
+        assert_eq!(m.ports_from_s, Some(0.5));
+        for (key, value) in [
+            ("force_delay_s", "1"),
+            ("force_delay_s", "soon"),
+            ("ports_from_s", "NaN"),
+        ] {
+            let e = Measured::from_log(&log(&[(key, value)]), 0.024).unwrap_err();
+            assert!(e.contains(key), "{e}");
+        }
+    }
 }

@@ -388,6 +388,10 @@ pub fn replay_pressures(data: &Measured, model: &MachineModel) -> Option<(Vec<f6
             let at = |v: &[f64], k: usize| v.get(k).copied().unwrap_or(0.0);
             let (x1, x2) = (at(&data.x_m, i - 1), at(&data.x_m, i));
             let (t1, t2) = (at(&data.theta_rad, i - 1), at(&data.theta_rad, i));
+            let mode = match data.ports_from_s {
+                Some(from) if at(&data.t_s, i) <= from => PortMode::Unloaded,
+                _ => mode,
+            };
             for k in 1..=substeps {
                 let f = k as f64 / substeps as f64;
                 let x = x1 + f * (x2 - x1);
