@@ -31,6 +31,10 @@ fn log_text(ports: Option<&str>) -> String {
 }
 
 fn gap(dir: &Path, model: &str, log: &str) -> (u8, String, bool) {
+    gap_band(dir, model, log, 300.0)
+}
+
+fn gap_band(dir: &Path, model: &str, log: &str, band_hz: f64) -> (u8, String, bool) {
     let (m, l, out) = (dir.join("model.toml"), dir.join("run.csv"), dir.join("out"));
     std::fs::write(&m, model).unwrap();
     std::fs::write(&l, log).unwrap();
@@ -39,7 +43,7 @@ fn gap(dir: &Path, model: &str, log: &str) -> (u8, String, bool) {
         measured: l,
         out: out.clone(),
         json: false,
-        band_hz: 300.0,
+        band_hz,
     });
     match r {
         Ok(()) => (0, String::new(), out.exists()),
@@ -99,6 +103,43 @@ fn gap_refuses_bad_logs_naming_line_and_column() {
         assert!(msg.contains(want), "`{msg}` should contain {want}");
         assert!(!wrote, "nothing may be written on bad input");
     }
+}
+
+/// The little log with every time stamp scaled by `k` (its step 1e-4·k s).
+fn rescaled_time(k: f64) -> String {
+    let mut log = RunLog::parse(&log_text(Some("closed"))).unwrap();
+    if let Some(t) = log.columns.first_mut() {
+        t.iter_mut().for_each(|v| *v *= k);
+    }
+    log.to_csv()
+}
+
+#[test]
+fn gap_refuses_values_and_rates_no_machine_logs_without_hanging() {
+    let dir = scratch("implausible");
+    let good = log_text(None);
+    let mut far = good.lines().map(str::to_string).collect::<Vec<_>>();
+    // One large finite position (it used to reach the least-squares SVD as NaN).
+    far[500] = "0.0499,1e20,0.1,0,10,10,1e5,1e5".into();
+    let mut force = good.lines().map(str::to_string).collect::<Vec<_>>();
+    force[700] = "0.0699,0.1,0.1,0,1e12,10,1e5,1e5".into();
+    let started = std::time::Instant::now();
+    for (bad, band, want) in [
+        (far.join("\n"), 300.0, "column `x_m`, data row 500"),
+        (force.join("\n"), 300.0, "column `f_master_n`"),
+        // 1 s steps (the chamber replay's cost grew with the duration, not the rows) …
+        (rescaled_time(1e4), 300.0, "sample rate"),
+        // … and 1e-12 s steps (everything was "nothing missing", every RMS 0).
+        (rescaled_time(1e-8), 300.0, "sample rate"),
+        // A band above the log's Nyquist frequency (5 kHz at 10 kHz).
+        (good.clone(), 6000.0, "Nyquist"),
+    ] {
+        let (code, msg, wrote) = gap_band(&dir, REFERENCE_TOML, &bad, band);
+        assert_eq!(code, 2, "{msg}");
+        assert!(msg.contains(want), "`{msg}` should contain {want}");
+        assert!(!wrote, "nothing may be written on bad input");
+    }
+    assert!(started.elapsed().as_secs() < 20, "{:?}", started.elapsed());
 }
 
 #[test]

@@ -40,6 +40,18 @@ pub const UNDECLARED_ALIGN_SAMPLES: f64 = 0.5;
 /// Longest `# force_delay_s` accepted, s (a logging convention is samples, not strokes).
 pub const MAX_FORCE_DELAY_S: f64 = 10e-3;
 
+/// Slowest sample rate the workflow analyses, Hz: its differentiator spans 2 ms and needs
+/// at least 5 samples there; a coarser log cannot resolve a stroke's acceleration.
+pub const MIN_SAMPLE_RATE_HZ: f64 = 2_000.0;
+
+/// Fastest sample rate accepted, Hz: far above any drive's logger (the time column of a
+/// faster log is more likely in the wrong unit).
+pub const MAX_SAMPLE_RATE_HZ: f64 = 1.0e6;
+
+/// How far outside the heads a logged position may lie, m (encoder noise, homing offset):
+/// beyond it the row is not a position of this machine.
+pub const POSITION_MARGIN_M: f64 = 0.01;
+
 /// How the chambers were connected while the log was taken (`# ports = …`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PortsMeta {
@@ -143,6 +155,13 @@ impl Measured {
             (Some(a), Some(b)) if n > 1 && b > a => (b - a) / (n - 1) as f64,
             _ => return Err("column `t_s`: no usable time step".into()),
         };
+        let rate = 1.0 / dt_s;
+        if !(MIN_SAMPLE_RATE_HZ..=MAX_SAMPLE_RATE_HZ).contains(&rate) {
+            return Err(format!(
+                "column `t_s`: sample rate {rate:.6e} Hz; the workflow analyses logs sampled at \
+                 {MIN_SAMPLE_RATE_HZ} Hz to {MAX_SAMPLE_RATE_HZ:e} Hz"
+            ));
+        }
         let ports = match log.meta("ports").map(str::trim) {
             Some("closed") => PortsMeta::Closed,
             Some("open") => PortsMeta::Open,
@@ -254,6 +273,38 @@ impl Measured {
             inner,
             segments,
         })
+    }
+
+    /// Refuses a log that is not of the machine `model` describes, naming the first row
+    /// (counted from 1 over the data rows) that is not: a position outside the heads by more
+    /// than [`POSITION_MARGIN_M`], a force beyond ten times the sections' peak, a pressure
+    /// outside 0–100 MPa. Such values are not noise: left in, they poison every fit.
+    pub fn check_against(&self, model: &crate::model::MachineModel) -> Result<(), String> {
+        let travel = model.piston.travel_m;
+        let (lo, hi) = (-POSITION_MARGIN_M, travel + POSITION_MARGIN_M);
+        let force_max = 10.0 * model.limits.force_limit_n.abs().max(1.0);
+        let checks: [(&str, &[f64], f64, f64); 6] = [
+            ("x_m", &self.x_m, lo, hi),
+            ("x_slave_m", &self.x_slave_m, lo, hi),
+            ("f_master_n", &self.f_master_n, -force_max, force_max),
+            ("f_slave_n", &self.f_slave_n, -force_max, force_max),
+            ("p_a_pa", &self.p_a_pa, 0.0, 1e8),
+            ("p_b_pa", &self.p_b_pa, 0.0, 1e8),
+        ];
+        for (name, column, lo, hi) in checks {
+            if let Some((row, v)) = column
+                .iter()
+                .enumerate()
+                .find(|(_, v)| !(lo..=hi).contains(*v))
+            {
+                return Err(format!(
+                    "column `{name}`, data row {}: {v:e} is outside {lo:e}…{hi:e} for this \
+                     machine",
+                    row + 1
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// The first `n` samples (for the pressure candidates' parameter searches, which replay

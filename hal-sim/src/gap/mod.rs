@@ -148,6 +148,14 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
     }
     let mut measured =
         Measured::from_log(log, model.encoder.period_m).map_err(Failure::bad_input)?;
+    measured.check_against(&model).map_err(Failure::bad_input)?;
+    let nyquist = 0.5 * measured.sample_rate_hz();
+    if opts.band_hz >= nyquist {
+        return Err(Failure::bad_input(format!(
+            "--band-hz {}: must be below the log's Nyquist frequency, {nyquist} Hz",
+            opts.band_hz
+        )));
+    }
     let band = Band::new(&measured, opts.band_hz).map_err(Failure::runtime)?;
     let mut fitted_alignment = if measured.force_delay_s.is_none() {
         align::estimate(&measured, &band, &model)
