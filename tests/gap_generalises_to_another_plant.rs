@@ -337,3 +337,22 @@ fn the_independent_plant_logs_what_it_should() {
         "the sealed chamber compresses"
     );
 }
+
+/// Writes one case's log and nominal model for `fpc-sim gap`, to look at a failure:
+/// `FPC_CASE=1012:slave_lag cargo test --test gap_generalises_to_another_plant
+/// write_one_case -- --ignored --nocapture` (effects comma-separated, none for a null case).
+#[test]
+#[ignore = "a tool: writes the case named by FPC_CASE"]
+fn write_one_case() {
+    let spec = std::env::var("FPC_CASE").unwrap_or_else(|_| "1000:".into());
+    let (seed, effects) = spec.split_once(':').unwrap_or((&spec, ""));
+    let seed: u64 = seed.parse().expect("FPC_CASE=SEED:effect,effect");
+    let effects: Vec<&str> = effects.split(',').filter(|e| !e.is_empty()).collect();
+    let case = draw_case(seed, &effects);
+    let g = generate(&case);
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("case-{seed}"));
+    std::fs::create_dir_all(&dir).expect("case directory");
+    std::fs::write(dir.join("run.csv"), &g.csv).expect("run.csv");
+    std::fs::write(dir.join("model.toml"), &g.model_toml).expect("model.toml");
+    println!("{case:?}\nwrote {}", dir.display());
+}

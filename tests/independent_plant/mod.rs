@@ -207,8 +207,8 @@ pub fn needs(effect: &str) -> (Option<Chambers>, Option<Trajectory>) {
 
 /// Draws an effect's true parameters above its detection floor:
 /// mass ±8–25 %, Coulomb ±15–40 N, viscous ±20–80 N·s/m, Stribeck 25–80 N above Coulomb at
-/// 5–40 mm/s, cogging 15–60 N at the pole or N–N pitch, lags 0.4–1.5 ms (actuator) and
-/// 0.4–1.5 ms (slave), pitch error 10–40 µm, leak gap 15–40 µm, UA 1–20 W/K.
+/// 5–40 mm/s (logs with creeping moves at 8–60 mm/s), cogging 15–60 N at the pole or N–N pitch, lags 0.4–1.5 ms (actuator) and
+/// 0.4–1.5 ms (slave), both on the log's grid, pitch error 10–40 µm, leak gap 15–40 µm, UA 1–20 W/K.
 pub fn draw_effect(effect: &str, nominal: &Nominal, rng: &mut ChaCha8Rng) -> Hidden {
     let sign = |rng: &mut ChaCha8Rng| if rng.random_bool(0.5) { 1.0 } else { -1.0 };
     match effect {
@@ -288,9 +288,20 @@ pub fn draw_case(seed: u64, effects: &[&str]) -> Case {
             trajectory = t;
         }
     }
+    // The drives and the logger share the log's grid: a delay is a whole number of periods
+    // (as the field logs' are: 1.0 ms at 10 kHz).
+    let on_grid = |d: f64| (d * rate_hz).round().max(1.0) / rate_hz;
     let hidden = effects
         .iter()
-        .map(|e| draw_effect(e, &nominal, &mut rng))
+        .map(|e| match draw_effect(e, &nominal, &mut rng) {
+            Hidden::ActuatorLag { delay_s } => Hidden::ActuatorLag {
+                delay_s: on_grid(delay_s),
+            },
+            Hidden::SlaveLag { delay_s } => Hidden::SlaveLag {
+                delay_s: on_grid(delay_s),
+            },
+            h => h,
+        })
         .collect();
     Case {
         seed,
@@ -522,13 +533,29 @@ impl Path {
             Trajectory::HoldsAndMoves => {
                 let mut x = mid;
                 while t < 4.0 {
-                    let target = mid + rng.random_range(-1.0..1.0) * span;
-                    let v: f64 = if rng.random_bool(0.4) {
-                        rng.random_range(0.03..0.2)
+                    // Creeping moves (where Stribeck friction lives: 4–15 mm) and brisk ones.
+                    let creep = rng.random_bool(0.4);
+                    let target = if creep {
+                        let step = rng.random_range(0.004..0.015);
+                        if x + step <= mid + span && (x - step < mid - span || rng.random_bool(0.5))
+                        {
+                            x + step
+                        } else {
+                            x - step
+                        }
+                    } else {
+                        mid + rng.random_range(-1.0..1.0) * span
+                    };
+                    let v: f64 = if creep {
+                        rng.random_range(0.008..0.06)
                     } else {
                         rng.random_range(0.3..1.8)
                     };
-                    let acc: f64 = rng.random_range(5.0..30.0);
+                    let acc: f64 = if creep {
+                        rng.random_range(0.5..3.0)
+                    } else {
+                        rng.random_range(5.0..30.0)
+                    };
                     let d = (target - x).abs();
                     let ta = (v / acc).min((d / acc).sqrt());
                     let len =
@@ -658,7 +685,8 @@ pub fn generate(case: &Case) -> Generated {
         if t < 0.0 {
             return 0.0;
         }
-        let k = (t / dt).floor() as usize;
+        // The grid's own index: a time on the grid must not round down to the sample before.
+        let k = (t / dt + 1e-6).floor() as usize;
         cmd.get(k).or(cmd.last()).copied().unwrap_or(0.0)
     };
     let mut csv = String::with_capacity(steps * 80);

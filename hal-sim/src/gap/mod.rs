@@ -44,6 +44,9 @@ use select::{select, Selection};
 /// (4 m/s / 24 mm = 170 Hz), below the differentiator's noise.
 pub const DEFAULT_BAND_HZ: f64 = 300.0;
 
+/// Most times the selection is run again with a refitted force alignment.
+pub const MAX_ALIGNMENT_PASSES: usize = 3;
+
 /// Stribeck's region, in Stribeck velocities: where its residual RMS is reported.
 pub const STRIBECK_REGION: f64 = 3.0;
 
@@ -174,24 +177,34 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
     )
     .map_err(Failure::runtime)?;
     // The alignment was fitted with the input model, whose missing effects bias it. Fit it
-    // again with the augmented model; if it moves, select again from the input model with
-    // the better alignment (once: the second fit sees the effects that biased the first).
-    if let Some(first) = fitted_alignment {
-        let augmented = selection.doc.model().map_err(Failure::runtime)?;
-        if let Some(second) = align::estimate(&measured, &band, &augmented) {
-            if (second.used_s - first.used_s).abs() > 0.05 * measured.dt_s {
-                measured.force_align_s = second.used_s;
-                fitted_alignment = Some(second);
-                selection = select(
-                    &Ctx {
-                        data: &measured,
-                        band: &band,
-                    },
-                    &input,
-                )
-                .map_err(Failure::runtime)?;
-            }
+    // again with the augmented model — less any actuator lag, which is the same shift and
+    // may only have been added to make up for a biased alignment — and, if it moved, select
+    // again from the input model with it, until it settles (a few passes at most).
+    for _ in 0..MAX_ALIGNMENT_PASSES {
+        let Some(previous) = fitted_alignment else {
+            break;
+        };
+        let augmented = selection
+            .doc
+            .with(&[doc::Edit::RemoveSection("effects.actuator_lag")])
+            .model()
+            .map_err(Failure::runtime)?;
+        let Some(next) = align::estimate(&measured, &band, &augmented) else {
+            break;
+        };
+        if (next.used_s - previous.used_s).abs() <= 0.05 * measured.dt_s {
+            break;
         }
+        measured.force_align_s = next.used_s;
+        fitted_alignment = Some(next);
+        selection = select(
+            &Ctx {
+                data: &measured,
+                band: &band,
+            },
+            &input,
+        )
+        .map_err(Failure::runtime)?;
     }
     let ctx = Ctx {
         data: &measured,
