@@ -258,8 +258,10 @@ fn viscous(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let y = force_kept(ctx, doc)?;
     let neg: Vec<f64> = ctx.data.v_mps.iter().map(|v| -v).collect();
     let delta = one_coefficient(ctx, &y, &neg)?;
-    let b = doc.number("friction", "viscous_ns_per_m")? + delta;
-    (b >= 0.0).then(|| Proposal {
+    // A viscous coefficient is not negative: a fit below zero (a machine with almost none,
+    // and noise) is held at zero rather than dropped.
+    let b = (doc.number("friction", "viscous_ns_per_m")? + delta).max(0.0);
+    Some(Proposal {
         kind: EffectKind::ViscousFriction,
         params: vec![("viscous_ns_per_m", b)],
         edits: vec![Edit::Set("friction", "viscous_ns_per_m", b)],

@@ -4,7 +4,7 @@
 //! | channel | residual (sample-wise, before the band filter) |
 //! |---|---|
 //! | `force` | `m·Δ²x − (F_master + F_slave [realigned to the row's time, delayed by the actuator lag] + (p_A − p_B)·A_eff − F_fr(v, ω) + F_cog(x))`, smoothed by the force kernel: the force no model term explains, toward +x |
-//! | `slave_force` | `F_slave − F_master` delayed by the model's slave lag (none: not delayed) |
+//! | `slave_force` | `F_slave − F_master` delayed by the model's slave lag (none: not delayed), judged while moving |
 //! | `encoder` | `x_slave − x_master` minus the model's pitch error, judged while moving, mean removed per stretch of motion (a constant offset between the encoders is a zero, not an effect, and homing may set it anew at each standstill) |
 //! | `pressure` | `p_A, p_B` minus the chambers replayed along the measured x(t) (and rotation, with open ports) through the model's chambers and pressure sensors |
 //!
@@ -84,9 +84,10 @@ pub struct Band {
     pub stride: usize,
     /// Where the force channel is judged (1) or not (0).
     pub mask_force: Vec<f64>,
-    /// Where the encoder channel is judged (while moving, like the force channel).
+    /// Where the encoder and slave-force channels are judged (while moving, like the force
+    /// channel).
     pub mask_encoder: Vec<f64>,
-    /// Where the slave-force and pressure channels are judged.
+    /// Where the pressure channel is judged.
     pub mask_inner: Vec<f64>,
     /// Kept samples of the force channel.
     pub idx_force: Vec<usize>,
@@ -151,7 +152,11 @@ impl Band {
     fn route(&self, ch: ChannelId) -> (&Kernel, &[f64], &[usize]) {
         match ch {
             ChannelId::Force => (&self.force, &self.mask_force, &self.idx_force),
-            ChannelId::Encoder => (&self.plain, &self.mask_encoder, &self.idx_encoder),
+            // The slave force says something of a lag only while the force changes: in a
+            // hold both sections push alike and only dilute it with noise.
+            ChannelId::Encoder | ChannelId::SlaveForce => {
+                (&self.plain, &self.mask_encoder, &self.idx_encoder)
+            }
             _ => (&self.plain, &self.mask_inner, &self.idx_inner),
         }
     }

@@ -11,11 +11,14 @@
 //!   coloured (differentiator, band filter, controller), and raw counts over-count evidence;
 //! - it explains at least [`MIN_EXPLAINED_TOTAL`] of the channel's residual sum of squares,
 //!   and at least [`MIN_EXPLAINED`] of it *where it acts* (the kept samples where it changes
-//!   the residual by more than a tenth of its largest change): practical floors, so that a
+//!   the residual by more than a tenth of its typical largest change): practical floors, so that a
 //!   systematic but negligible mismatch (a logging offset of one sample, the rotation's
 //!   quantised speed in the friction near a reversal) is not named on long, quiet logs;
 //! - it changes the channel's residual by more than the channel's resolution
 //!   ([`resolution`]: what the sensors behind it can tell apart) in RMS.
+//!
+//! "Where it acts" is where the change exceeds a tenth of its 98th percentile
+//! ([`robust_peak`]), not of its largest value.
 //!
 //! **Collinearity.** Two candidates of one channel whose changes to the residual correlate
 //! by more than [`COLLINEAR`], and that explain nearly as much (the other at least half of
@@ -139,7 +142,7 @@ pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual)
         .zip(&before.kept)
         .map(|(a, b)| a - b)
         .collect();
-    let peak = change.iter().fold(0.0f64, |m, c| m.max(c.abs()));
+    let peak = robust_peak(&change);
     let (mut s0, mut s1, mut support) = (0.0, 0.0, 0usize);
     for ((c, b), a) in change.iter().zip(&before.kept).zip(&after.kept) {
         if peak > 0.0 && c.abs() > 0.1 * peak {
@@ -216,6 +219,19 @@ pub fn effective_n(kept: &[f64]) -> f64 {
 
 fn sumsq_of(v: &[f64]) -> f64 {
     v.iter().map(|x| x * x).sum()
+}
+
+/// The size of a change "where it acts": the 98th percentile of its magnitude. The largest
+/// value alone is the wrong yardstick: a lag's change follows dF/dt, and a handful of
+/// Coulomb reversals make spikes that would shrink "where it acts" to a few samples.
+pub fn robust_peak(change: &[f64]) -> f64 {
+    let mut mags: Vec<f64> = change.iter().map(|c| c.abs()).collect();
+    if mags.is_empty() {
+        return 0.0;
+    }
+    let k = ((mags.len() - 1) as f64 * 0.98).round() as usize;
+    let (_, v, _) = mags.select_nth_unstable_by(k, f64::total_cmp);
+    *v
 }
 
 /// Judgements by candidate, with the channel residual they were made on.
