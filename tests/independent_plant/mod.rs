@@ -266,7 +266,7 @@ pub fn draw_effect(effect: &str, nominal: &Nominal, rng: &mut ChaCha8Rng) -> Hid
 
 /// Draws a case hiding `effects` (empty: a null case).
 pub fn draw_case(seed: u64, effects: &[&str]) -> Case {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_0f_a11);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0005_eed0_fa11);
     let nominal = Nominal::draw(&mut rng);
     let rate_hz = [5_000.0, 10_000.0, 20_000.0][rng.random_range(0..3usize)];
     let mut chambers = if rng.random_bool(0.5) {
@@ -279,6 +279,12 @@ pub fn draw_case(seed: u64, effects: &[&str]) -> Case {
         Trajectory::Trapezoid,
         Trajectory::HoldsAndMoves,
     ][rng.random_range(0..3usize)];
+    // A lag shows in proportion to the force's rate: a log of holds and creeping moves can
+    // leave it below what the drives resolve, so lags get brisk strokes unless another
+    // effect needs the holds.
+    if effects.iter().any(|e| e.ends_with("_lag")) && trajectory == Trajectory::HoldsAndMoves {
+        trajectory = Trajectory::Trapezoid;
+    }
     for e in effects {
         let (c, t) = needs(e);
         if let Some(c) = c {
