@@ -444,14 +444,14 @@ fn moving_mask(v_mps: &[f64], inner: &[f64], dt_s: f64, window: usize) -> Vec<f6
 mod tests {
     use super::*;
 
-    /// A 1 kHz log of a slow sine stroke with the given metadata.
+    /// A 5 kHz log of a sine stroke with the given metadata.
     fn log(meta: &[(&str, &str)]) -> RunLog {
         let mut log = RunLog::with_columns(&crate::runlog::REQUIRED);
         for (k, v) in meta {
             log.meta.push(((*k).into(), (*v).into()));
         }
         for i in 0..2000 {
-            let t = i as f64 * 1e-3;
+            let t = i as f64 * 2e-4;
             let x = 0.1 + 0.05 * (std::f64::consts::TAU * t).sin();
             log.push_row(&[t, x, x, 0.0, 0.0, 0.0, 1e5, 1e5]);
         }
@@ -462,7 +462,7 @@ mod tests {
     fn the_log_s_timing_metadata_is_read_or_refused_by_name() {
         let m = Measured::from_log(&log(&[]), 0.024).unwrap();
         assert_eq!(m.force_delay_s, None);
-        assert!((m.force_align_s - UNDECLARED_ALIGN_SAMPLES * 1e-3).abs() < 1e-12);
+        assert!((m.force_align_s - UNDECLARED_ALIGN_SAMPLES * 2e-4).abs() < 1e-12);
         let m = Measured::from_log(
             &log(&[("force_delay_s", "5e-5"), ("ports_from_s", "0.5")]),
             0.024,
