@@ -754,7 +754,7 @@ fn draw_trajectory(rng: &mut ChaCha8Rng, shape: Shape, lo: f64, hi: f64, start: 
                 while (to - x).abs() < 0.03 {
                     to = uniform(rng, lo, hi);
                 }
-                let creep = n % 3 == 0 && !fast;
+                let creep = n.is_multiple_of(3) && !fast;
                 let v = if creep {
                     uniform(rng, 0.05, 0.25)
                 } else {
