@@ -257,7 +257,7 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
         }
     }
     let _ = writeln!(md, "\n## Every candidate at the first step\n");
-    let _ = writeln!(md, "| candidate | channel | fitted | ΔBIC | explained (all) | explained where it acts | acts on (kept samples) | change RMS / resolution | significant |\n|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(md, "| candidate | channel | fitted | ΔBIC | explained (all) | explained where it acts | acts on (kept samples) | change RMS where it acts / resolution | significant |\n|---|---|---|---|---|---|---|---|---|");
     for j in &out.selection.first_step {
         let fitted: Vec<String> = j
             .proposal

@@ -14,8 +14,12 @@
 //!   the residual by more than a tenth of its typical largest change): practical floors, so that a
 //!   systematic but negligible mismatch (a logging offset of one sample, the rotation's
 //!   quantised speed in the friction near a reversal) is not named on long, quiet logs;
-//! - it changes the channel's residual by more than the channel's resolution
-//!   ([`resolution`]: what the sensors behind it can tell apart) in RMS.
+//! - the sensors can tell it apart ([`resolution`]): it changes the channel's residual, in
+//!   RMS where it acts, by more than the channel's resolution, or it changes at least
+//!   [`MIN_RESOLVED_SHARE`] of the kept samples (and at least [`MIN_SUPPORT`]) by more than
+//!   the resolution. Where it acts, not over the whole log: a friction law that matters only
+//!   near breakaway changes few samples by several newtons and most by nothing, and the
+//!   share of slow motion in a log is not physics.
 //!
 //! "Where it acts" is where the change exceeds a tenth of its 98th percentile
 //! ([`robust_peak`]), not of its largest value.
@@ -65,6 +69,10 @@ pub fn resolution(ch: ChannelId, model: &crate::model::MachineModel) -> f64 {
 /// Fewest kept samples an effect must act on.
 pub const MIN_SUPPORT: usize = 8;
 
+/// Smallest share of the kept samples a sparse effect must change by more than the
+/// channel's resolution (see the module header).
+pub const MIN_RESOLVED_SHARE: f64 = 0.01;
+
 /// Correlation above which two candidates are reported as collinear.
 pub const COLLINEAR: f64 = 0.9;
 
@@ -90,10 +98,12 @@ pub struct Judged {
     pub explained_total: f64,
     /// Kept samples where it acts.
     pub support: usize,
-    /// RMS of its change to the residual.
+    /// RMS of its change to the residual where it acts.
     pub change_rms: f64,
     /// The channel's resolution ([`resolution`]).
     pub resolution: f64,
+    /// Kept samples it changes by more than the resolution.
+    pub resolved: usize,
     /// Its change to the residual at the kept samples (for the collinearity check).
     pub change: Vec<f64>,
 }
@@ -105,7 +115,9 @@ impl Judged {
             && self.explained >= MIN_EXPLAINED
             && self.explained_total >= MIN_EXPLAINED_TOTAL
             && self.support >= MIN_SUPPORT
-            && self.change_rms >= self.resolution
+            && (self.change_rms >= self.resolution
+                || self.resolved as f64
+                    >= (MIN_RESOLVED_SHARE * self.n as f64).max(MIN_SUPPORT as f64))
     }
 }
 
@@ -143,14 +155,16 @@ pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual)
         .map(|(a, b)| a - b)
         .collect();
     let peak = robust_peak(&change);
-    let (mut s0, mut s1, mut support) = (0.0, 0.0, 0usize);
+    let (mut s0, mut s1, mut sc, mut support) = (0.0, 0.0, 0.0, 0usize);
     for ((c, b), a) in change.iter().zip(&before.kept).zip(&after.kept) {
         if peak > 0.0 && c.abs() > 0.1 * peak {
             s0 += b * b;
             s1 += a * a;
+            sc += c * c;
             support += 1;
         }
     }
+    let res = resolution(kind.channel(), &model);
     let explained = if s0 > 0.0 { (s0 - s1) / s0 } else { 0.0 };
     let nf = effective_n(&after.kept);
     let delta_bic = if rss_after > 0.0 && rss_before > 0.0 {
@@ -171,8 +185,13 @@ pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual)
             0.0
         },
         support,
-        change_rms: (super::fit::sumsq(&change) / n as f64).sqrt(),
-        resolution: resolution(kind.channel(), &model),
+        change_rms: if support > 0 {
+            (sc / support as f64).sqrt()
+        } else {
+            0.0
+        },
+        resolution: res,
+        resolved: change.iter().filter(|c| c.abs() > res).count(),
         change,
     })
 }
