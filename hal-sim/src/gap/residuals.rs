@@ -66,10 +66,13 @@ impl ChannelId {
 
 /// The analysis band and the sample sets the statistics use.
 ///
-/// Terms are filtered unmasked and judged only where the whole kernel lies on samples the
-/// channel may be judged on (the mask eroded by the kernel's half length): the force kernel
-/// turns a raw second difference (kN of noise per sample) into an acceleration only over its
-/// whole window, so a kernel cut at a mask edge would leave hundreds of newtons.
+/// The plain channels are filtered unmasked and judged only where the whole low-pass lies on
+/// samples the channel may be judged on (the mask eroded by the kernel's half length). The
+/// force channel is filtered in two stages: the acceleration kernel, which turns a raw second
+/// difference (kN of noise per sample) into an acceleration only over its whole window, is
+/// applied unmasked and judged where it lies on moving samples; its output is then masked to
+/// those samples before the low-pass. A standstill never leaks into the band, yet the force
+/// channel is judged up to the edge of a stop, where breakaway and creep friction act.
 #[derive(Clone, Debug)]
 pub struct Band {
     /// Upper edge of the band, Hz.
@@ -78,6 +81,11 @@ pub struct Band {
     pub force: Kernel,
     /// The low-pass alone: what the other channels pass through.
     pub plain: Kernel,
+    /// The force kernel alone (the differentiator's acceleration smoothing).
+    pub accel: Kernel,
+    /// Where the whole low-pass of a force term lies on judged samples (1): there the
+    /// two stages are one kernel, `force`.
+    pub force_interior: Vec<f64>,
     /// Decimation stride: about one sample per half period at the band edge, so that the
     /// residual noise left in the band is roughly independent from one kept sample to the
     /// next (the statistics count these samples).
@@ -124,8 +132,12 @@ impl Band {
         let lp = lowpass(band_hz, data.sample_rate_hz());
         let force = Kernel::new(super::band::convolve(&lp, &g));
         let plain = Kernel::new(lp);
+        let accel = Kernel::new(g);
         let stride = ((data.sample_rate_hz() / (2.0 * band_hz)).round() as usize).max(1);
-        let mask_force = erode(&data.moving, force.half());
+        // Judged wherever the acceleration kernel lies on moving samples; where the low-pass
+        // still reaches a standstill, the force terms are masked between the two stages.
+        let mask_force = erode(&data.moving, accel.half());
+        let force_interior = erode(&mask_force, plain.half());
         let mask_inner = erode(&data.inner, plain.half());
         let mask_encoder = erode(&data.moving, plain.half());
         let pick = |mask: &[f64]| -> Vec<usize> {
@@ -142,6 +154,8 @@ impl Band {
             mask_encoder,
             force,
             plain,
+            accel,
+            force_interior,
             stride,
             mask_force,
             mask_inner,
@@ -161,15 +175,69 @@ impl Band {
         }
     }
 
+    /// Force terms at samples `idx`: the acceleration kernel, zero off the judged samples,
+    /// then the low-pass. A standstill's raw terms (stiction holds any force) never leak into
+    /// the band, so the force channel is judged right up to where the differentiator window
+    /// reaches a stop, where breakaway and creep friction live. Away from stops the two
+    /// stages are the one combined kernel; near them the masked acceleration is computed
+    /// once for every sample the low-pass reaches.
+    fn force_terms(&self, raw: &[f64], idx: &[usize]) -> Vec<f64> {
+        let n = raw.len();
+        let h = self.plain.half();
+        let interior = |i: usize| self.force_interior.get(i).is_some_and(|&w| w > 0.0);
+        // Samples the edge low-passes reach (a difference array of their windows).
+        let mut reach = vec![0i64; n + 1];
+        for &i in idx.iter().filter(|&&i| !interior(i)) {
+            if let Some(a) = reach.get_mut(i.saturating_sub(h)) {
+                *a += 1;
+            }
+            if let Some(b) = reach.get_mut((i + h + 1).min(n)) {
+                *b -= 1;
+            }
+        }
+        let mut acc = vec![0.0; n];
+        let mut open = 0i64;
+        for (k, (a, r)) in acc.iter_mut().zip(&reach).enumerate() {
+            open += r;
+            if open > 0 && self.mask_force.get(k).is_some_and(|&m| m > 0.0) {
+                *a = self.accel.at(raw, k);
+            }
+        }
+        idx.iter()
+            .map(|&i| {
+                if interior(i) {
+                    self.force.at(raw, i)
+                } else {
+                    self.plain.at(&acc, i)
+                }
+            })
+            .collect()
+    }
+
     /// A raw per-sample term of channel `ch`, band-filtered, at the kept samples.
     pub fn kept(&self, _data: &Measured, ch: ChannelId, raw: &[f64]) -> Vec<f64> {
         let (k, _, idx) = self.route(ch);
+        if ch == ChannelId::Force {
+            return self.force_terms(raw, idx);
+        }
         k.apply_at(raw, idx)
     }
 
     /// The same at every sample (zero where the channel is not judged).
     pub fn full(&self, _data: &Measured, ch: ChannelId, raw: &[f64]) -> Vec<f64> {
         let (k, mask, _) = self.route(ch);
+        if ch == ChannelId::Force {
+            let judged: Vec<usize> = (0..mask.len())
+                .filter(|&i| mask.get(i).is_some_and(|&w| w > 0.0))
+                .collect();
+            let mut out = vec![0.0; mask.len()];
+            for (i, v) in judged.iter().zip(self.force_terms(raw, &judged)) {
+                if let Some(o) = out.get_mut(*i) {
+                    *o = v;
+                }
+            }
+            return out;
+        }
         mask.iter()
             .enumerate()
             .map(|(i, w)| if *w > 0.0 { k.at(raw, i) } else { 0.0 })
@@ -330,19 +398,22 @@ pub const REPLAY_STEP_S: f64 = fpc::units::CONTROL_PERIOD_S as f64;
 
 /// The chambers replayed along the measured motion through the model, as the model's
 /// pressure sensors would read them: (p_A, p_B), Pa. `None` without `# ports`.
+///
+/// The replay starts from what the sensors read while the piston still rests (up to
+/// 20 ms), less their offsets, at the wall temperature: the log is taken to start in
+/// equilibrium. Sealed chambers never forget that start, so its noise (0.4 kPa over 20 ms
+/// is ±30 Pa) comes back multiplied by the compression ratio at every stroke, a pattern the
+/// leak and heat candidates would gladly explain. For a log sealed from its first row the
+/// gas each chamber holds is therefore a nuisance fitted over the whole log: the replay's
+/// least-squares scale against the measured pressures corrects the start, and the chambers
+/// are replayed once more from there. Open or timed ports forget the start within a cycle.
 pub fn replay_pressures(data: &Measured, model: &MachineModel) -> Option<(Vec<f64>, Vec<f64>)> {
     let mode = match data.ports {
         PortsMeta::Closed => PortMode::Closed,
         PortsMeta::Open => PortMode::Timed,
         PortsMeta::Unknown => return None,
     };
-    let n = data.len();
-    let params = PlantParams::from_model(model).chambers;
-    let gas = params.gas;
-    let t_gas = model.gas.temperature_k;
     let sensor = &model.sensors.pressure;
-    // Start from what the sensors read while the piston still rests (up to 20 ms), less
-    // their offsets, at the wall temperature: the log is taken to start in equilibrium.
     let x0 = data.x_m.first().copied().unwrap_or(0.0);
     let rest = data
         .x_m
@@ -352,8 +423,46 @@ pub fn replay_pressures(data: &Measured, model: &MachineModel) -> Option<(Vec<f6
         .count()
         .max(1);
     let mean = |p: &[f64]| p.iter().take(rest).sum::<f64>() / rest as f64;
-    let p0a = mean(&data.p_a_pa) - sensor.offset_a_pa;
-    let p0b = mean(&data.p_b_pa) - sensor.offset_b_pa;
+    let start = (
+        mean(&data.p_a_pa) - sensor.offset_a_pa,
+        mean(&data.p_b_pa) - sensor.offset_b_pa,
+    );
+    let (pa, pb) = replay_from(data, model, mode, start);
+    if mode != PortMode::Closed || data.ports_from_s.is_some() {
+        return Some((pa, pb));
+    }
+    let scale = |measured: &[f64], replayed: &[f64], offset: f64| -> f64 {
+        let (mut num, mut den) = (0.0, 0.0);
+        for (m, r) in measured.iter().zip(replayed) {
+            num += (m - offset) * (r - offset);
+            den += (r - offset) * (r - offset);
+        }
+        if den > 0.0 && num > 0.0 {
+            num / den
+        } else {
+            1.0
+        }
+    };
+    let sa = scale(&data.p_a_pa, &pa, sensor.offset_a_pa);
+    let sb = scale(&data.p_b_pa, &pb, sensor.offset_b_pa);
+    Some(replay_from(data, model, mode, (start.0 * sa, start.1 * sb)))
+}
+
+/// The chambers replayed from the starting pressures `start` (A, B), Pa, at the wall
+/// temperature, as [`replay_pressures`] describes.
+fn replay_from(
+    data: &Measured,
+    model: &MachineModel,
+    mode: PortMode,
+    start: (f64, f64),
+) -> (Vec<f64>, Vec<f64>) {
+    let n = data.len();
+    let params = PlantParams::from_model(model).chambers;
+    let gas = params.gas;
+    let t_gas = model.gas.temperature_k;
+    let sensor = &model.sensors.pressure;
+    let x0 = data.x_m.first().copied().unwrap_or(0.0);
+    let (p0a, p0b) = start;
     let mut ch = Chambers::new(params, x0, p0a.max(1.0), t_gas);
     ch.b.pressure_pa = p0b.max(1.0);
     ch.b.mass_kg = ch.b.pressure_pa * ch.b.volume_m3 / (gas.gas_constant_j_per_kg_k * t_gas);
@@ -409,7 +518,7 @@ pub fn replay_pressures(data: &Measured, model: &MachineModel) -> Option<(Vec<f6
         pa.push(la + sensor.offset_a_pa);
         pb.push(lb + sensor.offset_b_pa);
     }
-    Some((pa, pb))
+    (pa, pb)
 }
 
 /// The raw residual of `ch` for `model` (`None`: the channel cannot be formed from this log).
