@@ -27,8 +27,8 @@ mod firmware {
 
     use embassy_executor::Spawner;
     use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-    use fpc::controller::ControlConfig;
-    use fpc::faults::ResetCause;
+    use fpc::control::config::ControlConfig;
+    use fpc::safety::faults::ResetCause;
     use fpc::shared::Shared;
 
     use crate::board::{self, BoardClock, BoardSleep, BoardWatchdog};
@@ -57,7 +57,8 @@ mod firmware {
     #[embassy_executor::task]
     async fn telemetry(sink: board::rtt::TelemetryChannel) {
         let never: Infallible =
-            fpc::tasks::telemetry_run(sink, &SHARED, fpc::telemetry::DEFAULT_DECIMATION).await;
+            fpc::tasks::telemetry_run(sink, &SHARED, fpc::link::telemetry::DEFAULT_DECIMATION)
+                .await;
         match never {}
     }
 

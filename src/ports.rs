@@ -155,9 +155,9 @@ pub trait FrameSink {
 /// the board logs them with defmt at fixed levels, the simulator records them.
 pub trait EventLog {
     /// A fault was latched (defmt `error`).
-    fn fault_latched(&mut self, fault: crate::faults::Fault);
+    fn fault_latched(&mut self, fault: crate::safety::faults::Fault);
     /// A limit became active (defmt `warn`).
-    fn limit_active(&mut self, limits: crate::supervisor::LimitFlags);
+    fn limit_active(&mut self, limits: crate::safety::supervisor::LimitFlags);
     /// The operating mode changed (defmt `info`).
-    fn mode_changed(&mut self, mode: crate::controller::ModeKind);
+    fn mode_changed(&mut self, mode: crate::status::ModeKind);
 }

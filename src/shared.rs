@@ -12,9 +12,9 @@ use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::channel::Channel;
 
-use crate::command::{Command, Refusal};
-use crate::controller::Status;
-use crate::telemetry::Frame;
+use crate::control::command::{Command, Reply};
+use crate::link::telemetry::Frame;
+use crate::status::Status;
 
 /// Depth of the command mailbox.
 pub const COMMAND_DEPTH: usize = 8;
@@ -22,15 +22,6 @@ pub const COMMAND_DEPTH: usize = 8;
 /// Depth of the telemetry frame queue: 32 frames (≈ 1.8 KiB) ride out 32 ms of a busy
 /// thread-mode executor at the default 1 kHz frame rate.
 pub const TELEMETRY_DEPTH: usize = 32;
-
-/// The answer to one command.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Reply {
-    /// The command answered.
-    pub command: Command,
-    /// Accepted, or refused with the reason.
-    pub result: Result<(), Refusal>,
-}
 
 /// Bit of each task in the watchdog check-in mask.
 pub mod task_bits {

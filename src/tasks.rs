@@ -6,16 +6,18 @@ use core::task::Poll;
 
 use embassy_sync::blocking_mutex::raw::RawMutex;
 
-use crate::command::Refusal;
-use crate::controller::{ControlConfig, ControlStep, CycleInputs};
-use crate::faults::ResetCause;
-use crate::link::{encode_rejection, encode_reply, CommandReader, MAX_REPLY_WIRE};
+use crate::control::command::Refusal;
+use crate::control::command::Reply;
+use crate::control::config::ControlConfig;
+use crate::control::step::{ControlStep, CycleInputs};
+use crate::link::commands::{encode_rejection, encode_reply, CommandReader, MAX_REPLY_WIRE};
+use crate::link::telemetry::WIRE_BYTES;
 use crate::ports::{
     ByteSource, Clock, ControlPorts, CurrentInput, CycleTrigger, EncoderInput, EventLog, FrameSink,
     PressureInput, PwmOutput, QuadratureInput, Sleep, TorqueOutput, Watchdog,
 };
-use crate::shared::{task_bits, Reply, Shared};
-use crate::telemetry::WIRE_BYTES;
+use crate::safety::faults::ResetCause;
+use crate::shared::{task_bits, Shared};
 use crate::units::{DacCode, PerSection, Section};
 
 /// Period of the supervision task, µs.

@@ -5,10 +5,13 @@
 
 use std::path::{Path, PathBuf};
 
-use hal_sim::analysis::{WindowArgs, ZeroPhaseArgs};
-use hal_sim::cli::CmdResult;
+use hal_sim::cli::analysis::{WindowArgs, ZeroPhaseArgs};
+use hal_sim::cli::{
+    decode as decode_cmd, energy as energy_cmd, filters as filters_cmd, forces as forces_cmd,
+    lag as lag_cmd, pv as pv_cmd,
+};
+use hal_sim::failure::CmdResult;
 use hal_sim::runlog::{RunLog, REQUIRED};
-use hal_sim::{decode_cmd, energy_cmd, filters_cmd, forces_cmd, lag_cmd, pv_cmd};
 
 const HAND_LOG: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/hand_stroke.csv");
 
@@ -36,7 +39,7 @@ fn window() -> WindowArgs {
 
 /// Runs every plotting analysis on `log` into `out`; returns each result with its plot.
 fn run_all(log: &Path, out: &Path) -> Vec<(&'static str, CmdResult, PathBuf)> {
-    let sg = fpc::controller::ControlConfig::reference();
+    let sg = fpc::control::config::ControlConfig::reference();
     vec![
         (
             "filters",

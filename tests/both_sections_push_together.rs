@@ -9,8 +9,8 @@
 mod drive_support;
 
 use drive_support::*;
-use fpc::calibration::Calibrated;
-use hal_sim::model::{DelayEffect, MachineModel, PAPER_SLAVE_LAG_S};
+use fpc::control::calibration::Calibrated;
+use hal_sim::plant::model::{DelayEffect, MachineModel, PAPER_SLAVE_LAG_S};
 
 /// The true section forces over 4 strokes, from the cycle the first stroke is under way.
 struct Forces {

@@ -10,9 +10,9 @@
 mod drive_support;
 
 use drive_support::*;
-use fpc::calibration::{Calibrated, Routine};
+use fpc::control::calibration::{Calibrated, Routine};
 use fpc::units::Section;
-use hal_sim::model::MachineModel;
+use hal_sim::plant::model::MachineModel;
 
 /// Current-sense codes per ampere (the reference sense: ±100 A over 12 bits).
 const CODES_PER_A: f64 = 2048.0 / 100.0;

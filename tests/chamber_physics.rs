@@ -4,10 +4,10 @@
 //! The plant is driven kinematically (prescribed position and rotation), so these checks do
 //! not depend on the controller.
 
-use hal_sim::chambers::PortMode;
-use hal_sim::kinematic::CycleDrive;
-use hal_sim::model::MachineModel;
-use hal_sim::plant::{Plant, PlantParams};
+use hal_sim::plant::chambers::PortMode;
+use hal_sim::plant::dynamics::{Plant, PlantParams};
+use hal_sim::plant::kinematic::CycleDrive;
+use hal_sim::plant::model::MachineModel;
 use hal_sim::run::FIG3_SPEEDS;
 
 const DT_S: f64 = 50e-6;
@@ -100,7 +100,8 @@ fn run_cycles(model: &MachineModel, pr: f64, v_max: f64, cycles: u32) -> CycleFi
         fig.loop_pv.push((c.volume_m3, c.pressure_pa));
     });
     let end = p.chambers.a;
-    let d = |f: fn(&hal_sim::chambers::ChamberTotals) -> f64| f(&end.totals) - f(&start.totals);
+    let d =
+        |f: fn(&hal_sim::plant::chambers::ChamberTotals) -> f64| f(&end.totals) - f(&start.totals);
     fig.enthalpy_balance_j = d(|t| t.discharge_j) - d(|t| t.intake_j) + d(|t| t.leak_j)
         - d(|t| t.heat_in_j)
         + (end.internal_energy_j(&gas) - start.internal_energy_j(&gas));

@@ -16,14 +16,14 @@
 mod drive_support;
 
 use drive_support::*;
-use fpc::calibration::{Calibrated, Routine};
-use fpc::cogging::HarmonicMap;
-use fpc::controller::ModeKind;
+use fpc::control::calibration::{Calibrated, Routine};
+use fpc::physics::cogging::HarmonicMap;
+use fpc::status::ModeKind;
 
 /// Pitch-harmonic amplitudes (position error, m; net disturbance, N) over the cruises of a
 /// cogging routine's sweeps, with `map` compensating.
 fn ripple(
-    model: &hal_sim::model::MachineModel,
+    model: &hal_sim::plant::model::MachineModel,
     found: &Calibrated,
     map: HarmonicMap,
 ) -> (f64, f64) {
@@ -35,7 +35,7 @@ fn ripple(
     // The homed frame sits where homing found the head; the plant's is the head itself.
     let shift = bench.world().plant.x_m - f64::from(bench.status().position_m);
     bench
-        .command(fpc::command::Command::Calibrate {
+        .command(fpc::control::command::Command::Calibrate {
             routine: Routine::Cogging,
         })
         .expect("cogging sweeps accepted");

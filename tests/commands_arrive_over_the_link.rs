@@ -11,10 +11,12 @@ use std::rc::Rc;
 use std::task::{Context, Poll, Waker};
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
-use fpc::command::{Command, Refusal};
-use fpc::link::{decode_answer, encode_command, Answer, Deframer, FrameError, MAX_COMMAND_WIRE};
+use fpc::control::command::Reply;
+use fpc::control::command::{Command, Refusal};
+use fpc::link::commands::{decode_answer, encode_command, Answer, MAX_COMMAND_WIRE};
+use fpc::link::frame::{Deframer, FrameError};
 use fpc::ports::{ByteSource, Clock, FrameSink, Sleep};
-use fpc::shared::{Reply, Shared, COMMAND_DEPTH};
+use fpc::shared::{Shared, COMMAND_DEPTH};
 use fpc::tasks::command_run;
 use fpc::units::Ticks;
 

@@ -5,14 +5,14 @@
 use std::cell::RefCell;
 use std::ops::ControlFlow;
 
-use fpc::controller::ControlConfig;
-use fpc::encoder::SinCosDecoder;
-use fpc::foc::CurrentController;
-use fpc::motor::Dq;
+use fpc::control::config::ControlConfig;
+use fpc::drive::foc::CurrentController;
+use fpc::physics::motor::Dq;
 use fpc::ports::{CurrentInput, CycleTrigger, EncoderInput, PwmOutput};
+use fpc::sensing::encoder::SinCosDecoder;
 use fpc::units::{Duty, PerSection, Section};
-use hal_sim::exec::{simulate_with, SimControlPorts, SimShared};
-use hal_sim::model::MachineModel;
+use hal_sim::board::exec::{simulate_with, SimControlPorts, SimShared};
+use hal_sim::plant::model::MachineModel;
 use hal_sim::run::world;
 
 const STEP_AT_S: f64 = 1e-3;

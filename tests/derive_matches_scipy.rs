@@ -6,7 +6,7 @@
 
 use std::path::{Path, PathBuf};
 
-use hal_sim::derive::{derive, main, DeriveArgs, Settings};
+use hal_sim::cli::derive::{derive, main, DeriveArgs, Settings};
 use hal_sim::runlog::RunLog;
 
 fn data(name: &str) -> PathBuf {

@@ -7,8 +7,10 @@ mod common;
 use std::cell::Cell;
 
 use common::{encoder_codes, Rng};
-use fpc::differentiator::{SavitzkyGolay, SgConfig};
-use fpc::encoder::{EncoderConfig, SinCosCalibration, SinCosDecoder, NOMINAL_AMPLITUDE_CODES};
+use fpc::sensing::differentiator::{SavitzkyGolay, SgConfig};
+use fpc::sensing::encoder::{
+    EncoderConfig, SinCosCalibration, SinCosDecoder, NOMINAL_AMPLITUDE_CODES,
+};
 use proptest::prelude::*;
 
 const PERIOD_M: f64 = 0.024;

@@ -5,7 +5,7 @@
 mod common;
 
 use common::{distorted_encoder, encoder_codes, Rng};
-use fpc::encoder::{
+use fpc::sensing::encoder::{
     EncoderConfig, SinCosCalibration, SinCosDecoder, CODES_PER_MV, NOMINAL_AMPLITUDE_CODES,
 };
 

@@ -5,8 +5,10 @@
 mod common;
 
 use common::{adc, encoder_codes, Rng};
-use fpc::encoder::{EncoderConfig, SinCosCalibration, SinCosDecoder, NOMINAL_AMPLITUDE_CODES};
 use fpc::ports::SinCosCodes;
+use fpc::sensing::encoder::{
+    EncoderConfig, SinCosCalibration, SinCosDecoder, NOMINAL_AMPLITUDE_CODES,
+};
 use fpc::units::AdcCode;
 use proptest::prelude::*;
 

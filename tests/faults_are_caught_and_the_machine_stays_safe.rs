@@ -22,14 +22,16 @@
 use std::ops::ControlFlow;
 use std::sync::OnceLock;
 
-use fpc::command::{Command, Refusal};
-use fpc::controller::{ControlConfig, ControlStep, ModeKind};
-use fpc::faults::Fault;
-use fpc::volume_ratio::RatioTarget;
-use hal_sim::exec::{simulate, WATCHDOG_TIMEOUT_US};
-use hal_sim::fault_apply::InjectionReport;
-use hal_sim::inject::parse;
-use hal_sim::model::MachineModel;
+use fpc::control::command::{Command, Refusal};
+use fpc::control::config::ControlConfig;
+use fpc::control::step::ControlStep;
+use fpc::motion::volume_ratio::RatioTarget;
+use fpc::safety::faults::Fault;
+use fpc::status::ModeKind;
+use hal_sim::board::exec::{simulate, WATCHDOG_TIMEOUT_US};
+use hal_sim::faults::apply::InjectionReport;
+use hal_sim::faults::inject::parse;
+use hal_sim::plant::model::MachineModel;
 use hal_sim::run::{control_config, run, world, RunOptions, RunOutcome};
 use hal_sim::runlog::RunLog;
 
@@ -89,7 +91,7 @@ fn instants() -> &'static Instants {
     })
 }
 
-fn options(cycles: u32, faults: Vec<hal_sim::inject::FaultSpec>) -> RunOptions {
+fn options(cycles: u32, faults: Vec<hal_sim::faults::inject::FaultSpec>) -> RunOptions {
     let mut o = RunOptions::reference();
     o.pressure_ratio = PR;
     o.cycles = cycles;
@@ -691,7 +693,7 @@ fn s17_a_bad_configuration_is_refused_naming_the_field() {
         println!("#17 {field}: {refused:?}");
         assert_eq!(
             refused,
-            Some(fpc::controller::ConfigError::NotPositive(field))
+            Some(fpc::control::config::ConfigError::NotPositive(field))
         );
     }
 }
@@ -754,7 +756,7 @@ fn s19_corrupt_frames_are_rejected_and_counted() {
     // `fuzzed_telemetry_decoder_never_panics_and_resynchronises` (src/telemetry.rs); garbage
     // between commands over the running command task: `tests/commands_arrive_over_the_link.rs`.
     // Here: the decoders on the host side count what they reject.
-    let mut reader = fpc::link::CommandReader::new();
+    let mut reader = fpc::link::commands::CommandReader::new();
     let garbage: Vec<u8> = (0u32..5000)
         .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
         .collect();
@@ -816,7 +818,7 @@ fn faults_clear_only_by_command_once_the_stop_is_over_and_the_cause_gone() {
     // the stop runs (busy), then while the sensor still reads open (cause persists); once it
     // reads again, the clear is accepted, motion needs a new command, and the zero is kept
     // (a pressure fault does not lose the position; an encoder fault would).
-    use hal_sim::fault_apply::PressureHold;
+    use hal_sim::board::corruption::PressureHold;
     let model = MachineModel::reference();
     let mut phase = 0;
     let mut answers: Vec<(u32, Result<(), Refusal>)> = Vec::new();

@@ -15,7 +15,7 @@ use std::time::Instant;
 use gap_support::*;
 use hal_sim::gap::synth::{decimate, open_port_run};
 use hal_sim::gap::{analyse, GapOptions};
-use hal_sim::model::MachineModel;
+use hal_sim::plant::model::MachineModel;
 
 /// The limit of the acceptance, s.
 const LIMIT_S: f64 = 3.0;

@@ -5,9 +5,9 @@
 mod gap_support;
 
 use gap_support::*;
+use hal_sim::board::sensors::Noise;
 use hal_sim::gap::synth::decimate;
 use hal_sim::runlog::{RunLog, REQUIRED};
-use hal_sim::sensors::Noise;
 
 /// Applies `f` to column `name` of `log`, row by row.
 fn map_column(log: &mut RunLog, name: &str, mut f: impl FnMut(f64) -> f64) {

@@ -12,7 +12,7 @@ mod gap_support;
 
 use gap_support::*;
 use hal_sim::gap::synth;
-use hal_sim::model::MachineModel;
+use hal_sim::plant::model::MachineModel;
 
 const SHRINK: f64 = 0.70;
 

@@ -9,7 +9,7 @@ mod gap_support;
 
 use gap_support::*;
 use hal_sim::gap::synth;
-use hal_sim::model::MachineModel;
+use hal_sim::plant::model::MachineModel;
 
 fn closed_loop_null(seed: u64, speed_mps: f64) {
     let log = closed_loop(&reference(), speed_mps, 2, seed);

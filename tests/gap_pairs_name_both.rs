@@ -5,7 +5,7 @@ mod gap_support;
 
 use gap_support::*;
 use hal_sim::gap::synth;
-use hal_sim::model::MachineModel;
+use hal_sim::plant::model::MachineModel;
 
 fn cogging_truth() -> String {
     with_key(

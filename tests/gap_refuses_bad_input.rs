@@ -3,8 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
-use hal_sim::gap_cmd::{main, GapArgs};
-use hal_sim::model::REFERENCE_TOML;
+use hal_sim::cli::gap::{main, GapArgs};
+use hal_sim::plant::model::REFERENCE_TOML;
 use hal_sim::runlog::{RunLog, REQUIRED};
 
 fn scratch(name: &str) -> PathBuf {
@@ -159,5 +159,5 @@ fn gap_writes_the_augmented_model_and_the_report() {
         assert!(out.join(f).exists(), "{f} missing");
     }
     // The augmented model loads as `fpc-sim run --model` would load it.
-    hal_sim::model::MachineModel::read(&out.join("model.toml")).unwrap();
+    hal_sim::plant::model::MachineModel::read(&out.join("model.toml")).unwrap();
 }

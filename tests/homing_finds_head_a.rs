@@ -6,15 +6,17 @@
 
 use std::ops::ControlFlow;
 
-use fpc::command::{Command, Refusal};
-use fpc::controller::{ControlConfig, ControlStep, CycleInputs, ModeKind, Status};
-use fpc::faults::Fault;
+use fpc::control::command::{Command, Refusal};
+use fpc::control::config::ControlConfig;
+use fpc::control::step::{ControlStep, CycleInputs};
 use fpc::ports::{EncoderCodes, PressureCodes, SinCosCodes};
+use fpc::safety::faults::Fault;
+use fpc::status::{ModeKind, Status};
 use fpc::units::{AdcCode, PerSection, Ticks, CONTROL_PERIOD_US};
-use hal_sim::exec::{simulate, SimShared};
-use hal_sim::model::MachineModel;
+use hal_sim::board::exec::{simulate, SimShared};
+use hal_sim::board::world::World;
+use hal_sim::plant::model::MachineModel;
 use hal_sim::run::{control_config, world};
-use hal_sim::world::World;
 
 /// What a homing run showed.
 #[derive(Debug, Default)]

@@ -9,16 +9,18 @@ use std::cell::RefCell;
 use std::ops::ControlFlow;
 
 use common::Rng;
-use fpc::command::Command;
-use fpc::controller::{ControlConfig, ControlStep, CycleInputs, CycleOutputs, ModeKind};
-use fpc::faults::Fault;
+use fpc::control::command::Command;
+use fpc::control::config::ControlConfig;
+use fpc::control::step::{ControlStep, CycleInputs, CycleOutputs};
 use fpc::ports::{
     CurrentInput, CycleTrigger, EncoderInput, PressureInput, PwmOutput, QuadratureInput,
     TorqueOutput,
 };
+use fpc::safety::faults::Fault;
+use fpc::status::ModeKind;
 use fpc::units::{AdcCode, PerSection, Section};
-use hal_sim::exec::{simulate_with, SimControlPorts, SimShared};
-use hal_sim::model::MachineModel;
+use hal_sim::board::exec::{simulate_with, SimControlPorts, SimShared};
+use hal_sim::plant::model::MachineModel;
 use hal_sim::run::{control_config, world};
 
 /// What the probe found.

@@ -4,13 +4,13 @@
 
 use std::ops::ControlFlow;
 
-use fpc::command::Command;
-use fpc::controller::ModeKind;
-use fpc::faults::Fault;
-use hal_sim::exec::simulate;
-use hal_sim::model::MachineModel;
+use fpc::control::command::Command;
+use fpc::safety::faults::Fault;
+use fpc::status::ModeKind;
+use hal_sim::board::exec::simulate;
+use hal_sim::board::world::Event;
+use hal_sim::plant::model::MachineModel;
 use hal_sim::run::{control_config, world};
-use hal_sim::world::Event;
 
 #[test]
 fn mode_changes_and_a_latched_fault_are_reported_once_each() {

@@ -10,8 +10,8 @@
 //! 10⁶ inputs per parser are `#[ignore]` (CI runs them with `cargo test --release --
 //! --ignored`); 20,000 per parser run by default.
 
-use hal_sim::inject;
-use hal_sim::model::{MachineModel, REFERENCE_TOML};
+use hal_sim::faults::inject;
+use hal_sim::plant::model::{MachineModel, REFERENCE_TOML};
 use hal_sim::runlog::RunLog;
 
 /// xorshift64*: seeded, the same inputs on every machine.

@@ -4,11 +4,11 @@
 
 use std::ops::ControlFlow;
 
-use fpc::command::Command;
-use fpc::controller::ModeKind;
+use fpc::control::command::Command;
 use fpc::ports::CycleTrigger;
-use hal_sim::exec::{simulate, simulate_with, SimShared};
-use hal_sim::model::MachineModel;
+use fpc::status::ModeKind;
+use hal_sim::board::exec::{simulate, simulate_with, SimShared};
+use hal_sim::plant::model::MachineModel;
 use hal_sim::run::{control_config, world};
 
 const TARGET_M: f64 = 0.15;
@@ -24,7 +24,7 @@ struct Tracking {
 }
 
 fn observe(
-    w: &hal_sim::world::World,
+    w: &hal_sim::board::world::World,
     shared: &SimShared,
     state: &mut (Tracking, Option<f64>),
 ) -> ControlFlow<()> {
@@ -99,7 +99,7 @@ fn without_the_control_task_the_piston_does_not_follow() {
     let mut state = (Tracking::default(), None);
     let shared = SimShared::new();
     // A body that keeps the cycle but never reads, decides or drives anything.
-    let idle = |mut io: hal_sim::exec::SimControlPorts, _: &SimShared| async move {
+    let idle = |mut io: hal_sim::board::exec::SimControlPorts, _: &SimShared| async move {
         loop {
             io.cycle.next_cycle().await;
         }

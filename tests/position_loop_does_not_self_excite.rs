@@ -7,10 +7,10 @@
 use std::f64::consts::TAU;
 use std::ops::ControlFlow;
 
-use fpc::command::Command;
-use fpc::controller::ModeKind;
-use hal_sim::exec::simulate;
-use hal_sim::model::MachineModel;
+use fpc::control::command::Command;
+use fpc::status::ModeKind;
+use hal_sim::board::exec::simulate;
+use hal_sim::plant::model::MachineModel;
 use hal_sim::run::{control_config, world};
 
 /// Amplitude of the `f_hz` component of `x` sampled at `fs_hz` (one DFT bin, Hann window).

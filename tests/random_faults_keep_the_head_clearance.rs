@@ -13,8 +13,8 @@
 
 use std::sync::OnceLock;
 
-use hal_sim::inject::{parse, FaultSpec};
-use hal_sim::model::MachineModel;
+use hal_sim::faults::inject::{parse, FaultSpec};
+use hal_sim::plant::model::MachineModel;
 use hal_sim::run::{run, RunOptions};
 use rand::seq::IndexedRandom;
 use rand::{Rng as _, SeedableRng};

@@ -15,13 +15,13 @@
 mod drive_support;
 
 use drive_support::*;
-use fpc::calibration::{CalibrationError, Routine};
-use fpc::command::{Command, Refusal};
-use fpc::controller::ModeKind;
-use fpc::faults::Fault;
-use fpc::motor::Dq;
+use fpc::control::calibration::{CalibrationError, Routine};
+use fpc::control::command::{Command, Refusal};
+use fpc::physics::motor::Dq;
+use fpc::safety::faults::Fault;
+use fpc::status::ModeKind;
 use fpc::units::Section;
-use hal_sim::model::MachineModel;
+use hal_sim::plant::model::MachineModel;
 
 #[test]
 fn a_current_sense_offset_is_seen_with_the_outputs_off_and_calibrated_away() {
@@ -168,11 +168,11 @@ fn an_overcurrent_switches_its_section_off_and_the_other_stops_the_piston() {
 
 /// Strokes the reference machine at 4.1 m/s against PR 5.1 until `at` says the moment has
 /// come (a few strokes in).
-fn stroking_until(bench: &mut Bench, at: impl Fn(&hal_sim::world::World) -> bool) {
+fn stroking_until(bench: &mut Bench, at: impl Fn(&hal_sim::board::world::World) -> bool) {
     bench.home();
     {
         let mut w = bench.world_mut();
-        w.plant.port_mode = hal_sim::chambers::PortMode::Timed;
+        w.plant.port_mode = hal_sim::plant::chambers::PortMode::Timed;
         w.plant.lines.set_pressure_ratio(5.1);
     }
     bench

@@ -3,7 +3,7 @@
 //! then show the paper's lag (Fig. 4) and the master–slave force difference it causes
 //! (Fig. 5); our own commutation of both sections (the reference) shows neither.
 
-use hal_sim::model::{DelayEffect, MachineModel, PAPER_SLAVE_LAG_S};
+use hal_sim::plant::model::{DelayEffect, MachineModel, PAPER_SLAVE_LAG_S};
 use hal_sim::run::{run, RunOptions};
 
 /// (lag of f_slave behind f_master from the cross-correlation, s; peak |difference|, N;

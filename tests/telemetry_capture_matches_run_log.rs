@@ -3,8 +3,8 @@
 //! the capture back into a run log — which equals the simulator's own run log sample for
 //! sample, bit for bit, with no frame dropped.
 
-use fpc::telemetry::DEFAULT_DECIMATION;
-use hal_sim::capture::{decode_capture, decoded_columns};
+use fpc::link::telemetry::DEFAULT_DECIMATION;
+use hal_sim::board::capture::{decode_capture, decoded_columns};
 use hal_sim::run::{run, RunOptions, RunOutcome};
 
 /// Compression cycles that take the reference run past 10 s of simulated time at 20 kHz.
@@ -65,7 +65,7 @@ fn telemetry_capture_matches_run_log_at_full_rate() {
     // One 56-byte frame per control cycle.
     assert_eq!(
         outcome.telemetry.len(),
-        outcome.log.len() * fpc::telemetry::WIRE_BYTES
+        outcome.log.len() * fpc::link::telemetry::WIRE_BYTES
     );
     assert_matches(&outcome, 1);
     assert_ten_seconds_clean(&outcome);

@@ -7,11 +7,11 @@ use std::pin::pin;
 use std::task::{Context, Waker};
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
-use fpc::controller::Status;
+use fpc::link::telemetry::TelemetryDecoder;
 use fpc::ports::FrameSink;
 use fpc::shared::{Shared, TELEMETRY_DEPTH};
+use fpc::status::Status;
 use fpc::tasks::telemetry_run;
-use fpc::telemetry::TelemetryDecoder;
 
 /// Takes at most `chunk` bytes per write (0: the host is gone).
 struct SlowSink {

@@ -7,9 +7,9 @@
 mod common;
 
 use common::{encoder_codes, Rng};
-use fpc::controller::ControlConfig;
-use fpc::differentiator::{SavitzkyGolay, SgConfig};
-use fpc::encoder::{SinCosCalibration, SinCosDecoder, NOMINAL_AMPLITUDE_CODES};
+use fpc::control::config::ControlConfig;
+use fpc::sensing::differentiator::{SavitzkyGolay, SgConfig};
+use fpc::sensing::encoder::{SinCosCalibration, SinCosDecoder, NOMINAL_AMPLITUDE_CODES};
 
 const DT_S: f64 = 50e-6;
 const STROKE_M: f64 = 0.19;

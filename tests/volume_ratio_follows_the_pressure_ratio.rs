@@ -6,9 +6,9 @@
 //! pressure σ 0.5 kPa with a 0.1 ms lag, the current loops' own dynamics, cogging, leakage
 //! and heat transfer in the plant) and a controller whose mass and friction are 5 % off.
 
-use fpc::command::Command;
-use fpc::synchroniser::Rotation;
-use fpc::volume_ratio::RatioTarget;
+use fpc::control::command::Command;
+use fpc::motion::synchroniser::Rotation;
+use fpc::motion::volume_ratio::RatioTarget;
 use hal_sim::run::{run, HostAction, RunOptions, RunOutcome, Summary, FIG3_SPEEDS};
 
 fn options(pressure_ratio: f64, cycles: u32) -> RunOptions {

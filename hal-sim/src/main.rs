@@ -7,7 +7,7 @@
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use hal_sim::cli::CmdResult;
+use hal_sim::failure::CmdResult;
 
 #[derive(Parser)]
 #[command(
@@ -23,36 +23,36 @@ struct Cli {
 #[derive(Subcommand)]
 enum Cmd {
     /// Closed-loop simulation with the firmware's tasks in the loop.
-    Run(hal_sim::run_cmd::RunArgs),
+    Run(hal_sim::cli::run::RunArgs),
     /// The firmware's Savitzky–Golay differentiator over a run log's position.
-    Derive(hal_sim::derive::DeriveArgs),
+    Derive(hal_sim::cli::derive::DeriveArgs),
     /// Decode a captured telemetry stream into a run log (CSV).
-    Decode(hal_sim::decode_cmd::DecodeArgs),
+    Decode(hal_sim::cli::decode::DecodeArgs),
     /// Time lag between two logged signals by FFT cross-correlation (Fig. 4).
-    Lag(hal_sim::lag_cmd::LagArgs),
+    Lag(hal_sim::cli::lag::LagArgs),
     /// Velocity without filter, filtfilt, firmware Savitzky-Golay, drive reading (Fig. 7).
-    Filters(hal_sim::filters_cmd::FiltersArgs),
+    Filters(hal_sim::cli::filters::FiltersArgs),
     /// Inertia force from position against the forces acting (Fig. 8).
-    Forces(hal_sim::forces_cmd::ForcesArgs),
+    Forces(hal_sim::cli::forces::ForcesArgs),
     /// Motor, inertia, gas and friction work along one stroke (Fig. 9).
-    Energy(hal_sim::energy_cmd::EnergyArgs),
+    Energy(hal_sim::cli::energy::EnergyArgs),
     /// p-V diagram of both chambers (Fig. 3).
-    Pv(hal_sim::pv_cmd::PvArgs),
+    Pv(hal_sim::cli::pv::PvArgs),
     /// Find, name and add the effect missing from a model (model-gap workflow).
-    Gap(hal_sim::gap_cmd::GapArgs),
+    Gap(hal_sim::cli::gap::GapArgs),
 }
 
 fn dispatch(cmd: Cmd) -> CmdResult {
     match cmd {
-        Cmd::Run(args) => hal_sim::run_cmd::main(args),
-        Cmd::Derive(args) => hal_sim::derive::main(args),
-        Cmd::Decode(args) => hal_sim::decode_cmd::main(args),
-        Cmd::Lag(args) => hal_sim::lag_cmd::main(args),
-        Cmd::Filters(args) => hal_sim::filters_cmd::main(args),
-        Cmd::Forces(args) => hal_sim::forces_cmd::main(args),
-        Cmd::Energy(args) => hal_sim::energy_cmd::main(args),
-        Cmd::Pv(args) => hal_sim::pv_cmd::main(args),
-        Cmd::Gap(args) => hal_sim::gap_cmd::main(args),
+        Cmd::Run(args) => hal_sim::cli::run::main(args),
+        Cmd::Derive(args) => hal_sim::cli::derive::main(args),
+        Cmd::Decode(args) => hal_sim::cli::decode::main(args),
+        Cmd::Lag(args) => hal_sim::cli::lag::main(args),
+        Cmd::Filters(args) => hal_sim::cli::filters::main(args),
+        Cmd::Forces(args) => hal_sim::cli::forces::main(args),
+        Cmd::Energy(args) => hal_sim::cli::energy::main(args),
+        Cmd::Pv(args) => hal_sim::cli::pv::main(args),
+        Cmd::Gap(args) => hal_sim::cli::gap::main(args),
     }
 }
 

@@ -5,26 +5,27 @@
 //! requested number of cycles, exactly as it would over the RTT command channel. Everything
 //! the firmware does, it does in its own task bodies against the simulated board.
 //!
-//! With fault specifications (`--fault`, [`crate::fault_apply`]) the faults are injected as
-//! the run goes, the board's watchdog can reset it ([`crate::exec::simulate_board`]), and the
+//! With fault specifications (`--fault`, [`crate::faults::apply`]) the faults are injected as
+//! the run goes, the board's watchdog can reset it ([`crate::board::exec::simulate_board`]), and the
 //! run goes on past the first latched fault until each fault's outcome is known.
 
 use std::ops::ControlFlow;
 use std::time::Instant;
 
-use fpc::command::Command;
-use fpc::controller::{ControlConfig, ModeKind, Status};
-use fpc::faults::Fault;
+use fpc::control::command::Command;
+use fpc::control::config::ControlConfig;
+use fpc::safety::faults::Fault;
+use fpc::status::{ModeKind, Status};
 use fpc::units::CONTROL_PERIOD_S;
 use serde::Serialize;
 
-use crate::chambers::PortMode;
-use crate::exec::{simulate_board, Execution, SimShared, WATCHDOG_TIMEOUT_US};
-use crate::fault_apply::{InjectionReport, Injector};
-use crate::inject::FaultSpec;
-use crate::model::MachineModel;
+use crate::board::exec::{simulate_board, Execution, SimShared, WATCHDOG_TIMEOUT_US};
+use crate::board::world::World;
+use crate::faults::apply::{InjectionReport, Injector};
+use crate::faults::inject::FaultSpec;
+use crate::plant::chambers::PortMode;
+use crate::plant::model::MachineModel;
 use crate::runlog::{RunLog, REQUIRED};
-use crate::world::World;
 
 /// Pressure ratio → peak speed of the paper's Fig. 3 (PR, m/s).
 pub const FIG3_SPEEDS: [(f64, f64); 4] = [(3.1, 2.3), (3.7, 2.8), (4.3, 3.5), (5.1, 4.1)];
@@ -74,7 +75,7 @@ pub struct RunOptions {
     /// (the stop, the piston at rest, homing's end) is known.
     pub faults: Vec<FaultSpec>,
     /// Timeout of the board's independent watchdog, µs (the board's
-    /// [`crate::exec::WATCHDOG_TIMEOUT_US`]; a run may try another).
+    /// [`crate::board::exec::WATCHDOG_TIMEOUT_US`]; a run may try another).
     pub watchdog_timeout_us: u64,
 }
 
@@ -235,7 +236,7 @@ pub fn control_config(model: &MachineModel) -> ControlConfig {
     let mut c = ControlConfig::reference();
     c.moving_mass_kg = model.piston.mass_kg as f32;
     c.travel_m = model.piston.travel_m as f32;
-    c.cylinder = fpc::gas::Cylinder::from_bore(
+    c.cylinder = fpc::physics::gas::Cylinder::from_bore(
         model.piston.bore_m as f32,
         model.piston.rod_m as f32,
         model.piston.travel_m as f32,
@@ -265,7 +266,7 @@ pub fn control_config(model: &MachineModel) -> ControlConfig {
     c.max_speed_mps = model.limits.max_speed_mps as f32;
     // The model's cogging as the compensation map (what the calibration would find).
     if let Some(cog) = model.cogging() {
-        let mut map = fpc::cogging::HarmonicMap::none();
+        let mut map = fpc::physics::cogging::HarmonicMap::none();
         map.period_m = cog.period_m as f32;
         // A·sin(θ + φ) = A·cos φ·sin θ + A·sin φ·cos θ.
         map.sin_n[0] = (cog.amplitude_n * cog.phase_rad.cos()) as f32;
@@ -681,8 +682,11 @@ fn indicated_work(cumulative_j: &[f64]) -> Option<f64> {
 /// If a discharge port's half-open angle was crossed since `last_phase_rad` (forward
 /// rotation: compressor), the relative pressure error of that chamber against the discharge
 /// line at that instant: what a well-timed volume ratio makes zero.
-fn discharge_opening(plant: &crate::plant::Plant, last_phase_rad: Option<f64>) -> Option<f64> {
-    use fpc::port_timing::Port;
+fn discharge_opening(
+    plant: &crate::plant::dynamics::Plant,
+    last_phase_rad: Option<f64>,
+) -> Option<f64> {
+    use fpc::physics::port_timing::Port;
     let last = last_phase_rad?;
     let now = plant.port_phase_rad();
     let ports = &plant.chambers.params.ports;

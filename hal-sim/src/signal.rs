@@ -9,8 +9,8 @@
 
 use std::ops::Range;
 
-use fpc::differentiator::{SavitzkyGolay, SgConfig};
-use fpc::encoder::EncoderConfig;
+use fpc::sensing::differentiator::{SavitzkyGolay, SgConfig};
+use fpc::sensing::encoder::EncoderConfig;
 use rustfft::num_complex::Complex;
 use rustfft::FftPlanner;
 
@@ -414,7 +414,7 @@ pub struct SgSettings {
 }
 
 /// Velocity and acceleration of `x_m` by the firmware's own fixed-point differentiator
-/// (`fpc::differentiator`), fed the position in encoder counts exactly as the control step
+/// (`fpc::sensing::differentiator`), fed the position in encoder counts exactly as the control step
 /// does. Each output is placed at the sample it estimates (`lag` samples back), so only the
 /// differentiator's true delay remains; the last `lag` values repeat the last estimate.
 pub fn firmware_derivatives(

@@ -85,7 +85,10 @@ fn a_valid_fault_runs_and_the_log_records_its_code() {
         .map(|(t, f)| (*t, *f))
         .expect("a fault in the log");
     println!("first fault code {} at {} s", first.1, first.0);
-    assert_eq!(first.1, f64::from(fpc::faults::Fault::EncoderSignal as u8));
+    assert_eq!(
+        first.1,
+        f64::from(fpc::safety::faults::Fault::EncoderSignal as u8)
+    );
     assert!((1.1..1.101).contains(&first.0), "{first:?}");
 }
 
@@ -95,7 +98,7 @@ fn a_refused_model_file_writes_nothing() {
     let model = d.join("model.toml");
     std::fs::write(
         &model,
-        hal_sim::model::REFERENCE_TOML.replace("mass_kg = 12.0", "mass_kg = -12.0"),
+        hal_sim::plant::model::REFERENCE_TOML.replace("mass_kg = 12.0", "mass_kg = -12.0"),
     )
     .unwrap();
     let (code, err, out) = fpc_sim_run("model_run", &["--model", model.to_str().unwrap()]);

@@ -15,14 +15,15 @@ use std::time::Instant;
 use std::hint::black_box;
 use std::ops::ControlFlow;
 
-use fpc::command::Command;
-use fpc::controller::{ControlStep, CycleInputs, ModeKind};
-use fpc::faults::ResetCause;
+use fpc::control::command::Command;
+use fpc::control::step::{ControlStep, CycleInputs};
+use fpc::safety::faults::ResetCause;
+use fpc::status::ModeKind;
 use fpc::units::{DacCode, PerSection, PhaseDuties, CONTROL_PERIOD_S, CONTROL_PERIOD_US};
-use hal_sim::chambers::PortMode;
-use hal_sim::exec::simulate;
-use hal_sim::model::MachineModel;
-use hal_sim::plant::Drive;
+use hal_sim::board::exec::simulate;
+use hal_sim::plant::chambers::PortMode;
+use hal_sim::plant::dynamics::Drive;
+use hal_sim::plant::model::MachineModel;
 use hal_sim::run::{control_config, run, world, RunOptions};
 
 fn env_number(name: &str) -> Option<f64> {

@@ -113,20 +113,20 @@ pub struct Board {
 pub struct DefmtEvents;
 
 impl fpc::ports::EventLog for DefmtEvents {
-    fn fault_latched(&mut self, fault: fpc::faults::Fault) {
+    fn fault_latched(&mut self, fault: fpc::safety::faults::Fault) {
         defmt::error!("fault latched: {} ({=u8})", fault.name(), fault as u8);
     }
-    fn limit_active(&mut self, limits: fpc::supervisor::LimitFlags) {
+    fn limit_active(&mut self, limits: fpc::safety::supervisor::LimitFlags) {
         defmt::warn!("limit active: {}", limits);
     }
-    fn mode_changed(&mut self, mode: fpc::controller::ModeKind) {
+    fn mode_changed(&mut self, mode: fpc::status::ModeKind) {
         defmt::info!("mode: {}", mode.name());
     }
 }
 
 /// Reads and clears the reset flags (RCC_CSR): why the MCU started.
-pub fn take_reset_cause() -> fpc::faults::ResetCause {
-    use fpc::faults::ResetCause;
+pub fn take_reset_cause() -> fpc::safety::faults::ResetCause {
+    use fpc::safety::faults::ResetCause;
     let csr = embassy_stm32::pac::RCC.csr().read();
     let cause = if csr.iwdgrstf() {
         ResetCause::Watchdog

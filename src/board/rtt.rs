@@ -3,7 +3,7 @@
 //! | channel | direction | size | what |
 //! |---|---|---|---|
 //! | up 0 `defmt` | target → host | 1 KiB | defmt logs (never from the 20 kHz path) |
-//! | up 1 `telemetry` | target → host | 8 KiB | COBS telemetry frames (`fpc::telemetry`) |
+//! | up 1 `telemetry` | target → host | 8 KiB | COBS telemetry frames (`fpc::link::telemetry`) |
 //! | up 2 `replies` | target → host | 512 B | command replies and rejections (`fpc::link`) |
 //! | down 0 `commands` | host → target | 256 B | command frames (`fpc::link`) |
 //!

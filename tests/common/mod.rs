@@ -3,8 +3,8 @@
 //! distortions the reference world does not have).
 #![allow(dead_code)] // each test file uses its own subset
 
-use fpc::encoder::SinCosCalibration;
 use fpc::ports::SinCosCodes;
+use fpc::sensing::encoder::SinCosCalibration;
 use fpc::units::AdcCode;
 
 /// SplitMix64: tiny, seeded, deterministic.
@@ -66,7 +66,7 @@ pub fn encoder_codes(
 /// The distortion of the acceptance test: 5 % gain mismatch between the channels, offsets of
 /// 2 % of the amplitude, 3° quadrature error.
 pub fn distorted_encoder() -> SinCosCalibration {
-    let a = fpc::encoder::NOMINAL_AMPLITUDE_CODES;
+    let a = fpc::sensing::encoder::NOMINAL_AMPLITUDE_CODES;
     SinCosCalibration {
         sin_offset: 0.02 * a,
         cos_offset: -0.02 * a,

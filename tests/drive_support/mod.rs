@@ -7,16 +7,18 @@
 use std::cell::{Ref, RefMut};
 use std::rc::Rc;
 
-use fpc::calibration::{Calibrated, Routine};
-use fpc::command::{Command, Refusal};
-use fpc::controller::{ControlConfig, ControlStep, CycleInputs, ModeKind, Status};
+use fpc::control::calibration::{Calibrated, Routine};
+use fpc::control::command::{Command, Refusal};
+use fpc::control::config::ControlConfig;
+use fpc::control::step::{ControlStep, CycleInputs};
 use fpc::ports::{
     CurrentInput, EncoderInput, PressureInput, PwmOutput, QuadratureInput, TorqueOutput,
 };
+use fpc::status::{ModeKind, Status};
 use fpc::units::{PerSection, Section};
-use hal_sim::chambers::PortMode;
-use hal_sim::model::MachineModel;
-use hal_sim::world::{peripherals, SimPeripherals, World, WorldRef};
+use hal_sim::board::world::{peripherals, SimPeripherals, World, WorldRef};
+use hal_sim::plant::chambers::PortMode;
+use hal_sim::plant::model::MachineModel;
 
 /// The firmware's step on a simulated board.
 pub struct Bench {
@@ -201,7 +203,7 @@ impl Bench {
 /// (no cogging map, angle and current-sense offsets at zero).
 pub fn uncalibrated_config(model: &MachineModel) -> ControlConfig {
     let mut c = hal_sim::run::control_config(model);
-    c.allocation.cogging = fpc::cogging::HarmonicMap::none();
+    c.allocation.cogging = fpc::physics::cogging::HarmonicMap::none();
     c
 }
 
@@ -259,7 +261,7 @@ pub const COGGING_PHASE_RAD: f64 = 0.9;
 /// phase.
 pub fn machine_with_unknowns() -> MachineModel {
     let mut m = MachineModel::reference();
-    m.effects.section_misalignment = Some(hal_sim::model::MisalignmentEffect {
+    m.effects.section_misalignment = Some(hal_sim::plant::model::MisalignmentEffect {
         offset_m: MISALIGNMENT_M,
     });
     m.sensors.current.offset_master_a = CURRENT_OFFSETS_A[0];

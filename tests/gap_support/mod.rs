@@ -3,7 +3,7 @@
 #![allow(dead_code)] // each test file uses its own subset
 
 use hal_sim::gap::{analyse, GapJson, GapOptions};
-use hal_sim::model::{MachineModel, REFERENCE_TOML};
+use hal_sim::plant::model::{MachineModel, REFERENCE_TOML};
 use hal_sim::run::{run, RunOptions};
 use hal_sim::runlog::RunLog;
 

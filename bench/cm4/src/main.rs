@@ -25,15 +25,17 @@ use core::hint::black_box;
 
 use cortex_m_rt::{entry, exception, ExceptionFrame};
 use cortex_m_semihosting::{debug, hprintln};
-use fpc::command::Command;
-use fpc::controller::{ControlConfig, ControlStep, CycleInputs, CycleOutputs, ModeKind, Status};
-use fpc::differentiator::{SavitzkyGolay, SgConfig};
-use fpc::encoder::{EncoderReading, SinCosDecoder, NOMINAL_AMPLITUDE_CODES};
-use fpc::foc::CurrentController;
-use fpc::motor::{inverse_clarke, inverse_park, Dq};
+use fpc::control::command::Command;
+use fpc::control::config::ControlConfig;
+use fpc::control::step::{ControlStep, CycleInputs, CycleOutputs};
+use fpc::drive::foc::CurrentController;
+use fpc::physics::motor::{inverse_clarke, inverse_park, Dq};
 use fpc::ports::{EncoderCodes, PhaseCurrentCodes, PressureCodes, SinCosCodes};
-use fpc::pressure::PressureCalibration;
 use fpc::real::Real;
+use fpc::sensing::differentiator::{SavitzkyGolay, SgConfig};
+use fpc::sensing::encoder::{EncoderReading, SinCosDecoder, NOMINAL_AMPLITUDE_CODES};
+use fpc::sensing::pressure::PressureCalibration;
+use fpc::status::{ModeKind, Status};
 use fpc::units::{AdcCode, PerSection, PhaseDuties, Ticks, CONTROL_PERIOD_US};
 // Only for its interrupt vector table, which cortex-m-rt requires here (see Cargo.toml).
 use embassy_stm32 as _;

@@ -16,7 +16,7 @@
 //! common convention ([`UNDECLARED_ALIGN_SAMPLES`]) and the excess left for `actuator_lag`
 //! to explain and report.
 
-use crate::model::MachineModel;
+use crate::plant::model::MachineModel;
 
 use super::data::{Measured, ALIGN_WINDOW_SAMPLES, UNDECLARED_ALIGN_SAMPLES};
 use super::fit::{minimise_1d, sumsq};

@@ -177,7 +177,7 @@ mod tests {
     fn sg_weights_match_the_firmware_differentiator() {
         // Push an impulse of one count through the firmware's own filter (centred): its
         // outputs are the weights times metres per count.
-        use fpc::differentiator::{SavitzkyGolay, SgConfig};
+        use fpc::sensing::differentiator::{SavitzkyGolay, SgConfig};
         let (n, dt, mpc) = (41usize, 50e-6, 1e-6f32);
         let mut sg = SavitzkyGolay::new(SgConfig {
             window: n,

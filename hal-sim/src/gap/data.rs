@@ -201,8 +201,8 @@ impl Measured {
         let x_m = col("x_m")?;
         let theta_rad = col("theta_rad")?;
         let fs = 1.0 / dt_s;
-        let sg_window =
-            ((SG_SPAN_S * fs).round() as usize | 1).clamp(5, fpc::differentiator::MAX_WINDOW);
+        let sg_window = ((SG_SPAN_S * fs).round() as usize | 1)
+            .clamp(5, fpc::sensing::differentiator::MAX_WINDOW);
         if n < 4 * sg_window {
             return Err(format!(
                 "{n} rows: at least {} needed for a {sg_window}-sample differentiator",
@@ -279,7 +279,7 @@ impl Measured {
     /// (counted from 1 over the data rows) that is not: a position outside the heads by more
     /// than [`POSITION_MARGIN_M`], a force beyond ten times the sections' peak, a pressure
     /// outside 0–100 MPa. Such values are not noise: left in, they poison every fit.
-    pub fn check_against(&self, model: &crate::model::MachineModel) -> Result<(), String> {
+    pub fn check_against(&self, model: &crate::plant::model::MachineModel) -> Result<(), String> {
         let travel = model.piston.travel_m;
         let (lo, hi) = (-POSITION_MARGIN_M, travel + POSITION_MARGIN_M);
         let force_max = 10.0 * model.limits.force_limit_n.abs().max(1.0);

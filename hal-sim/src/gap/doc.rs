@@ -3,7 +3,7 @@
 //! the edited document is what gets evaluated and written — so `DIR/model.toml` is exactly
 //! the model the "after" figures were computed with.
 
-use crate::model::MachineModel;
+use crate::plant::model::MachineModel;
 
 /// One change to the model document.
 #[derive(Clone, Debug, PartialEq)]
@@ -117,7 +117,7 @@ mod tests {
 
     #[test]
     fn edits_add_replace_and_remove_effects_and_the_result_loads() {
-        let doc = ModelDoc::parse(crate::model::REFERENCE_TOML).unwrap();
+        let doc = ModelDoc::parse(crate::plant::model::REFERENCE_TOML).unwrap();
         let d = doc.with(&[
             Edit::RemoveSection("effects.cogging"),
             Edit::Set("effects.slave_lag", "delay_s", 7.5e-4),

@@ -22,7 +22,7 @@
 
 use std::f64::consts::TAU;
 
-use crate::fastmath::sin_cos;
+use crate::plant::fastmath::sin_cos;
 use crate::signal::{delayed, xcorr_lag};
 
 use super::data::{Measured, PortsMeta};

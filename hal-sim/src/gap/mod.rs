@@ -31,7 +31,7 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use crate::cli::Failure;
+use crate::failure::Failure;
 use crate::runlog::RunLog;
 
 use data::Measured;
@@ -226,7 +226,7 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         selection.doc.to_text().map_err(Failure::runtime)?
     );
     // Re-run the comparison with the model exactly as written.
-    let after_model = crate::model::MachineModel::parse(&model_text)
+    let after_model = crate::plant::model::MachineModel::parse(&model_text)
         .map_err(|e| Failure::runtime(format!("augmented model does not load: {e}")))?;
     let mut warnings = selection.warnings.clone();
     if measured.ports == data::PortsMeta::Unknown {

@@ -5,7 +5,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use crate::model::MachineModel;
+use crate::plant::model::MachineModel;
 use crate::plot::{lines, Series};
 
 use super::effects::{acting_force_lag, slave_force_lag, Ctx};

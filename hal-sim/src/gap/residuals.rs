@@ -11,12 +11,12 @@
 //! Friction acts against the sliding velocity `(ẋ, ω·r)` of the turning piston, as in the
 //! plant (`plant.rs`): its axial part is `F_fr(|u|)·ẋ/|u|`.
 
-use fpc::friction::FrictionParams;
+use fpc::physics::friction::FrictionParams;
 
-use crate::chambers::{Chambers, Lines, PortMode};
-use crate::model::MachineModel;
-use crate::plant::PlantParams;
-use crate::sensors::PitchError;
+use crate::board::sensors::PitchError;
+use crate::plant::chambers::{Chambers, Lines, PortMode};
+use crate::plant::dynamics::PlantParams;
+use crate::plant::model::MachineModel;
 use crate::signal::delayed;
 
 use super::band::{force_kernel, lowpass, sg_weights, Kernel};
@@ -321,7 +321,7 @@ pub fn acting_motor_force_n(data: &Measured, delay_s: f64) -> Vec<f64> {
 /// along the axial direction.
 #[inline]
 pub fn axial_friction_n(law: &FrictionParams<f64>, v_mps: f64, tangential_mps: f64) -> f64 {
-    // The plant's own law (fpc::friction), so model and plant can never disagree.
+    // The plant's own law (fpc::physics::friction), so model and plant can never disagree.
     law.sliding_secant(v_mps, tangential_mps) * v_mps
 }
 

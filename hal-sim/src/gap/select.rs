@@ -55,7 +55,7 @@ pub const PRESSURE_RESOLUTION_PA: f64 = 100.0;
 /// The smallest RMS change of a channel's residual worth naming: what its sensors resolve.
 /// The encoder's is one step of the sin/cos interpolation, `λ/(2π·amplitude)` (≈ 2.4 µm
 /// on the reference encoder): patterns below it are the interpolation's own rounding.
-pub fn resolution(ch: ChannelId, model: &crate::model::MachineModel) -> f64 {
+pub fn resolution(ch: ChannelId, model: &crate::plant::model::MachineModel) -> f64 {
     match ch {
         ChannelId::Force | ChannelId::SlaveForce => FORCE_RESOLUTION_N,
         ChannelId::Encoder => {

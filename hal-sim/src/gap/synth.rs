@@ -9,12 +9,12 @@
 
 use std::f64::consts::PI;
 
-use crate::chambers::PortMode;
-use crate::kinematic::CycleDrive;
-use crate::model::MachineModel;
-use crate::plant::{Plant, PlantParams};
+use crate::board::sensors::{Noise, Sensors};
+use crate::plant::chambers::PortMode;
+use crate::plant::dynamics::{Plant, PlantParams};
+use crate::plant::kinematic::CycleDrive;
+use crate::plant::model::MachineModel;
 use crate::runlog::{RunLog, REQUIRED};
-use crate::sensors::{Noise, Sensors};
 
 use super::residuals::axial_friction_n;
 

@@ -1,0 +1,235 @@
+//! Runs the firmware's task bodies against the simulated board, in lock-step with
+//! simulated time.
+//!
+//! The futures are exactly `fpc::tasks::control_run`, `fpc::tasks::supervision_run` and
+//! `fpc::tasks::telemetry_run` (at `World::telemetry`'s decimation, 0 = off), polled
+//! on this thread with a no-op waker: poll every task until each waits on the
+//! hardware (the next cycle, or a deadline), let the caller observe and command, advance the
+//! world by one control period, repeat. No threads, no wall clock, no sleeps.
+//!
+//! [`simulate_board`] adds what the board does beyond running the tasks, for the fault
+//! scenarios of `faults.md`: a control step that overruns (the task is not polled for some
+//! periods, the outputs hold), a task that hangs, and the independent watchdog, which resets
+//! the MCU when the supervision task stops feeding it: outputs off, the shared RAM and every
+//! task started afresh with [`ResetCause::Watchdog`], while the plant keeps moving.
+
+use std::cell::RefCell;
+use std::future::Future;
+use std::ops::ControlFlow;
+use std::pin::pin;
+use std::rc::Rc;
+use std::task::{Context, Waker};
+
+use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use fpc::control::config::ControlConfig;
+use fpc::ports::ControlPorts;
+use fpc::safety::faults::ResetCause;
+use fpc::shared::Shared;
+use fpc::tasks::{control_run, supervision_run, telemetry_run};
+
+use fpc::units::DacCode;
+
+use crate::board::capture::telemetry_sink;
+use crate::board::world::{
+    clock, cycle, event_log, peripherals, watchdog, SimCycle, SimPeripherals, World, WorldRef,
+};
+
+/// Timeout of the board's independent watchdog once running, µs
+/// ([`fpc::tasks::WATCHDOG_TIMEOUT_US`]).
+pub const WATCHDOG_TIMEOUT_US: u64 = fpc::tasks::WATCHDOG_TIMEOUT_US as u64;
+
+/// Timeout of the board's watchdog from a boot to its first feed, µs
+/// ([`fpc::tasks::BOOT_WATCHDOG_TIMEOUT_US`]).
+pub const BOOT_WATCHDOG_TIMEOUT_US: u64 = fpc::tasks::BOOT_WATCHDOG_TIMEOUT_US as u64;
+
+/// The board's execution beyond polling the tasks: overruns, hangs and the watchdog.
+/// [`simulate_board`] hands it to the caller every period, so a fault scenario can change
+/// it at any instant.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Execution {
+    /// Timeout of the independent watchdog once it has been fed, µs; `None`: not running
+    /// (the default, so a test body that never checks in is not reset). From a boot to the
+    /// first feed the board's longer [`BOOT_WATCHDOG_TIMEOUT_US`] applies, as on the MCU.
+    pub watchdog_timeout_us: Option<u64>,
+    /// Periods the control task is still busy with its current step: it is not polled, it
+    /// misses those cycle triggers and the outputs hold (an overrunning step).
+    pub control_busy_periods: u32,
+    /// The control task is never polled again (hung) until the next reset.
+    pub control_hung: bool,
+    /// The supervision task is never polled again (hung) until the next reset.
+    pub supervision_hung: bool,
+    /// Simulated time of every watchdog reset so far, µs.
+    pub resets_us: Vec<u64>,
+}
+
+/// The shared state as the simulator instantiates it (single thread: no-op mutex).
+pub type SimShared = Shared<NoopRawMutex>;
+
+/// Every control-task port of `world`'s simulated board (one place, for each boot).
+fn control_ports(world: &WorldRef) -> SimControlPorts {
+    ControlPorts {
+        cycle: cycle(world),
+        encoders: peripherals(world),
+        currents: peripherals(world),
+        pwm: peripherals(world),
+        quadrature: peripherals(world),
+        servo: peripherals(world),
+        pressures: peripherals(world),
+    }
+}
+
+/// The control-task ports of the simulated board.
+pub type SimControlPorts = ControlPorts<
+    SimCycle,
+    SimPeripherals,
+    SimPeripherals,
+    SimPeripherals,
+    SimPeripherals,
+    SimPeripherals,
+    SimPeripherals,
+>;
+
+/// Runs the firmware's control and supervision tasks on `world` until `each_cycle` breaks.
+///
+/// `each_cycle` is called once per control period, after the tasks have run for that
+/// period and before the plant advances; it may inspect the world and the shared state
+/// and post commands (they are taken at the next cycle, as from the RTT channel).
+pub fn simulate<F>(world: World, config: ControlConfig, each_cycle: F) -> World
+where
+    F: FnMut(&mut World, &SimShared) -> ControlFlow<()>,
+{
+    let shared = SimShared::new();
+    simulate_with(
+        world,
+        &shared,
+        |io, shared| control_run(io, shared, config, ResetCause::PowerOn),
+        each_cycle,
+    )
+}
+
+/// As [`simulate`], with the control task body given by `control` (a test can put a
+/// different body in the loop, e.g. one that never drives, to show what the real one does).
+pub fn simulate_with<'s, F, C, Fut>(
+    world: World,
+    shared: &'s SimShared,
+    control: C,
+    mut each_cycle: F,
+) -> World
+where
+    F: FnMut(&mut World, &SimShared) -> ControlFlow<()>,
+    C: FnOnce(SimControlPorts, &'s SimShared) -> Fut,
+    Fut: Future,
+{
+    let world: WorldRef = Rc::new(RefCell::new(world));
+    let io = control_ports(&world);
+    {
+        let mut control = pin!(control(io, shared));
+        let mut supervision = pin!(supervision_run(
+            clock(&world),
+            clock(&world),
+            watchdog(&world),
+            event_log(&world),
+            shared
+        ));
+        let decimation = world.borrow().telemetry.decimation;
+        let mut telemetry = pin!(telemetry_run(telemetry_sink(&world), shared, decimation));
+        let mut cx = Context::from_waker(Waker::noop());
+        loop {
+            // The task bodies loop forever; a body that returns simply stops acting.
+            let _ = control.as_mut().poll(&mut cx);
+            let _ = telemetry.as_mut().poll(&mut cx);
+            let _ = supervision.as_mut().poll(&mut cx);
+            let mut w = world.borrow_mut();
+            if each_cycle(&mut w, shared).is_break() {
+                break;
+            }
+            w.advance();
+        }
+    }
+    // The task futures, the only other holders, were dropped above, so this never clones.
+    Rc::try_unwrap(world).map_or_else(|rc| rc.borrow().clone(), RefCell::into_inner)
+}
+
+/// Runs the firmware's control, supervision and telemetry tasks on `world` as
+/// [`simulate`] does, with the board's [`Execution`]: `each_cycle` may make the control
+/// step overrun or a task hang, and when the watchdog is running and not fed for its timeout
+/// the board resets.
+///
+/// A reset, as the MCU does it: the motor outputs go off and the servo command to zero at
+/// once (the pins float, the gate drivers' pull-downs hold them low), the shared state is
+/// lost, and every task starts again from its entry with [`ResetCause::Watchdog`] at the
+/// next period. The plant is not reset: the piston keeps whatever speed it had. Returns the
+/// world and the execution at the end.
+pub fn simulate_board<F>(
+    world: World,
+    config: ControlConfig,
+    execution: Execution,
+    mut each_cycle: F,
+) -> (World, Execution)
+where
+    F: FnMut(&mut World, &SimShared, &mut Execution) -> ControlFlow<()>,
+{
+    let world: WorldRef = Rc::new(RefCell::new(world));
+    let mut execution = execution;
+    let mut cause = ResetCause::PowerOn;
+    let mut cx = Context::from_waker(Waker::noop());
+    'boot: loop {
+        // RAM starts afresh at every boot.
+        let shared = SimShared::new();
+        let io = control_ports(&world);
+        let mut control = pin!(control_run(io, &shared, config.clone(), cause));
+        let mut supervision = pin!(supervision_run(
+            clock(&world),
+            clock(&world),
+            watchdog(&world),
+            event_log(&world),
+            &shared
+        ));
+        let decimation = world.borrow().telemetry.decimation;
+        let mut telemetry = pin!(telemetry_run(telemetry_sink(&world), &shared, decimation));
+        loop {
+            if !execution.control_hung {
+                if execution.control_busy_periods == 0 {
+                    let _ = control.as_mut().poll(&mut cx);
+                } else {
+                    execution.control_busy_periods -= 1;
+                }
+            }
+            let _ = telemetry.as_mut().poll(&mut cx);
+            if !execution.supervision_hung {
+                let _ = supervision.as_mut().poll(&mut cx);
+            }
+            let mut w = world.borrow_mut();
+            if each_cycle(&mut w, &shared, &mut execution).is_break() {
+                break 'boot;
+            }
+            let starved = execution.watchdog_timeout_us.is_some_and(|timeout| {
+                let window = if w.watchdog_fed_since_boot {
+                    timeout
+                } else {
+                    timeout.max(BOOT_WATCHDOG_TIMEOUT_US)
+                };
+                w.time_us().saturating_sub(w.watchdog_fed_us) >= window
+            });
+            if starved {
+                w.enabled = false;
+                w.duties = Default::default();
+                w.servo_code = DacCode::MID;
+                // Started again by the boot, in its boot window, as the firmware's init does.
+                w.watchdog_fed_us = w.time_us();
+                w.watchdog_fed_since_boot = false;
+                execution.resets_us.push(w.time_us());
+                execution.control_hung = false;
+                execution.supervision_hung = false;
+                execution.control_busy_periods = 0;
+                cause = ResetCause::Watchdog;
+                w.advance();
+                continue 'boot;
+            }
+            w.advance();
+        }
+    }
+    // The task futures, the only other holders, were dropped above, so this never clones.
+    let world = Rc::try_unwrap(world).map_or_else(|rc| rc.borrow().clone(), RefCell::into_inner);
+    (world, execution)
+}

@@ -1,0 +1,13 @@
+//! The simulated board: what the firmware's task bodies run against on the host.
+//!
+//! Simulated time, the sampling burst and the latched outputs behind the port traits
+//! ([`world`]), the sensor models ([`sensors`]) and their faults ([`corruption`]), the
+//! executor that polls the firmware's tasks in lock-step with simulated time ([`exec`]), and
+//! the telemetry capture ([`capture`]). It drives the [`crate::plant::dynamics`]; it knows neither the
+//! fault injector nor the runner.
+
+pub mod capture;
+pub mod corruption;
+pub mod exec;
+pub mod sensors;
+pub mod world;

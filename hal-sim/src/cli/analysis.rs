@@ -1,0 +1,179 @@
+//! What the log-analysis subcommands (`decode`, `lag`, `filters`, `forces`, `energy`, `pv`)
+//! share: reading the run log and the model with the exit codes of `formats.md`, looking up
+//! columns, the output directory, and progress bars.
+
+use std::io::IsTerminal;
+use std::path::Path;
+
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::failure::Failure;
+use crate::plant::model::MachineModel;
+use crate::runlog::RunLog;
+
+/// Reads and validates a run log; a bad log is bad input (exit 2) naming file, line and
+/// column (`faults.md` #18).
+pub fn read_log(path: &Path) -> Result<RunLog, Failure> {
+    RunLog::read(path).map_err(|e| Failure::bad_input(format!("{}: {e}", path.display())))
+}
+
+/// The model at `path`, or the embedded reference machine.
+pub fn read_model(path: Option<&Path>) -> Result<MachineModel, Failure> {
+    match path {
+        Some(p) => MachineModel::read(p).map_err(|e| Failure::bad_input(e.0)),
+        None => Ok(MachineModel::reference()),
+    }
+}
+
+/// The column `name` of `log`; missing is bad input naming the flag that asked for it.
+pub fn column<'a>(log: &'a RunLog, name: &str, flag: &str) -> Result<&'a [f64], Failure> {
+    log.column(name).ok_or_else(|| {
+        Failure::bad_input(format!(
+            "{flag} {name}: no such column (the log has: {})",
+            log.names.join(", ")
+        ))
+    })
+}
+
+/// The log's sample time, s (validated uniform and positive by the reader).
+pub fn sample_time_s(log: &RunLog) -> Result<f64, Failure> {
+    log.sample_time_s()
+        .filter(|dt| dt.is_finite() && *dt > 0.0)
+        .ok_or_else(|| Failure::bad_input("the log has no usable time step"))
+}
+
+/// Creates the output directory.
+pub fn out_dir(dir: &Path) -> Result<(), Failure> {
+    std::fs::create_dir_all(dir)
+        .map_err(|e| Failure::runtime(format!("cannot create {}: {e}", dir.display())))
+}
+
+/// A progress bar of `len` steps on stderr, hidden when stderr is not a terminal (pipes,
+/// CI, tests).
+pub fn progress(len: u64, what: &str) -> ProgressBar {
+    if !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(len);
+    if let Ok(style) = ProgressStyle::with_template("{msg:>10} [{bar:40}] {pos}/{len} {eta}") {
+        bar.set_style(style);
+    }
+    bar.set_message(what.to_string());
+    bar
+}
+
+/// Runs the named `steps` of an analysis in order, advancing one bar over them.
+pub struct Steps {
+    bar: ProgressBar,
+}
+
+impl Steps {
+    /// A bar over `count` steps.
+    pub fn new(count: u64, what: &str) -> Self {
+        Steps {
+            bar: progress(count, what),
+        }
+    }
+
+    /// Marks one step done, naming the next.
+    pub fn next(&self, next: &str) {
+        self.bar.inc(1);
+        self.bar.set_message(next.to_string());
+    }
+
+    /// Removes the bar.
+    pub fn finish(self) {
+        self.bar.finish_and_clear();
+    }
+}
+
+/// Index range of the samples with `from_s ≤ t ≤ to_s`; a missing bound is taken from
+/// `default` (itself clamped to the log).
+pub fn time_window(
+    t: &[f64],
+    from_s: Option<f64>,
+    to_s: Option<f64>,
+    default: std::ops::Range<usize>,
+) -> std::ops::Range<usize> {
+    let n = t.len();
+    let start = match from_s {
+        Some(f) => t.partition_point(|&v| v < f),
+        None => default.start.min(n),
+    };
+    let end = match to_s {
+        Some(e) => t.partition_point(|&v| v <= e),
+        None => default.end.min(n),
+    };
+    if start < end {
+        start..end
+    } else {
+        0..n
+    }
+}
+
+/// The plotting window of an analysis: from 10 ms before the start of the last stroke to
+/// 90 ms into it (the acceleration, where filters differ most, as in the paper's Figs. 7
+/// and 8), or the whole log when it has no stroke.
+pub fn default_window(
+    t: &[f64],
+    strokes: &[std::ops::Range<usize>],
+    dt: f64,
+) -> std::ops::Range<usize> {
+    match strokes.last() {
+        Some(s) => {
+            let before = (0.010 / dt).round() as usize;
+            let after = (0.090 / dt).round() as usize;
+            s.start.saturating_sub(before)..(s.start + after).min(t.len())
+        }
+        None => 0..t.len(),
+    }
+}
+
+/// The zero-phase low-pass the analyses use as their reference filter.
+#[derive(clap::Args, Clone, Debug)]
+pub struct ZeroPhaseArgs {
+    /// Cut-off of the zero-phase Butterworth low-pass (filtfilt), Hz.
+    #[arg(long, default_value_t = 100.0)]
+    pub cutoff_hz: f64,
+    /// Order of that low-pass (even).
+    #[arg(long, default_value_t = 4)]
+    pub filter_order: usize,
+}
+
+impl ZeroPhaseArgs {
+    /// The filter's sections at sample time `dt`; bad settings are bad input naming the flag.
+    pub fn sections(&self, dt: f64) -> Result<Vec<crate::signal::Biquad>, Failure> {
+        crate::signal::butterworth_lowpass(self.filter_order, self.cutoff_hz, 1.0 / dt)
+            .map_err(|e| Failure::bad_input(format!("--cutoff-hz/--filter-order: {e}")))
+    }
+
+    /// Short description for printed figures.
+    pub fn describe(&self) -> String {
+        format!(
+            "filtfilt, Butterworth order {} at {} Hz",
+            self.filter_order, self.cutoff_hz
+        )
+    }
+}
+
+/// The time window plotted.
+#[derive(clap::Args, Clone, Debug)]
+pub struct WindowArgs {
+    /// Plot from this time, s (default: 10 ms before the last stroke starts).
+    #[arg(long)]
+    pub from_s: Option<f64>,
+    /// Plot up to this time, s (default: 90 ms into the last stroke).
+    #[arg(long)]
+    pub to_s: Option<f64>,
+}
+
+/// The samples compared by the analyses: all but 20 ms (at least 2 samples) at each end,
+/// where one-sided differences and filter start-up would dominate the figures.
+pub fn interior(len: usize, dt: f64) -> std::ops::Range<usize> {
+    let edge = ((0.020 / dt).round() as usize).max(2);
+    if len > 4 * edge {
+        edge..len - edge
+    } else {
+        0..len
+    }
+}

@@ -1,0 +1,251 @@
+//! The `fpc-sim derive` subcommand: the firmware's own fixed-point Savitzky–Golay
+//! differentiator (`fpc::sensing::differentiator`), run offline over a run log's `x_m`.
+//!
+//! Prints CSV `t_s,x_m,v_mps,a_mps2` on stdout, one row per log row. Each value is the
+//! derivative *at that row's time*: the window ending `lag` rows later (so `--lag 0`, the
+//! causal end point, is exactly what the firmware has at that instant, and `--lag (N−1)/2`
+//! is scipy's `savgol_filter`). Rows without such a window — the first N−1−L and the last
+//! L — are evaluated on the first or last N samples at their own offset, which is scipy's
+//! `mode='interp'`. So every row matches scipy (`tests/derive_matches_scipy.rs`).
+//!
+//! Positions are fed as counts of a scale fitted to the log (2³⁰ counts over the largest
+//! excursion from the first sample, sub-nm for a stroke), not the encoder's 22.9 nm, so the
+//! figures are the differentiator's and not a re-quantisation's.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+use fpc::control::config::ControlConfig;
+use fpc::sensing::differentiator::{Derivatives, SavitzkyGolay, SgConfig, SgError, MAX_WINDOW};
+
+use crate::failure::{CmdResult, Failure};
+use crate::runlog::RunLog;
+
+/// Velocity and acceleration of the logged position by the firmware's differentiator.
+#[derive(Args, Debug)]
+pub struct DeriveArgs {
+    /// Run log (CSV, `formats.md` §1).
+    #[arg(long)]
+    pub measured: PathBuf,
+    /// Window length N (odd, 3..=41; default: the firmware's).
+    #[arg(long)]
+    pub window: Option<usize>,
+    /// Polynomial order K (1..=4, < N; default: the firmware's).
+    #[arg(long)]
+    pub order: Option<usize>,
+    /// Evaluation point, samples back from the newest (0 = causal end point, (N−1)/2 =
+    /// centred; default: the firmware's).
+    #[arg(long)]
+    pub lag: Option<usize>,
+}
+
+/// Differentiator settings: window, order, evaluation point.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Settings {
+    /// Window length N.
+    pub window: usize,
+    /// Polynomial order K.
+    pub order: usize,
+    /// Evaluation point, samples back from the newest.
+    pub lag: usize,
+}
+
+impl Settings {
+    /// What the firmware runs (`ControlConfig::reference()`).
+    pub fn firmware() -> Self {
+        let c = ControlConfig::reference();
+        Settings {
+            window: c.sg_window,
+            order: c.sg_order,
+            lag: c.sg_lag,
+        }
+    }
+}
+
+/// The derivatives of a position series, one per sample, at that sample's time.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Derived {
+    /// Velocity, m/s.
+    pub v_mps: Vec<f64>,
+    /// Acceleration, m/s² (0 for order 1).
+    pub a_mps2: Vec<f64>,
+}
+
+/// Runs `fpc-sim derive`.
+pub fn main(args: DeriveArgs) -> CmdResult {
+    let fw = Settings::firmware();
+    let settings = Settings {
+        window: args.window.unwrap_or(fw.window),
+        order: args.order.unwrap_or(fw.order),
+        lag: args.lag.unwrap_or(fw.lag),
+    };
+    check(settings).map_err(Failure::bad_input)?;
+    let log = read(&args.measured)?;
+    let t = log.column("t_s").unwrap_or_default();
+    let x = log.column("x_m").unwrap_or_default();
+    let dt = log.sample_time_s().unwrap_or(0.0);
+    let d = derive(x, dt, settings)
+        .map_err(|e| Failure::bad_input(format!("{}: {e}", args.measured.display())))?;
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    let mut write = || -> std::io::Result<()> {
+        writeln!(out, "t_s,x_m,v_mps,a_mps2")?;
+        for (((t, x), v), a) in t.iter().zip(x).zip(&d.v_mps).zip(&d.a_mps2) {
+            writeln!(out, "{t},{x},{v},{a}")?;
+        }
+        out.flush()
+    };
+    write().map_err(|e| Failure::runtime(format!("cannot write to stdout: {e}")))
+}
+
+/// Reads and validates the log; the message names the file, line and column at fault.
+fn read(path: &Path) -> Result<RunLog, Failure> {
+    RunLog::read(path).map_err(|e| Failure::bad_input(format!("{}: {e}", path.display())))
+}
+
+/// Checks the settings; the message names the flag at fault.
+pub fn check(s: Settings) -> Result<(), String> {
+    match SavitzkyGolay::new(config(s, 1.0, 1.0)) {
+        Ok(_) => Ok(()),
+        Err(SgError::Window) => Err(format!(
+            "--window {}: must be odd, 3..={MAX_WINDOW}",
+            s.window
+        )),
+        Err(SgError::Order) => Err(format!(
+            "--order {}: must be 1..=4 and less than the window ({})",
+            s.order, s.window
+        )),
+        Err(SgError::Lag) => Err(format!(
+            "--lag {}: must be less than the window ({})",
+            s.lag, s.window
+        )),
+        Err(SgError::Scale) => Err("the settings give no valid differentiator".into()),
+    }
+}
+
+fn config(s: Settings, sample_time_s: f64, m_per_count: f64) -> SgConfig {
+    SgConfig {
+        window: s.window,
+        order: s.order,
+        lag: s.lag,
+        sample_time_s: sample_time_s as f32,
+        m_per_count: m_per_count as f32,
+    }
+}
+
+/// The derivatives of `x_m` (uniform sample time `sample_time_s`) at every sample, by the
+/// firmware's differentiator, with scipy's edge treatment (see the module doc).
+pub fn derive(x_m: &[f64], sample_time_s: f64, s: Settings) -> Result<Derived, String> {
+    let n = s.window;
+    if x_m.len() < n {
+        return Err(format!("{} samples, the window needs {n}", x_m.len()));
+    }
+    if !(sample_time_s.is_finite() && sample_time_s > 0.0) {
+        return Err(format!("sample time {sample_time_s} s is not positive"));
+    }
+    // Counts of a scale that spans ±2³⁰ over the largest excursion: exact to < 1e-9 of it.
+    let x0 = x_m.first().copied().unwrap_or(0.0);
+    let span = x_m.iter().fold(0.0f64, |m, x| m.max((x - x0).abs()));
+    let m_per_count = if span > 0.0 {
+        span / f64::from(1u32 << 30)
+    } else {
+        1e-9
+    };
+    let counts: Vec<i32> = x_m
+        .iter()
+        .map(|x| ((x - x0) / m_per_count).round() as i32)
+        .collect();
+    let make = |lag: usize| {
+        SavitzkyGolay::new(config(Settings { lag, ..s }, sample_time_s, m_per_count))
+            .map_err(|e| format!("differentiator {s:?}: {e:?}"))
+    };
+    // The derivatives at the end of a window of N samples, evaluated `lag` back.
+    let on_window = |window: &[i32], lag: usize| -> Result<Derivatives, String> {
+        let mut sg = make(lag)?;
+        let mut d = Derivatives::default();
+        for &c in window {
+            d = sg.push(c);
+        }
+        Ok(d)
+    };
+
+    let len = x_m.len();
+    let mut out = vec![Derivatives::default(); len];
+    // Interior: the window ending at i estimates row i − lag.
+    let mut sg = make(s.lag)?;
+    for (i, &c) in counts.iter().enumerate() {
+        let d = sg.push(c);
+        if i + 1 >= n {
+            if let Some(o) = out.get_mut(i - s.lag) {
+                *o = d;
+            }
+        }
+    }
+    // Edges: the first and last N samples, each row at its own offset.
+    let first = counts.get(..n).unwrap_or_default();
+    for (row, o) in out
+        .iter_mut()
+        .enumerate()
+        .take((n - 1).saturating_sub(s.lag))
+    {
+        *o = on_window(first, n - 1 - row)?;
+    }
+    let last = counts.get(len - n..).unwrap_or_default();
+    for (row, o) in out.iter_mut().enumerate().skip(len - s.lag) {
+        *o = on_window(last, len - 1 - row)?;
+    }
+    Ok(Derived {
+        v_mps: out.iter().map(|d| f64::from(d.velocity_mps)).collect(),
+        a_mps2: out.iter().map(|d| f64::from(d.acceleration_mps2)).collect(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_parabola_is_differentiated_exactly_at_every_row() {
+        let dt = 1e-3;
+        let x: Vec<f64> = (0..200)
+            .map(|i| {
+                let t = i as f64 * dt;
+                0.05 + 0.3 * t - 2.0 * t * t
+            })
+            .collect();
+        for lag in [0, 3, 10, 20] {
+            let d = derive(
+                &x,
+                dt,
+                Settings {
+                    window: 21,
+                    order: 2,
+                    lag,
+                },
+            )
+            .unwrap();
+            for (i, (v, a)) in d.v_mps.iter().zip(&d.a_mps2).enumerate() {
+                let t = i as f64 * dt;
+                assert!((v - (0.3 - 4.0 * t)).abs() < 1e-5, "lag {lag} row {i}: {v}");
+                assert!((a + 4.0).abs() < 1e-3, "lag {lag} row {i}: {a}");
+            }
+        }
+    }
+
+    #[test]
+    fn bad_settings_name_the_flag() {
+        let s = Settings::firmware();
+        assert!(check(Settings { window: 4, ..s })
+            .unwrap_err()
+            .contains("--window 4"));
+        assert!(check(Settings { order: 5, ..s })
+            .unwrap_err()
+            .contains("--order 5"));
+        assert!(check(Settings { lag: 99, ..s })
+            .unwrap_err()
+            .contains("--lag 99"));
+        assert!(derive(&[0.0; 10], 1e-3, s)
+            .unwrap_err()
+            .contains("10 samples"));
+    }
+}

@@ -1,0 +1,186 @@
+//! `fpc-sim filters` (the paper's Fig. 7): the piston velocity from the logged position four
+//! ways — no filter (backward difference, the paper's Eq. 5: half a sample late), zero-phase
+//! `filtfilt` of the central difference (the reference), the firmware's own
+//! Savitzky–Golay differentiator (`fpc::sensing::differentiator`, as the control step runs it), and
+//! the drive's velocity reading (column `v_drive_mps` if logged, else the `filtfilt`
+//! velocity delayed by `--drive-delay-ms`, the 8.5 ms the paper measured).
+//!
+//! Prints, for each, the RMS difference from the zero-phase velocity and its delay behind it
+//! (cross-correlation), and plots the velocities over a window of the last stroke.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use fpc::control::config::ControlConfig;
+
+use crate::cli::analysis::{
+    column, default_window, interior, out_dir, read_log, read_model, sample_time_s, time_window,
+    Steps, WindowArgs, ZeroPhaseArgs,
+};
+use crate::failure::{CmdResult, Failure};
+use crate::plot::{lines, Series};
+use crate::runlog::RunLog;
+use crate::signal::{
+    backward_difference, central_difference, delayed, filtfilt, firmware_derivatives,
+    rms_difference, strokes, xcorr_lag, SgSettings,
+};
+
+/// Velocity estimates compared (Fig. 7).
+#[derive(Args, Debug)]
+pub struct FiltersArgs {
+    /// The run log (CSV).
+    #[arg(long)]
+    pub measured: PathBuf,
+    /// Output directory for `filters.svg`.
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+    /// Machine model (for the encoder period the firmware's differentiator counts in).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Position column.
+    #[arg(long, default_value = "x_m")]
+    pub column: String,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub filter: ZeroPhaseArgs,
+    /// Savitzky–Golay window (default: the firmware's).
+    #[arg(long, default_value_t = ControlConfig::reference().sg_window)]
+    pub sg_window: usize,
+    /// Savitzky–Golay polynomial order (default: the firmware's).
+    #[arg(long, default_value_t = ControlConfig::reference().sg_order)]
+    pub sg_order: usize,
+    /// Savitzky–Golay evaluation point, samples back from the newest (default: the firmware's).
+    #[arg(long, default_value_t = ControlConfig::reference().sg_lag)]
+    pub sg_lag: usize,
+    /// Delay of the drive's velocity reading when the log has no `v_drive_mps`, ms.
+    #[arg(long, default_value_t = 8.5)]
+    pub drive_delay_ms: f64,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub window: WindowArgs,
+}
+
+/// One velocity estimate and how it compares with the zero-phase one.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Estimate {
+    /// What it is.
+    pub label: String,
+    /// Velocity, m/s, one per sample.
+    pub v_mps: Vec<f64>,
+    /// RMS difference from the zero-phase velocity, m/s.
+    pub rms_diff_mps: f64,
+    /// Delay behind the zero-phase velocity, s.
+    pub delay_s: f64,
+}
+
+/// Computes the four estimates (zero-phase first); the figures leave out 20 ms at each end.
+pub fn estimates(log: &RunLog, args: &FiltersArgs) -> Result<Vec<Estimate>, Failure> {
+    let dt = sample_time_s(log)?;
+    let x = column(log, &args.column, "--column")?;
+    let model = read_model(args.model.as_deref())?;
+    let sections = args.filter.sections(dt)?;
+    if !(args.drive_delay_ms.is_finite() && args.drive_delay_ms >= 0.0) {
+        return Err(Failure::bad_input(format!(
+            "--drive-delay-ms {}: must be zero or positive",
+            args.drive_delay_ms
+        )));
+    }
+    let raw = backward_difference(x, dt);
+    let reference = filtfilt(&sections, &central_difference(x, dt));
+    let sg = SgSettings {
+        window: args.sg_window,
+        order: args.sg_order,
+        lag: args.sg_lag,
+    };
+    let (v_sg, _) = firmware_derivatives(x, dt, model.encoder.period_m, sg)
+        .map_err(|e| Failure::bad_input(format!("--sg-*: {e}")))?;
+    let (drive_label, drive) = match log.column("v_drive_mps") {
+        Some(v) => ("drive reading (v_drive_mps)".to_string(), v.to_vec()),
+        None => (
+            format!(
+                "drive reading (filtfilt delayed {} ms)",
+                args.drive_delay_ms
+            ),
+            delayed(&reference, args.drive_delay_ms * 1e-3 / dt),
+        ),
+    };
+    // Delays up to 50 ms are searched: far beyond any filter, well below a stroke.
+    let max_lag = Some(((0.05 / dt).round() as usize).max(2));
+    let inner = interior(x.len(), dt);
+    let compare = |label: String, v: Vec<f64>| -> Estimate {
+        let r = reference.get(inner.clone()).unwrap_or_default();
+        let e = v.get(inner.clone()).unwrap_or_default();
+        let delay_s = xcorr_lag(r, e, dt, max_lag).map_or(f64::NAN, |l| l.seconds);
+        Estimate {
+            label,
+            rms_diff_mps: rms_difference(e, r),
+            delay_s,
+            v_mps: v,
+        }
+    };
+    Ok(vec![
+        compare(args.filter.describe(), reference.clone()),
+        compare("no filter (backward difference)".into(), raw),
+        compare(
+            format!(
+                "firmware Savitzky-Golay (N {}, order {}, lag {})",
+                sg.window, sg.order, sg.lag
+            ),
+            v_sg,
+        ),
+        compare(drive_label, drive),
+    ])
+}
+
+/// Runs `fpc-sim filters`.
+pub fn main(args: FiltersArgs) -> CmdResult {
+    let steps = Steps::new(3, "reading");
+    let log = read_log(&args.measured)?;
+    steps.next("filtering");
+    let est = estimates(&log, &args)?;
+    steps.next("plotting");
+    out_dir(&args.out)?;
+    let t = column(&log, "t_s", "t_s")?;
+    let dt = sample_time_s(&log)?;
+    let reference = est.first().map(|e| e.v_mps.as_slice()).unwrap_or_default();
+    let x = column(&log, &args.column, "--column")?;
+    let window = time_window(
+        t,
+        args.window.from_s,
+        args.window.to_s,
+        default_window(t, &strokes(x, reference), dt),
+    );
+    let tw = t.get(window.clone()).unwrap_or_default();
+    let series: Vec<Series> = est
+        .iter()
+        .map(|e| Series {
+            label: &e.label,
+            x: tw,
+            y: e.v_mps.get(window.clone()).unwrap_or_default(),
+        })
+        .collect();
+    let path = args.out.join("filters.svg");
+    lines(&path, "Piston velocity (Fig. 7)", "t, s", "v, m/s", &series)
+        .map_err(Failure::runtime)?;
+    steps.finish();
+    println!(
+        "velocity from {} at {:.0} Hz, {} samples",
+        args.column,
+        1.0 / dt,
+        log.len()
+    );
+    println!(
+        "{:<52} {:>14} {:>12}",
+        "estimate", "rms diff m/s", "delay ms"
+    );
+    for e in &est {
+        println!(
+            "{:<52} {:>14.5} {:>12.4}",
+            e.label,
+            e.rms_diff_mps,
+            e.delay_s * 1e3
+        );
+    }
+    println!("wrote {}", path.display());
+    Ok(())
+}

@@ -1,0 +1,195 @@
+//! `fpc-sim forces` (the paper's Fig. 8): the inertia force `m·a` estimated from the logged
+//! position — unfiltered (second difference), zero-phase filtered (`filtfilt` of the second
+//! difference: filtering the position instead would bend its curvature at the log's ends),
+//! and by the firmware's own
+//! Savitzky–Golay differentiator — against the inertia force the other forces imply:
+//!
+//! `m·a = F_master + F_slave + (p_a − p_b)·A_eff − F_fr(v)`
+//!
+//! (`fpc::physics::friction`'s law with the model's parameters, `v` the filtered central difference). The
+//! delay of each estimate behind the expected force is what the paper tuned its filters on.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use fpc::control::config::ControlConfig;
+
+use crate::cli::analysis::{
+    column, default_window, interior, out_dir, read_log, read_model, sample_time_s, time_window,
+    Steps, WindowArgs, ZeroPhaseArgs,
+};
+use crate::failure::{CmdResult, Failure};
+use crate::plant::model::MachineModel;
+use crate::plot;
+use crate::runlog::RunLog;
+use crate::signal::{
+    central_difference, filtfilt, firmware_derivatives, rms_difference, second_difference, strokes,
+    xcorr_lag, Biquad, SgSettings,
+};
+
+/// Inertia force from position vs expected (Fig. 8).
+#[derive(Args, Debug)]
+pub struct ForcesArgs {
+    /// The run log (CSV).
+    #[arg(long)]
+    pub measured: PathBuf,
+    /// Output directory for `forces.svg`.
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+    /// Machine model: mass, piston area, friction law, encoder period (default: reference).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub filter: ZeroPhaseArgs,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub window: WindowArgs,
+}
+
+/// The forces on the piston along a log, N, one per sample.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ForceBalance {
+    /// Position as logged, m.
+    pub x_m: Vec<f64>,
+    /// Velocity, zero-phase filtered central difference, m/s.
+    pub v_mps: Vec<f64>,
+    /// Both motor sections, `F_master + F_slave`.
+    pub motor_n: Vec<f64>,
+    /// Gas force `(p_a − p_b)·A_eff`, toward +x.
+    pub gas_n: Vec<f64>,
+    /// Friction `F_fr(v)` (it opposes motion: subtracted).
+    pub friction_n: Vec<f64>,
+    /// What the forces imply for `m·a`.
+    pub expected_inertia_n: Vec<f64>,
+    /// `m·a` from the unfiltered position (second difference).
+    pub inertia_raw_n: Vec<f64>,
+    /// `m·a` from the zero-phase filtered position.
+    pub inertia_filtered_n: Vec<f64>,
+    /// `m·a` from the firmware's Savitzky–Golay differentiator.
+    pub inertia_firmware_n: Vec<f64>,
+}
+
+/// Computes the force balance of `log` with `model`'s parameters.
+pub fn force_balance(
+    log: &RunLog,
+    model: &MachineModel,
+    sections: &[Biquad],
+) -> Result<ForceBalance, Failure> {
+    let dt = sample_time_s(log)?;
+    let x = column(log, "x_m", "x_m")?;
+    let fm = column(log, "f_master_n", "f_master_n")?;
+    let fs = column(log, "f_slave_n", "f_slave_n")?;
+    let pa = column(log, "p_a_pa", "p_a_pa")?;
+    let pb = column(log, "p_b_pa", "p_b_pa")?;
+    let m = model.piston.mass_kg;
+    let area = model.piston_area_m2();
+    let friction = model.friction();
+    let v = filtfilt(sections, &central_difference(x, dt));
+    let motor: Vec<f64> = fm.iter().zip(fs).map(|(a, b)| a + b).collect();
+    let gas: Vec<f64> = pa.iter().zip(pb).map(|(a, b)| (a - b) * area).collect();
+    let fr: Vec<f64> = v.iter().map(|&v| friction.force_n(v)).collect();
+    let expected = motor
+        .iter()
+        .zip(&gas)
+        .zip(&fr)
+        .map(|((f, g), r)| f + g - r)
+        .collect();
+    let inertia = |a: Vec<f64>| a.into_iter().map(|a| m * a).collect::<Vec<f64>>();
+    let c = ControlConfig::reference();
+    let sg = SgSettings {
+        window: c.sg_window,
+        order: c.sg_order,
+        lag: c.sg_lag,
+    };
+    let (_, a_fw) =
+        firmware_derivatives(x, dt, model.encoder.period_m, sg).map_err(Failure::runtime)?;
+    Ok(ForceBalance {
+        inertia_raw_n: inertia(second_difference(x, dt)),
+        inertia_filtered_n: inertia(filtfilt(sections, &second_difference(x, dt))),
+        inertia_firmware_n: inertia(a_fw),
+        x_m: x.to_vec(),
+        v_mps: v,
+        motor_n: motor,
+        gas_n: gas,
+        friction_n: fr,
+        expected_inertia_n: expected,
+    })
+}
+
+/// Runs `fpc-sim forces`.
+pub fn main(args: ForcesArgs) -> CmdResult {
+    let steps = Steps::new(3, "reading");
+    let log = read_log(&args.measured)?;
+    let model = read_model(args.model.as_deref())?;
+    let dt = sample_time_s(&log)?;
+    steps.next("filtering");
+    let fb = force_balance(&log, &model, &args.filter.sections(dt)?)?;
+    steps.next("plotting");
+    out_dir(&args.out)?;
+    let t = column(&log, "t_s", "t_s")?;
+    let window = time_window(
+        t,
+        args.window.from_s,
+        args.window.to_s,
+        default_window(t, &strokes(&fb.x_m, &fb.v_mps), dt),
+    );
+    let kn = |v: &[f64]| -> Vec<f64> {
+        v.get(window.clone())
+            .unwrap_or_default()
+            .iter()
+            .map(|f| f * 1e-3)
+            .collect()
+    };
+    let tw = t.get(window.clone()).unwrap_or_default();
+    let curves = [
+        ("unfiltered from position", kn(&fb.inertia_raw_n)),
+        (
+            "filtered from position (filtfilt)",
+            kn(&fb.inertia_filtered_n),
+        ),
+        ("firmware Savitzky-Golay", kn(&fb.inertia_firmware_n)),
+        ("expected inertia force", kn(&fb.expected_inertia_n)),
+    ];
+    let path = args.out.join("forces.svg");
+    plot::curves(
+        &path,
+        "Inertia force from position (Fig. 8)",
+        "t, s",
+        "m·a, kN",
+        tw,
+        &curves,
+    )
+    .map_err(Failure::runtime)?;
+    steps.finish();
+
+    let max_lag = Some(((0.05 / dt).round() as usize).max(2));
+    let inner = interior(log.len(), dt);
+    let expected = fb.expected_inertia_n.get(inner.clone()).unwrap_or_default();
+    println!(
+        "mass {} kg, A_eff {:.4e} m², {}; peak expected |m·a| {:.3} kN",
+        model.piston.mass_kg,
+        model.piston_area_m2(),
+        args.filter.describe(),
+        expected.iter().fold(0.0f64, |m, f| m.max(f.abs())) * 1e-3
+    );
+    println!(
+        "{:<36} {:>16} {:>18}",
+        "m·a estimate", "rms vs expected N", "delay ms"
+    );
+    for (label, est) in [
+        ("unfiltered from position", &fb.inertia_raw_n),
+        ("filtered from position (filtfilt)", &fb.inertia_filtered_n),
+        ("firmware Savitzky-Golay", &fb.inertia_firmware_n),
+    ] {
+        let est = est.get(inner.clone()).unwrap_or_default();
+        let delay = xcorr_lag(expected, est, dt, max_lag).map_or(f64::NAN, |l| l.seconds);
+        println!(
+            "{label:<36} {:>16.1} {:>18.4}",
+            rms_difference(est, expected),
+            delay * 1e3
+        );
+    }
+    println!("wrote {}", path.display());
+    Ok(())
+}

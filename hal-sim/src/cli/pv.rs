@@ -1,0 +1,143 @@
+//! `fpc-sim pv` (the paper's Fig. 3): the p–V diagram of both chambers from the logged
+//! position and chamber pressures, with the model's piston area and dead lengths:
+//!
+//! `V_a = A_eff·(x + dead_a)`, `V_b = A_eff·(travel − x + dead_b)`.
+//!
+//! Prints each chamber's volume and pressure ranges, the pressure ratio reached and the
+//! `∮p dV` work over the log. [`plot_pv`] is also what `fpc-sim run` can call for its plot.
+
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+use serde::Serialize;
+
+use crate::cli::analysis::{column, out_dir, read_log, read_model, Steps};
+use crate::failure::{CmdResult, Failure};
+use crate::plant::model::MachineModel;
+use crate::plot::{lines, Series};
+use crate::runlog::RunLog;
+
+/// p–V diagram of both chambers (Fig. 3).
+#[derive(Args, Debug)]
+pub struct PvArgs {
+    /// The run log (CSV).
+    #[arg(long)]
+    pub measured: PathBuf,
+    /// Output directory for `pv.svg`.
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+    /// Machine model: piston area, travel, dead lengths (default: reference).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+}
+
+/// Figures of one chamber.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct Chamber {
+    /// Smallest volume, m³.
+    pub v_min_m3: f64,
+    /// Largest volume, m³.
+    pub v_max_m3: f64,
+    /// Lowest pressure, Pa.
+    pub p_min_pa: f64,
+    /// Highest pressure, Pa.
+    pub p_max_pa: f64,
+    /// `∫p dV` over the log, J (negative: work done on the gas).
+    pub p_dv_j: f64,
+}
+
+/// Both chambers' volumes, m³, one per sample.
+pub fn volumes(x_m: &[f64], model: &MachineModel) -> (Vec<f64>, Vec<f64>) {
+    let a = model.piston_area_m2();
+    let p = &model.piston;
+    let va = x_m.iter().map(|x| a * (x + p.dead_length_a_m)).collect();
+    let vb = x_m
+        .iter()
+        .map(|x| a * (p.travel_m - x + p.dead_length_b_m))
+        .collect();
+    (va, vb)
+}
+
+fn chamber(v: &[f64], p: &[f64]) -> Chamber {
+    let range = |x: &[f64]| {
+        x.iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+                (lo.min(v), hi.max(v))
+            })
+    };
+    let (v_min_m3, v_max_m3) = range(v);
+    let (p_min_pa, p_max_pa) = range(p);
+    let p_dv_j = p
+        .windows(2)
+        .zip(v.windows(2))
+        .map(|(p, v)| 0.5 * (p[0] + p[1]) * (v[1] - v[0]))
+        .sum();
+    Chamber {
+        v_min_m3,
+        v_max_m3,
+        p_min_pa,
+        p_max_pa,
+        p_dv_j,
+    }
+}
+
+/// Draws the p–V diagram of `log` into `path`; returns both chambers' figures.
+pub fn plot_pv(
+    path: &Path,
+    log: &RunLog,
+    model: &MachineModel,
+) -> Result<(Chamber, Chamber), Failure> {
+    let x = column(log, "x_m", "x_m")?;
+    let pa = column(log, "p_a_pa", "p_a_pa")?;
+    let pb = column(log, "p_b_pa", "p_b_pa")?;
+    let (va, vb) = volumes(x, model);
+    let litres = |v: &[f64]| v.iter().map(|v| v * 1e3).collect::<Vec<f64>>();
+    let mpa = |p: &[f64]| p.iter().map(|p| p * 1e-6).collect::<Vec<f64>>();
+    let (la, lb, ma, mb) = (litres(&va), litres(&vb), mpa(pa), mpa(pb));
+    lines(
+        path,
+        "p-V diagram of both chambers (Fig. 3)",
+        "V, L (10⁻³ m³)",
+        "p, MPa",
+        &[
+            Series {
+                label: "chamber A",
+                x: &la,
+                y: &ma,
+            },
+            Series {
+                label: "chamber B",
+                x: &lb,
+                y: &mb,
+            },
+        ],
+    )
+    .map_err(Failure::runtime)?;
+    Ok((chamber(&va, pa), chamber(&vb, pb)))
+}
+
+/// Runs `fpc-sim pv`.
+pub fn main(args: PvArgs) -> CmdResult {
+    let steps = Steps::new(2, "reading");
+    let log = read_log(&args.measured)?;
+    let model = read_model(args.model.as_deref())?;
+    steps.next("plotting");
+    out_dir(&args.out)?;
+    let path = args.out.join("pv.svg");
+    let (a, b) = plot_pv(&path, &log, &model)?;
+    steps.finish();
+    for (name, c) in [("A", &a), ("B", &b)] {
+        println!(
+            "chamber {name}: V {:.4}–{:.4} L (ratio {:.2}), p {:.4}–{:.4} MPa (ratio {:.2}), ∮p dV {:.2} J",
+            c.v_min_m3 * 1e3,
+            c.v_max_m3 * 1e3,
+            c.v_max_m3 / c.v_min_m3,
+            c.p_min_pa * 1e-6,
+            c.p_max_pa * 1e-6,
+            c.p_max_pa / c.p_min_pa,
+            c.p_dv_j
+        );
+    }
+    println!("wrote {}", path.display());
+    Ok(())
+}

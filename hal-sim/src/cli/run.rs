@@ -1,0 +1,221 @@
+//! The `fpc-sim run` subcommand: arguments, files written and what is printed.
+
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+
+use crate::failure::{CmdResult, Failure};
+use crate::plant::model::MachineModel;
+use crate::plot::{lines, Series};
+use crate::run::{run, RunOptions};
+use crate::runlog::RunLog;
+
+/// Closed-loop simulation of the machine with the firmware's tasks in the loop.
+#[derive(Args, Debug)]
+pub struct RunArgs {
+    /// Machine-model TOML (default: the embedded reference machine).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Target pressure ratio.
+    #[arg(long, default_value_t = 3.1)]
+    pub pressure_ratio: f64,
+    /// Peak piston speed, m/s (default: from the pressure ratio, as in the paper's Fig. 3).
+    #[arg(long)]
+    pub speed: Option<f64>,
+    /// Compression cycles to run.
+    #[arg(long, default_value_t = 10)]
+    pub cycles: u32,
+    /// Output directory for run.csv and the plots.
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+    /// Print the JSON summary on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Noise seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Also capture the firmware's telemetry stream into this file (`fpc-sim decode` reads it).
+    #[arg(long)]
+    pub telemetry: Option<PathBuf>,
+    /// Control cycles per telemetry frame (1 = every 50 µs cycle).
+    #[arg(long, default_value_t = fpc::link::telemetry::DEFAULT_DECIMATION,
+          value_parser = clap::value_parser!(u16).range(1..))]
+    pub telemetry_decimation: u16,
+    /// Inject a fault: `NAME@T[:k=v,…]` (`faults.md`; repeat for several). An unknown name or
+    /// a malformed specification exits 2 naming it.
+    #[arg(long = "fault", value_name = "SPEC")]
+    pub faults: Vec<String>,
+}
+
+/// Runs `fpc-sim run`.
+pub fn main(args: RunArgs) -> CmdResult {
+    let (model, model_name) = match &args.model {
+        Some(path) => (
+            MachineModel::read(path).map_err(|e| Failure::bad_input(e.0))?,
+            path.display().to_string(),
+        ),
+        None => (MachineModel::reference(), "reference".to_string()),
+    };
+    let faults = args
+        .faults
+        .iter()
+        .map(|spec| crate::faults::inject::parse(spec))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| Failure::bad_input(e.0))?;
+    let opts = RunOptions {
+        model,
+        model_name,
+        faults,
+        pressure_ratio: args.pressure_ratio,
+        speed_mps: args.speed,
+        cycles: args.cycles,
+        seed: args.seed,
+        telemetry_decimation: if args.telemetry.is_some() {
+            args.telemetry_decimation
+        } else {
+            0
+        },
+        ..RunOptions::reference()
+    };
+    opts.validate().map_err(Failure::bad_input)?;
+    let outcome = run(&opts).map_err(Failure::runtime)?;
+    let out = &args.out;
+    std::fs::create_dir_all(out)
+        .map_err(|e| Failure::runtime(format!("cannot create {}: {e}", out.display())))?;
+    let csv = out.join("run.csv");
+    outcome
+        .log
+        .write(&csv)
+        .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", csv.display())))?;
+    plot_motion(out, &outcome.log).map_err(Failure::runtime)?;
+    plot_pv(out, &outcome.log).map_err(Failure::runtime)?;
+    plot_energy(out, &outcome).map_err(Failure::runtime)?;
+    if let Some(path) = &args.telemetry {
+        std::fs::write(path, &outcome.telemetry)
+            .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", path.display())))?;
+    }
+    let s = &outcome.summary;
+    eprintln!(
+        "fpc-sim run: {} cycles in {:.3} s simulated ({:.0}x real time), state {}, peak speed {:.2} m/s, \
+         min head clearance {}, dead-point error {}, faults [{}]; wrote {}",
+        s.cycles,
+        s.sim_time_s,
+        s.realtime_factor,
+        s.state,
+        s.peak_speed_mps,
+        fmt_mm(s.min_head_clearance_m),
+        fmt_mm(s.dead_point_error_m),
+        s.faults.join(", "),
+        csv.display()
+    );
+    let r = &outcome.injection;
+    if let Some(onset_us) = r.first_onset_us() {
+        let detected = r.first_fault_after_onset().map_or_else(
+            || "no fault latched".to_string(),
+            |(t_us, f)| {
+                format!(
+                    "{} after {:.2} ms",
+                    f.name(),
+                    (t_us - onset_us) as f64 * 1e-3
+                )
+            },
+        );
+        eprintln!(
+            "fpc-sim run: injected fault from {:.4} s: {detected}; min head clearance since {}; \
+             watchdog resets {}",
+            onset_us as f64 * 1e-6,
+            fmt_mm(r.min_clearance_m),
+            r.resets_us.len()
+        );
+    }
+    if args.json {
+        let text = serde_json::to_string_pretty(s).map_err(|e| Failure::runtime(e.to_string()))?;
+        println!("{text}");
+    }
+    Ok(())
+}
+
+fn fmt_mm(v: Option<f64>) -> String {
+    v.map_or_else(|| "n/a".into(), |m| format!("{:.3} mm", m * 1e3))
+}
+
+fn plot_motion(out: &Path, log: &RunLog) -> Result<(), String> {
+    let t = log.column("t_s").unwrap_or_default();
+    let x = log.column("x_m").unwrap_or_default();
+    let r = log.column("x_ref_m").unwrap_or_default();
+    lines(
+        &out.join("motion.svg"),
+        "Piston position",
+        "t, s",
+        "x, m",
+        &[
+            Series {
+                label: "x (master encoder)",
+                x: t,
+                y: x,
+            },
+            Series {
+                label: "x reference",
+                x: t,
+                y: r,
+            },
+        ],
+    )
+}
+
+/// `pv.svg`: the p–V diagram of both chambers from the plant's true pressures and volumes.
+fn plot_pv(out: &Path, log: &RunLog) -> Result<(), String> {
+    let scaled = |name: &str, k: f64| -> Vec<f64> {
+        log.column(name)
+            .unwrap_or_default()
+            .iter()
+            .map(|v| v * k)
+            .collect()
+    };
+    let (va, vb) = (scaled("vol_a_m3", 1e3), scaled("vol_b_m3", 1e3));
+    let (pa, pb) = (scaled("p_a_true_pa", 1e-6), scaled("p_b_true_pa", 1e-6));
+    lines(
+        &out.join("pv.svg"),
+        "p-V diagram of both chambers",
+        "V, 10⁻³ m³",
+        "p, MPa",
+        &[
+            Series {
+                label: "chamber A",
+                x: &va,
+                y: &pa,
+            },
+            Series {
+                label: "chamber B",
+                x: &vb,
+                y: &pb,
+            },
+        ],
+    )
+}
+
+/// Energy per compression cycle: what the motor sections put into the piston and what the
+/// gas received (∮p·dV); the difference is friction and the other losses.
+fn plot_energy(out: &Path, outcome: &crate::run::RunOutcome) -> Result<(), String> {
+    let cycles: Vec<f64> = (0..outcome.cycle_work_j.len())
+        .map(|c| (c + 2) as f64)
+        .collect();
+    lines(
+        &out.join("energy.svg"),
+        "Energy per compression cycle",
+        "cycle",
+        "J",
+        &[
+            Series {
+                label: "motor work on the piston",
+                x: &cycles,
+                y: &outcome.cycle_motor_work_j,
+            },
+            Series {
+                label: "indicated work (both chambers)",
+                x: &cycles,
+                y: &outcome.cycle_work_j,
+            },
+        ],
+    )
+}

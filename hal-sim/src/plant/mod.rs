@@ -1,0 +1,17 @@
+//! The physical plant the firmware drives in the simulator, and the model file that
+//! configures it.
+//!
+//! The machine model ([`model`], TOML), the piston, sections and rotation ([`dynamics`]),
+//! the gas in both chambers ([`chambers`]), the motor sections' electrics ([`motor`]), the
+//! rotation servo ([`servo`]), prescribed motion without the controller ([`kinematic`]) and
+//! fast numerics for the hot path ([`fastmath`]). The plant knows neither the simulated
+//! board around it nor the fault injector: faults of the machine are state it reads
+//! ([`dynamics::PlantFaults`]).
+
+pub mod chambers;
+pub mod dynamics;
+pub mod fastmath;
+pub mod kinematic;
+pub mod model;
+pub mod motor;
+pub mod servo;

@@ -1,0 +1,158 @@
+//! Commands to the machine and their validation.
+//!
+//! Every command is checked against the configured limits before it changes anything; a
+//! refused command carries the reason and leaves the state as it was. The binary codec for
+//! the RTT down-channel encodes exactly these values.
+
+use crate::control::calibration::Routine;
+use crate::motion::synchroniser::Rotation;
+use crate::motion::volume_ratio::RatioTarget;
+
+/// A command from the host.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Command {
+    /// Find the zero: creep to head A, detect the stop, set x = 0 there, then park.
+    Home,
+    /// Move to a position, m, at a peak speed, m/s (homed, idle machine only).
+    MoveTo {
+        /// Target position, m (within the travel, clearances kept).
+        position_m: f32,
+        /// Peak speed of the move, m/s.
+        peak_speed_mps: f32,
+    },
+    /// Start compressing: continuous strokes between the dead points at this peak speed,
+    /// m/s (homed, holding machine only).
+    Start {
+        /// Peak speed, m/s.
+        peak_speed_mps: f32,
+    },
+    /// Change the peak speed of the running strokes (from the next stroke on), m/s.
+    SetSpeed {
+        /// Peak speed, m/s.
+        peak_speed_mps: f32,
+    },
+    /// Compressor or expander, from the next half cycle on (on the fly, at a dead point).
+    SetRotation {
+        /// The mode.
+        rotation: Rotation,
+    },
+    /// How the built-in volume ratio is chosen: follow the measured pressure ratio, or fixed.
+    SetVolumeRatio {
+        /// The target.
+        target: RatioTarget,
+    },
+    /// Set one tunable parameter (validated against its limits; refused while running).
+    SetParameter {
+        /// Which one.
+        parameter: Parameter,
+        /// The new value, in the parameter's unit.
+        value: f32,
+    },
+    /// Stop: a running machine finishes its stroke and holds at that dead point; a moving
+    /// one stops on the braking deceleration and holds.
+    Stop,
+    /// Host keep-alive.
+    Heartbeat,
+    /// Clear latched faults (refused while a cause persists).
+    ClearFaults,
+    /// Run a calibration routine (idle or holding machine; the sweeping ones homed) and load
+    /// its result; the machine then holds (homed) or goes idle.
+    Calibrate {
+        /// The routine.
+        routine: Routine,
+    },
+}
+
+/// The parameters the host may set at run time, with stable numbers (the command codec
+/// carries the number) and their limits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[repr(u8)]
+pub enum Parameter {
+    /// Position-loop stiffness, N/m.
+    PositionKp = 1,
+    /// Position-loop damping, N·s/m.
+    PositionKd = 2,
+    /// Host heartbeat timeout before the piston parks, s.
+    HeartbeatTimeout = 3,
+    /// Park position, m from head A.
+    ParkPosition = 4,
+    /// Fraction of a dead-point error corrected per stroke.
+    DeadPointGain = 5,
+}
+
+impl Parameter {
+    /// Every parameter, in number order.
+    pub const ALL: [Parameter; 5] = [
+        Parameter::PositionKp,
+        Parameter::PositionKd,
+        Parameter::HeartbeatTimeout,
+        Parameter::ParkPosition,
+        Parameter::DeadPointGain,
+    ];
+
+    /// The parameter with number `code`.
+    pub fn from_code(code: u8) -> Option<Parameter> {
+        Parameter::ALL.iter().copied().find(|p| *p as u8 == code)
+    }
+
+    /// Accepted range (inclusive). Loop gains within a factor of about 3 of the reference
+    /// tuning (beyond it the loop's stability margin against the real delays is not shown);
+    /// the park position keeps 5 mm from either head of the reference travel.
+    pub const fn range(self) -> (f32, f32) {
+        match self {
+            Parameter::PositionKp => (2.0e5, 2.5e6),
+            Parameter::PositionKd => (1.5e3, 1.5e4),
+            Parameter::HeartbeatTimeout => (0.05, 10.0),
+            Parameter::ParkPosition => (0.005, 0.2),
+            Parameter::DeadPointGain => (0.0, 1.0),
+        }
+    }
+}
+
+/// Why a command was refused. Nothing changed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Refusal {
+    /// A value is NaN or infinite.
+    NotFinite,
+    /// A value is outside its configured range.
+    OutOfRange,
+    /// Motion was requested before homing.
+    NotHomed,
+    /// A fault is latched: clear it first.
+    FaultActive,
+    /// The machine is busy with another operation (homing, a move).
+    Busy,
+    /// The cause of a latched fault is still present.
+    CausePersists,
+    /// The phase currents read a current with the outputs off: a current-sense offset.
+    CurrentSenseOffset,
+}
+
+impl Refusal {
+    /// Operator-facing reason.
+    pub const fn reason(self) -> &'static str {
+        match self {
+            Refusal::NotFinite => "value is NaN or infinite",
+            Refusal::OutOfRange => "value outside the configured limits",
+            Refusal::NotHomed => "not homed: home the axis first",
+            Refusal::FaultActive => "a fault is latched: clear it first",
+            Refusal::Busy => "busy: wait for the current operation to finish or stop it",
+            Refusal::CausePersists => "the cause of the fault is still present",
+            Refusal::CurrentSenseOffset => {
+                "phase currents read non-zero with the outputs off: run the current-sense calibration"
+            }
+        }
+    }
+}
+
+/// The answer to one command.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reply {
+    /// The command answered.
+    pub command: Command,
+    /// Accepted, or refused with the reason.
+    pub result: Result<(), Refusal>,
+}

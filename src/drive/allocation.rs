@@ -1,0 +1,88 @@
+//! Force allocation: one total force command per cycle, split over the two motor sections.
+//!
+//! The published rig fed the slave drive the master's force second-hand (0.75 ms late); here
+//! both sections get their share of the same command in the same cycle. The split is equal
+//! by default and weighted when a section is derated or lost; the cogging the calibrated map
+//! predicts at the current position is cancelled in the same step. Each section's share is
+//! then limited to what that section can deliver.
+
+use crate::physics::cogging::HarmonicMap;
+use crate::real::clamp_f32;
+use crate::units::PerSection;
+
+/// Allocation parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AllocationConfig {
+    /// Relative capability of each section (1 = nominal, 0 = lost). Shares are proportional.
+    pub capability: PerSection<f32>,
+    /// Peak force one nominal section can deliver, N.
+    pub section_limit_n: f32,
+    /// Calibrated cogging map, cancelled by feed-forward.
+    pub cogging: HarmonicMap,
+}
+
+impl AllocationConfig {
+    /// Both sections nominal, 5 kN each, no cogging compensation.
+    pub const fn reference() -> Self {
+        AllocationConfig {
+            capability: PerSection {
+                master: 1.0,
+                slave: 1.0,
+            },
+            section_limit_n: 5000.0,
+            cogging: HarmonicMap::none(),
+        }
+    }
+}
+
+/// The forces to command, per section, for a total `force_n` at position `x_m`. NaN in, zero
+/// out; each share saturates at its section's limit. Always inlined: it is part of the
+/// control step (the calibration calls it too).
+#[inline(always)]
+pub fn allocate(config: &AllocationConfig, force_n: f32, x_m: f32) -> PerSection<f32> {
+    let wanted = force_n - config.cogging.force_n(x_m);
+    if wanted.is_nan() {
+        return PerSection::default();
+    }
+    let cm = clamp_f32(config.capability.master, 0.0, 1.0);
+    let cs = clamp_f32(config.capability.slave, 0.0, 1.0);
+    let total = cm + cs;
+    if total <= 0.0 {
+        return PerSection::default();
+    }
+    let share = |c: f32| {
+        let limit = config.section_limit_n * c;
+        clamp_f32(wanted * c / total, -limit, limit)
+    };
+    PerSection {
+        master: share(cm),
+        slave: share(cs),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn equal_split_by_default_and_all_to_the_healthy_section() {
+        let mut c = AllocationConfig::reference();
+        let f = allocate(&c, 3000.0, 0.1);
+        assert_eq!((f.master, f.slave), (1500.0, 1500.0));
+        c.capability.slave = 0.0;
+        let f = allocate(&c, 3000.0, 0.1);
+        assert_eq!((f.master, f.slave), (3000.0, 0.0));
+        let f = allocate(&c, 9000.0, 0.1);
+        assert_eq!(f.master, 5000.0);
+        assert_eq!(allocate(&c, f32::NAN, 0.1), PerSection::default());
+    }
+
+    #[test]
+    fn cogging_is_cancelled() {
+        let mut c = AllocationConfig::reference();
+        c.cogging.sin_n[0] = 30.0;
+        // At a quarter period the map predicts +30 N: the motors supply 30 N less.
+        let f = allocate(&c, 0.0, 0.006);
+        assert!((f.master + f.slave + 30.0).abs() < 0.1);
+    }
+}

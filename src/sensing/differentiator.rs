@@ -1,0 +1,749 @@
+//! Savitzky–Golay differentiator in exact integer arithmetic: velocity and acceleration from
+//! position, at a cost independent of the window length.
+//!
+//! # What it computes
+//! A least-squares polynomial of order K (1..=4) is fitted to the last N positions (N odd,
+//! 3..=41) and differentiated at the evaluation point L samples back from the newest
+//! (L = 0: causal end point, no delay for signals the polynomial represents; L = (N−1)/2:
+//! centred, as scipy's `savgol_filter`). This is exactly scipy's
+//! `savgol_coeffs(N, K, deriv, delta, pos=N−1−L, use='dot')` applied to the window.
+//!
+//! # How: orthogonal moments, updated recursively
+//! Number the window by sample age j = 0 (newest) … N−1. Let P₀ … P_K be the discrete
+//! orthogonal (Gram) polynomials on j = 0..N−1, each scaled to its smallest integer values
+//! (computed at init by exact integer Gram–Schmidt on 1, j, j², … — the least-squares
+//! definition itself, no pasted tables). The least-squares fit is
+//! `f(j) = Σₚ Mₚ·Pₚ(j)/‖Pₚ‖²` with the *Gram moments* `Mₚ = Σⱼ Pₚ(j)·x₋ⱼ`, so
+//!
+//! `v = −(1/T)·Σₚ Mₚ·P′ₚ(L)/‖Pₚ‖²`,  `a = (1/T²)·Σₚ Mₚ·P″ₚ(L)/‖Pₚ‖²`
+//!
+//! (age runs against time, hence the sign of v). P₀ is constant and drops out. Each Pₚ is an
+//! integer combination of binomials, `Pₚ(j) = Σ_q αₚ_q·C(j, q)`, and the *binomial moments*
+//! `T_q = Σⱼ C(j, q)·x₋ⱼ` slide with Pascal's rule, `C(j+1, q) = C(j, q) + C(j, q−1)`:
+//!
+//! `T_q ← T_q + T_{q−1} − C(N, q)·x_oldest` (q ≥ 1), `T₀ ← T₀ + x_newest − x_oldest`.
+//!
+//! So one sample costs K+1 moment updates and K small integer dot products, whatever N is —
+//! no history shift, no N-tap convolution: 111 instructions per sample for velocity and
+//! acceleration at K = 2 on the Cortex-M4 (QEMU benchmark `bench/cm4`; budget 120).
+//!
+//! # Number formats
+//! - Input `x`: [`PositionCounts`], i32, Q12.20 encoder periods (LSB λ/2²⁰ ≈ 22.9 nm). It may
+//!   wrap: it is unwrapped on entry, `X ← X + (x ⊖ x_prev)` with the wrapping i32 difference
+//!   sign-extended, so a window that straddles the i32 wrap is differentiated correctly.
+//! - `X`, the history ring, `T_q` and `Mₚ`: i64 in wrapping arithmetic, i.e. exact in the
+//!   ring ℤ/2⁶⁴ (every operation is an add, subtract or multiply by an integer constant,
+//!   and reduction mod 2⁶⁴ commutes with all three). |αₚ_q| ≤ 46 376 and C(N, q) ≤ 101 270
+//!   are u32.
+//! - Output: `Mₚ` is converted to f32 (relative error ≤ 2⁻²³) and multiplied by an f32
+//!   weight (the SI scale folded in). These two roundings are the only ones anywhere.
+//!
+//! # Overflow proof: `Mₚ` is exact for *every* input sequence
+//! Working mod 2⁶⁴, the bit pattern of `Mₚ` is its true integer value as soon as that value
+//! lies in (−2⁶³, 2⁶³). For p ≥ 1, Pₚ is orthogonal to P₀ = 1, so `Σⱼ Pₚ(j) = 0` and
+//! `Mₚ = Σⱼ Pₚ(j)·(X₋ⱼ − X₀)`. Each unwrapped step is a sign-extended i32, so
+//! `|X₋ⱼ − X₀| ≤ j·2³¹ ≤ 40·2³¹ < 2^36.33`; and `‖Pₚ‖₁ = Σⱼ|Pₚ(j)| ≤ 617 100 < 2^19.24` over
+//! every N ≤ 41, p ≤ 4 (`gram_moment_bound_holds_for_every_configuration` checks all of
+//! them). Hence `|Mₚ| < 2^55.6 < 2⁶³`: no input, in the stroke or not, can overflow it. The
+//! `T_q` themselves may wrap freely — only their exact residues are used. (In service the
+//! decoder bounds each step by its plausibility limit, 13 107 counts, so |Mₚ| < 2³⁹.)
+//! `every_input_gives_the_exact_gram_moments` compares `Mₚ` bit for bit with a direct i128
+//! evaluation on arbitrary (adversarial) inputs.
+
+use crate::sensing::encoder::PositionCounts;
+
+/// Largest supported window.
+pub const MAX_WINDOW: usize = 41;
+
+/// Largest supported polynomial order.
+pub const MAX_ORDER: usize = 4;
+
+/// Configuration of the differentiator.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SgConfig {
+    /// Window length N, odd, 3..=41.
+    pub window: usize,
+    /// Polynomial order K, 1..=4, K < N (acceleration needs K ≥ 2).
+    pub order: usize,
+    /// Evaluation point counted back from the newest sample, 0..=N−1.
+    pub lag: usize,
+    /// Sample time, s (> 0).
+    pub sample_time_s: f32,
+    /// Metres per position count.
+    pub m_per_count: f32,
+}
+
+/// Why a configuration was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SgError {
+    /// Window even, < 3 or > 41.
+    Window,
+    /// Order 0, > 4 or ≥ window.
+    Order,
+    /// Lag ≥ window.
+    Lag,
+    /// Sample time or scale not finite and positive.
+    Scale,
+}
+
+/// Velocity and acceleration at the evaluation point.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Derivatives {
+    /// Velocity, m/s.
+    pub velocity_mps: f32,
+    /// Acceleration, m/s² (0 when the order is 1).
+    pub acceleration_mps2: f32,
+}
+
+/// Ring slots: the window rounded up to a power of two.
+const RING: usize = 64;
+const _: () = assert!(RING.is_power_of_two() && RING >= MAX_WINDOW);
+
+/// Integer moments of K+1 orders (index q = 0..=K).
+type Moments = [i64; MAX_ORDER + 1];
+
+/// The differentiator's state: its constants and the sliding moments.
+#[derive(Clone, Debug)]
+pub struct SavitzkyGolay {
+    window: usize,
+    order: usize,
+    lag: usize,
+    /// C(N, q) for q = 1..=4: the weight of the sample leaving the window in Pascal's rule.
+    leaving: [u32; MAX_ORDER],
+    /// C(N, q+1) for q = 0..=4: the moments of a window holding one constant sample.
+    constant: Moments,
+    /// Row p−1: |αₚ_q|, the magnitudes of the binomial-basis coefficients of the Gram
+    /// polynomial Pₚ (their signs alternate, see [`gram_moment`]).
+    alpha: [[u32; MAX_ORDER + 1]; MAX_ORDER],
+    /// Per Gram moment M₁..M₄: m/s per unit of Mₚ.
+    weights_v: [f32; MAX_ORDER],
+    /// Per Gram moment M₁..M₄: m/s² per unit of Mₚ.
+    weights_a: [f32; MAX_ORDER],
+    /// Binomial moments T₀..T₄ of the unwrapped window (mod 2⁶⁴).
+    moments: Moments,
+    /// Unwrapped positions of the window, a ring of the first `window` slots; `head` holds
+    /// the oldest. Sized to a power of two so that masking the index proves it in bounds.
+    ring: [i64; RING],
+    head: usize,
+    /// Last raw input and its unwrapped value.
+    last_input: PositionCounts,
+    unwrapped: i64,
+    started: bool,
+}
+
+impl SavitzkyGolay {
+    /// Builds the differentiator: checks the configuration and derives every constant from
+    /// the least-squares definition (integer Gram–Schmidt).
+    pub fn new(cfg: SgConfig) -> Result<Self, SgError> {
+        let n = cfg.window;
+        if !(3..=MAX_WINDOW).contains(&n) || n.is_multiple_of(2) {
+            return Err(SgError::Window);
+        }
+        if cfg.order == 0 || cfg.order > MAX_ORDER || cfg.order >= n {
+            return Err(SgError::Order);
+        }
+        if cfg.lag >= n {
+            return Err(SgError::Lag);
+        }
+        let dt = f64::from(cfg.sample_time_s);
+        let m = f64::from(cfg.m_per_count);
+        if !(dt.is_finite() && dt > 0.0 && m.is_finite() && m > 0.0) {
+            return Err(SgError::Scale);
+        }
+        let k = cfg.order;
+        let gram = gram_polynomials(n, k).ok_or(SgError::Order)?;
+
+        let mut alpha = [[0u32; MAX_ORDER + 1]; MAX_ORDER];
+        let mut weights_v = [0.0f32; MAX_ORDER];
+        let mut weights_a = [0.0f32; MAX_ORDER];
+        let lag = cfg.lag as f64;
+        for (p, (((row, wv), wa), values)) in alpha
+            .iter_mut()
+            .zip(weights_v.iter_mut())
+            .zip(weights_a.iter_mut())
+            .zip(gram.iter().skip(1))
+            .take(k)
+            .enumerate()
+        {
+            let degree = p + 1;
+            let values = values.get(..n).ok_or(SgError::Window)?;
+            let signed = binomial_coefficients(values, degree).ok_or(SgError::Order)?;
+            // Pₚ's sign is free: make the leading coefficient positive. The coefficients
+            // then alternate in sign, αₚ_q = (−1)^(p−q)·|αₚ_q| (the discrete Chebyshev
+            // polynomials' explicit form), which lets the hot path multiply by |α| as u32
+            // with the sign folded into an add or a subtract. Checked here, not assumed.
+            let flip = signed.get(degree).is_some_and(|&a| a < 0);
+            for (q, (a, &c)) in row.iter_mut().zip(&signed).enumerate().take(degree + 1) {
+                let c = if flip { -c } else { c };
+                let expected_positive = (degree - q).is_multiple_of(2);
+                if c != 0 && (c > 0) != expected_positive {
+                    return Err(SgError::Order);
+                }
+                *a = c.unsigned_abs();
+            }
+            if degree == 1 && row.get(1) != Some(&1) {
+                return Err(SgError::Order);
+            }
+            let sign = if flip { -1.0 } else { 1.0 };
+            let norm: f64 = values.iter().map(|&v| (v as f64) * (v as f64)).sum();
+            let poly = monomial_coefficients(&signed);
+            let (d1, d2) = derivatives_at(&poly, lag);
+            *wv = (-sign * d1 / norm * m / dt) as f32;
+            *wa = (sign * d2 / norm * m / (dt * dt)) as f32;
+        }
+
+        let mut leaving = [0u32; MAX_ORDER];
+        for (q, c) in leaving.iter_mut().enumerate() {
+            *c = u32::try_from(binomial(n, q + 1)).map_err(|_| SgError::Window)?;
+        }
+        let mut constant = [0i64; MAX_ORDER + 1];
+        for (q, c) in constant.iter_mut().enumerate() {
+            *c = i64::try_from(binomial(n, q + 1)).map_err(|_| SgError::Window)?;
+        }
+        Ok(SavitzkyGolay {
+            window: n,
+            order: k,
+            lag: cfg.lag,
+            leaving,
+            constant,
+            alpha,
+            weights_v,
+            weights_a,
+            moments: [0; MAX_ORDER + 1],
+            ring: [0; RING],
+            head: 0,
+            last_input: 0,
+            unwrapped: 0,
+            started: false,
+        })
+    }
+
+    /// Window length.
+    pub fn window(&self) -> usize {
+        self.window
+    }
+
+    /// Polynomial order.
+    pub fn order(&self) -> usize {
+        self.order
+    }
+
+    /// Evaluation point, samples back from the newest.
+    pub fn lag(&self) -> usize {
+        self.lag
+    }
+
+    /// Forgets the history (e.g. after re-homing moved the zero).
+    pub fn reset(&mut self) {
+        self.started = false;
+    }
+
+    /// Adds the newest position and returns the derivatives at the evaluation point.
+    ///
+    /// The first sample after construction or [`SavitzkyGolay::reset`] fills the whole
+    /// window with itself (zero output); the estimate is the true least-squares one from the
+    /// N-th sample on.
+    #[inline]
+    pub fn push(&mut self, x: PositionCounts) -> Derivatives {
+        if !self.started {
+            self.start(x);
+            return Derivatives::default();
+        }
+        // One monomorphised body per order: the loops over q unroll and the moments stay in
+        // registers.
+        match self.order {
+            1 => self.advance::<1>(x),
+            2 => self.advance::<2>(x),
+            3 => self.advance::<3>(x),
+            _ => self.advance::<4>(x),
+        }
+    }
+
+    fn start(&mut self, x: PositionCounts) {
+        let xn = i64::from(x);
+        self.ring.fill(xn);
+        self.head = 0;
+        self.last_input = x;
+        self.unwrapped = xn;
+        for (t, &c) in self.moments.iter_mut().zip(&self.constant) {
+            *t = c.wrapping_mul(xn);
+        }
+        self.started = true;
+    }
+
+    #[inline(always)]
+    fn advance<const K: usize>(&mut self, x: PositionCounts) -> Derivatives {
+        let newest = self
+            .unwrapped
+            .wrapping_add(i64::from(x.wrapping_sub(self.last_input)));
+        self.unwrapped = newest;
+        self.last_input = x;
+        // `head` < window ≤ 41 always; the mask only lets the compiler see it.
+        let oldest = match self.ring.get_mut(self.head & (RING - 1)) {
+            Some(slot) => core::mem::replace(slot, newest),
+            None => newest,
+        };
+        let next = self.head + 1;
+        self.head = if next >= self.window { 0 } else { next };
+
+        // Pascal's rule, highest order first so each uses the previous T_{q−1}.
+        let [c1, c2, c3, c4] = self.leaving;
+        let leave = |c: u32| oldest.wrapping_mul(i64::from(c));
+        let [t0, t1, t2, t3, t4] = &mut self.moments;
+        if K >= 4 {
+            *t4 = t4.wrapping_add(*t3).wrapping_sub(leave(c4));
+        }
+        if K >= 3 {
+            *t3 = t3.wrapping_add(*t2).wrapping_sub(leave(c3));
+        }
+        if K >= 2 {
+            *t2 = t2.wrapping_add(*t1).wrapping_sub(leave(c2));
+        }
+        *t1 = t1.wrapping_add(*t0).wrapping_sub(leave(c1));
+        *t0 = t0.wrapping_add(newest.wrapping_sub(oldest));
+
+        let t = &self.moments;
+        let [a1, a2, a3, a4] = &self.alpha;
+        let [v1, v2, v3, v4] = self.weights_v;
+        let [_, w2, w3, w4] = self.weights_a;
+        // P₁(j) = j − (N−1)/2: its leading coefficient is 1 (checked at init), so M₁ needs
+        // one multiply.
+        let [t0, t1, ..] = *t;
+        let [a10, ..] = *a1;
+        let m1 = to_f32(t1.wrapping_sub(t0.wrapping_mul(i64::from(a10))));
+        let mut velocity = v1 * m1;
+        let mut acceleration = 0.0;
+        if K >= 2 {
+            let m2 = to_f32(gram_moment(a2, t, 2));
+            velocity += v2 * m2;
+            acceleration += w2 * m2;
+        }
+        if K >= 3 {
+            let m3 = to_f32(gram_moment(a3, t, 3));
+            velocity += v3 * m3;
+            acceleration += w3 * m3;
+        }
+        if K >= 4 {
+            let m4 = to_f32(gram_moment(a4, t, 4));
+            velocity += v4 * m4;
+            acceleration += w4 * m4;
+        }
+        Derivatives {
+            velocity_mps: velocity,
+            acceleration_mps2: acceleration,
+        }
+    }
+
+    /// The Gram moments M₁..M_K as the recursion holds them (for the exactness tests).
+    #[cfg(test)]
+    fn gram_moments(&self) -> [i64; MAX_ORDER] {
+        let mut out = [0i64; MAX_ORDER];
+        for (p, (o, a)) in out.iter_mut().zip(&self.alpha).enumerate().take(self.order) {
+            *o = gram_moment(a, &self.moments, p + 1);
+        }
+        out
+    }
+}
+
+/// `Mₚ = Σ_{q≤p} (−1)^(p−q)·|αₚ_q|·T_q`, exact mod 2⁶⁴ (see the module's overflow proof).
+/// With `p` a constant after inlining, the signs are compile-time adds and subtracts.
+#[inline(always)]
+fn gram_moment(alpha: &[u32; MAX_ORDER + 1], t: &Moments, p: usize) -> i64 {
+    alpha
+        .iter()
+        .zip(t)
+        .enumerate()
+        .take(p + 1)
+        .fold(0i64, |acc, (q, (&a, &tq))| {
+            let term = tq.wrapping_mul(i64::from(a));
+            if (p - q).is_multiple_of(2) {
+                acc.wrapping_add(term)
+            } else {
+                acc.wrapping_sub(term)
+            }
+        })
+}
+
+/// The coefficients of the polynomial of `degree` through `values` (at j = 0, 1, …) in the
+/// binomial basis C(j, q): its forward differences at j = 0 (Newton's formula). `None` if
+/// one does not fit an i32 (never for n ≤ 41, k ≤ 4: |α| ≤ 46 376).
+fn binomial_coefficients(values: &[i128], degree: usize) -> Option<[i32; MAX_ORDER + 1]> {
+    let mut diff = [0i128; MAX_WINDOW];
+    for (d, v) in diff.iter_mut().zip(values) {
+        *d = *v;
+    }
+    let mut out = [0i32; MAX_ORDER + 1];
+    for (q, a) in out.iter_mut().enumerate().take(degree + 1) {
+        *a = diff.first().and_then(|&d| i32::try_from(d).ok())?;
+        for i in 0..values.len().saturating_sub(q + 1) {
+            let next = diff.get(i + 1).copied().unwrap_or(0);
+            if let Some(d) = diff.get_mut(i) {
+                *d = next.checked_sub(*d)?;
+            }
+        }
+    }
+    Some(out)
+}
+
+/// i64 → f32 in two exact halves, `hi·2³² + lo` with `lo` the signed low word: one
+/// rounding in the sum (a plain `as f32` is a ~30-instruction library call on the M4).
+#[inline(always)]
+fn to_f32(m: i64) -> f32 {
+    let lo = m as i32;
+    // m − lo is a multiple of 2³², so the shift is exact and |hi| ≤ 2³¹.
+    let hi = (m.wrapping_sub(i64::from(lo)) >> 32) as i32;
+    hi as f32 * 4_294_967_296.0 + lo as f32
+}
+
+/// `C(n, q)` for the small arguments used here (n ≤ 41, q ≤ 5: at most 749 398).
+fn binomial(n: usize, q: usize) -> u64 {
+    let mut c: u64 = 1;
+    for i in 0..q as u64 {
+        // Exact at every step: c·(n−i) is divisible by i+1 (c is then C(n, i+1)).
+        c = c.saturating_mul((n as u64).saturating_sub(i)) / (i + 1);
+    }
+    c
+}
+
+/// Values at j = 0..n−1 of the Gram polynomials P₀..P_k, each scaled to coprime integers:
+/// Gram–Schmidt on 1, j, j², … in exact integer arithmetic (each projection is removed
+/// by `v ← ‖P‖²·v − ⟨v, P⟩·P`, then the common factor is divided out). `None` if a value
+/// ever left i128 (impossible for n ≤ 41, k ≤ 4: intermediates stay below 2⁹³).
+fn gram_polynomials(n: usize, k: usize) -> Option<[[i128; MAX_WINDOW]; MAX_ORDER + 1]> {
+    let mut basis = [[0i128; MAX_WINDOW]; MAX_ORDER + 1];
+    for (p, poly) in basis.iter_mut().enumerate().take(k + 1) {
+        let mut v = [0i128; MAX_WINDOW];
+        for (j, x) in v.iter_mut().enumerate().take(n) {
+            *x = (j as i128).checked_pow(p as u32)?;
+        }
+        *poly = v;
+    }
+    for p in 0..=k {
+        let (done, rest) = basis.split_at_mut(p);
+        let v = rest.first_mut()?;
+        for q in done.iter() {
+            let norm = dot(q, q, n)?;
+            let proj = dot(v, q, n)?;
+            for (x, &b) in v.iter_mut().zip(q.iter()).take(n) {
+                *x = x.checked_mul(norm)?.checked_sub(proj.checked_mul(b)?)?;
+            }
+            let g = v
+                .iter()
+                .take(n)
+                .fold(0u128, |g, x| gcd(g, x.unsigned_abs()));
+            let g = i128::try_from(g).ok().filter(|g| *g > 0)?;
+            for x in v.iter_mut().take(n) {
+                *x = x.checked_div(g)?;
+            }
+        }
+    }
+    Some(basis)
+}
+
+fn dot(a: &[i128; MAX_WINDOW], b: &[i128; MAX_WINDOW], n: usize) -> Option<i128> {
+    a.iter()
+        .zip(b)
+        .take(n)
+        .try_fold(0i128, |s, (x, y)| s.checked_add(x.checked_mul(*y)?))
+}
+
+fn gcd(mut a: u128, mut b: u128) -> u128 {
+    while b != 0 {
+        // b ≠ 0: the remainder is defined.
+        (a, b) = (b, a % b);
+    }
+    a
+}
+
+/// Monomial coefficients (ascending powers of j) of `Σ_q α_q·C(j, q)`.
+fn monomial_coefficients(alpha: &[i32; MAX_ORDER + 1]) -> [f64; MAX_ORDER + 1] {
+    let mut out = [0.0f64; MAX_ORDER + 1];
+    // C(j, q) = j(j−1)…(j−q+1)/q!, built up one factor at a time.
+    let mut falling = [0.0f64; MAX_ORDER + 1];
+    if let Some(f) = falling.first_mut() {
+        *f = 1.0;
+    }
+    let mut factorial = 1.0f64;
+    for (q, &a) in alpha.iter().enumerate() {
+        if q > 0 {
+            factorial *= q as f64;
+            // falling ← falling·(j − (q−1))
+            let shift = (q - 1) as f64;
+            let mut next = [0.0f64; MAX_ORDER + 1];
+            for (m, nx) in next.iter_mut().enumerate() {
+                let lower = if m > 0 {
+                    falling.get(m - 1).copied().unwrap_or(0.0)
+                } else {
+                    0.0
+                };
+                *nx = lower - shift * falling.get(m).copied().unwrap_or(0.0);
+            }
+            falling = next;
+        }
+        for (o, f) in out.iter_mut().zip(falling.iter()) {
+            *o += f64::from(a) * f / factorial;
+        }
+    }
+    out
+}
+
+/// First and second derivative at `j` of the polynomial with ascending coefficients `c`.
+fn derivatives_at(c: &[f64; MAX_ORDER + 1], j: f64) -> (f64, f64) {
+    let mut d1 = 0.0;
+    let mut d2 = 0.0;
+    let mut pow = 1.0; // j^(m−1) for d1, then j^(m−2) for d2 via `prev`
+    let mut prev = 0.0;
+    for (m, &cm) in c.iter().enumerate().skip(1) {
+        let mf = m as f64;
+        d1 += mf * cm * pow;
+        if m >= 2 {
+            d2 += mf * (mf - 1.0) * cm * prev;
+        }
+        prev = pow;
+        pow *= j;
+    }
+    (d1, d2)
+}
+
+#[cfg(test)]
+// The reference implementations below index like the textbook formulas they transcribe.
+#[allow(clippy::needless_range_loop)]
+mod tests {
+    use super::*;
+
+    fn cfg(window: usize, order: usize, lag: usize) -> SgConfig {
+        SgConfig {
+            window,
+            order,
+            lag,
+            sample_time_s: 50e-6,
+            m_per_count: 1e-6,
+        }
+    }
+
+    /// Every valid configuration (window, order, lag).
+    fn all_configs() -> impl Iterator<Item = (usize, usize, usize)> {
+        (3..=MAX_WINDOW).step_by(2).flat_map(|n| {
+            (1..=MAX_ORDER.min(n - 1)).flat_map(move |k| (0..n).map(move |l| (n, k, l)))
+        })
+    }
+
+    /// Direct least-squares weights in f64 (normal equations on the monomials, centred on
+    /// the evaluation point): an independent check of the Gram route. Oldest sample first.
+    fn direct_weights(n: usize, k: usize, lag: usize, deriv: usize) -> Vec<f64> {
+        let origin = (n - 1 - lag) as f64;
+        let m = k + 1;
+        let mut g = vec![vec![0.0f64; m]; m];
+        for j in 0..n {
+            let tau = j as f64 - origin;
+            for r in 0..m {
+                for c in 0..m {
+                    g[r][c] += tau.powi((r + c) as i32);
+                }
+            }
+        }
+        let mut rhs = vec![0.0; m];
+        rhs[deriv] = if deriv == 2 { 2.0 } else { 1.0 };
+        // Gaussian elimination (G is SPD and small).
+        for col in 0..m {
+            let piv = (col..m)
+                .max_by(|&a, &b| g[a][col].abs().total_cmp(&g[b][col].abs()))
+                .unwrap();
+            g.swap(col, piv);
+            rhs.swap(col, piv);
+            for r in col + 1..m {
+                let f = g[r][col] / g[col][col];
+                for c in col..m {
+                    g[r][c] -= f * g[col][c];
+                }
+                rhs[r] -= f * rhs[col];
+            }
+        }
+        let mut y = vec![0.0; m];
+        for r in (0..m).rev() {
+            let s: f64 = rhs[r] - (r + 1..m).map(|c| g[r][c] * y[c]).sum::<f64>();
+            y[r] = s / g[r][r];
+        }
+        (0..n)
+            .map(|j| {
+                let tau = j as f64 - origin;
+                (0..m).map(|p| y[p] * tau.powi(p as i32)).sum()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn matches_the_least_squares_definition_for_every_configuration() {
+        // Response to a unit impulse at each position of the window = the weights.
+        let mut worst = 0.0f64;
+        for (n, k, lag) in all_configs() {
+            let hv = direct_weights(n, k, lag, 1);
+            let ha = if k >= 2 {
+                direct_weights(n, k, lag, 2)
+            } else {
+                vec![0.0; n]
+            };
+            let scale_v: f64 = hv.iter().map(|h| h.abs()).sum();
+            let scale_a: f64 = ha.iter().map(|h| h.abs()).sum::<f64>().max(1e-300);
+            let mut sg = SavitzkyGolay::new(SgConfig {
+                sample_time_s: 1.0,
+                m_per_count: 1.0,
+                ..cfg(n, k, lag)
+            })
+            .unwrap();
+            for at in 0..n {
+                // A zero history, then the window: the impulse is 10⁶ counts tall so the
+                // f32 output rounding is negligible.
+                sg.reset();
+                sg.push(0);
+                let mut d = Derivatives::default();
+                for j in 0..n {
+                    d = sg.push(if j == at { 1_000_000 } else { 0 });
+                }
+                let ev = (f64::from(d.velocity_mps) / 1e6 - hv[at]).abs() / scale_v;
+                worst = worst.max(ev);
+                if k >= 2 {
+                    let ea = (f64::from(d.acceleration_mps2) / 1e6 - ha[at]).abs() / scale_a;
+                    worst = worst.max(ea);
+                }
+            }
+        }
+        assert!(worst < 1e-6, "worst relative weight error {worst:e}");
+    }
+
+    #[test]
+    fn gram_moment_bound_holds_for_every_configuration() {
+        let mut worst_l1 = 0u128;
+        let mut worst_alpha = 0u32;
+        for n in (3..=MAX_WINDOW).step_by(2) {
+            let k = MAX_ORDER.min(n - 1);
+            let g = gram_polynomials(n, k).unwrap();
+            for poly in g.iter().take(k + 1).skip(1) {
+                let sum: i128 = poly[..n].iter().sum();
+                assert_eq!(sum, 0, "P_p must be orthogonal to the constant");
+                let l1: u128 = poly[..n].iter().map(|v| v.unsigned_abs()).sum();
+                worst_l1 = worst_l1.max(l1);
+            }
+            let sg = SavitzkyGolay::new(cfg(n, k, 0)).unwrap();
+            for row in &sg.alpha {
+                for &a in row {
+                    worst_alpha = worst_alpha.max(a);
+                }
+            }
+        }
+        // The figures the module's proof uses.
+        assert!(worst_l1 <= 617_100, "‖P‖₁ = {worst_l1}");
+        assert!(worst_alpha <= 46_376, "|α| = {worst_alpha}");
+        // |M| < ‖P‖₁ · 40 · 2³¹ < 2⁶³.
+        assert!(worst_l1 * 40 * (1u128 << 31) < 1u128 << 63);
+    }
+
+    /// Σⱼ Pₚ(j)·X₋ⱼ straight from the ring, in i128.
+    fn reference_moments(sg: &SavitzkyGolay) -> [i128; MAX_ORDER] {
+        let n = sg.window;
+        let g = gram_polynomials(n, sg.order).unwrap();
+        let mut out = [0i128; MAX_ORDER];
+        for p in 1..=sg.order {
+            let mut s = 0i128;
+            for j in 0..n {
+                // Age j sits j slots before the newest, which is just before `head`.
+                let slot = (sg.head + 2 * n - 1 - j) % n;
+                s += g[p][j] * i128::from(sg.ring[slot]);
+            }
+            out[p - 1] = s;
+        }
+        out
+    }
+
+    #[test]
+    fn every_input_gives_the_exact_gram_moments() {
+        use proptest::prelude::*;
+        let strategy = (
+            (1usize..=20).prop_map(|h| 2 * h + 1),
+            1usize..=4,
+            proptest::collection::vec(any::<i32>(), 1..200),
+        );
+        proptest!(ProptestConfig::with_cases(200), |((n, k, xs) in strategy)| {
+            let k = k.min(n - 1);
+            let mut sg = SavitzkyGolay::new(cfg(n, k, 0)).unwrap();
+            let mut unwrapped = 0i128;
+            let mut last = None::<i32>;
+            for &x in &xs {
+                let d = sg.push(x);
+                prop_assert!(d.velocity_mps.is_finite() && d.acceleration_mps2.is_finite());
+                unwrapped = match last {
+                    None => i128::from(x),
+                    Some(l) => unwrapped + i128::from(x.wrapping_sub(l)),
+                };
+                last = Some(x);
+                // The ring really holds the unwrapped positions.
+                prop_assert_eq!(i128::from(sg.unwrapped), unwrapped);
+                let exact = reference_moments(&sg);
+                let got = sg.gram_moments();
+                for p in 0..k {
+                    prop_assert!(exact[p].abs() < 1i128 << 63);
+                    prop_assert_eq!(i128::from(got[p]), exact[p]);
+                }
+            }
+        });
+    }
+
+    #[test]
+    fn exact_on_polynomials_of_its_order_across_the_i32_wrap() {
+        // x(t) = x0 + v t + a t²/2 in counts, crossing i32::MAX mid-run.
+        for (k, lag) in [(2, 0), (3, 5), (4, 20)] {
+            let mut sg = SavitzkyGolay::new(SgConfig {
+                m_per_count: 1e-8,
+                ..cfg(41, k, lag)
+            })
+            .unwrap();
+            let (v, a) = (2.0f64, -60.0f64); // m/s, m/s², 10 nm counts
+            let x0 = f64::from(i32::MAX) - 1e6;
+            let mut d = Derivatives::default();
+            let mut t = 0.0;
+            for i in 0..200 {
+                t = i as f64 * 50e-6;
+                let x = x0 + (v * t + 0.5 * a * t * t) * 1e8;
+                d = sg.push((x.round() as i64) as i32); // wraps past i32::MAX
+            }
+            let te = t - lag as f64 * 50e-6;
+            assert!(
+                (f64::from(d.velocity_mps) - (v + a * te)).abs() < 1e-3,
+                "k={k}"
+            );
+            assert!((f64::from(d.acceleration_mps2) - a).abs() < 0.1, "k={k}");
+        }
+    }
+
+    #[test]
+    fn reset_restarts_from_the_next_sample() {
+        let mut sg = SavitzkyGolay::new(cfg(5, 2, 0)).unwrap();
+        for i in 0..10 {
+            sg.push(i * 1000);
+        }
+        sg.reset();
+        assert_eq!(sg.push(-5), Derivatives::default());
+        assert_eq!(sg.push(-5), Derivatives::default());
+    }
+
+    #[test]
+    fn refuses_bad_configurations() {
+        assert_eq!(
+            SavitzkyGolay::new(cfg(4, 2, 0)).err(),
+            Some(SgError::Window)
+        );
+        assert_eq!(
+            SavitzkyGolay::new(cfg(43, 2, 0)).err(),
+            Some(SgError::Window)
+        );
+        assert_eq!(SavitzkyGolay::new(cfg(5, 5, 0)).err(), Some(SgError::Order));
+        assert_eq!(SavitzkyGolay::new(cfg(3, 3, 0)).err(), Some(SgError::Order));
+        assert_eq!(SavitzkyGolay::new(cfg(5, 2, 5)).err(), Some(SgError::Lag));
+        let mut c = cfg(5, 2, 0);
+        c.sample_time_s = f32::NAN;
+        assert_eq!(SavitzkyGolay::new(c).err(), Some(SgError::Scale));
+        c.sample_time_s = 50e-6;
+        c.m_per_count = 0.0;
+        assert_eq!(SavitzkyGolay::new(c).err(), Some(SgError::Scale));
+    }
+}
