@@ -1,0 +1,247 @@
+//! Host commands: what each may change, and when. A refused command changes nothing.
+
+use super::modes::{AfterStop, Mode};
+use super::ControlStep;
+use crate::control::calibration::{Calibration, Routine};
+use crate::control::command::{Command, Parameter, Refusal};
+use crate::motion::stroke::StrokeGenerator;
+use crate::motion::trajectory::PointToPoint;
+use crate::motion::volume_ratio::RatioTarget;
+use crate::safety::faults::Fault;
+use crate::sensing::homing::Homing;
+
+impl ControlStep {
+    /// Handles a host command. A refused command changes nothing.
+    pub fn command(&mut self, command: Command) -> Result<(), Refusal> {
+        match command {
+            Command::Heartbeat => {
+                // The first heartbeat arms the host watchdog; every one restarts it.
+                self.heartbeat_s = Some(0.0);
+                Ok(())
+            }
+            Command::Home => {
+                if !self.faults.is_empty() {
+                    return Err(Refusal::FaultActive);
+                }
+                self.check_current_sense()?;
+                if !matches!(self.mode, Mode::Idle | Mode::Holding(_)) {
+                    return Err(Refusal::Busy);
+                }
+                self.mode = Mode::Homing(Homing::new(self.config.homing, self.raw_position_m()));
+                self.zero_raw_m = None;
+                Ok(())
+            }
+            Command::MoveTo {
+                position_m,
+                peak_speed_mps,
+            } => {
+                if !(position_m.is_finite() && peak_speed_mps.is_finite()) {
+                    return Err(Refusal::NotFinite);
+                }
+                let lo = self.config.target_clearance_m;
+                let hi = self.config.travel_m - self.config.target_clearance_m;
+                let speed_ok = peak_speed_mps > 0.0 && peak_speed_mps <= self.config.max_speed_mps;
+                if !((lo..=hi).contains(&position_m) && speed_ok) {
+                    return Err(Refusal::OutOfRange);
+                }
+                if !self.faults.is_empty() {
+                    return Err(Refusal::FaultActive);
+                }
+                if self.zero_raw_m.is_none() {
+                    return Err(Refusal::NotHomed);
+                }
+                let from = match &self.mode {
+                    Mode::Holding(sp) => sp.position_m,
+                    _ => return Err(Refusal::Busy),
+                };
+                self.mode = Mode::Moving {
+                    path: PointToPoint::new(from, position_m, peak_speed_mps),
+                    elapsed_s: 0.0,
+                };
+                Ok(())
+            }
+            Command::Start { peak_speed_mps } => {
+                self.check_speed(peak_speed_mps)?;
+                if !self.faults.is_empty() {
+                    return Err(Refusal::FaultActive);
+                }
+                if self.zero_raw_m.is_none() {
+                    return Err(Refusal::NotHomed);
+                }
+                let Mode::Holding(sp) = &self.mode else {
+                    return Err(Refusal::Busy);
+                };
+                let mut stroke = self.config.stroke;
+                stroke.peak_speed_mps = peak_speed_mps;
+                let generator = StrokeGenerator::new(stroke, sp.position_m);
+                self.begin_half(&generator);
+                self.mode = Mode::Running(generator);
+                // The plausibility of the chamber pressures is judged over running strokes.
+                for m in &mut self.stuck {
+                    m.reset();
+                }
+                Ok(())
+            }
+            Command::SetSpeed { peak_speed_mps } => {
+                self.check_speed(peak_speed_mps)?;
+                match &mut self.mode {
+                    Mode::Running(g) => {
+                        g.set_peak_speed(peak_speed_mps);
+                        Ok(())
+                    }
+                    _ => Err(Refusal::Busy),
+                }
+            }
+            Command::SetParameter { parameter, value } => {
+                if !value.is_finite() {
+                    return Err(Refusal::NotFinite);
+                }
+                let (lo, hi) = parameter.range();
+                if !(lo..=hi).contains(&value) {
+                    return Err(Refusal::OutOfRange);
+                }
+                // Not while compressing: a gain change mid-stroke is not a tested transition.
+                if matches!(self.mode, Mode::Running(_)) {
+                    return Err(Refusal::Busy);
+                }
+                let c = &mut self.config;
+                match parameter {
+                    Parameter::PositionKp => c.position_kp_n_per_m = value,
+                    Parameter::PositionKd => c.position_kd_ns_per_m = value,
+                    Parameter::HeartbeatTimeout => c.heartbeat_timeout_s = value,
+                    Parameter::ParkPosition => c.park_position_m = value,
+                    Parameter::DeadPointGain => c.stroke.correction_gain = value,
+                }
+                Ok(())
+            }
+            Command::SetRotation { rotation } => {
+                self.rotation = rotation;
+                Ok(())
+            }
+            Command::SetVolumeRatio { target } => {
+                if let RatioTarget::Fixed { pressure_ratio } = target {
+                    if !pressure_ratio.is_finite() {
+                        return Err(Refusal::NotFinite);
+                    }
+                    if !(1.0..=10.0).contains(&pressure_ratio) {
+                        return Err(Refusal::OutOfRange);
+                    }
+                }
+                self.volume_ratio.set_target(target);
+                Ok(())
+            }
+            Command::Stop => {
+                match &mut self.mode {
+                    Mode::Running(g) => g.request_stop(),
+                    _ => self.begin_stop(AfterStop::Hold),
+                }
+                Ok(())
+            }
+            Command::Calibrate { routine } => {
+                if !self.faults.is_empty() {
+                    return Err(Refusal::FaultActive);
+                }
+                if routine != Routine::CurrentSense {
+                    self.check_current_sense()?;
+                }
+                let homed = self.zero_raw_m.is_some();
+                if routine.needs_homing() && !homed {
+                    return Err(Refusal::NotHomed);
+                }
+                let from = match &self.mode {
+                    Mode::Holding(sp) => sp.position_m,
+                    Mode::Idle => self.status.position_m,
+                    _ => return Err(Refusal::Busy),
+                };
+                let calibration = Calibration::new(routine, &self.config, homed.then_some(from))
+                    .map_err(|_| Refusal::OutOfRange)?;
+                self.mode = Mode::Calibrating(calibration);
+                Ok(())
+            }
+            Command::ClearFaults => {
+                if self.faults.is_empty() {
+                    return Ok(());
+                }
+                // A controlled stop ends on its own (outputs off once holding the piston needs
+                // no force): switching off earlier could let the gas throw the piston.
+                if matches!(self.mode, Mode::Stopping { .. }) {
+                    return Err(Refusal::Busy);
+                }
+                if self.encoders.master.cause_present()
+                    || self.encoders.slave.cause_present()
+                    || self.pressure_bad > 0
+                {
+                    return Err(Refusal::CausePersists);
+                }
+                self.encoders.master.clear_fault();
+                self.encoders.slave.clear_fault();
+                // An encoder fault loses the zero: homing is required again.
+                if self.faults.contains(Fault::EncoderSignal) {
+                    self.zero_raw_m = None;
+                }
+                self.config.allocation.capability = self.nominal_capability;
+                self.lost_encoder = None;
+                self.pressures_trusted = true;
+                self.faults.clear();
+                self.mode = Mode::Idle;
+                Ok(())
+            }
+        }
+    }
+
+    /// Refuses to switch the outputs on while the phase currents read a current with the
+    /// outputs off: the current loops would drive that offset into the motor.
+    pub(super) fn check_current_sense(&self) -> Result<(), Refusal> {
+        if self.sense_monitor.offset_detected(&self.config) {
+            Err(Refusal::CurrentSenseOffset)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// Refuses a peak speed that is not finite or outside (0, max].
+    pub(super) fn check_speed(&self, peak_speed_mps: f32) -> Result<(), Refusal> {
+        if !peak_speed_mps.is_finite() {
+            return Err(Refusal::NotFinite);
+        }
+        if !(peak_speed_mps > 0.0 && peak_speed_mps <= self.config.max_speed_mps) {
+            return Err(Refusal::OutOfRange);
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::control::config::ControlConfig;
+
+    #[test]
+    fn set_parameter_validates_and_changes_only_what_it_names() {
+        let mut step = ControlStep::new(ControlConfig::reference()).unwrap();
+        let before = step.config().clone();
+        for (parameter, value, refusal) in [
+            (Parameter::PositionKp, f32::NAN, Refusal::NotFinite),
+            (Parameter::PositionKp, f32::INFINITY, Refusal::NotFinite),
+            (Parameter::PositionKp, 1.0e9, Refusal::OutOfRange),
+            (Parameter::ParkPosition, -0.01, Refusal::OutOfRange),
+            (Parameter::DeadPointGain, 1.5, Refusal::OutOfRange),
+        ] {
+            assert_eq!(
+                step.command(Command::SetParameter { parameter, value }),
+                Err(refusal)
+            );
+            assert_eq!(step.config(), &before, "a refused command changes nothing");
+        }
+        assert_eq!(
+            step.command(Command::SetParameter {
+                parameter: Parameter::HeartbeatTimeout,
+                value: 1.5
+            }),
+            Ok(())
+        );
+        let mut expected = before;
+        expected.heartbeat_timeout_s = 1.5;
+        assert_eq!(step.config(), &expected);
+    }
+}

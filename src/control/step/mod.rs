@@ -1,0 +1,354 @@
+//! The 20 kHz control step of the linear axis and the rotation, as a pure function of its
+//! inputs.
+//!
+//! [`ControlStep::step`] takes one burst of samples (encoders, phase currents, quadrature
+//! count, pressures, the sampling instant) and returns the outputs (six PWM duties or
+//! "outputs off", the servo torque code). It reads no clock and touches no hardware, so the
+//! firmware's control task, the simulator and the benchmarks all call the same code.
+//!
+//! Per cycle: decode both encoders → differentiate the master position (Savitzky–Golay) →
+//! convert pressures → mode logic gives a setpoint → position loop with model feed-forward
+//! (`m·a + F_fr(v) − F_gas`) → one total force, split over the two sections → FOC of both
+//! sections with each section's own encoder angle → duties for both, written in the same
+//! cycle → servo loop.
+//!
+//! The stages live in their own modules, each an `impl ControlStep` block over the state it
+//! owns: `sense` (encoders, differentiator, pressures, and what a failed encoder
+//! changes), `supervise` (limits and faults, the safe-state reaction), `modes` (the mode
+//! machine that plans the setpoint: homing, moves, strokes, controlled stops), `commands`
+//! (what a host command may change, and when), `actuate` (position loop, allocation,
+//! both sections' FOC, the servo) and `calibrate` (a calibration routine's cycle).
+
+mod actuate;
+mod calibrate;
+mod commands;
+mod modes;
+mod sense;
+mod supervise;
+
+pub use modes::{DOB_TIME_S, HOLD_RELEASE_S};
+
+use crate::control::calibration::{Calibrated, SenseMonitor};
+use crate::control::config::{ConfigError, ControlConfig};
+use crate::drive::foc::CurrentController;
+use crate::drive::servo::ServoController;
+use crate::motion::stroke::DeadPoint;
+use crate::motion::synchroniser::{Rotation, Synchroniser};
+use crate::motion::trajectory::Setpoint;
+use crate::motion::volume_ratio::VolumeRatio;
+use crate::ports::{EncoderCodes, PhaseCurrentCodes, PressureCodes};
+use crate::safety::faults::{Fault, FaultSet, ResetCause};
+use crate::safety::supervisor::{LimitFlags, Supervisor};
+use crate::sensing::differentiator::{SavitzkyGolay, SgConfig};
+use crate::sensing::encoder::SinCosDecoder;
+use crate::sensing::pressure::{StuckConfig, StuckMonitor};
+use crate::sensing::quadrature::QuadratureCounter;
+use crate::status::Status;
+use crate::units::{DacCode, PerSection, PhaseDuties, Section, Ticks};
+use modes::Mode;
+use sense::Sensed;
+
+/// One burst of samples.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CycleInputs {
+    /// Sampling instant.
+    pub t: Ticks,
+    /// Both encoders.
+    pub encoders: EncoderCodes,
+    /// Phase currents of both sections.
+    pub currents: PerSection<PhaseCurrentCodes>,
+    /// Servo quadrature counter.
+    pub quadrature: u16,
+    /// Pressures.
+    pub pressures: PressureCodes,
+}
+
+/// The outputs of one step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CycleOutputs {
+    /// Duties of both sections, or `None`: all motor outputs off (safe torque off).
+    pub pwm: Option<PerSection<PhaseDuties>>,
+    /// While `pwm` is `Some`, the sections whose bridges switch: `false` for a section taken
+    /// out of service (after an overcurrent, or with its encoder lost), whose six gates are
+    /// then held low while the other section drives.
+    pub sections: PerSection<bool>,
+    /// Servo torque command.
+    pub servo: DacCode,
+}
+
+/// The control step and all its state.
+#[derive(Clone, Debug)]
+pub struct ControlStep {
+    config: ControlConfig,
+    encoders: PerSection<SinCosDecoder>,
+    differentiator: SavitzkyGolay,
+    currents: PerSection<CurrentController>,
+    servo: ServoController,
+    quadrature: QuadratureCounter,
+    mode: Mode,
+    /// Raw master position at x = 0 (set by homing), m.
+    zero_raw_m: Option<f32>,
+    /// Raw slave position at x = 0, m.
+    zero_slave_raw_m: f32,
+    theta_reference_rad: f32,
+    /// Speed of the rotation reference, rad/s.
+    theta_reference_speed_rad_s: f32,
+    last_t: Option<Ticks>,
+    supervisor: Supervisor,
+    /// Time since the last heartbeat, s; `None` until the host sends one.
+    heartbeat_s: Option<f32>,
+    /// The last dead point the running strokes reached.
+    last_dead_point: Option<DeadPoint>,
+    /// The setpoint of the last cycle (none with outputs off).
+    setpoint: Option<Setpoint>,
+    synchroniser: Synchroniser,
+    volume_ratio: VolumeRatio,
+    /// Compressor or expander for the next half cycle.
+    rotation: Rotation,
+    /// Whole turns the rotation base has moved (status angles are unwrapped with it).
+    turns: i32,
+    /// Last valid pressures: chamber A, chamber B, suction, discharge, Pa (NaN: none yet).
+    pressures_pa: [f32; 4],
+    /// The discharge pressure the current half cycle's opening was planned for, Pa.
+    planned_discharge_pa: f32,
+    /// Force commanded to each section in the last cycle, N.
+    shares: PerSection<f32>,
+    /// Consecutive cycles with an invalid chamber-pressure sample.
+    pressure_bad: u8,
+    /// Chamber A and B readings watched for following the volume while running (a stuck
+    /// sensor); one of the two is updated per cycle.
+    stuck: [StuckMonitor; 2],
+    /// Cycles counted for the pressure plausibility check (it runs every 8th cycle).
+    stuck_cycles: u8,
+    /// The chamber pressures may be used in the feed-forward (false once one is found stuck).
+    pressures_trusted: bool,
+    /// The encoder that failed while the other still gives the position (its section is
+    /// dropped); `None` while both are good.
+    lost_encoder: Option<Section>,
+    /// Master minus slave position, counts, when the master encoder was lost (the slave
+    /// stands in for it at this offset).
+    slave_offset_counts: i32,
+    /// SS1's hold: time into the current averaging window, s, and the integrals over it of
+    /// the motor force and of the measured gas force, N·s.
+    hold_quiet_s: f32,
+    hold_motor_ns: f32,
+    hold_gas_ns: f32,
+    /// Each section's capability as configured (restored when faults are cleared).
+    nominal_capability: PerSection<f32>,
+    /// After a watchdog reset: cycles until the piston is braked (`None`: no reset, or done).
+    brake_after_reset_in: Option<u16>,
+    /// Deceleration of the controlled stop in progress, m/s².
+    stop_decel_mps2: f32,
+    /// The stop's estimate of the force the model does not explain, N (toward +x).
+    disturbance_n: f32,
+    limits: LimitFlags,
+    faults: FaultSet,
+    status: Status,
+    /// What the calibration routines have loaded.
+    calibrated: Calibrated,
+    /// The phase currents while the outputs are off (current-sense offset detection).
+    sense_monitor: SenseMonitor,
+}
+
+impl ControlStep {
+    /// Builds the step from a configuration, refusing invalid parameters.
+    pub fn new(mut config: ControlConfig) -> Result<Self, ConfigError> {
+        // The supervisor's geometry and speed limit follow the machine's, never disagree.
+        config.supervisor.travel_m = config.travel_m;
+        config.supervisor.overspeed_mps = 1.2 * config.max_speed_mps;
+        for (name, v) in [
+            ("sample_time_s", config.sample_time_s),
+            ("travel_m", config.travel_m),
+            ("moving_mass_kg", config.moving_mass_kg),
+            ("force_limit_n", config.force_limit_n),
+            (
+                "motor.force_constant_n_per_a",
+                config.motor.force_constant_n_per_a,
+            ),
+            ("motor.bus_voltage_v", config.motor.bus_voltage_v),
+            ("max_speed_mps", config.max_speed_mps),
+            (
+                "supervisor.brake_deceleration_mps2",
+                config.supervisor.brake_deceleration_mps2,
+            ),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(ConfigError::NotPositive(name));
+            }
+        }
+        let differentiator = SavitzkyGolay::new(SgConfig {
+            window: config.sg_window,
+            order: config.sg_order,
+            lag: config.sg_lag,
+            sample_time_s: config.sample_time_s,
+            m_per_count: config.encoder_master.m_per_count(),
+        })
+        .map_err(ConfigError::Differentiator)?;
+        let current =
+            |_| CurrentController::new(&config.motor, config.current_gains, config.sample_time_s);
+        Ok(ControlStep {
+            encoders: PerSection {
+                master: SinCosDecoder::new(config.encoder_master),
+                slave: SinCosDecoder::new(config.encoder_slave),
+            },
+            differentiator,
+            currents: PerSection {
+                master: current(Section::Master),
+                slave: current(Section::Slave),
+            },
+            servo: ServoController::new(config.servo),
+            quadrature: QuadratureCounter::new(),
+            mode: Mode::Idle,
+            zero_raw_m: None,
+            zero_slave_raw_m: 0.0,
+            theta_reference_rad: 0.0,
+            theta_reference_speed_rad_s: 0.0,
+            last_t: None,
+            supervisor: Supervisor::new(),
+            heartbeat_s: None,
+            last_dead_point: None,
+            setpoint: None,
+            synchroniser: Synchroniser::new(config.port_geometry, 0.0),
+            volume_ratio: VolumeRatio::new(config.volume_ratio),
+            rotation: Rotation::Compressor,
+            turns: 0,
+            pressures_pa: [f32::NAN; 4],
+            planned_discharge_pa: f32::NAN,
+            shares: PerSection::default(),
+            pressure_bad: 0,
+            stuck: [StuckMonitor::new(StuckConfig::reference()); 2],
+            stuck_cycles: 0,
+            pressures_trusted: true,
+            lost_encoder: None,
+            slave_offset_counts: 0,
+            hold_quiet_s: 0.0,
+            hold_motor_ns: 0.0,
+            hold_gas_ns: 0.0,
+            nominal_capability: config.allocation.capability,
+            brake_after_reset_in: None,
+            stop_decel_mps2: config.supervisor.brake_deceleration_mps2,
+            disturbance_n: 0.0,
+            limits: LimitFlags::default(),
+            faults: FaultSet::new(),
+            status: Status::INIT,
+            calibrated: Calibrated::default(),
+            sense_monitor: SenseMonitor::new(),
+            config,
+        })
+    }
+
+    /// Applies the cause of the last reset: after a watchdog reset the machine starts in
+    /// the fault state (outputs off, restart inhibited until the fault is cleared).
+    ///
+    /// The piston may still be moving (a task hung at speed, the outputs held for up to the
+    /// watchdog's timeout): once the differentiator has a full window of samples the step
+    /// brakes it in the encoders' own frame (the sin/cos angle commutates without the zero,
+    /// the incremental position holds it), as SS1 does, and releases the outputs once holding
+    /// needs no force. Where the heads are is unknown until homing; the fault stays latched.
+    pub fn boot(&mut self, cause: ResetCause) {
+        if cause == ResetCause::Watchdog {
+            self.latch(Fault::WatchdogReset);
+            self.status.faults = self.faults;
+            self.status.mode = self.mode_kind();
+            self.brake_after_reset_in = Some(self.config.sg_window.saturating_add(5) as u16);
+        }
+    }
+
+    /// The configuration in use.
+    pub fn config(&self) -> &ControlConfig {
+        &self.config
+    }
+
+    /// The snapshot of the last step.
+    pub fn status(&self) -> &Status {
+        &self.status
+    }
+
+    /// What the calibration routines have measured and loaded (and the last failure).
+    pub fn calibrated(&self) -> &Calibrated {
+        &self.calibrated
+    }
+
+    /// The largest mean phase current seen with the outputs off, A, once enough samples
+    /// were seen (the current-sense offset check).
+    pub fn current_sense_residual_a(&self) -> Option<f32> {
+        self.sense_monitor.residual_a(&self.config)
+    }
+
+    /// The last dead point reached by the running strokes (target and reached, m).
+    pub fn last_dead_point(&self) -> Option<DeadPoint> {
+        self.last_dead_point
+    }
+
+    /// One control cycle: the stages in the order the samples flow through them.
+    ///
+    /// sense (decode, differentiate, convert) → supervise (limits, faults, host watchdog) →
+    /// plan (the mode machine's setpoint) → actuate (position loop, allocation, both
+    /// sections' FOC) → rotate (servo, synchronised to the stroke) → publish (status). A
+    /// calibration routine, when one runs, takes the outputs after the rest.
+    pub fn step(&mut self, inputs: &CycleInputs) -> CycleOutputs {
+        self.check_deadline(inputs.t);
+        let sensed = self.sense(inputs);
+        self.supervise(&sensed);
+        let plan = self.plan(&sensed);
+        let pwm = self.actuate(inputs, &sensed, plan);
+        let servo = self.rotate(&sensed, plan, pwm.is_some());
+        self.publish(inputs.t, &sensed);
+        let sections = self.sections_in_service();
+        let pwm = if matches!(self.mode, Mode::Calibrating(_)) {
+            self.calibration_cycle(inputs)
+        } else {
+            pwm
+        };
+        CycleOutputs {
+            pwm,
+            sections,
+            servo,
+        }
+    }
+
+    /// The publish stage: the status snapshot of this cycle. Kept out of line: inlined, the
+    /// register pressure of the whole step costs ~4 instructions per cycle more on the
+    /// Cortex-M4 (`scripts/bench-cm4.sh`).
+    #[inline(never)]
+    fn publish(&mut self, t: Ticks, s: &Sensed) {
+        let turn_rad = self.turns as f32 * core::f32::consts::TAU;
+        self.status = Status {
+            t,
+            mode: self.mode_kind(),
+            homed: self.zero_raw_m.is_some(),
+            position_m: s.position_m,
+            slave_position_m: s.slave_raw_m - self.zero_slave_raw_m,
+            velocity_mps: s.derivatives.velocity_mps,
+            acceleration_mps2: s.derivatives.acceleration_mps2,
+            reference_m: self.reference_m().unwrap_or(s.position_m),
+            theta_rad: self.servo.angle_rad() + turn_rad,
+            theta_reference_rad: self.theta_reference_rad + turn_rad,
+            force_master_n: s.force_master_n,
+            force_slave_n: s.force_slave_n,
+            force_command_n: self.status.force_command_n,
+            pressure_a_pa: s.pressure_a_pa,
+            pressure_b_pa: s.pressure_b_pa,
+            faults: self.faults,
+            limits: self.limits,
+        };
+    }
+
+    /// The sections still in the allocation (a dropped one has capability 0).
+    fn sections_in_service(&self) -> PerSection<bool> {
+        let cap = &self.config.allocation.capability;
+        PerSection {
+            master: cap.master > 0.0,
+            slave: cap.slave > 0.0,
+        }
+    }
+
+    /// The position reference the loop tracked in the last cycle (none with outputs off).
+    fn reference_m(&self) -> Option<f32> {
+        self.setpoint.map(|sp| sp.position_m)
+    }
+
+    fn raw_position_m(&self) -> f32 {
+        self.status.position_m + self.zero_raw_m.unwrap_or(0.0)
+    }
+}

@@ -1,0 +1,384 @@
+//! The mode machine: idle, homing, holding, moving, running strokes, controlled stops,
+//! faulted, calibrating — and the setpoint each mode plans per cycle.
+
+use super::sense::Sensed;
+use super::ControlStep;
+use crate::control::calibration::Calibration;
+use crate::motion::stroke::StrokeGenerator;
+use crate::motion::synchroniser::{Rotation, Synchroniser};
+use crate::motion::trajectory::{PointToPoint, Setpoint};
+use crate::motion::volume_ratio::Chamber;
+use crate::real::{clamp_f32, max_f32};
+use crate::safety::faults::Fault;
+use crate::safety::supervisor::LimitFlags;
+use crate::sensing::homing::{Homing, HomingStep};
+use crate::status::ModeKind;
+
+/// The window over which holding the stopped piston must need (almost) no force before SS1
+/// switches the outputs off, s: 50 ms, ten times the force's settling after the stop ramp.
+pub const HOLD_RELEASE_S: f32 = 0.05;
+
+/// Time constant of the controlled stop's disturbance observer, s: 2 ms, four differentiator
+/// windows (its acceleration is the noisiest input) and still fast next to the 10–30 ms a
+/// stop takes.
+pub const DOB_TIME_S: f32 = 0.5e-3;
+
+/// What follows a controlled stop.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum AfterStop {
+    /// Hold where the piston stopped (operator stop).
+    Hold,
+    /// Outputs off: the second half of SS1 after a fault.
+    Off,
+    /// Move slowly to the park position and hold there (host lost).
+    Park,
+}
+
+/// What the position loop is doing.
+#[derive(Clone, Debug)]
+pub(super) enum Mode {
+    Idle,
+    Homing(Homing),
+    Holding(Setpoint),
+    Moving { path: PointToPoint, elapsed_s: f32 },
+    Running(StrokeGenerator),
+    Stopping { setpoint: Setpoint, then: AfterStop },
+    Faulted,
+    Calibrating(Calibration),
+}
+
+impl ControlStep {
+    /// The plan stage: the mode machine advanced one cycle; the setpoint and the force
+    /// limit, or `None` with the outputs off.
+    pub(super) fn plan(&mut self, s: &Sensed) -> Option<(Setpoint, f32)> {
+        self.limits = LimitFlags::default();
+        let measured_force_n = s.force_master_n + s.force_slave_n;
+        let dt = self.config.sample_time_s;
+        let setpoint = self.next_setpoint(s.raw_m, s.slave_raw_m, measured_force_n, dt);
+        self.setpoint = setpoint.map(|(sp, _)| sp);
+        setpoint
+    }
+
+    pub(super) fn mode_kind(&self) -> ModeKind {
+        match self.mode {
+            Mode::Idle => ModeKind::Idle,
+            Mode::Homing(_) => ModeKind::Homing,
+            Mode::Holding(_) => ModeKind::Holding,
+            Mode::Moving { .. } => ModeKind::Moving,
+            Mode::Running(_) => ModeKind::Running,
+            Mode::Stopping { .. } => ModeKind::Stopping,
+            Mode::Faulted => ModeKind::Faulted,
+            Mode::Calibrating(_) => ModeKind::Calibrating,
+        }
+    }
+
+    /// Advances the mode; returns the setpoint (position frame after homing) and the force
+    /// limit, or `None` when the outputs must be off.
+    pub(super) fn next_setpoint(
+        &mut self,
+        raw_m: f32,
+        slave_raw_m: f32,
+        measured_force_n: f32,
+        dt: f32,
+    ) -> Option<(Setpoint, f32)> {
+        let limit = self.config.force_limit_n;
+        match &mut self.mode {
+            // Calibration drives the outputs itself (`calibration_cycle`).
+            Mode::Faulted if self.brake_after_reset_in.is_some() => {
+                self.brake_after_reset();
+                None
+            }
+            Mode::Idle | Mode::Faulted | Mode::Calibrating(_) => None,
+            Mode::Homing(h) => match h.step(raw_m, measured_force_n, dt) {
+                HomingStep::Creep {
+                    reference_m,
+                    force_limit_n,
+                    // No zero yet: the position frame is the raw frame.
+                } => Some((Setpoint::at_rest(reference_m), force_limit_n)),
+                HomingStep::Found { stop_raw_m } => {
+                    self.zero_raw_m = Some(stop_raw_m);
+                    self.zero_slave_raw_m = slave_raw_m - (raw_m - stop_raw_m);
+                    self.differentiator.reset();
+                    let here = raw_m - stop_raw_m;
+                    let path = PointToPoint::new(here, self.config.park_position_m, 0.05);
+                    self.mode = Mode::Moving {
+                        path,
+                        elapsed_s: 0.0,
+                    };
+                    Some((Setpoint::at_rest(here), limit))
+                }
+                HomingStep::Failed => {
+                    self.latch(Fault::HomingFailed);
+                    None
+                }
+            },
+            Mode::Holding(sp) => Some((*sp, limit)),
+            Mode::Moving { path, elapsed_s } => {
+                *elapsed_s += dt;
+                let sp = path.sample(*elapsed_s);
+                if *elapsed_s >= path.duration_s() {
+                    self.mode = Mode::Holding(Setpoint::at_rest(path.target_m()));
+                }
+                Some((sp, limit))
+            }
+            Mode::Running(g) => {
+                let (sp, dead) = g.step(dt, self.status.position_m);
+                let stopped = g.stopped();
+                if let Some(d) = dead {
+                    self.last_dead_point = Some(d);
+                    let generator = g.clone();
+                    self.begin_half(&generator);
+                }
+                if stopped {
+                    self.mode = Mode::Holding(Setpoint::at_rest(sp.position_m));
+                }
+                Some((sp, limit))
+            }
+            Mode::Stopping { setpoint, then } => {
+                let brake = self.stop_decel_mps2;
+                let v = setpoint.velocity_mps;
+                let dv = brake * dt;
+                let (v_next, a) = if v.abs() <= dv {
+                    (0.0, -v / dt)
+                } else if v > 0.0 {
+                    (v - dv, -brake)
+                } else {
+                    (v + dv, brake)
+                };
+                setpoint.position_m += 0.5 * (v + v_next) * dt;
+                setpoint.velocity_mps = v_next;
+                setpoint.acceleration_mps2 = a;
+                let mut sp = *setpoint;
+                let then = *then;
+                // The force the model does not know (an external load, the gas of a chamber
+                // whose sensor failed) is estimated and cancelled through the feed-forward:
+                // the position loop alone would yield 4 mm to 3 kN, near a head too much.
+                sp.acceleration_mps2 -=
+                    self.observe_disturbance(measured_force_n, dt) / self.config.moving_mass_kg;
+                if v_next == 0.0 {
+                    if then == AfterStop::Off && !self.hold_released(dt) {
+                        return Some((sp, limit));
+                    }
+                    self.mode = match then {
+                        AfterStop::Off => Mode::Faulted,
+                        AfterStop::Hold => Mode::Holding(Setpoint::at_rest(sp.position_m)),
+                        AfterStop::Park => Mode::Moving {
+                            path: PointToPoint::new(
+                                sp.position_m,
+                                self.config.park_position_m,
+                                self.config.park_speed_mps,
+                            ),
+                            elapsed_s: 0.0,
+                        },
+                    };
+                    if then == AfterStop::Off {
+                        return None;
+                    }
+                }
+                Some((sp, limit))
+            }
+        }
+    }
+
+    /// After a watchdog reset: counts the cycles until the velocity estimate is valid, then
+    /// starts the controlled stop (see [`ControlStep::boot`]).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn brake_after_reset(&mut self) {
+        let left = self.brake_after_reset_in.unwrap_or(0);
+        if left > 0 {
+            self.brake_after_reset_in = Some(left - 1);
+            return;
+        }
+        self.brake_after_reset_in = None;
+        if self.faults.contains(Fault::EncoderSignal)
+            || self.faults.contains(Fault::EncoderMismatch)
+        {
+            return;
+        }
+        self.hold_quiet_s = 0.0;
+        self.hold_motor_ns = 0.0;
+        self.hold_gas_ns = 0.0;
+        self.stop_decel_mps2 = self.stop_deceleration(self.status.position_m, 0.0);
+        self.disturbance_n = 0.0;
+        self.mode = Mode::Stopping {
+            setpoint: Setpoint {
+                position_m: self.status.position_m,
+                velocity_mps: self.status.velocity_mps,
+                acceleration_mps2: 0.0,
+            },
+            then: AfterStop::Off,
+        };
+    }
+
+    /// Starts a controlled stop on the braking deceleration from the measured position and
+    /// velocity (not the reference: after a fault the piston may be far from it). Without
+    /// outputs on there is nothing to stop: the mode goes straight to its end.
+    pub(super) fn begin_stop(&mut self, then: AfterStop) {
+        if matches!(self.mode, Mode::Idle | Mode::Homing(_) | Mode::Faulted) {
+            self.mode = match then {
+                AfterStop::Off => Mode::Faulted,
+                AfterStop::Hold | AfterStop::Park => Mode::Idle,
+            };
+            return;
+        }
+        self.hold_quiet_s = 0.0;
+        self.hold_motor_ns = 0.0;
+        self.hold_gas_ns = 0.0;
+        let setpoint = match &self.mode {
+            // Already stopping: keep the ramp, take the stronger reaction.
+            Mode::Stopping { setpoint, then: t } => {
+                let then = if *t == AfterStop::Off { *t } else { then };
+                self.mode = Mode::Stopping {
+                    setpoint: *setpoint,
+                    then,
+                };
+                return;
+            }
+            _ => Setpoint {
+                position_m: self.status.position_m,
+                velocity_mps: self.status.velocity_mps,
+                acceleration_mps2: 0.0,
+            },
+        };
+        self.stop_decel_mps2 = self.stop_deceleration(setpoint.position_m, setpoint.velocity_mps);
+        self.disturbance_n = 0.0;
+        self.mode = Mode::Stopping { setpoint, then };
+    }
+
+    /// SS1's end: the piston is at rest and held; the outputs go off only once, averaged
+    /// over [`HOLD_RELEASE_S`] (the damping term's velocity noise averages out), holding it
+    /// needs no more than the static friction and the measured gas force is below half of
+    /// it, so friction alone keeps it still. Released earlier, the gas of a compressed
+    /// chamber (or an external load) would throw the piston into a head with nothing to stop
+    /// it. Until then it stays held, and a new window starts.
+    #[cold]
+    #[inline(never)]
+    pub(super) fn hold_released(&mut self, dt: f32) -> bool {
+        let gas_n = if self.pressures_trusted && self.pressure_bad == 0 {
+            self.config
+                .cylinder
+                .gas_force_n(self.status.pressure_a_pa, self.status.pressure_b_pa)
+        } else {
+            0.0
+        };
+        self.hold_quiet_s += dt;
+        self.hold_motor_ns += self.status.force_command_n * dt;
+        self.hold_gas_ns += gas_n * dt;
+        if self.hold_quiet_s < HOLD_RELEASE_S {
+            return false;
+        }
+        let window = self.hold_quiet_s;
+        let (motor, gas) = (self.hold_motor_ns / window, self.hold_gas_ns / window);
+        self.hold_quiet_s = 0.0;
+        self.hold_motor_ns = 0.0;
+        self.hold_gas_ns = 0.0;
+        let stiction = self.config.friction.static_n;
+        motor.abs() <= stiction && gas.abs() <= 0.5 * stiction
+    }
+
+    /// The deceleration of a controlled stop from `velocity_mps` at `position_m`: the
+    /// braking envelope's `a_brake`, or more when the piston is closer to the head it moves
+    /// toward than that needs (a disturbance pushed it past the envelope, which is what
+    /// tripped): enough to stop 1 mm short of the minimum clearance with 25 % in hand, up to
+    /// `a_brake` per healthy section (`a_brake` is what one section alone guarantees). Without
+    /// the zero (after a watchdog reset) the heads' distance is unknown: the most there is.
+    pub(super) fn stop_deceleration(&self, position_m: f32, velocity_mps: f32) -> f32 {
+        let c = &self.config.supervisor;
+        let cap = self.config.allocation.capability;
+        let sections = clamp_f32(cap.master, 0.0, 1.0) + clamp_f32(cap.slave, 0.0, 1.0);
+        let a_max = c.brake_deceleration_mps2 * max_f32(sections, 1.0);
+        if self.zero_raw_m.is_none() {
+            return a_max;
+        }
+        let distance = if velocity_mps >= 0.0 {
+            c.travel_m - position_m
+        } else {
+            position_m
+        };
+        let room = distance - c.min_clearance_m - 1e-3;
+        let needed = if room > 1e-4 {
+            1.25 * velocity_mps * velocity_mps / (2.0 * room)
+        } else {
+            a_max
+        };
+        clamp_f32(needed, c.brake_deceleration_mps2, a_max)
+    }
+
+    /// The disturbance observer of a controlled stop: the force on the piston that the model
+    /// does not explain, `m·a − (F_motor + F_gas − F_friction(v))` from the measured
+    /// acceleration, motor force (q-currents) and gas force (when the pressures are valid;
+    /// otherwise the gas is part of what it estimates), low-passed over [`DOB_TIME_S`]. N,
+    /// toward +x.
+    #[cold]
+    #[inline(never)]
+    pub(super) fn observe_disturbance(&mut self, motor_force_n: f32, dt: f32) -> f32 {
+        let c = &self.config;
+        let st = &self.status;
+        let gas_n = if self.pressures_trusted && self.pressure_bad == 0 {
+            c.cylinder.gas_force_n(st.pressure_a_pa, st.pressure_b_pa)
+        } else {
+            0.0
+        };
+        let unexplained = c.moving_mass_kg * st.acceleration_mps2 - motor_force_n - gas_n
+            + c.friction.force_n(st.velocity_mps);
+        if unexplained.is_finite() {
+            let alpha = clamp_f32(dt / DOB_TIME_S, 0.0, 1.0);
+            self.disturbance_n += alpha * (unexplained - self.disturbance_n);
+        }
+        // Never more than the sections can push against.
+        let limit = c.force_limit_n;
+        self.disturbance_n = clamp_f32(self.disturbance_n, -limit, limit);
+        self.disturbance_n
+    }
+
+    /// Starts the rotation of a new half cycle: where the timed port edge must be crossed
+    /// (discharge opening, or expander cut-off) from the measured line pressures.
+    pub(super) fn begin_half(&mut self, g: &StrokeGenerator) {
+        let (from, to) = g.path_ends_m();
+        let rotation = self.rotation;
+        let chamber = Synchroniser::timed_chamber(g.direction(), rotation);
+        // The chamber's largest volume is where its compression starts (compressor: the
+        // stroke's start) or its expansion ends (expander: the stroke's end).
+        let reference_x = match rotation {
+            Rotation::Compressor => from,
+            Rotation::Expander => to,
+        };
+        let [_, _, suction, discharge] = self.pressures_pa;
+        self.planned_discharge_pa = discharge;
+        let edge = self.volume_ratio.opening_position_m(
+            &self.config.cylinder,
+            &self.config.gas,
+            chamber,
+            reference_x,
+            suction,
+            discharge,
+        );
+        // The stroke reference starts where the last one ended; the piston is there too
+        // within the dead-point error, and the cam clamps the progress.
+        let x_start = from;
+        self.synchroniser.begin_half(
+            g.direction(),
+            rotation,
+            x_start,
+            to,
+            edge,
+            self.theta_reference_rad,
+        );
+    }
+
+    /// The measured rotation crossed the timed edge: in compressor mode the discharge of
+    /// `chamber` just opened, and its pressure now says whether it opened on time.
+    pub(super) fn edge_crossed(&mut self, chamber: Chamber, rotation: Rotation) {
+        if rotation != Rotation::Compressor {
+            return;
+        }
+        let [a, b, _, _] = self.pressures_pa;
+        let p = match chamber {
+            Chamber::A => a,
+            Chamber::B => b,
+        };
+        self.volume_ratio
+            .observe_opening(&self.config.gas, chamber, p, self.planned_discharge_pa);
+    }
+}
