@@ -1,0 +1,512 @@
+//! The sections of the model file, one struct each, as serde reads them: the required
+//! physics sections, the project's own sections with the reference machine's values as
+//! defaults, and the `[effects.*]` the model-gap workflow adds.
+
+use fpc::physics::port_timing::{PortGeometry, PortWindow};
+use serde::Deserialize;
+
+/// `[piston]`.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Piston {
+    /// Moving mass, kg.
+    pub mass_kg: f64,
+    /// Cylinder bore, m.
+    pub bore_m: f64,
+    /// Rod diameter, m.
+    pub rod_m: f64,
+    /// Head-to-head travel, m.
+    pub travel_m: f64,
+    /// Dead volume of chamber A as a length of bore, m.
+    pub dead_length_a_m: f64,
+    /// Dead volume of chamber B as a length of bore, m.
+    pub dead_length_b_m: f64,
+    /// Contact stiffness of the heads (end-stop penalty), N/m.
+    #[serde(default = "d::stop_stiffness")]
+    pub stop_stiffness_n_per_m: f64,
+    /// Contact damping of the heads, N·s/m.
+    #[serde(default = "d::stop_damping")]
+    pub stop_damping_ns_per_m: f64,
+}
+
+/// `[friction]`.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Friction {
+    /// Coulomb level, N.
+    pub coulomb_n: f64,
+    /// Viscous coefficient, N·s/m.
+    pub viscous_ns_per_m: f64,
+    /// Static level, N (optional: defaults to the Coulomb level, no Stribeck dip).
+    pub static_n: Option<f64>,
+    /// Stribeck velocity, m/s.
+    pub stribeck_velocity_mps: Option<f64>,
+    /// Stribeck exponent.
+    pub stribeck_exponent: Option<f64>,
+}
+
+/// `[gas]`.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Gas {
+    /// Heat-capacity ratio γ.
+    pub gamma: f64,
+    /// Specific gas constant, J/(kg·K).
+    pub gas_constant_j_per_kg_k: f64,
+    /// Gas temperature at the suction, and of the wall unless the heat-transfer effect names
+    /// another, K.
+    pub temperature_k: f64,
+    /// Ambient pressure (outside the rod seals), Pa.
+    pub ambient_pa: f64,
+    /// Dynamic viscosity, Pa·s (clearance leakage).
+    #[serde(default = "d::viscosity")]
+    pub viscosity_pa_s: f64,
+}
+
+/// Optional per-section overrides of `[motor]` (`[motor.master]`, `[motor.slave]`).
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SectionOverride {
+    /// Force constant, N/A.
+    pub force_constant_n_per_a: Option<f64>,
+    /// Phase resistance, Ω.
+    pub resistance_ohm: Option<f64>,
+    /// Synchronous inductance, H.
+    pub inductance_h: Option<f64>,
+}
+
+/// `[motor]`.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Motor {
+    /// Magnet step (pole pitch), m; the electrical period is twice this.
+    pub pole_pitch_m: f64,
+    /// The slave section's drive follows the master's force (the published rig): the slave
+    /// ignores this board's PWM and imposes the master's q-current, late by the slave lag.
+    pub slave_follows_master: bool,
+    /// Force constant of a section, N/A (q current, amplitude-invariant).
+    #[serde(default = "d::force_constant")]
+    pub force_constant_n_per_a: f64,
+    /// Phase resistance, Ω.
+    #[serde(default = "d::resistance")]
+    pub resistance_ohm: f64,
+    /// Synchronous inductance, H.
+    #[serde(default = "d::inductance")]
+    pub inductance_h: f64,
+    /// DC bus voltage, V.
+    #[serde(default = "d::bus_voltage")]
+    pub bus_voltage_v: f64,
+    /// Peak phase-current limit, A.
+    #[serde(default = "d::current_limit")]
+    pub current_limit_a: f64,
+    /// Overrides for the master section.
+    #[serde(default)]
+    pub master: SectionOverride,
+    /// Overrides for the slave section.
+    #[serde(default)]
+    pub slave: SectionOverride,
+}
+
+/// `[encoder]`.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Encoder {
+    /// Signal period λ, m.
+    pub period_m: f64,
+}
+
+/// `[ports]`: the port windows in rotation phase (degrees, 0 = dead point A) and the flow
+/// areas. See [`fpc::physics::port_timing`].
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct Ports {
+    /// Intake A window `[open, close]`, degrees.
+    pub intake_a_deg: [f64; 2],
+    /// Discharge A window, degrees.
+    pub discharge_a_deg: [f64; 2],
+    /// Intake B window, degrees.
+    pub intake_b_deg: [f64; 2],
+    /// Discharge B window, degrees.
+    pub discharge_b_deg: [f64; 2],
+    /// Opening/closing ramp, degrees.
+    pub ramp_deg: f64,
+    /// Geometric area of an intake port, m².
+    pub intake_area_m2: f64,
+    /// Geometric area of a discharge port, m².
+    pub discharge_area_m2: f64,
+    /// Discharge coefficient C_d.
+    pub discharge_coefficient: f64,
+}
+
+impl Default for Ports {
+    fn default() -> Self {
+        let g = PortGeometry::<f64>::reference();
+        let deg = |w: PortWindow<f64>| [w.open_rad.to_degrees(), w.close_rad.to_degrees()];
+        Ports {
+            intake_a_deg: deg(g.intake_a),
+            discharge_a_deg: deg(g.discharge_a),
+            intake_b_deg: deg(g.intake_b),
+            discharge_b_deg: deg(g.discharge_b),
+            ramp_deg: g.ramp_rad.to_degrees(),
+            intake_area_m2: g.intake_area_m2,
+            discharge_area_m2: g.discharge_area_m2,
+            discharge_coefficient: g.discharge_coefficient,
+        }
+    }
+}
+
+/// `[lines]`: the suction and discharge lines the ports connect to (set pressures; the
+/// discharge pressure is the suction pressure times the pressure ratio, and both can be
+/// changed during a run).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct Lines {
+    /// Suction-line pressure, Pa.
+    pub suction_pa: f64,
+    /// Pressure ratio discharge/suction at the start (`fpc-sim run --pressure-ratio`
+    /// overrides it).
+    pub pressure_ratio: f64,
+}
+
+impl Default for Lines {
+    fn default() -> Self {
+        Lines {
+            suction_pa: 1.0e5,
+            pressure_ratio: 3.1,
+        }
+    }
+}
+
+/// `[servo]`: the rotation drive, spline and quadrature encoder.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct Servo {
+    /// Rotating inertia (servo, gearbox and piston, at the piston), kg·m².
+    pub inertia_kgm2: f64,
+    /// Viscous friction of the drive train, N·m·s/rad.
+    pub viscous_nms_per_rad: f64,
+    /// Coulomb friction of the drive train, N·m.
+    pub coulomb_nm: f64,
+    /// Torque at the analog command's full scale, N·m.
+    pub torque_full_scale_nm: f64,
+    /// Torque limit of the drive, N·m.
+    pub torque_limit_nm: f64,
+    /// Lag of the drive's torque behind its command, s (0 = none).
+    pub torque_time_constant_s: f64,
+    /// Total play of the spline between servo and piston, rad.
+    pub backlash_rad: f64,
+    /// Quadrature counts per revolution (after ×4 decoding).
+    pub counts_per_rev: u32,
+}
+
+impl Default for Servo {
+    fn default() -> Self {
+        Servo {
+            inertia_kgm2: 2e-3,
+            viscous_nms_per_rad: 1e-3,
+            coulomb_nm: 0.05,
+            torque_full_scale_nm: 20.0,
+            torque_limit_nm: 20.0,
+            torque_time_constant_s: 2e-4,
+            backlash_rad: 2e-3,
+            counts_per_rev: 4096,
+        }
+    }
+}
+
+/// `[sensors.encoder_master]`, `[sensors.encoder_slave]`: one sin/cos encoder at the ADC.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct EncoderSensor {
+    /// Amplitude of the sine channel, ADC codes.
+    pub amplitude_codes: f64,
+    /// Offset of the sine channel from mid-scale, codes.
+    pub sin_offset_codes: f64,
+    /// Offset of the cosine channel from mid-scale, codes.
+    pub cos_offset_codes: f64,
+    /// Gain mismatch: cosine amplitude / sine amplitude − 1.
+    pub gain_mismatch: f64,
+    /// Quadrature (phase) error of the cosine channel, rad.
+    pub quadrature_error_rad: f64,
+    /// White noise on each channel, codes RMS (before the 12-bit quantisation).
+    pub noise_codes: f64,
+}
+
+impl Default for EncoderSensor {
+    fn default() -> Self {
+        EncoderSensor {
+            amplitude_codes: f64::from(fpc::sensing::encoder::NOMINAL_AMPLITUDE_CODES),
+            sin_offset_codes: 0.0,
+            cos_offset_codes: 0.0,
+            gain_mismatch: 0.0,
+            quadrature_error_rad: 0.0,
+            noise_codes: 0.0,
+        }
+    }
+}
+
+/// `[sensors.current]`: the phase-current sensing of both sections.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct CurrentSensor {
+    /// White noise per phase, A RMS.
+    pub noise_a: f64,
+    /// Offset per phase of the master section, A.
+    pub offset_master_a: [f64; 3],
+    /// Offset per phase of the slave section, A.
+    pub offset_slave_a: [f64; 3],
+}
+
+impl Default for CurrentSensor {
+    fn default() -> Self {
+        CurrentSensor {
+            noise_a: 0.0,
+            offset_master_a: [0.0; 3],
+            offset_slave_a: [0.0; 3],
+        }
+    }
+}
+
+/// `[sensors.pressure]`: the four pressure sensors (chambers A and B, suction, discharge).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct PressureSensor {
+    /// White noise, Pa RMS.
+    pub noise_pa: f64,
+    /// First-order lag of the sensor, s (0 = none).
+    pub time_constant_s: f64,
+    /// Offset of the chamber-A sensor, Pa.
+    pub offset_a_pa: f64,
+    /// Offset of the chamber-B sensor, Pa.
+    pub offset_b_pa: f64,
+    /// Offset of the suction-line sensor, Pa.
+    pub offset_suction_pa: f64,
+    /// Offset of the discharge-line sensor, Pa.
+    pub offset_discharge_pa: f64,
+}
+
+impl Default for PressureSensor {
+    fn default() -> Self {
+        PressureSensor {
+            noise_pa: 0.0,
+            time_constant_s: 0.0,
+            offset_a_pa: 0.0,
+            offset_b_pa: 0.0,
+            offset_suction_pa: 0.0,
+            offset_discharge_pa: 0.0,
+        }
+    }
+}
+
+/// `[sensors]`.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct SensorsSection {
+    /// Master-section encoder.
+    pub encoder_master: EncoderSensor,
+    /// Slave-section encoder.
+    pub encoder_slave: EncoderSensor,
+    /// Current sensing.
+    pub current: CurrentSensor,
+    /// Pressure sensing.
+    pub pressure: PressureSensor,
+}
+
+/// `[limits]`: what the controller must respect (its configuration takes them from here).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct Limits {
+    /// Head clearance the dead points aim at, m.
+    pub target_head_clearance_m: f64,
+    /// Head clearance that must never be undercut, m.
+    pub min_head_clearance_m: f64,
+    /// Total force of both sections, N.
+    pub force_limit_n: f64,
+    /// Largest commanded speed, m/s.
+    pub max_speed_mps: f64,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            target_head_clearance_m: 1.0e-3,
+            min_head_clearance_m: 0.3e-3,
+            force_limit_n: 10_000.0,
+            max_speed_mps: 4.5,
+        }
+    }
+}
+
+/// `[simulation]`: numerical settings of the plant.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct Simulation {
+    /// Plant sub-steps per 50 µs control period.
+    pub substeps_per_period: u32,
+}
+
+impl Default for Simulation {
+    fn default() -> Self {
+        Simulation {
+            substeps_per_period: 1,
+        }
+    }
+}
+
+/// `[effects.cogging]`: `F = A·sin(2π·x/p + φ)` on the piston, toward +x.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CoggingEffect {
+    /// Amplitude A, N.
+    pub amplitude_n: f64,
+    /// Period p, m.
+    pub period_m: f64,
+    /// Phase φ, rad.
+    #[serde(default)]
+    pub phase_rad: f64,
+}
+
+/// `[effects.slave_lag]` (and `[effects.actuator_lag]`): a transport delay.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DelayEffect {
+    /// Delay, s.
+    pub delay_s: f64,
+}
+
+/// `[effects.stribeck_friction]`: replaces the Stribeck part of `[friction]`.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct StribeckEffect {
+    /// Static (breakaway) level, N.
+    pub static_n: f64,
+    /// Stribeck velocity, m/s.
+    pub velocity_mps: f64,
+    /// Stribeck exponent.
+    #[serde(default = "d::one")]
+    pub exponent: f64,
+}
+
+/// `[effects.encoder_pitch_error]`: the slave encoder reads
+/// `x·(1 + scale) + A·sin(2π·x/p + φ) + A₂·sin(4π·x/p + φ₂)`.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PitchErrorEffect {
+    /// Amplitude A at the period, m.
+    pub amplitude_m: f64,
+    /// Period p, m (λ).
+    pub period_m: f64,
+    /// Phase φ, rad.
+    #[serde(default)]
+    pub phase_rad: f64,
+    /// Scale error (slope), dimensionless.
+    #[serde(default)]
+    pub scale: f64,
+    /// Amplitude A₂ at half the period, m.
+    #[serde(default)]
+    pub amplitude2_m: f64,
+    /// Phase φ₂ of the half-period term, rad.
+    #[serde(default)]
+    pub phase2_rad: f64,
+}
+
+/// `[effects.heat_transfer]`: `Q̇ = UA·(T_wall − T)` in each chamber.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct HeatTransferEffect {
+    /// UA of each chamber, W/K.
+    pub ua_w_per_k: f64,
+    /// Wall temperature, K (default: `gas.temperature_k`).
+    pub wall_temperature_k: Option<f64>,
+}
+
+/// `[effects.leakage]`: laminar clearance leaks, piston seal A↔B and rod seals to ambient.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct LeakageEffect {
+    /// Radial clearance of the piston seal (A↔B), m (0 = none).
+    pub gap_m: f64,
+    /// Length of the piston seal, m.
+    pub seal_length_m: f64,
+    /// Radial clearance of each rod seal (chamber ↔ ambient), m (0 = none).
+    #[serde(default)]
+    pub rod_gap_m: f64,
+    /// Length of each rod seal, m.
+    #[serde(default = "d::rod_seal_length")]
+    pub rod_seal_length_m: f64,
+}
+
+/// `[effects.port_restriction]`: the ports pass less than their geometry says.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PortRestrictionEffect {
+    /// Factor on every port's effective area C_d·A (1 = as designed).
+    pub area_scale: f64,
+}
+
+/// `[effects.section_misalignment]`: the slave section's magnets sit `offset_m` along x from
+/// where its encoder says (paper Eq. 4), so its commutation is off by 2π·offset/λ.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct MisalignmentEffect {
+    /// Offset D_dif, m.
+    pub offset_m: f64,
+}
+
+/// `[effects]`: what the model-gap workflow adds. Absent = not in the physics.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct Effects {
+    /// Cogging.
+    pub cogging: Option<CoggingEffect>,
+    /// The slave section's force lags the master's (implies the slave follows the master).
+    pub slave_lag: Option<DelayEffect>,
+    /// Stribeck friction.
+    pub stribeck_friction: Option<StribeckEffect>,
+    /// Slave encoder pitch error.
+    pub encoder_pitch_error: Option<PitchErrorEffect>,
+    /// Heat transfer to the wall.
+    pub heat_transfer: Option<HeatTransferEffect>,
+    /// Clearance leakage.
+    pub leakage: Option<LeakageEffect>,
+    /// Port restriction.
+    pub port_restriction: Option<PortRestrictionEffect>,
+    /// Both sections' force lags their current by this delay.
+    pub actuator_lag: Option<DelayEffect>,
+    /// Section-to-section misalignment.
+    pub section_misalignment: Option<MisalignmentEffect>,
+}
+
+/// Defaults of the optional keys in the required sections (reference machine).
+mod d {
+    pub fn stop_stiffness() -> f64 {
+        5.0e7 // A: steel head with a polymer bumper
+    }
+    pub fn stop_damping() -> f64 {
+        2.0e4 // A
+    }
+    pub fn viscosity() -> f64 {
+        1.8e-5 // air at 20 °C
+    }
+    pub fn force_constant() -> f64 {
+        80.0 // A: 5 kN peak at 62.5 A
+    }
+    pub fn resistance() -> f64 {
+        0.6 // A
+    }
+    pub fn inductance() -> f64 {
+        6e-3 // A
+    }
+    pub fn bus_voltage() -> f64 {
+        560.0 // A
+    }
+    pub fn current_limit() -> f64 {
+        62.5 // A
+    }
+    pub fn rod_seal_length() -> f64 {
+        0.03 // A
+    }
+    pub fn one() -> f64 {
+        1.0
+    }
+}
