@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use hal_sim::cli::analysis::{WindowArgs, ZeroPhaseArgs};
+use hal_sim::cli::analysis::{LogToolArgs, WindowArgs, ZeroPhaseArgs};
 use hal_sim::cli::{
     decode as decode_cmd, energy as energy_cmd, filters as filters_cmd, forces as forces_cmd,
     lag as lag_cmd, pv as pv_cmd,
@@ -44,9 +44,7 @@ fn run_all(log: &Path, out: &Path) -> Vec<(&'static str, CmdResult, PathBuf)> {
         (
             "filters",
             filters_cmd::main(filters_cmd::FiltersArgs {
-                measured: log.into(),
-                out: out.into(),
-                model: None,
+                io: LogToolArgs::new(log, out),
                 column: "x_m".into(),
                 filter: filter(),
                 sg_window: sg.sg_window,
@@ -60,9 +58,7 @@ fn run_all(log: &Path, out: &Path) -> Vec<(&'static str, CmdResult, PathBuf)> {
         (
             "forces",
             forces_cmd::main(forces_cmd::ForcesArgs {
-                measured: log.into(),
-                out: out.into(),
-                model: None,
+                io: LogToolArgs::new(log, out),
                 filter: filter(),
                 window: window(),
             }),
@@ -71,9 +67,7 @@ fn run_all(log: &Path, out: &Path) -> Vec<(&'static str, CmdResult, PathBuf)> {
         (
             "energy",
             energy_cmd::main(energy_cmd::EnergyArgs {
-                measured: log.into(),
-                out: out.into(),
-                model: None,
+                io: LogToolArgs::new(log, out),
                 stroke: None,
                 filter: filter(),
             }),
@@ -82,9 +76,7 @@ fn run_all(log: &Path, out: &Path) -> Vec<(&'static str, CmdResult, PathBuf)> {
         (
             "pv",
             pv_cmd::main(pv_cmd::PvArgs {
-                measured: log.into(),
-                out: out.into(),
-                model: None,
+                io: LogToolArgs::new(log, out),
             }),
             out.join("pv.svg"),
         ),

@@ -129,6 +129,33 @@ pub fn default_window(
     }
 }
 
+/// What every plotting log tool reads and where it writes: the run log, the machine model
+/// and the output directory.
+#[derive(clap::Args, Clone, Debug)]
+pub struct LogToolArgs {
+    /// The run log (CSV).
+    #[arg(long)]
+    pub measured: std::path::PathBuf,
+    /// Output directory for the plots.
+    #[arg(long, default_value = "out")]
+    pub out: std::path::PathBuf,
+    /// Machine model: mass, piston area, friction law, encoder period, dead lengths
+    /// (default: the reference machine).
+    #[arg(long)]
+    pub model: Option<std::path::PathBuf>,
+}
+
+impl LogToolArgs {
+    /// The arguments for `measured`, writing into `out`, with the reference model.
+    pub fn new(measured: &Path, out: &Path) -> Self {
+        LogToolArgs {
+            measured: measured.into(),
+            out: out.into(),
+            model: None,
+        }
+    }
+}
+
 /// The zero-phase low-pass the analyses use as their reference filter.
 #[derive(clap::Args, Clone, Debug)]
 pub struct ZeroPhaseArgs {

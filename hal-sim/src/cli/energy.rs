@@ -9,13 +9,12 @@
 //! measures how well the log and the model agree.
 
 use std::ops::Range;
-use std::path::PathBuf;
 
 use clap::Args;
 use serde::Serialize;
 
-use crate::cli::analysis::{out_dir, read_log, read_model, sample_time_s, Steps, ZeroPhaseArgs};
-use crate::cli::forces::{force_balance, ForceBalance};
+use crate::cli::analysis::{out_dir, LogToolArgs, Steps, ZeroPhaseArgs};
+use crate::cli::forces::{kilonewtons, read_force_balance, ForceBalance};
 use crate::failure::{CmdResult, Failure};
 use crate::plot::curves;
 use crate::signal::strokes;
@@ -23,15 +22,9 @@ use crate::signal::strokes;
 /// Energy transformation during one stroke (Fig. 9).
 #[derive(Args, Debug)]
 pub struct EnergyArgs {
-    /// The run log (CSV).
-    #[arg(long)]
-    pub measured: PathBuf,
-    /// Output directory for `energy.svg` and `energy_work.svg`.
-    #[arg(long, default_value = "out")]
-    pub out: PathBuf,
-    /// Machine model: mass, piston area, friction law (default: reference).
-    #[arg(long)]
-    pub model: Option<PathBuf>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub io: LogToolArgs,
     /// Which stroke, counted from 0 (default: the last complete one).
     #[arg(long)]
     pub stroke: Option<usize>,
@@ -108,11 +101,7 @@ pub fn stroke_energy(fb: &ForceBalance, r: &Range<usize>, mass_kg: f64) -> Strok
 /// Runs `fpc-sim energy`.
 pub fn main(args: EnergyArgs) -> CmdResult {
     let steps = Steps::new(3, "reading");
-    let log = read_log(&args.measured)?;
-    let model = read_model(args.model.as_deref())?;
-    let dt = sample_time_s(&log)?;
-    steps.next("filtering");
-    let fb = force_balance(&log, &model, &args.filter.sections(dt)?)?;
+    let (_, model, dt, fb) = read_force_balance(&args.io, &args.filter, &steps)?;
     let all = strokes(&fb.x_m, &fb.v_mps);
     let r = match args.stroke {
         Some(i) => all.get(i).cloned().ok_or_else(|| {
@@ -121,28 +110,22 @@ pub fn main(args: EnergyArgs) -> CmdResult {
         None => all.last().cloned().ok_or_else(|| {
             Failure::bad_input(format!(
                 "{}: no stroke found (the piston must move from one reversal to the next)",
-                args.measured.display()
+                args.io.measured.display()
             ))
         })?,
     };
     let e = stroke_energy(&fb, &r, model.piston.mass_kg);
     steps.next("plotting");
-    out_dir(&args.out)?;
+    out_dir(&args.io.out)?;
     let x = fb.x_m.get(r.clone()).unwrap_or_default();
-    let kn = |f: &[f64]| -> Vec<f64> {
-        f.get(r.clone())
-            .unwrap_or_default()
-            .iter()
-            .map(|f| f * 1e-3)
-            .collect()
-    };
+    let kn = |f: &[f64]| kilonewtons(f, r.clone());
     let forces = [
         ("motor force", kn(&fb.motor_n)),
         ("inertia m·a", kn(&fb.inertia_filtered_n)),
         ("gas force", kn(&fb.gas_n)),
         ("friction force", kn(&fb.friction_n)),
     ];
-    let path = args.out.join("energy.svg");
+    let path = args.io.out.join("energy.svg");
     curves(
         &path,
         "Forces along one stroke (Fig. 9)",
@@ -166,7 +149,7 @@ pub fn main(args: EnergyArgs) -> CmdResult {
         ("gas work on the piston", cumulative(&fb.gas_n)),
         ("friction work", cumulative(&fb.friction_n)),
     ];
-    let work_path = args.out.join("energy_work.svg");
+    let work_path = args.io.out.join("energy_work.svg");
     curves(
         &work_path,
         "Work along one stroke",

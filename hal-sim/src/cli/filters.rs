@@ -8,14 +8,12 @@
 //! Prints, for each, the RMS difference from the zero-phase velocity and its delay behind it
 //! (cross-correlation), and plots the velocities over a window of the last stroke.
 
-use std::path::PathBuf;
-
 use clap::Args;
 use fpc::control::config::ControlConfig;
 
 use crate::cli::analysis::{
     column, default_window, interior, out_dir, read_log, read_model, sample_time_s, time_window,
-    Steps, WindowArgs, ZeroPhaseArgs,
+    LogToolArgs, Steps, WindowArgs, ZeroPhaseArgs,
 };
 use crate::failure::{CmdResult, Failure};
 use crate::plot::{lines, Series};
@@ -28,15 +26,9 @@ use crate::signal::{
 /// Velocity estimates compared (Fig. 7).
 #[derive(Args, Debug)]
 pub struct FiltersArgs {
-    /// The run log (CSV).
-    #[arg(long)]
-    pub measured: PathBuf,
-    /// Output directory for `filters.svg`.
-    #[arg(long, default_value = "out")]
-    pub out: PathBuf,
-    /// Machine model (for the encoder period the firmware's differentiator counts in).
-    #[arg(long)]
-    pub model: Option<PathBuf>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub io: LogToolArgs,
     /// Position column.
     #[arg(long, default_value = "x_m")]
     pub column: String,
@@ -77,7 +69,7 @@ pub struct Estimate {
 pub fn estimates(log: &RunLog, args: &FiltersArgs) -> Result<Vec<Estimate>, Failure> {
     let dt = sample_time_s(log)?;
     let x = column(log, &args.column, "--column")?;
-    let model = read_model(args.model.as_deref())?;
+    let model = read_model(args.io.model.as_deref())?;
     let sections = args.filter.sections(dt)?;
     if !(args.drive_delay_ms.is_finite() && args.drive_delay_ms >= 0.0) {
         return Err(Failure::bad_input(format!(
@@ -135,11 +127,11 @@ pub fn estimates(log: &RunLog, args: &FiltersArgs) -> Result<Vec<Estimate>, Fail
 /// Runs `fpc-sim filters`.
 pub fn main(args: FiltersArgs) -> CmdResult {
     let steps = Steps::new(3, "reading");
-    let log = read_log(&args.measured)?;
+    let log = read_log(&args.io.measured)?;
     steps.next("filtering");
     let est = estimates(&log, &args)?;
     steps.next("plotting");
-    out_dir(&args.out)?;
+    out_dir(&args.io.out)?;
     let t = column(&log, "t_s", "t_s")?;
     let dt = sample_time_s(&log)?;
     let reference = est.first().map(|e| e.v_mps.as_slice()).unwrap_or_default();
@@ -159,7 +151,7 @@ pub fn main(args: FiltersArgs) -> CmdResult {
             y: e.v_mps.get(window.clone()).unwrap_or_default(),
         })
         .collect();
-    let path = args.out.join("filters.svg");
+    let path = args.io.out.join("filters.svg");
     lines(&path, "Piston velocity (Fig. 7)", "t, s", "v, m/s", &series)
         .map_err(Failure::runtime)?;
     steps.finish();

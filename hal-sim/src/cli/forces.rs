@@ -9,14 +9,12 @@
 //! (`fpc::physics::friction`'s law with the model's parameters, `v` the filtered central difference). The
 //! delay of each estimate behind the expected force is what the paper tuned its filters on.
 
-use std::path::PathBuf;
-
 use clap::Args;
 use fpc::control::config::ControlConfig;
 
 use crate::cli::analysis::{
     column, default_window, interior, out_dir, read_log, read_model, sample_time_s, time_window,
-    Steps, WindowArgs, ZeroPhaseArgs,
+    LogToolArgs, Steps, WindowArgs, ZeroPhaseArgs,
 };
 use crate::failure::{CmdResult, Failure};
 use crate::plant::model::MachineModel;
@@ -30,15 +28,9 @@ use crate::signal::{
 /// Inertia force from position vs expected (Fig. 8).
 #[derive(Args, Debug)]
 pub struct ForcesArgs {
-    /// The run log (CSV).
-    #[arg(long)]
-    pub measured: PathBuf,
-    /// Output directory for `forces.svg`.
-    #[arg(long, default_value = "out")]
-    pub out: PathBuf,
-    /// Machine model: mass, piston area, friction law, encoder period (default: reference).
-    #[arg(long)]
-    pub model: Option<PathBuf>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub io: LogToolArgs,
     #[command(flatten)]
     #[allow(missing_docs)]
     pub filter: ZeroPhaseArgs,
@@ -117,16 +109,36 @@ pub fn force_balance(
     })
 }
 
+/// The first steps of the force plots (`forces`, `energy`): the log and the model read, the
+/// log's sample time, and the force balance under the zero-phase filter.
+pub fn read_force_balance(
+    io: &LogToolArgs,
+    filter: &ZeroPhaseArgs,
+    steps: &Steps,
+) -> Result<(RunLog, MachineModel, f64, ForceBalance), Failure> {
+    let log = read_log(&io.measured)?;
+    let model = read_model(io.model.as_deref())?;
+    let dt = sample_time_s(&log)?;
+    steps.next("filtering");
+    let fb = force_balance(&log, &model, &filter.sections(dt)?)?;
+    Ok((log, model, dt, fb))
+}
+
+/// The samples of `v` in `range`, N → kN (empty where the range is out of the data).
+pub fn kilonewtons(v: &[f64], range: std::ops::Range<usize>) -> Vec<f64> {
+    v.get(range)
+        .unwrap_or_default()
+        .iter()
+        .map(|f| f * 1e-3)
+        .collect()
+}
+
 /// Runs `fpc-sim forces`.
 pub fn main(args: ForcesArgs) -> CmdResult {
     let steps = Steps::new(3, "reading");
-    let log = read_log(&args.measured)?;
-    let model = read_model(args.model.as_deref())?;
-    let dt = sample_time_s(&log)?;
-    steps.next("filtering");
-    let fb = force_balance(&log, &model, &args.filter.sections(dt)?)?;
+    let (log, model, dt, fb) = read_force_balance(&args.io, &args.filter, &steps)?;
     steps.next("plotting");
-    out_dir(&args.out)?;
+    out_dir(&args.io.out)?;
     let t = column(&log, "t_s", "t_s")?;
     let window = time_window(
         t,
@@ -134,13 +146,7 @@ pub fn main(args: ForcesArgs) -> CmdResult {
         args.window.to_s,
         default_window(t, &strokes(&fb.x_m, &fb.v_mps), dt),
     );
-    let kn = |v: &[f64]| -> Vec<f64> {
-        v.get(window.clone())
-            .unwrap_or_default()
-            .iter()
-            .map(|f| f * 1e-3)
-            .collect()
-    };
+    let kn = |v: &[f64]| kilonewtons(v, window.clone());
     let tw = t.get(window.clone()).unwrap_or_default();
     let curves = [
         ("unfiltered from position", kn(&fb.inertia_raw_n)),
@@ -151,7 +157,7 @@ pub fn main(args: ForcesArgs) -> CmdResult {
         ("firmware Savitzky-Golay", kn(&fb.inertia_firmware_n)),
         ("expected inertia force", kn(&fb.expected_inertia_n)),
     ];
-    let path = args.out.join("forces.svg");
+    let path = args.io.out.join("forces.svg");
     plot::curves(
         &path,
         "Inertia force from position (Fig. 8)",

@@ -6,12 +6,12 @@
 //! Prints each chamber's volume and pressure ranges, the pressure ratio reached and the
 //! `∮p dV` work over the log. [`plot_pv`] is also what `fpc-sim run` can call for its plot.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use clap::Args;
 use serde::Serialize;
 
-use crate::cli::analysis::{column, out_dir, read_log, read_model, Steps};
+use crate::cli::analysis::{column, out_dir, read_log, read_model, LogToolArgs, Steps};
 use crate::failure::{CmdResult, Failure};
 use crate::plant::model::MachineModel;
 use crate::plot::{lines, Series};
@@ -20,15 +20,9 @@ use crate::runlog::RunLog;
 /// p–V diagram of both chambers (Fig. 3).
 #[derive(Args, Debug)]
 pub struct PvArgs {
-    /// The run log (CSV).
-    #[arg(long)]
-    pub measured: PathBuf,
-    /// Output directory for `pv.svg`.
-    #[arg(long, default_value = "out")]
-    pub out: PathBuf,
-    /// Machine model: piston area, travel, dead lengths (default: reference).
-    #[arg(long)]
-    pub model: Option<PathBuf>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub io: LogToolArgs,
 }
 
 /// Figures of one chamber.
@@ -119,11 +113,11 @@ pub fn plot_pv(
 /// Runs `fpc-sim pv`.
 pub fn main(args: PvArgs) -> CmdResult {
     let steps = Steps::new(2, "reading");
-    let log = read_log(&args.measured)?;
-    let model = read_model(args.model.as_deref())?;
+    let log = read_log(&args.io.measured)?;
+    let model = read_model(args.io.model.as_deref())?;
     steps.next("plotting");
-    out_dir(&args.out)?;
-    let path = args.out.join("pv.svg");
+    out_dir(&args.io.out)?;
+    let path = args.io.out.join("pv.svg");
     let (a, b) = plot_pv(&path, &log, &model)?;
     steps.finish();
     for (name, c) in [("A", &a), ("B", &b)] {
