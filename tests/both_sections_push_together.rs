@@ -6,11 +6,11 @@
 //! (`[motor] slave_follows_master = true` with `[effects.slave_lag]` 0.75 ms) gives the paper's lag and its force difference,
 //! largest where the force changes fastest.
 
-mod drive_support;
+mod support;
 
-use drive_support::*;
 use fpc::control::calibration::Calibrated;
 use hal_sim::plant::model::{DelayEffect, MachineModel, PAPER_SLAVE_LAG_S};
+use support::drive::*;
 
 /// The true section forces over 4 strokes, from the cycle the first stroke is under way.
 struct Forces {

@@ -1,5 +1,5 @@
 //! The calibration routines, run by the firmware's control step on the simulated machine
-//! whose unknowns are set (`drive_support::machine_with_unknowns`: the slave's magnets 1.5 mm
+//! whose unknowns are set (`support::drive::machine_with_unknowns`: the slave's magnets 1.5 mm
 //! off, offsets on five of six phase-current sensors, the cogging's phase), find those
 //! unknowns within stated tolerances, and loading what they found makes the machine do what
 //! it believes it does.
@@ -7,12 +7,12 @@
 //! Commissioning order, as on a new machine: current-sense offsets (outputs off), alignment
 //! (before homing: the motor must push right to home), homing, misalignment, cogging.
 
-mod drive_support;
+mod support;
 
-use drive_support::*;
 use fpc::control::calibration::{Calibrated, Routine};
 use fpc::units::Section;
 use hal_sim::plant::model::MachineModel;
+use support::drive::*;
 
 /// Current-sense codes per ampere (the reference sense: ±100 A over 12 bits).
 const CODES_PER_A: f64 = 2048.0 / 100.0;

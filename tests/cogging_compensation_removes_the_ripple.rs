@@ -13,12 +13,12 @@
 //! the machine with unknowns, commissioned; "before" is the same machine with the map
 //! emptied.
 
-mod drive_support;
+mod support;
 
-use drive_support::*;
 use fpc::control::calibration::{Calibrated, Routine};
 use fpc::physics::cogging::HarmonicMap;
 use fpc::status::ModeKind;
+use support::drive::*;
 
 /// Pitch-harmonic amplitudes (position error, m; net disturbance, N) over the cruises of a
 /// cogging routine's sweeps, with `map` compensating.

@@ -2,16 +2,16 @@
 //! boundary crossings, both ways, at random speeds and phases — and none where the position
 //! counter itself wraps (after 2048 periods), through the decoder and the differentiator.
 
-mod common;
+mod support;
 
 use std::cell::Cell;
 
-use common::{encoder_codes, Rng};
 use fpc::sensing::differentiator::{SavitzkyGolay, SgConfig};
 use fpc::sensing::encoder::{
     EncoderConfig, SinCosCalibration, SinCosDecoder, NOMINAL_AMPLITUDE_CODES,
 };
 use proptest::prelude::*;
+use support::sensing::{encoder_codes, Rng};
 
 const PERIOD_M: f64 = 0.024;
 

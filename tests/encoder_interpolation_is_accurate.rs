@@ -2,12 +2,12 @@
 //! mismatch, 2 % offsets, 3° quadrature error) from a slow traverse, the position is within
 //! 10 µm everywhere; and what 1 mV of signal noise costs.
 
-mod common;
+mod support;
 
-use common::{distorted_encoder, encoder_codes, Rng};
 use fpc::sensing::encoder::{
     EncoderConfig, SinCosCalibration, SinCosDecoder, CODES_PER_MV, NOMINAL_AMPLITUDE_CODES,
 };
+use support::sensing::{distorted_encoder, encoder_codes, Rng};
 
 const PERIOD_M: f64 = 0.024;
 /// The encoder's own noise (`machine.md`: σ ≈ 1 µm after interpolation) in codes RMS per

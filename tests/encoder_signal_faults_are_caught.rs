@@ -2,15 +2,15 @@
 //! what latches the `encoder_signal` fault, and how fast. Plus the bad-input property: any
 //! sequence of 16-bit codes decodes without panic and without an impossible position step.
 
-mod common;
+mod support;
 
-use common::{adc, encoder_codes, Rng};
 use fpc::ports::SinCosCodes;
 use fpc::sensing::encoder::{
     EncoderConfig, SinCosCalibration, SinCosDecoder, NOMINAL_AMPLITUDE_CODES,
 };
 use fpc::units::AdcCode;
 use proptest::prelude::*;
+use support::sensing::{adc, encoder_codes, Rng};
 
 const PERIOD_M: f64 = 0.024;
 const DT_S: f64 = 50e-6;

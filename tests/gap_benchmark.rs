@@ -8,14 +8,14 @@
 //! case only with `FPC_GAP_STRICT` set (it runs close to the limit, and CPU time on a shared
 //! machine still varies by ±10 %).
 
-mod gap_support;
+mod support;
 
 use std::time::Instant;
 
-use gap_support::*;
 use hal_sim::gap::synth::{decimate, open_port_run};
 use hal_sim::gap::{analyse, GapOptions};
 use hal_sim::plant::model::MachineModel;
+use support::gap::*;
 
 /// The limit of the acceptance, s.
 const LIMIT_S: f64 = 3.0;

@@ -2,12 +2,12 @@
 //! extra sensor noise, coarse quantisation, a constant offset between the encoders, missing
 //! optional columns, a 10 kHz log.
 
-mod gap_support;
+mod support;
 
-use gap_support::*;
 use hal_sim::board::sensors::Noise;
 use hal_sim::gap::synth::decimate;
 use hal_sim::runlog::{RunLog, REQUIRED};
+use support::gap::*;
 
 /// Applies `f` to column `name` of `log`, row by row.
 fn map_column(log: &mut RunLog, name: &str, mut f: impl FnMut(f64) -> f64) {
@@ -67,12 +67,7 @@ fn gap_stays_quiet_on_real_looking_logs_of_the_modelled_machine() {
 #[test]
 #[ignore = "slow: five treatments of a closed-loop run"]
 fn gap_still_names_cogging_on_real_looking_logs() {
-    let truth = with_key(
-        &with_key(&reference(), "effects.cogging", "amplitude_n", "45.0"),
-        "effects.cogging",
-        "phase_rad",
-        "0.7",
-    );
+    let truth = cogging_truth();
     let model = without_section(&reference(), "effects.cogging");
     let log = closed_loop(&truth, 2.3, 2, 42);
     for (what, l) in treatments(&log) {

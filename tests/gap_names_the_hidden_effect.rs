@@ -8,11 +8,11 @@
 //! Fast cases run by default; the long Stribeck run is `#[ignore]` (CI runs
 //! `cargo test --workspace --release -- --ignored`).
 
-mod gap_support;
+mod support;
 
-use gap_support::*;
 use hal_sim::gap::synth;
 use hal_sim::plant::model::MachineModel;
+use support::gap::*;
 
 const SHRINK: f64 = 0.70;
 
@@ -61,12 +61,7 @@ fn gap_names_missing_viscous_friction() {
 
 #[test]
 fn gap_names_cogging_with_its_period_within_2_percent() {
-    let truth = with_key(
-        &with_key(&reference(), "effects.cogging", "amplitude_n", "45.0"),
-        "effects.cogging",
-        "phase_rad",
-        "0.7",
-    );
+    let truth = cogging_truth();
     let model = without_section(&reference(), "effects.cogging");
     let j = gap(&model, &closed_loop(&truth, 2.3, 3, 14));
     show("cogging", &j);

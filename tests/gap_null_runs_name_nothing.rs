@@ -5,11 +5,11 @@
 //! A few seeds run by default; the 20-seed sweeps are `#[ignore]` (CI runs
 //! `cargo test --workspace --release -- --ignored`).
 
-mod gap_support;
+mod support;
 
-use gap_support::*;
 use hal_sim::gap::synth;
 use hal_sim::plant::model::MachineModel;
+use support::gap::*;
 
 fn closed_loop_null(seed: u64, speed_mps: f64) {
     let log = closed_loop(&reference(), speed_mps, 2, seed);

@@ -1,20 +1,11 @@
 //! Two effects hidden at once, in the same channel or in different ones: the forward
 //! selection names both, and fits each near its truth.
 
-mod gap_support;
+mod support;
 
-use gap_support::*;
 use hal_sim::gap::synth;
 use hal_sim::plant::model::MachineModel;
-
-fn cogging_truth() -> String {
-    with_key(
-        &with_key(&reference(), "effects.cogging", "amplitude_n", "45.0"),
-        "effects.cogging",
-        "phase_rad",
-        "0.7",
-    )
-}
+use support::gap::*;
 
 fn sorted(mut v: Vec<String>) -> Vec<String> {
     v.sort();

@@ -3,12 +3,11 @@
 //! open or shorted one — the whole u16 range — commands exactly what it commands with no gas
 //! force at all; and an open sensor latches `pressure_sensor` within 3 samples.
 
-mod common;
+mod support;
 
 use std::cell::RefCell;
 use std::ops::ControlFlow;
 
-use common::Rng;
 use fpc::control::command::Command;
 use fpc::control::config::ControlConfig;
 use fpc::control::step::{ControlStep, CycleInputs, CycleOutputs};
@@ -22,6 +21,7 @@ use fpc::units::{AdcCode, PerSection, Section};
 use hal_sim::board::exec::{simulate_with, SimControlPorts, SimShared};
 use hal_sim::plant::model::MachineModel;
 use hal_sim::run::{control_config, world};
+use support::sensing::Rng;
 
 /// What the probe found.
 #[derive(Debug, Default)]

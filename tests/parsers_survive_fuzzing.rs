@@ -13,20 +13,23 @@
 use hal_sim::faults::inject;
 use hal_sim::plant::model::{MachineModel, REFERENCE_TOML};
 use hal_sim::runlog::RunLog;
+use rand::{Rng as _, RngCore, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 
-/// xorshift64*: seeded, the same inputs on every machine.
-struct Rng(u64);
+/// Seeded ChaCha8 (`rand_chacha`): the same inputs on every machine.
+struct Rng(ChaCha8Rng);
 
 impl Rng {
+    fn new(seed: u64) -> Self {
+        Rng(ChaCha8Rng::seed_from_u64(seed))
+    }
+
     fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        self.0.next_u64()
     }
 
     fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
+        self.0.random_range(0..n.max(1))
     }
 }
 
@@ -123,7 +126,7 @@ fn mutate(rng: &mut Rng, seed: &str) -> String {
 
 /// Feeds `n` inputs mangled from `seeds` to `parse`; returns (accepted, refused).
 fn fuzz(n: u32, seed: u64, seeds: &[String], parse: impl Fn(&str) -> bool) -> (u32, u32) {
-    let mut rng = Rng(seed);
+    let mut rng = Rng::new(seed);
     let (mut ok, mut refused) = (0, 0);
     for _ in 0..n {
         let base = &seeds[rng.below(seeds.len())];

@@ -12,9 +12,8 @@
 //!   delivers falling short of its share; the allocation drops it, the other section carries
 //!   the whole force and stops the piston (SS1), clearance kept.
 
-mod drive_support;
+mod support;
 
-use drive_support::*;
 use fpc::control::calibration::{CalibrationError, Routine};
 use fpc::control::command::{Command, Refusal};
 use fpc::physics::motor::Dq;
@@ -22,6 +21,7 @@ use fpc::safety::faults::Fault;
 use fpc::status::ModeKind;
 use fpc::units::Section;
 use hal_sim::plant::model::MachineModel;
+use support::drive::*;
 
 #[test]
 fn a_current_sense_offset_is_seen_with_the_outputs_off_and_calibrated_away() {
@@ -124,12 +124,7 @@ fn an_overcurrent_switches_its_section_off_and_the_other_stops_the_piston() {
         }
         // Stopped: at rest for 20 ms (SS1 then switches the outputs off once holding needs
         // no force; with the chambers still under pressure it holds).
-        at_rest_s = if w.plant.v_mps.abs() < 1e-3 {
-            at_rest_s + 50e-6
-        } else {
-            0.0
-        };
-        s.mode == ModeKind::Faulted || at_rest_s >= 0.02
+        s.mode == ModeKind::Faulted || at_rest_for(&mut at_rest_s, w.plant.v_mps) >= 0.02
     });
     let s = bench.status();
     println!(
@@ -209,12 +204,7 @@ fn a_lost_section_is_dropped_and_the_other_stops_the_piston() {
             master_force = master_force.max(w.plant.force_n.master.abs());
         }
         slave_force = slave_force.max(w.plant.force_n.slave.abs());
-        at_rest_s = if w.plant.v_mps.abs() < 1e-3 {
-            at_rest_s + 50e-6
-        } else {
-            0.0
-        };
-        s.mode == ModeKind::Faulted || at_rest_s >= 0.02
+        s.mode == ModeKind::Faulted || at_rest_for(&mut at_rest_s, w.plant.v_mps) >= 0.02
     });
     let s = bench.status();
     println!(

@@ -4,12 +4,12 @@
 //! ≤ 0.5 ms, velocity RMS error ≤ 0.02 m/s, acceleration RMS error ≤ 5 % of its peak; and the
 //! same figures for a first difference + low-pass and for the drive's 8.5 ms-late velocity.
 
-mod common;
+mod support;
 
-use common::{encoder_codes, Rng};
 use fpc::control::config::ControlConfig;
 use fpc::sensing::differentiator::{SavitzkyGolay, SgConfig};
 use fpc::sensing::encoder::{SinCosCalibration, SinCosDecoder, NOMINAL_AMPLITUDE_CODES};
+use support::sensing::{encoder_codes, Rng};
 
 const DT_S: f64 = 50e-6;
 const STROKE_M: f64 = 0.19;

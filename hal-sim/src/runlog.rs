@@ -331,17 +331,16 @@ fn format_value<'b>(v: f64, float: &'b mut ryu::Buffer, int: &'b mut itoa::Buffe
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::{RngCore, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
 
     #[test]
     fn csv_values_read_back_bit_for_bit() {
         let (mut float, mut int) = (ryu::Buffer::new(), itoa::Buffer::new());
-        let mut rng = 0x9E37_79B9_7F4A_7C15u64;
+        let mut rng = ChaCha8Rng::seed_from_u64(0x9E37_79B9_7F4A_7C15);
         let mut values = vec![0.0, 3.0, -2.0, 0.1, 1e-7, 2.5e-5, 123_456.789, 1e300, -0.0];
         for _ in 0..10_000 {
-            rng ^= rng << 13;
-            rng ^= rng >> 7;
-            rng ^= rng << 17;
-            let v = f64::from_bits(rng);
+            let v = f64::from_bits(rng.next_u64());
             if v.is_finite() {
                 values.push(v);
             }

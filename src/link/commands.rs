@@ -343,21 +343,24 @@ impl CommandReader {
 pub(crate) mod tests {
     use super::*;
     use proptest::prelude::*;
+    use rand::{Rng as _, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
 
-    /// Seeded xorshift64*: the fuzz inputs are the same on every run and every machine.
-    pub(crate) struct Rng(pub u64);
+    /// Seeded ChaCha8 (`rand_chacha`): the fuzz inputs are the same on every run and every
+    /// machine.
+    pub(crate) struct Rng(ChaCha8Rng);
     impl Rng {
-        pub fn next(&mut self) -> u64 {
-            self.0 ^= self.0 >> 12;
-            self.0 ^= self.0 << 25;
-            self.0 ^= self.0 >> 27;
-            self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        pub fn new(seed: u64) -> Self {
+            Rng(ChaCha8Rng::seed_from_u64(seed))
         }
         pub fn byte(&mut self) -> u8 {
-            (self.next() >> 56) as u8
+            self.0.random()
+        }
+        pub fn word(&mut self) -> u32 {
+            self.0.random()
         }
         pub fn below(&mut self, n: usize) -> usize {
-            (self.next() % n as u64) as usize
+            self.0.random_range(0..n.max(1))
         }
     }
 
@@ -617,7 +620,7 @@ pub(crate) mod tests {
     /// 2⁻¹⁶; the controller's own validation is the second line.)
     #[test]
     fn fuzzed_command_reader_never_panics_and_resynchronises() {
-        let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+        let mut rng = Rng::new(0x9E37_79B9_7F4A_7C15);
         let commands = all_commands();
         let mut r = CommandReader::new();
         let mut inputs = 0u32;

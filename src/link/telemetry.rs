@@ -383,14 +383,14 @@ mod tests {
     /// panics, and after any garbage a clean frame decodes exactly.
     #[test]
     fn fuzzed_telemetry_decoder_never_panics_and_resynchronises() {
-        let mut rng = crate::link::commands::tests::Rng(0xD1B5_4A32_D192_ED03);
+        let mut rng = crate::link::commands::tests::Rng::new(0xD1B5_4A32_D192_ED03);
         let mut d = TelemetryDecoder::new();
         let mut n = 0u32;
         while n < 1_000_000 {
             n += 1;
             let mut bytes = match rng.below(3) {
                 0 => (0..rng.below(80)).map(|_| rng.byte()).collect(),
-                _ => wire(&frame(rng.next() as u32)),
+                _ => wire(&frame(rng.word())),
             };
             match rng.below(4) {
                 0 => bytes.truncate(rng.below(bytes.len().max(1))),

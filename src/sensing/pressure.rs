@@ -196,6 +196,8 @@ impl StuckMonitor {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+    use rand::{Rng as _, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
 
     #[test]
     fn round_trips_and_classifies() {
@@ -266,15 +268,10 @@ mod tests {
     fn a_frozen_chamber_sensor_is_caught_within_two_strokes() {
         let cal = PressureCalibration::reference();
         let n = 1000; // samples per stroke
-        let mut seed = 0x2545_f491u32;
+        let mut rng = ChaCha8Rng::seed_from_u64(0x2545_f491);
         let mut noise = || {
             // Two uniform draws: ±1.6 codes RMS, triangular.
-            let mut u = || {
-                seed ^= seed << 13;
-                seed ^= seed >> 17;
-                seed ^= seed << 5;
-                seed as f32 / u32::MAX as f32 - 0.5
-            };
+            let mut u = || rng.random::<f32>() - 0.5;
             3.9 * (u() + u())
         };
         let mut worst_strokes = 0.0f32;

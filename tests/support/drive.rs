@@ -308,3 +308,14 @@ pub fn commission(model: &MachineModel, seed: u64) -> (Bench, Calibrated) {
 pub fn degrees(angle: u32) -> f64 {
     f64::from(angle as i32) / 4_294_967_296.0 * 360.0
 }
+
+/// How long the piston has been at rest (|v| < 1 mm/s), s: `at_rest_s` advanced by one
+/// control period, or zero while it moves.
+pub fn at_rest_for(at_rest_s: &mut f64, v_mps: f64) -> f64 {
+    *at_rest_s = if v_mps.abs() < 1e-3 {
+        *at_rest_s + 50e-6
+    } else {
+        0.0
+    };
+    *at_rest_s
+}

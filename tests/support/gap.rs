@@ -55,6 +55,17 @@ pub fn reference() -> String {
     REFERENCE_TOML.to_string()
 }
 
+/// The truth of the cogging cases: the reference machine with 45 N of cogging at a phase of
+/// 0.7 rad.
+pub fn cogging_truth() -> String {
+    with_key(
+        &with_key(&reference(), "effects.cogging", "amplitude_n", "45.0"),
+        "effects.cogging",
+        "phase_rad",
+        "0.7",
+    )
+}
+
 /// A closed-loop run of the firmware on the plant of `truth`.
 pub fn closed_loop(truth: &str, speed_mps: f64, cycles: u32, seed: u64) -> RunLog {
     let model = MachineModel::parse(truth).expect("truth model loads");

@@ -1,0 +1,12 @@
+//! Set-up shared by the behaviour tests: one module per kind of test bench.
+//!
+//! - [`sensing`]: seeded noise and distorted encoder signals built from the library's types;
+//! - [`drive`]: the firmware's control step on the simulated board, one period at a time;
+//! - [`gap`]: model files, synthetic runs and the model-gap workflow run on them.
+//!
+//! Each test file declares `mod support;` and uses the subset it needs.
+#![allow(dead_code)] // each test file uses its own subset
+
+pub mod drive;
+pub mod gap;
+pub mod sensing;
