@@ -2,7 +2,6 @@
 //! control period at a time, with the step itself in reach (its configuration and its
 //! calibration record), as `fpc::tasks::control_run` runs it: read the burst, step, write
 //! both sections' duties in the same cycle (or switch the outputs off), write the servo.
-#![allow(dead_code)] // each test file uses its own subset
 
 use std::cell::{Ref, RefMut};
 use std::rc::Rc;

@@ -1,6 +1,5 @@
 //! What the model-gap proofs share: truth and model files made from the reference machine,
 //! the synthetic runs, and running the workflow on them.
-#![allow(dead_code)] // each test file uses its own subset
 
 use hal_sim::gap::{analyse, GapJson, GapOptions};
 use hal_sim::plant::model::{MachineModel, REFERENCE_TOML};

@@ -1,7 +1,6 @@
 //! Helpers shared by the sensing tests: seeded noise and encoder signals built from the
 //! library's own types (the simulator's sensor models belong to the plant; these tests need
 //! distortions the reference world does not have).
-#![allow(dead_code)] // each test file uses its own subset
 
 use fpc::ports::SinCosCodes;
 use fpc::sensing::encoder::SinCosCalibration;

@@ -1,7 +1,9 @@
 //! Electrical-angle alignment: a current vector at forced angles, approached from both
 //! sides, tells where each section's encoder angle sits against its magnets.
 
-use super::*;
+use super::{
+    within, CalibrationConfig, CalibrationError, Demand, Forced, Measurements, Outcome, TURN,
+};
 use crate::angle::turns;
 use crate::control::config::ControlConfig;
 use crate::physics::motor::Dq;

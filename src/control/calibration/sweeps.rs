@@ -1,7 +1,10 @@
 //! The sweep routines (cogging map, slave misalignment): rests and constant-velocity legs
 //! under position control, with their cruise samples projected on harmonics.
 
-use super::*;
+use super::{
+    within, CalibrationConfig, CalibrationError, Demand, Measurements, Misalignment, Outcome,
+    Routine, TURN,
+};
 use crate::angle::{sin_cos_turns, turns};
 use crate::control::config::ControlConfig;
 use crate::motion::trajectory::Setpoint;

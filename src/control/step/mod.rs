@@ -308,7 +308,7 @@ impl ControlStep {
     }
 
     /// The publish stage: the status snapshot of this cycle. Kept out of line: inlined, the
-    /// register pressure of the whole step costs ~4 instructions per cycle more on the
+    /// register pressure of the whole step costs ~3 instructions per cycle more on the
     /// Cortex-M4 (`scripts/bench-cm4.sh`).
     #[inline(never)]
     fn publish(&mut self, t: Ticks, s: &Sensed) {

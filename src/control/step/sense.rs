@@ -12,27 +12,27 @@ use crate::units::{AdcCode, Section, Ticks, CONTROL_PERIOD_US};
 /// What the sense stage found in one cycle.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Sensed {
-    /// Both encoders' readings (positions after a failed encoder's replacement).
+    /// The master encoder's reading (its position replaced by the slave's if it failed).
     pub master: EncoderReading,
-    /// The slave encoder's reading.
+    /// The slave encoder's reading (likewise).
     pub slave: EncoderReading,
     /// Velocity and acceleration of the master position.
     pub derivatives: Derivatives,
-    /// Master and slave positions in the encoders' own frames, m.
+    /// The master position in its encoder's own frame, m.
     pub raw_m: f32,
-    /// The slave's raw position, m.
+    /// The slave position in its encoder's own frame, m.
     pub slave_raw_m: f32,
     /// Master position from the homed zero, m.
     pub position_m: f32,
-    /// Chamber pressures as converted (NaN when invalid), Pa.
+    /// Chamber A pressure as converted, Pa (meaningless where the sample is invalid).
     pub pressure_a_pa: f32,
-    /// Chamber B pressure, Pa.
+    /// Chamber B pressure, likewise, Pa.
     pub pressure_b_pa: f32,
     /// Gas force for the feed-forward (0 when the pressures are not usable), N.
     pub gas_force_n: f32,
-    /// Force of each section from its q-current of the last cycle, N.
+    /// The master section's force from its q-current of the last cycle, N.
     pub force_master_n: f32,
-    /// The slave section's force, N.
+    /// The slave section's force, likewise, N.
     pub force_slave_n: f32,
 }
 
