@@ -18,14 +18,18 @@
 //! | [`gap`] | the model-gap workflow |
 //! | [`plot`] | SVG plots (reports of the runs, the log tools and the gap workflow) |
 //! | [`failure`] | the failure type and its exit codes |
+//! | [`output`] | outputs checked before work, staged and moved into place complete |
+//! | [`console`] | stdout/stderr lines that fail with exit 1 instead of panicking |
 //! | [`cli`] | `fpc-sim`: a module per subcommand and the log tools' shared plumbing |
 #![warn(missing_docs)]
 
 pub mod board;
 pub mod cli;
+pub mod console;
 pub mod failure;
 pub mod faults;
 pub mod gap;
+pub mod output;
 pub mod plant;
 pub mod plot;
 pub mod run;

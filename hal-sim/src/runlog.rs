@@ -7,6 +7,7 @@
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
+use std::io::{BufRead, BufReader};
 use std::path::Path;
 
 /// Required columns, in order.
@@ -119,11 +120,23 @@ impl RunLog {
     /// reports; see `format_value`), so a file read and written again is the same text.
     pub fn to_csv(&self) -> String {
         let mut out = String::with_capacity(self.len() * self.names.len() * 16 + 256);
+        self.head_to_csv(&mut out);
+        self.rows_to_csv(&mut out);
+        out
+    }
+
+    /// Appends the metadata lines and the header line of the CSV to `out`.
+    pub fn head_to_csv(&self, out: &mut String) {
         for (k, v) in &self.meta {
             let _ = writeln!(out, "# {k} = {v}");
         }
         out.push_str(&self.names.join(","));
         out.push('\n');
+    }
+
+    /// Appends the data rows of the CSV to `out` (so a long log can be written in chunks that
+    /// join to exactly [`RunLog::to_csv`]).
+    pub fn rows_to_csv(&self, out: &mut String) {
         let mut float = ryu::Buffer::new();
         let mut int = itoa::Buffer::new();
         for r in 0..self.len() {
@@ -139,7 +152,6 @@ impl RunLog {
             }
             out.push('\n');
         }
-        out
     }
 
     /// Writes the CSV to `path`.
@@ -148,76 +160,156 @@ impl RunLog {
     }
 
     /// Reads and validates a run log from `path`, gzipped or not (recognised by the gzip
-    /// magic bytes, whatever the file is called).
+    /// magic bytes, whatever the file is called). The file is read as a stream: memory
+    /// grows with the values accepted, and a file that is not a run log (no line breaks,
+    /// binary, endless) is refused at its first bad line.
     pub fn read(path: &Path) -> Result<RunLog, LogError> {
         let fail = |what: String| LogError {
             line: 0,
             column: None,
             message: format!("cannot read {}: {what}", path.display()),
         };
-        let bytes = std::fs::read(path).map_err(|e| fail(e.to_string()))?;
-        let bytes = if bytes.starts_with(&GZIP_MAGIC) {
-            let mut out = Vec::new();
-            std::io::Read::read_to_end(
-                &mut flate2::read::MultiGzDecoder::new(&bytes[..]),
-                &mut out,
-            )
-            .map_err(|e| fail(format!("not a valid gzip stream ({e})")))?;
-            out
+        if path.is_dir() {
+            return Err(fail("it is a directory".into()));
+        }
+        let file = std::fs::File::open(path).map_err(|e| fail(e.to_string()))?;
+        let mut reader = BufReader::with_capacity(1 << 16, file);
+        let gzipped = reader
+            .fill_buf()
+            .map_err(|e| fail(e.to_string()))?
+            .starts_with(&GZIP_MAGIC);
+        if gzipped {
+            let gz = BufReader::with_capacity(1 << 16, flate2::read::MultiGzDecoder::new(reader));
+            Self::parse_stream(gz, true)
         } else {
-            bytes
-        };
-        let text = String::from_utf8(bytes).map_err(|e| {
-            fail(format!(
-                "not UTF-8 text (invalid byte at offset {})",
-                e.utf8_error().valid_up_to()
-            ))
-        })?;
-        Self::parse(&text)
+            Self::parse_stream(reader, false)
+        }
     }
 
     /// Parses and validates run-log text.
     pub fn parse(text: &str) -> Result<RunLog, LogError> {
+        Self::parse_stream(text.as_bytes(), false)
+    }
+
+    /// Parses and validates a run log line by line, as pandas `read_csv(comment='#')` reads
+    /// it: `\n`, `\r\n` or `\r` line ends, an optional UTF-8 byte-order mark, fields in
+    /// double quotes, `#` starting a comment anywhere. Refused, naming the line (and column):
+    /// lines longer than [`MAX_LINE_BYTES`], text that is not UTF-8, a missing or duplicated
+    /// column, metadata keys given twice with different values, a `sample_rate_hz` the time
+    /// column contradicts, values that are not numbers, not finite or outside
+    /// [`physical_range`], time not increasing uniformly (1 %) or with a step outside
+    /// [`SAMPLE_TIME_RANGE_S`], fewer than [`MIN_ROWS`] or more than [`MAX_VALUES`] values.
+    fn parse_stream(source: impl BufRead, gzipped: bool) -> Result<RunLog, LogError> {
         let err = |line: usize, column: Option<&str>, message: String| LogError {
             line,
             column: column.map(str::to_string),
             message,
         };
-        let mut meta = Vec::new();
+        let mut lines = LineReader::new(source);
+        let mut meta: Vec<(String, String)> = Vec::new();
+        let mut meta_lines: Vec<usize> = Vec::new();
         let mut header: Option<(usize, Vec<String>)> = None;
         let mut columns: Vec<Vec<f64>> = Vec::new();
-        for (idx, raw) in text.lines().enumerate() {
-            let line_no = idx + 1;
-            let line = raw.trim_end_matches('\r');
-            if let Some(rest) = line.strip_prefix('#') {
+        let mut ranges: Vec<(f64, f64)> = Vec::new();
+        let mut time = TimeCheck::default();
+        let mut time_col: Option<usize> = None;
+        let mut fields: Vec<String> = Vec::new();
+        loop {
+            let line_no = lines.line_no + 1;
+            let raw = match lines.next_line() {
+                Ok(Some(raw)) => raw,
+                Ok(None) => break,
+                Err(LineError::TooLong) => {
+                    return Err(err(
+                        line_no,
+                        None,
+                        format!("longer than {MAX_LINE_BYTES} bytes: not a run log"),
+                    ))
+                }
+                Err(LineError::Io(e)) => {
+                    let what = if gzipped {
+                        format!("not a valid gzip stream ({e})")
+                    } else {
+                        format!("cannot read on ({e})")
+                    };
+                    return Err(err(line_no, None, what));
+                }
+            };
+            let mut line = std::str::from_utf8(raw).map_err(|e| {
+                err(
+                    line_no,
+                    None,
+                    format!(
+                        "not UTF-8 text (invalid byte at column {})",
+                        e.valid_up_to() + 1
+                    ),
+                )
+            })?;
+            if line_no == 1 {
+                line = line.strip_prefix('\u{feff}').unwrap_or(line);
+            }
+            if let Some(rest) = line.trim_start().strip_prefix('#') {
                 if header.is_none() {
                     if let Some((k, v)) = rest.split_once('=') {
-                        meta.push((k.trim().to_string(), v.trim().to_string()));
+                        let (k, v) = (k.trim(), v.trim());
+                        if let Some(i) = meta.iter().position(|(mk, _)| mk == k) {
+                            let first = meta_lines.get(i).copied().unwrap_or(0);
+                            let value = meta.get(i).map_or("", |(_, mv)| mv.as_str());
+                            if value != v {
+                                return Err(err(
+                                    line_no,
+                                    None,
+                                    format!(
+                                        "`# {}` given twice with different values (line \
+                                         {first}: `{}`, here: `{}`)",
+                                        echo(k),
+                                        echo(value),
+                                        echo(v)
+                                    ),
+                                ));
+                            }
+                        } else {
+                            meta.push((k.to_string(), v.to_string()));
+                            meta_lines.push(line_no);
+                        }
                     }
                 }
                 continue;
             }
-            if line.trim().is_empty() {
-                continue;
+            split_fields(line, &mut fields).map_err(|m| err(line_no, None, m))?;
+            if fields.len() == 1 && fields.first().is_some_and(|f| f.trim().is_empty()) {
+                continue; // a blank line, or one that is all comment
             }
             match &header {
                 None => {
-                    let names: Vec<String> =
-                        line.split(',').map(|s| s.trim().to_string()).collect();
+                    let names: Vec<String> = fields.iter().map(|f| f.trim().to_string()).collect();
+                    for (i, name) in names.iter().enumerate() {
+                        if let Some(j) = names.iter().skip(i + 1).position(|n| n == name) {
+                            return Err(err(
+                                line_no,
+                                Some(&echo(name)),
+                                format!("column given twice (fields {} and {})", i + 1, i + j + 2),
+                            ));
+                        }
+                    }
                     for req in REQUIRED {
                         if !names.iter().any(|n| n == req) {
                             return Err(err(
                                 line_no,
                                 Some(req),
-                                "required column is missing".into(),
+                                format!(
+                                    "required column is missing (the header has: {})",
+                                    echo(&names.join(","))
+                                ),
                             ));
                         }
                     }
                     columns = vec![Vec::new(); names.len()];
+                    ranges = names.iter().map(|n| physical_range(n)).collect();
+                    time_col = names.iter().position(|n| n == "t_s");
                     header = Some((line_no, names));
                 }
                 Some((_, names)) => {
-                    let fields: Vec<&str> = line.split(',').collect();
                     if fields.len() != names.len() {
                         return Err(err(
                             line_no,
@@ -225,27 +317,54 @@ impl RunLog {
                             format!("expected {} fields, found {}", names.len(), fields.len()),
                         ));
                     }
-                    for ((field, name), col) in fields.iter().zip(names).zip(columns.iter_mut()) {
-                        let v: f64 = field.trim().parse().map_err(|_| {
+                    if columns.first().map_or(0, Vec::len) * names.len() >= MAX_VALUES {
+                        return Err(err(
+                            line_no,
+                            None,
+                            format!(
+                                "more than {MAX_VALUES} values: too large to analyse at once \
+                                 (cut the log into parts)"
+                            ),
+                        ));
+                    }
+                    for (((field, name), col), &(lo, hi)) in fields
+                        .iter()
+                        .zip(names)
+                        .zip(columns.iter_mut())
+                        .zip(&ranges)
+                    {
+                        let text = field.trim();
+                        let v: f64 = text.parse().map_err(|_| {
                             err(
                                 line_no,
                                 Some(name),
-                                format!("`{}` is not a number", field.trim()),
+                                format!("`{}` is not a number", echo(text)),
                             )
                         })?;
                         if !v.is_finite() {
                             return Err(err(
                                 line_no,
                                 Some(name),
-                                format!("`{}` is not finite", field.trim()),
+                                format!("`{}` is not finite", echo(text)),
+                            ));
+                        }
+                        if !(lo..=hi).contains(&v) {
+                            return Err(err(
+                                line_no,
+                                Some(name),
+                                format!("{v:e} is outside the physical range {lo:e}..={hi:e}"),
                             ));
                         }
                         col.push(v);
                     }
+                    // The time after the whole row read: a bad value names its own column.
+                    if let Some(&t) = time_col.and_then(|i| columns.get(i)).and_then(|c| c.last()) {
+                        time.next(t).map_err(|m| err(line_no, Some("t_s"), m))?;
+                    }
                 }
             }
         }
-        let Some((header_line, names)) = header else {
+        let Some((_, names)) = header else {
             return Err(err(0, None, "no header line".into()));
         };
         let log = RunLog {
@@ -260,30 +379,27 @@ impl RunLog {
                 format!("{} data rows, at least {MIN_ROWS} needed", log.len()),
             ));
         }
-        // Uniform, increasing time within 1 % of the first step.
-        let t = log.column("t_s").unwrap_or_default();
-        let dt0 = t.get(1).copied().unwrap_or(0.0) - t.first().copied().unwrap_or(0.0);
-        if dt0 <= 0.0 {
-            return Err(err(
-                header_line + 2,
-                Some("t_s"),
-                "time does not increase".into(),
-            ));
-        }
-        for (i, w) in t.windows(2).enumerate() {
-            let dt = w[1] - w[0];
-            if (dt - dt0).abs() > 0.01 * dt0 {
-                let what = if dt <= 0.0 {
-                    "time does not increase"
-                } else {
-                    "time step is not uniform"
-                };
-                // Data row i+1 (0-based) is at this file line, skipping comment lines is not
-                // needed: data rows follow the header without interruption in valid files.
+        if let Some(i) = log.meta.iter().position(|(k, _)| k == "sample_rate_hz") {
+            let rate = log.meta.get(i).map_or("", |(_, v)| v.as_str());
+            let line = meta_lines.get(i).copied().unwrap_or(0);
+            let stated: f64 = rate.parse().map_err(|_| {
+                err(
+                    line,
+                    None,
+                    format!("`# sample_rate_hz = {}` is not a number", echo(rate)),
+                )
+            })?;
+            let from_t = 1.0 / time.step_s;
+            if !(stated.is_finite() && stated > 0.0) || (stated - from_t).abs() > 0.01 * from_t {
                 return Err(err(
-                    data_line(text, header_line, i + 1),
+                    line,
                     Some("t_s"),
-                    what.into(),
+                    format!(
+                        "`# sample_rate_hz = {}` contradicts the time column (step {:e} s = \
+                         {from_t:.6} Hz)",
+                        echo(rate),
+                        time.step_s
+                    ),
                 ));
             }
         }
@@ -291,14 +407,180 @@ impl RunLog {
     }
 }
 
-/// File line of the `row`-th data row (0-based) after the header.
-fn data_line(text: &str, header_line: usize, row: usize) -> usize {
-    text.lines()
-        .enumerate()
-        .skip(header_line)
-        .filter(|(_, l)| !l.starts_with('#') && !l.trim().is_empty())
-        .nth(row)
-        .map_or(0, |(i, _)| i + 1)
+/// Longest line a run log may have, bytes (a header of hundreds of columns fits).
+pub const MAX_LINE_BYTES: usize = 64 * 1024;
+
+/// Most values (rows × columns) a reader accepts: 1.6 GB of `f64`, e.g. 10⁷ rows of 20
+/// columns (8 minutes at 20 kHz).
+pub const MAX_VALUES: usize = 200_000_000;
+
+/// Sample times a run log may have, s: 10 MHz down to 10 Hz. Outside, it is not a log of a
+/// machine that strokes at 5–50 Hz, and the analyses' cost would follow its duration.
+pub const SAMPLE_TIME_RANGE_S: (f64, f64) = (1e-7, 0.1);
+
+/// The values a column can physically hold, by its name (the required columns and the
+/// optional ones of `formats.md` by unit; any other column within ±1e15, so that squares and
+/// sums of a whole log stay finite).
+pub fn physical_range(column: &str) -> (f64, f64) {
+    match column {
+        // A week of logging.
+        "t_s" => (-1e6, 1e6),
+        // Metres: a machine of this kind is well under a metre; 10 m leaves room for offsets.
+        "x_m" | "x_slave_m" | "x_ref_m" => (-10.0, 10.0),
+        // Unwrapped turns: a week at 100 Hz.
+        "theta_rad" | "theta_ref_rad" => (-1e9, 1e9),
+        // Newtons: ten times the largest linear motors made.
+        "f_master_n" | "f_slave_n" => (-1e7, 1e7),
+        // Absolute pascals: vacuum (a little below, for sensor offsets) to 10 kbar.
+        "p_a_pa" | "p_b_pa" | "p_suction_pa" | "p_discharge_pa" => (-1e5, 1e9),
+        "v_drive_mps" => (-1e3, 1e3),
+        _ => (-1e15, 1e15),
+    }
+}
+
+/// A value echoed in a message, cut to 40 characters.
+fn echo(text: &str) -> String {
+    if text.chars().count() <= 40 {
+        text.to_string()
+    } else {
+        let mut cut: String = text.chars().take(40).collect();
+        cut.push('…');
+        cut
+    }
+}
+
+/// The time column's check, one value at a time: increasing, uniform within 1 % of the first
+/// step, that step within [`SAMPLE_TIME_RANGE_S`].
+#[derive(Default)]
+struct TimeCheck {
+    prev: Option<f64>,
+    step_s: f64,
+}
+
+impl TimeCheck {
+    fn next(&mut self, t: f64) -> Result<(), String> {
+        let Some(prev) = self.prev.replace(t) else {
+            return Ok(());
+        };
+        let dt = t - prev;
+        if self.step_s == 0.0 {
+            if dt <= 0.0 {
+                return Err("time does not increase".into());
+            }
+            let (lo, hi) = SAMPLE_TIME_RANGE_S;
+            if !(lo..=hi).contains(&dt) {
+                return Err(format!(
+                    "time step {dt:e} s is outside the range a run log may have \
+                     ({lo:e}..={hi:e} s)"
+                ));
+            }
+            self.step_s = dt;
+        } else if (dt - self.step_s).abs() > 0.01 * self.step_s {
+            return Err(if dt <= 0.0 {
+                "time does not increase".into()
+            } else {
+                "time step is not uniform".into()
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Splits a CSV line into `fields`: commas outside double quotes separate; quotes are
+/// removed (`""` inside quotes is one quote); `#` outside quotes starts a comment.
+fn split_fields(line: &str, fields: &mut Vec<String>) -> Result<(), String> {
+    fields.clear();
+    let mut field = String::new();
+    let mut quoted = false;
+    let mut chars = line.chars().peekable();
+    while let Some(c) = chars.next() {
+        match (c, quoted) {
+            ('"', true) if chars.peek() == Some(&'"') => {
+                chars.next();
+                field.push('"');
+            }
+            ('"', true) => quoted = false,
+            ('"', false) => quoted = true,
+            (',', false) => fields.push(std::mem::take(&mut field)),
+            ('#', false) => break,
+            (c, _) => field.push(c),
+        }
+    }
+    if quoted {
+        return Err("a quoted field is not closed".into());
+    }
+    fields.push(field);
+    Ok(())
+}
+
+/// Why [`LineReader`] stopped.
+enum LineError {
+    TooLong,
+    Io(std::io::Error),
+}
+
+/// Lines of a byte stream ending in `\n`, `\r\n` or `\r`, each at most [`MAX_LINE_BYTES`].
+struct LineReader<R> {
+    source: R,
+    line: Vec<u8>,
+    /// The last line ended in `\r`: a `\n` right after it belongs to it.
+    after_cr: bool,
+    /// Lines returned so far.
+    line_no: usize,
+}
+
+impl<R: BufRead> LineReader<R> {
+    fn new(source: R) -> Self {
+        LineReader {
+            source,
+            line: Vec::new(),
+            after_cr: false,
+            line_no: 0,
+        }
+    }
+
+    /// The next line without its end, or `None` at the end of the stream.
+    fn next_line(&mut self) -> Result<Option<&[u8]>, LineError> {
+        self.line.clear();
+        loop {
+            let buf = match self.source.fill_buf() {
+                Ok(b) => b,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(LineError::Io(e)),
+            };
+            if buf.is_empty() {
+                if self.line.is_empty() {
+                    return Ok(None);
+                }
+                self.line_no += 1;
+                return Ok(Some(&self.line));
+            }
+            let start = usize::from(self.after_cr && buf.first() == Some(&b'\n'));
+            self.after_cr = false;
+            let rest = buf.get(start..).unwrap_or_default();
+            match rest.iter().position(|&b| b == b'\n' || b == b'\r') {
+                Some(i) => {
+                    if self.line.len() + i > MAX_LINE_BYTES {
+                        return Err(LineError::TooLong);
+                    }
+                    self.line
+                        .extend_from_slice(rest.get(..i).unwrap_or_default());
+                    self.after_cr = rest.get(i) == Some(&b'\r');
+                    self.source.consume(start + i + 1);
+                    self.line_no += 1;
+                    return Ok(Some(&self.line));
+                }
+                None => {
+                    if self.line.len() + rest.len() > MAX_LINE_BYTES {
+                        return Err(LineError::TooLong);
+                    }
+                    self.line.extend_from_slice(rest);
+                    let n = buf.len();
+                    self.source.consume(n);
+                }
+            }
+        }
+    }
 }
 
 /// A map of metadata for quick lookup.
@@ -414,5 +696,96 @@ mod tests {
         let mut trunc = lines.clone();
         trunc[30] = "0.0029,0.1";
         assert_eq!(RunLog::parse(&trunc.join("\n")).unwrap_err().line, 31);
+    }
+}
+
+#[cfg(test)]
+mod contract_tests {
+    use super::*;
+
+    fn sample(rows: usize, end: &str) -> String {
+        let mut text = String::from("# source = test\n# sample_rate_hz = 10000\n");
+        text.push_str(&REQUIRED.join(","));
+        text.push('\n');
+        for i in 0..rows {
+            let t = i as f64 * 1e-4;
+            text.push_str(&format!("{t},0.1,0.1,0,1,1,1e5,1e5"));
+            text.push_str(end);
+        }
+        text
+    }
+
+    #[test]
+    fn reads_what_pandas_reads() {
+        let plain = RunLog::parse(&sample(120, "\n")).unwrap();
+        for variant in [
+            format!("\u{feff}{}", sample(120, "\n")),
+            sample(120, "\r"),
+            sample(120, "\r\n"),
+            sample(120, "\n").replacen("t_s,x_m", "\"t_s\",\"x_m\"", 1),
+            sample(120, "\n").replace(",0.1,0.1,", ",\"0.1\",0.1,"),
+            sample(120, " # a note\n"),
+            sample(120, "\n\n"),
+        ] {
+            let log = RunLog::parse(&variant).unwrap_or_else(|e| panic!("{e}: {variant:.200}"));
+            assert_eq!(log.columns, plain.columns);
+            assert_eq!(log.names, plain.names);
+        }
+    }
+
+    #[test]
+    fn refuses_naming_the_real_cause() {
+        let ok = sample(120, "\n");
+        let cases: [(String, &str); 9] = [
+            (
+                ok.replacen("p_a_pa,p_b_pa", "p_a_pa,p_a_pa", 1),
+                "given twice",
+            ),
+            (format!("# ports = open\n# ports = closed\n{ok}"), "line 1"),
+            (ok.replacen("10000", "20000", 1), "contradicts"),
+            (
+                ok.replacen("0.0001,0.1", "0.0001,1e20", 1),
+                "physical range",
+            ),
+            (
+                ok.replacen("\n0.0001,", "\n0.0000000000001,", 1),
+                "outside the range",
+            ),
+            (ok.replacen("0.0001,0.1", "0.0001,\"0.1", 1), "quoted field"),
+            (
+                format!("{}\n", "1".repeat(MAX_LINE_BYTES + 10)),
+                "longer than",
+            ),
+            (
+                ok.replacen("0.0002,0.1", "0.0002,0.1\u{0}", 1),
+                "not a number",
+            ),
+            (
+                ok.replacen("theta_rad", "theta_rad,theta_rad", 1),
+                "given twice",
+            ),
+        ];
+        for (text, expected) in cases {
+            let e = RunLog::parse(&text).unwrap_err();
+            assert!(
+                e.to_string().contains(expected),
+                "{e} (wanted `{expected}`)"
+            );
+        }
+        let mut bytes = ok.clone().into_bytes();
+        let at = ok.find("0.0003").unwrap();
+        bytes[at] = 0xff;
+        let path = std::env::temp_dir().join(format!("fpc-runlog-utf8-{}", std::process::id()));
+        std::fs::write(&path, &bytes).unwrap();
+        let e = RunLog::read(&path).unwrap_err();
+        assert!(e.line > 3 && e.message.contains("UTF-8"), "{e}");
+        let _ = std::fs::remove_file(&path);
+    }
+
+    #[test]
+    fn an_endless_stream_without_line_breaks_is_refused_at_line_1() {
+        let e = RunLog::read(Path::new("/dev/zero")).unwrap_err();
+        assert_eq!(e.line, 1, "{e}");
+        assert!(e.message.contains("longer than"), "{e}");
     }
 }

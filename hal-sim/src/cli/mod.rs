@@ -1,6 +1,9 @@
 //! `fpc-sim`: one module per subcommand, and the plumbing the log tools share
 //! ([`analysis`]: reading the log and the model, columns, output directory, progress).
 //! Failures and their exit codes are [`crate::failure`]'s; plots are [`crate::plot`]'s.
+//!
+//! [`execute`] is the whole tool as a function (arguments in, exit code out), so the binary
+//! is one line and tests can drive every subcommand in-process.
 
 pub mod analysis;
 pub mod decode;
@@ -12,3 +15,89 @@ pub mod gap;
 pub mod lag;
 pub mod pv;
 pub mod run;
+
+use clap::{Parser, Subcommand};
+
+use crate::failure::CmdResult;
+
+/// The command line of `fpc-sim`.
+#[derive(Parser)]
+#[command(
+    name = "fpc-sim",
+    version,
+    about = "Simulator and analysis tools of the free-piston compressor"
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Closed-loop simulation with the firmware's tasks in the loop.
+    Run(run::RunArgs),
+    /// The firmware's Savitzky–Golay differentiator over a run log's position.
+    Derive(derive::DeriveArgs),
+    /// Decode a captured telemetry stream into a run log (CSV).
+    Decode(decode::DecodeArgs),
+    /// Time lag between two logged signals by FFT cross-correlation (Fig. 4).
+    Lag(lag::LagArgs),
+    /// Velocity without filter, filtfilt, firmware Savitzky-Golay, drive reading (Fig. 7).
+    Filters(filters::FiltersArgs),
+    /// Inertia force from position against the forces acting (Fig. 8).
+    Forces(forces::ForcesArgs),
+    /// Motor, inertia, gas and friction work along one stroke (Fig. 9).
+    Energy(energy::EnergyArgs),
+    /// p-V diagram of both chambers (Fig. 3).
+    Pv(pv::PvArgs),
+    /// Find, name and add the effect missing from a model (model-gap workflow).
+    Gap(gap::GapArgs),
+}
+
+fn dispatch(cmd: Cmd) -> CmdResult {
+    match cmd {
+        Cmd::Run(args) => run::main(args),
+        Cmd::Derive(args) => derive::main(args),
+        Cmd::Decode(args) => decode::main(args),
+        Cmd::Lag(args) => lag::main(args),
+        Cmd::Filters(args) => filters::main(args),
+        Cmd::Forces(args) => forces::main(args),
+        Cmd::Energy(args) => energy::main(args),
+        Cmd::Pv(args) => pv::main(args),
+        Cmd::Gap(args) => gap::main(args),
+    }
+}
+
+/// Runs `fpc-sim` with these arguments (the first is the program name) and returns the exit
+/// code: 0 success (and `--help`/`--version`), 1 runtime failure, 2 bad usage or input. The
+/// failure's one line goes to stderr; if even that cannot be written the code stands.
+pub fn execute<I, T>(args: I) -> u8
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    let cli = match Cli::try_parse_from(args) {
+        Ok(c) => c,
+        Err(e) => {
+            // Help and version go to stdout with exit 0; usage errors exit 2.
+            let text = e.render().to_string();
+            let text = text.trim_end();
+            return if e.use_stderr() {
+                let _ = crate::errln!("{text}");
+                2
+            } else {
+                match crate::outln!("{text}") {
+                    Ok(()) => 0,
+                    Err(f) => f.code,
+                }
+            };
+        }
+    };
+    match dispatch(cli.command) {
+        Ok(()) => 0,
+        Err(f) => {
+            let _ = crate::errln!("fpc-sim: {}", f.message);
+            f.code
+        }
+    }
+}

@@ -5,10 +5,12 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 
 use crate::failure::{CmdResult, Failure};
+use crate::output::{show, OutDir, OutFile};
 use crate::plant::model::MachineModel;
 use crate::plot::{lines, Series};
-use crate::run::{run, RunOptions};
+use crate::run::{run_streamed, RunOptions};
 use crate::runlog::RunLog;
+use crate::{errln, outln};
 
 /// Closed-loop simulation of the machine with the firmware's tasks in the loop.
 #[derive(Args, Debug)]
@@ -45,7 +47,14 @@ pub struct RunArgs {
     /// a malformed specification exits 2 naming it.
     #[arg(long = "fault", value_name = "SPEC")]
     pub faults: Vec<String>,
+    /// Replace outputs of an earlier run (run.csv, the plots, the telemetry file). Without
+    /// it an existing output is refused before the run starts; an input is never replaced.
+    #[arg(long)]
+    pub force: bool,
 }
+
+/// The files `run` writes into its output directory.
+pub const OUTPUTS: [&str; 4] = ["run.csv", "motion.svg", "pv.svg", "energy.svg"];
 
 /// Runs `fpc-sim run`.
 pub fn main(args: RunArgs) -> CmdResult {
@@ -78,24 +87,43 @@ pub fn main(args: RunArgs) -> CmdResult {
         ..RunOptions::reference()
     };
     opts.validate().map_err(Failure::bad_input)?;
-    let outcome = run(&opts).map_err(Failure::runtime)?;
-    let out = &args.out;
-    std::fs::create_dir_all(out)
-        .map_err(|e| Failure::runtime(format!("cannot create {}: {e}", out.display())))?;
-    let csv = out.join("run.csv");
-    outcome
-        .log
-        .write(&csv)
-        .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", csv.display())))?;
-    plot_motion(out, &outcome.log).map_err(Failure::runtime)?;
-    plot_pv(out, &outcome.log).map_err(Failure::runtime)?;
-    plot_energy(out, &outcome).map_err(Failure::runtime)?;
-    if let Some(path) = &args.telemetry {
-        std::fs::write(path, &outcome.telemetry)
-            .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", path.display())))?;
+    // Every output is checked before the run: an existing one without --force, an input, an
+    // unwritable place are refused now (exit 2), not after the simulation.
+    let inputs: Vec<&Path> = args.model.iter().map(PathBuf::as_path).collect();
+    let out = OutDir::prepare(&args.out, &OUTPUTS, args.force, &inputs)?;
+    let telemetry = match &args.telemetry {
+        Some(path) => {
+            if OUTPUTS.iter().any(|n| out.final_path(n) == *path) {
+                return Err(Failure::bad_input(format!(
+                    "--telemetry {}: is one of the run's own outputs",
+                    show(path)
+                )));
+            }
+            Some(OutFile::prepare(path, args.force, &inputs)?)
+        }
+        None => None,
+    };
+    let csv = out.path("run.csv");
+    let file = std::fs::File::create(&csv)
+        .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&csv))))?;
+    let mut writer = std::io::BufWriter::with_capacity(1 << 20, file);
+    let outcome = run_streamed(&opts, &mut writer).map_err(Failure::runtime)?;
+    drop(writer);
+    plot_motion(out.path("motion.svg").as_path(), &outcome.log).map_err(Failure::runtime)?;
+    plot_pv(out.path("pv.svg").as_path(), &outcome.log).map_err(Failure::runtime)?;
+    plot_energy(out.path("energy.svg").as_path(), &outcome).map_err(Failure::runtime)?;
+    if let Some(t) = &telemetry {
+        std::fs::write(t.path(), &outcome.telemetry).map_err(|e| {
+            Failure::runtime(format!("cannot write {}: {e}", show(&t.final_path())))
+        })?;
+    }
+    let csv = out.final_path("run.csv");
+    out.commit()?;
+    if let Some(t) = telemetry {
+        t.commit()?;
     }
     let s = &outcome.summary;
-    eprintln!(
+    errln!(
         "fpc-sim run: {} cycles in {:.3} s simulated ({:.0}x real time), state {}, peak speed {:.2} m/s, \
          min head clearance {}, dead-point error {}, faults [{}]; wrote {}",
         s.cycles,
@@ -107,7 +135,7 @@ pub fn main(args: RunArgs) -> CmdResult {
         fmt_mm(s.dead_point_error_m),
         s.faults.join(", "),
         csv.display()
-    );
+    )?;
     let r = &outcome.injection;
     if let Some(onset_us) = r.first_onset_us() {
         let detected = r.first_fault_after_onset().map_or_else(
@@ -120,17 +148,17 @@ pub fn main(args: RunArgs) -> CmdResult {
                 )
             },
         );
-        eprintln!(
+        errln!(
             "fpc-sim run: injected fault from {:.4} s: {detected}; min head clearance since {}; \
              watchdog resets {}",
             onset_us as f64 * 1e-6,
             fmt_mm(r.min_clearance_m),
             r.resets_us.len()
-        );
+        )?;
     }
     if args.json {
         let text = serde_json::to_string_pretty(s).map_err(|e| Failure::runtime(e.to_string()))?;
-        println!("{text}");
+        outln!("{text}")?;
     }
     Ok(())
 }
@@ -139,12 +167,12 @@ fn fmt_mm(v: Option<f64>) -> String {
     v.map_or_else(|| "n/a".into(), |m| format!("{:.3} mm", m * 1e3))
 }
 
-fn plot_motion(out: &Path, log: &RunLog) -> Result<(), String> {
+fn plot_motion(path: &Path, log: &RunLog) -> Result<(), String> {
     let t = log.column("t_s").unwrap_or_default();
     let x = log.column("x_m").unwrap_or_default();
     let r = log.column("x_ref_m").unwrap_or_default();
     lines(
-        &out.join("motion.svg"),
+        path,
         "Piston position",
         "t, s",
         "x, m",
@@ -164,7 +192,7 @@ fn plot_motion(out: &Path, log: &RunLog) -> Result<(), String> {
 }
 
 /// `pv.svg`: the p–V diagram of both chambers from the plant's true pressures and volumes.
-fn plot_pv(out: &Path, log: &RunLog) -> Result<(), String> {
+fn plot_pv(path: &Path, log: &RunLog) -> Result<(), String> {
     let scaled = |name: &str, k: f64| -> Vec<f64> {
         log.column(name)
             .unwrap_or_default()
@@ -175,7 +203,7 @@ fn plot_pv(out: &Path, log: &RunLog) -> Result<(), String> {
     let (va, vb) = (scaled("vol_a_m3", 1e3), scaled("vol_b_m3", 1e3));
     let (pa, pb) = (scaled("p_a_true_pa", 1e-6), scaled("p_b_true_pa", 1e-6));
     lines(
-        &out.join("pv.svg"),
+        path,
         "p-V diagram of both chambers",
         "V, 10⁻³ m³",
         "p, MPa",
@@ -196,12 +224,12 @@ fn plot_pv(out: &Path, log: &RunLog) -> Result<(), String> {
 
 /// Energy per compression cycle: what the motor sections put into the piston and what the
 /// gas received (∮p·dV); the difference is friction and the other losses.
-fn plot_energy(out: &Path, outcome: &crate::run::RunOutcome) -> Result<(), String> {
+fn plot_energy(path: &Path, outcome: &crate::run::RunOutcome) -> Result<(), String> {
     let cycles: Vec<f64> = (0..outcome.cycle_work_j.len())
         .map(|c| (c + 2) as f64)
         .collect();
     lines(
-        &out.join("energy.svg"),
+        path,
         "Energy per compression cycle",
         "cycle",
         "J",

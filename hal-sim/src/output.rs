@@ -1,0 +1,264 @@
+//! Where `fpc-sim` writes, made safe: every output is checked before any work (exit 2 when it
+//! cannot be written, already exists without `--force`, or is one of the command's own
+//! inputs), written into a staging directory beside its final place, and moved into place
+//! only once the whole set is complete. A failure part-way leaves the earlier files as they
+//! were and no partial new ones (`faults.md` row 23).
+//!
+//! `--force` replaces existing outputs of the same names; it never replaces an input, and it
+//! leaves every other file in the directory alone.
+
+use std::path::{Path, PathBuf};
+
+use crate::failure::Failure;
+
+/// A directory of named output files, staged until [`OutDir::commit`].
+#[derive(Debug)]
+pub struct OutDir {
+    dir: PathBuf,
+    staging: PathBuf,
+    names: Vec<String>,
+    committed: bool,
+}
+
+/// Longest path echoed in a message, in characters (longer ones are cut with `…`).
+const ECHO_CHARS: usize = 120;
+
+/// `path` for a message, cut to a sensible length.
+pub fn show(path: &Path) -> String {
+    let s = path.display().to_string();
+    if s.chars().count() <= ECHO_CHARS {
+        s
+    } else {
+        let mut cut: String = s.chars().take(ECHO_CHARS).collect();
+        cut.push('…');
+        cut
+    }
+}
+
+/// Whether `a` and `b` name the same existing file (after resolving links and `..`).
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    }
+}
+
+impl OutDir {
+    /// Checks that `names` can be written into `dir` and prepares their staging directory.
+    ///
+    /// Refused (exit 2, before any work): `dir` is an existing file or the filesystem root,
+    /// it cannot be created or written, one of `names` exists there and `force` is off, or
+    /// one of them is one of `inputs` (even with `force`).
+    pub fn prepare(
+        dir: &Path,
+        names: &[&str],
+        force: bool,
+        inputs: &[&Path],
+    ) -> Result<OutDir, Failure> {
+        if dir.as_os_str().is_empty() {
+            return Err(Failure::bad_input("the output directory is an empty path"));
+        }
+        if dir.is_file() {
+            return Err(Failure::bad_input(format!(
+                "output directory {} is an existing file",
+                show(dir)
+            )));
+        }
+        let resolved = dir.canonicalize().unwrap_or_else(|_| dir.to_path_buf());
+        if resolved.parent().is_none() {
+            return Err(Failure::bad_input(format!(
+                "output directory {}: refusing to write into the filesystem root",
+                show(dir)
+            )));
+        }
+        for name in names {
+            let target = dir.join(name);
+            if let Some(input) = inputs.iter().find(|i| same_file(i, &target)) {
+                return Err(Failure::bad_input(format!(
+                    "{} is an input of this command; refusing to overwrite it (choose another \
+                     output directory)",
+                    show(input)
+                )));
+            }
+            if !force && target.symlink_metadata().is_ok() {
+                return Err(Failure::bad_input(format!(
+                    "{} exists; refusing to overwrite it (add --force to replace the outputs)",
+                    show(&target)
+                )));
+            }
+            if target.is_dir() {
+                return Err(Failure::bad_input(format!(
+                    "{} is a directory; cannot write the output file there",
+                    show(&target)
+                )));
+            }
+        }
+        std::fs::create_dir_all(dir).map_err(|e| {
+            Failure::bad_input(format!("cannot create output directory {}: {e}", show(dir)))
+        })?;
+        let staging = dir.join(format!(".fpc-sim-staging-{}", std::process::id()));
+        // A stale staging directory of an earlier process with our id is ours to replace.
+        let _ = std::fs::remove_dir_all(&staging);
+        std::fs::create_dir(&staging)
+            .map_err(|e| Failure::bad_input(format!("cannot write into {}: {e}", show(dir))))?;
+        Ok(OutDir {
+            dir: dir.to_path_buf(),
+            staging,
+            names: names.iter().map(|s| s.to_string()).collect(),
+            committed: false,
+        })
+    }
+
+    /// Where to write `name` now (inside the staging directory).
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.staging.join(name)
+    }
+
+    /// Where `name` will be once committed.
+    pub fn final_path(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+
+    /// The output directory.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Moves every written file into place (each by an atomic rename) and removes the
+    /// staging directory. A declared name that was not written is a runtime failure naming
+    /// it, and nothing is moved.
+    pub fn commit(mut self) -> Result<(), Failure> {
+        for name in &self.names {
+            if !self.staging.join(name).is_file() {
+                return Err(Failure::runtime(format!(
+                    "{} was not written; nothing replaced",
+                    show(&self.final_path(name))
+                )));
+            }
+        }
+        for name in &self.names {
+            let (from, to) = (self.staging.join(name), self.dir.join(name));
+            std::fs::rename(&from, &to)
+                .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&to))))?;
+        }
+        self.committed = true;
+        let _ = std::fs::remove_dir_all(&self.staging);
+        Ok(())
+    }
+}
+
+impl Drop for OutDir {
+    fn drop(&mut self) {
+        // Not committed: the command failed; the partial set goes.
+        let _ = std::fs::remove_dir_all(&self.staging);
+    }
+}
+
+/// One output file, staged beside its final place until [`OutFile::commit`].
+#[derive(Debug)]
+pub struct OutFile {
+    inner: OutDir,
+    name: String,
+}
+
+impl OutFile {
+    /// Checks that `path` can be written (see [`OutDir::prepare`]; its directory is created).
+    pub fn prepare(path: &Path, force: bool, inputs: &[&Path]) -> Result<OutFile, Failure> {
+        let name = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .ok_or_else(|| {
+                Failure::bad_input(format!("output file {}: not a file name", show(path)))
+            })?
+            .to_string();
+        let dir = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => Path::new("."),
+        };
+        let inner = OutDir::prepare(dir, &[&name], force, inputs)?;
+        Ok(OutFile { inner, name })
+    }
+
+    /// Where to write now.
+    pub fn path(&self) -> PathBuf {
+        self.inner.path(&self.name)
+    }
+
+    /// Where the file will be once committed.
+    pub fn final_path(&self) -> PathBuf {
+        self.inner.final_path(&self.name)
+    }
+
+    /// Moves the file into place.
+    pub fn commit(self) -> Result<(), Failure> {
+        self.inner.commit()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn temp(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("fpc-output-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn existing_outputs_need_force_and_inputs_are_never_replaced() {
+        let d = temp("force");
+        std::fs::write(d.join("a.txt"), "old").unwrap();
+        let e = OutDir::prepare(&d, &["a.txt"], false, &[]).unwrap_err();
+        assert_eq!(e.code, 2);
+        assert!(e.message.contains("--force"), "{}", e.message);
+        let input = d.join("a.txt");
+        let e = OutDir::prepare(&d, &["a.txt"], true, &[&input]).unwrap_err();
+        assert!(e.message.contains("input"), "{}", e.message);
+        let o = OutDir::prepare(&d, &["a.txt"], true, &[]).unwrap();
+        std::fs::write(o.path("a.txt"), "new").unwrap();
+        o.commit().unwrap();
+        assert_eq!(std::fs::read_to_string(d.join("a.txt")).unwrap(), "new");
+        assert_eq!(std::fs::read_dir(&d).unwrap().count(), 1, "no staging left");
+    }
+
+    #[test]
+    fn a_failed_set_leaves_the_old_files() {
+        let d = temp("partial");
+        std::fs::write(d.join("a.txt"), "old a").unwrap();
+        let o = OutDir::prepare(&d, &["a.txt", "b.txt"], true, &[]).unwrap();
+        std::fs::write(o.path("a.txt"), "new a").unwrap();
+        // b.txt never written: the commit refuses and nothing is replaced.
+        assert_eq!(o.commit().unwrap_err().code, 1);
+        assert_eq!(std::fs::read_to_string(d.join("a.txt")).unwrap(), "old a");
+        assert!(!d.join("b.txt").exists());
+        let o = OutDir::prepare(&d, &["a.txt"], true, &[]).unwrap();
+        std::fs::write(o.path("a.txt"), "dropped").unwrap();
+        drop(o);
+        assert_eq!(std::fs::read_to_string(d.join("a.txt")).unwrap(), "old a");
+        assert_eq!(std::fs::read_dir(&d).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn unwritable_places_are_refused_before_work() {
+        let d = temp("unwritable");
+        std::fs::write(d.join("file"), "x").unwrap();
+        assert_eq!(
+            OutDir::prepare(&d.join("file"), &["a"], false, &[])
+                .unwrap_err()
+                .code,
+            2
+        );
+        assert_eq!(
+            OutDir::prepare(&d.join("file").join("sub"), &["a"], false, &[])
+                .unwrap_err()
+                .code,
+            2
+        );
+        let e = OutDir::prepare(Path::new("/"), &["a"], true, &[]).unwrap_err();
+        assert!(e.message.contains("root"), "{}", e.message);
+        let e = OutFile::prepare(&d, false, &[]).unwrap_err();
+        assert_eq!(e.code, 2, "{}", e.message);
+    }
+}
