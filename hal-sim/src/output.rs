@@ -96,7 +96,11 @@ impl OutDir {
         std::fs::create_dir_all(dir).map_err(|e| {
             Failure::bad_input(format!("cannot create output directory {}: {e}", show(dir)))
         })?;
-        let staging = dir.join(format!(".fpc-sim-staging-{}", std::process::id()));
+        // One staging directory per output set of this process (two sets may share a
+        // directory: `run --out D --telemetry D/t.bin`).
+        static SETS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let set = SETS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let staging = dir.join(format!(".fpc-sim-staging-{}-{set}", std::process::id()));
         // A stale staging directory of an earlier process with our id is ours to replace.
         let _ = std::fs::remove_dir_all(&staging);
         std::fs::create_dir(&staging)

@@ -66,6 +66,8 @@ pub struct Decoded {
     pub gaps: usize,
     /// Accepted frames left out of the log because they lie outside its gap-free run.
     pub left_out: usize,
+    /// Frames not later than the frame before them (repeats, replayed pieces), left out.
+    pub duplicates: usize,
     /// The dropped-frame counter of the last frame (frames the firmware could not send).
     pub dropped: u16,
     /// Control cycles per frame, from the sequence numbers.
@@ -73,18 +75,52 @@ pub struct Decoded {
 }
 
 /// Decodes a telemetry capture. `progress` is told how many bytes have been read.
-pub fn decode_capture(bytes: &[u8], mut progress: impl FnMut(usize)) -> Result<Decoded, String> {
+pub fn decode_capture(bytes: &[u8], progress: impl FnMut(usize)) -> Result<Decoded, String> {
+    decode_stream(bytes, progress)
+}
+
+/// Decodes a telemetry capture read from `source` in 64 KiB pieces (memory grows with the
+/// frames, not with the bytes). `progress` is told how many bytes have been read.
+///
+/// A frame that is not later than the one before it (a repeat, or a piece of the capture
+/// replayed) is counted in [`Decoded::duplicates`] and left out.
+pub fn decode_stream(
+    mut source: impl std::io::Read,
+    mut progress: impl FnMut(usize),
+) -> Result<Decoded, String> {
     let mut decoder = TelemetryDecoder::new();
     let mut frames: Vec<Frame> = Vec::new();
-    for (i, chunk) in bytes.chunks(1 << 16).enumerate() {
-        frames.extend(chunk.iter().filter_map(|&b| decoder.push(b)?.ok()));
-        progress((i << 16) + chunk.len());
+    let mut duplicates = 0usize;
+    let mut buf = vec![0u8; 1 << 16];
+    let mut read = 0usize;
+    loop {
+        let n = match source.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(format!("cannot read on after {read} bytes ({e})")),
+        };
+        for &b in buf.get(..n).unwrap_or_default() {
+            if let Some(Ok(f)) = decoder.push(b) {
+                // Not after the last frame (the µs time base wraps every 71.6 min): a
+                // repeat or a replayed piece of the capture.
+                if frames
+                    .last()
+                    .is_some_and(|p| (f.t.0.wrapping_sub(p.t.0) as i32) <= 0)
+                {
+                    duplicates += 1;
+                } else {
+                    frames.push(f);
+                }
+            }
+        }
+        read += n;
+        progress(read);
     }
     let stats = decoder.stats();
     if frames.is_empty() {
         return Err(format!(
-            "no telemetry frame in {} bytes ({} rejected)",
-            bytes.len(),
+            "no telemetry frame in {read} bytes ({} rejected)",
             stats.rejected
         ));
     }
@@ -93,12 +129,15 @@ pub fn decode_capture(bytes: &[u8], mut progress: impl FnMut(usize)) -> Result<D
         .windows(2)
         .map(|w| w[1].seq.wrapping_sub(w[0].seq))
         .collect();
-    let decimation = mode_of(&steps).unwrap_or(1);
+    // A step of 0 is no step (a repeated sequence number is a gap, never the decimation).
+    let nonzero: Vec<u16> = steps.iter().copied().filter(|&s| s > 0).collect();
+    let decimation = mode_of(&nonzero).unwrap_or(1);
     let tick_steps: Vec<u32> = frames
         .windows(2)
         .map(|w| w[1].t.0.wrapping_sub(w[0].t.0))
         .collect();
-    let tick_step = mode_of(&tick_steps).unwrap_or(0);
+    let positive: Vec<u32> = tick_steps.iter().copied().filter(|&t| t > 0).collect();
+    let tick_step = mode_of(&positive).unwrap_or(0);
     let breaks: Vec<usize> = steps
         .iter()
         .zip(&tick_steps)
@@ -147,6 +186,7 @@ pub fn decode_capture(bytes: &[u8], mut progress: impl FnMut(usize)) -> Result<D
         stats,
         gaps: breaks.len(),
         left_out: frames.len() - kept.len(),
+        duplicates,
         dropped: frames.last().map_or(0, |f| f.dropped),
         decimation: u32::from(decimation),
     })
@@ -202,5 +242,15 @@ mod tests {
     fn garbage_only_is_refused() {
         let e = decode_capture(&[1, 2, 3, 0, 9, 9], |_| {}).unwrap_err();
         assert!(e.contains("no telemetry frame"), "{e}");
+    }
+
+    #[test]
+    fn repeated_and_replayed_frames_are_counted_and_left_out() {
+        // Every frame twice, then a replay of frames 50..80: the decimation stays 4 and the
+        // log is the 200 frames once each.
+        let frames: Vec<u32> = (0..200).flat_map(|i| [i, i]).chain(50..80).collect();
+        let d = decode_capture(&capture(frames.into_iter(), 4), |_| {}).unwrap();
+        assert_eq!((d.decimation, d.duplicates, d.gaps), (4, 230, 0));
+        assert_eq!(d.log.len(), 200);
     }
 }

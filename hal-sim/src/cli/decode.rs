@@ -9,10 +9,12 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use crate::board::capture::decode_capture;
+use crate::board::capture::decode_stream;
 use crate::cli::analysis::progress;
 use crate::failure::{CmdResult, Failure};
+use crate::output::{show, OutFile};
 use crate::runlog::MIN_ROWS;
+use crate::{errln, outln};
 
 /// Decode a telemetry capture into a run log.
 #[derive(Args, Debug)]
@@ -23,20 +25,47 @@ pub struct DecodeArgs {
     /// The run-log CSV to write.
     #[arg(long, default_value = "decoded.csv")]
     pub out: PathBuf,
+    /// Replace an existing output file (never the capture itself).
+    #[arg(long)]
+    pub force: bool,
+    /// Write the longest gap-free stretch even when it holds less than half of the frames
+    /// received (by default such a capture is refused as mostly unusable).
+    #[arg(long)]
+    pub accept_loss: bool,
 }
 
 /// Runs `fpc-sim decode`.
 pub fn main(args: DecodeArgs) -> CmdResult {
-    let bytes = std::fs::read(&args.capture)
-        .map_err(|e| Failure::bad_input(format!("cannot read {}: {e}", args.capture.display())))?;
-    let bar = progress(bytes.len() as u64, "decoding");
-    let decoded = decode_capture(&bytes, |done| bar.set_position(done as u64))
-        .map_err(|e| Failure::bad_input(format!("{}: {e}", args.capture.display())));
+    let out = OutFile::prepare(&args.out, args.force, &[args.capture.as_path()])?;
+    let file = std::fs::File::open(&args.capture)
+        .map_err(|e| Failure::bad_input(format!("cannot read {}: {e}", show(&args.capture))))?;
+    let len = file.metadata().map_or(0, |m| m.len());
+    let bar = progress(len, "decoding");
+    let decoded = decode_stream(std::io::BufReader::new(file), |done| {
+        bar.set_position(done as u64)
+    })
+    .map_err(|e| Failure::bad_input(format!("{}: {e}", show(&args.capture))));
     bar.finish_and_clear();
     let d = decoded?;
+    let received = d.log.len() + d.left_out;
+    let lost = format!(
+        "frames accepted {}, rejected {} (framing or CRC), repeated {}, gaps {}, left out of the \
+         log {}, dropped by the firmware {}",
+        d.stats.accepted, d.stats.rejected, d.duplicates, d.gaps, d.left_out, d.dropped
+    );
+    if 2 * d.log.len() < received && !args.accept_loss {
+        return Err(Failure::bad_input(format!(
+            "{}: mostly unusable: the longest gap-free stretch holds {} of {received} frames \
+             ({:.1} %); {lost}; nothing written (--accept-loss writes that stretch anyway)",
+            show(&args.capture),
+            d.log.len(),
+            100.0 * d.log.len() as f64 / received.max(1) as f64
+        )));
+    }
     d.log
-        .write(&args.out)
-        .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", args.out.display())))?;
+        .write(&out.path())
+        .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&args.out))))?;
+    out.commit()?;
     let span_s = match (
         d.log.column("t_s").and_then(|t| t.first()),
         d.log.column("t_s").and_then(|t| t.last()),
@@ -44,21 +73,20 @@ pub fn main(args: DecodeArgs) -> CmdResult {
         (Some(a), Some(b)) => b - a,
         _ => 0.0,
     };
-    println!(
-        "frames accepted {}, rejected {}, gaps {}, left out {}, dropped by the firmware {}",
-        d.stats.accepted, d.stats.rejected, d.gaps, d.left_out, d.dropped
-    );
-    println!(
-        "decimation {} control cycles per frame; wrote {} rows over {span_s:.4} s to {}",
+    outln!("{lost}")?;
+    outln!(
+        "decimation {} control cycles per frame; wrote {} rows ({:.1} % of the frames) over \
+         {span_s:.4} s to {}",
         d.decimation,
         d.log.len(),
+        100.0 * d.log.len() as f64 / received.max(1) as f64,
         args.out.display()
-    );
+    )?;
     if d.log.len() < MIN_ROWS {
-        eprintln!(
+        errln!(
             "fpc-sim decode: warning: {} rows; run-log readers need at least {MIN_ROWS}",
             d.log.len()
-        );
+        )?;
     }
     Ok(())
 }
