@@ -19,6 +19,8 @@ fn scratch(name: &str) -> PathBuf {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
         .join("analysis_commands")
         .join(name);
+    // A fresh directory: the tools refuse to overwrite an earlier run's plots.
+    let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
@@ -214,6 +216,8 @@ fn decode_turns_a_capture_into_a_readable_run_log_and_refuses_garbage() {
     decode_cmd::main(decode_cmd::DecodeArgs {
         capture: capture.clone(),
         out: out.clone(),
+        force: false,
+        accept_loss: false,
     })
     .unwrap();
     let log = RunLog::read(&out).unwrap();
@@ -221,7 +225,13 @@ fn decode_turns_a_capture_into_a_readable_run_log_and_refuses_garbage() {
     assert_eq!(log.len(), outcome.log.len().div_ceil(10) - 1);
 
     std::fs::write(&capture, [0xAAu8; 300]).unwrap();
-    let e = decode_cmd::main(decode_cmd::DecodeArgs { capture, out }).unwrap_err();
+    let e = decode_cmd::main(decode_cmd::DecodeArgs {
+        capture,
+        out,
+        force: true,
+        accept_loss: false,
+    })
+    .unwrap_err();
     assert_eq!(e.code, 2);
     assert!(e.message.contains("no telemetry frame"), "{}", e.message);
 }

@@ -44,6 +44,7 @@ fn gap_band(dir: &Path, model: &str, log: &str, band_hz: f64) -> (u8, String, bo
         out: out.clone(),
         json: false,
         band_hz,
+        force: false,
     });
     match r {
         Ok(()) => (0, String::new(), out.exists()),
@@ -125,12 +126,12 @@ fn gap_refuses_values_and_rates_no_machine_logs_without_hanging() {
     force[700] = "0.0699,0.1,0.1,0,1e12,10,1e5,1e5".into();
     let started = std::time::Instant::now();
     for (bad, band, want) in [
-        (far.join("\n"), 300.0, "column `x_m`, data row 500"),
+        (far.join("\n"), 300.0, "line 501, column `x_m`"),
         (force.join("\n"), 300.0, "column `f_master_n`"),
         // 1 s steps (the chamber replay's cost grew with the duration, not the rows) …
-        (rescaled_time(1e4), 300.0, "sample rate"),
+        (rescaled_time(1e4), 300.0, "time step 1e0 s is outside"),
         // … and 1e-12 s steps (everything was "nothing missing", every RMS 0).
-        (rescaled_time(1e-8), 300.0, "sample rate"),
+        (rescaled_time(1e-8), 300.0, "time step 1e-12 s is outside"),
         // A band above the log's Nyquist frequency (5 kHz at 10 kHz).
         (good.clone(), 6000.0, "Nyquist"),
     ] {

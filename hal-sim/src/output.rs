@@ -11,12 +11,15 @@ use std::path::{Path, PathBuf};
 
 use crate::failure::Failure;
 
-/// A directory of named output files, staged until [`OutDir::commit`].
+/// A directory of output files, staged until [`OutDir::commit`]: the names known
+/// beforehand are checked at once, any other file written is checked before it moves.
 #[derive(Debug)]
 pub struct OutDir {
     dir: PathBuf,
     staging: PathBuf,
     names: Vec<String>,
+    force: bool,
+    inputs: Vec<PathBuf>,
     committed: bool,
 }
 
@@ -93,22 +96,44 @@ impl OutDir {
                 )));
             }
         }
-        std::fs::create_dir_all(dir).map_err(|e| {
-            Failure::bad_input(format!("cannot create output directory {}: {e}", show(dir)))
-        })?;
+        // The staging directory goes into the directory itself or, when that does not
+        // exist yet, into its nearest existing ancestor (the same filesystem, so the final
+        // renames are atomic); the directory is created only at the commit, so a failed
+        // command leaves no empty directory behind either.
+        let absolute = if dir.is_absolute() {
+            dir.to_path_buf()
+        } else {
+            std::env::current_dir()
+                .map_err(|e| Failure::bad_input(format!("no current directory: {e}")))?
+                .join(dir)
+        };
+        let ancestor = absolute
+            .ancestors()
+            .find(|a| a.symlink_metadata().is_ok())
+            .unwrap_or(Path::new("/"));
+        if !ancestor.is_dir() {
+            return Err(Failure::bad_input(format!(
+                "cannot create output directory {}: {} is an existing file",
+                show(dir),
+                show(ancestor)
+            )));
+        }
         // One staging directory per output set of this process (two sets may share a
         // directory: `run --out D --telemetry D/t.bin`).
         static SETS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
         let set = SETS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let staging = dir.join(format!(".fpc-sim-staging-{}-{set}", std::process::id()));
+        let staging = ancestor.join(format!(".fpc-sim-staging-{}-{set}", std::process::id()));
         // A stale staging directory of an earlier process with our id is ours to replace.
         let _ = std::fs::remove_dir_all(&staging);
-        std::fs::create_dir(&staging)
-            .map_err(|e| Failure::bad_input(format!("cannot write into {}: {e}", show(dir))))?;
+        std::fs::create_dir(&staging).map_err(|e| {
+            Failure::bad_input(format!("cannot write output directory {}: {e}", show(dir)))
+        })?;
         Ok(OutDir {
             dir: dir.to_path_buf(),
             staging,
             names: names.iter().map(|s| s.to_string()).collect(),
+            force,
+            inputs: inputs.iter().map(|p| p.to_path_buf()).collect(),
             committed: false,
         })
     }
@@ -116,6 +141,11 @@ impl OutDir {
     /// Where to write `name` now (inside the staging directory).
     pub fn path(&self, name: &str) -> PathBuf {
         self.staging.join(name)
+    }
+
+    /// The staging directory, for writers that name their own files inside it.
+    pub fn staging_dir(&self) -> &Path {
+        &self.staging
     }
 
     /// Where `name` will be once committed.
@@ -129,8 +159,9 @@ impl OutDir {
     }
 
     /// Moves every written file into place (each by an atomic rename) and removes the
-    /// staging directory. A declared name that was not written is a runtime failure naming
-    /// it, and nothing is moved.
+    /// staging directory. Refused before anything moves (runtime failure naming the file):
+    /// a declared name that was not written, or a file whose name could not be known
+    /// beforehand (a per-channel plot) that exists without `--force` or is an input.
     pub fn commit(mut self) -> Result<(), Failure> {
         for name in &self.names {
             if !self.staging.join(name).is_file() {
@@ -140,7 +171,36 @@ impl OutDir {
                 )));
             }
         }
-        for name in &self.names {
+        let mut written: Vec<std::ffi::OsString> = std::fs::read_dir(&self.staging)
+            .map_err(|e| Failure::runtime(format!("cannot list {}: {e}", show(&self.staging))))?
+            .filter_map(|e| e.ok().map(|e| e.file_name()))
+            .collect();
+        written.sort();
+        for name in &written {
+            let target = self.dir.join(name);
+            if self.names.iter().any(|n| std::ffi::OsStr::new(n) == name) {
+                continue;
+            }
+            if let Some(input) = self.inputs.iter().find(|i| same_file(i, &target)) {
+                return Err(Failure::runtime(format!(
+                    "{} is an input of this command; nothing replaced",
+                    show(input)
+                )));
+            }
+            if !self.force && target.symlink_metadata().is_ok() {
+                return Err(Failure::runtime(format!(
+                    "{} exists; nothing replaced (add --force to replace the outputs)",
+                    show(&target)
+                )));
+            }
+        }
+        std::fs::create_dir_all(&self.dir).map_err(|e| {
+            Failure::runtime(format!(
+                "cannot create output directory {}: {e}",
+                show(&self.dir)
+            ))
+        })?;
+        for name in &written {
             let (from, to) = (self.staging.join(name), self.dir.join(name));
             std::fs::rename(&from, &to)
                 .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&to))))?;

@@ -8,6 +8,7 @@ use std::path::Path;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::failure::Failure;
+use crate::output::OutDir;
 use crate::plant::model::MachineModel;
 use crate::runlog::RunLog;
 
@@ -40,12 +41,6 @@ pub fn sample_time_s(log: &RunLog) -> Result<f64, Failure> {
     log.sample_time_s()
         .filter(|dt| dt.is_finite() && *dt > 0.0)
         .ok_or_else(|| Failure::bad_input("the log has no usable time step"))
-}
-
-/// Creates the output directory.
-pub fn out_dir(dir: &Path) -> Result<(), Failure> {
-    std::fs::create_dir_all(dir)
-        .map_err(|e| Failure::runtime(format!("cannot create {}: {e}", dir.display())))
 }
 
 /// A progress bar of `len` steps on stderr, hidden when stderr is not a terminal (pipes,
@@ -143,6 +138,9 @@ pub struct LogToolArgs {
     /// (default: the reference machine).
     #[arg(long)]
     pub model: Option<std::path::PathBuf>,
+    /// Replace plots of an earlier analysis in the output directory (never an input).
+    #[arg(long)]
+    pub force: bool,
 }
 
 impl LogToolArgs {
@@ -152,7 +150,16 @@ impl LogToolArgs {
             measured: measured.into(),
             out: out.into(),
             model: None,
+            force: false,
         }
+    }
+
+    /// The output directory for the files `names`, checked before any work (see
+    /// [`OutDir::prepare`]): the log and the model are inputs it never replaces.
+    pub fn output(&self, names: &[&str]) -> Result<OutDir, Failure> {
+        let mut inputs = vec![self.measured.as_path()];
+        inputs.extend(self.model.as_deref());
+        OutDir::prepare(&self.out, names, self.force, &inputs)
     }
 }
 

@@ -87,7 +87,7 @@ pub fn main(args: DeriveArgs) -> CmdResult {
     let dt = log.sample_time_s().unwrap_or(0.0);
     let d = derive(x, dt, settings)
         .map_err(|e| Failure::bad_input(format!("{}: {e}", args.measured.display())))?;
-    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    let mut out = std::io::BufWriter::new(crate::console::stdout());
     let mut write = || -> std::io::Result<()> {
         writeln!(out, "t_s,x_m,v_mps,a_mps2")?;
         for (((t, x), v), a) in t.iter().zip(x).zip(&d.v_mps).zip(&d.a_mps2) {

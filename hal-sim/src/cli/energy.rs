@@ -13,9 +13,10 @@ use std::ops::Range;
 use clap::Args;
 use serde::Serialize;
 
-use crate::cli::analysis::{out_dir, LogToolArgs, Steps, ZeroPhaseArgs};
+use crate::cli::analysis::{LogToolArgs, Steps, ZeroPhaseArgs};
 use crate::cli::forces::{kilonewtons, read_force_balance, ForceBalance};
 use crate::failure::{CmdResult, Failure};
+use crate::outln;
 use crate::plot::curves;
 use crate::signal::strokes;
 
@@ -100,6 +101,7 @@ pub fn stroke_energy(fb: &ForceBalance, r: &Range<usize>, mass_kg: f64) -> Strok
 
 /// Runs `fpc-sim energy`.
 pub fn main(args: EnergyArgs) -> CmdResult {
+    let out = args.io.output(&["energy.svg", "energy_work.svg"])?;
     let steps = Steps::new(3, "reading");
     let (_, model, dt, fb) = read_force_balance(&args.io, &args.filter, &steps)?;
     let all = strokes(&fb.x_m, &fb.v_mps);
@@ -116,7 +118,6 @@ pub fn main(args: EnergyArgs) -> CmdResult {
     };
     let e = stroke_energy(&fb, &r, model.piston.mass_kg);
     steps.next("plotting");
-    out_dir(&args.io.out)?;
     let x = fb.x_m.get(r.clone()).unwrap_or_default();
     let kn = |f: &[f64]| kilonewtons(f, r.clone());
     let forces = [
@@ -125,7 +126,7 @@ pub fn main(args: EnergyArgs) -> CmdResult {
         ("gas force", kn(&fb.gas_n)),
         ("friction force", kn(&fb.friction_n)),
     ];
-    let path = args.io.out.join("energy.svg");
+    let path = out.path("energy.svg");
     curves(
         &path,
         "Forces along one stroke (Fig. 9)",
@@ -149,7 +150,7 @@ pub fn main(args: EnergyArgs) -> CmdResult {
         ("gas work on the piston", cumulative(&fb.gas_n)),
         ("friction work", cumulative(&fb.friction_n)),
     ];
-    let work_path = args.io.out.join("energy_work.svg");
+    let work_path = out.path("energy_work.svg");
     curves(
         &work_path,
         "Work along one stroke",
@@ -160,22 +161,33 @@ pub fn main(args: EnergyArgs) -> CmdResult {
     )
     .map_err(Failure::runtime)?;
     steps.finish();
-    println!(
+    outln!(
         "stroke {} of {}: x {:.4} → {:.4} m, {:.4} s",
         args.stroke.unwrap_or(all.len().saturating_sub(1)),
         all.len(),
         e.from_m,
         e.to_m,
         r.len() as f64 * dt
-    );
-    println!(
+    )?;
+    outln!(
         "motor {:.2} J (accelerating {:.2} J, decelerating {:.2} J), gas {:.2} J, friction {:.2} J",
-        e.motor_j, e.motor_accelerating_j, e.motor_decelerating_j, e.gas_j, e.friction_j
-    );
-    println!(
+        e.motor_j,
+        e.motor_accelerating_j,
+        e.motor_decelerating_j,
+        e.gas_j,
+        e.friction_j
+    )?;
+    outln!(
         "inertia: peak kinetic energy {:.2} J, net over the stroke {:.3} J; balance {:.3} J",
-        e.peak_kinetic_j, e.inertia_j, e.balance_j
-    );
-    println!("wrote {} and {}", path.display(), work_path.display());
+        e.peak_kinetic_j,
+        e.inertia_j,
+        e.balance_j
+    )?;
+    let shown = [
+        out.final_path("energy.svg"),
+        out.final_path("energy_work.svg"),
+    ];
+    out.commit()?;
+    outln!("wrote {} and {}", shown[0].display(), shown[1].display())?;
     Ok(())
 }

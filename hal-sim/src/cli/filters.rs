@@ -12,10 +12,11 @@ use clap::Args;
 use fpc::control::config::ControlConfig;
 
 use crate::cli::analysis::{
-    column, default_window, interior, out_dir, read_log, read_model, sample_time_s, time_window,
+    column, default_window, interior, read_log, read_model, sample_time_s, time_window,
     LogToolArgs, Steps, WindowArgs, ZeroPhaseArgs,
 };
 use crate::failure::{CmdResult, Failure};
+use crate::outln;
 use crate::plot::{lines, Series};
 use crate::runlog::RunLog;
 use crate::signal::{
@@ -126,12 +127,12 @@ pub fn estimates(log: &RunLog, args: &FiltersArgs) -> Result<Vec<Estimate>, Fail
 
 /// Runs `fpc-sim filters`.
 pub fn main(args: FiltersArgs) -> CmdResult {
+    let out = args.io.output(&["filters.svg"])?;
     let steps = Steps::new(3, "reading");
     let log = read_log(&args.io.measured)?;
     steps.next("filtering");
     let est = estimates(&log, &args)?;
     steps.next("plotting");
-    out_dir(&args.io.out)?;
     let t = column(&log, "t_s", "t_s")?;
     let dt = sample_time_s(&log)?;
     let reference = est.first().map(|e| e.v_mps.as_slice()).unwrap_or_default();
@@ -151,28 +152,32 @@ pub fn main(args: FiltersArgs) -> CmdResult {
             y: e.v_mps.get(window.clone()).unwrap_or_default(),
         })
         .collect();
-    let path = args.io.out.join("filters.svg");
+    let path = out.path("filters.svg");
     lines(&path, "Piston velocity (Fig. 7)", "t, s", "v, m/s", &series)
         .map_err(Failure::runtime)?;
     steps.finish();
-    println!(
+    outln!(
         "velocity from {} at {:.0} Hz, {} samples",
         args.column,
         1.0 / dt,
         log.len()
-    );
-    println!(
+    )?;
+    outln!(
         "{:<52} {:>14} {:>12}",
-        "estimate", "rms diff m/s", "delay ms"
-    );
+        "estimate",
+        "rms diff m/s",
+        "delay ms"
+    )?;
     for e in &est {
-        println!(
+        outln!(
             "{:<52} {:>14.5} {:>12.4}",
             e.label,
             e.rms_diff_mps,
             e.delay_s * 1e3
-        );
+        )?;
     }
-    println!("wrote {}", path.display());
+    let shown = out.final_path("filters.svg");
+    out.commit()?;
+    outln!("wrote {}", shown.display())?;
     Ok(())
 }

@@ -13,10 +13,11 @@ use clap::Args;
 use fpc::control::config::ControlConfig;
 
 use crate::cli::analysis::{
-    column, default_window, interior, out_dir, read_log, read_model, sample_time_s, time_window,
+    column, default_window, interior, read_log, read_model, sample_time_s, time_window,
     LogToolArgs, Steps, WindowArgs, ZeroPhaseArgs,
 };
 use crate::failure::{CmdResult, Failure};
+use crate::outln;
 use crate::plant::model::MachineModel;
 use crate::plot;
 use crate::runlog::RunLog;
@@ -135,10 +136,10 @@ pub fn kilonewtons(v: &[f64], range: std::ops::Range<usize>) -> Vec<f64> {
 
 /// Runs `fpc-sim forces`.
 pub fn main(args: ForcesArgs) -> CmdResult {
+    let out = args.io.output(&["forces.svg"])?;
     let steps = Steps::new(3, "reading");
     let (log, model, dt, fb) = read_force_balance(&args.io, &args.filter, &steps)?;
     steps.next("plotting");
-    out_dir(&args.io.out)?;
     let t = column(&log, "t_s", "t_s")?;
     let window = time_window(
         t,
@@ -157,7 +158,7 @@ pub fn main(args: ForcesArgs) -> CmdResult {
         ("firmware Savitzky-Golay", kn(&fb.inertia_firmware_n)),
         ("expected inertia force", kn(&fb.expected_inertia_n)),
     ];
-    let path = args.io.out.join("forces.svg");
+    let path = out.path("forces.svg");
     plot::curves(
         &path,
         "Inertia force from position (Fig. 8)",
@@ -172,17 +173,19 @@ pub fn main(args: ForcesArgs) -> CmdResult {
     let max_lag = Some(((0.05 / dt).round() as usize).max(2));
     let inner = interior(log.len(), dt);
     let expected = fb.expected_inertia_n.get(inner.clone()).unwrap_or_default();
-    println!(
+    outln!(
         "mass {} kg, A_eff {:.4e} m², {}; peak expected |m·a| {:.3} kN",
         model.piston.mass_kg,
         model.piston_area_m2(),
         args.filter.describe(),
         expected.iter().fold(0.0f64, |m, f| m.max(f.abs())) * 1e-3
-    );
-    println!(
+    )?;
+    outln!(
         "{:<36} {:>16} {:>18}",
-        "m·a estimate", "rms vs expected N", "delay ms"
-    );
+        "m·a estimate",
+        "rms vs expected N",
+        "delay ms"
+    )?;
     for (label, est) in [
         ("unfiltered from position", &fb.inertia_raw_n),
         ("filtered from position (filtfilt)", &fb.inertia_filtered_n),
@@ -190,12 +193,14 @@ pub fn main(args: ForcesArgs) -> CmdResult {
     ] {
         let est = est.get(inner.clone()).unwrap_or_default();
         let delay = xcorr_lag(expected, est, dt, max_lag).map_or(f64::NAN, |l| l.seconds);
-        println!(
+        outln!(
             "{label:<36} {:>16.1} {:>18.4}",
             rms_difference(est, expected),
             delay * 1e3
-        );
+        )?;
     }
-    println!("wrote {}", path.display());
+    let shown = out.final_path("forces.svg");
+    out.commit()?;
+    outln!("wrote {}", shown.display())?;
     Ok(())
 }

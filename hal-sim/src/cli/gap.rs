@@ -7,10 +7,12 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use crate::cli::analysis::{out_dir, read_log};
+use crate::cli::analysis::read_log;
 use crate::failure::{CmdResult, Failure};
 use crate::gap::{analyse, report, GapOptions, DEFAULT_BAND_HZ};
+use crate::output::OutDir;
 use crate::plant::model::MachineModel;
+use crate::{errln, outln};
 
 /// Find, name and add the effect missing from a model.
 #[derive(Args, Debug)]
@@ -30,10 +32,20 @@ pub struct GapArgs {
     /// Upper edge of the analysis band, Hz.
     #[arg(long, default_value_t = DEFAULT_BAND_HZ)]
     pub band_hz: f64,
+    /// Replace the files of an earlier analysis in the output directory (never an input,
+    /// such as the model read).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Runs `fpc-sim gap`.
 pub fn main(args: GapArgs) -> CmdResult {
+    let out = OutDir::prepare(
+        &args.out,
+        &["model.toml", "report.md", "gap.json"],
+        args.force,
+        &[args.model.as_path(), args.measured.as_path()],
+    )?;
     // The model is validated by the model reader (naming the key), then kept as text so the
     // augmented file keeps every key the input had.
     MachineModel::read(&args.model).map_err(|e| Failure::bad_input(e.0))?;
@@ -47,18 +59,19 @@ pub fn main(args: GapArgs) -> CmdResult {
         code: f.code,
         message: format!("{}: {}", args.measured.display(), f.message),
     })?;
-    out_dir(&args.out)?;
-    let model_out = args.out.join("model.toml");
-    std::fs::write(&model_out, &outcome.model_text)
+    let model_out = out.final_path("model.toml");
+    std::fs::write(out.path("model.toml"), &outcome.model_text)
         .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", model_out.display())))?;
     outcome.json.model_out = model_out.display().to_string();
-    report::write(&args.out, &outcome).map_err(Failure::runtime)?;
+    report::write(out.staging_dir(), &outcome).map_err(Failure::runtime)?;
     let json =
         serde_json::to_string_pretty(&outcome.json).map_err(|e| Failure::runtime(e.to_string()))?;
-    std::fs::write(args.out.join("gap.json"), &json)
+    std::fs::write(out.path("gap.json"), &json)
         .map_err(|e| Failure::runtime(format!("cannot write gap.json: {e}")))?;
+    let report_out = out.final_path("report.md");
+    out.commit()?;
     for w in &outcome.json.warnings {
-        eprintln!("fpc-sim gap: warning: {w}");
+        errln!("fpc-sim gap: warning: {w}")?;
     }
     let names: Vec<String> = outcome
         .json
@@ -77,7 +90,7 @@ pub fn main(args: GapArgs) -> CmdResult {
             )
         })
         .collect();
-    eprintln!(
+    errln!(
         "fpc-sim gap: {}; residual RMS {}; wrote {} and {}",
         if names.is_empty() {
             "nothing significant is missing".to_string()
@@ -86,10 +99,10 @@ pub fn main(args: GapArgs) -> CmdResult {
         },
         shrink.join(", "),
         model_out.display(),
-        args.out.join("report.md").display()
-    );
+        report_out.display()
+    )?;
     if args.json {
-        println!("{json}");
+        outln!("{json}")?;
     }
     Ok(())
 }

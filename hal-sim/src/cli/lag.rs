@@ -12,6 +12,7 @@ use serde::Serialize;
 
 use crate::cli::analysis::{column, read_log, sample_time_s};
 use crate::failure::{CmdResult, Failure};
+use crate::outln;
 use crate::runlog::RunLog;
 use crate::signal::xcorr_lag;
 
@@ -86,16 +87,16 @@ pub fn main(args: LagArgs) -> CmdResult {
     let r = measure(&log, &args.a, &args.b, args.max_lag_s)?;
     if args.json {
         let text = serde_json::to_string(&r).map_err(|e| Failure::runtime(e.to_string()))?;
-        println!("{text}");
+        outln!("{text}")?;
     } else {
-        println!(
+        outln!(
             "{} lags {} by {:.4} ms ({:.2} samples; correlation {:.4})",
             r.b,
             r.a,
             r.lag_s * 1e3,
             r.lag_samples,
             r.correlation
-        );
+        )?;
     }
     Ok(())
 }

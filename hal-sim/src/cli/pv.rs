@@ -11,8 +11,9 @@ use std::path::Path;
 use clap::Args;
 use serde::Serialize;
 
-use crate::cli::analysis::{column, out_dir, read_log, read_model, LogToolArgs, Steps};
+use crate::cli::analysis::{column, read_log, read_model, LogToolArgs, Steps};
 use crate::failure::{CmdResult, Failure};
+use crate::outln;
 use crate::plant::model::MachineModel;
 use crate::plot::{lines, Series};
 use crate::runlog::RunLog;
@@ -112,16 +113,16 @@ pub fn plot_pv(
 
 /// Runs `fpc-sim pv`.
 pub fn main(args: PvArgs) -> CmdResult {
+    let out = args.io.output(&["pv.svg"])?;
     let steps = Steps::new(2, "reading");
     let log = read_log(&args.io.measured)?;
     let model = read_model(args.io.model.as_deref())?;
     steps.next("plotting");
-    out_dir(&args.io.out)?;
-    let path = args.io.out.join("pv.svg");
+    let path = out.path("pv.svg");
     let (a, b) = plot_pv(&path, &log, &model)?;
     steps.finish();
     for (name, c) in [("A", &a), ("B", &b)] {
-        println!(
+        outln!(
             "chamber {name}: V {:.4}–{:.4} L (ratio {:.2}), p {:.4}–{:.4} MPa (ratio {:.2}), ∮p dV {:.2} J",
             c.v_min_m3 * 1e3,
             c.v_max_m3 * 1e3,
@@ -130,8 +131,10 @@ pub fn main(args: PvArgs) -> CmdResult {
             c.p_max_pa * 1e-6,
             c.p_max_pa / c.p_min_pa,
             c.p_dv_j
-        );
+        )?;
     }
-    println!("wrote {}", path.display());
+    let shown = out.final_path("pv.svg");
+    out.commit()?;
+    outln!("wrote {}", shown.display())?;
     Ok(())
 }

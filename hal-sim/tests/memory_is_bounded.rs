@@ -1,0 +1,112 @@
+//! Memory of the long jobs (`faults.md` row 23, issue #18): `run --cycles 1000` streams its
+//! log, so its peak resident set does not grow with the run; `gap` on a 10⁶-row log stays
+//! below a stated bound. A benchmark that prints the peak RSS of the real binary (polled
+//! from `/proc/<pid>/status` `VmHWM`, the kernel's high-water mark) and asserts the bounds.
+//!
+//! Slow (a 1000-cycle run and a gap over 51 s of 20 kHz log): in the slow suite,
+//! `cargo test --profile slow-tests -p hal-sim --test memory_is_bounded -- --ignored --nocapture`.
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Peak RSS `run` may reach whatever its length, MiB.
+const RUN_BOUND_MIB: f64 = 150.0;
+/// Peak RSS `gap` may reach on a 10⁶-row log, MiB (about 1 KiB per row).
+const GAP_BOUND_MIB: f64 = 1024.0;
+
+/// Runs `fpc-sim args`, returning (exit code, peak RSS MiB, wall time).
+fn peak_rss(args: &[&str]) -> (i32, f64, Duration) {
+    let started = Instant::now();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_fpc-sim"))
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("fpc-sim starts");
+    let status_path = format!("/proc/{}/status", child.id());
+    let mut peak_kib = 0u64;
+    let code = loop {
+        if let Ok(text) = std::fs::read_to_string(&status_path) {
+            if let Some(kib) = text
+                .lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|v| v.parse::<u64>().ok())
+            {
+                peak_kib = peak_kib.max(kib);
+            }
+        }
+        if let Some(status) = child.try_wait().expect("wait") {
+            break status.code().unwrap_or(-1);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    (code, peak_kib as f64 / 1024.0, started.elapsed())
+}
+
+fn rows(path: &Path) -> usize {
+    std::fs::read_to_string(path)
+        .map(|t| {
+            t.lines()
+                .filter(|l| !l.starts_with('#'))
+                .count()
+                .saturating_sub(1)
+        })
+        .unwrap_or(0)
+}
+
+#[test]
+#[ignore = "slow: a 1000-cycle run and a gap over 10^6 rows"]
+fn long_runs_and_large_logs_stay_within_their_memory_bounds() {
+    let dir = std::env::temp_dir().join(format!("fpc-memory-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let (short, long, gap) = (dir.join("short"), dir.join("long"), dir.join("gap"));
+    let s = |p: &Path| p.to_string_lossy().into_owned();
+
+    let (code, short_mib, _) = peak_rss(&["run", "--cycles", "10", "--out", &s(&short)]);
+    assert_eq!(code, 0);
+    let (code, long_mib, took) = peak_rss(&["run", "--cycles", "1000", "--out", &s(&long)]);
+    assert_eq!(code, 0);
+    let long_bytes = std::fs::metadata(long.join("run.csv")).map_or(0, |m| m.len());
+    println!(
+        "run --cycles 10: peak RSS {short_mib:.0} MiB; --cycles 1000: peak RSS {long_mib:.0} MiB \
+         ({:.2} GB of log written, {:.1} s); bound {RUN_BOUND_MIB} MiB",
+        long_bytes as f64 / 1e9,
+        took.as_secs_f64()
+    );
+    assert!(
+        long_mib < RUN_BOUND_MIB,
+        "run --cycles 1000: {long_mib:.0} MiB"
+    );
+    let _ = std::fs::remove_dir_all(&long);
+
+    // 152 cycles ≈ 51 s at 20 kHz: just over 10⁶ rows.
+    let (code, _, _) = peak_rss(&["run", "--cycles", "152", "--out", &s(&long)]);
+    assert_eq!(code, 0);
+    let log = long.join("run.csv");
+    let n = rows(&log);
+    assert!(n >= 1_000_000, "{n} rows");
+    let model = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/src/plant/model/reference.toml"
+    );
+    let (code, gap_mib, took) = peak_rss(&[
+        "gap",
+        "--model",
+        model,
+        "--measured",
+        &s(&log),
+        "--out",
+        &s(&gap),
+    ]);
+    println!(
+        "gap on {n} rows: peak RSS {gap_mib:.0} MiB ({:.0} bytes per row, {:.1} s); bound \
+         {GAP_BOUND_MIB} MiB",
+        gap_mib * 1048576.0 / n as f64,
+        took.as_secs_f64()
+    );
+    assert_eq!(code, 0);
+    assert!(gap_mib < GAP_BOUND_MIB, "gap: {gap_mib:.0} MiB");
+    let _ = std::fs::remove_dir_all(&dir);
+}
