@@ -31,8 +31,10 @@ use crate::runlog::{RunLog, REQUIRED};
 /// Pressure ratio → peak speed of the paper's Fig. 3 (PR, m/s).
 pub const FIG3_SPEEDS: [(f64, f64); 4] = [(3.1, 2.3), (3.7, 2.8), (4.3, 3.5), (5.1, 4.1)];
 
-/// Accepted pressure ratios.
-pub const PRESSURE_RATIO_RANGE: (f64, f64) = (1.0, 6.0);
+/// Accepted pressure ratios. Below 1.1 the volume ratio is so near 1 that the discharge
+/// port would open as the intake closes, and the rotation cannot time the ports: the run
+/// stops on `rotation_sync` (measured at 1.0–1.05 with the reference machine).
+pub const PRESSURE_RATIO_RANGE: (f64, f64) = (1.1, 6.0);
 /// Accepted peak speeds, m/s.
 pub const SPEED_RANGE_MPS: (f64, f64) = (0.05, 4.5);
 
@@ -116,6 +118,15 @@ impl RunOptions {
             .unwrap_or_else(|| speed_for_pressure_ratio(self.pressure_ratio))
     }
 
+    /// The longest the run may last, s simulated: homing creeps at 10 mm/s over at most the
+    /// travel; a cycle is two strokes of the sinusoidal reference (mean speed 2/π of the
+    /// peak), with 2 s to spare each.
+    pub fn time_limit_s(&self) -> f64 {
+        let travel = self.model.piston.travel_m;
+        let cycle_s = std::f64::consts::PI * travel / self.peak_speed_mps();
+        2.0 + travel / 0.01 + f64::from(self.cycles) * (2.0 + cycle_s)
+    }
+
     /// Checks the options; the error names the flag at fault.
     pub fn validate(&self) -> Result<(), String> {
         let (lo, hi) = PRESSURE_RATIO_RANGE;
@@ -133,6 +144,15 @@ impl RunOptions {
         }
         if self.cycles == 0 || self.cycles > 10_000 {
             return Err(format!("--cycles {} is outside [1, 10000]", self.cycles));
+        }
+        let limit = self.time_limit_s();
+        if let Some(late) = self.faults.iter().find(|f| f.at_s > limit) {
+            return Err(format!(
+                "--fault {}@{}: the run lasts at most {limit:.1} s simulated; it would never \
+                 be injected",
+                late.kind.name(),
+                late.at_s
+            ));
         }
         Ok(())
     }
@@ -165,6 +185,11 @@ pub struct Summary {
     pub realtime_factor: f64,
     /// Completed compression cycles.
     pub cycles: u32,
+    /// Cycles asked for (`--cycles`).
+    pub cycles_requested: u32,
+    /// Why the run ended before `cycles_requested`, if it did (a latched fault, the time
+    /// limit); `null` when it completed.
+    pub stopped_early: Option<String>,
     /// Requested pressure ratio.
     pub pressure_ratio_target: f64,
     /// Max over the last 5 cycles of |p_chamber − p_discharge|/p_discharge at discharge
@@ -383,8 +408,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     let mut phase = Phase::Homing;
     let mut metrics = Metrics::default();
     let mut cycles_done = 0u32;
-    // Homing creeps at 10 mm/s over at most the travel; strokes take well under 1 s each.
-    let limit_s = 2.0 + model.piston.travel_m / 0.01 + f64::from(opts.cycles) * 2.0;
+    let limit_s = opts.time_limit_s();
     let mut capture = Capture::new(limit_s, csv, &log);
     let mut last = Status::INIT;
     let started = Instant::now();
@@ -532,6 +556,15 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             f64::INFINITY
         },
         cycles: cycles_done,
+        cycles_requested: opts.cycles,
+        stopped_early: (cycles_done < opts.cycles).then(|| {
+            if metrics.faults.is_empty() {
+                format!("the time limit of {limit_s:.1} s simulated ran out")
+            } else {
+                let names: Vec<&str> = metrics.faults.iter().map(|f| f.name()).collect();
+                format!("faults latched: {}", names.join(", "))
+            }
+        }),
         pressure_ratio_target: opts.pressure_ratio,
         discharge_open_pressure_error: last_max(
             &metrics

@@ -160,6 +160,31 @@ pub fn main(args: RunArgs) -> CmdResult {
         let text = serde_json::to_string_pretty(s).map_err(|e| Failure::runtime(e.to_string()))?;
         outln!("{text}")?;
     }
+    let missed: Vec<String> = opts
+        .faults
+        .iter()
+        .filter(|f| f.at_s > s.sim_time_s)
+        .map(|f| format!("{}@{}", f.kind.name(), f.at_s))
+        .collect();
+    if !missed.is_empty() {
+        return Err(Failure::runtime(format!(
+            "the run ended at {:.3} s simulated, before {} began: never injected (the files \
+             are written; inject earlier)",
+            s.sim_time_s,
+            missed.join(", ")
+        )));
+    }
+    if let Some(why) = &s.stopped_early {
+        let stop = format!(
+            "the run stopped after {} of {} cycles: {why}",
+            s.cycles, s.cycles_requested
+        );
+        if args.faults.is_empty() {
+            // Nothing was injected: the machine could not do what was asked.
+            return Err(Failure::runtime(format!("{stop} (the files are written)")));
+        }
+        errln!("fpc-sim run: {stop} (after the injected fault; exit 0)")?;
+    }
     Ok(())
 }
 

@@ -111,6 +111,11 @@ impl FaultKind {
     }
 }
 
+/// Parameters that count or pick something (an encoder, a chamber, a section, a task, control
+/// cycles): whole numbers only.
+const INTEGER_PARAMETERS: [&str; 6] =
+    ["encoder", "channel", "chamber", "section", "cycles", "task"];
+
 /// One parsed `--fault` specification.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FaultSpec {
@@ -190,6 +195,7 @@ pub fn parse(spec: &str) -> Result<FaultSpec, SpecError> {
         )));
     }
     let allowed = kind.parameters();
+    let mut given: Vec<&str> = Vec::new();
     let mut values: Vec<(&'static str, f64)> =
         allowed.iter().map(|(n, d, _, _)| (*n, *d)).collect();
     for pair in params
@@ -221,6 +227,13 @@ pub fn parse(spec: &str) -> Result<FaultSpec, SpecError> {
         if !(value.is_finite() && (*lo..=*hi).contains(&value)) {
             return Err(err(format!("`{k}={v}` is outside [{lo}, {hi}]")));
         }
+        if INTEGER_PARAMETERS.contains(pname) && value.fract() != 0.0 {
+            return Err(err(format!("`{k}={v}` must be a whole number")));
+        }
+        if given.contains(pname) {
+            return Err(err(format!("parameter `{k}` is given twice")));
+        }
+        given.push(pname);
         if let Some(slot) = values.iter_mut().find(|(n, _)| n == pname) {
             slot.1 = value;
         }
@@ -250,6 +263,15 @@ mod tests {
         for (_, name) in FaultKind::ALL {
             assert!(parse(&format!("{name}@0.1")).is_ok(), "{name}");
         }
+    }
+
+    #[test]
+    fn counts_are_whole_and_parameters_given_once() {
+        let e = parse("overrun@1:cycles=2.5").unwrap_err().0;
+        assert!(e.contains("whole number"), "{e}");
+        let e = parse("overrun@1:cycles=3,cycles=4").unwrap_err().0;
+        assert!(e.contains("given twice"), "{e}");
+        assert_eq!(parse("overrun@1:cycles=4").unwrap().param("cycles"), 4.0);
     }
 
     #[test]
