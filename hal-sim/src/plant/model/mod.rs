@@ -28,7 +28,7 @@ pub const REFERENCE_TOML: &str = include_str!("reference.toml");
 pub const PAPER_SLAVE_LAG_S: f64 = 0.75e-3;
 
 mod sections;
-mod validate;
+pub mod validate;
 
 pub use sections::*;
 
@@ -251,7 +251,19 @@ fn describe(e: &toml::de::Error, text: &str) -> String {
                 .filter(|l| l.trim_start().starts_with('['))
                 .last()
                 .map(|l| l.split('#').next().unwrap_or(l).trim().to_string());
+            // toml names neither a duplicate key nor a missing section: the text does.
+            let here = text
+                .get(span.start..)
+                .and_then(|t| t.lines().next())
+                .unwrap_or("");
             match table {
+                _ if msg.starts_with("duplicate key") => {
+                    let key = here.split('=').next().unwrap_or(here).trim();
+                    format!("line {line}: key `{key}` is given twice")
+                }
+                _ if msg.starts_with("duplicate table") || msg.contains("duplicate table") => {
+                    format!("line {line}: section `{}` is given twice", here.trim())
+                }
                 Some(t) if msg.starts_with("missing field") => {
                     format!("line {line}: {msg} in {t}")
                 }

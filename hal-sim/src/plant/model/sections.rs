@@ -3,7 +3,17 @@
 //! defaults, and the `[effects.*]` the model-gap workflow adds.
 
 use fpc::physics::port_timing::{PortGeometry, PortWindow};
-use serde::Deserialize;
+use serde::{Deserialize, Deserializer};
+
+/// An array of exactly `N` numbers: a longer or shorter one is refused naming its length
+/// (serde's fixed-size arrays leave extra elements unread).
+fn exact_array<'de, D: Deserializer<'de>, const N: usize>(d: D) -> Result<[f64; N], D::Error> {
+    let values = Vec::<f64>::deserialize(d)?;
+    let len = values.len();
+    values.try_into().map_err(|_| {
+        serde::de::Error::invalid_length(len, &format!("an array of {N} numbers").as_str())
+    })
+}
 
 /// `[piston]`.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -121,12 +131,16 @@ pub struct Encoder {
 #[serde(default, deny_unknown_fields)]
 pub struct Ports {
     /// Intake A window `[open, close]`, degrees.
+    #[serde(deserialize_with = "exact_array")]
     pub intake_a_deg: [f64; 2],
     /// Discharge A window, degrees.
+    #[serde(deserialize_with = "exact_array")]
     pub discharge_a_deg: [f64; 2],
     /// Intake B window, degrees.
+    #[serde(deserialize_with = "exact_array")]
     pub intake_b_deg: [f64; 2],
     /// Discharge B window, degrees.
+    #[serde(deserialize_with = "exact_array")]
     pub discharge_b_deg: [f64; 2],
     /// Opening/closing ramp, degrees.
     pub ramp_deg: f64,
@@ -252,8 +266,10 @@ pub struct CurrentSensor {
     /// White noise per phase, A RMS.
     pub noise_a: f64,
     /// Offset per phase of the master section, A.
+    #[serde(deserialize_with = "exact_array")]
     pub offset_master_a: [f64; 3],
     /// Offset per phase of the slave section, A.
+    #[serde(deserialize_with = "exact_array")]
     pub offset_slave_a: [f64; 3],
 }
 

@@ -1,5 +1,8 @@
 //! Validation of a parsed model: every value checked for its physical kind (positive,
-//! non-negative, finite, a fraction), with an error naming the key.
+//! non-negative, finite, a fraction) and against the physical range of its key
+//! ([`RANGES`]: what a free-piston compressor of a few grams to a tonne could have), then
+//! the model as a whole for consistency (the stroke fits between the clearances, the dead
+//! lengths, cogging below the force limit, …), with an error naming the key and the range.
 
 use super::{MachineModel, ModelError};
 
@@ -13,6 +16,120 @@ enum Rule {
     InUnit(f64),
 }
 
+/// The physical range of every numeric key, inclusive, with its unit: `(key, min, max, unit)`.
+/// The per-section overrides (`motor.master.*`) and both encoders (`sensors.encoder_*`) share
+/// the ranges of their plain keys.
+pub const RANGES: &[(&str, f64, f64, &str)] = &[
+    ("piston.mass_kg", 0.01, 1000.0, "kg"),
+    ("piston.bore_m", 1e-3, 1.0, "m"),
+    ("piston.rod_m", 0.0, 0.5, "m"),
+    ("piston.travel_m", 1e-3, 2.0, "m"),
+    ("piston.dead_length_a_m", 0.0, 0.5, "m"),
+    ("piston.dead_length_b_m", 0.0, 0.5, "m"),
+    ("piston.stop_stiffness_n_per_m", 1e3, 1e12, "N/m"),
+    ("piston.stop_damping_ns_per_m", 0.0, 1e8, "N·s/m"),
+    ("friction.coulomb_n", 0.0, 1e5, "N"),
+    ("friction.viscous_ns_per_m", 0.0, 1e6, "N·s/m"),
+    ("friction.static_n", 0.0, 1e5, "N"),
+    ("friction.stribeck_velocity_mps", 1e-5, 10.0, "m/s"),
+    ("friction.stribeck_exponent", 0.1, 10.0, ""),
+    ("gas.gamma", 1.0, 1.7, ""),
+    ("gas.gas_constant_j_per_kg_k", 10.0, 5000.0, "J/(kg·K)"),
+    ("gas.temperature_k", 50.0, 1000.0, "K"),
+    ("gas.ambient_pa", 1e3, 1e7, "Pa"),
+    ("gas.viscosity_pa_s", 1e-7, 1e-2, "Pa·s"),
+    ("motor.pole_pitch_m", 1e-3, 0.5, "m"),
+    ("motor.force_constant_n_per_a", 0.1, 1e4, "N/A"),
+    ("motor.resistance_ohm", 1e-4, 1e3, "Ω"),
+    ("motor.inductance_h", 1e-7, 10.0, "H"),
+    ("motor.bus_voltage_v", 1.0, 2000.0, "V"),
+    ("motor.current_limit_a", 0.1, 1000.0, "A"),
+    ("encoder.period_m", 1e-6, 0.1, "m"),
+    ("ports.ramp_deg", 0.0, 90.0, "°"),
+    ("ports.intake_area_m2", 1e-8, 0.1, "m²"),
+    ("ports.discharge_area_m2", 1e-8, 0.1, "m²"),
+    ("ports.discharge_coefficient", 0.0, 1.0, ""),
+    ("lines.suction_pa", 1e3, 1e7, "Pa"),
+    ("lines.pressure_ratio", 1.0, 20.0, ""),
+    ("servo.inertia_kgm2", 1e-7, 10.0, "kg·m²"),
+    ("servo.viscous_nms_per_rad", 0.0, 100.0, "N·m·s/rad"),
+    ("servo.coulomb_nm", 0.0, 100.0, "N·m"),
+    ("servo.torque_full_scale_nm", 1e-3, 1000.0, "N·m"),
+    ("servo.torque_limit_nm", 1e-3, 1000.0, "N·m"),
+    ("servo.torque_time_constant_s", 0.0, 0.1, "s"),
+    ("servo.backlash_rad", 0.0, 0.5, "rad"),
+    ("sensors.current.noise_a", 0.0, 100.0, "A"),
+    ("sensors.current.offset_master_a", -100.0, 100.0, "A"),
+    ("sensors.current.offset_slave_a", -100.0, 100.0, "A"),
+    ("sensors.pressure.noise_pa", 0.0, 1e6, "Pa"),
+    ("sensors.pressure.time_constant_s", 0.0, 1.0, "s"),
+    ("sensors.pressure.offset_a_pa", -1e6, 1e6, "Pa"),
+    ("sensors.pressure.offset_b_pa", -1e6, 1e6, "Pa"),
+    ("sensors.pressure.offset_suction_pa", -1e6, 1e6, "Pa"),
+    ("sensors.pressure.offset_discharge_pa", -1e6, 1e6, "Pa"),
+    ("sensors.encoder.amplitude_codes", 1.0, 65536.0, "codes"),
+    ("sensors.encoder.noise_codes", 0.0, 1e4, "codes"),
+    ("sensors.encoder.sin_offset_codes", -1e5, 1e5, "codes"),
+    ("sensors.encoder.cos_offset_codes", -1e5, 1e5, "codes"),
+    ("sensors.encoder.quadrature_error_rad", -1.0, 1.0, "rad"),
+    ("sensors.encoder.gain_mismatch", -0.99, 10.0, ""),
+    ("limits.target_head_clearance_m", 1e-5, 0.05, "m"),
+    ("limits.min_head_clearance_m", 0.0, 0.05, "m"),
+    ("limits.force_limit_n", 1.0, 1e6, "N"),
+    ("limits.max_speed_mps", 0.01, 50.0, "m/s"),
+    ("effects.cogging.amplitude_n", -1e4, 1e4, "N"),
+    ("effects.cogging.period_m", 1e-4, 1.0, "m"),
+    ("effects.cogging.phase_rad", -1e3, 1e3, "rad"),
+    ("effects.slave_lag.delay_s", 0.0, 0.01, "s"),
+    ("effects.actuator_lag.delay_s", 0.0, 0.01, "s"),
+    ("effects.stribeck_friction.static_n", 0.0, 1e5, "N"),
+    ("effects.stribeck_friction.velocity_mps", 1e-5, 10.0, "m/s"),
+    ("effects.stribeck_friction.exponent", 0.1, 10.0, ""),
+    ("effects.encoder_pitch_error.amplitude_m", -1e-3, 1e-3, "m"),
+    ("effects.encoder_pitch_error.period_m", 1e-4, 1.0, "m"),
+    ("effects.encoder_pitch_error.phase_rad", -1e3, 1e3, "rad"),
+    ("effects.encoder_pitch_error.scale", -0.1, 0.1, ""),
+    ("effects.encoder_pitch_error.amplitude2_m", -1e-3, 1e-3, "m"),
+    ("effects.encoder_pitch_error.phase2_rad", -1e3, 1e3, "rad"),
+    ("effects.heat_transfer.ua_w_per_k", 0.0, 1e4, "W/K"),
+    (
+        "effects.heat_transfer.wall_temperature_k",
+        50.0,
+        1000.0,
+        "K",
+    ),
+    ("effects.leakage.gap_m", 0.0, 1e-3, "m"),
+    ("effects.leakage.seal_length_m", 1e-4, 1.0, "m"),
+    ("effects.leakage.rod_gap_m", 0.0, 1e-3, "m"),
+    ("effects.leakage.rod_seal_length_m", 1e-4, 1.0, "m"),
+    ("effects.port_restriction.area_scale", 0.0, 10.0, ""),
+    ("effects.section_misalignment.offset_m", -0.01, 0.01, "m"),
+];
+
+/// The range of `key` in [`RANGES`] (`None` for keys without one).
+pub fn range_of(key: &str) -> Option<(f64, f64, &'static str)> {
+    let plain = key
+        .replace("motor.master.", "motor.")
+        .replace("motor.slave.", "motor.")
+        .replace("sensors.encoder_master.", "sensors.encoder.")
+        .replace("sensors.encoder_slave.", "sensors.encoder.");
+    RANGES
+        .iter()
+        .find(|(k, ..)| *k == plain)
+        .map(|&(_, lo, hi, unit)| (lo, hi, unit))
+}
+
+/// `key` = `v` within its physical range.
+fn in_range(key: &str, v: f64) -> Result<(), ModelError> {
+    match range_of(key) {
+        Some((lo, hi, unit)) if !(lo..=hi).contains(&v) => Err(ModelError(format!(
+            "`{key}` = {v:e} is outside its physical range {lo:e} ..= {hi:e}{}{unit}",
+            if unit.is_empty() { "" } else { " " }
+        ))),
+        _ => Ok(()),
+    }
+}
+
 fn check(key: &str, v: f64, rule: Rule) -> Result<(), ModelError> {
     let ok = v.is_finite()
         && match rule {
@@ -22,7 +139,7 @@ fn check(key: &str, v: f64, rule: Rule) -> Result<(), ModelError> {
             Rule::InUnit(max) => v > 0.0 && v <= max,
         };
     if ok {
-        return Ok(());
+        return in_range(key, v);
     }
     let what = match rule {
         Rule::Positive => "positive and finite".to_string(),
@@ -219,12 +336,11 @@ impl MachineModel {
             ] {
                 checks.push((format!("sensors.{name}.{k}"), v, Finite));
             }
-            if !(e.gain_mismatch.is_finite() && e.gain_mismatch > -1.0) {
-                return Err(ModelError(format!(
-                    "`sensors.{name}.gain_mismatch` must be finite and above −1, got {}",
-                    e.gain_mismatch
-                )));
-            }
+            checks.push((
+                format!("sensors.{name}.gain_mismatch"),
+                e.gain_mismatch,
+                Finite,
+            ));
         }
         for (k, v) in [
             ("offset_a_pa", s.pressure.offset_a_pa),
@@ -360,6 +476,56 @@ impl MachineModel {
             return Err(ModelError(
                 "`limits.min_head_clearance_m` must not exceed `limits.target_head_clearance_m`"
                     .into(),
+            ));
+        }
+        self.check_consistency()
+    }
+
+    /// The model as a whole: values that are each in range but make no machine together.
+    fn check_consistency(&self) -> Result<(), ModelError> {
+        let p = &self.piston;
+        let l = &self.limits;
+        let fail = |m: String| Err(ModelError(m));
+        for (name, dead) in [("a", p.dead_length_a_m), ("b", p.dead_length_b_m)] {
+            if dead >= p.travel_m {
+                return fail(format!(
+                    "`piston.dead_length_{name}_m` = {dead} m is not shorter than \
+                     `piston.travel_m` = {} m: the chamber could not compress",
+                    p.travel_m
+                ));
+            }
+        }
+        let reserved = p.dead_length_a_m + p.dead_length_b_m + 2.0 * l.target_head_clearance_m;
+        if p.travel_m <= 2.0 * reserved {
+            return fail(format!(
+                "`piston.travel_m` = {} m leaves no stroke: the dead lengths and twice \
+                 `limits.target_head_clearance_m` take {reserved} m, and the stroke must be at \
+                 least as long again",
+                p.travel_m
+            ));
+        }
+        if self.encoder.period_m > p.travel_m {
+            return fail(format!(
+                "`encoder.period_m` = {} m is longer than `piston.travel_m` = {} m",
+                self.encoder.period_m, p.travel_m
+            ));
+        }
+        if let Some(c) = &self.effects.cogging {
+            if c.amplitude_n.abs() >= 0.5 * l.force_limit_n {
+                return fail(format!(
+                    "`effects.cogging.amplitude_n` = {} N is not below half of \
+                     `limits.force_limit_n` = {} N: the motor could not move the piston",
+                    c.amplitude_n, l.force_limit_n
+                ));
+            }
+        }
+        let m = &self.motor;
+        let peak_force = m.force_constant_n_per_a * m.current_limit_a;
+        if self.friction.coulomb_n >= peak_force {
+            return fail(format!(
+                "`friction.coulomb_n` = {} N is not below the motor's peak force \
+                 (`motor.force_constant_n_per_a` × `motor.current_limit_a` = {peak_force} N)",
+                self.friction.coulomb_n
             ));
         }
         Ok(())
