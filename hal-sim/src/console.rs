@@ -101,3 +101,55 @@ macro_rules! outln {
 macro_rules! errln {
     ($($arg:tt)*) => { $crate::console::err_line(format_args!($($arg)*)) };
 }
+
+/// A number for a table: printed as `f64` with the format's width and precision when finite,
+/// as `n/a` when not (an empty window, a constant signal) — never `NaN` or `inf`.
+#[derive(Clone, Copy, Debug)]
+pub struct Num(pub f64);
+
+/// `n/a` in the format's width and alignment (its precision is the number's, not a cut).
+fn not_available(f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+    let w = f.width().unwrap_or(0);
+    match f.align() {
+        Some(std::fmt::Alignment::Left) => write!(f, "{:<w$}", "n/a"),
+        Some(std::fmt::Alignment::Center) => write!(f, "{:^w$}", "n/a"),
+        _ => write!(f, "{:>w$}", "n/a"),
+    }
+}
+
+impl std::fmt::Display for Num {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.0.is_finite() {
+            std::fmt::Display::fmt(&self.0, f)
+        } else {
+            not_available(f)
+        }
+    }
+}
+
+impl std::fmt::LowerExp for Num {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.0.is_finite() {
+            std::fmt::LowerExp::fmt(&self.0, f)
+        } else {
+            not_available(f)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Num;
+
+    #[test]
+    fn undefined_numbers_print_as_n_a() {
+        assert_eq!(
+            format!("{:>8.2}|{:.3e}", Num(1.234), Num(12.5)),
+            "    1.23|1.250e1"
+        );
+        assert_eq!(
+            format!("{:>8.2}|{:.3e}", Num(f64::NAN), Num(f64::INFINITY)),
+            "     n/a|n/a"
+        );
+    }
+}

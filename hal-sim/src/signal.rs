@@ -126,6 +126,18 @@ pub fn xcorr_lag(
             _ => Some((k, v)),
         })
         .ok_or("a signal is constant: no lag can be found")?;
+    // A straight line (a time column, a ramp) correlates perfectly at every lag: no peak,
+    // no lag.
+    let flat = [k - 2, k + 2]
+        .iter()
+        .filter_map(|&j| rho(j))
+        .any(|v| v >= peak - 1e-12);
+    if flat {
+        return Err(format!(
+            "the correlation has no peak (it is {peak:.12} two samples either side of the best \
+             lag too): the signals have no feature to align, such as a straight line"
+        ));
+    }
     // Refine on both signals low-passed alike (zero phase: the lag is kept): interpolating
     // white noise lowers its variance by up to a third between samples, which would pull
     // the maximum toward half-sample lags.
@@ -413,6 +425,31 @@ pub struct SgSettings {
     pub lag: usize,
 }
 
+/// What is wrong with Savitzky–Golay settings `s`, in words naming the setting by `names`
+/// (window, order, lag: flag names or plain words).
+pub fn sg_problem(
+    e: fpc::sensing::differentiator::SgError,
+    s: SgSettings,
+    names: [&str; 3],
+) -> String {
+    use fpc::sensing::differentiator::{SgError, MAX_WINDOW};
+    let [window, order, lag] = names;
+    match e {
+        SgError::Window => format!("{window} {}: must be odd, 3..={MAX_WINDOW}", s.window),
+        SgError::Order => format!(
+            "{order} {}: must be 1..=4 and less than the window ({})",
+            s.order, s.window
+        ),
+        SgError::Lag => format!(
+            "{lag} {}: must be less than the window ({})",
+            s.lag, s.window
+        ),
+        SgError::Scale => {
+            "the sample time and encoder resolution give no valid differentiator".into()
+        }
+    }
+}
+
 /// Velocity and acceleration of `x_m` by the firmware's own fixed-point differentiator
 /// (`fpc::sensing::differentiator`), fed the position in encoder counts exactly as the control step
 /// does. Each output is placed at the sample it estimates (`lag` samples back), so only the
@@ -435,7 +472,7 @@ pub fn firmware_derivatives(
         sample_time_s: sample_time_s as f32,
         m_per_count,
     })
-    .map_err(|e| format!("differentiator settings {s:?}: {e:?}"))?;
+    .map_err(|e| sg_problem(e, s, ["window", "order", "lag"]))?;
     let mut v = Vec::with_capacity(x_m.len());
     let mut a = Vec::with_capacity(x_m.len());
     for (i, &x) in x_m.iter().enumerate() {

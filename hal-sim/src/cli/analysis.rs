@@ -83,13 +83,27 @@ impl Steps {
 }
 
 /// Index range of the samples with `from_s ≤ t ≤ to_s`; a missing bound is taken from
-/// `default` (itself clamped to the log).
+/// `default` (itself clamped to the log). A bound that is not finite, bounds in the wrong
+/// order, or a window holding fewer than two samples of the log are bad input naming the
+/// flags.
 pub fn time_window(
     t: &[f64],
     from_s: Option<f64>,
     to_s: Option<f64>,
     default: std::ops::Range<usize>,
-) -> std::ops::Range<usize> {
+) -> Result<std::ops::Range<usize>, Failure> {
+    for (flag, v) in [("--from-s", from_s), ("--to-s", to_s)] {
+        if let Some(v) = v.filter(|v| !v.is_finite()) {
+            return Err(Failure::bad_input(format!("{flag} {v}: not a finite time")));
+        }
+    }
+    if let (Some(f), Some(e)) = (from_s, to_s) {
+        if f >= e {
+            return Err(Failure::bad_input(format!(
+                "--from-s {f} is not before --to-s {e}"
+            )));
+        }
+    }
     let n = t.len();
     let start = match from_s {
         Some(f) => t.partition_point(|&v| v < f),
@@ -99,10 +113,19 @@ pub fn time_window(
         Some(e) => t.partition_point(|&v| v <= e),
         None => default.end.min(n),
     };
-    if start < end {
-        start..end
+    if start + 2 <= end {
+        Ok(start..end)
+    } else if from_s.is_none() && to_s.is_none() {
+        Ok(0..n)
     } else {
-        0..n
+        let (first, last) = (
+            t.first().copied().unwrap_or(0.0),
+            t.last().copied().unwrap_or(0.0),
+        );
+        Err(Failure::bad_input(format!(
+            "--from-s/--to-s: the window holds fewer than 2 samples of the log ({first} s to \
+             {last} s)"
+        )))
     }
 }
 

@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 use fpc::control::config::ControlConfig;
-use fpc::sensing::differentiator::{Derivatives, SavitzkyGolay, SgConfig, SgError, MAX_WINDOW};
+use fpc::sensing::differentiator::{Derivatives, SavitzkyGolay, SgConfig};
 
 use crate::failure::{CmdResult, Failure};
 use crate::runlog::RunLog;
@@ -105,21 +105,17 @@ fn read(path: &Path) -> Result<RunLog, Failure> {
 
 /// Checks the settings; the message names the flag at fault.
 pub fn check(s: Settings) -> Result<(), String> {
-    match SavitzkyGolay::new(config(s, 1.0, 1.0)) {
-        Ok(_) => Ok(()),
-        Err(SgError::Window) => Err(format!(
-            "--window {}: must be odd, 3..={MAX_WINDOW}",
-            s.window
-        )),
-        Err(SgError::Order) => Err(format!(
-            "--order {}: must be 1..=4 and less than the window ({})",
-            s.order, s.window
-        )),
-        Err(SgError::Lag) => Err(format!(
-            "--lag {}: must be less than the window ({})",
-            s.lag, s.window
-        )),
-        Err(SgError::Scale) => Err("the settings give no valid differentiator".into()),
+    SavitzkyGolay::new(config(s, 1.0, 1.0))
+        .map(|_| ())
+        .map_err(|e| crate::signal::sg_problem(e, sg(s), ["--window", "--order", "--lag"]))
+}
+
+/// The settings as the signal module names them.
+fn sg(s: Settings) -> crate::signal::SgSettings {
+    crate::signal::SgSettings {
+        window: s.window,
+        order: s.order,
+        lag: s.lag,
     }
 }
 
@@ -157,7 +153,7 @@ pub fn derive(x_m: &[f64], sample_time_s: f64, s: Settings) -> Result<Derived, S
         .collect();
     let make = |lag: usize| {
         SavitzkyGolay::new(config(Settings { lag, ..s }, sample_time_s, m_per_count))
-            .map_err(|e| format!("differentiator {s:?}: {e:?}"))
+            .map_err(|e| crate::signal::sg_problem(e, sg(s), ["--window", "--order", "--lag"]))
     };
     // The derivatives at the end of a window of N samples, evaluated `lag` back.
     let on_window = |window: &[i32], lag: usize| -> Result<Derivatives, String> {

@@ -15,6 +15,7 @@ use serde::Serialize;
 
 use crate::cli::analysis::{LogToolArgs, Steps, ZeroPhaseArgs};
 use crate::cli::forces::{kilonewtons, read_force_balance, ForceBalance};
+use crate::console::Num;
 use crate::failure::{CmdResult, Failure};
 use crate::outln;
 use crate::plot::curves;
@@ -165,23 +166,23 @@ pub fn main(args: EnergyArgs) -> CmdResult {
         "stroke {} of {}: x {:.4} → {:.4} m, {:.4} s",
         args.stroke.unwrap_or(all.len().saturating_sub(1)),
         all.len(),
-        e.from_m,
-        e.to_m,
-        r.len() as f64 * dt
+        Num(e.from_m),
+        Num(e.to_m),
+        Num(r.len() as f64 * dt)
     )?;
     outln!(
         "motor {:.2} J (accelerating {:.2} J, decelerating {:.2} J), gas {:.2} J, friction {:.2} J",
-        e.motor_j,
-        e.motor_accelerating_j,
-        e.motor_decelerating_j,
-        e.gas_j,
-        e.friction_j
+        Num(e.motor_j),
+        Num(e.motor_accelerating_j),
+        Num(e.motor_decelerating_j),
+        Num(e.gas_j),
+        Num(e.friction_j)
     )?;
     outln!(
         "inertia: peak kinetic energy {:.2} J, net over the stroke {:.3} J; balance {:.3} J",
-        e.peak_kinetic_j,
-        e.inertia_j,
-        e.balance_j
+        Num(e.peak_kinetic_j),
+        Num(e.inertia_j),
+        Num(e.balance_j)
     )?;
     let shown = [
         out.final_path("energy.svg"),

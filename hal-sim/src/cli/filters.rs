@@ -15,6 +15,7 @@ use crate::cli::analysis::{
     column, default_window, interior, read_log, read_model, sample_time_s, time_window,
     LogToolArgs, Steps, WindowArgs, ZeroPhaseArgs,
 };
+use crate::console::Num;
 use crate::failure::{CmdResult, Failure};
 use crate::outln;
 use crate::plot::{lines, Series};
@@ -142,7 +143,7 @@ pub fn main(args: FiltersArgs) -> CmdResult {
         args.window.from_s,
         args.window.to_s,
         default_window(t, &strokes(x, reference), dt),
-    );
+    )?;
     let tw = t.get(window.clone()).unwrap_or_default();
     let series: Vec<Series> = est
         .iter()
@@ -172,8 +173,8 @@ pub fn main(args: FiltersArgs) -> CmdResult {
         outln!(
             "{:<52} {:>14.5} {:>12.4}",
             e.label,
-            e.rms_diff_mps,
-            e.delay_s * 1e3
+            Num(e.rms_diff_mps),
+            Num(e.delay_s * 1e3)
         )?;
     }
     let shown = out.final_path("filters.svg");

@@ -16,6 +16,7 @@ use crate::cli::analysis::{
     column, default_window, interior, read_log, read_model, sample_time_s, time_window,
     LogToolArgs, Steps, WindowArgs, ZeroPhaseArgs,
 };
+use crate::console::Num;
 use crate::failure::{CmdResult, Failure};
 use crate::outln;
 use crate::plant::model::MachineModel;
@@ -146,7 +147,7 @@ pub fn main(args: ForcesArgs) -> CmdResult {
         args.window.from_s,
         args.window.to_s,
         default_window(t, &strokes(&fb.x_m, &fb.v_mps), dt),
-    );
+    )?;
     let kn = |v: &[f64]| kilonewtons(v, window.clone());
     let tw = t.get(window.clone()).unwrap_or_default();
     let curves = [
@@ -195,8 +196,8 @@ pub fn main(args: ForcesArgs) -> CmdResult {
         let delay = xcorr_lag(expected, est, dt, max_lag).map_or(f64::NAN, |l| l.seconds);
         outln!(
             "{label:<36} {:>16.1} {:>18.4}",
-            rms_difference(est, expected),
-            delay * 1e3
+            Num(rms_difference(est, expected)),
+            Num(delay * 1e3)
         )?;
     }
     let shown = out.final_path("forces.svg");

@@ -86,7 +86,10 @@ pub fn main(args: GapArgs) -> CmdResult {
         .map(|c| {
             format!(
                 "{} {:.3e} → {:.3e} {}",
-                c.name, c.rms_before, c.rms_after, c.unit
+                c.name,
+                crate::console::Num(c.rms_before),
+                crate::console::Num(c.rms_after),
+                c.unit
             )
         })
         .collect();

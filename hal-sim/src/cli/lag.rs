@@ -70,6 +70,16 @@ pub fn measure(
         }
         None => None,
     };
+    if a == b {
+        // A signal against itself: no lag, by definition (and no estimate needed).
+        return Ok(LagReport {
+            a: a.to_string(),
+            b: b.to_string(),
+            lag_s: 0.0,
+            lag_samples: 0.0,
+            correlation: 1.0,
+        });
+    }
     let lag =
         xcorr_lag(xa, xb, dt, max_lag).map_err(|e| Failure::bad_input(format!("{a}/{b}: {e}")))?;
     Ok(LagReport {

@@ -12,6 +12,7 @@ use clap::Args;
 use serde::Serialize;
 
 use crate::cli::analysis::{column, read_log, read_model, LogToolArgs, Steps};
+use crate::console::Num;
 use crate::failure::{CmdResult, Failure};
 use crate::outln;
 use crate::plant::model::MachineModel;
@@ -124,13 +125,13 @@ pub fn main(args: PvArgs) -> CmdResult {
     for (name, c) in [("A", &a), ("B", &b)] {
         outln!(
             "chamber {name}: V {:.4}–{:.4} L (ratio {:.2}), p {:.4}–{:.4} MPa (ratio {:.2}), ∮p dV {:.2} J",
-            c.v_min_m3 * 1e3,
-            c.v_max_m3 * 1e3,
-            c.v_max_m3 / c.v_min_m3,
-            c.p_min_pa * 1e-6,
-            c.p_max_pa * 1e-6,
-            c.p_max_pa / c.p_min_pa,
-            c.p_dv_j
+            Num(c.v_min_m3 * 1e3),
+            Num(c.v_max_m3 * 1e3),
+            Num(c.v_max_m3 / c.v_min_m3),
+            Num(c.p_min_pa * 1e-6),
+            Num(c.p_max_pa * 1e-6),
+            Num(c.p_max_pa / c.p_min_pa),
+            Num(c.p_dv_j)
         )?;
     }
     let shown = out.final_path("pv.svg");

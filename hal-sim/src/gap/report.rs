@@ -2,6 +2,7 @@
 //! (binned means), lags by FFT cross-correlation, and the report in `--out` — Markdown with
 //! SVG plots (residual maps, before/after overlays, the p–V replay).
 
+use crate::console::Num;
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -323,7 +324,7 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
         let cells: Vec<String> = mb
             .iter()
             .zip(&ma)
-            .map(|(b, a)| format!("{:.2} → {:.2}", b.structure, a.structure))
+            .map(|(b, a)| format!("{:.2} → {:.2}", Num(b.structure), Num(a.structure)))
             .collect();
         let _ = writeln!(md, "| {} | {} |", ch.name(), cells.join(" | "));
         for (b, a) in mb.iter().zip(&ma) {
