@@ -81,7 +81,7 @@ fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     files
 }
 
-/// A simulated run of one cycle at 5 kHz (the gap workflow wants ≥ 2 kHz), made once.
+/// A simulated run of one cycle at 2.5 kHz (the gap workflow wants ≥ 2 kHz), made once.
 fn sim_log() -> &'static str {
     static LOG: std::sync::OnceLock<String> = std::sync::OnceLock::new();
     LOG.get_or_init(|| {
@@ -94,11 +94,11 @@ fn sim_log() -> &'static str {
         };
         let mut log = o.log.clone();
         for c in &mut log.columns {
-            *c = c.iter().step_by(4).copied().collect();
+            *c = c.iter().step_by(8).copied().collect();
         }
         for (k, v) in &mut log.meta {
             if k == "sample_rate_hz" {
-                *v = "5000".into();
+                *v = "2500".into();
             }
         }
         log.to_csv()
