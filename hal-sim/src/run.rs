@@ -454,7 +454,6 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             Phase::Homing if status.homed && status.mode == ModeKind::Holding => {
                 // Close the bypass: from now on the rotation times the ports.
                 w.plant.port_mode = PortMode::Timed;
-                capture.ports_from_s = Some(t);
                 while let Some((_, action)) = actions.next_if(|(c, _)| *c == 0) {
                     act(w, shared, action);
                 }
@@ -625,8 +624,6 @@ struct Capture<'s> {
     lines: Vec<(usize, f64, f64)>,
     /// Where the rows go while the run goes on, when streamed.
     stream: Option<Stream<'s>>,
-    /// When the start-up bypass closed (the ports timed from then on), s.
-    ports_from_s: Option<f64>,
 }
 
 /// The CSV a streamed [`Capture`] writes, and the decimated copy it keeps.
@@ -669,16 +666,19 @@ pub const KEPT_ROWS: usize = 1 << 18;
 impl<'s> Capture<'s> {
     /// Room for a run of at most `limit_s` simulated seconds (untouched capacity costs no
     /// memory), or for one chunk when streamed to `csv` (whose head, the metadata and
-    /// column names of `log` with [`Capture::ports_meta`], goes out with the first chunk).
+    /// column names of `log`, is written at once).
     fn new(limit_s: f64, csv: Option<&'s mut dyn Write>, log: &RunLog) -> Self {
         let rows = (limit_s / f64::from(CONTROL_PERIOD_S)) as usize;
         let stream = csv.map(|out| {
+            let mut text = String::new();
+            log.head_to_csv(&mut text);
+            let error = out.write_all(text.as_bytes()).err();
             let mut kept = RunLog::with_columns(&COLUMNS);
             kept.meta = log.meta.clone();
             Stream {
                 out,
-                error: None,
-                text: String::new(),
+                error,
+                text,
                 kept,
                 stride: 1,
                 written: 0,
@@ -694,21 +694,6 @@ impl<'s> Capture<'s> {
             rows: Vec::with_capacity(reserve),
             lines: Vec::new(),
             stream,
-            ports_from_s: None,
-        }
-    }
-
-    /// The `ports` metadata of the log (`formats.md` §1): once the start-up bypass has closed
-    /// at `ports_from_s`, the ports are timed by the rotation (`open`) from then on; before,
-    /// both chambers breathe to the suction line. A run that never got there says nothing
-    /// (the pressures are then not compared).
-    fn ports_meta(&self) -> Vec<(String, String)> {
-        match self.ports_from_s {
-            Some(t) => vec![
-                ("ports".into(), "open".into()),
-                ("ports_from_s".into(), format!("{t}")),
-            ],
-            None => Vec::new(),
         }
     }
 
@@ -750,18 +735,10 @@ impl<'s> Capture<'s> {
     /// (halving the copy and doubling the stride when it outgrows [`KEPT_ROWS`]) and starts
     /// the next chunk with the line pressures in force.
     fn flush(&mut self) {
-        let ports = self.ports_meta();
         let Some(s) = self.stream.as_mut() else {
             return;
         };
         let started = Instant::now();
-        if s.written == 0 && s.error.is_none() {
-            // The head goes out with the first chunk, when the ports' state is known.
-            s.kept.meta.extend(ports);
-            s.text.clear();
-            s.kept.head_to_csv(&mut s.text);
-            s.error = s.out.write_all(s.text.as_bytes()).err();
-        }
         let mut chunk = RunLog::with_columns(&COLUMNS);
         fill_columns(&self.rows, &self.lines, &mut chunk);
         if s.error.is_none() {
@@ -805,7 +782,6 @@ impl<'s> Capture<'s> {
     /// written and the kept copy in `log`, or the first write error.
     fn finish(mut self, log: &mut RunLog) -> Result<(), String> {
         if self.stream.is_none() {
-            log.meta.extend(self.ports_meta());
             fill_columns(&self.rows, &self.lines, log);
             return Ok(());
         }
