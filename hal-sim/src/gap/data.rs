@@ -97,6 +97,10 @@ pub struct Measured {
     pub ports_from_s: Option<f64>,
     /// `# force_delay_s`, if the log declares how far its forces lag its position, s.
     pub force_delay_s: Option<f64>,
+    /// `# ports_delay_s`: how far the ports' rotation phase lags the logged `theta_rad`, s
+    /// (0 when not declared: the logged angle is the piston's). Our own runs log the servo's
+    /// angle, which the piston follows one control period later.
+    pub ports_delay_s: f64,
     /// How far the forces act behind the row they are logged in, by the log's convention
     /// (a nuisance, not physics), s: `−force_delay_s` when declared, else estimated by the
     /// workflow within ±[`ALIGN_WINDOW_SAMPLES`] (starting at
@@ -185,6 +189,19 @@ impl Measured {
                 }
             },
         };
+        let ports_delay_s = match log.meta("ports_delay_s").map(str::trim) {
+            None => 0.0,
+            Some(v) => match v.parse::<f64>() {
+                Ok(d) if d.is_finite() && (0.0..=MAX_FORCE_DELAY_S).contains(&d) => d,
+                _ => {
+                    return Err(format!(
+                        "metadata `# ports_delay_s = {}`: must be a number of seconds within \
+                         0..={MAX_FORCE_DELAY_S}",
+                        v.chars().take(40).collect::<String>()
+                    ))
+                }
+            },
+        };
         let ports_from_s = match log.meta("ports_from_s").map(str::trim) {
             None => None,
             Some(v) => match v.parse::<f64>() {
@@ -263,6 +280,7 @@ impl Measured {
             ports,
             ports_from_s,
             force_delay_s,
+            ports_delay_s,
             force_align_s,
             sg_window,
             v_mps,
@@ -337,6 +355,7 @@ impl Measured {
             ports: self.ports,
             ports_from_s: self.ports_from_s,
             force_delay_s: self.force_delay_s,
+            ports_delay_s: self.ports_delay_s,
             force_align_s: self.force_align_s,
             sg_window: self.sg_window,
             v_mps: cut(&self.v_mps),
@@ -464,14 +483,20 @@ mod tests {
         assert_eq!(m.force_delay_s, None);
         assert!((m.force_align_s - UNDECLARED_ALIGN_SAMPLES * 2e-4).abs() < 1e-12);
         let m = Measured::from_log(
-            &log(&[("force_delay_s", "5e-5"), ("ports_from_s", "0.5")]),
+            &log(&[
+                ("force_delay_s", "5e-5"),
+                ("ports_from_s", "0.5"),
+                ("ports_delay_s", "5e-5"),
+            ]),
             0.024,
         )
         .unwrap();
         assert_eq!(m.force_delay_s, Some(5e-5));
         assert!((m.force_align_s + 5e-5).abs() < 1e-15);
         assert_eq!(m.ports_from_s, Some(0.5));
+        assert_eq!(m.ports_delay_s, 5e-5);
         for (key, value) in [
+            ("ports_delay_s", "-1e-4"),
             ("force_delay_s", "1"),
             ("force_delay_s", "soon"),
             ("ports_from_s", "NaN"),

@@ -472,11 +472,6 @@ fn replay_from(
         model.lines.pressure_ratio,
         gas.gamma,
     );
-    let alpha = if sensor.time_constant_s > 0.0 {
-        1.0 - (-data.dt_s / sensor.time_constant_s).exp()
-    } else {
-        1.0
-    };
     let (mut la, mut lb) = (ch.a.pressure_pa, ch.b.pressure_pa);
     let mut pa = Vec::with_capacity(n);
     let mut pb = Vec::with_capacity(n);
@@ -486,6 +481,15 @@ fn replay_from(
     // and its step is made for 25–50 µs).
     let substeps = (data.dt_s / REPLAY_STEP_S - 1e-9).ceil().max(1.0) as usize;
     let h = data.dt_s / substeps as f64;
+    let lag = data.ports_delay_s / data.dt_s;
+    // The sensors' first-order lag acts on the chambers continuously: it is stepped with
+    // them, sub-step by sub-step (stepping it once per slower log sample would lag the
+    // replay behind the sensors near the dead points).
+    let alpha = if sensor.time_constant_s > 0.0 {
+        1.0 - (-h / sensor.time_constant_s).exp()
+    } else {
+        1.0
+    };
     for i in 0..n {
         if i > 0 {
             // Set the lines only when the logged pressures change (each set costs a powf).
@@ -501,7 +505,15 @@ fn replay_from(
             }
             let at = |v: &[f64], k: usize| v.get(k).copied().unwrap_or(0.0);
             let (x1, x2) = (at(&data.x_m, i - 1), at(&data.x_m, i));
-            let (t1, t2) = (at(&data.theta_rad, i - 1), at(&data.theta_rad, i));
+            // The ports' phase: the logged angle `ports_delay_s` earlier (interpolated).
+            let theta = |k: usize| -> f64 {
+                let pos = (k as f64 - lag).max(0.0);
+                let j = pos.floor() as usize;
+                let f = pos - j as f64;
+                let a = at(&data.theta_rad, j);
+                a + f * (data.theta_rad.get(j + 1).copied().unwrap_or(a) - a)
+            };
+            let (t1, t2) = (theta(i - 1), theta(i));
             let mode = match data.ports_from_s {
                 Some(from) if at(&data.t_s, i) <= from => PortMode::Unloaded,
                 _ => mode,
@@ -511,10 +523,10 @@ fn replay_from(
                 let x = x1 + f * (x2 - x1);
                 let phase = (t1 + f * (t2 - t1)).rem_euclid(tau);
                 ch.step(x, phase, &lines, mode, h);
+                la += alpha * (ch.a.pressure_pa - la);
+                lb += alpha * (ch.b.pressure_pa - lb);
             }
         }
-        la += alpha * (ch.a.pressure_pa - la);
-        lb += alpha * (ch.b.pressure_pa - lb);
         pa.push(la + sensor.offset_a_pa);
         pb.push(lb + sensor.offset_b_pa);
     }
