@@ -482,11 +482,8 @@ fn replay_from(
     let substeps = (data.dt_s / REPLAY_STEP_S - 1e-9).ceil().max(1.0) as usize;
     let h = data.dt_s / substeps as f64;
     let lag = data.ports_delay_s / data.dt_s;
-    // The sensors' first-order lag acts on the chambers continuously: it is stepped with
-    // them, sub-step by sub-step (stepping it once per slower log sample would lag the
-    // replay behind the sensors near the dead points).
     let alpha = if sensor.time_constant_s > 0.0 {
-        1.0 - (-h / sensor.time_constant_s).exp()
+        1.0 - (-data.dt_s / sensor.time_constant_s).exp()
     } else {
         1.0
     };
@@ -523,10 +520,10 @@ fn replay_from(
                 let x = x1 + f * (x2 - x1);
                 let phase = (t1 + f * (t2 - t1)).rem_euclid(tau);
                 ch.step(x, phase, &lines, mode, h);
-                la += alpha * (ch.a.pressure_pa - la);
-                lb += alpha * (ch.b.pressure_pa - lb);
             }
         }
+        la += alpha * (ch.a.pressure_pa - la);
+        lb += alpha * (ch.b.pressure_pa - lb);
         pa.push(la + sensor.offset_a_pa);
         pb.push(lb + sensor.offset_b_pa);
     }
