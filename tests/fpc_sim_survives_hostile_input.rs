@@ -497,7 +497,16 @@ fn hostile_cases(count: usize, seed: u64) {
                     path.display()
                 );
             }
-            if code != 0 {
+            let staging: Vec<_> = after
+                .keys()
+                .filter(|p| p.to_string_lossy().contains(".fpc-sim-staging"))
+                .collect();
+            assert!(
+                staging.is_empty(),
+                "case {sub} #{i} left {staging:?}: {shown}"
+            );
+            // A run that stopped early writes its complete set for diagnosis and says so.
+            if code != 0 && !text.contains("the files are written") {
                 let new: Vec<_> = after.keys().filter(|p| !before.contains_key(*p)).collect();
                 assert!(
                     new.is_empty(),
