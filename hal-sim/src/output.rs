@@ -26,16 +26,20 @@ pub struct OutDir {
 /// Longest path echoed in a message, in characters (longer ones are cut with `…`).
 const ECHO_CHARS: usize = 120;
 
-/// `path` for a message, cut to a sensible length.
-pub fn show(path: &Path) -> String {
-    let s = path.display().to_string();
-    if s.chars().count() <= ECHO_CHARS {
-        s
+/// `text` cut to `max` characters, with `…` when cut (values and paths echoed in messages).
+pub fn clip(text: &str, max: usize) -> String {
+    if text.chars().count() <= max {
+        text.to_string()
     } else {
-        let mut cut: String = s.chars().take(ECHO_CHARS).collect();
+        let mut cut: String = text.chars().take(max).collect();
         cut.push('…');
         cut
     }
+}
+
+/// `path` for a message, cut to a sensible length.
+pub fn show(path: &Path) -> String {
+    clip(&path.display().to_string(), ECHO_CHARS)
 }
 
 /// Whether `a` and `b` name the same existing file (after resolving links and `..`).
@@ -151,11 +155,6 @@ impl OutDir {
     /// Where `name` will be once committed.
     pub fn final_path(&self, name: &str) -> PathBuf {
         self.dir.join(name)
-    }
-
-    /// The output directory.
-    pub fn dir(&self) -> &Path {
-        &self.dir
     }
 
     /// Moves every written file into place (each by an atomic rename) and removes the

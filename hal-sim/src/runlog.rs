@@ -440,13 +440,7 @@ pub fn physical_range(column: &str) -> (f64, f64) {
 
 /// A value echoed in a message, cut to 40 characters.
 fn echo(text: &str) -> String {
-    if text.chars().count() <= 40 {
-        text.to_string()
-    } else {
-        let mut cut: String = text.chars().take(40).collect();
-        cut.push('…');
-        cut
-    }
+    crate::output::clip(text, 40)
 }
 
 /// The time column's check, one value at a time: increasing, uniform within 1 % of the first
