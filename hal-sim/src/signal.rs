@@ -475,6 +475,31 @@ pub fn sg_problem(
     }
 }
 
+/// Checks Savitzky–Golay settings for a log of `sample_time_s` as [`firmware_derivatives`]
+/// would use them; the error names each setting by `names` (window, order, lag: the flags a
+/// tool takes them from) and the accepted range.
+pub fn sg_check(
+    s: SgSettings,
+    sample_time_s: f64,
+    encoder_period_m: f64,
+    names: [&str; 3],
+) -> Result<(), String> {
+    let m_per_count = EncoderConfig {
+        period_m: encoder_period_m as f32,
+        ..EncoderConfig::reference()
+    }
+    .m_per_count();
+    SavitzkyGolay::new(SgConfig {
+        window: s.window,
+        order: s.order,
+        lag: s.lag,
+        sample_time_s: sample_time_s as f32,
+        m_per_count,
+    })
+    .map(|_| ())
+    .map_err(|e| sg_problem(e, s, names))
+}
+
 /// Velocity and acceleration of `x_m` by the firmware's own fixed-point differentiator
 /// (`fpc::sensing::differentiator`), fed the position in encoder counts exactly as the control step
 /// does. Each output is placed at the sample it estimates (`lag` samples back), so only the
