@@ -19,6 +19,10 @@ use rustfft::FftPlanner;
 /// more), so a periodic signal's next correlation peak, a whole period away, lies outside.
 pub const DEFAULT_MAX_LAG_S: f64 = 20e-3;
 
+/// Largest magnitude [`xcorr_lag`] accepts in a signal: the sum of its squares over 10⁹
+/// samples stays far from overflow.
+pub const MAX_LAG_INPUT: f64 = 1e100;
+
 /// A time shift found by cross-correlation.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Lag {
@@ -55,6 +59,27 @@ pub fn xcorr_lag(
     let n = a.len().min(b.len());
     if n < 8 {
         return Err(format!("{n} samples: at least 8 needed for a lag"));
+    }
+    // The FFT and the prefix sums of squares must see finite values whose squares summed
+    // over the log stay finite: a NaN or an infinity there would become every lag's
+    // coefficient.
+    for (name, x) in [("first", a), ("second", b)] {
+        if let Some(i) = x
+            .iter()
+            .take(n)
+            .position(|v| !(-MAX_LAG_INPUT..=MAX_LAG_INPUT).contains(v))
+        {
+            return Err(format!(
+                "the {name} signal's sample {} is {}: a lag needs finite values within ±{MAX_LAG_INPUT:e}",
+                i + 1,
+                x.get(i).copied().unwrap_or(f64::NAN)
+            ));
+        }
+    }
+    if !(sample_time_s.is_finite() && sample_time_s > 0.0) {
+        return Err(format!(
+            "sample time {sample_time_s} s: must be a positive number of seconds"
+        ));
     }
     // Centred for numerical conditioning; the coefficient itself ignores offsets.
     let centred = |x: &[f64]| {
@@ -448,6 +473,31 @@ pub fn sg_problem(
             "the sample time and encoder resolution give no valid differentiator".into()
         }
     }
+}
+
+/// Checks Savitzky–Golay settings for a log of `sample_time_s` as [`firmware_derivatives`]
+/// would use them; the error names each setting by `names` (window, order, lag: the flags a
+/// tool takes them from) and the accepted range.
+pub fn sg_check(
+    s: SgSettings,
+    sample_time_s: f64,
+    encoder_period_m: f64,
+    names: [&str; 3],
+) -> Result<(), String> {
+    let m_per_count = EncoderConfig {
+        period_m: encoder_period_m as f32,
+        ..EncoderConfig::reference()
+    }
+    .m_per_count();
+    SavitzkyGolay::new(SgConfig {
+        window: s.window,
+        order: s.order,
+        lag: s.lag,
+        sample_time_s: sample_time_s as f32,
+        m_per_count,
+    })
+    .map(|_| ())
+    .map_err(|e| sg_problem(e, s, names))
 }
 
 /// Velocity and acceleration of `x_m` by the firmware's own fixed-point differentiator

@@ -200,7 +200,21 @@ pub struct ZeroPhaseArgs {
 impl ZeroPhaseArgs {
     /// The filter's sections at sample time `dt`; bad settings are bad input naming the flag.
     pub fn sections(&self, dt: f64) -> Result<Vec<crate::signal::Biquad>, Failure> {
-        crate::signal::butterworth_lowpass(self.filter_order, self.cutoff_hz, 1.0 / dt)
+        // Each setting checked on its own, so the message names the one flag at fault.
+        let order = self.filter_order;
+        if order == 0 || !order.is_multiple_of(2) || order > 12 {
+            return Err(Failure::bad_input(format!(
+                "--filter-order {order}: must be even, 2..=12"
+            )));
+        }
+        let nyquist = 0.5 / dt;
+        if !(self.cutoff_hz > 0.0 && self.cutoff_hz < nyquist) {
+            return Err(Failure::bad_input(format!(
+                "--cutoff-hz {}: must lie between 0 and {nyquist} Hz (half the log's sample rate)",
+                self.cutoff_hz
+            )));
+        }
+        crate::signal::butterworth_lowpass(order, self.cutoff_hz, 1.0 / dt)
             .map_err(|e| Failure::bad_input(format!("--cutoff-hz/--filter-order: {e}")))
     }
 

@@ -22,7 +22,7 @@ use crate::plot::{lines, Series};
 use crate::runlog::RunLog;
 use crate::signal::{
     backward_difference, central_difference, delayed, filtfilt, firmware_derivatives,
-    rms_difference, strokes, xcorr_lag, SgSettings,
+    rms_difference, sg_check, strokes, xcorr_lag, SgSettings,
 };
 
 /// Velocity estimates compared (Fig. 7).
@@ -67,15 +67,19 @@ pub struct Estimate {
     pub delay_s: f64,
 }
 
+/// Longest `--drive-delay-ms` accepted, ms: a drive's velocity reading lags by
+/// milliseconds; a second is already several strokes.
+pub const MAX_DRIVE_DELAY_MS: f64 = 1000.0;
+
 /// Computes the four estimates (zero-phase first); the figures leave out 20 ms at each end.
 pub fn estimates(log: &RunLog, args: &FiltersArgs) -> Result<Vec<Estimate>, Failure> {
     let dt = sample_time_s(log)?;
     let x = column(log, &args.column, "--column")?;
     let model = read_model(args.io.model.as_deref())?;
     let sections = args.filter.sections(dt)?;
-    if !(args.drive_delay_ms.is_finite() && args.drive_delay_ms >= 0.0) {
+    if !(0.0..=MAX_DRIVE_DELAY_MS).contains(&args.drive_delay_ms) {
         return Err(Failure::bad_input(format!(
-            "--drive-delay-ms {}: must be zero or positive",
+            "--drive-delay-ms {}: must be 0..={MAX_DRIVE_DELAY_MS} ms",
             args.drive_delay_ms
         )));
     }
@@ -86,8 +90,15 @@ pub fn estimates(log: &RunLog, args: &FiltersArgs) -> Result<Vec<Estimate>, Fail
         order: args.sg_order,
         lag: args.sg_lag,
     };
-    let (v_sg, _) = firmware_derivatives(x, dt, model.encoder.period_m, sg)
-        .map_err(|e| Failure::bad_input(format!("--sg-*: {e}")))?;
+    sg_check(
+        sg,
+        dt,
+        model.encoder.period_m,
+        ["--sg-window", "--sg-order", "--sg-lag"],
+    )
+    .map_err(Failure::bad_input)?;
+    let (v_sg, _) =
+        firmware_derivatives(x, dt, model.encoder.period_m, sg).map_err(Failure::bad_input)?;
     let (drive_label, drive) = match log.column("v_drive_mps") {
         Some(v) => ("drive reading (v_drive_mps)".to_string(), v.to_vec()),
         None => (

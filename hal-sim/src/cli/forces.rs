@@ -96,8 +96,12 @@ pub fn force_balance(
         order: c.sg_order,
         lag: c.sg_lag,
     };
-    let (_, a_fw) =
-        firmware_derivatives(x, dt, model.encoder.period_m, sg).map_err(Failure::runtime)?;
+    // The settings are the firmware's: only the log's sample time can make them unusable.
+    let (_, a_fw) = firmware_derivatives(x, dt, model.encoder.period_m, sg).map_err(|e| {
+        Failure::bad_input(format!(
+            "the log's sample time {dt:e} s: the firmware's differentiator cannot run at it ({e})"
+        ))
+    })?;
     Ok(ForceBalance {
         inertia_raw_n: inertia(second_difference(x, dt)),
         inertia_filtered_n: inertia(filtfilt(sections, &second_difference(x, dt))),

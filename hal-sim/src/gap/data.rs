@@ -52,6 +52,41 @@ pub const MAX_SAMPLE_RATE_HZ: f64 = 1.0e6;
 /// beyond it the row is not a position of this machine.
 pub const POSITION_MARGIN_M: f64 = 0.01;
 
+/// How far a step of the time column may differ from the log's sample time, as a share.
+pub const MAX_STEP_JITTER: f64 = 0.1;
+
+/// Largest derived value (velocity, acceleration, rate) the fits accept: their squares
+/// summed over any log stay finite.
+pub const MAX_DERIVED: f64 = 1e100;
+
+/// The columns the workflow reads (the line pressures when logged).
+pub const USED_COLUMNS: [&str; 10] = [
+    "t_s",
+    "x_m",
+    "x_slave_m",
+    "theta_rad",
+    "f_master_n",
+    "f_slave_n",
+    "p_a_pa",
+    "p_b_pa",
+    "p_suction_pa",
+    "p_discharge_pa",
+];
+
+/// Refuses a value outside the column's physical range (`runlog::physical_range`; NaN and
+/// infinities included), naming the column and the data row (counted from 1).
+pub fn check_range(name: &str, column: &[f64]) -> Result<(), String> {
+    let (lo, hi) = crate::runlog::physical_range(name);
+    match column.iter().position(|v| !(lo..=hi).contains(v)) {
+        None => Ok(()),
+        Some(i) => Err(format!(
+            "column `{name}`, data row {}: {} is outside the physical range {lo:e}..={hi:e}",
+            i + 1,
+            column.get(i).copied().unwrap_or(f64::NAN)
+        )),
+    }
+}
+
 /// How the chambers were connected while the log was taken (`# ports = …`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PortsMeta {
@@ -153,12 +188,32 @@ impl Measured {
                 .map(<[f64]>::to_vec)
                 .ok_or_else(|| format!("column `{name}`: required column is missing"))
         };
+        // Every value the workflow reads must be one a machine can log (the reader's
+        // physical ranges): a NaN, an infinity or a finite 1e300 would otherwise travel
+        // through the derivatives into the fits' normal equations.
+        for name in USED_COLUMNS {
+            if let Some(c) = log.column(name) {
+                check_range(name, c)?;
+            }
+        }
         let t_s = col("t_s")?;
         let n = t_s.len();
         let dt_s = match (t_s.first(), t_s.last()) {
             (Some(a), Some(b)) if n > 1 && b > a => (b - a) / (n - 1) as f64,
             _ => return Err("column `t_s`: no usable time step".into()),
         };
+        // The step is taken from the ends: each step must be it (a log of uniform rate).
+        if let Some(i) = t_s.windows(2).position(|w| {
+            let step = w.get(1).copied().unwrap_or(0.0) - w.first().copied().unwrap_or(0.0);
+            !((1.0 - MAX_STEP_JITTER) * dt_s..=(1.0 + MAX_STEP_JITTER) * dt_s).contains(&step)
+        }) {
+            return Err(format!(
+                "column `t_s`, data row {}: the step from the previous row is not the log's \
+                 sample time {dt_s:e} s within {:.0} % (the workflow needs a uniform rate)",
+                i + 2,
+                100.0 * MAX_STEP_JITTER
+            ));
+        }
         let rate = 1.0 / dt_s;
         if !(MIN_SAMPLE_RATE_HZ..=MAX_SAMPLE_RATE_HZ).contains(&rate) {
             return Err(format!(
@@ -261,6 +316,28 @@ impl Measured {
         let inner: Vec<f64> = (0..n)
             .map(|i| f64::from(u8::from(i >= edge && i + edge < n)))
             .collect();
+        // What the fits see: the derivatives of values in range are finite, and this says
+        // which row made one that is not (a last guard before any solver).
+        for (name, v) in [
+            ("velocity of `x_m`", &v_mps),
+            ("acceleration of `x_m`", &a_mps2),
+            ("second difference of `x_m`", &d2x_mps2),
+            ("rate of `theta_rad`", &omega_rad_s),
+            ("rate of `p_a_pa`", &dp_a_pa_per_s),
+            ("rate of `p_b_pa`", &dp_b_pa_per_s),
+        ] {
+            if let Some(i) = v
+                .iter()
+                .position(|x| !(-MAX_DERIVED..=MAX_DERIVED).contains(x))
+            {
+                return Err(format!(
+                    "data row {}: the {name} there is {}, beyond what the fits can use \
+                     (±{MAX_DERIVED:e})",
+                    i + 1,
+                    v.get(i).copied().unwrap_or(f64::NAN)
+                ));
+            }
+        }
         let moving = moving_mask(&v_mps, &inner, dt_s, sg_window);
         let segments = runs(&moving);
         Ok(Measured {

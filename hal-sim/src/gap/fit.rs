@@ -5,11 +5,16 @@
 use nalgebra::{DMatrix, DVector};
 
 /// Least squares `y ≈ Σ θⱼ·colⱼ`: the coefficients and the residual sum of squares. `None`
-/// when the columns are empty, of unequal length or singular.
+/// when the columns are empty, of unequal length or singular, or when the design matrix,
+/// the right-hand side or their products are not finite (values so large that their
+/// squares overflow): the solvers are never handed a NaN or an infinity.
 pub fn lstsq(cols: &[Vec<f64>], y: &[f64]) -> Option<(Vec<f64>, f64)> {
     let k = cols.len();
     let n = y.len();
     if k == 0 || n < k || cols.iter().any(|c| c.len() != n) {
+        return None;
+    }
+    if !all_finite(y) || !cols.iter().all(|c| all_finite(c)) {
         return None;
     }
     let x = DMatrix::from_fn(n, k, |r, c| {
@@ -20,6 +25,9 @@ pub fn lstsq(cols: &[Vec<f64>], y: &[f64]) -> Option<(Vec<f64>, f64)> {
     // singular set falls back to the SVD.
     let xtx = x.transpose() * &x;
     let xty = x.transpose() * &yv;
+    if !all_finite(xtx.as_slice()) || !all_finite(xty.as_slice()) {
+        return None;
+    }
     let theta = match xtx.clone().cholesky() {
         Some(ch) => ch.solve(&xty),
         None => xtx.svd(true, true).solve(&xty, 1e-12).ok()?,
@@ -28,8 +36,14 @@ pub fn lstsq(cols: &[Vec<f64>], y: &[f64]) -> Option<(Vec<f64>, f64)> {
         return None;
     }
     let fitted = &x * &theta;
-    let rss = (yv - fitted).iter().map(|e| e * e).sum();
-    Some((theta.iter().copied().collect(), rss))
+    let rss: f64 = (yv - fitted).iter().map(|e| e * e).sum();
+    rss.is_finite()
+        .then(|| (theta.iter().copied().collect(), rss))
+}
+
+/// Whether every value is finite.
+pub fn all_finite(v: &[f64]) -> bool {
+    v.iter().all(|x| x.is_finite())
 }
 
 /// Sum of squares.
@@ -141,8 +155,11 @@ pub fn gauss_newton_nonneg(
     iters: usize,
     mut r: impl FnMut(&[f64]) -> Option<Vec<f64>>,
 ) -> Option<(Vec<f64>, f64)> {
-    let mut res = r(&u)?;
+    let mut res = r(&u).filter(|v| all_finite(v))?;
     let mut cost = sumsq(&res);
+    if !cost.is_finite() {
+        return None;
+    }
     let mut damping = 1e-3;
     for _ in 0..iters {
         let mut cols = Vec::with_capacity(u.len());
@@ -162,6 +179,9 @@ pub fn gauss_newton_nonneg(
         let k = cols.len();
         let jtj = DMatrix::from_fn(k, k, |a, b| dot(&cols[a], &cols[b]));
         let jtr = DVector::from_fn(k, |a, _| dot(&cols[a], &res));
+        if !all_finite(jtj.as_slice()) || !all_finite(jtr.as_slice()) {
+            break;
+        }
         let mut improved = false;
         for _ in 0..6 {
             let mut m = jtj.clone();
@@ -179,7 +199,7 @@ pub fn gauss_newton_nonneg(
                 .collect();
             if let Some(rt) = r(&trial) {
                 let ct = sumsq(&rt);
-                if ct < cost {
+                if ct.is_finite() && ct < cost {
                     u = trial;
                     res = rt;
                     cost = ct;

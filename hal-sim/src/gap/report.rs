@@ -208,13 +208,17 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
     let _ = writeln!(
         md,
         "{} samples at {:.0} Hz ({:.2} s); differentiator window {} samples (centred); \
-         analysis band 0–{:.0} Hz; ports: {:?}.\n",
+         analysis band 0–{:.0} Hz; ports: {}.\n",
         d.len(),
         d.sample_rate_hz(),
         d.dt_s * d.len() as f64,
         d.sg_window,
         out.band.band_hz,
-        d.ports
+        match d.ports {
+            super::data::PortsMeta::Open => "open",
+            super::data::PortsMeta::Closed => "closed",
+            super::data::PortsMeta::Unknown => "not stated",
+        }
     );
     let _ = writeln!(md, "## Channels (band-limited residual RMS)\n");
     let _ = writeln!(
@@ -223,14 +227,17 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
     );
     for c in &out.json.channels {
         let change = if c.rms_before > 0.0 {
-            format!("{:+.0} %", 100.0 * (c.rms_after / c.rms_before - 1.0))
+            format!("{:+.0} %", Num(100.0 * (c.rms_after / c.rms_before - 1.0)))
         } else {
             "—".into()
         };
         let _ = writeln!(
             md,
             "| {} | {} | {:.4e} | {:.4e} | {change} |",
-            c.name, c.unit, c.rms_before, c.rms_after
+            c.name,
+            c.unit,
+            Num(c.rms_before),
+            Num(c.rms_after)
         );
     }
     let _ = writeln!(md, "\n## Effects added (most significant first)\n");
@@ -242,7 +249,7 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
             let params: Vec<String> = e
                 .params
                 .iter()
-                .map(|(k, v)| format!("{k} = {v:.5}"))
+                .map(|(k, v)| format!("{k} = {:.5}", Num(*v)))
                 .collect();
             let _ = writeln!(
                 md,
@@ -250,10 +257,10 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
                 e.name,
                 e.channel,
                 params.join(", "),
-                e.rms_before,
-                e.rms_after,
-                e.delta_bic,
-                100.0 * e.explained
+                Num(e.rms_before),
+                Num(e.rms_after),
+                Num(e.delta_bic),
+                Num(100.0 * e.explained)
             );
         }
     }
@@ -264,7 +271,7 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
             .proposal
             .params
             .iter()
-            .map(|(k, v)| format!("{k} = {v:.4e}"))
+            .map(|(k, v)| format!("{k} = {:.4e}", Num(*v)))
             .collect();
         let _ = writeln!(
             md,
@@ -272,11 +279,11 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
             j.proposal.kind.name(),
             j.proposal.kind.channel().name(),
             fitted.join(", "),
-            j.delta_bic,
-            100.0 * j.explained_total,
-            100.0 * j.explained,
+            Num(j.delta_bic),
+            Num(100.0 * j.explained_total),
+            Num(100.0 * j.explained),
             j.support,
-            j.change_rms / j.resolution.max(f64::MIN_POSITIVE),
+            Num(j.change_rms / j.resolution.max(f64::MIN_POSITIVE)),
             if j.significant() { "yes" } else { "no" }
         );
     }
@@ -286,8 +293,8 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
         let _ = writeln!(
             md,
             "| slave force behind master force | {:.4} | {:.3} |",
-            l.seconds * 1e3,
-            l.correlation
+            Num(l.seconds * 1e3),
+            Num(l.correlation)
         );
     }
     for (label, doc) in [
@@ -298,8 +305,8 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
             let _ = writeln!(
                 md,
                 "| acting force behind reported force ({label}) | {:.4} | {:.3} |",
-                l.seconds * 1e3,
-                l.correlation
+                Num(l.seconds * 1e3),
+                Num(l.correlation)
             );
         }
     }

@@ -396,6 +396,11 @@ pub fn encoder_prediction(data: &Measured, model: &MachineModel) -> Vec<f64> {
 /// Longest chamber step of the replay, s: the plant's (one control period).
 pub const REPLAY_STEP_S: f64 = fpc::units::CONTROL_PERIOD_S as f64;
 
+/// Most chamber sub-steps per log sample: enough for the slowest log the workflow analyses
+/// ([`super::data::MIN_SAMPLE_RATE_HZ`]: 10 steps of [`REPLAY_STEP_S`]), and a bound on the
+/// replay's cost per row whatever a log's sample time.
+pub const MAX_REPLAY_SUBSTEPS: usize = 16;
+
 /// The chambers replayed along the measured motion through the model, as the model's
 /// pressure sensors would read them: (p_A, p_B), Pa. `None` without `# ports`.
 ///
@@ -479,7 +484,11 @@ fn replay_from(
     // The plant steps its chambers every control period; a slower log is replayed in as
     // many sub-steps, along x and θ interpolated linearly (the chambers' port flow is stiff
     // and its step is made for 25–50 µs).
-    let substeps = (data.dt_s / REPLAY_STEP_S - 1e-9).ceil().max(1.0) as usize;
+    // The count is capped, so that the replay's cost follows the log's rows and never its
+    // duration (a log of huge sample times would otherwise be billions of sub-steps).
+    let substeps = (data.dt_s / REPLAY_STEP_S - 1e-9)
+        .ceil()
+        .clamp(1.0, MAX_REPLAY_SUBSTEPS as f64) as usize;
     let h = data.dt_s / substeps as f64;
     let lag = data.ports_delay_s / data.dt_s;
     let alpha = if sensor.time_constant_s > 0.0 {
