@@ -66,7 +66,11 @@ pub fn clip_quoted(message: &str) -> String {
             out.push('`');
         }
         if i % 2 == 1 {
-            out.push_str(&clip(part));
+            // A number toml wrote out in full (`1e300` as 301 digits) in its short form.
+            match part.parse::<f64>() {
+                Ok(v) if part.len() > 12 => out.push_str(&num(v)),
+                _ => out.push_str(&clip(part)),
+            }
         } else {
             out.push_str(part);
         }
@@ -92,5 +96,7 @@ mod tests {
             "y".repeat(500)
         ));
         assert!(m.len() < 80 && m.ends_with("expected `a`"), "{m}");
+        let m = clip_quoted(&format!("floating point `1{}.0`", "0".repeat(300)));
+        assert_eq!(m, "floating point `1e300`");
     }
 }

@@ -18,7 +18,7 @@ use fpc::physics::motor::MotorParams;
 use fpc::physics::port_timing::{PortGeometry, PortWindow};
 use serde::Deserialize;
 
-use crate::failure::clip_quoted;
+use crate::failure::{clip_quoted, num};
 
 /// The reference machine's model file, embedded.
 pub const REFERENCE_TOML: &str = include_str!("reference.toml");
@@ -311,7 +311,16 @@ fn describe(e: &toml::de::Error, text: &str) -> String {
             None => format!("missing key `{field}`"),
         }
     } else if let Some(k) = key.filter(|_| !msg.starts_with("unknown field")) {
-        format!("`{}`: {msg}", full_key(k))
+        let k = full_key(k);
+        match validate::range_of(&k) {
+            Some((lo, hi, unit)) => format!(
+                "`{k}`: {msg} (range {} ..= {}{}{unit})",
+                num(lo),
+                num(hi),
+                if unit.is_empty() { "" } else { " " }
+            ),
+            None => format!("`{k}`: {msg}"),
+        }
     } else {
         msg
     };
