@@ -345,3 +345,23 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn an_endless_or_huge_model_file_is_refused_without_reading_it_all() {
+    let zero = std::path::Path::new("/dev/zero");
+    if zero.exists() {
+        let e = MachineModel::read(zero).unwrap_err().0;
+        assert!(e.contains("larger than"), "{e}");
+    }
+    let d = std::env::temp_dir().join(format!("fpc_model_huge_{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    let huge = d.join("huge.toml");
+    let padding = "# padding\n".repeat(200_000);
+    std::fs::write(&huge, format!("{REFERENCE}\n{padding}")).unwrap();
+    let e = MachineModel::read(&huge).unwrap_err().0;
+    assert!(e.contains("larger than"), "{e}");
+    std::fs::write(&huge, [0xff, 0xfe, 0x00, 0x41]).unwrap();
+    let e = MachineModel::read(&huge).unwrap_err().0;
+    assert!(e.contains("not UTF-8"), "{e}");
+    let _ = std::fs::remove_dir_all(&d);
+}

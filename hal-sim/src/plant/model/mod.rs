@@ -71,6 +71,9 @@ pub struct MachineModel {
     pub effects: Effects,
 }
 
+/// The largest model file read, bytes (the reference file is about 6 KB).
+pub const MAX_MODEL_BYTES: u64 = 1 << 20;
+
 /// Why a model file was refused.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ModelError(pub String);
@@ -98,10 +101,27 @@ impl MachineModel {
         Ok(model)
     }
 
-    /// Reads and validates a model file.
+    /// Reads and validates a model file. At most [`MAX_MODEL_BYTES`] are read: a larger or
+    /// endless input (`/dev/zero`) is refused, not read into memory.
     pub fn read(path: &std::path::Path) -> Result<Self, ModelError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| ModelError(format!("cannot read {}: {e}", path.display())))?;
+        use std::io::Read;
+        let fail = |what: String| ModelError(format!("cannot read {}: {what}", path.display()));
+        let file = std::fs::File::open(path).map_err(|e| fail(e.to_string()))?;
+        let mut bytes = Vec::new();
+        file.take(MAX_MODEL_BYTES + 1)
+            .read_to_end(&mut bytes)
+            .map_err(|e| fail(e.to_string()))?;
+        if bytes.len() as u64 > MAX_MODEL_BYTES {
+            return Err(fail(format!(
+                "larger than {MAX_MODEL_BYTES} bytes, which no model file is"
+            )));
+        }
+        let text = String::from_utf8(bytes).map_err(|e| {
+            fail(format!(
+                "not UTF-8 text (byte {})",
+                e.utf8_error().valid_up_to()
+            ))
+        })?;
         Self::parse(&text).map_err(|e| ModelError(format!("{}: {}", path.display(), e.0)))
     }
 
