@@ -175,6 +175,33 @@ fn a_stalled_homing_ends_soon_saying_so_and_the_lowest_ratio_runs_at_top_speed()
     assert!(err.contains("no progress: homing"), "{err}");
     assert!(out.contains("\"cycles_requested\": 10000"), "{out}");
     assert!(started.elapsed().as_secs() < 30, "{:?}", started.elapsed());
+    // A failed run leaves nothing, unless asked to keep its files (still exit 1).
+    assert!(
+        !d.join("out").join("run.csv").exists(),
+        "a failed run wrote run.csv"
+    );
+    let (code, err, _) = fpc_sim(
+        &d,
+        &[
+            "--model",
+            model.to_str().unwrap(),
+            "--cycles",
+            "2",
+            "--keep-partial",
+        ],
+    );
+    assert_eq!(code, 1, "{err}");
+    assert!(d.join("out").join("run.csv").is_file(), "{err}");
+
+    // A fault the run ends before is reported, and the run writes nothing.
+    let d = dir("late");
+    let (code, err, _) = fpc_sim(&d, &["--cycles", "1", "--fault", "load_step@3"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("load_step@3") && err.contains("never injected"),
+        "{err}"
+    );
+    assert!(!d.join("out").join("run.csv").exists(), "{err}");
 
     let d = dir("lowest");
     let (code, err, out) = fpc_sim(
