@@ -347,6 +347,12 @@ pub fn control_config(model: &MachineModel) -> ControlConfig {
     c.servo.torque_full_scale_nm = model.servo.torque_full_scale_nm as f32;
     c.servo.counts_per_rev = model.servo.counts_per_rev;
     c.target_clearance_m = model.limits.target_head_clearance_m as f32;
+    // The dead points at the target clearance from each head of this model's travel (the
+    // firmware's reference stroke is for a 0.205 m travel: on another travel it stroked into
+    // a head or short of it).
+    let clearance = model.limits.target_head_clearance_m;
+    c.stroke.dead_a_m = clearance as f32;
+    c.stroke.dead_b_m = (model.piston.travel_m - clearance) as f32;
     c.force_limit_n = model.limits.force_limit_n as f32;
     c.max_speed_mps = model.limits.max_speed_mps as f32;
     // The model's cogging as the compensation map (what the calibration would find).

@@ -219,3 +219,24 @@ fn a_stalled_homing_ends_soon_saying_so_and_the_lowest_ratio_runs_at_top_speed()
     assert_eq!(code, 0, "{err}");
     assert!(out.contains("\"stopped_early\": null"), "{out}");
 }
+
+/// The firmware strokes between this model's dead points (target clearance from each head
+/// of its travel), not the reference machine's: a 0.2 m travel latched braking_envelope and
+/// a 0.3 m one stopped 95 mm short.
+#[test]
+fn a_model_with_another_travel_or_clearance_runs_to_its_own_dead_points() {
+    for (travel, clearance) in [(0.19, 1e-3), (0.3, 1e-3), (0.205, 2e-3)] {
+        let mut o = options(3.1, Some(2.0), 2);
+        o.model.piston.travel_m = travel;
+        o.model.limits.target_head_clearance_m = clearance;
+        let s = hal_sim::run::run(&o).unwrap().summary;
+        assert_eq!(s.stopped_early, None, "travel {travel}: {s:?}");
+        let err = s.dead_point_error_m.unwrap();
+        assert!(err < 0.2e-3, "travel {travel}: dead-point error {err}");
+        let min = s.min_head_clearance_m.unwrap();
+        assert!(
+            (min - clearance).abs() < 0.2e-3,
+            "travel {travel}: min clearance {min}"
+        );
+    }
+}
