@@ -60,9 +60,9 @@ pub const RANGES: &[(&str, f64, f64, &str)] = &[
     ("servo.torque_time_constant_s", 0.0, 0.1, "s"),
     ("servo.backlash_rad", 0.0, 0.5, "rad"),
     ("servo.counts_per_rev", 256.0, 1048576.0, "counts"),
-    ("sensors.current.noise_a", 0.0, 100.0, "A"),
-    ("sensors.current.offset_master_a", -100.0, 100.0, "A"),
-    ("sensors.current.offset_slave_a", -100.0, 100.0, "A"),
+    ("sensors.current.noise_a", 0.0, 10.0, "A"),
+    ("sensors.current.offset_master_a", -10.0, 10.0, "A"),
+    ("sensors.current.offset_slave_a", -10.0, 10.0, "A"),
     ("sensors.pressure.noise_pa", 0.0, 1e5, "Pa"),
     ("sensors.pressure.time_constant_s", 0.0, 1.0, "s"),
     ("sensors.pressure.offset_a_pa", -1e5, 1e5, "Pa"),
@@ -621,12 +621,21 @@ impl MachineModel {
             ("discharge_b_deg", po.discharge_b_deg),
         ];
         for (name, [open, close]) in windows {
-            if (close - open).rem_euclid(360.0) < 1e-9 {
+            let length = (close - open).rem_euclid(360.0);
+            if length < 1e-9 {
                 return Err(ModelError(format!(
                     "`ports.{name}` = [{}, {}] has no length: a window opens at one edge and \
                      closes at another",
                     num(open),
                     num(close)
+                )));
+            }
+            if 2.0 * po.ramp_deg >= length {
+                return Err(ModelError(format!(
+                    "`ports.ramp_deg` = {} is not below half of `ports.{name}`'s {} degrees: \
+                     the window would never open fully",
+                    num(po.ramp_deg),
+                    num(length)
                 )));
             }
         }
@@ -670,7 +679,8 @@ pub const CONSISTENCY_RULES: &[&str] = &[
     "|`effects.cogging.amplitude_n`| < ½ × min(`limits.force_limit_n`, peak force)",
     "`friction.coulomb_n`, `friction.static_n`, `effects.stribeck_friction.static_n` < peak \
      force = `motor.force_constant_n_per_a` × `motor.current_limit_a`",
-    "each port window has a length; a chamber's intake and discharge windows do not overlap",
+    "each port window has a length above 2 × `ports.ramp_deg`; a chamber's intake and \
+     discharge windows do not overlap",
     "each encoder's amplitude × (1 + max(0, gain_mismatch)) + its largest offset ≤ 2047 codes",
     "`lines.suction_pa` × `lines.pressure_ratio` ≤ 1e6 Pa (the pressure sensors' full scale)",
     "`gas.gamma` > 1",
