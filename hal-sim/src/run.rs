@@ -246,9 +246,11 @@ pub struct Summary {
     pub cycles: u32,
     /// Cycles asked for (`--cycles`).
     pub cycles_requested: u32,
-    /// Why the run ended before `cycles_requested`, if it did (a latched fault, the time
-    /// limit); `null` when it completed.
+    /// Why the run ended before `cycles_requested`, if it did (a latched fault, a stage that
+    /// made no progress, the injected faults' outcome known); `null` when it completed.
     pub stopped_early: Option<String>,
+    /// The `--fault` specifications the run ended before (`NAME@T`): never injected.
+    pub faults_not_injected: Vec<String>,
     /// Requested pressure ratio.
     pub pressure_ratio_target: f64,
     /// Max over the last 5 cycles of |p_chamber − p_discharge|/p_discharge at discharge
@@ -686,6 +688,12 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                 (true, None) => "the run ended early".to_string(),
             }
         }),
+        faults_not_injected: opts
+            .faults
+            .iter()
+            .filter(|f| f.at_s > sim_time_s)
+            .map(|f| format!("{}@{}", f.kind.name(), num(f.at_s)))
+            .collect(),
         pressure_ratio_target: opts.pressure_ratio,
         discharge_open_pressure_error: last_max(
             &metrics

@@ -195,13 +195,17 @@ fn a_stalled_homing_ends_soon_saying_so_and_the_lowest_ratio_runs_at_top_speed()
 
     // A fault the run ends before is reported, and the run writes nothing.
     let d = dir("late");
-    let (code, err, _) = fpc_sim(&d, &["--cycles", "1", "--fault", "load_step@3"]);
+    let (code, err, out) = fpc_sim(&d, &["--cycles", "1", "--fault", "load_step@3", "--json"]);
     assert_eq!(code, 1, "{err}");
     assert!(
         err.contains("load_step@3") && err.contains("never injected"),
         "{err}"
     );
     assert!(!d.join("out").join("run.csv").exists(), "{err}");
+    assert!(
+        out.contains("\"faults_not_injected\": [\n    \"load_step@3\""),
+        "{out}"
+    );
 
     let d = dir("lowest");
     let (code, err, out) = fpc_sim(

@@ -197,12 +197,7 @@ pub fn main(args: RunArgs) -> CmdResult {
 /// stopping before its cycles with no fault injected (the machine could not do what was
 /// asked). With an injected fault an early stop is the expected outcome.
 fn failure(opts: &RunOptions, s: &crate::run::Summary) -> Option<String> {
-    let missed: Vec<String> = opts
-        .faults
-        .iter()
-        .filter(|f| f.at_s > s.sim_time_s)
-        .map(|f| format!("{}@{}", f.kind.name(), crate::failure::num(f.at_s)))
-        .collect();
+    let missed = &s.faults_not_injected;
     if !missed.is_empty() {
         return Some(format!(
             "the run ended at {:.3} s simulated, before {} began: never injected (inject \
