@@ -22,21 +22,35 @@ use serde::Serialize;
 
 use crate::board::exec::{simulate_board, Execution, SimShared, WATCHDOG_TIMEOUT_US};
 use crate::board::world::World;
+use crate::failure::num;
 use crate::faults::apply::{InjectionReport, Injector};
 use crate::faults::inject::FaultSpec;
 use crate::plant::chambers::PortMode;
+use crate::plant::model::validate::PRESSURE_FULL_SCALE_PA;
 use crate::plant::model::MachineModel;
 use crate::runlog::{RunLog, REQUIRED};
 
 /// Pressure ratio → peak speed of the paper's Fig. 3 (PR, m/s).
 pub const FIG3_SPEEDS: [(f64, f64); 4] = [(3.1, 2.3), (3.7, 2.8), (4.3, 3.5), (5.1, 4.1)];
 
-/// Accepted pressure ratios. Below 1.1 the volume ratio is so near 1 that the discharge
-/// port would open as the intake closes, and the rotation cannot time the ports: the run
-/// stops on `rotation_sync` (measured at 1.0–1.05 with the reference machine).
-pub const PRESSURE_RATIO_RANGE: (f64, f64) = (1.1, 6.0);
-/// Accepted peak speeds, m/s.
+/// Accepted pressure ratios. Near 1 the volume ratio is so near 1 that the discharge port
+/// opens almost as the intake closes, and at speed the rotation cannot time the ports: the
+/// run stops on `rotation_sync` (measured on the reference machine: 1.0–1.05 at every
+/// speed, 1.1 from 2.8 m/s, 1.2 from 4 m/s, 1.3 and 1.4 at 4.5 m/s within 10 cycles; 1.5
+/// runs 100 cycles clean at 0.05–4.5 m/s).
+pub const PRESSURE_RATIO_RANGE: (f64, f64) = (1.5, 6.0);
+/// Accepted peak speeds, m/s (and never above the model's `limits.max_speed_mps`).
 pub const SPEED_RANGE_MPS: (f64, f64) = (0.05, 4.5);
+/// Accepted `--cycles`: at least one; the upper bound keeps a run's wall time within about
+/// an hour at the slowest speed.
+pub const CYCLES_RANGE: (u32, u32) = (1, 10_000);
+/// Homing creeps at about this speed, m/s: the time it may take is the travel at this
+/// speed, plus [`STALL_SPARE_S`].
+pub const HOMING_SPEED_MPS: f64 = 0.01;
+/// Spare time for each stage of a run (homing, a cycle, the stop), s simulated: a stage
+/// that takes longer than its expected time plus this has stalled, and the run ends
+/// saying so rather than running out the whole run's time.
+pub const STALL_SPARE_S: f64 = 2.0;
 
 /// How far the section forces in a run-log row lag its position, s (`# force_delay_s`):
 /// one control period — the firmware's status reports each section's force from the current
@@ -122,9 +136,21 @@ impl RunOptions {
     /// travel; a cycle is two strokes of the sinusoidal reference (mean speed 2/π of the
     /// peak), with 2 s to spare each.
     pub fn time_limit_s(&self) -> f64 {
-        let travel = self.model.piston.travel_m;
-        let cycle_s = std::f64::consts::PI * travel / self.peak_speed_mps();
-        2.0 + travel / 0.01 + f64::from(self.cycles) * (2.0 + cycle_s)
+        self.homing_limit_s() + f64::from(self.cycles) * self.cycle_limit_s() + STALL_SPARE_S
+    }
+
+    /// The longest homing may take, s simulated: the whole travel at [`HOMING_SPEED_MPS`]
+    /// and [`STALL_SPARE_S`].
+    pub fn homing_limit_s(&self) -> f64 {
+        STALL_SPARE_S + self.model.piston.travel_m / HOMING_SPEED_MPS
+    }
+
+    /// The longest one compression cycle may take, s simulated: twice two strokes of the
+    /// sinusoidal reference (mean speed 2/π of the peak; a cycle measured at 0.05 m/s takes
+    /// 1.35 times that) and [`STALL_SPARE_S`].
+    pub fn cycle_limit_s(&self) -> f64 {
+        STALL_SPARE_S
+            + 2.0 * std::f64::consts::PI * self.model.piston.travel_m / self.peak_speed_mps()
     }
 
     /// Checks the options; the error names the flag at fault.
@@ -132,26 +158,59 @@ impl RunOptions {
         let (lo, hi) = PRESSURE_RATIO_RANGE;
         if !(self.pressure_ratio.is_finite() && (lo..=hi).contains(&self.pressure_ratio)) {
             return Err(format!(
-                "--pressure-ratio {} is outside [{lo}, {hi}]",
-                self.pressure_ratio
+                "--pressure-ratio {} is outside [{lo}, {hi}] (below {lo} the rotation cannot \
+                 time the ports at speed)",
+                num(self.pressure_ratio)
+            ));
+        }
+        let suction = self.model.lines.suction_pa;
+        if suction * self.pressure_ratio > PRESSURE_FULL_SCALE_PA {
+            return Err(format!(
+                "--pressure-ratio {} with the model's `lines.suction_pa` = {} Pa puts the \
+                 discharge line beyond the pressure sensors' full scale {} Pa (at most {:.2})",
+                num(self.pressure_ratio),
+                num(suction),
+                num(PRESSURE_FULL_SCALE_PA),
+                PRESSURE_FULL_SCALE_PA / suction
             ));
         }
         let (lo, hi) = SPEED_RANGE_MPS;
         if let Some(v) = self.speed_mps {
             if !(v.is_finite() && (lo..=hi).contains(&v)) {
-                return Err(format!("--speed {v} is outside [{lo}, {hi}] m/s"));
+                return Err(format!("--speed {} is outside [{lo}, {hi}] m/s", num(v)));
             }
         }
-        if self.cycles == 0 || self.cycles > 10_000 {
-            return Err(format!("--cycles {} is outside [1, 10000]", self.cycles));
+        let max = self.model.limits.max_speed_mps;
+        let v = self.peak_speed_mps();
+        if v > max {
+            let flag = match self.speed_mps {
+                Some(_) => format!("--speed {}", num(v)),
+                None => format!(
+                    "--pressure-ratio {} asks for {} m/s (Fig. 3; give --speed) and",
+                    num(self.pressure_ratio),
+                    num(v)
+                ),
+            };
+            return Err(format!(
+                "{flag} is above the model's `limits.max_speed_mps` = {} m/s: the machine \
+                 may not go that fast (range [{lo}, {}] m/s)",
+                num(max),
+                num(max.min(hi))
+            ));
+        }
+        let (lo, hi) = CYCLES_RANGE;
+        if !(lo..=hi).contains(&self.cycles) {
+            return Err(format!("--cycles {} is outside [{lo}, {hi}]", self.cycles));
         }
         let limit = self.time_limit_s();
         if let Some(late) = self.faults.iter().find(|f| f.at_s > limit) {
             return Err(format!(
-                "--fault {}@{}: the run lasts at most {limit:.1} s simulated; it would never \
-                 be injected",
+                "--fault {}@{}: the run lasts at most {limit:.1} s simulated ({} cycles at \
+                 {} m/s); it would never be injected",
                 late.kind.name(),
-                late.at_s
+                num(late.at_s),
+                self.cycles,
+                num(v)
             ));
         }
         Ok(())
@@ -187,9 +246,11 @@ pub struct Summary {
     pub cycles: u32,
     /// Cycles asked for (`--cycles`).
     pub cycles_requested: u32,
-    /// Why the run ended before `cycles_requested`, if it did (a latched fault, the time
-    /// limit); `null` when it completed.
+    /// Why the run ended before `cycles_requested`, if it did (a latched fault, a stage that
+    /// made no progress, the injected faults' outcome known); `null` when it completed.
     pub stopped_early: Option<String>,
+    /// The `--fault` specifications the run ended before (`NAME@T`): never injected.
+    pub faults_not_injected: Vec<String>,
     /// Requested pressure ratio.
     pub pressure_ratio_target: f64,
     /// Max over the last 5 cycles of |p_chamber − p_discharge|/p_discharge at discharge
@@ -288,6 +349,12 @@ pub fn control_config(model: &MachineModel) -> ControlConfig {
     c.servo.torque_full_scale_nm = model.servo.torque_full_scale_nm as f32;
     c.servo.counts_per_rev = model.servo.counts_per_rev;
     c.target_clearance_m = model.limits.target_head_clearance_m as f32;
+    // The dead points at the target clearance from each head of this model's travel (the
+    // firmware's reference stroke is for a 0.205 m travel: on another travel it stroked into
+    // a head or short of it).
+    let clearance = model.limits.target_head_clearance_m;
+    c.stroke.dead_a_m = clearance as f32;
+    c.stroke.dead_b_m = (model.piston.travel_m - clearance) as f32;
     c.force_limit_n = model.limits.force_limit_n as f32;
     c.max_speed_mps = model.limits.max_speed_mps as f32;
     // The model's cogging as the compensation map (what the calibration would find).
@@ -409,6 +476,16 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     let mut metrics = Metrics::default();
     let mut cycles_done = 0u32;
     let limit_s = opts.time_limit_s();
+    // Each stage must finish in its own time (no waiting out the whole run's limit when
+    // homing or a cycle stalls) until the first injected fault begins; after it, the
+    // injector decides when the outcome is known.
+    let first_fault_s = opts
+        .faults
+        .iter()
+        .map(|f| f.at_s)
+        .fold(f64::INFINITY, f64::min);
+    let mut stage_deadline_s = opts.homing_limit_s();
+    let mut stop_reason: Option<String> = None;
     let mut capture = Capture::new(limit_s, csv, &log);
     let mut last = Status::INIT;
     let started = Instant::now();
@@ -446,6 +523,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
         }
         metrics.last_phase_rad = Some(w.plant.port_phase_rad());
         let faulted = !status.faults.is_empty();
+        let before = phase;
         phase = match phase {
             Phase::Homing if w.cycle() == 0 => {
                 let _ = shared.post_command(Command::Home);
@@ -526,17 +604,62 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             Phase::Stopping if status.mode == ModeKind::Holding => Phase::Done,
             other => other,
         };
+        // A new stage (homing done, a cycle done, the stop begun) gets its own time.
+        let new_stage = match (before, phase) {
+            (
+                Phase::Homing
+                | Phase::Running {
+                    toward_b: false, ..
+                },
+                Phase::Running { toward_b, .. },
+            ) => toward_b,
+            (Phase::Running { .. }, Phase::Stopping) => true,
+            _ => false,
+        };
+        if new_stage {
+            stage_deadline_s = t + opts.cycle_limit_s();
+        }
         last = status;
         let outcome_known = if injector.is_empty() {
             faulted
         } else {
             injector.finished(w.time_us(), heartbeat_timeout_s)
         };
-        if phase == Phase::Done || outcome_known || t > limit_s {
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
+        if phase == Phase::Done {
+            return ControlFlow::Break(());
         }
+        if outcome_known {
+            if !faulted {
+                stop_reason = Some("the injected faults' outcome was known".into());
+            }
+            return ControlFlow::Break(());
+        }
+        if t > limit_s {
+            stop_reason = Some(format!(
+                "the time limit of {limit_s:.1} s simulated ran out"
+            ));
+            return ControlFlow::Break(());
+        }
+        if t > stage_deadline_s && t < first_fault_s {
+            let what = match phase {
+                Phase::Homing => format!(
+                    "homing did not finish within {:.1} s simulated",
+                    opts.homing_limit_s()
+                ),
+                Phase::Stopping => format!(
+                    "the stop did not end in holding within {:.1} s simulated",
+                    opts.cycle_limit_s()
+                ),
+                _ => format!(
+                    "cycle {} did not complete within {:.1} s simulated",
+                    cycles_done + 1,
+                    opts.cycle_limit_s()
+                ),
+            };
+            stop_reason = Some(format!("no progress: {what} (mode {})", status.mode.name()));
+            return ControlFlow::Break(());
+        }
+        ControlFlow::Continue(())
     };
     let (world, _) = simulate_board(world, config, execution, each_cycle);
 
@@ -558,13 +681,19 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
         cycles: cycles_done,
         cycles_requested: opts.cycles,
         stopped_early: (cycles_done < opts.cycles).then(|| {
-            if metrics.faults.is_empty() {
-                format!("the time limit of {limit_s:.1} s simulated ran out")
-            } else {
-                let names: Vec<&str> = metrics.faults.iter().map(|f| f.name()).collect();
-                format!("faults latched: {}", names.join(", "))
+            let names: Vec<&str> = metrics.faults.iter().map(|f| f.name()).collect();
+            match (names.is_empty(), stop_reason) {
+                (false, _) => format!("faults latched: {}", names.join(", ")),
+                (true, Some(why)) => why,
+                (true, None) => "the run ended early".to_string(),
             }
         }),
+        faults_not_injected: opts
+            .faults
+            .iter()
+            .filter(|f| f.at_s > sim_time_s)
+            .map(|f| format!("{}@{}", f.kind.name(), num(f.at_s)))
+            .collect(),
         pressure_ratio_target: opts.pressure_ratio,
         discharge_open_pressure_error: last_max(
             &metrics

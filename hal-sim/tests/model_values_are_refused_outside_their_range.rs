@@ -58,31 +58,126 @@ fn every_value_outside_its_physical_range_is_refused_naming_the_key() {
             lo - span.max(1.0),
             1e300,
             -1e300,
+            1e-300,
+            -1e-300,
+            0.0,
+            -1.0,
             f64::INFINITY,
+            f64::NEG_INFINITY,
             f64::NAN,
         ] {
+            if (lo..=hi).contains(&bad) {
+                continue; // 0 or 1e-300 where the range starts at 0
+            }
             let text = with_value(*i, &format!("{bad:?}").replace("NaN", "nan"));
-            let short = key.rsplit('.').next().unwrap_or(key);
             match MachineModel::parse(&text) {
                 Ok(_) => panic!("{key} = {bad} accepted"),
-                Err(e) => assert!(
-                    e.0.contains(short),
-                    "{key} = {bad}: the message does not name the key: {}",
-                    e.0
-                ),
+                Err(e) => assert_names(&e.0, key, &format!("{bad}")),
             }
         }
     }
     println!("{ranged} keys of the reference file checked outside their ranges");
-    assert!(ranged >= 50, "only {ranged} keys have a range");
+    assert!(ranged >= 60, "only {ranged} keys have a range");
+}
+
+/// One short line naming `key` (its last part at least), with the range or the rule, and no
+/// Rust debug dump or 300-digit echo.
+fn assert_names(message: &str, key: &str, value: &str) {
+    let short = key.rsplit('.').next().unwrap_or(key);
+    assert!(
+        message.contains(short),
+        "{key} = {value}: the message does not name the key: {message}"
+    );
+    assert!(
+        !message.contains('\n') && message.chars().count() <= 400,
+        "{key} = {value}: not one short line: {message}"
+    );
+    assert!(
+        !message.contains(" { ") && !message.contains("0000000000000"),
+        "{key} = {value}: a debug dump or a long echo: {message}"
+    );
+}
+
+#[test]
+fn every_range_is_stated_with_its_bounds_and_the_reference_lies_inside() {
+    MachineModel::parse(REFERENCE).expect("the reference model loads");
+    for (i, key) in numeric_lines() {
+        let Some((lo, hi, _)) = range_of(&key) else {
+            continue;
+        };
+        let value: f64 = REFERENCE
+            .lines()
+            .nth(i)
+            .unwrap()
+            .split('=')
+            .nth(1)
+            .unwrap()
+            .split('#')
+            .next()
+            .unwrap()
+            .trim()
+            .parse()
+            .unwrap();
+        assert!(
+            (lo..=hi).contains(&value),
+            "{key} = {value} outside {lo} ..= {hi}"
+        );
+        // Just outside: refused, and the message states the range.
+        let e = MachineModel::parse(&with_value(i, &format!("{:?}", hi + (hi - lo).max(1.0))))
+            .unwrap_err()
+            .0;
+        assert!(e.contains("range") || e.contains("must"), "{key}: {e}");
+    }
+}
+
+#[test]
+fn every_model_file_of_the_project_still_loads() {
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+    for path in [
+        "hal-sim/tests/data/minimal_model.toml",
+        "tests/data/field-logs/d01.toml",
+        "tests/data/field-logs/d02.toml",
+        "tests/data/field-logs/d03.toml",
+        "tests/data/field-logs/d04.toml",
+    ] {
+        let p = std::path::Path::new(root).join(path);
+        if p.exists() {
+            MachineModel::read(&p).unwrap_or_else(|e| panic!("{path}: {e}"));
+        }
+    }
+}
+
+/// Through the command: every numeric key at 1e300 (and NaN for a few) exits 2 with one line
+/// naming the key, before any output is written.
+#[test]
+fn fpc_sim_run_exits_2_naming_the_key_and_writes_nothing() {
+    let d = std::env::temp_dir().join(format!("fpc_model_ranges_{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    let model = d.join("model.toml");
+    let out = d.join("out");
+    for (n, (i, key)) in numeric_lines().into_iter().enumerate() {
+        let value = if n % 7 == 0 { "nan" } else { "1e300" };
+        std::fs::write(&model, with_value(i, value)).unwrap();
+        let run = std::process::Command::new(env!("CARGO_BIN_EXE_fpc-sim"))
+            .args(["run", "--cycles", "1", "--model"])
+            .arg(&model)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(2), "{key} = {value}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{key} = {value}: {err}");
+        assert_names(err.trim(), &key, value);
+        assert!(!out.exists(), "{key} = {value}: outputs written");
+    }
+    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
 fn every_key_of_the_reference_file_has_a_range() {
     for (_, key) in numeric_lines() {
-        if key.starts_with("simulation.") || key == "servo.counts_per_rev" {
-            continue; // counts, checked as integers
-        }
         assert!(range_of(&key).is_some(), "{key} has no physical range");
     }
     assert!(RANGES.iter().all(|(_, lo, hi, _)| lo < hi));
@@ -107,13 +202,88 @@ fn values_that_make_no_machine_together_are_refused() {
             "offset_master_a = [0.0, 0.0, 0.0, 0.0]",
             "array of 3",
         ),
-        ("mass_kg = ", "mass_kg = 1\nmass_kg = ", "given twice"),
+        (
+            "mass_kg = ",
+            "mass_kg = 1\nmass_kg = ",
+            "piston.mass_kg` is given twice",
+        ),
+        (
+            "[gas]",
+            "[piston]\nmass_kg = 1.0\n[gas]",
+            "section `[piston]` is given twice",
+        ),
+        (
+            "discharge_a_deg = [288.0, 360.0]",
+            "discharge_a_deg = [100.0, 200.0]",
+            "overlap",
+        ),
+        (
+            "discharge_a_deg = [288.0, 360.0]",
+            "discharge_a_deg = [360.0, 288.0]",
+            "overlap",
+        ),
+        (
+            "discharge_b_deg = [108.0, 180.0]",
+            "discharge_b_deg = [150.0, 150.0]",
+            "no length",
+        ),
+        (
+            "intake_a_deg = [0.0, 180.0]",
+            "intake_a_deg = [0.0, 180.0, 200.0]",
+            "ports.intake_a_deg",
+        ),
+        ("static_n = 60.0", "static_n = 6000.0", "friction.static_n"),
+        ("force_limit_n = 10000.0", "force_limit_n = 1e6", "ok"),
+        ("sin_offset_codes = 0.0", "sin_offset_codes = 600.0", "ADC"),
+        ("suction_pa = 1.0e5", "suction_pa = 5.0e5", "full scale"),
+        ("mass_kg = 12.0", "mass_kg = \"heavy\"", "piston.mass_kg"),
+        ("mass_kg = 12.0", "mass_kg = [1.0, 2.0]", "piston.mass_kg"),
+        (
+            "counts_per_rev = 4096",
+            "counts_per_rev = 1e300",
+            "servo.counts_per_rev",
+        ),
+        (
+            "counts_per_rev = 4096",
+            "counts_per_rev = 1",
+            "servo.counts_per_rev",
+        ),
+        (
+            "substeps_per_period = 1",
+            "substeps_per_period = -1",
+            "substeps_per_period",
+        ),
     ];
     for (from, to, want) in cases {
         assert!(REFERENCE.contains(from), "{from}");
-        let e = MachineModel::parse(&REFERENCE.replacen(from, to, 1)).unwrap_err();
+        let text = REFERENCE.replacen(from, to, 1);
+        if want == "ok" {
+            MachineModel::parse(&text).unwrap_or_else(|e| panic!("{to}: {e}"));
+            continue;
+        }
+        let e = MachineModel::parse(&text).unwrap_err();
         assert!(e.0.contains(want), "{to}: {}", e.0);
+        assert_names(&e.0, want, to);
     }
+    // Cogging beyond half the motor's peak force, even under a large force limit.
+    let cog = REFERENCE
+        .replacen("force_limit_n = 10000.0", "force_limit_n = 1e6", 1)
+        .replacen("amplitude_n = 30.0", "amplitude_n = 9000.0", 1);
+    assert!(MachineModel::parse(&cog)
+        .unwrap_err()
+        .0
+        .contains("amplitude_n"));
+    // A missing section is named as a section; a long unknown key is cut short.
+    let no_encoder = REFERENCE.replacen("[encoder]\nperiod_m = 0.024", "", 1);
+    let e = MachineModel::parse(&no_encoder).unwrap_err().0;
+    assert!(e.contains("missing section [encoder]"), "{e}");
+    let long = REFERENCE.replacen(
+        "mass_kg = 12.0",
+        &format!("mass_kg = 12.0\n{} = 1.0", "k".repeat(5000)),
+        1,
+    );
+    let e = MachineModel::parse(&long).unwrap_err().0;
+    assert!(e.contains("unknown field") && e.len() < 400, "{e}");
     let lag = format!("{REFERENCE}\n[effects.slave_lag]\ndelay_s = 1e6\n");
     assert!(MachineModel::parse(&lag).unwrap_err().0.contains("delay_s"));
     let cog = REFERENCE.replacen("amplitude_n = 30.0", "amplitude_n = 1e300", 1);
@@ -125,6 +295,37 @@ fn values_that_make_no_machine_together_are_refused() {
 
 proptest! {
     #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
+
+    /// Several keys at once at the ends of their ranges or anywhere between (log-uniform):
+    /// the model loads or is refused naming a rule — no panic, and a refusal is one line.
+    #[test]
+    fn in_range_extremes_load_or_are_refused_by_name(
+        picks in proptest::collection::vec((0usize..1000, 0u8..4, 0.0f64..1.0), 1..8)
+    ) {
+        let lines = numeric_lines();
+        let mut text: Vec<String> = REFERENCE.lines().map(str::to_string).collect();
+        for (pick, how, u) in picks {
+            let (i, key) = &lines[pick % lines.len()];
+            let Some((lo, hi, _)) = range_of(key) else { continue };
+            let v = match how {
+                0 => lo,
+                1 => hi,
+                2 if lo > 0.0 => lo * (hi / lo).powf(u),
+                _ => lo + (hi - lo) * u,
+            };
+            let v = if key.ends_with("counts_per_rev") || key.starts_with("simulation.") {
+                format!("{}", v.round() as i64)
+            } else {
+                format!("{v:?}")
+            };
+            let k = text[*i].split('=').next().unwrap_or("").to_string();
+            text[*i] = format!("{k}= {v}");
+        }
+        if let Err(e) = MachineModel::parse(&text.join("\n")) {
+            prop_assert!(!e.0.is_empty() && !e.0.contains('\n') && e.0.len() < 400, "{}", e.0);
+            prop_assert!(e.0.contains('`'), "names no key: {}", e.0);
+        }
+    }
 
     /// Any value at all, for any key: the model loads or is refused with a message — no
     /// panic in validation.
@@ -143,4 +344,24 @@ proptest! {
             prop_assert!(!e.0.is_empty());
         }
     }
+}
+
+#[test]
+fn an_endless_or_huge_model_file_is_refused_without_reading_it_all() {
+    let zero = std::path::Path::new("/dev/zero");
+    if zero.exists() {
+        let e = MachineModel::read(zero).unwrap_err().0;
+        assert!(e.contains("larger than"), "{e}");
+    }
+    let d = std::env::temp_dir().join(format!("fpc_model_huge_{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    let huge = d.join("huge.toml");
+    let padding = "# padding\n".repeat(200_000);
+    std::fs::write(&huge, format!("{REFERENCE}\n{padding}")).unwrap();
+    let e = MachineModel::read(&huge).unwrap_err().0;
+    assert!(e.contains("larger than"), "{e}");
+    std::fs::write(&huge, [0xff, 0xfe, 0x00, 0x41]).unwrap();
+    let e = MachineModel::read(&huge).unwrap_err().0;
+    assert!(e.contains("not UTF-8"), "{e}");
+    let _ = std::fs::remove_dir_all(&d);
 }

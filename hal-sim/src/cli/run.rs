@@ -51,6 +51,11 @@ pub struct RunArgs {
     /// it an existing output is refused before the run starts; an input is never replaced.
     #[arg(long)]
     pub force: bool,
+    /// Keep the files of a run that fails (stops before its cycles without an injected
+    /// fault, or ends before a fault begins), for diagnosis; it still exits 1. Without it a
+    /// failed run writes nothing.
+    #[arg(long)]
+    pub keep_partial: bool,
 }
 
 /// The files `run` writes into its output directory.
@@ -118,14 +123,22 @@ pub fn main(args: RunArgs) -> CmdResult {
         })?;
     }
     let csv = out.final_path("run.csv");
-    out.commit()?;
-    if let Some(t) = telemetry {
-        t.commit()?;
-    }
     let s = &outcome.summary;
+    let failed = failure(&opts, s);
+    let written = failed.is_none() || args.keep_partial;
+    if written {
+        out.commit()?;
+        if let Some(t) = telemetry {
+            t.commit()?;
+        }
+    } else {
+        // A failed run leaves nothing (the staged files go with `out`).
+        drop(out);
+        drop(telemetry);
+    }
     errln!(
         "fpc-sim run: {} cycles in {:.3} s simulated ({:.0}x real time), state {}, peak speed {:.2} m/s, \
-         min head clearance {}, dead-point error {}, faults [{}]; wrote {}",
+         min head clearance {}, dead-point error {}, faults [{}]; {} {}",
         s.cycles,
         s.sim_time_s,
         s.realtime_factor,
@@ -134,6 +147,7 @@ pub fn main(args: RunArgs) -> CmdResult {
         fmt_mm(s.min_head_clearance_m),
         fmt_mm(s.dead_point_error_m),
         s.faults.join(", "),
+        if written { "wrote" } else { "did not write" },
         csv.display()
     )?;
     let r = &outcome.injection;
@@ -160,32 +174,45 @@ pub fn main(args: RunArgs) -> CmdResult {
         let text = serde_json::to_string_pretty(s).map_err(|e| Failure::runtime(e.to_string()))?;
         outln!("{text}")?;
     }
-    let missed: Vec<String> = opts
-        .faults
-        .iter()
-        .filter(|f| f.at_s > s.sim_time_s)
-        .map(|f| format!("{}@{}", f.kind.name(), f.at_s))
-        .collect();
-    if !missed.is_empty() {
-        return Err(Failure::runtime(format!(
-            "the run ended at {:.3} s simulated, before {} began: never injected (the files \
-             are written; inject earlier)",
-            s.sim_time_s,
-            missed.join(", ")
-        )));
+    if let Some(why) = failed {
+        let files = if written {
+            "the files are written"
+        } else {
+            "nothing written; --keep-partial keeps the files"
+        };
+        return Err(Failure::runtime(format!("{why} ({files})")));
     }
     if let Some(why) = &s.stopped_early {
-        let stop = format!(
-            "the run stopped after {} of {} cycles: {why}",
-            s.cycles, s.cycles_requested
-        );
-        if args.faults.is_empty() {
-            // Nothing was injected: the machine could not do what was asked.
-            return Err(Failure::runtime(format!("{stop} (the files are written)")));
-        }
-        errln!("fpc-sim run: {stop} (after the injected fault; exit 0)")?;
+        errln!(
+            "fpc-sim run: the run stopped after {} of {} cycles: {why} (after the injected \
+             fault; exit 0)",
+            s.cycles,
+            s.cycles_requested
+        )?;
     }
     Ok(())
+}
+
+/// Why a finished run counts as failed (exit 1), if it does: a fault it ended before, or
+/// stopping before its cycles with no fault injected (the machine could not do what was
+/// asked). With an injected fault an early stop is the expected outcome.
+fn failure(opts: &RunOptions, s: &crate::run::Summary) -> Option<String> {
+    let missed = &s.faults_not_injected;
+    if !missed.is_empty() {
+        return Some(format!(
+            "the run ended at {:.3} s simulated, before {} began: never injected (inject \
+             earlier)",
+            s.sim_time_s,
+            missed.join(", ")
+        ));
+    }
+    match &s.stopped_early {
+        Some(why) if opts.faults.is_empty() => Some(format!(
+            "the run stopped after {} of {} cycles: {why}",
+            s.cycles, s.cycles_requested
+        )),
+        _ => None,
+    }
 }
 
 fn fmt_mm(v: Option<f64>) -> String {

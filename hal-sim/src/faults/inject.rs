@@ -8,6 +8,8 @@
 
 use std::fmt;
 
+use crate::failure::{clip, num};
+
 /// The injectable scenarios (`faults.md` #1–15 and #20; #16–19 are bad input, tested
 /// through the command, model and log readers).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -167,7 +169,8 @@ const WORDS: [(&str, &str, f64); 11] = [
 
 /// Parses `NAME@T[:k=v,…]`.
 pub fn parse(spec: &str) -> Result<FaultSpec, SpecError> {
-    let err = |m: String| SpecError(format!("--fault `{spec}`: {m}"));
+    // Every echo of the user's text is cut to a readable length.
+    let err = |m: String| SpecError(format!("--fault `{}`: {m}", clip(spec)));
     let (name, rest) = spec
         .split_once('@')
         .ok_or_else(|| err("expected NAME@T[:k=v,…] (missing `@`)".into()))?;
@@ -178,7 +181,8 @@ pub fn parse(spec: &str) -> Result<FaultSpec, SpecError> {
         .ok_or_else(|| {
             let known: Vec<&str> = FaultKind::ALL.iter().map(|(_, n)| *n).collect();
             err(format!(
-                "unknown fault `{name}` (known: {})",
+                "unknown fault `{}` (known: {})",
+                clip(name),
                 known.join(", ")
             ))
         })?;
@@ -188,10 +192,11 @@ pub fn parse(spec: &str) -> Result<FaultSpec, SpecError> {
     };
     let at_s: f64 = time
         .parse()
-        .map_err(|_| err(format!("time `{time}` is not a number of seconds")))?;
+        .map_err(|_| err(format!("time `{}` is not a number of seconds", clip(time))))?;
     if !(at_s.is_finite() && at_s >= 0.0) {
         return Err(err(format!(
-            "time `{time}` must be a finite, non-negative number of seconds"
+            "time `{}` must be a finite, non-negative number of seconds",
+            clip(time)
         )));
     }
     let allowed = kind.parameters();
@@ -205,11 +210,19 @@ pub fn parse(spec: &str) -> Result<FaultSpec, SpecError> {
     {
         let (k, v) = pair
             .split_once('=')
-            .ok_or_else(|| err(format!("parameter `{pair}` is not k=v")))?;
-        let (pname, _, lo, hi) = allowed
-            .iter()
-            .find(|(n, ..)| *n == k)
-            .ok_or_else(|| err(format!("`{name}` has no parameter `{k}`")))?;
+            .ok_or_else(|| err(format!("parameter `{}` is not k=v", clip(pair))))?;
+        let (pname, _, lo, hi) = allowed.iter().find(|(n, ..)| *n == k).ok_or_else(|| {
+            let names: Vec<&str> = allowed.iter().map(|(n, ..)| *n).collect();
+            err(format!(
+                "`{name}` has no parameter `{}` (it takes: {})",
+                clip(k),
+                if names.is_empty() {
+                    "none".to_string()
+                } else {
+                    names.join(", ")
+                }
+            ))
+        })?;
         let value = match WORDS.iter().find(|(p, w, _)| p == pname && *w == v) {
             Some((_, _, code)) => *code,
             None if WORDS.iter().any(|(p, ..)| p == pname) => {
@@ -222,13 +235,23 @@ pub fn parse(spec: &str) -> Result<FaultSpec, SpecError> {
             }
             None => v
                 .parse::<f64>()
-                .map_err(|_| err(format!("`{k}={v}` is not a number")))?,
+                .map_err(|_| err(format!("`{k}={}` is not a number", clip(v))))?,
         };
         if !(value.is_finite() && (*lo..=*hi).contains(&value)) {
-            return Err(err(format!("`{k}={v}` is outside [{lo}, {hi}]")));
+            return Err(err(format!(
+                "`{k}={}` is outside [{}, {}]",
+                clip(v),
+                num(*lo),
+                num(*hi)
+            )));
         }
         if INTEGER_PARAMETERS.contains(pname) && value.fract() != 0.0 {
-            return Err(err(format!("`{k}={v}` must be a whole number")));
+            return Err(err(format!(
+                "`{k}={}` must be a whole number in [{}, {}]",
+                clip(v),
+                num(*lo),
+                num(*hi)
+            )));
         }
         if given.contains(pname) {
             return Err(err(format!("parameter `{k}` is given twice")));

@@ -18,6 +18,8 @@ use fpc::physics::motor::MotorParams;
 use fpc::physics::port_timing::{PortGeometry, PortWindow};
 use serde::Deserialize;
 
+use crate::failure::{clip_quoted, num};
+
 /// The reference machine's model file, embedded.
 pub const REFERENCE_TOML: &str = include_str!("reference.toml");
 
@@ -69,6 +71,9 @@ pub struct MachineModel {
     pub effects: Effects,
 }
 
+/// The largest model file read, bytes (the reference file is about 6 KB).
+pub const MAX_MODEL_BYTES: u64 = 1 << 20;
+
 /// Why a model file was refused.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ModelError(pub String);
@@ -96,10 +101,27 @@ impl MachineModel {
         Ok(model)
     }
 
-    /// Reads and validates a model file.
+    /// Reads and validates a model file. At most [`MAX_MODEL_BYTES`] are read: a larger or
+    /// endless input (`/dev/zero`) is refused, not read into memory.
     pub fn read(path: &std::path::Path) -> Result<Self, ModelError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| ModelError(format!("cannot read {}: {e}", path.display())))?;
+        use std::io::Read;
+        let fail = |what: String| ModelError(format!("cannot read {}: {what}", path.display()));
+        let file = std::fs::File::open(path).map_err(|e| fail(e.to_string()))?;
+        let mut bytes = Vec::new();
+        file.take(MAX_MODEL_BYTES + 1)
+            .read_to_end(&mut bytes)
+            .map_err(|e| fail(e.to_string()))?;
+        if bytes.len() as u64 > MAX_MODEL_BYTES {
+            return Err(fail(format!(
+                "larger than {MAX_MODEL_BYTES} bytes, which no model file is"
+            )));
+        }
+        let text = String::from_utf8(bytes).map_err(|e| {
+            fail(format!(
+                "not UTF-8 text (byte {})",
+                e.utf8_error().valid_up_to()
+            ))
+        })?;
         Self::parse(&text).map_err(|e| ModelError(format!("{}: {}", path.display(), e.0)))
     }
 
@@ -236,42 +258,93 @@ impl MachineModel {
     }
 }
 
-/// One line naming the key at fault (serde names the unknown or missing field), with the
-/// line it was found on.
+/// The sections a model file must have.
+const REQUIRED_SECTIONS: [&str; 5] = ["piston", "friction", "gas", "motor", "encoder"];
+
+/// One line naming the key (or section) at fault and the line it was found on, every echoed
+/// value cut to [`crate::failure::ECHO_CHARS`] characters; no type's debug dump.
 fn describe(e: &toml::de::Error, text: &str) -> String {
-    let msg = e.message().trim().replace('\n', " ");
-    match e.span() {
-        Some(span) => {
-            let before = text.get(..span.start).unwrap_or("");
-            let line = before.matches('\n').count() + 1;
-            // A missing key is reported on its table: name the table too.
-            let table = before
-                .lines()
-                .chain(text.get(span.start..).unwrap_or("").lines().take(1))
-                .filter(|l| l.trim_start().starts_with('['))
-                .last()
-                .map(|l| l.split('#').next().unwrap_or(l).trim().to_string());
-            // toml names neither a duplicate key nor a missing section: the text does.
-            let here = text
-                .get(span.start..)
-                .and_then(|t| t.lines().next())
-                .unwrap_or("");
-            match table {
-                _ if msg.starts_with("duplicate key") => {
-                    let key = here.split('=').next().unwrap_or(here).trim();
-                    format!("line {line}: key `{key}` is given twice")
-                }
-                _ if msg.starts_with("duplicate table") || msg.contains("duplicate table") => {
-                    format!("line {line}: section `{}` is given twice", here.trim())
-                }
-                Some(t) if msg.starts_with("missing field") => {
-                    format!("line {line}: {msg} in {t}")
-                }
-                _ => format!("line {line}: {msg}"),
-            }
-        }
-        None => msg,
+    // serde's words for types, in the file's words.
+    let msg = e
+        .message()
+        .trim()
+        .replace('\n', " ")
+        .replace("expected f64", "expected a number")
+        .replace("expected u32", "expected a whole number")
+        .replace("type: sequence", "type: array")
+        .replace("type: map", "type: table");
+    // A missing required section is reported by serde as a missing field of the file.
+    if let Some(section) = REQUIRED_SECTIONS
+        .iter()
+        .find(|s| msg.starts_with(&format!("missing field `{s}`")))
+    {
+        return format!(
+            "missing section [{section}] (required: [piston] [friction] [gas] [motor] [encoder])"
+        );
     }
+    let Some(span) = e.span() else {
+        return clip_quoted(&msg);
+    };
+    let before = text.get(..span.start).unwrap_or("");
+    let line = before.matches('\n').count() + 1;
+    // toml names neither a duplicate key nor the key of a bad value: the text does.
+    let line_start = before.rfind('\n').map_or(0, |i| i + 1);
+    let code = |l: &str| l.split('#').next().unwrap_or("").trim().to_string();
+    let here = code(
+        text.get(line_start..)
+            .and_then(|t| t.lines().next())
+            .unwrap_or(""),
+    );
+    let here = here.as_str();
+    // The table the error is in (a missing key is reported on its table): the last header
+    // line (`[name]`, no `=`) up to and including this one.
+    let table = text
+        .get(..line_start)
+        .unwrap_or("")
+        .lines()
+        .map(code)
+        .chain(std::iter::once(here.to_string()))
+        .rev()
+        .find(|l| l.starts_with('[') && !l.contains('='));
+    let key = (!here.starts_with('['))
+        .then(|| here.split_once('=').map(|(k, _)| k.trim()))
+        .flatten()
+        .filter(|k| !k.is_empty());
+    let section = table
+        .as_deref()
+        .map(|t| t.trim_matches(|c| c == '[' || c == ']').trim());
+    let full_key = |k: &str| match section {
+        Some(s) => format!("{s}.{k}"),
+        None => k.to_string(),
+    };
+    let text = if msg.contains("duplicate key") || msg.contains("duplicate table") {
+        if here.starts_with('[') {
+            format!("section `{here}` is given twice")
+        } else {
+            let k = key.unwrap_or(here);
+            format!("key `{}` is given twice", full_key(k))
+        }
+    } else if let Some(field) = msg.strip_prefix("missing field ") {
+        let field = field.trim_matches('`');
+        match &table {
+            Some(t) => format!("missing key `{}` in {t}", full_key(field)),
+            None => format!("missing key `{field}`"),
+        }
+    } else if let Some(k) = key.filter(|_| !msg.starts_with("unknown field")) {
+        let k = full_key(k);
+        match validate::range_of(&k) {
+            Some((lo, hi, unit)) => format!(
+                "`{k}`: {msg} (range {} ..= {}{}{unit})",
+                num(lo),
+                num(hi),
+                if unit.is_empty() { "" } else { " " }
+            ),
+            None => format!("`{k}`: {msg}"),
+        }
+    } else {
+        msg
+    };
+    format!("line {line}: {}", clip_quoted(&text))
 }
 
 #[cfg(test)]

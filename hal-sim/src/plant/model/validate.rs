@@ -5,6 +5,7 @@
 //! lengths, cogging below the force limit, …), with an error naming the key and the range.
 
 use super::{MachineModel, ModelError};
+use crate::failure::num;
 
 /// What a value must be.
 #[derive(Clone, Copy)]
@@ -36,7 +37,7 @@ pub const RANGES: &[(&str, f64, f64, &str)] = &[
     ("gas.gamma", 1.0, 1.7, ""),
     ("gas.gas_constant_j_per_kg_k", 10.0, 5000.0, "J/(kg·K)"),
     ("gas.temperature_k", 50.0, 1000.0, "K"),
-    ("gas.ambient_pa", 1e3, 1e7, "Pa"),
+    ("gas.ambient_pa", 1e4, 2e5, "Pa"),
     ("gas.viscosity_pa_s", 1e-7, 1e-2, "Pa·s"),
     ("motor.pole_pitch_m", 1e-3, 0.5, "m"),
     ("motor.force_constant_n_per_a", 0.1, 1e4, "N/A"),
@@ -49,7 +50,7 @@ pub const RANGES: &[(&str, f64, f64, &str)] = &[
     ("ports.intake_area_m2", 1e-8, 0.1, "m²"),
     ("ports.discharge_area_m2", 1e-8, 0.1, "m²"),
     ("ports.discharge_coefficient", 0.0, 1.0, ""),
-    ("lines.suction_pa", 1e3, 1e7, "Pa"),
+    ("lines.suction_pa", 1e4, 1e6, "Pa"),
     ("lines.pressure_ratio", 1.0, 20.0, ""),
     ("servo.inertia_kgm2", 1e-7, 10.0, "kg·m²"),
     ("servo.viscous_nms_per_rad", 0.0, 100.0, "N·m·s/rad"),
@@ -58,30 +59,36 @@ pub const RANGES: &[(&str, f64, f64, &str)] = &[
     ("servo.torque_limit_nm", 1e-3, 1000.0, "N·m"),
     ("servo.torque_time_constant_s", 0.0, 0.1, "s"),
     ("servo.backlash_rad", 0.0, 0.5, "rad"),
-    ("sensors.current.noise_a", 0.0, 100.0, "A"),
-    ("sensors.current.offset_master_a", -100.0, 100.0, "A"),
-    ("sensors.current.offset_slave_a", -100.0, 100.0, "A"),
-    ("sensors.pressure.noise_pa", 0.0, 1e6, "Pa"),
+    ("servo.counts_per_rev", 256.0, 1048576.0, "counts"),
+    ("sensors.current.noise_a", 0.0, 10.0, "A"),
+    ("sensors.current.offset_master_a", -10.0, 10.0, "A"),
+    ("sensors.current.offset_slave_a", -10.0, 10.0, "A"),
+    ("sensors.pressure.noise_pa", 0.0, 1e5, "Pa"),
     ("sensors.pressure.time_constant_s", 0.0, 1.0, "s"),
-    ("sensors.pressure.offset_a_pa", -1e6, 1e6, "Pa"),
-    ("sensors.pressure.offset_b_pa", -1e6, 1e6, "Pa"),
-    ("sensors.pressure.offset_suction_pa", -1e6, 1e6, "Pa"),
-    ("sensors.pressure.offset_discharge_pa", -1e6, 1e6, "Pa"),
-    ("sensors.encoder.amplitude_codes", 1.0, 65536.0, "codes"),
-    ("sensors.encoder.noise_codes", 0.0, 1e4, "codes"),
-    ("sensors.encoder.sin_offset_codes", -1e5, 1e5, "codes"),
-    ("sensors.encoder.cos_offset_codes", -1e5, 1e5, "codes"),
+    ("sensors.pressure.offset_a_pa", -1e5, 1e5, "Pa"),
+    ("sensors.pressure.offset_b_pa", -1e5, 1e5, "Pa"),
+    ("sensors.pressure.offset_suction_pa", -1e5, 1e5, "Pa"),
+    ("sensors.pressure.offset_discharge_pa", -1e5, 1e5, "Pa"),
+    (
+        "sensors.encoder.amplitude_codes",
+        1.0,
+        ADC_HALF_RANGE_CODES,
+        "codes",
+    ),
+    ("sensors.encoder.noise_codes", 0.0, 200.0, "codes"),
+    ("sensors.encoder.sin_offset_codes", -2047.0, 2047.0, "codes"),
+    ("sensors.encoder.cos_offset_codes", -2047.0, 2047.0, "codes"),
     ("sensors.encoder.quadrature_error_rad", -1.0, 1.0, "rad"),
     ("sensors.encoder.gain_mismatch", -0.99, 10.0, ""),
     ("limits.target_head_clearance_m", 1e-5, 0.05, "m"),
     ("limits.min_head_clearance_m", 0.0, 0.05, "m"),
     ("limits.force_limit_n", 1.0, 1e6, "N"),
-    ("limits.max_speed_mps", 0.01, 50.0, "m/s"),
+    ("limits.max_speed_mps", 0.1, 10.0, "m/s"),
     ("effects.cogging.amplitude_n", -1e4, 1e4, "N"),
     ("effects.cogging.period_m", 1e-4, 1.0, "m"),
     ("effects.cogging.phase_rad", -1e3, 1e3, "rad"),
-    ("effects.slave_lag.delay_s", 0.0, 0.01, "s"),
-    ("effects.actuator_lag.delay_s", 0.0, 0.01, "s"),
+    ("effects.slave_lag.delay_s", 0.0, 5e-3, "s"),
+    ("effects.actuator_lag.delay_s", 0.0, 5e-3, "s"),
     ("effects.stribeck_friction.static_n", 0.0, 1e5, "N"),
     ("effects.stribeck_friction.velocity_mps", 1e-5, 10.0, "m/s"),
     ("effects.stribeck_friction.exponent", 0.1, 10.0, ""),
@@ -104,7 +111,16 @@ pub const RANGES: &[(&str, f64, f64, &str)] = &[
     ("effects.leakage.rod_seal_length_m", 1e-4, 1.0, "m"),
     ("effects.port_restriction.area_scale", 0.0, 10.0, ""),
     ("effects.section_misalignment.offset_m", -0.01, 0.01, "m"),
+    ("simulation.substeps_per_period", 1.0, 64.0, ""),
 ];
+
+/// What the 12-bit ADC can carry either side of its mid-scale, codes: an encoder signal's
+/// amplitude plus its offset must fit.
+pub const ADC_HALF_RANGE_CODES: f64 = 2047.0;
+
+/// Full scale of the pressure sensors, Pa (0–10 bar absolute, `machine.md`): the discharge
+/// line (suction × pressure ratio) must be readable.
+pub const PRESSURE_FULL_SCALE_PA: f64 = 1.0e6;
 
 /// The range of `key` in [`RANGES`] (`None` for keys without one).
 pub fn range_of(key: &str) -> Option<(f64, f64, &'static str)> {
@@ -123,7 +139,10 @@ pub fn range_of(key: &str) -> Option<(f64, f64, &'static str)> {
 fn in_range(key: &str, v: f64) -> Result<(), ModelError> {
     match range_of(key) {
         Some((lo, hi, unit)) if !(lo..=hi).contains(&v) => Err(ModelError(format!(
-            "`{key}` = {v:e} is outside its physical range {lo:e} ..= {hi:e}{}{unit}",
+            "`{key}` = {} is outside its physical range {} ..= {}{}{unit}",
+            num(v),
+            num(lo),
+            num(hi),
             if unit.is_empty() { "" } else { " " }
         ))),
         _ => Ok(()),
@@ -147,7 +166,10 @@ fn check(key: &str, v: f64, rule: Rule) -> Result<(), ModelError> {
         Rule::Finite => "finite".to_string(),
         Rule::InUnit(max) => format!("in (0, {max}]"),
     };
-    Err(ModelError(format!("`{key}` must be {what}, got {v}")))
+    Err(ModelError(format!(
+        "`{key}` must be {what}, got {}",
+        num(v)
+    )))
 }
 
 impl MachineModel {
@@ -310,7 +332,8 @@ impl MachineModel {
             for v in w {
                 if !(v.is_finite() && (0.0..=360.0).contains(&v)) {
                     return Err(ModelError(format!(
-                        "`ports.{name}` edges must lie in [0, 360] degrees, got {v}"
+                        "`ports.{name}` edges must lie in [0, 360] degrees, got {}",
+                        num(v)
                     )));
                 }
             }
@@ -452,26 +475,17 @@ impl MachineModel {
         for (key, v, rule) in &checks {
             check(key, *v, *rule)?;
         }
-        if p.rod_m >= p.bore_m {
-            return Err(ModelError(
-                "`piston.rod_m` must be smaller than `piston.bore_m`".into(),
-            ));
-        }
         if g.gamma <= 1.0 {
             return Err(ModelError(format!(
-                "`gas.gamma` must exceed 1, got {}",
-                g.gamma
+                "`gas.gamma` must exceed 1 (range above 1 ..= 1.7), got {}",
+                num(g.gamma)
             )));
         }
-        if sv.counts_per_rev == 0 {
-            return Err(ModelError("`servo.counts_per_rev` must be positive".into()));
-        }
-        let sub = self.simulation.substeps_per_period;
-        if !(1..=64).contains(&sub) {
-            return Err(ModelError(format!(
-                "`simulation.substeps_per_period` must be in [1, 64], got {sub}"
-            )));
-        }
+        in_range("servo.counts_per_rev", f64::from(sv.counts_per_rev))?;
+        in_range(
+            "simulation.substeps_per_period",
+            f64::from(self.simulation.substeps_per_period),
+        )?;
         if l.min_head_clearance_m > l.target_head_clearance_m {
             return Err(ModelError(
                 "`limits.min_head_clearance_m` must not exceed `limits.target_head_clearance_m`"
@@ -482,16 +496,25 @@ impl MachineModel {
     }
 
     /// The model as a whole: values that are each in range but make no machine together.
+    /// The rules are listed in [`CONSISTENCY_RULES`].
     fn check_consistency(&self) -> Result<(), ModelError> {
         let p = &self.piston;
         let l = &self.limits;
         let fail = |m: String| Err(ModelError(m));
+        if p.rod_m >= p.bore_m {
+            return fail(format!(
+                "`piston.rod_m` = {} m must be smaller than `piston.bore_m` = {} m",
+                num(p.rod_m),
+                num(p.bore_m)
+            ));
+        }
         for (name, dead) in [("a", p.dead_length_a_m), ("b", p.dead_length_b_m)] {
             if dead >= p.travel_m {
                 return fail(format!(
-                    "`piston.dead_length_{name}_m` = {dead} m is not shorter than \
+                    "`piston.dead_length_{name}_m` = {} m is not shorter than \
                      `piston.travel_m` = {} m: the chamber could not compress",
-                    p.travel_m
+                    num(dead),
+                    num(p.travel_m)
                 ));
             }
         }
@@ -499,35 +522,166 @@ impl MachineModel {
         if p.travel_m <= 2.0 * reserved {
             return fail(format!(
                 "`piston.travel_m` = {} m leaves no stroke: the dead lengths and twice \
-                 `limits.target_head_clearance_m` take {reserved} m, and the stroke must be at \
-                 least as long again",
-                p.travel_m
+                 `limits.target_head_clearance_m` take {} m, and the stroke must be at \
+                 least as long again (travel above {} m)",
+                num(p.travel_m),
+                num(reserved),
+                num(2.0 * reserved)
             ));
         }
         if self.encoder.period_m > p.travel_m {
             return fail(format!(
                 "`encoder.period_m` = {} m is longer than `piston.travel_m` = {} m",
-                self.encoder.period_m, p.travel_m
+                num(self.encoder.period_m),
+                num(p.travel_m)
             ));
         }
+        // One section's peak force: what the motor can hold against friction and cogging.
+        let m = &self.motor;
+        let peak_force = m.force_constant_n_per_a * m.current_limit_a;
+        let peak = || {
+            format!(
+                "the motor's peak force (`motor.force_constant_n_per_a` × \
+                 `motor.current_limit_a` = {} N)",
+                num(peak_force)
+            )
+        };
         if let Some(c) = &self.effects.cogging {
-            if c.amplitude_n.abs() >= 0.5 * l.force_limit_n {
+            let half = 0.5 * l.force_limit_n.min(peak_force);
+            if c.amplitude_n.abs() >= half {
                 return fail(format!(
                     "`effects.cogging.amplitude_n` = {} N is not below half of \
-                     `limits.force_limit_n` = {} N: the motor could not move the piston",
-                    c.amplitude_n, l.force_limit_n
+                     `limits.force_limit_n` = {} N and of {}: the motor could not move \
+                     the piston (|amplitude| below {} N)",
+                    num(c.amplitude_n),
+                    num(l.force_limit_n),
+                    peak(),
+                    num(half)
                 ));
             }
         }
-        let m = &self.motor;
-        let peak_force = m.force_constant_n_per_a * m.current_limit_a;
-        if self.friction.coulomb_n >= peak_force {
+        let frictions = [
+            ("friction.coulomb_n", Some(self.friction.coulomb_n)),
+            ("friction.static_n", self.friction.static_n),
+            (
+                "effects.stribeck_friction.static_n",
+                self.effects.stribeck_friction.as_ref().map(|s| s.static_n),
+            ),
+        ];
+        for (key, f) in frictions {
+            if let Some(f) = f.filter(|f| *f >= peak_force) {
+                return fail(format!(
+                    "`{key}` = {} N is not below {}: the piston could not move",
+                    num(f),
+                    peak()
+                ));
+            }
+        }
+        self.check_ports()?;
+        for (name, e) in [
+            ("encoder_master", &self.sensors.encoder_master),
+            ("encoder_slave", &self.sensors.encoder_slave),
+        ] {
+            let swing = e.amplitude_codes * (1.0 + e.gain_mismatch.max(0.0))
+                + e.sin_offset_codes.abs().max(e.cos_offset_codes.abs());
+            if swing > ADC_HALF_RANGE_CODES {
+                return fail(format!(
+                    "`sensors.{name}.amplitude_codes` = {} with its gain mismatch and \
+                     offsets swings {} codes from mid-scale: the 12-bit ADC carries \
+                     {} ..= {}",
+                    num(e.amplitude_codes),
+                    num(swing),
+                    num(-ADC_HALF_RANGE_CODES),
+                    num(ADC_HALF_RANGE_CODES)
+                ));
+            }
+        }
+        let discharge = self.lines.suction_pa * self.lines.pressure_ratio;
+        if discharge > PRESSURE_FULL_SCALE_PA {
             return fail(format!(
-                "`friction.coulomb_n` = {} N is not below the motor's peak force \
-                 (`motor.force_constant_n_per_a` × `motor.current_limit_a` = {peak_force} N)",
-                self.friction.coulomb_n
+                "`lines.suction_pa` = {} Pa × `lines.pressure_ratio` = {} is {} Pa, beyond \
+                 the pressure sensors' full scale {} Pa",
+                num(self.lines.suction_pa),
+                num(self.lines.pressure_ratio),
+                num(discharge),
+                num(PRESSURE_FULL_SCALE_PA)
             ));
         }
         Ok(())
     }
+
+    /// Each port window has a length, and no chamber is open to suction and discharge at
+    /// once (the intake and discharge windows of a chamber do not overlap).
+    fn check_ports(&self) -> Result<(), ModelError> {
+        let po = &self.ports;
+        let windows = [
+            ("intake_a_deg", po.intake_a_deg),
+            ("discharge_a_deg", po.discharge_a_deg),
+            ("intake_b_deg", po.intake_b_deg),
+            ("discharge_b_deg", po.discharge_b_deg),
+        ];
+        for (name, [open, close]) in windows {
+            let length = (close - open).rem_euclid(360.0);
+            if length < 1e-9 {
+                return Err(ModelError(format!(
+                    "`ports.{name}` = [{}, {}] has no length: a window opens at one edge and \
+                     closes at another",
+                    num(open),
+                    num(close)
+                )));
+            }
+            if 2.0 * po.ramp_deg >= length {
+                return Err(ModelError(format!(
+                    "`ports.ramp_deg` = {} is not below half of `ports.{name}`'s {} degrees: \
+                     the window would never open fully",
+                    num(po.ramp_deg),
+                    num(length)
+                )));
+            }
+        }
+        for (intake, discharge) in [(windows[0], windows[1]), (windows[2], windows[3])] {
+            let overlap = arc_overlap_deg(intake.1, discharge.1);
+            if overlap > 1e-9 {
+                return Err(ModelError(format!(
+                    "`ports.{}` and `ports.{}` overlap by {} degrees: the chamber would be \
+                     open to suction and discharge at once",
+                    intake.0,
+                    discharge.0,
+                    num(overlap)
+                )));
+            }
+        }
+        Ok(())
+    }
 }
+
+/// Degrees two windows `[open, close]` (edges in [0, 360], a window running forward from
+/// `open` to `close` through 360 if need be) share.
+fn arc_overlap_deg(a: [f64; 2], b: [f64; 2]) -> f64 {
+    let span = |w: [f64; 2]| (w[1] - w[0]).rem_euclid(360.0);
+    let (a0, a1) = (a[0], a[0] + span(a));
+    [-360.0, 0.0, 360.0]
+        .iter()
+        .map(|shift| {
+            let (b0, b1) = (b[0] + shift, b[0] + shift + span(b));
+            (a1.min(b1) - a0.max(b0)).max(0.0)
+        })
+        .sum()
+}
+
+/// The whole-model rules of [`MachineModel`]'s validation, for the documentation.
+pub const CONSISTENCY_RULES: &[&str] = &[
+    "`piston.rod_m` < `piston.bore_m`",
+    "each `piston.dead_length_*_m` < `piston.travel_m`",
+    "`piston.travel_m` > 2 × (both dead lengths + 2 × `limits.target_head_clearance_m`)",
+    "`limits.min_head_clearance_m` ≤ `limits.target_head_clearance_m`",
+    "`encoder.period_m` ≤ `piston.travel_m`",
+    "|`effects.cogging.amplitude_n`| < ½ × min(`limits.force_limit_n`, peak force)",
+    "`friction.coulomb_n`, `friction.static_n`, `effects.stribeck_friction.static_n` < peak \
+     force = `motor.force_constant_n_per_a` × `motor.current_limit_a`",
+    "each port window has a length above 2 × `ports.ramp_deg`; a chamber's intake and \
+     discharge windows do not overlap",
+    "each encoder's amplitude × (1 + max(0, gain_mismatch)) + its largest offset ≤ 2047 codes",
+    "`lines.suction_pa` × `lines.pressure_ratio` ≤ 1e6 Pa (the pressure sensors' full scale)",
+    "`gas.gamma` > 1",
+];
