@@ -1,0 +1,227 @@
+//! The run log as the loop records it: compact rows, streamed to the CSV in chunks or kept
+//! whole, and made into the log's columns.
+
+use std::io::Write;
+use std::time::Instant;
+
+use fpc::status::Status;
+use fpc::units::CONTROL_PERIOD_S;
+
+use super::COLUMNS;
+use crate::board::world::World;
+use crate::runlog::RunLog;
+
+/// The run log as the loop records it, made into [`COLUMNS`] after the loop (with the CSV),
+/// or chunk by chunk into the CSV while it runs ([`run_streamed`]).
+///
+/// A row is 80 bytes instead of 18 separate `f64` pushes (144): the status fields as the
+/// firmware has them (`f32`), the cycle instead of the time, the line pressures only when
+/// they change. Each fresh page costs a fault, which costs more than the rest of the
+/// recording; the buffer is reserved for the longest run so it never moves.
+pub(super) struct Capture<'s> {
+    rows: Vec<CapturedRow>,
+    /// (first row, p_suction, p_discharge) at each change of the line pressures.
+    lines: Vec<(usize, f64, f64)>,
+    /// Where the rows go while the run goes on, when streamed.
+    stream: Option<Stream<'s>>,
+}
+
+/// The CSV a streamed [`Capture`] writes, and the decimated copy it keeps.
+struct Stream<'s> {
+    out: &'s mut dyn Write,
+    /// The first write error; later chunks are not written.
+    error: Option<std::io::Error>,
+    /// Text of one chunk (reused).
+    text: String,
+    /// Every `stride`-th row of the run, for plots.
+    kept: RunLog,
+    stride: usize,
+    /// Rows written before the current chunk.
+    written: usize,
+    /// Wall time spent writing, s (kept out of the loop's real-time factor).
+    writing_s: f64,
+}
+
+/// One control cycle of [`Capture`].
+#[derive(Clone, Copy, Debug)]
+pub(super) struct CapturedRow {
+    /// x, x_slave, θ, F_master, F_slave, p_A, p_B, x_ref, θ_ref, v as in [`COLUMNS`].
+    status: [f32; 10],
+    cycle: u32,
+    fault: u8,
+    /// p_A, p_B, V_A, V_B (plant truth) as in [`COLUMNS`].
+    truth: [f64; 4],
+}
+
+/// Rows [`Capture`] reserves at most (80 MB of address space; it grows beyond).
+const MAX_RESERVED_ROWS: usize = 1 << 20;
+
+/// Rows a streamed run writes at a time (3.3 s of simulated time; ≈ 20 MB of buffers).
+pub const STREAM_CHUNK_ROWS: usize = 1 << 16;
+
+/// Most rows a streamed run keeps for its plots (≈ 13 s at the control rate: every row of
+/// the default 10-cycle run; 38 MB).
+pub const KEPT_ROWS: usize = 1 << 18;
+
+impl<'s> Capture<'s> {
+    /// Room for a run of at most `limit_s` simulated seconds (untouched capacity costs no
+    /// memory), or for one chunk when streamed to `csv` (whose head, the metadata and
+    /// column names of `log`, is written at once).
+    pub(super) fn new(limit_s: f64, csv: Option<&'s mut dyn Write>, log: &RunLog) -> Self {
+        let rows = (limit_s / f64::from(CONTROL_PERIOD_S)) as usize;
+        let stream = csv.map(|out| {
+            let mut text = String::new();
+            log.head_to_csv(&mut text);
+            let error = out.write_all(text.as_bytes()).err();
+            let mut kept = RunLog::with_columns(&COLUMNS);
+            kept.meta = log.meta.clone();
+            Stream {
+                out,
+                error,
+                text,
+                kept,
+                stride: 1,
+                written: 0,
+                writing_s: 0.0,
+            }
+        });
+        let reserve = if stream.is_some() {
+            STREAM_CHUNK_ROWS
+        } else {
+            rows.min(MAX_RESERVED_ROWS)
+        };
+        Capture {
+            rows: Vec::with_capacity(reserve),
+            lines: Vec::new(),
+            stream,
+        }
+    }
+
+    #[inline]
+    pub(super) fn push(&mut self, status: &Status, w: &World) {
+        let (c, l) = (&w.plant.chambers, &w.plant.lines);
+        let line_pa = (l.suction_pa, l.discharge_pa);
+        if self.lines.last().is_none_or(|&(_, s, d)| (s, d) != line_pa) {
+            self.lines.push((self.rows.len(), line_pa.0, line_pa.1));
+        }
+        self.rows.push(CapturedRow {
+            status: [
+                status.position_m,
+                status.slave_position_m,
+                status.theta_rad,
+                status.force_master_n,
+                status.force_slave_n,
+                status.pressure_a_pa,
+                status.pressure_b_pa,
+                status.reference_m,
+                status.theta_reference_rad,
+                status.velocity_mps,
+            ],
+            cycle: u32::try_from(w.cycle()).unwrap_or(u32::MAX),
+            fault: status.faults.first().map_or(0, |f| f as u8),
+            truth: [
+                c.a.pressure_pa,
+                c.b.pressure_pa,
+                c.a.volume_m3,
+                c.b.volume_m3,
+            ],
+        });
+        if self.stream.is_some() && self.rows.len() >= STREAM_CHUNK_ROWS {
+            self.flush();
+        }
+    }
+
+    /// Streamed: writes the captured rows to the CSV, keeps every `stride`-th for the plots
+    /// (halving the copy and doubling the stride when it outgrows [`KEPT_ROWS`]) and starts
+    /// the next chunk with the line pressures in force.
+    pub(super) fn flush(&mut self) {
+        let Some(s) = self.stream.as_mut() else {
+            return;
+        };
+        let started = Instant::now();
+        let mut chunk = RunLog::with_columns(&COLUMNS);
+        fill_columns(&self.rows, &self.lines, &mut chunk);
+        if s.error.is_none() {
+            s.text.clear();
+            chunk.rows_to_csv(&mut s.text);
+            s.error = s.out.write_all(s.text.as_bytes()).err();
+        }
+        let mut row = Vec::with_capacity(COLUMNS.len());
+        for r in 0..chunk.len() {
+            if (s.written + r) % s.stride == 0 {
+                row.clear();
+                row.extend(
+                    chunk
+                        .columns
+                        .iter()
+                        .map(|c| c.get(r).copied().unwrap_or(f64::NAN)),
+                );
+                s.kept.push_row(&row);
+            }
+        }
+        while s.kept.len() > KEPT_ROWS {
+            for column in &mut s.kept.columns {
+                *column = column.iter().step_by(2).copied().collect();
+            }
+            s.stride *= 2;
+        }
+        s.written += chunk.len();
+        s.writing_s += started.elapsed().as_secs_f64();
+        let in_force = self.lines.last().map(|&(_, su, di)| (0, su, di));
+        self.rows.clear();
+        self.lines.clear();
+        self.lines.extend(in_force);
+    }
+
+    /// Wall time spent writing the streamed CSV so far, s.
+    pub(super) fn writing_s(&self) -> f64 {
+        self.stream.as_ref().map_or(0.0, |s| s.writing_s)
+    }
+
+    /// The log of the run: all rows into `log` (which has [`COLUMNS`]); streamed, the rest
+    /// written and the kept copy in `log`, or the first write error.
+    pub(super) fn finish(mut self, log: &mut RunLog) -> Result<(), String> {
+        if self.stream.is_none() {
+            fill_columns(&self.rows, &self.lines, log);
+            return Ok(());
+        }
+        self.flush();
+        let Some(s) = self.stream.take() else {
+            return Ok(());
+        };
+        if let Some(e) = s.error.or_else(|| s.out.flush().err()) {
+            return Err(format!("cannot write the run log: {e}"));
+        }
+        *log = s.kept;
+        Ok(())
+    }
+}
+
+/// Appends the captured `rows` to `log` (which has [`COLUMNS`]), one column at a time; `lines`
+/// are the line-pressure changes (first row index, suction, discharge).
+pub(super) fn fill_columns(rows: &[CapturedRow], lines: &[(usize, f64, f64)], log: &mut RunLog) {
+    let n = rows.len();
+    for (j, column) in log.columns.iter_mut().enumerate() {
+        column.reserve_exact(n);
+        match j {
+            0 => column.extend(rows.iter().map(|r| World::time_s_at(u64::from(r.cycle)))),
+            1..=10 => column.extend(
+                rows.iter()
+                    .map(|r| r.status.get(j - 1).copied().map_or(f64::NAN, f64::from)),
+            ),
+            11 => column.extend(rows.iter().map(|r| f64::from(r.fault))),
+            12..=15 => column.extend(
+                rows.iter()
+                    .map(|r| r.truth.get(j - 12).copied().unwrap_or(f64::NAN)),
+            ),
+            _ => {
+                // Each line pressure holds from its change to the next.
+                let ends = lines.iter().skip(1).map(|l| l.0).chain([n]);
+                for (&(start, suction, discharge), end) in lines.iter().zip(ends) {
+                    let v = if j == 16 { suction } else { discharge };
+                    column.extend(std::iter::repeat_n(v, end.saturating_sub(start)));
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,278 @@
+//! What a run is asked to do: the accepted ranges, [`RunOptions`] and their checks, and the
+//! controller configuration and simulated board a model gives.
+
+use fpc::control::command::Command;
+use fpc::control::config::ControlConfig;
+
+use crate::board::exec::WATCHDOG_TIMEOUT_US;
+use crate::board::world::World;
+use crate::failure::num;
+use crate::faults::inject::FaultSpec;
+use crate::plant::chambers::PortMode;
+use crate::plant::model::validate::PRESSURE_FULL_SCALE_PA;
+use crate::plant::model::MachineModel;
+
+/// Pressure ratio → peak speed of the paper's Fig. 3 (PR, m/s).
+pub const FIG3_SPEEDS: [(f64, f64); 4] = [(3.1, 2.3), (3.7, 2.8), (4.3, 3.5), (5.1, 4.1)];
+
+/// Accepted pressure ratios. Near 1 the volume ratio is so near 1 that the discharge port
+/// opens almost as the intake closes, and at speed the rotation cannot time the ports: the
+/// run stops on `rotation_sync` (measured on the reference machine: 1.0–1.05 at every
+/// speed, 1.1 from 2.8 m/s, 1.2 from 4 m/s, 1.3 and 1.4 at 4.5 m/s within 10 cycles; 1.5
+/// runs 100 cycles clean at 0.05–4.5 m/s).
+pub const PRESSURE_RATIO_RANGE: (f64, f64) = (1.5, 6.0);
+/// Accepted peak speeds, m/s (and never above the model's `limits.max_speed_mps`).
+pub const SPEED_RANGE_MPS: (f64, f64) = (0.05, 4.5);
+/// Accepted `--cycles`: at least one; the upper bound keeps a run's wall time within about
+/// an hour at the slowest speed.
+pub const CYCLES_RANGE: (u32, u32) = (1, 10_000);
+/// Homing creeps at about this speed, m/s: the time it may take is the travel at this
+/// speed, plus [`STALL_SPARE_S`].
+pub const HOMING_SPEED_MPS: f64 = 0.01;
+/// Spare time for each stage of a run (homing, a cycle, the stop), s simulated: a stage
+/// that takes longer than its expected time plus this has stalled, and the run ends
+/// saying so rather than running out the whole run's time.
+pub const STALL_SPARE_S: f64 = 2.0;
+
+/// How far the section forces in a run-log row lag its position, s (`# force_delay_s`):
+/// one control period — the firmware's status reports each section's force from the current
+/// measured in the previous cycle.
+pub const FIRMWARE_FORCE_DELAY_S: f64 = 50e-6;
+
+/// Options of a run.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// The machine.
+    pub model: MachineModel,
+    /// Where the model came from (for the log's metadata).
+    pub model_name: String,
+    /// Target pressure ratio.
+    pub pressure_ratio: f64,
+    /// Peak speed, m/s (`None`: from the pressure ratio as in Fig. 3).
+    pub speed_mps: Option<f64>,
+    /// Compression cycles (A → B → A) to run.
+    pub cycles: u32,
+    /// Noise seed.
+    pub seed: u64,
+    /// What the board's µs time base reads at the start (to exercise its wrap).
+    pub start_us: u32,
+    /// Where the piston rests at power-up, m from head A.
+    pub start_position_m: f64,
+    /// Telemetry: one frame every this many control cycles, captured in
+    /// [`RunOutcome::telemetry`]; 0 = off.
+    pub telemetry_decimation: u16,
+    /// Relative error of the controller's model against the plant: its mass and friction
+    /// are (1 + this) × the plant's (the acceptance runs use 0.05).
+    pub model_error: f64,
+    /// The controller's configuration is otherwise the reference; this may change it (tests
+    /// switch the feed-forward off with it).
+    pub configure: Option<fn(&mut ControlConfig)>,
+    /// What the host does during the run, by completed compression cycle.
+    pub schedule: Vec<(u32, HostAction)>,
+    /// Faults injected during the run (`--fault`; `faults.md` scenarios). With faults the
+    /// run does not end at the first latched fault: it runs on until each fault's outcome
+    /// (the stop, the piston at rest, homing's end) is known.
+    pub faults: Vec<FaultSpec>,
+    /// Timeout of the board's independent watchdog, µs (the board's
+    /// [`crate::board::exec::WATCHDOG_TIMEOUT_US`]; a run may try another).
+    pub watchdog_timeout_us: u64,
+}
+
+/// Something the host does at the start of a given cycle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum HostAction {
+    /// Change the discharge-line pressure to this ratio over the suction pressure (the load).
+    SetLinePressureRatio(f64),
+    /// Send a command to the firmware.
+    Command(Command),
+}
+
+impl RunOptions {
+    /// Defaults on the reference machine.
+    pub fn reference() -> Self {
+        RunOptions {
+            model: MachineModel::reference(),
+            model_name: "reference".into(),
+            pressure_ratio: 3.1,
+            speed_mps: None,
+            cycles: 10,
+            seed: 1,
+            start_us: 0,
+            start_position_m: 0.005,
+            telemetry_decimation: 0,
+            model_error: 0.0,
+            configure: None,
+            schedule: Vec::new(),
+            faults: Vec::new(),
+            watchdog_timeout_us: WATCHDOG_TIMEOUT_US,
+        }
+    }
+
+    /// Peak speed to use, m/s.
+    pub fn peak_speed_mps(&self) -> f64 {
+        self.speed_mps
+            .unwrap_or_else(|| speed_for_pressure_ratio(self.pressure_ratio))
+    }
+
+    /// The longest the run may last, s simulated: homing creeps at 10 mm/s over at most the
+    /// travel; a cycle is two strokes of the sinusoidal reference (mean speed 2/π of the
+    /// peak), with 2 s to spare each.
+    pub fn time_limit_s(&self) -> f64 {
+        self.homing_limit_s() + f64::from(self.cycles) * self.cycle_limit_s() + STALL_SPARE_S
+    }
+
+    /// The longest homing may take, s simulated: the whole travel at [`HOMING_SPEED_MPS`]
+    /// and [`STALL_SPARE_S`].
+    pub fn homing_limit_s(&self) -> f64 {
+        STALL_SPARE_S + self.model.piston.travel_m / HOMING_SPEED_MPS
+    }
+
+    /// The longest one compression cycle may take, s simulated: twice two strokes of the
+    /// sinusoidal reference (mean speed 2/π of the peak; a cycle measured at 0.05 m/s takes
+    /// 1.35 times that) and [`STALL_SPARE_S`].
+    pub fn cycle_limit_s(&self) -> f64 {
+        STALL_SPARE_S
+            + 2.0 * std::f64::consts::PI * self.model.piston.travel_m / self.peak_speed_mps()
+    }
+
+    /// Checks the options; the error names the flag at fault.
+    pub fn validate(&self) -> Result<(), String> {
+        let (lo, hi) = PRESSURE_RATIO_RANGE;
+        if !(self.pressure_ratio.is_finite() && (lo..=hi).contains(&self.pressure_ratio)) {
+            return Err(format!(
+                "--pressure-ratio {} is outside [{lo}, {hi}] (below {lo} the rotation cannot \
+                 time the ports at speed)",
+                num(self.pressure_ratio)
+            ));
+        }
+        let suction = self.model.lines.suction_pa;
+        if suction * self.pressure_ratio > PRESSURE_FULL_SCALE_PA {
+            return Err(format!(
+                "--pressure-ratio {} with the model's `lines.suction_pa` = {} Pa puts the \
+                 discharge line beyond the pressure sensors' full scale {} Pa (at most {:.2})",
+                num(self.pressure_ratio),
+                num(suction),
+                num(PRESSURE_FULL_SCALE_PA),
+                PRESSURE_FULL_SCALE_PA / suction
+            ));
+        }
+        let (lo, hi) = SPEED_RANGE_MPS;
+        if let Some(v) = self.speed_mps {
+            if !(v.is_finite() && (lo..=hi).contains(&v)) {
+                return Err(format!("--speed {} is outside [{lo}, {hi}] m/s", num(v)));
+            }
+        }
+        let max = self.model.limits.max_speed_mps;
+        let v = self.peak_speed_mps();
+        if v > max {
+            let flag = match self.speed_mps {
+                Some(_) => format!("--speed {}", num(v)),
+                None => format!(
+                    "--pressure-ratio {} asks for {} m/s (Fig. 3; give --speed) and",
+                    num(self.pressure_ratio),
+                    num(v)
+                ),
+            };
+            return Err(format!(
+                "{flag} is above the model's `limits.max_speed_mps` = {} m/s: the machine \
+                 may not go that fast (range [{lo}, {}] m/s)",
+                num(max),
+                num(max.min(hi))
+            ));
+        }
+        let (lo, hi) = CYCLES_RANGE;
+        if !(lo..=hi).contains(&self.cycles) {
+            return Err(format!("--cycles {} is outside [{lo}, {hi}]", self.cycles));
+        }
+        let limit = self.time_limit_s();
+        if let Some(late) = self.faults.iter().find(|f| f.at_s > limit) {
+            return Err(format!(
+                "--fault {}@{}: the run lasts at most {limit:.1} s simulated ({} cycles at \
+                 {} m/s); it would never be injected",
+                late.kind.name(),
+                num(late.at_s),
+                self.cycles,
+                num(v)
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Peak speed for a pressure ratio, interpolated (and held at the ends) in Fig. 3's table.
+pub fn speed_for_pressure_ratio(pr: f64) -> f64 {
+    let mut prev = FIG3_SPEEDS[0];
+    if pr <= prev.0 {
+        return prev.1;
+    }
+    for &(p, v) in &FIG3_SPEEDS[1..] {
+        if pr <= p {
+            return prev.1 + (v - prev.1) * (pr - prev.0) / (p - prev.0);
+        }
+        prev = (p, v);
+    }
+    prev.1
+}
+
+/// The controller's configuration for a model: the firmware's reference tuning with the
+/// model's machine parameters.
+pub fn control_config(model: &MachineModel) -> ControlConfig {
+    let mut c = ControlConfig::reference();
+    c.moving_mass_kg = model.piston.mass_kg as f32;
+    c.travel_m = model.piston.travel_m as f32;
+    c.cylinder = fpc::physics::gas::Cylinder::from_bore(
+        model.piston.bore_m as f32,
+        model.piston.rod_m as f32,
+        model.piston.travel_m as f32,
+        model.piston.dead_length_a_m as f32,
+        model.piston.dead_length_b_m as f32,
+    );
+    let f = model.friction();
+    c.friction.coulomb_n = f.coulomb_n as f32;
+    c.friction.static_n = f.static_n as f32;
+    c.friction.viscous_ns_per_m = f.viscous_ns_per_m as f32;
+    c.friction.stribeck_velocity_mps = f.stribeck_velocity_mps as f32;
+    c.friction.stribeck_exponent = f.stribeck_exponent as f32;
+    c.encoder_master.period_m = model.encoder.period_m as f32;
+    c.encoder_slave.period_m = model.encoder.period_m as f32;
+    c.motor.electrical_period_m = (2.0 * model.motor.pole_pitch_m) as f32;
+    let m = model.motor_sections().master;
+    c.motor.force_constant_n_per_a = m.force_constant_n_per_a as f32;
+    c.motor.resistance_ohm = m.resistance_ohm as f32;
+    c.motor.inductance_h = m.inductance_h as f32;
+    c.motor.bus_voltage_v = m.bus_voltage_v as f32;
+    c.motor.current_limit_a = m.current_limit_a as f32;
+    c.servo.inertia_kgm2 = model.servo.inertia_kgm2 as f32;
+    c.servo.torque_full_scale_nm = model.servo.torque_full_scale_nm as f32;
+    c.servo.counts_per_rev = model.servo.counts_per_rev;
+    c.target_clearance_m = model.limits.target_head_clearance_m as f32;
+    // The dead points at the target clearance from each head of this model's travel (the
+    // firmware's reference stroke is for a 0.205 m travel: on another travel it stroked into
+    // a head or short of it).
+    let clearance = model.limits.target_head_clearance_m;
+    c.stroke.dead_a_m = clearance as f32;
+    c.stroke.dead_b_m = (model.piston.travel_m - clearance) as f32;
+    c.force_limit_n = model.limits.force_limit_n as f32;
+    c.max_speed_mps = model.limits.max_speed_mps as f32;
+    // The model's cogging as the compensation map (what the calibration would find).
+    if let Some(cog) = model.cogging() {
+        let mut map = fpc::physics::cogging::HarmonicMap::none();
+        map.period_m = cog.period_m as f32;
+        // A·sin(θ + φ) = A·cos φ·sin θ + A·sin φ·cos θ.
+        map.sin_n[0] = (cog.amplitude_n * cog.phase_rad.cos()) as f32;
+        map.cos_n[0] = (cog.amplitude_n * cog.phase_rad.sin()) as f32;
+        c.allocation.cogging = map;
+    }
+    c
+}
+
+/// The simulated board for a model.
+///
+/// The chambers start unloaded (both open to the suction line, the rig's start-up bypass):
+/// during homing the rotation is at rest and the port timing would seal a chamber. The run
+/// closes the bypass (`world.plant.port_mode = PortMode::Timed`) when compression starts.
+pub fn world(model: &MachineModel, seed: u64, start_us: u32, start_position_m: f64) -> World {
+    let mut w = World::from_model(model, seed, start_us, start_position_m);
+    w.plant.port_mode = PortMode::Unloaded;
+    w
+}
