@@ -99,6 +99,19 @@ pub enum PortsMeta {
     Unknown,
 }
 
+/// What the log's `theta_rad` measures (`# theta_source = …`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ThetaSource {
+    /// `piston` (or no key): the piston's own angle, which times the ports (`formats.md` §1).
+    Piston,
+    /// `servo_encoder`: the servo's quadrature count times its resolution (the count's
+    /// lower edge), as our firmware reports it. The piston, which times the ports, follows
+    /// through the spline's play: the replay takes the count's centre and carries the
+    /// piston along by the flank the servo pushes on (`[servo] counts_per_rev` and
+    /// `backlash_rad` of the model).
+    ServoEncoder,
+}
+
 /// The measured run, with what the workflow derives from it.
 #[derive(Clone, Debug)]
 pub struct Measured {
@@ -130,11 +143,12 @@ pub struct Measured {
     /// breathe to the suction line through their intakes (the start-up unloader of our own
     /// runs, `PortMode::Unloaded`). Absent: `ports` holds for the whole log.
     pub ports_from_s: Option<f64>,
+    /// `# theta_source`: what `theta_rad` measures.
+    pub theta_source: ThetaSource,
     /// `# force_delay_s`, if the log declares how far its forces lag its position, s.
     pub force_delay_s: Option<f64>,
     /// `# ports_delay_s`: how far the ports' rotation phase lags the logged `theta_rad`, s
-    /// (0 when not declared: the logged angle is the piston's). Our own runs log the servo's
-    /// angle, which the piston follows one control period later.
+    /// (0 when not declared), for a logger that stamps its angle late.
     pub ports_delay_s: f64,
     /// How far the forces act behind the row they are logged in, by the log's convention
     /// (a nuisance, not physics), s: `−force_delay_s` when declared, else estimated by the
@@ -257,6 +271,16 @@ impl Measured {
                 }
             },
         };
+        let theta_source = match log.meta("theta_source").map(str::trim) {
+            None | Some("piston") => ThetaSource::Piston,
+            Some("servo_encoder") => ThetaSource::ServoEncoder,
+            Some(other) => {
+                return Err(format!(
+                    "metadata `# theta_source = {}`: must be `piston` or `servo_encoder`",
+                    other.chars().take(40).collect::<String>()
+                ))
+            }
+        };
         let ports_from_s = match log.meta("ports_from_s").map(str::trim) {
             None => None,
             Some(v) => match v.parse::<f64>() {
@@ -356,6 +380,7 @@ impl Measured {
             theta_rad,
             ports,
             ports_from_s,
+            theta_source,
             force_delay_s,
             ports_delay_s,
             force_align_s,
@@ -431,6 +456,7 @@ impl Measured {
             p_discharge_pa: self.p_discharge_pa.as_ref().map(cut),
             ports: self.ports,
             ports_from_s: self.ports_from_s,
+            theta_source: self.theta_source,
             force_delay_s: self.force_delay_s,
             ports_delay_s: self.ports_delay_s,
             force_align_s: self.force_align_s,
@@ -572,7 +598,16 @@ mod tests {
         assert!((m.force_align_s + 5e-5).abs() < 1e-15);
         assert_eq!(m.ports_from_s, Some(0.5));
         assert_eq!(m.ports_delay_s, 5e-5);
+        assert_eq!(m.theta_source, ThetaSource::Piston);
+        for (value, source) in [
+            ("piston", ThetaSource::Piston),
+            (" servo_encoder ", ThetaSource::ServoEncoder),
+        ] {
+            let m = Measured::from_log(&log(&[("theta_source", value)]), 0.024).unwrap();
+            assert_eq!(m.theta_source, source);
+        }
         for (key, value) in [
+            ("theta_source", "servo"),
             ("ports_delay_s", "-1e-4"),
             ("force_delay_s", "1"),
             ("force_delay_s", "soon"),

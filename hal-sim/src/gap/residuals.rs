@@ -20,7 +20,7 @@ use crate::plant::model::MachineModel;
 use crate::signal::delayed;
 
 use super::band::{force_kernel, lowpass, sg_weights, Kernel};
-use super::data::{Measured, PortsMeta};
+use super::data::{Measured, PortsMeta, ThetaSource};
 
 /// The channels compared.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -393,8 +393,11 @@ pub fn encoder_prediction(data: &Measured, model: &MachineModel) -> Vec<f64> {
     }
 }
 
-/// Longest chamber step of the replay, s: the plant's (one control period).
-pub const REPLAY_STEP_S: f64 = fpc::units::CONTROL_PERIOD_S as f64;
+/// Longest chamber step of the replay, s: the plant's (one control period). Taken from the
+/// whole microseconds: the `f32` period widened to `f64` is 4.99999987e-5 s, which made every
+/// 50 µs log two half steps, a replay 70–190 Pa (rising with speed) away from the plant it
+/// replays, which the leak and port candidates then explained.
+pub const REPLAY_STEP_S: f64 = fpc::units::CONTROL_PERIOD_US as f64 / 1e6;
 
 /// Most chamber sub-steps per log sample: enough for the slowest log the workflow analyses
 /// ([`super::data::MIN_SAMPLE_RATE_HZ`]: 10 steps of [`REPLAY_STEP_S`]), and a bound on the
@@ -491,11 +494,25 @@ fn replay_from(
         .clamp(1.0, MAX_REPLAY_SUBSTEPS as f64) as usize;
     let h = data.dt_s / substeps as f64;
     let lag = data.ports_delay_s / data.dt_s;
+    // The sensors' lag is stepped with the chambers, as the plant steps it every control
+    // period: stepped once per sample of a slower log it would lag by τ − dt/2 instead of
+    // τ − h/2 (25 µs less on a 10 kHz log, named as leakage at speed).
     let alpha = if sensor.time_constant_s > 0.0 {
-        1.0 - (-data.dt_s / sensor.time_constant_s).exp()
+        1.0 - (-h / sensor.time_constant_s).exp()
     } else {
         1.0
     };
+    // The angle that times the ports, from the logged one (`# theta_source`): for a servo
+    // count, its centre, and the piston carried within the spline's play (a play operator,
+    // as the plant's spline; the piston starts centred).
+    let (centre, half_play) = match data.theta_source {
+        ThetaSource::Piston => (0.0, 0.0),
+        ThetaSource::ServoEncoder => (
+            0.5 * tau / f64::from(model.servo.counts_per_rev.max(1)),
+            0.5 * model.servo.backlash_rad,
+        ),
+    };
+    let mut piston = data.theta_rad.first().copied().unwrap_or(0.0) + centre;
     for i in 0..n {
         if i > 0 {
             // Set the lines only when the logged pressures change (each set costs a powf).
@@ -527,12 +544,14 @@ fn replay_from(
             for k in 1..=substeps {
                 let f = k as f64 / substeps as f64;
                 let x = x1 + f * (x2 - x1);
-                let phase = (t1 + f * (t2 - t1)).rem_euclid(tau);
+                let angle = t1 + f * (t2 - t1) + centre;
+                piston = piston.max(angle - half_play).min(angle + half_play);
+                let phase = piston.rem_euclid(tau);
                 ch.step(x, phase, &lines, mode, h);
+                la += alpha * (ch.a.pressure_pa - la);
+                lb += alpha * (ch.b.pressure_pa - lb);
             }
         }
-        la += alpha * (ch.a.pressure_pa - la);
-        lb += alpha * (ch.b.pressure_pa - lb);
         pa.push(la + sensor.offset_a_pa);
         pb.push(lb + sensor.offset_b_pa);
     }
