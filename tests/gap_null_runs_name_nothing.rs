@@ -70,52 +70,95 @@ fn gap_names_nothing_on_20_pressure_seeds() {
     }
 }
 
-/// The simulator's own run (`fpc-sim run --seed SEED`, the default 10 cycles at 2.3 m/s)
-/// with the ports metadata of what its machine does: `open` (timed by the rotation) from the
-/// moment the start-up bypass closes, which is the row before the rotation's reference first
-/// moves (the run posts the start command in the cycle it closes the bypass), and the ports
-/// one control period behind the logged servo angle. Run logs do not carry these keys yet
-/// (issue #18: at other speeds the replay still names leakage, see the README); without
-/// `ports_from_s` the replay vents nothing through homing and the residual is 28 kPa.
-fn run_log_with_ports_null(seed: u64) {
+/// The simulator's own run (`fpc-sim run --seed SEED --speed V`, 10 cycles), its log as
+/// `run` writes it: `# ports = open` from the moment the start-up bypass closes
+/// (`ports_from_s`) and `# theta_source = servo_encoder` (the logged angle is the servo's
+/// count; the piston follows through the spline's play). Issue #18: with `ports = open`
+/// alone gap named leakage, port restriction and heat transfer (28 kPa).
+/// Effects of the pressure channel (what the ports metadata is for).
+const PRESSURE_EFFECTS: [&str; 3] = ["leakage", "heat_transfer", "port_restriction"];
+
+/// `only_pressure`: only the pressure channel's effects count (the sweep below; see its note).
+fn own_run_null(
+    seed: u64,
+    speed_mps: f64,
+    pressure_ratio: f64,
+    decimation: usize,
+    only_pressure: bool,
+) {
     let opts = hal_sim::run::RunOptions {
         seed,
+        speed_mps: Some(speed_mps),
+        pressure_ratio,
         ..hal_sim::run::RunOptions::reference()
     };
     let mut log = hal_sim::run::run(&opts).expect("run").log;
-    let t = log.column("t_s").expect("t_s").to_vec();
-    let theta_ref = log.column("theta_ref_rad").expect("theta_ref_rad");
-    let first = theta_ref
-        .iter()
-        .position(|v| *v != 0.0)
-        .expect("the rotation starts");
-    let from = t[first.saturating_sub(1)];
-    log.meta.retain(|(k, _)| !k.starts_with("ports"));
-    log.meta.push(("ports".into(), "open".into()));
-    log.meta.push(("ports_from_s".into(), format!("{from}")));
-    log.meta.push(("ports_delay_s".into(), "5e-5".into()));
+    if decimation > 1 {
+        // A copy at a lower rate, as a logger that keeps every n-th sample writes it.
+        for c in &mut log.columns {
+            *c = c.iter().step_by(decimation).copied().collect();
+        }
+        for (k, v) in &mut log.meta {
+            if k == "sample_rate_hz" {
+                *v = format!("{}", 20_000 / decimation);
+            }
+        }
+    }
+    assert_eq!(log.meta("ports"), Some("open"));
+    assert_eq!(log.meta("theta_source"), Some("servo_encoder"));
     let j = gap(&reference(), &log);
     let pressure = j
         .channels
         .iter()
         .find(|c| c.name == "pressure")
         .expect("the pressure channel is compared");
+    println!(
+        "seed {seed} at {speed_mps} m/s, PR {pressure_ratio}, 1/{decimation} of the rows: pressure residual {:.0} Pa, named {:?}",
+        pressure.rms_before,
+        names(&j)
+    );
+    let named: Vec<String> = names(&j)
+        .into_iter()
+        .filter(|n| !only_pressure || PRESSURE_EFFECTS.contains(&n.as_str()))
+        .collect();
     assert!(
-        j.effects.is_empty(),
-        "seed {seed} named {:?} (pressure {:.0} Pa)",
+        named.is_empty(),
+        "seed {seed} at {speed_mps} m/s, PR {pressure_ratio}, 1/{decimation} of the rows named {:?} (pressure {:.0} Pa)",
         names(&j),
         pressure.rms_before
     );
+    // Below one code of the 10 bar sensor (305 Pa; its rounding alone is 88 Pa RMS): the
+    // 28 kPa of issue #18 and the 0.2–1 kPa of an untimed or unplayed rotation are gone.
     assert!(
-        pressure.rms_before < 200.0,
-        "seed {seed}: pressure residual {:.0} Pa",
+        pressure.rms_before < 250.0,
+        "seed {seed} at {speed_mps} m/s, PR {pressure_ratio}, 1/{decimation} of the rows: pressure residual {:.0} Pa",
         pressure.rms_before
     );
 }
 
 #[test]
-fn gap_names_nothing_on_the_simulators_own_runs_with_their_ports() {
+fn gap_names_nothing_on_the_simulators_own_runs() {
     for seed in [1, 2, 3, 7] {
-        run_log_with_ports_null(seed);
+        own_run_null(seed, 2.3, 3.1, 1, false);
+    }
+    own_run_null(11, 1.0, 3.1, 1, false);
+    own_run_null(12, 4.1, 3.1, 1, false);
+    // A 10 kHz copy (the paper's logging rate).
+    own_run_null(13, 4.1, 3.1, 2, false);
+}
+
+#[test]
+#[ignore = "slow: the simulator's own runs over speeds and pressure ratios"]
+/// The pressure channel names nothing anywhere in the envelope. Open finding: the force
+/// channel names `viscous_friction` at PR 1.5 and 4.1 m/s (printed above the assertion).
+fn gap_names_no_pressure_effect_on_the_simulators_own_runs_at_every_operating_point() {
+    let mut seed = 500;
+    for pressure_ratio in [1.5, 2.2, 3.1, 4.5, 6.0] {
+        for speed in [0.6, 1.0, 2.3, 3.5, 4.1, 4.5] {
+            for decimation in [1, 2] {
+                seed += 1;
+                own_run_null(seed, speed, pressure_ratio, decimation, true);
+            }
+        }
     }
 }

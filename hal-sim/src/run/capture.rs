@@ -24,6 +24,8 @@ pub(super) struct Capture<'s> {
     lines: Vec<(usize, f64, f64)>,
     /// Where the rows go while the run goes on, when streamed.
     stream: Option<Stream<'s>>,
+    /// When the start-up bypass closed (the rotation times the ports from the next row), s.
+    ports_from_s: Option<f64>,
 }
 
 /// The CSV a streamed [`Capture`] writes, and the decimated copy it keeps.
@@ -31,6 +33,8 @@ struct Stream<'s> {
     out: &'s mut dyn Write,
     /// The first write error; later chunks are not written.
     error: Option<std::io::Error>,
+    /// Whether the head (metadata and column names) is out.
+    head_written: bool,
     /// Text of one chunk (reused).
     text: String,
     /// Every `stride`-th row of the run, for plots.
@@ -59,6 +63,11 @@ const MAX_RESERVED_ROWS: usize = 1 << 20;
 /// Rows a streamed run writes at a time (3.3 s of simulated time; ≈ 20 MB of buffers).
 pub const STREAM_CHUNK_ROWS: usize = 1 << 16;
 
+/// Most rows a streamed run holds back, waiting for homing to end, before it writes its
+/// head without the `ports` keys (8 chunks, 26 s: longer than homing may take on the
+/// reference travel; ≈ 40 MB).
+const HEAD_WAIT_ROWS: usize = 8 * STREAM_CHUNK_ROWS;
+
 /// Most rows a streamed run keeps for its plots (≈ 13 s at the control rate: every row of
 /// the default 10-cycle run; 38 MB).
 pub const KEPT_ROWS: usize = 1 << 18;
@@ -66,19 +75,18 @@ pub const KEPT_ROWS: usize = 1 << 18;
 impl<'s> Capture<'s> {
     /// Room for a run of at most `limit_s` simulated seconds (untouched capacity costs no
     /// memory), or for one chunk when streamed to `csv` (whose head, the metadata and
-    /// column names of `log`, is written at once).
+    /// column names of `log` with [`Capture::ports_meta`], goes out with the first chunk,
+    /// once homing has ended).
     pub(super) fn new(limit_s: f64, csv: Option<&'s mut dyn Write>, log: &RunLog) -> Self {
         let rows = (limit_s / f64::from(CONTROL_PERIOD_S)) as usize;
         let stream = csv.map(|out| {
-            let mut text = String::new();
-            log.head_to_csv(&mut text);
-            let error = out.write_all(text.as_bytes()).err();
             let mut kept = RunLog::with_columns(&COLUMNS);
             kept.meta = log.meta.clone();
             Stream {
                 out,
-                error,
-                text,
+                error: None,
+                head_written: false,
+                text: String::new(),
                 kept,
                 stride: 1,
                 written: 0,
@@ -94,6 +102,28 @@ impl<'s> Capture<'s> {
             rows: Vec::with_capacity(reserve),
             lines: Vec::new(),
             stream,
+            ports_from_s: None,
+        }
+    }
+
+    /// The start-up bypass closed at `t_s` (after the row of that time): the rotation times
+    /// the ports from the next row on.
+    pub(super) fn ports_timed_from(&mut self, t_s: f64) {
+        self.ports_from_s.get_or_insert(t_s);
+    }
+
+    /// The log's metadata on what times the ports (`formats.md` §1): once the bypass has
+    /// closed, `ports = open` from `ports_from_s`, and `theta_rad` is the servo encoder's
+    /// count (the piston follows through the spline's play, which the model states). A run
+    /// that never got there says nothing, and its pressures are not replayed.
+    fn ports_meta(&self) -> Vec<(String, String)> {
+        match self.ports_from_s {
+            Some(t) => vec![
+                ("ports".into(), "open".into()),
+                ("ports_from_s".into(), format!("{t}")),
+                ("theta_source".into(), "servo_encoder".into()),
+            ],
+            None => Vec::new(),
         }
     }
 
@@ -126,7 +156,12 @@ impl<'s> Capture<'s> {
                 c.b.volume_m3,
             ],
         });
-        if self.stream.is_some() && self.rows.len() >= STREAM_CHUNK_ROWS {
+        let head_known = self.ports_from_s.is_some() || self.rows.len() >= HEAD_WAIT_ROWS;
+        let head_written = self.stream.as_ref().is_some_and(|s| s.head_written);
+        if self.stream.is_some()
+            && self.rows.len() >= STREAM_CHUNK_ROWS
+            && (head_written || head_known)
+        {
             self.flush();
         }
     }
@@ -135,10 +170,18 @@ impl<'s> Capture<'s> {
     /// (halving the copy and doubling the stride when it outgrows [`KEPT_ROWS`]) and starts
     /// the next chunk with the line pressures in force.
     pub(super) fn flush(&mut self) {
+        let ports = self.ports_meta();
         let Some(s) = self.stream.as_mut() else {
             return;
         };
         let started = Instant::now();
+        if !s.head_written {
+            s.head_written = true;
+            s.kept.meta.extend(ports);
+            s.text.clear();
+            s.kept.head_to_csv(&mut s.text);
+            s.error = s.out.write_all(s.text.as_bytes()).err();
+        }
         let mut chunk = RunLog::with_columns(&COLUMNS);
         fill_columns(&self.rows, &self.lines, &mut chunk);
         if s.error.is_none() {
@@ -182,6 +225,7 @@ impl<'s> Capture<'s> {
     /// written and the kept copy in `log`, or the first write error.
     pub(super) fn finish(mut self, log: &mut RunLog) -> Result<(), String> {
         if self.stream.is_none() {
+            log.meta.extend(self.ports_meta());
             fill_columns(&self.rows, &self.lines, log);
             return Ok(());
         }

@@ -269,6 +269,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             Phase::Homing if status.homed && status.mode == ModeKind::Holding => {
                 // Close the bypass: from now on the rotation times the ports.
                 w.plant.port_mode = PortMode::Timed;
+                capture.ports_timed_from(t);
                 while let Some((_, action)) = actions.next_if(|(c, _)| *c == 0) {
                     act(w, shared, action);
                 }
