@@ -38,6 +38,8 @@ fn filters_name_the_one_flag_at_fault_and_its_range() {
         ("--cutoff-hz", "600", "500 Hz"),
         ("--cutoff-hz", "NaN", "500 Hz"),
         ("--filter-order", "3", "2..=12"),
+        ("--column", "t_s", "not a position in metres"),
+        ("--column", "p_a_pa", "x_m, x_slave_m"),
     ] {
         let start = Instant::now();
         let args = [
@@ -62,6 +64,8 @@ fn filters_name_the_one_flag_at_fault_and_its_range() {
             !message.contains('{') && !message.contains("Settings"),
             "{message}"
         );
+        // Numbers are echoed short (1e20, not twenty digits).
+        assert!(!message.contains("0000000000"), "{message}");
         assert!(!std::path::Path::new(&out).join("filters.svg").exists());
     }
 }
@@ -102,6 +106,7 @@ fn filters_message(flag: &str, value: &str) -> String {
         "--filter-order" => args.filter.filter_order = int(),
         "--cutoff-hz" => args.filter.cutoff_hz = real(),
         "--drive-delay-ms" => args.drive_delay_ms = real(),
+        "--column" => args.column = value.into(),
         other => panic!("{other}"),
     }
     let log = hal_sim::runlog::RunLog::read(std::path::Path::new(&log())).expect("test log");

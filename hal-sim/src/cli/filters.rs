@@ -71,16 +71,35 @@ pub struct Estimate {
 /// milliseconds; a second is already several strokes.
 pub const MAX_DRIVE_DELAY_MS: f64 = 1000.0;
 
+/// The position column `name` of `log`: its unit, by the log's naming (`formats.md` §1),
+/// is metres (`…_m`), so its derivative is a velocity.
+fn position_column<'a>(log: &'a RunLog, name: &str) -> Result<&'a [f64], Failure> {
+    let x = column(log, name, "--column")?;
+    if !name.ends_with("_m") {
+        let positions: Vec<&str> = log
+            .names
+            .iter()
+            .map(String::as_str)
+            .filter(|n| n.ends_with("_m"))
+            .collect();
+        return Err(Failure::bad_input(format!(
+            "--column {name}: not a position in metres (the log's are: {})",
+            positions.join(", ")
+        )));
+    }
+    Ok(x)
+}
+
 /// Computes the four estimates (zero-phase first); the figures leave out 20 ms at each end.
 pub fn estimates(log: &RunLog, args: &FiltersArgs) -> Result<Vec<Estimate>, Failure> {
     let dt = sample_time_s(log)?;
-    let x = column(log, &args.column, "--column")?;
+    let x = position_column(log, &args.column)?;
     let model = read_model(args.io.model.as_deref())?;
     let sections = args.filter.sections(dt)?;
     if !(0.0..=MAX_DRIVE_DELAY_MS).contains(&args.drive_delay_ms) {
         return Err(Failure::bad_input(format!(
             "--drive-delay-ms {}: must be 0..={MAX_DRIVE_DELAY_MS} ms",
-            args.drive_delay_ms
+            crate::failure::num(args.drive_delay_ms)
         )));
     }
     let raw = backward_difference(x, dt);
@@ -148,7 +167,7 @@ pub fn main(args: FiltersArgs) -> CmdResult {
     let t = column(&log, "t_s", "t_s")?;
     let dt = sample_time_s(&log)?;
     let reference = est.first().map(|e| e.v_mps.as_slice()).unwrap_or_default();
-    let x = column(&log, &args.column, "--column")?;
+    let x = position_column(&log, &args.column)?;
     let window = time_window(
         t,
         args.window.from_s,
