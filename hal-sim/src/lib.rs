@@ -16,6 +16,7 @@
 //! | [`runlog`] | the run-log CSV |
 //! | [`signal`] | cross-correlation lag, filtfilt, differences, strokes |
 //! | [`gap`] | the model-gap workflow |
+//! | [`sweep`] | studies: every run of a plan in parallel, sharded, merged |
 //! | [`plot`] | SVG plots (reports of the runs, the log tools and the gap workflow) |
 //! | [`failure`] | the failure type and its exit codes |
 //! | [`output`] | outputs checked before work, staged and moved into place complete |
@@ -35,3 +36,4 @@ pub mod plot;
 pub mod run;
 pub mod runlog;
 pub mod signal;
+pub mod sweep;

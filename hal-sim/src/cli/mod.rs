@@ -15,6 +15,7 @@ pub mod gap;
 pub mod lag;
 pub mod pv;
 pub mod run;
+pub mod sweep;
 
 use clap::{Parser, Subcommand};
 
@@ -52,6 +53,10 @@ enum Cmd {
     Pv(pv::PvArgs),
     /// Find, name and add the effect missing from a model (model-gap workflow).
     Gap(gap::GapArgs),
+    /// Every run of a plan (the axes' combinations) in parallel, one table of results.
+    Sweep(sweep::SweepArgs),
+    /// Join the slices (`sweep --shard I/N`) of one plan into its whole table.
+    SweepMerge(sweep::MergeArgs),
 }
 
 fn dispatch(cmd: Cmd) -> CmdResult {
@@ -65,6 +70,8 @@ fn dispatch(cmd: Cmd) -> CmdResult {
         Cmd::Energy(args) => energy::main(args),
         Cmd::Pv(args) => pv::main(args),
         Cmd::Gap(args) => gap::main(args),
+        Cmd::Sweep(args) => sweep::main(args),
+        Cmd::SweepMerge(args) => sweep::merge_main(args),
     }
 }
 

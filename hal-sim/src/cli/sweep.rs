@@ -1,0 +1,255 @@
+//! `fpc-sim sweep` (every run of a plan, in parallel, one table) and `fpc-sim sweep-merge`
+//! (the slices of one plan, run anywhere, joined into that table).
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use clap::Args;
+
+use crate::errln;
+use crate::failure::{CmdResult, Failure};
+use crate::output::{show, OutDir};
+use crate::sweep::plan::Plan;
+use crate::sweep::report::{plots, PLOTS};
+use crate::sweep::{check, execute, header, merge, read_table, write_table, Shard, Table};
+
+/// Every run of a plan (the axes' combinations), in parallel over the cores.
+#[derive(Args, Debug)]
+#[command(after_help = "A plan (TOML) names the axes as lists or ranges:
+
+  cycles = 5
+  [axes]
+  pressure_ratio = [2.2, 3.1, 4.5]
+  speed_mps = { from = 1.0, to = 4.0, steps = 4 }
+  seed = { from = 1, to = 10 }
+  fault = [\"none\", \"overrun@1.5:cycles=2\"]
+  \"model.piston.mass_kg\" = [11.0, 12.0, 13.0]
+
+Every combination is one `fpc-sim run`; results.csv has one row per run: its index, the \
+axes, every field of run's JSON summary but the wall-clock ones. On a cluster, run slice I \
+of N on each node (--shard I/N, I from 0, e.g. a Slurm array's task id) and join the \
+slices' directories with `fpc-sim sweep-merge`: the merged table equals the unsharded one \
+byte for byte.")]
+pub struct SweepArgs {
+    /// The plan (TOML).
+    pub plan: PathBuf,
+    /// Output directory: results.csv, plan.toml (a copy), work.svg, opening_error.svg,
+    /// clearance.svg.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Run only slice I of N (`I/N`, 0 ≤ I < N): runs I, I+N, I+2N, …
+    #[arg(long, default_value = "0/1")]
+    pub shard: String,
+    /// Runs at a time (default: one per core).
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..=1024))]
+    pub jobs: Option<u16>,
+    /// Also write each run's log (`run-0000042.csv`, as `fpc-sim run` writes it).
+    #[arg(long)]
+    pub keep_logs: bool,
+    /// Replace the outputs of an earlier sweep in `--out`.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// Join the slices (`--shard I/N`) of one plan into its whole table.
+#[derive(Args, Debug)]
+pub struct MergeArgs {
+    /// The slices: their output directories or their results.csv files.
+    #[arg(required = true)]
+    pub slices: Vec<PathBuf>,
+    /// Output directory: results.csv and the plots.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Replace the outputs of an earlier merge in `--out`.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// Largest plan or model file read, bytes.
+const MAX_PLAN_BYTES: u64 = 1 << 20;
+
+/// Largest results table read, bytes (10⁷ runs of ≈ 300 bytes).
+const MAX_TABLE_BYTES: u64 = 4 << 30;
+
+fn read_text(path: &Path, max: u64, what: &str) -> Result<String, Failure> {
+    let fail = |m: String| Failure::bad_input(format!("{what} {}: {m}", show(path)));
+    let file = std::fs::File::open(path).map_err(|e| fail(e.to_string()))?;
+    let mut bytes = Vec::new();
+    file.take(max + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| fail(e.to_string()))?;
+    if bytes.len() as u64 > max {
+        return Err(fail(format!("larger than {max} bytes")));
+    }
+    String::from_utf8(bytes).map_err(|e| {
+        fail(format!(
+            "not UTF-8 text (byte {})",
+            e.utf8_error().valid_up_to()
+        ))
+    })
+}
+
+/// Runs `fpc-sim sweep`.
+pub fn main(args: SweepArgs) -> CmdResult {
+    let text = read_text(&args.plan, MAX_PLAN_BYTES, "plan")?;
+    let dir = args.plan.parent().unwrap_or(Path::new("."));
+    let mut model_path: Option<PathBuf> = None;
+    let plan = Plan::parse(&text, |p| {
+        let path = dir.join(p);
+        let text = read_text(&path, MAX_PLAN_BYTES, "model").map_err(|f| f.message)?;
+        model_path = Some(path.clone());
+        Ok((text, path.display().to_string()))
+    })
+    .map_err(|e| Failure::bad_input(format!("{}: {e}", show(&args.plan))))?;
+    let shard = Shard::parse(&args.shard).map_err(Failure::bad_input)?;
+    let base = plan
+        .base()
+        .map_err(|e| Failure::bad_input(format!("{}: {e}", show(&args.plan))))?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.jobs.map_or(0, usize::from))
+        .build()
+        .map_err(|e| Failure::runtime(format!("cannot start the worker threads: {e}")))?;
+    // Every run is checked as `run` checks its flags before any runs.
+    pool.install(|| check(&plan, &base, shard))
+        .map_err(|e| Failure::bad_input(format!("{}: {e}", show(&args.plan))))?;
+    let mut names = vec!["results.csv", "plan.toml"];
+    names.extend(PLOTS);
+    let inputs: Vec<&Path> = std::iter::once(args.plan.as_path())
+        .chain(model_path.as_deref())
+        .collect();
+    let out = OutDir::prepare(&args.out, &names, args.force, &inputs)?;
+
+    let runs = shard.runs(plan.len()).count() as u64;
+    let bar = super::analysis::progress(runs, "runs");
+    let started = Instant::now();
+    let staging = out.staging_dir().to_path_buf();
+    let open_log = |k: u64| -> Result<Box<dyn std::io::Write>, String> {
+        let path = staging.join(format!("run-{k:07}.csv"));
+        let file = std::fs::File::create(&path)
+            .map_err(|e| format!("cannot write {}: {e}", show(&path)))?;
+        Ok(Box::new(std::io::BufWriter::with_capacity(1 << 20, file)))
+    };
+    let logs: Option<crate::sweep::LogSink<'_>> = if args.keep_logs {
+        Some(&open_log)
+    } else {
+        None
+    };
+    let done = || bar.inc(1);
+    let rows = pool.install(|| execute(&plan, &base, shard, logs, &done));
+    bar.finish_and_clear();
+    let wall_s = started.elapsed().as_secs_f64();
+
+    let table = Table {
+        fingerprint: plan.fingerprint,
+        runs: plan.len(),
+        header: header(&plan),
+        rows,
+    };
+    write_files(&out, &table)?;
+    std::fs::write(out.path("plan.toml"), &text)
+        .map_err(|e| Failure::runtime(format!("cannot write plan.toml: {e}")))?;
+    out.commit()?;
+    report(&table, &args.out)?;
+    errln!(
+        "fpc-sim sweep: slice {}/{} of {} runs: {runs} runs in {wall_s:.1} s on {} threads \
+         ({:.2} runs/s)",
+        shard.index,
+        shard.count,
+        plan.len(),
+        pool.current_num_threads(),
+        runs as f64 / wall_s.max(1e-9)
+    )?;
+    failed(&table)
+}
+
+/// Runs `fpc-sim sweep-merge`.
+pub fn merge_main(args: MergeArgs) -> CmdResult {
+    let mut tables = Vec::new();
+    let mut inputs = Vec::new();
+    for s in &args.slices {
+        let path = if s.is_dir() {
+            s.join("results.csv")
+        } else {
+            s.clone()
+        };
+        let text = read_text(&path, MAX_TABLE_BYTES, "table")?;
+        let t = read_table(&text, &show(&path)).map_err(Failure::bad_input)?;
+        tables.push((show(&path), t));
+        inputs.push(path);
+    }
+    let table = merge(&tables).map_err(Failure::bad_input)?;
+    let mut names = vec!["results.csv"];
+    names.extend(PLOTS);
+    let input_refs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+    let out = OutDir::prepare(&args.out, &names, args.force, &input_refs)?;
+    write_files(&out, &table)?;
+    out.commit()?;
+    report(&table, &args.out)?;
+    failed(&table)
+}
+
+/// Writes results.csv and the plots into the staging of `out`.
+fn write_files(out: &OutDir, t: &Table) -> CmdResult {
+    let path = out.path("results.csv");
+    let file = std::fs::File::create(&path)
+        .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&path))))?;
+    let mut w = std::io::BufWriter::new(file);
+    write_table(&mut w, t.fingerprint, t.runs, &t.header, &t.rows).map_err(Failure::runtime)?;
+    std::io::Write::flush(&mut w)
+        .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&path))))?;
+    plots(out.staging_dir(), t).map_err(Failure::runtime)
+}
+
+/// One line on what the runs did: how many stopped early or failed, the smallest clearance.
+fn report(t: &Table, dir: &Path) -> CmdResult {
+    let col = |name: &str| {
+        t.header
+            .iter()
+            .position(|h| h == name)
+            .and_then(|i| i.checked_sub(1))
+    };
+    fn cell(r: &crate::sweep::Row, i: Option<usize>) -> &str {
+        i.and_then(|i| r.cells.get(i)).map_or("", String::as_str)
+    }
+    let (early, err, clear) = (
+        col("stopped_early"),
+        col("error"),
+        col("min_head_clearance_m"),
+    );
+    let stopped = t.rows.iter().filter(|r| !cell(r, early).is_empty()).count();
+    let failed = t.rows.iter().filter(|r| !cell(r, err).is_empty()).count();
+    let worst = t
+        .rows
+        .iter()
+        .filter_map(|r| cell(r, clear).parse::<f64>().ok().map(|c| (c, r.run)))
+        .min_by(|a, b| a.0.total_cmp(&b.0));
+    let worst = worst.map_or_else(
+        || "no clearance measured".to_string(),
+        |(c, k)| format!("smallest head clearance {:.3} mm (run {k})", c * 1e3),
+    );
+    errln!(
+        "fpc-sim sweep: {} runs: {stopped} stopped early, {failed} could not run; {worst}; wrote {}",
+        t.rows.len(),
+        show(&dir.join("results.csv"))
+    )
+}
+
+/// Exit 1 when a run could not be simulated (its row says why in `error`).
+fn failed(t: &Table) -> CmdResult {
+    let i = t
+        .header
+        .iter()
+        .position(|h| h == "error")
+        .and_then(|i| i.checked_sub(1));
+    match t.rows.iter().find(|r| {
+        i.and_then(|i| r.cells.get(i))
+            .is_some_and(|c| !c.is_empty())
+    }) {
+        Some(r) => Err(Failure::runtime(format!(
+            "run {} could not be simulated (see its `error` in results.csv); the files are written",
+            r.run
+        ))),
+        None => Ok(()),
+    }
+}
