@@ -24,8 +24,18 @@ const BASE_MODEL: &str = include_str!("../hal-sim/src/plant/model/reference.toml
 /// Longest a case may take: a hang detector, not a speed target (debug build, loaded CI).
 const CASE_LIMIT: Duration = Duration::from_secs(60);
 
-const SUBCOMMANDS: [&str; 9] = [
-    "run", "derive", "decode", "lag", "filters", "forces", "energy", "pv", "gap",
+const SUBCOMMANDS: [&str; 11] = [
+    "run",
+    "derive",
+    "decode",
+    "lag",
+    "filters",
+    "forces",
+    "energy",
+    "pv",
+    "gap",
+    "sweep",
+    "sweep-merge",
 ];
 
 /// Values that break parsers and arithmetic.
@@ -183,6 +193,126 @@ fn hostile_log(rng: &mut ChaCha8Rng, base: &str) -> Vec<u8> {
     bytes
 }
 
+/// A hostile sweep plan: a small valid plan (at most 4 one-cycle runs) with hostile values,
+/// keys, ranges and faults put in.
+fn hostile_plan(rng: &mut ChaCha8Rng) -> String {
+    // Some plans are valid (their runs are what the case then costs: at most two).
+    if rng.random_bool(0.08) {
+        let axis = [
+            "pressure_ratio = [2.2, 4.5]",
+            "seed = { from = 1, to = 2 }",
+            "speed_mps = { from = 2.0, to = 4.0, steps = 2 }",
+            "\"model.piston.mass_kg\" = [11.5]",
+            "fault = [\"pressure_open@0.95:chamber=b\"]",
+        ][rng.random_range(0..5)];
+        return format!("cycles = 1\n[axes]\n{axis}\n");
+    }
+    let value = |rng: &mut ChaCha8Rng| -> String {
+        if rng.random_bool(0.5) {
+            HOSTILE_NUMBERS.choose(rng).unwrap_or(&"0").to_string()
+        } else {
+            ["2.2", "3.1", "1", "4", "12.0", "0.05"][rng.random_range(0..6)].to_string()
+        }
+    };
+    let mut lines = vec![format!(
+        "cycles = {}",
+        ["1", "1", "0", "-1", "1.5", "\"x\"", "1e9"][rng.random_range(0..7)]
+    )];
+    if rng.random_bool(0.2) {
+        lines.push(format!(
+            "model = \"{}\"",
+            ["model.toml", "nowhere.toml", "log.csv", "/dev/zero", ""][rng.random_range(0..5)]
+        ));
+    }
+    if rng.random_bool(0.1) {
+        lines.push("colour = 3".into());
+    }
+    if rng.random_bool(0.95) {
+        lines.push("[axes]".into());
+    }
+    for _ in 0..rng.random_range(0..=2) {
+        let axis = [
+            "pressure_ratio",
+            "speed_mps",
+            "seed",
+            "model_error",
+            "cycles",
+            "\"model.piston.mass_kg\"",
+            "\"model.effects.leakage.gap_m\"",
+            "\"model.nope.x\"",
+            "\"model.\"",
+            "speeds",
+        ][rng.random_range(0..10)];
+        let values = match rng.random_range(0..4) {
+            0 => format!("[{}]", value(rng)),
+            1 => format!("[{}, {}]", value(rng), value(rng)),
+            2 => format!(
+                "{{ from = {}, to = {}, steps = {} }}",
+                value(rng),
+                value(rng),
+                ["2", "0", "-1", "1e9", "3.5", "1", "x"][rng.random_range(0..7)]
+            ),
+            _ => format!("{{ from = {}, to = {} }}", value(rng), value(rng)),
+        };
+        lines.push(format!("{axis} = {values}"));
+    }
+    if rng.random_bool(0.3) {
+        let spec = [
+            "none",
+            "overrun@1:cycles=2.5",
+            "nonsense@1",
+            "overrun@nan",
+            "pressure_open@0.95:chamber=b",
+            "overrun@0.95;none",
+        ][rng.random_range(0..6)];
+        lines.push(format!("fault = [\"{spec}\"]"));
+    }
+    let mut text = lines.join("\n");
+    if rng.random_bool(0.1) {
+        let mut bytes = text.into_bytes();
+        let i = rng.random_range(0..bytes.len().max(1));
+        if let Some(b) = bytes.get_mut(i) {
+            *b = rng.random();
+        }
+        text = String::from_utf8_lossy(&bytes).into_owned();
+    }
+    text
+}
+
+/// A results table as `sweep` writes it (4 runs), hostilely mutated.
+fn hostile_table(rng: &mut ChaCha8Rng) -> Vec<u8> {
+    let mut lines = vec![
+        "# source = fpc-sim sweep".to_string(),
+        "# plan = 00000000000000ab".into(),
+        "# runs = 4".into(),
+        "run,seed,min_head_clearance_m,error".into(),
+    ];
+    let mut runs: Vec<u64> = (0..4).collect();
+    runs.retain(|_| rng.random_bool(0.8));
+    for k in runs {
+        lines.push(format!("{k},{k},0.00098,"));
+    }
+    match rng.random_range(0..8) {
+        0 => lines[1] = format!("# plan = {}", HOSTILE_NUMBERS.choose(rng).unwrap_or(&"x")),
+        1 => lines[2] = format!("# runs = {}", HOSTILE_NUMBERS.choose(rng).unwrap_or(&"x")),
+        2 => lines.push(format!(
+            "{},1,1,",
+            HOSTILE_NUMBERS.choose(rng).unwrap_or(&"x")
+        )),
+        3 => lines.push("1,1".into()),
+        4 => {
+            lines.remove(3);
+        }
+        _ => {}
+    }
+    let mut bytes = lines.join("\n").into_bytes();
+    if rng.random_bool(0.15) && !bytes.is_empty() {
+        let i = rng.random_range(0..bytes.len());
+        bytes[i] = rng.random();
+    }
+    bytes
+}
+
 /// A telemetry capture of a short simulated run (made once).
 fn base_capture() -> &'static [u8] {
     static CAPTURE: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
@@ -302,6 +432,7 @@ fn hostile_case(sub: &str, rng: &mut ChaCha8Rng, dir: &Path) -> Case {
         "pv.svg",
         "energy.svg",
         "report.md",
+        "results.csv",
     ] {
         if rng.random_bool(0.1) {
             std::fs::write(out.join(name), b"earlier output").unwrap();
@@ -403,6 +534,49 @@ fn hostile_case(sub: &str, rng: &mut ChaCha8Rng, dir: &Path) -> Case {
             if rng.random_bool(0.4) {
                 push(&mut args, "--max-lag-s", &num(rng));
             }
+        }
+        "sweep" => {
+            let plan = dir.join("plan.toml");
+            std::fs::write(&plan, hostile_plan(rng)).unwrap();
+            args.push(
+                [
+                    plan.clone(),
+                    plan.clone(),
+                    plan,
+                    log.clone(),
+                    dir.join("none.toml"),
+                ][rng.random_range(0..5)]
+                .clone()
+                .into(),
+            );
+            if rng.random_bool(0.3) {
+                let shard = ["0/1", "1/2", "2/2", "0/0", "x", "1e20/2", "-1/3"];
+                push(
+                    &mut args,
+                    "--shard",
+                    &shard[rng.random_range(0..shard.len())],
+                );
+            }
+            if rng.random_bool(0.2) {
+                push(&mut args, "--jobs", &num(rng));
+            }
+            if rng.random_bool(0.1) {
+                args.push("--keep-logs".into());
+            }
+            push(&mut args, "--out", &out_arg);
+        }
+        "sweep-merge" => {
+            for i in 0..rng.random_range(0..=3) {
+                let table = dir.join(format!("slice{i}.csv"));
+                std::fs::write(&table, hostile_table(rng)).unwrap();
+                args.push(
+                    [table.clone(), table, log.clone(), dir.join("none.csv")]
+                        [rng.random_range(0..4)]
+                    .clone()
+                    .into(),
+                );
+            }
+            push(&mut args, "--out", &out_arg);
         }
         "gap" => {
             push(&mut args, "--measured", &log);
