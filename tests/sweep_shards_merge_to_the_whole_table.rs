@@ -154,3 +154,32 @@ fn a_plan_with_a_run_that_run_refuses_is_refused_before_anything_runs() {
         assert!(!out.exists());
     }
 }
+
+#[test]
+fn keep_logs_writes_each_runs_log_as_run_writes_it() {
+    let dir = scratch("logs");
+    let plan = dir.join("plan.toml");
+    std::fs::write(&plan, "cycles = 1\n[axes]\nseed = { from = 5, to = 6 }\n").expect("plan");
+    let out = dir.join("out");
+    assert_eq!(
+        fpc_sim(&["sweep", path(&plan), "--out", path(&out), "--keep-logs"]),
+        0
+    );
+    for (k, seed) in [(0, 5), (1, 6)] {
+        let text = std::fs::read_to_string(out.join(format!("run-{k:07}.csv"))).expect("run log");
+        let log = hal_sim::runlog::RunLog::parse(&text).expect("the log reads back");
+        assert_eq!(log.meta("seed"), Some(seed.to_string().as_str()));
+        assert_eq!(log.meta("ports"), Some("open"));
+        let mut alone = Vec::new();
+        hal_sim::run::run_streamed(
+            &RunOptions {
+                cycles: 1,
+                seed,
+                ..RunOptions::reference()
+            },
+            &mut alone,
+        )
+        .expect("the same run alone");
+        assert_eq!(text.as_bytes(), alone.as_slice(), "run {k}");
+    }
+}
