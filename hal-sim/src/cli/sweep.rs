@@ -203,12 +203,7 @@ fn write_files(out: &OutDir, t: &Table) -> CmdResult {
 
 /// One line on what the runs did: how many stopped early or failed, the smallest clearance.
 fn report(t: &Table, dir: &Path) -> CmdResult {
-    let col = |name: &str| {
-        t.header
-            .iter()
-            .position(|h| h == name)
-            .and_then(|i| i.checked_sub(1))
-    };
+    let col = |name: &str| t.cell_index(name);
     fn cell(r: &crate::sweep::Row, i: Option<usize>) -> &str {
         i.and_then(|i| r.cells.get(i)).map_or("", String::as_str)
     }
@@ -237,11 +232,7 @@ fn report(t: &Table, dir: &Path) -> CmdResult {
 
 /// Exit 1 when a run could not be simulated (its row says why in `error`).
 fn failed(t: &Table) -> CmdResult {
-    let i = t
-        .header
-        .iter()
-        .position(|h| h == "error")
-        .and_then(|i| i.checked_sub(1));
+    let i = t.cell_index("error");
     match t.rows.iter().find(|r| {
         i.and_then(|i| r.cells.get(i))
             .is_some_and(|c| !c.is_empty())

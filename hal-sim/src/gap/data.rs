@@ -59,19 +59,9 @@ pub const MAX_STEP_JITTER: f64 = 0.1;
 /// summed over any log stay finite.
 pub const MAX_DERIVED: f64 = 1e100;
 
-/// The columns the workflow reads (the line pressures when logged).
-pub const USED_COLUMNS: [&str; 10] = [
-    "t_s",
-    "x_m",
-    "x_slave_m",
-    "theta_rad",
-    "f_master_n",
-    "f_slave_n",
-    "p_a_pa",
-    "p_b_pa",
-    "p_suction_pa",
-    "p_discharge_pa",
-];
+/// The optional columns the workflow reads besides the log's required ones (the line
+/// pressures, when logged).
+pub const LINE_COLUMNS: [&str; 2] = ["p_suction_pa", "p_discharge_pa"];
 
 /// Refuses a value outside the column's physical range (`runlog::physical_range`; NaN and
 /// infinities included), naming the column and the data row (counted from 1).
@@ -205,7 +195,7 @@ impl Measured {
         // Every value the workflow reads must be one a machine can log (the reader's
         // physical ranges): a NaN, an infinity or a finite 1e300 would otherwise travel
         // through the derivatives into the fits' normal equations.
-        for name in USED_COLUMNS {
+        for name in crate::runlog::REQUIRED.iter().chain(&LINE_COLUMNS) {
             if let Some(c) = log.column(name) {
                 check_range(name, c)?;
             }

@@ -206,6 +206,13 @@ pub struct Table {
     pub rows: Vec<Row>,
 }
 
+impl Table {
+    /// Where column `name` is in a row's cells (the cells follow `run`), if the table has it.
+    pub fn cell_index(&self, name: &str) -> Option<usize> {
+        self.header.iter().position(|h| h == name)?.checked_sub(1)
+    }
+}
+
 /// Reads a table written by [`write_table`]; `name` is for messages.
 pub fn read_table(text: &str, name: &str) -> Result<Table, String> {
     let mut fingerprint = None;

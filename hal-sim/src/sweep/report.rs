@@ -13,7 +13,7 @@ pub const PLOTS: [&str; 3] = ["work.svg", "opening_error.svg", "clearance.svg"];
 
 /// Column `name`'s values as numbers (`None` where empty or not a number).
 fn column(t: &Table, name: &str) -> Option<Vec<Option<f64>>> {
-    let i = t.header.iter().position(|h| h == name)?.checked_sub(1)?;
+    let i = t.cell_index(name)?;
     Some(
         t.rows
             .iter()
