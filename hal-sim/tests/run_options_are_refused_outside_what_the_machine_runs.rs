@@ -244,3 +244,88 @@ fn a_model_with_another_travel_or_clearance_runs_to_its_own_dead_points() {
         );
     }
 }
+
+#[test]
+fn volume_ratio_modes_and_log_rates_are_refused_naming_the_flag() {
+    use fpc::motion::volume_ratio::RatioTarget;
+    use hal_sim::run::{parse_volume_ratio, CONTROL_RATE_HZ, FIXED_RATIO_RANGE};
+    assert_eq!(
+        parse_volume_ratio("adaptive"),
+        Ok(RatioTarget::FollowMeasured)
+    );
+    assert_eq!(
+        parse_volume_ratio("fixed:4.3"),
+        Ok(RatioTarget::Fixed {
+            pressure_ratio: 4.3
+        })
+    );
+    let (lo, hi) = FIXED_RATIO_RANGE;
+    for bad in [
+        "",
+        "fixed",
+        "fixed:",
+        "fixed:1",
+        "fixed:0.5",
+        "fixed:nan",
+        "fixed:11",
+        "adaptiv",
+        "fixed:3.1x",
+        "FIXED:3",
+    ] {
+        let e = parse_volume_ratio(bad).unwrap_err();
+        assert!(e.starts_with("--volume-ratio"), "{bad}: {e}");
+        if bad.starts_with("fixed:") {
+            assert!(e.contains(&format!("[{lo}, {hi}]")), "{bad}: {e}");
+        }
+    }
+    for rate in [0, 3000, 7, CONTROL_RATE_HZ + 1, 40_000, u32::MAX] {
+        let o = RunOptions {
+            log_rate_hz: rate,
+            ..RunOptions::reference()
+        };
+        let e = o.validate().unwrap_err();
+        assert!(
+            e.contains("--log-rate") && e.contains("20000"),
+            "{rate}: {e}"
+        );
+    }
+    for rate in [CONTROL_RATE_HZ, 10_000, 1_000, 1] {
+        RunOptions {
+            log_rate_hz: rate,
+            ..RunOptions::reference()
+        }
+        .validate()
+        .unwrap();
+    }
+}
+
+#[test]
+fn a_log_at_a_lower_rate_holds_every_nth_row_of_the_full_rate_log() {
+    use hal_sim::run::run_streamed;
+    let full = RunOptions {
+        cycles: 2,
+        ..RunOptions::reference()
+    };
+    let half = RunOptions {
+        log_rate_hz: 10_000,
+        ..full.clone()
+    };
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    run_streamed(&full, &mut a).unwrap();
+    run_streamed(&half, &mut b).unwrap();
+    let (a, b) = (String::from_utf8(a).unwrap(), String::from_utf8(b).unwrap());
+    let rows = |t: &str| -> Vec<String> {
+        t.lines()
+            .filter(|l| !l.starts_with('#'))
+            .map(str::to_string)
+            .collect()
+    };
+    let (ra, rb) = (rows(&a), rows(&b));
+    assert_eq!(ra.first(), rb.first(), "the column names differ");
+    // Row k of the 10 kHz log is row 2k+1 of the 20 kHz one (both start at t = 1 period).
+    let every_other: Vec<&String> = ra.iter().skip(1).skip(1).step_by(2).collect();
+    assert_eq!(rb.len() - 1, every_other.len());
+    assert!(rb.iter().skip(1).zip(every_other).all(|(x, y)| x == y));
+    assert!(b.contains("# sample_rate_hz = 10000"), "{b:.300}");
+    assert!(a.contains("# sample_rate_hz = 20000"), "{a:.300}");
+}

@@ -51,6 +51,15 @@ pub struct RunArgs {
     /// it an existing output is refused before the run starts; an input is never replaced.
     #[arg(long)]
     pub force: bool,
+    /// How the volume ratio is chosen: `adaptive` (it follows the measured pressure ratio,
+    /// the machine's purpose) or `fixed:PR` (a conventional compressor's built-in volume
+    /// ratio, designed for the pressure ratio PR; for comparison).
+    #[arg(long, default_value = "adaptive", value_name = "MODE")]
+    pub volume_ratio: String,
+    /// Rows of run.csv per simulated second: the control rate (20000) or a whole divisor of
+    /// it (10000 matches the paper's logs; 1000 makes a long run's log 20 times smaller).
+    #[arg(long, default_value_t = crate::run::CONTROL_RATE_HZ, value_name = "HZ")]
+    pub log_rate: u32,
     /// Keep the files of a run that fails (stops before its cycles without an injected
     /// fault, or ends before a fault begins), for diagnosis; it still exits 1. Without it a
     /// failed run writes nothing.
@@ -84,6 +93,9 @@ pub fn main(args: RunArgs) -> CmdResult {
         speed_mps: args.speed,
         cycles: args.cycles,
         seed: args.seed,
+        volume_ratio: crate::run::parse_volume_ratio(&args.volume_ratio)
+            .map_err(Failure::bad_input)?,
+        log_rate_hz: args.log_rate,
         telemetry_decimation: if args.telemetry.is_some() {
             args.telemetry_decimation
         } else {

@@ -10,6 +10,7 @@ use clap::Args;
 use crate::errln;
 use crate::failure::{CmdResult, Failure};
 use crate::output::{show, OutDir};
+use crate::sweep::journal::{Identity, Journal, JOURNAL};
 use crate::sweep::plan::Plan;
 use crate::sweep::report::{plots, PLOTS};
 use crate::sweep::{check, execute, header, merge, read_table, write_table, Shard, Table};
@@ -27,7 +28,9 @@ use crate::sweep::{check, execute, header, merge, read_table, write_table, Shard
   \"model.piston.mass_kg\" = [11.0, 12.0, 13.0]
 
 Every combination is one `fpc-sim run`; results.csv has one row per run: its index, the \
-axes, every field of run's JSON summary but the wall-clock ones. On a cluster, run slice I \
+axes, every field of run's JSON summary but the wall-clock ones. While the sweep runs, each \
+finished row is written at once to results.partial.csv in --out; if the sweep is cut short, \
+those rows are readable there and --resume runs only the rest. On a cluster, run slice I \
 of N on each node (--shard I/N, I from 0, e.g. a Slurm array's task id) and join the \
 slices' directories with `fpc-sim sweep-merge`: the merged table equals the unsharded one \
 byte for byte.")]
@@ -47,9 +50,18 @@ pub struct SweepArgs {
     /// Also write each run's log (`run-0000042.csv`, as `fpc-sim run` writes it).
     #[arg(long)]
     pub keep_logs: bool,
-    /// Replace the outputs of an earlier sweep in `--out`.
-    #[arg(long)]
+    /// Rows per simulated second of the kept logs (as `run --log-rate`).
+    #[arg(long, default_value_t = crate::run::CONTROL_RATE_HZ, value_name = "HZ")]
+    pub log_rate: u32,
+    /// Replace the outputs of an earlier sweep in `--out` (and start over, dropping the rows
+    /// of an interrupted one).
+    #[arg(long, conflicts_with = "resume")]
     pub force: bool,
+    /// Complete an interrupted sweep of the same plan and slice in `--out`: the rows in its
+    /// results.partial.csv are kept, only the other runs run. On a finished sweep it does
+    /// nothing.
+    #[arg(long)]
+    pub resume: bool,
 }
 
 /// Join the slices (`--shard I/N`) of one plan into its whole table.
@@ -103,6 +115,11 @@ pub fn main(args: SweepArgs) -> CmdResult {
     })
     .map_err(|e| Failure::bad_input(format!("{}: {e}", show(&args.plan))))?;
     let shard = Shard::parse(&args.shard).map_err(Failure::bad_input)?;
+    let rate = crate::run::RunOptions {
+        log_rate_hz: args.log_rate,
+        ..crate::run::RunOptions::reference()
+    };
+    rate.validate().map_err(Failure::bad_input)?;
     let base = plan
         .base()
         .map_err(|e| Failure::bad_input(format!("{}: {e}", show(&args.plan))))?;
@@ -118,9 +135,57 @@ pub fn main(args: SweepArgs) -> CmdResult {
     let inputs: Vec<&Path> = std::iter::once(args.plan.as_path())
         .chain(model_path.as_deref())
         .collect();
-    let out = OutDir::prepare(&args.out, &names, args.force, &inputs)?;
+    let journal_path = args.out.join(JOURNAL);
+    let header = header(&plan);
+    let id = Identity {
+        fingerprint: plan.fingerprint,
+        runs: plan.len(),
+        shard,
+        header: &header,
+    };
+    let has_journal = journal_path.symlink_metadata().is_ok();
+    if has_journal && !args.resume && !args.force {
+        return Err(Failure::bad_input(format!(
+            "{} holds the rows of an interrupted sweep: add --resume to complete it, or \
+             --force to start over",
+            show(&journal_path)
+        )));
+    }
+    if args.resume && !has_journal {
+        return finished_already(&args.out, &id);
+    }
+    // A resumed sweep replaces the outputs of its own plan.
+    let out = OutDir::prepare(&args.out, &names, args.force || args.resume, &inputs)?;
+    if inputs.iter().any(|i| same_path(i, &journal_path)) {
+        return Err(Failure::bad_input(format!(
+            "{} is an input of this command; choose another output directory",
+            show(&journal_path)
+        )));
+    }
+    let (mut rows, journal) = if args.resume {
+        Journal::resume(&journal_path, &id).map_err(Failure::bad_input)?
+    } else {
+        std::fs::create_dir_all(&args.out)
+            .map_err(|e| Failure::bad_input(format!("cannot create {}: {e}", show(&args.out))))?;
+        (
+            Vec::new(),
+            Journal::create(&journal_path, &id).map_err(Failure::bad_input)?,
+        )
+    };
+    let finished: std::collections::BTreeSet<u64> = rows.iter().map(|r| r.run).collect();
+    let todo: Vec<u64> = shard
+        .runs(plan.len())
+        .filter(|k| !finished.contains(k))
+        .collect();
+    if args.resume {
+        errln!(
+            "fpc-sim sweep: resuming: {} runs finished before, {} to go",
+            finished.len(),
+            todo.len()
+        )?;
+    }
 
-    let runs = shard.runs(plan.len()).count() as u64;
+    let runs = todo.len() as u64;
     let bar = super::analysis::progress(runs, "runs");
     let started = Instant::now();
     let staging = out.staging_dir().to_path_buf();
@@ -135,21 +200,30 @@ pub fn main(args: SweepArgs) -> CmdResult {
     } else {
         None
     };
-    let done = || bar.inc(1);
-    let rows = pool.install(|| execute(&plan, &base, shard, logs, &done));
+    let done = |row: &crate::sweep::Row| {
+        journal.append(row);
+        bar.inc(1);
+    };
+    let log_rate = args.log_rate;
+    rows.extend(pool.install(|| execute(&plan, &base, &todo, log_rate, logs, &done)));
+    rows.sort_by_key(|r| r.run);
     bar.finish_and_clear();
     let wall_s = started.elapsed().as_secs_f64();
+    if let Some(e) = journal.error() {
+        errln!("fpc-sim sweep: warning: {e}: an interruption now would lose those rows")?;
+    }
 
     let table = Table {
         fingerprint: plan.fingerprint,
         runs: plan.len(),
-        header: header(&plan),
+        header,
         rows,
     };
     write_files(&out, &table)?;
     std::fs::write(out.path("plan.toml"), &text)
         .map_err(|e| Failure::runtime(format!("cannot write plan.toml: {e}")))?;
     out.commit()?;
+    journal.remove().map_err(Failure::runtime)?;
     report(&table, &args.out)?;
     errln!(
         "fpc-sim sweep: slice {}/{} of {} runs: {runs} runs in {wall_s:.1} s on {} threads \
@@ -161,6 +235,42 @@ pub fn main(args: SweepArgs) -> CmdResult {
         runs as f64 / wall_s.max(1e-9)
     )?;
     failed(&table)
+}
+
+/// Whether `a` and `b` name the same existing file.
+fn same_path(a: &Path, b: &Path) -> bool {
+    matches!((a.canonicalize(), b.canonicalize()), (Ok(a), Ok(b)) if a == b)
+}
+
+/// `--resume` with no journal: the sweep of this plan and slice finished already (its
+/// results.csv is there: nothing to do), or there is nothing to resume.
+fn finished_already(dir: &Path, id: &Identity<'_>) -> CmdResult {
+    let path = dir.join("results.csv");
+    let nothing = || {
+        Failure::bad_input(format!(
+            "--resume: {} has no {JOURNAL} and no finished results.csv of this plan and \
+             slice: nothing to resume (run without --resume)",
+            show(dir)
+        ))
+    };
+    let Ok(text) = read_text(&path, MAX_TABLE_BYTES, "table") else {
+        return Err(nothing());
+    };
+    let t = read_table(&text, &show(&path)).map_err(|_| nothing())?;
+    let mine: Vec<u64> = id.shard.runs(id.runs).collect();
+    let same = t.fingerprint == id.fingerprint
+        && t.header == id.header
+        && t.rows.iter().map(|r| r.run).eq(mine.iter().copied());
+    if !same {
+        return Err(nothing());
+    }
+    errln!(
+        "fpc-sim sweep: {} is finished ({} runs of slice {}/{}): nothing to resume",
+        show(&path),
+        mine.len(),
+        id.shard.index,
+        id.shard.count
+    )
 }
 
 /// Runs `fpc-sim sweep-merge`.

@@ -14,6 +14,7 @@ use std::ops::ControlFlow;
 use std::time::Instant;
 
 use fpc::control::command::Command;
+use fpc::motion::volume_ratio::RatioTarget;
 use fpc::safety::faults::Fault;
 use fpc::status::{ModeKind, Status};
 use fpc::units::CONTROL_PERIOD_S;
@@ -201,9 +202,12 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
 
     let mut log = RunLog::with_columns(&COLUMNS);
     log.meta.push(("source".into(), "fpc-sim run".into()));
-    log.meta.push(("sample_rate_hz".into(), "20000".into()));
+    log.meta
+        .push(("sample_rate_hz".into(), opts.log_rate_hz.to_string()));
     log.meta.push(("model".into(), opts.model_name.clone()));
     log.meta.push(("seed".into(), opts.seed.to_string()));
+    log.meta
+        .push(("volume_ratio".into(), volume_ratio_name(opts.volume_ratio)));
     log.meta.push((
         "force_delay_s".into(),
         format!("{FIRMWARE_FORCE_DELAY_S:e}"),
@@ -224,6 +228,8 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     let mut stage_deadline_s = opts.homing_limit_s();
     let mut stop_reason: Option<String> = None;
     let mut capture = Capture::new(limit_s, csv, &log);
+    // One row every `log_stride` control cycles (`--log-rate`; checked to divide evenly).
+    let log_stride = u64::from((CONTROL_RATE_HZ / opts.log_rate_hz.max(1)).max(1));
     let mut last = Status::INIT;
     let started = Instant::now();
 
@@ -238,7 +244,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
         }
         let status = shared.status();
         let t = w.time_s();
-        if w.cycle() > 0 {
+        if w.cycle() > 0 && w.cycle().is_multiple_of(log_stride) {
             capture.push(&status, w);
         }
         for f in status.faults.iter() {
@@ -270,6 +276,11 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                 // Close the bypass: from now on the rotation times the ports.
                 w.plant.port_mode = PortMode::Timed;
                 capture.ports_timed_from(t);
+                if opts.volume_ratio != RatioTarget::FollowMeasured {
+                    let _ = shared.post_command(Command::SetVolumeRatio {
+                        target: opts.volume_ratio,
+                    });
+                }
                 while let Some((_, action)) = actions.next_if(|(c, _)| *c == 0) {
                     act(w, shared, action);
                 }

@@ -3,6 +3,7 @@
 
 use fpc::control::command::Command;
 use fpc::control::config::ControlConfig;
+use fpc::motion::volume_ratio::RatioTarget;
 
 use crate::board::exec::WATCHDOG_TIMEOUT_US;
 use crate::board::world::World;
@@ -38,6 +39,47 @@ pub const STALL_SPARE_S: f64 = 2.0;
 /// one control period — the firmware's status reports each section's force from the current
 /// measured in the previous cycle.
 pub const FIRMWARE_FORCE_DELAY_S: f64 = 50e-6;
+
+/// The control rate, Hz: one run-log row per control cycle at most.
+pub const CONTROL_RATE_HZ: u32 = 1_000_000 / fpc::units::CONTROL_PERIOD_US;
+
+/// Accepted design pressure ratios of a fixed volume ratio (`--volume-ratio fixed:PR`): the
+/// firmware's own range for `SetVolumeRatio` (a ratio of 1 would open the discharge at the
+/// bottom dead point).
+pub const FIXED_RATIO_RANGE: (f64, f64) = (1.05, 10.0);
+
+/// Parses a volume-ratio mode: `adaptive` (follow the measured pressure ratio, the machine's
+/// purpose) or `fixed:PR` (a conventional compressor's built-in volume ratio, designed for
+/// the pressure ratio PR).
+pub fn parse_volume_ratio(text: &str) -> Result<RatioTarget, String> {
+    let bad = |why: &str| format!("--volume-ratio {}: {why}", crate::output::clip(text, 40));
+    let t = text.trim();
+    if t == "adaptive" {
+        return Ok(RatioTarget::FollowMeasured);
+    }
+    let Some(pr) = t.strip_prefix("fixed:") else {
+        return Err(bad(
+            "must be `adaptive` or `fixed:PR` (PR the design pressure ratio)",
+        ));
+    };
+    let (lo, hi) = FIXED_RATIO_RANGE;
+    match pr.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && (lo..=hi).contains(&v) => Ok(RatioTarget::Fixed {
+            pressure_ratio: v as f32,
+        }),
+        _ => Err(bad(&format!(
+            "the design pressure ratio must be a number in [{lo}, {hi}]"
+        ))),
+    }
+}
+
+/// How a volume-ratio mode is written (`--volume-ratio`, the log's `# volume_ratio`).
+pub fn volume_ratio_name(target: RatioTarget) -> String {
+    match target {
+        RatioTarget::FollowMeasured => "adaptive".into(),
+        RatioTarget::Fixed { pressure_ratio } => format!("fixed:{pressure_ratio}"),
+    }
+}
 
 /// Options of a run.
 #[derive(Clone, Debug)]
@@ -76,6 +118,12 @@ pub struct RunOptions {
     /// Timeout of the board's independent watchdog, µs (the board's
     /// [`crate::board::exec::WATCHDOG_TIMEOUT_US`]; a run may try another).
     pub watchdog_timeout_us: u64,
+    /// How the volume ratio is chosen (`--volume-ratio`): sent to the firmware before the
+    /// first stroke when fixed.
+    pub volume_ratio: RatioTarget,
+    /// Rows of the run log per second (`--log-rate`): the control rate or a whole divisor
+    /// of it.
+    pub log_rate_hz: u32,
 }
 
 /// Something the host does at the start of a given cycle.
@@ -105,6 +153,8 @@ impl RunOptions {
             schedule: Vec::new(),
             faults: Vec::new(),
             watchdog_timeout_us: WATCHDOG_TIMEOUT_US,
+            volume_ratio: RatioTarget::FollowMeasured,
+            log_rate_hz: CONTROL_RATE_HZ,
         }
     }
 
@@ -179,6 +229,26 @@ impl RunOptions {
                 num(max),
                 num(max.min(hi))
             ));
+        }
+        if self.log_rate_hz == 0
+            || self.log_rate_hz > CONTROL_RATE_HZ
+            || !CONTROL_RATE_HZ.is_multiple_of(self.log_rate_hz)
+        {
+            return Err(format!(
+                "--log-rate {}: must divide the control rate {CONTROL_RATE_HZ} Hz into whole \
+                 cycles (e.g. 20000, 10000, 5000, 1000)",
+                self.log_rate_hz
+            ));
+        }
+        if let RatioTarget::Fixed { pressure_ratio } = self.volume_ratio {
+            let (lo, hi) = FIXED_RATIO_RANGE;
+            let pr = f64::from(pressure_ratio);
+            if !(pr.is_finite() && (lo..=hi).contains(&pr)) {
+                return Err(format!(
+                    "--volume-ratio fixed:{}: the design pressure ratio must be in [{lo}, {hi}]",
+                    num(pr)
+                ));
+            }
         }
         let (lo, hi) = CYCLES_RANGE;
         if !(lo..=hi).contains(&self.cycles) {

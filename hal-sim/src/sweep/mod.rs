@@ -7,6 +7,7 @@
 //! sharded, and the merged slices equal the unsharded table byte for byte. Rows are in run
 //! order whatever order the threads finished in.
 
+pub mod journal;
 pub mod plan;
 pub mod report;
 
@@ -134,27 +135,31 @@ pub fn check(plan: &Plan, base: &Base, shard: Shard) -> Result<(), String> {
 /// Where a run's log goes, if anywhere (`--keep-logs`).
 pub type LogSink<'a> = &'a (dyn Fn(u64) -> Result<Box<dyn Write>, String> + Sync);
 
-/// Runs the slice `shard` of `plan` over rayon's pool (checked first with [`check`]),
-/// calling `done` after each run; rows in run order. A run's log is written where `logs`
-/// says, or nowhere (the run keeps a bounded copy for nothing else).
+/// Runs `runs` of `plan` over rayon's pool (checked first with [`check`]), logging at
+/// `log_rate_hz`, calling `done` with each finished row; rows in run order. A run's log is written where `logs` says, or
+/// nowhere (the run keeps a bounded copy for nothing else).
 pub fn execute(
     plan: &Plan,
     base: &Base,
-    shard: Shard,
+    runs: &[u64],
+    log_rate_hz: u32,
     logs: Option<LogSink<'_>>,
-    done: &(dyn Fn() + Sync),
+    done: &(dyn Fn(&Row) + Sync),
 ) -> Vec<Row> {
-    let runs: Vec<u64> = shard.runs(plan.len()).collect();
     let mut rows: Vec<Row> = runs
         .par_iter()
         .map(|&k| {
             let mut cells: Vec<String> = plan.point(k).iter().map(|v| v.to_string()).collect();
-            let outcome = plan.options(k, base).and_then(|opts| match logs {
-                Some(open) => {
-                    let mut out = open(k)?;
-                    run_streamed(&opts, &mut out)
+            let outcome = plan.options(k, base).and_then(|mut opts| {
+                opts.log_rate_hz = log_rate_hz;
+                opts.validate()?;
+                match logs {
+                    Some(open) => {
+                        let mut out = open(k)?;
+                        run_streamed(&opts, &mut out)
+                    }
+                    None => run_streamed(&opts, &mut std::io::sink()),
                 }
-                None => run_streamed(&opts, &mut std::io::sink()),
             });
             match outcome {
                 Ok(o) => cells.extend(summary_cells(&o.summary)),
@@ -163,8 +168,9 @@ pub fn execute(
                     cells.push(e);
                 }
             }
-            done();
-            Row { run: k, cells }
+            let row = Row { run: k, cells };
+            done(&row);
+            row
         })
         .collect();
     rows.sort_by_key(|r| r.run);

@@ -8,6 +8,7 @@
 //! speed_mps = { from = 1.0, to = 4.0, steps = 4 }   # … or a linear range, ends included
 //! seed = { from = 1, to = 10 }            # whole numbers: every one from `from` to `to`
 //! fault = ["none", "overrun@1.5:cycles=2"]
+//! volume_ratio = ["adaptive", "fixed:3.1"]          # as `run --volume-ratio`
 //! "model.piston.mass_kg" = [11.0, 12.0, 13.0]       # any number of the model file
 //! ```
 //!
@@ -30,13 +31,14 @@ pub const MAX_RUNS: u64 = 10_000_000;
 pub const MAX_AXIS_VALUES: usize = 100_000;
 
 /// The axes a plan may name besides `model.…` keys.
-pub const KNOWN_AXES: [&str; 6] = [
+pub const KNOWN_AXES: [&str; 7] = [
     "pressure_ratio",
     "speed_mps",
     "seed",
     "cycles",
     "model_error",
     "fault",
+    "volume_ratio",
 ];
 
 /// One value of an axis.
@@ -236,6 +238,10 @@ impl Plan {
                 ("seed", AxisValue::Int(s)) => opts.seed = *s as u64,
                 ("cycles", AxisValue::Int(c)) => opts.cycles = *c as u32,
                 ("fault", AxisValue::Text(t)) => opts.faults = faults(t)?,
+                ("volume_ratio", AxisValue::Text(t)) => {
+                    opts.volume_ratio = crate::run::parse_volume_ratio(t)
+                        .map_err(|e| format!("run {k} ({}): {e}", named()))?
+                }
                 (name, v) => model_keys.push((name.trim_start_matches("model."), *v)),
             }
         }
@@ -311,7 +317,7 @@ fn kind_of(name: &str) -> Result<Kind, String> {
     Ok(match name {
         "pressure_ratio" | "speed_mps" | "model_error" => Kind::Real,
         "seed" | "cycles" => Kind::Int,
-        "fault" => Kind::Text,
+        "fault" | "volume_ratio" => Kind::Text,
         n if n.starts_with("model.")
             && n.len() > 6
             && n.split('.').all(|p| {
