@@ -1,6 +1,7 @@
 //! The plots a person looks at after a sweep, drawn from its table: indicated work per cycle
 //! and the discharge-opening pressure error against the pressure ratio (one curve per peak
-//! speed, the mean over the other axes), and the histogram of the minimum head clearance.
+//! speed and volume-ratio mode, the mean over the other axes), and the histogram of the
+//! minimum head clearance.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -22,18 +23,50 @@ fn column(t: &Table, name: &str) -> Option<Vec<Option<f64>>> {
     )
 }
 
-/// Mean of `y` at each x, one curve per value of `group` (keys printed as labels).
+/// Column `name`'s cells as they are (`None` when the table has no such column).
+fn text_column(t: &Table, name: &str) -> Option<Vec<String>> {
+    let i = t.cell_index(name)?;
+    Some(
+        t.rows
+            .iter()
+            .map(|r| r.cells.get(i).cloned().unwrap_or_default())
+            .collect(),
+    )
+}
+
+/// Each row's curve: its peak speed and volume-ratio mode, when they are axes.
+fn groups(t: &Table) -> Vec<String> {
+    let speed = text_column(t, "speed_mps");
+    let mode = text_column(t, "volume_ratio");
+    (0..t.rows.len())
+        .map(|k| {
+            let mut parts = Vec::new();
+            if let Some(v) = speed.as_ref().and_then(|c| c.get(k)) {
+                parts.push(format!("{v} m/s"));
+            }
+            if let Some(m) = mode.as_ref().and_then(|c| c.get(k)) {
+                parts.push(m.clone());
+            }
+            if parts.is_empty() {
+                "all".to_string()
+            } else {
+                parts.join(", ")
+            }
+        })
+        .collect()
+}
+
+/// Mean of `y` at each x, one curve per value of `group` (printed as labels).
 fn curves(
     x: &[Option<f64>],
     y: &[Option<f64>],
-    group: &[Option<f64>],
+    group: &[String],
 ) -> Vec<(String, Vec<f64>, Vec<f64>)> {
     let mut acc: BTreeMap<String, BTreeMap<u64, (f64, f64, usize)>> = BTreeMap::new();
     for ((x, y), g) in x.iter().zip(y).zip(group) {
         let (Some(x), Some(y)) = (x, y) else { continue };
-        let label = g.map_or_else(|| "all".to_string(), |g| format!("{g} m/s"));
         let e = acc
-            .entry(label)
+            .entry(g.clone())
             .or_default()
             .entry(x.to_bits())
             .or_insert((*x, 0.0, 0));
@@ -63,7 +96,7 @@ pub fn plots(dir: &Path, t: &Table) -> Result<(), String> {
     let pr = column(t, "pressure_ratio")
         .or_else(|| column(t, "pressure_ratio_target"))
         .unwrap_or_else(|| none.clone());
-    let speed = column(t, "speed_mps").unwrap_or_else(|| none.clone());
+    let group = groups(t);
     for (file, field, title, unit, scale) in [
         (
             "work.svg",
@@ -85,7 +118,7 @@ pub fn plots(dir: &Path, t: &Table) -> Result<(), String> {
             .into_iter()
             .map(|v| v.map(|v| v * scale))
             .collect();
-        let c = curves(&pr, &y, &speed);
+        let c = curves(&pr, &y, &group);
         let series: Vec<Series> = c
             .iter()
             .map(|(label, x, y)| Series { label, x, y })
