@@ -5,9 +5,9 @@ use std::io::Write;
 use std::time::Instant;
 
 use fpc::status::Status;
-use fpc::units::CONTROL_PERIOD_S;
+use fpc::units::{CONTROL_PERIOD_S, CONTROL_PERIOD_US};
 
-use super::COLUMNS;
+use super::{text, COLUMNS};
 use crate::board::world::World;
 use crate::runlog::RunLog;
 
@@ -36,7 +36,7 @@ struct Stream<'s> {
     /// Whether the head (metadata and column names) is out.
     head_written: bool,
     /// Text of one chunk (reused).
-    text: String,
+    bytes: Vec<u8>,
     /// Every `stride`-th row of the run, for plots.
     kept: RunLog,
     stride: usize,
@@ -68,9 +68,14 @@ pub const STREAM_CHUNK_ROWS: usize = 1 << 16;
 /// reference travel; ≈ 40 MB).
 const HEAD_WAIT_ROWS: usize = 8 * STREAM_CHUNK_ROWS;
 
-/// Most rows a streamed run keeps for its plots (≈ 13 s at the control rate: every row of
-/// the default 10-cycle run; 38 MB).
-pub const KEPT_ROWS: usize = 1 << 18;
+/// Bytes of CSV text a streamed run hands to its writer at a time (above a `BufWriter`'s
+/// 1 MiB, so it goes straight through).
+const WRITE_BYTES: usize = 1 << 20;
+
+/// Most rows a streamed run keeps for its plots (≈ 3.3 s at the control rate, every other
+/// row of the default 10-cycle run: still 10 µs-fine for a plot; 9.4 MB, reserved at once
+/// so it never moves).
+pub const KEPT_ROWS: usize = 1 << 16;
 
 impl<'s> Capture<'s> {
     /// Room for a run of at most `limit_s` simulated seconds (untouched capacity costs no
@@ -82,11 +87,14 @@ impl<'s> Capture<'s> {
         let stream = csv.map(|out| {
             let mut kept = RunLog::with_columns(&COLUMNS);
             kept.meta = log.meta.clone();
+            for column in &mut kept.columns {
+                column.reserve_exact(KEPT_ROWS + STREAM_CHUNK_ROWS);
+            }
             Stream {
                 out,
                 error: None,
                 head_written: false,
-                text: String::new(),
+                bytes: Vec::new(),
                 kept,
                 stride: 1,
                 written: 0,
@@ -166,49 +174,66 @@ impl<'s> Capture<'s> {
         }
     }
 
-    /// Streamed: writes the captured rows to the CSV, keeps every `stride`-th for the plots
-    /// (halving the copy and doubling the stride when it outgrows [`KEPT_ROWS`]) and starts
-    /// the next chunk with the line pressures in force.
+    /// Streamed: writes the captured rows to the CSV (each column at its resolution,
+    /// [`super::text`]), keeps every `stride`-th for the plots (halving the copy and doubling
+    /// the stride when it outgrows [`KEPT_ROWS`]) and starts the next chunk with the line
+    /// pressures in force.
     pub(super) fn flush(&mut self) {
         let ports = self.ports_meta();
         let Some(s) = self.stream.as_mut() else {
             return;
         };
         let started = Instant::now();
+        s.bytes.clear();
         if !s.head_written {
             s.head_written = true;
             s.kept.meta.extend(ports);
-            s.text.clear();
-            s.kept.head_to_csv(&mut s.text);
-            s.error = s.out.write_all(s.text.as_bytes()).err();
+            let mut head = String::new();
+            s.kept.head_to_csv(&mut head);
+            s.bytes.extend_from_slice(head.as_bytes());
         }
-        let mut chunk = RunLog::with_columns(&COLUMNS);
-        fill_columns(&self.rows, &self.lines, &mut chunk);
-        if s.error.is_none() {
-            s.text.clear();
-            chunk.rows_to_csv(&mut s.text);
-            s.error = s.out.write_all(s.text.as_bytes()).err();
-        }
-        let mut row = Vec::with_capacity(COLUMNS.len());
-        for r in 0..chunk.len() {
-            if (s.written + r) % s.stride == 0 {
-                row.clear();
-                row.extend(
-                    chunk
-                        .columns
-                        .iter()
-                        .map(|c| c.get(r).copied().unwrap_or(f64::NAN)),
-                );
-                s.kept.push_row(&row);
+        let mut change = 0;
+        let mut text = text::Line::default();
+        for (i, r) in self.rows.iter().enumerate() {
+            while self.lines.get(change + 1).is_some_and(|l| l.0 <= i) {
+                change += 1;
             }
+            let (suction, discharge) = self
+                .lines
+                .get(change)
+                .map_or((f64::NAN, f64::NAN), |l| (l.1, l.2));
+            let v = values(r, suction, discharge);
+            write_row(&mut s.bytes, &mut text, r, &v);
+            if (s.written + i) % s.stride == 0 {
+                s.kept.push_row(&v);
+            }
+            // Written a piece at a time, so the text stays in the cache.
+            if s.bytes.len() >= WRITE_BYTES {
+                if s.error.is_none() {
+                    s.error = s.out.write_all(&s.bytes).err();
+                }
+                s.bytes.clear();
+            }
+        }
+        if s.error.is_none() {
+            s.error = s.out.write_all(&s.bytes).err();
         }
         while s.kept.len() > KEPT_ROWS {
             for column in &mut s.kept.columns {
-                *column = column.iter().step_by(2).copied().collect();
+                // In place: row 2k moves to k, the capacity stays.
+                let half = column.len().div_ceil(2);
+                for k in 0..half {
+                    if let Some(v) = column.get(2 * k).copied() {
+                        if let Some(slot) = column.get_mut(k) {
+                            *slot = v;
+                        }
+                    }
+                }
+                column.truncate(half);
             }
             s.stride *= 2;
         }
-        s.written += chunk.len();
+        s.written += self.rows.len();
         s.writing_s += started.elapsed().as_secs_f64();
         let in_force = self.lines.last().map(|&(_, su, di)| (0, su, di));
         self.rows.clear();
@@ -239,6 +264,50 @@ impl<'s> Capture<'s> {
         *log = s.kept;
         Ok(())
     }
+}
+
+/// Row `r`'s values in [`COLUMNS`]' order, with the line pressures in force.
+fn values(r: &CapturedRow, suction_pa: f64, discharge_pa: f64) -> [f64; 18] {
+    let [a, b, c, d, e, f, g, h, i, j] = r.status.map(f64::from);
+    let [pa, pb, va, vb] = r.truth;
+    [
+        World::time_s_at(u64::from(r.cycle)),
+        a,
+        b,
+        c,
+        d,
+        e,
+        f,
+        g,
+        h,
+        i,
+        j,
+        f64::from(r.fault),
+        pa,
+        pb,
+        va,
+        vb,
+        suction_pa,
+        discharge_pa,
+    ]
+}
+
+/// Appends row `r` (its `values`) to `out` as one CSV line.
+fn write_row(out: &mut Vec<u8>, line: &mut text::Line, r: &CapturedRow, values: &[f64; 18]) {
+    line.clear();
+    for (k, (v, decimals)) in values.iter().zip(text::DECIMALS).enumerate() {
+        if k > 0 {
+            line.push(b',');
+        }
+        match (k, decimals) {
+            (0, _) => line.time(u64::from(r.cycle), u64::from(CONTROL_PERIOD_US)),
+            (11, _) => line.whole(u64::from(r.fault)),
+            (_, Some(d)) => line.fixed(*v, d),
+            (_, None) => line.shortest(*v),
+        }
+    }
+    line.push(b'\n');
+    out.extend_from_slice(line.as_bytes());
 }
 
 /// Appends the captured `rows` to `log` (which has [`COLUMNS`]), one column at a time; `lines`

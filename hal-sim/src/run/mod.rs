@@ -29,6 +29,7 @@ use crate::runlog::{RunLog, REQUIRED};
 
 mod capture;
 mod options;
+pub mod text;
 
 use capture::Capture;
 pub use options::*;
@@ -161,8 +162,9 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
 }
 
 /// Runs the simulation writing the run-log CSV to `csv` as it goes, in chunks of
-/// [`STREAM_CHUNK_ROWS`] rows, so memory does not grow with the run's length. The bytes are
-/// exactly [`RunLog::to_csv`] of the log [`run`] returns; [`RunOutcome::log`] then holds an
+/// [`STREAM_CHUNK_ROWS`] rows, so memory does not grow with the run's length. The rows are
+/// those of the log [`run`] returns, each value at its column's resolution ([`text`]: 1 nm,
+/// 0.1 µrad, 1 mPa, …; the time exact); [`RunOutcome::log`] then holds an
 /// evenly decimated copy of at most [`KEPT_ROWS`] rows (every row for runs that short), for
 /// plots. A write error ends nothing early but is returned at the end.
 pub fn run_streamed(opts: &RunOptions, csv: &mut dyn Write) -> Result<RunOutcome, String> {
