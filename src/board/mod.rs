@@ -143,7 +143,7 @@ pub fn take_reset_cause() -> fpc::safety::faults::ResetCause {
 /// Brings the board up: clocks, debug freeze, servo I/O, ADC burst, PWM (running, outputs
 /// off), watchdog (running). Call once, first thing.
 pub fn init() -> Board {
-    let p = embassy_stm32::init(clocks::config());
+    let p = clocks::start();
     freeze_on_debug_halt();
     interrupt::TIM2.set_priority(TIME_PRIORITY);
 
