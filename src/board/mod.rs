@@ -70,9 +70,7 @@ use embassy_stm32::gpio::OutputType;
 use embassy_stm32::interrupt;
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::pac;
-use embassy_stm32::time::Hertz;
-use embassy_stm32::timer::complementary_pwm::{ComplementaryPwm, ComplementaryPwmPin};
-use embassy_stm32::timer::low_level::CountingMode;
+use embassy_stm32::timer::complementary_pwm::ComplementaryPwmPin;
 use embassy_stm32::timer::qei::{self, Qei};
 use embassy_stm32::timer::simple_pwm::PwmPin;
 
@@ -166,34 +164,38 @@ pub fn init() -> Board {
     };
     let sampler = adc::start(p.ADC1, p.ADC2, p.DMA1_CH1, &master, &slave);
 
+    // Timers first (outputs forced low), then the pins handed to them.
+    let bridges = pwm::IdleBridges::new(p.TIM1, p.TIM8);
     let push_pull = OutputType::PushPull;
-    let section1 = ComplementaryPwm::new(
-        p.TIM1,
-        Some(PwmPin::new(p.PA8, push_pull)),
-        Some(ComplementaryPwmPin::new(p.PB13, push_pull)),
-        Some(PwmPin::new(p.PA9, push_pull)),
-        Some(ComplementaryPwmPin::new(p.PB14, push_pull)),
-        Some(PwmPin::new(p.PA10, push_pull)),
-        Some(ComplementaryPwmPin::new(p.PB15, push_pull)),
-        None,
-        None,
-        Hertz(pwm::PWM_HZ),
-        CountingMode::CenterAlignedBothInterrupts,
-    );
-    let section2 = ComplementaryPwm::new(
-        p.TIM8,
-        Some(PwmPin::new(p.PC6, push_pull)),
-        Some(ComplementaryPwmPin::new(p.PC10, push_pull)),
-        Some(PwmPin::new(p.PC7, push_pull)),
-        Some(ComplementaryPwmPin::new(p.PC11, push_pull)),
-        Some(PwmPin::new(p.PC8, push_pull)),
-        Some(ComplementaryPwmPin::new(p.PC12, push_pull)),
-        None,
-        None,
-        Hertz(pwm::PWM_HZ),
-        CountingMode::CenterAlignedBothInterrupts,
-    );
-    let motor_pwm = MotorPwm::start(section1, section2);
+    let section1 = pwm::SectionPins {
+        u: (
+            PwmPin::new(p.PA8, push_pull),
+            ComplementaryPwmPin::new(p.PB13, push_pull),
+        ),
+        v: (
+            PwmPin::new(p.PA9, push_pull),
+            ComplementaryPwmPin::new(p.PB14, push_pull),
+        ),
+        w: (
+            PwmPin::new(p.PA10, push_pull),
+            ComplementaryPwmPin::new(p.PB15, push_pull),
+        ),
+    };
+    let section2 = pwm::SectionPins {
+        u: (
+            PwmPin::new(p.PC6, push_pull),
+            ComplementaryPwmPin::new(p.PC10, push_pull),
+        ),
+        v: (
+            PwmPin::new(p.PC7, push_pull),
+            ComplementaryPwmPin::new(p.PC11, push_pull),
+        ),
+        w: (
+            PwmPin::new(p.PC8, push_pull),
+            ComplementaryPwmPin::new(p.PC12, push_pull),
+        ),
+    };
+    let motor_pwm = bridges.start(section1, section2);
 
     let watchdog = BoardWatchdog::start(p.IWDG);
     defmt::info!(
