@@ -133,7 +133,8 @@ class Stop(Exception):
 class Model:
     """Register file of the modelled peripherals; every write lands in `log`."""
 
-    def __init__(self):
+    def __init__(self, inject=None):
+        self.inject = inject
         self.regs = dict(RESET_VALUES)
         self.log = []
         self.iwdg_unlocked = False
@@ -182,6 +183,11 @@ class Model:
             raise Stop(self.stop_reason)
 
     def side_effects(self, word, old, new, raw):
+        # Injected hardware misbehaviour (--self-test): the firmware's own checks must catch it.
+        if self.inject == "pwr-cr5-ignored" and word == PWR + 0x80:
+            return (new & ~0x100) | (old & 0x100)
+        if self.inject == "adc1-jsqr-dropped" and word == ADC1 + 0x4C:
+            return old
         if word == RCC + 0x00:  # CR: ready bits follow their enables
             new &= ~((1 << 10) | (1 << 17) | (1 << 25))
             new |= ((new >> 8) & 1) << 10 | ((new >> 16) & 1) << 17 | ((new >> 24) & 1) << 25
@@ -221,7 +227,8 @@ class Model:
                 smcr = self.get(TIM8 + 0x08)
                 sms = (smcr & 7) | ((smcr >> 16) & 1) << 3
                 ts = ((smcr >> 4) & 7) | ((smcr >> 20) & 3) << 3
-                if sms == 0b0110 and ts == 0:  # TIM8 in trigger mode on ITR0 = TIM1 TRGO
+                started = self.inject != "tim8-not-triggered"
+                if sms == 0b0110 and ts == 0 and started:  # trigger mode on ITR0 = TIM1 TRGO
                     self.regs[TIM8] = self.get(TIM8) | 1
         elif word == IWDG:  # KR
             key = raw & 0xFFFF
@@ -269,7 +276,7 @@ def symbol_at(symbols, pc):
     return "?"
 
 
-def run_elf(path, step_limit=STEP_LIMIT):
+def run_elf(path, step_limit=STEP_LIMIT, inject=None):
     segments, symbols = load_elf(path)
     mu = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
     mu.ctl_set_cpu_model(UC_CPU_ARM_CORTEX_M4)  # has the FPU; no CPACR gate in unicorn
@@ -277,7 +284,7 @@ def run_elf(path, step_limit=STEP_LIMIT):
         mu.mem_map(base, size)
     for addr, data in segments:
         mu.mem_write(addr, data)
-    model = Model()
+    model = Model(inject)
 
     def on_read(uc, offset, size, base):
         return model.read(base + offset, size)
@@ -547,6 +554,33 @@ def self_test(writes):
     return missed
 
 
+# Hardware faults injected into the model, and what the firmware must do about each: reset
+# through its boot check (boost bit, ADC read-back) or stop in its panic path (TIM8 not
+# started by TIM1), never reach the idle executor, and never set MOE.
+INJECTIONS = [
+    ("pwr-cr5-ignored", "PWR_CR5 bit 8 stays set (the boost write is lost)"),
+    ("adc1-jsqr-dropped", "ADC1 ignores its JSQR write"),
+    ("tim8-not-triggered", "TIM1's TRGO does not start TIM8"),
+]
+
+
+def injection_test(path, step_limit):
+    missed = 0
+    print("\nself-test: hardware faults injected, the firmware must stop before running")
+    for name, what in INJECTIONS:
+        run = run_elf(path, step_limit, inject=name)
+        where = symbol_at(run.symbols, run.end_pc)
+        # The panic handler ends in UDF, which unicorn stops on (no exception model); on the
+        # chip that is a HardFault, whose handler resets.
+        stopped = "reset requested" in run.end or "rust_begin_unwind" in where or "HardFault" in where
+        moe = any(w.addr in (TIM1 + 0x44, TIM8 + 0x44) and w.value & (1 << 15) for w in run.log)
+        ok = stopped and not run.idle and not moe
+        missed += not ok
+        print(f"  {'caught' if ok else 'MISSED':6s} {what}: {run.end} "
+              f"(pc in {where[:60]}), MOE set: {moe}")
+    return missed
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("elf", nargs="?", default=DEFAULT_ELF)
@@ -576,7 +610,7 @@ def main():
         failed += not ok
         print(f"  {'PASS' if ok else 'FAIL'}  {name}: {detail}")
     if args.self_test:
-        missed = self_test(run.log)
+        missed = self_test(run.log) + injection_test(args.elf, args.steps)
         print(f"self-test: {'all mutations caught' if not missed else f'{missed} not caught'}")
         failed += missed
     print(f"boot-check: {'PASS' if not failed else f'FAIL ({failed})'}")
