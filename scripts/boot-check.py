@@ -250,6 +250,8 @@ class Run:
     end_pc: int
     idle: bool
     symbols: dict
+    rtt_write: int  # defmt up-channel write offset at the end (bytes logged, mod size)
+    rtt_full: bool  # the host-blocking scenario was armed
 
 
 def load_elf(path):
@@ -260,13 +262,15 @@ def load_elf(path):
             for seg in elf.iter_segments()
             if seg["p_type"] == "PT_LOAD" and seg["p_filesz"] > 0
         ]
-        symbols = {}
+        symbols, objects = {}, {}
         symtab = elf.get_section_by_name(".symtab")
         if symtab:
             for sym in symtab.iter_symbols():
                 if sym["st_info"]["type"] == "STT_FUNC" and sym["st_size"] > 0:
                     symbols[sym["st_value"] & ~1] = (sym.name, sym["st_size"])
-    return segments, symbols
+                elif sym["st_info"]["type"] == "STT_OBJECT":
+                    objects[sym.name] = sym["st_value"]
+    return segments, symbols, objects
 
 
 def symbol_at(symbols, pc):
@@ -277,7 +281,8 @@ def symbol_at(symbols, pc):
 
 
 def run_elf(path, step_limit=STEP_LIMIT, inject=None):
-    segments, symbols = load_elf(path)
+    segments, symbols, objects = load_elf(path)
+    rtt = objects.get("_SEGGER_RTT")
     mu = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
     mu.ctl_set_cpu_model(UC_CPU_ARM_CORTEX_M4)  # has the FPU; no CPACR gate in unicorn
     for base, size in (FLASH, RAM, CCM, SYSMEM):
@@ -302,10 +307,23 @@ def run_elf(path, step_limit=STEP_LIMIT, inject=None):
     # The event register: SEV sets it, a WFE with it set clears it and does not sleep (the
     # thread executor's pender is SEV, so a task spawned or woken during a poll is polled
     # before the executor really sleeps).
-    state = {"steps": 0, "end": None, "idle": False, "event": False}
+    state = {"steps": 0, "end": None, "idle": False, "event": False, "rtt_full": False}
+    # Up-channel 0 (defmt) in the RTT control block: header 16 + 2 * 4 bytes, then
+    # name, buffer, size, write, read, flags.
+    up0 = rtt + 24 if rtt is not None else None
+
+    def host_blocks_defmt(uc):
+        """Act as a host that attached with `probe-rs run`: defmt channel in 'block if
+        full' mode (flags = 2), and never reading, with the buffer full."""
+        buffer, size, write = struct.unpack("<III", bytes(uc.mem_read(up0 + 4, 12)))
+        if buffer and size:
+            uc.mem_write(up0 + 16, struct.pack("<II", (write + 1) % size, 2))
+            state["rtt_full"] = True
 
     def on_code(uc, address, size, _):
         state["steps"] += 1
+        if inject == "defmt-host-blocking" and not state["rtt_full"] and state["steps"] % 64 == 0:
+            host_blocks_defmt(uc)
         op = bytes(uc.mem_read(address, 2)) if size == 2 else b""
         # unicorn cannot execute SEV/WFE in M-class mode: skip them here, modelled.
         if op == b"\x40\xbf":  # SEV
@@ -334,7 +352,11 @@ def run_elf(path, step_limit=STEP_LIMIT, inject=None):
     pc = mu.reg_read(UC_ARM_REG_PC)
     if state["end"] is None:
         state["end"] = "emulation stopped"
-    return Run(model.log, state["steps"], state["end"], pc, state["idle"], symbols)
+    rtt_write = None
+    if up0 is not None:
+        rtt_write = struct.unpack("<I", bytes(mu.mem_read(up0 + 12, 4)))[0]
+    return Run(model.log, state["steps"], state["end"], pc, state["idle"], symbols,
+               rtt_write, state["rtt_full"])
 
 
 # ---- checks (pure functions of the write log) -------------------------------------------
@@ -605,6 +627,13 @@ def main():
 
     results = evaluate(run.log)
     results.insert(0, ("run reaches the idle executor (WFE in thread mode)", run.idle, run.end, []))
+    results.insert(1, ("defmt logs written to RTT up-channel 0", bool(run.rtt_write),
+                       f"write offset {run.rtt_write}", []))
+    # The host attached in blocking mode and never reads: logging must not wait.
+    blocked = run_elf(args.elf, args.steps, inject="defmt-host-blocking")
+    results.insert(2, ("defmt never blocks: host set 'block if full', buffer full, never read",
+                       blocked.rtt_full and blocked.idle,
+                       f"armed: {blocked.rtt_full}; {blocked.end} after {blocked.steps} instructions", []))
     failed = 0
     for name, ok, detail, _ in results:
         failed += not ok
