@@ -19,6 +19,10 @@ the thread-mode executor first sleeps (WFE/WFI), i.e. once main has spawned ever
 each has run up to its first wait. A system reset request, a fault (UDF, an unmapped
 access) or the step limit end the run early and fail the check.
 
+The ELF is run a second time as a host that attached in "block if full" mode on a full
+defmt channel and never reads: logging must not wait, the boot must still reach the idle
+executor.
+
 Exit status 0 only if every check passes (and, with --self-test, every mutation is caught).
 """
 
