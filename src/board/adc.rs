@@ -30,7 +30,9 @@ use embassy_stm32::adc::{Adc, AdcChannel, Exten, InjectedTrigger, RegularTrigger
 use embassy_stm32::interrupt;
 use embassy_stm32::interrupt::InterruptExt;
 use embassy_stm32::pac;
+use embassy_stm32::pac::adc::regs::{Cfgr, Jsqr};
 use embassy_stm32::pac::adc::vals::{Adstp, Dmaen, Ovrmod, SampleTime};
+use embassy_stm32::pac::adccommon::regs::Ccr;
 use embassy_stm32::pac::adccommon::vals::{Dmacfg, Dual, Mdma};
 use embassy_stm32::pac::bdma::vals::{Dir, Pl, Size};
 use embassy_stm32::peripherals::{ADC1, ADC2, DMA1_CH1};
@@ -45,6 +47,7 @@ use fpc::ports::{
 };
 use fpc::units::{AdcCode, Section, Ticks};
 
+use super::fault::{boot_fault, BootCheck};
 use super::time::now_ticks;
 
 /// Injected ranks per ADC: the three phase currents of one section.
@@ -158,15 +161,19 @@ pub fn start(
         cr_command(adc, |w| w.set_addis(true));
         while adc.cr().read().aden() {}
     }
-    pac::ADC12_COMMON.ccr().modify(|w| {
-        w.set_dual(Dual::DUAL_RJ);
-        w.set_mdma(Mdma::ENABLED12B10B);
-        w.set_dmacfg(Dmacfg::CIRCULAR);
-    });
+    let mut ccr = pac::ADC12_COMMON.ccr().read();
+    ccr.set_dual(Dual::DUAL_RJ);
+    ccr.set_mdma(Mdma::ENABLED12B10B);
+    ccr.set_dmacfg(Dmacfg::CIRCULAR);
+    pac::ADC12_COMMON.ccr().write_value(ccr);
 
     let injected_signal = InjectedTrigger::<ADC1>::signal(&TIM1_TRGO2);
     let regular_signal = RegularTrigger::<ADC1>::signal(&TIM1_TRGO2);
-    for (adc, sequence, is_master) in [(p_adc1, master, true), (p_adc2, slave, false)] {
+    let mut written = [(Cfgr(0), Jsqr(0)); 2];
+    for (n, (adc, sequence, is_master)) in [(p_adc1, master, true), (p_adc2, slave, false)]
+        .into_iter()
+        .enumerate()
+    {
         for &ch in &sequence.injected {
             set_sample_time(adc, ch, INJECTED_SAMPLE);
         }
@@ -180,33 +187,38 @@ pub fn start(
         } else {
             Exten::DISABLED
         };
-        adc.jsqr().write(|w| {
-            w.set_jl(INJECTED_RANKS as u8 - 1);
-            for (i, &ch) in sequence.injected.iter().enumerate() {
-                w.set_jsq(i, ch);
-            }
-            w.set_jextsel(injected_signal);
-            w.set_jexten(edge);
-        });
+        // CFGR first: JQDIS must be set before JSQR is written, else the write goes into the
+        // injected context queue instead of being the one fixed sequence.
+        let mut cfgr = adc.cfgr().read();
+        cfgr.set_cont(false);
+        cfgr.set_discen(false);
+        cfgr.set_jdiscen(false);
+        cfgr.set_jauto(false);
+        cfgr.set_jqdis(true);
+        // Never stall on a late DMA: keep converting, the newest data wins.
+        cfgr.set_ovrmod(Ovrmod::OVERWRITE);
+        // Dual mode moves data through ADC12_CDR (MDMA), not the per-ADC DMA.
+        cfgr.set_dmaen(Dmaen::DISABLE);
+        cfgr.set_extsel(regular_signal);
+        cfgr.set_exten(edge);
+        adc.cfgr().write_value(cfgr);
+
+        let mut jsqr = Jsqr(0);
+        jsqr.set_jl(INJECTED_RANKS as u8 - 1);
+        for (i, &ch) in sequence.injected.iter().enumerate() {
+            jsqr.set_jsq(i, ch);
+        }
+        jsqr.set_jextsel(injected_signal);
+        jsqr.set_jexten(edge);
+        adc.jsqr().write_value(jsqr);
+
         adc.sqr1().write(|w| {
             w.set_l(REGULAR_RANKS as u8 - 1);
             for (i, &ch) in sequence.regular.iter().enumerate() {
                 w.set_sq(i, ch);
             }
         });
-        adc.cfgr().modify(|w| {
-            w.set_cont(false);
-            w.set_discen(false);
-            w.set_jdiscen(false);
-            w.set_jauto(false);
-            w.set_jqdis(true);
-            // Never stall on a late DMA: keep converting, the newest data wins.
-            w.set_ovrmod(Ovrmod::OVERWRITE);
-            // Dual mode moves data through ADC12_CDR (MDMA), not the per-ADC DMA.
-            w.set_dmaen(Dmaen::DISABLE);
-            w.set_extsel(regular_signal);
-            w.set_exten(edge);
-        });
+        written[n] = (cfgr, jsqr);
     }
 
     configure_dma(&dma);
@@ -222,6 +234,8 @@ pub fn start(
         w.set_adstart(true);
     });
 
+    check_readback(ccr, &written);
+
     interrupt::DMA1_CHANNEL1.set_priority(super::BURST_PRIORITY);
     // SAFETY: the handler below is ready (its statics are const-initialised) and no critical
     // section is open here that unmasking this interrupt could break.
@@ -232,6 +246,23 @@ pub fn start(
         encoders: EncoderAdc,
         currents: CurrentAdc,
         pressures: PressureAdc,
+    }
+}
+
+/// Reads back what [`start`] wrote, with both ADCs armed: ADC12_CCR, then each ADC's CFGR
+/// and JSQR. A mismatch (a write the hardware ignored, e.g. with the ADC enabled, or JSQR
+/// queued) is a [`BootCheck`] fault: the sampling instant or the channel map would be wrong.
+fn check_readback(ccr: Ccr, written: &[(Cfgr, Jsqr); 2]) {
+    if pac::ADC12_COMMON.ccr().read() != ccr {
+        boot_fault(BootCheck::Adc12Ccr);
+    }
+    for (adc, &(cfgr, jsqr)) in [pac::ADC1, pac::ADC2].into_iter().zip(written) {
+        if adc.cfgr().read() != cfgr {
+            boot_fault(BootCheck::AdcCfgr);
+        }
+        if adc.jsqr().read() != jsqr {
+            boot_fault(BootCheck::AdcJsqr);
+        }
     }
 }
 

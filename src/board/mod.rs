@@ -25,15 +25,19 @@
 //! | slave encoder sin / cos | PB1 / PB2 | ADC1 / ADC2 | IN12 / IN12, regular rank 2 |
 //! | pressure chamber A / B | PB12 / PC1 | ADC1 / ADC2 | IN11 / IN7, regular rank 3 |
 //! | pressure suction / discharge | PC0 / PC2 | ADC1 / ADC2 | IN6 / IN8, regular rank 4 |
-//! | servo encoder A / B | PB6 / PB7 | TIM4 | CH1 / CH2 (AF2), encoder mode 3 |
-//! | servo torque command | PA4 | DAC1 | OUT1, buffered, mid-scale = 0 |
+//! | servo encoder A / B | PB6 / PB7 | TIM4 | CH1 / CH2 (AF2), encoder mode 3, filter fDTS/16 N = 8 |
+//! | servo torque command | PA4 | DAC1 | OUT1, buffered, mid-scale = 0 (written before enable) |
 //! | debug, defmt over RTT | PA13 / PA14 | SWD | SWDIO / SWCLK |
 //!
 //! The currents use the fast channels (IN1–IN5); PA2 carrying one of them costs the Nucleo's
 //! LPUART1 virtual COM port, so telemetry goes over RTT or USB FS (PA11/PA12, free). Also
-//! left free: PF0/PF1 (24 MHz HSE crystal), PB8 (TIM1 BKIN, for a future hardware
+//! left free: PF0/PF1 (24 MHz HSE crystal), PB10 (TIM1_BKIN, AF12, for a future hardware
 //! over-current trip), PA5/PC13 (Nucleo LED/button). Phase outputs are active high; the
 //! gate-driver inputs need pull-downs, since the pins float from reset until [`init`].
+//!
+//! PB8 is BOOT0: with the factory option bytes (nSWBOOT0 = 1) its level at reset chooses
+//! between flash and the system bootloader, so nothing may drive it: it carries no signal
+//! (the over-current trip, once planned on PB8's TIM1_BKIN, moved to PB10 for this reason).
 //!
 //! # Interrupts (lower number = more urgent)
 //! | vector | priority | use |
@@ -48,7 +52,9 @@
 //! task enables them, whenever it disables them, on a debugger halt (DBGMCU freezes TIM1/TIM8,
 //! which also disables their outputs), and first thing on panic and HardFault
 //! ([`fault::safe_outputs_off`]). The IWDG (≈ 20 ms) is fed only by the supervision task,
-//! and only while the control task keeps checking in.
+//! and only while the control task keeps checking in. Every fault path (panic, HardFault,
+//! an unexpected interrupt, a failed boot read-back) ends in a reset of its own, so one
+//! before the watchdog starts cannot hang the board.
 
 mod adc;
 mod clocks;
@@ -60,14 +66,11 @@ mod time;
 mod watchdog;
 
 use embassy_executor::{InterruptExecutor, SendSpawner};
-use embassy_stm32::dac::DacChannel;
 use embassy_stm32::gpio::OutputType;
 use embassy_stm32::interrupt;
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::pac;
-use embassy_stm32::time::Hertz;
-use embassy_stm32::timer::complementary_pwm::{ComplementaryPwm, ComplementaryPwmPin};
-use embassy_stm32::timer::low_level::CountingMode;
+use embassy_stm32::timer::complementary_pwm::ComplementaryPwmPin;
 use embassy_stm32::timer::qei::{self, Qei};
 use embassy_stm32::timer::simple_pwm::PwmPin;
 
@@ -143,12 +146,12 @@ pub fn take_reset_cause() -> fpc::safety::faults::ResetCause {
 /// Brings the board up: clocks, debug freeze, servo I/O, ADC burst, PWM (running, outputs
 /// off), watchdog (running). Call once, first thing.
 pub fn init() -> Board {
-    let p = embassy_stm32::init(clocks::config());
+    let p = clocks::start();
     freeze_on_debug_halt();
     interrupt::TIM2.set_priority(TIME_PRIORITY);
 
     let servo_encoder = ServoEncoder::new(Qei::new(p.TIM4, p.PB6, p.PB7, qei::Config::default()));
-    let servo_torque = ServoTorque::new(DacChannel::new_blocking(p.DAC1, p.PA4));
+    let servo_torque = ServoTorque::new(p.DAC1, p.PA4);
 
     use adc::{adc1_channel as adc1, adc2_channel as adc2};
     let master = adc::Sequence {
@@ -161,34 +164,38 @@ pub fn init() -> Board {
     };
     let sampler = adc::start(p.ADC1, p.ADC2, p.DMA1_CH1, &master, &slave);
 
+    // Timers first (outputs forced low), then the pins handed to them.
+    let bridges = pwm::IdleBridges::new(p.TIM1, p.TIM8);
     let push_pull = OutputType::PushPull;
-    let section1 = ComplementaryPwm::new(
-        p.TIM1,
-        Some(PwmPin::new(p.PA8, push_pull)),
-        Some(ComplementaryPwmPin::new(p.PB13, push_pull)),
-        Some(PwmPin::new(p.PA9, push_pull)),
-        Some(ComplementaryPwmPin::new(p.PB14, push_pull)),
-        Some(PwmPin::new(p.PA10, push_pull)),
-        Some(ComplementaryPwmPin::new(p.PB15, push_pull)),
-        None,
-        None,
-        Hertz(pwm::PWM_HZ),
-        CountingMode::CenterAlignedBothInterrupts,
-    );
-    let section2 = ComplementaryPwm::new(
-        p.TIM8,
-        Some(PwmPin::new(p.PC6, push_pull)),
-        Some(ComplementaryPwmPin::new(p.PC10, push_pull)),
-        Some(PwmPin::new(p.PC7, push_pull)),
-        Some(ComplementaryPwmPin::new(p.PC11, push_pull)),
-        Some(PwmPin::new(p.PC8, push_pull)),
-        Some(ComplementaryPwmPin::new(p.PC12, push_pull)),
-        None,
-        None,
-        Hertz(pwm::PWM_HZ),
-        CountingMode::CenterAlignedBothInterrupts,
-    );
-    let motor_pwm = MotorPwm::start(section1, section2);
+    let section1 = pwm::SectionPins {
+        u: (
+            PwmPin::new(p.PA8, push_pull),
+            ComplementaryPwmPin::new(p.PB13, push_pull),
+        ),
+        v: (
+            PwmPin::new(p.PA9, push_pull),
+            ComplementaryPwmPin::new(p.PB14, push_pull),
+        ),
+        w: (
+            PwmPin::new(p.PA10, push_pull),
+            ComplementaryPwmPin::new(p.PB15, push_pull),
+        ),
+    };
+    let section2 = pwm::SectionPins {
+        u: (
+            PwmPin::new(p.PC6, push_pull),
+            ComplementaryPwmPin::new(p.PC10, push_pull),
+        ),
+        v: (
+            PwmPin::new(p.PC7, push_pull),
+            ComplementaryPwmPin::new(p.PC11, push_pull),
+        ),
+        w: (
+            PwmPin::new(p.PC8, push_pull),
+            ComplementaryPwmPin::new(p.PC12, push_pull),
+        ),
+    };
+    let motor_pwm = bridges.start(section1, section2);
 
     let watchdog = BoardWatchdog::start(p.IWDG);
     defmt::info!(

@@ -2,9 +2,17 @@
 //! complementary PWM at 20 kHz with 500 ns dead time, TIM8 started by TIM1 so both count in
 //! phase, and TIM1's channel 4 marking the counter peak for the ADC burst.
 //!
-//! Embassy's `ComplementaryPwm` sets up the pins and the timers' clocks; the rest is written
-//! here through the PAC because embassy has no API for it (idle levels with MOE = 0,
+//! Embassy's pin types (`PwmPin`, `ComplementaryPwmPin`) check and set the pins' alternate
+//! functions; the timers are written here through the PAC. Not through embassy's
+//! `ComplementaryPwm`: its constructor sets MOE = 1 and starts the counter before the
+//! caller can set the idle state, and it has no API for the rest (idle levels with MOE = 0,
 //! master/slave start, TRGO2 from OC4REF, exact ARR).
+//!
+//! Order at boot ([`IdleBridges::new`], then [`IdleBridges::start`]): each timer is
+//! configured with its counter stopped, MOE = 0, OSSI = 1 and the channels enabled, so its
+//! outputs are forced to the idle level (low) *before* the pins are switched from their reset
+//! state (analog, undriven) to the timer's alternate function; MOE is never written 1 at
+//! boot.
 //!
 //! Timing of one period (counter 0 → ARR → 0, 2·ARR timer clocks = 50 µs):
 //! - PWM mode 1: a phase's high side conducts while CNT < CCR, i.e. centred on CNT = 0;
@@ -22,10 +30,13 @@
 //! - TIM8 starts a few timer clocks (≈ 20 ns) after TIM1: the trigger is resynchronised.
 
 use embassy_stm32::pac;
-use embassy_stm32::pac::timer::vals::{Ckd, Dir, Mms, Mms2, Ocm, Ossi, Ossr, Sms, Ts};
+use embassy_stm32::pac::timer::vals::{Ckd, Cms, Dir, Mms, Mms2, Ocm, Ossi, Ossr, Sms, Ts};
 use embassy_stm32::pac::timer::TimAdv;
 use embassy_stm32::peripherals::{TIM1, TIM8};
-use embassy_stm32::timer::complementary_pwm::ComplementaryPwm;
+use embassy_stm32::timer::complementary_pwm::ComplementaryPwmPin;
+use embassy_stm32::timer::simple_pwm::PwmPin;
+use embassy_stm32::timer::{Ch1, Ch2, Ch3};
+use embassy_stm32::Peri;
 use fpc::ports::PwmOutput;
 use fpc::units::{PerSection, PhaseDuties, Section};
 
@@ -66,26 +77,53 @@ fn compare_value(duty: fpc::units::Duty) -> u16 {
     ((u32::from(duty.0) * u32::from(PWM_ARR) + 0x8000) >> 16) as u16
 }
 
-/// [`PwmOutput`] for both sections. Owns the embassy drivers so the pins stay configured.
-pub struct MotorPwm {
-    _section1: ComplementaryPwm<'static, TIM1>,
-    _section2: ComplementaryPwm<'static, TIM8>,
+/// The gate pins of one section (high side, low side per phase), held so they stay in
+/// their alternate function.
+// Only held, never read: dropping a pin would disconnect it from the timer.
+#[allow(dead_code)]
+pub struct SectionPins<T> {
+    /// Phase U: CH1 / CH1N.
+    pub u: (
+        PwmPin<'static, T, Ch1>,
+        ComplementaryPwmPin<'static, T, Ch1>,
+    ),
+    /// Phase V: CH2 / CH2N.
+    pub v: (
+        PwmPin<'static, T, Ch2>,
+        ComplementaryPwmPin<'static, T, Ch2>,
+    ),
+    /// Phase W: CH3 / CH3N.
+    pub w: (
+        PwmPin<'static, T, Ch3>,
+        ComplementaryPwmPin<'static, T, Ch3>,
+    ),
 }
 
-impl MotorPwm {
-    /// Takes the two freshly created drivers, switches the outputs to their safe idle state,
-    /// programs timing and synchronisation, and starts both counters in phase. Outputs stay
-    /// off (MOE = 0) until [`PwmOutput::enable`].
-    ///
-    /// Call after the ADCs are armed: the first TIM1 peak starts the first burst.
-    pub fn start(
-        section1: ComplementaryPwm<'static, TIM1>,
-        section2: ComplementaryPwm<'static, TIM8>,
-    ) -> Self {
+/// Both timers configured, counters stopped, outputs forced to their idle level (low):
+/// the state in which the gate pins may be handed to the timers.
+pub struct IdleBridges {
+    tim1: Peri<'static, TIM1>,
+    tim8: Peri<'static, TIM8>,
+}
+
+impl IdleBridges {
+    /// Clocks and resets TIM1 and TIM8 and programs timing, idle state and channel
+    /// enables; nothing counts and MOE stays 0.
+    pub fn new(tim1: Peri<'static, TIM1>, tim8: Peri<'static, TIM8>) -> Self {
+        embassy_stm32::rcc::enable_and_reset::<TIM1>();
+        embassy_stm32::rcc::enable_and_reset::<TIM8>();
         for section in Section::ALL {
             configure_section(timer(section));
         }
+        IdleBridges { tim1, tim8 }
+    }
 
+    /// Takes the gate pins (switched to the timers after [`IdleBridges::new`]), programs
+    /// synchronisation and the ADC trigger, and starts both counters in phase. Outputs stay
+    /// off (MOE = 0) until [`PwmOutput::enable`].
+    ///
+    /// Call after the ADCs are armed: the first TIM1 peak starts the first burst.
+    pub fn start(self, section1: SectionPins<TIM1>, section2: SectionPins<TIM8>) -> MotorPwm {
         let tim1 = pac::TIM1;
         // CH4 → OC4REF → TRGO2 → ADC1/2 trigger (see the module header).
         tim1.ccmr_output(1).modify(|w| {
@@ -123,10 +161,16 @@ impl MotorPwm {
         check_started_in_phase();
 
         MotorPwm {
-            _section1: section1,
-            _section2: section2,
+            _timers: (self.tim1, self.tim8),
+            _pins: (section1, section2),
         }
     }
+}
+
+/// [`PwmOutput`] for both sections. Owns the timers and the gate pins.
+pub struct MotorPwm {
+    _timers: (Peri<'static, TIM1>, Peri<'static, TIM8>),
+    _pins: (SectionPins<TIM1>, SectionPins<TIM8>),
 }
 
 /// Verifies at boot what the timing rests on: TIM8 was started by TIM1's TRGO (the ITR
@@ -163,8 +207,18 @@ fn configure_section(tim: TimAdv) {
     tim.cr1().modify(|w| {
         w.set_cen(false);
         w.set_ckd(Ckd::DIV1);
+        // Counts up and down; the update (repetition counter permitting) at both ends.
+        w.set_cms(Cms::CENTER_ALIGNED3);
         w.set_arpe(true);
     });
+    // PWM mode 1 with preloaded compare values on the phase channels (CH1, CH2 in CCMR1;
+    // CH3 in CCMR2).
+    for ch in PHASES {
+        tim.ccmr_output(ch / 2).modify(|w| {
+            w.set_ocm(ch % 2, Ocm::PWM_MODE1);
+            w.set_ocpe(ch % 2, true);
+        });
+    }
     tim.cr2().modify(|w| {
         for ch in PHASES {
             w.set_ois(ch, false);

@@ -1,19 +1,33 @@
 //! The rotation servo: its quadrature encoder on TIM4 and its analog torque command on DAC1.
 
-use embassy_stm32::dac::{DacChannel, Value};
-use embassy_stm32::mode::Blocking;
-use embassy_stm32::peripherals::TIM4;
+use embassy_stm32::gpio::Flex;
+use embassy_stm32::pac;
+use embassy_stm32::pac::dac::vals::Mode;
+use embassy_stm32::pac::timer::vals::FilterValue;
+use embassy_stm32::peripherals::{DAC1, PA4, TIM4};
 use embassy_stm32::timer::qei::Qei;
+use embassy_stm32::Peri;
 use fpc::ports::{QuadratureInput, TorqueOutput};
 use fpc::units::{DacCode, ADC_FULL_SCALE};
+
+/// Input filter of both encoder channels: fSAMPLING = fDTS/16 with N = 8 (TIM4 CKD = 00, so
+/// fDTS = the 170 MHz timer clock): a level must hold 8 × 94 ns = 753 ns to count, so cable pick-up
+/// (PWM edges of the bridges next to it) shorter than that is rejected. At 4096 counts/rev
+/// and 100 rev/s the ×4 edges are 2.44 µs apart, 3.2× the filter delay.
+pub const ENCODER_FILTER: FilterValue = FilterValue::FDTS_DIV16_N8;
 
 /// [`QuadratureInput`]: TIM4 in encoder mode 3 (both edges of both channels, ×4), 16-bit
 /// counter wrapping at 65535; the library extends it.
 pub struct ServoEncoder(Qei<'static, TIM4>);
 
 impl ServoEncoder {
-    /// Wraps a configured encoder-mode timer.
+    /// Wraps a configured encoder-mode timer and sets its input filter
+    /// ([`ENCODER_FILTER`]).
     pub fn new(qei: Qei<'static, TIM4>) -> Self {
+        pac::TIM4.ccmr_input(0).modify(|w| {
+            w.set_icf(0, ENCODER_FILTER);
+            w.set_icf(1, ENCODER_FILTER);
+        });
         ServoEncoder(qei)
     }
 }
@@ -25,20 +39,43 @@ impl QuadratureInput for ServoEncoder {
 }
 
 /// [`TorqueOutput`]: DAC1 channel 1, buffered, 12-bit right-aligned, mid-scale = 0 torque.
-pub struct ServoTorque(DacChannel<'static, Blocking>);
+///
+/// Written through the PAC rather than embassy's `DacChannel`, whose constructor enables
+/// the channel with the data register still at its reset value 0 (full negative torque)
+/// before the caller can write mid-scale.
+pub struct ServoTorque {
+    _dac: Peri<'static, DAC1>,
+    _pin: Flex<'static>,
+}
 
 impl ServoTorque {
-    /// Wraps the DAC channel and sets it to zero torque.
-    pub fn new(dac: DacChannel<'static, Blocking>) -> Self {
-        let mut torque = ServoTorque(dac);
-        torque.write(DacCode::MID);
-        torque
+    /// Brings DAC1 channel 1 up at zero torque: data register at mid-scale first, then the
+    /// channel enable.
+    pub fn new(dac: Peri<'static, DAC1>, pin: Peri<'static, PA4>) -> Self {
+        let mut pin = Flex::new(pin);
+        pin.set_as_analog();
+        embassy_stm32::rcc::enable_and_reset::<DAC1>();
+        let regs = pac::DAC1;
+        // Mode bits are writable only with the channel off. HFSEL = 0b10: AHB above
+        // 160 MHz (RM0440, DAC_MCR).
+        regs.mcr().modify(|w| {
+            w.set_hfsel(0b10);
+            w.set_mode(0, Mode::NORMAL_EXT_BUFEN);
+        });
+        regs.dhr12r(0).write(|w| w.set_dhr(DacCode::MID.0));
+        regs.cr().modify(|w| w.set_en(0, true));
+        ServoTorque {
+            _dac: dac,
+            _pin: pin,
+        }
     }
 }
 
 impl TorqueOutput for ServoTorque {
     fn write(&mut self, code: DacCode) {
         // The DAC silently drops bits above 12; saturate instead of wrapping.
-        self.0.set(Value::Bit12Right(code.0.min(ADC_FULL_SCALE)));
+        pac::DAC1
+            .dhr12r(0)
+            .write(|w| w.set_dhr(code.0.min(ADC_FULL_SCALE)));
     }
 }
