@@ -232,6 +232,30 @@ impl<T: Real> PortGeometry<T> {
         }
     }
 
+    /// How well both chambers breathe at `phase_rad`: the smaller of the two chambers'
+    /// most-open port (0: one chamber is sealed, 1: each has a port fully open).
+    #[inline]
+    pub fn venting(&self, phase_rad: T) -> T {
+        let o = self.openings(phase_rad);
+        o.intake_a
+            .max(o.discharge_a)
+            .min(o.intake_b.max(o.discharge_b))
+    }
+
+    /// The phases where both chambers breathe: the middle of each discharge window, where
+    /// the other chamber's intake is open too (a chamber discharges while the other one
+    /// takes in), kept when [`PortGeometry::venting`] is at least half open there. Parking
+    /// moves the piston with the rotation at one of them, so neither chamber can be
+    /// compressed sealed. Two evaluations: cheap enough for the control step's cold path.
+    pub fn venting_phases_rad(&self) -> [Option<T>; 2] {
+        let middle = |w: &PortWindow<T>| wrap_phase_rad(w.open_rad + T::of(0.5) * w.span_rad());
+        let keep = |phase: T| (self.venting(phase) >= T::of(0.5)).then_some(phase);
+        [
+            keep(middle(&self.discharge_b)),
+            keep(middle(&self.discharge_a)),
+        ]
+    }
+
     /// Effective flow area C_d·A of `port` at open fraction `fraction`, m².
     #[inline]
     pub fn effective_area_m2(&self, port: Port, fraction: T) -> T {
@@ -292,6 +316,34 @@ mod tests {
         let half = g.openings(g.half_open_rad(Port::DischargeA)).discharge_a;
         assert!((half - 0.5).abs() < 1e-9);
         assert!((g.closing_edge_rad(Port::DischargeA) - 2.0 * core::f64::consts::PI).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_reference_vents_both_chambers_in_each_half_turn() {
+        let g = PortGeometry::<f64>::reference();
+        let [first, second] = g.venting_phases_rad();
+        let (first, second) = (first.unwrap(), second.unwrap());
+        // A's intake with B's discharge (108°…180°), A's discharge with B's intake (288°…360°).
+        assert!(
+            (deg(114.0)..deg(174.0)).contains(&first),
+            "{}",
+            first.to_degrees()
+        );
+        assert!(
+            (deg(294.0)..deg(354.0)).contains(&second),
+            "{}",
+            second.to_degrees()
+        );
+        assert_eq!(g.venting(first), 1.0);
+        assert_eq!(g.venting(second), 1.0);
+        // A sealed chamber gives nothing: A's compression (B's intake only, A closed).
+        assert_eq!(g.venting(deg(230.0)), 0.0);
+        let mut sealed = g;
+        sealed.discharge_b = PortWindow::from_degrees(10.0, 20.0);
+        sealed.discharge_a = PortWindow::from_degrees(190.0, 200.0);
+        sealed.intake_a = PortWindow::from_degrees(30.0, 170.0);
+        sealed.intake_b = PortWindow::from_degrees(210.0, 350.0);
+        assert_eq!(sealed.venting_phases_rad(), [None, None]);
     }
 
     #[test]

@@ -132,7 +132,8 @@ fn run_on_us(spec: &FaultSpec, heartbeat_timeout_s: f32) -> Option<u64> {
     match spec.kind {
         FaultKind::EncoderGlitch => s(0.1),
         FaultKind::EncoderNoiseBurst => s(spec.param("duration_s") + 0.6),
-        FaultKind::CommandLoss => s(f64::from(heartbeat_timeout_s) + 2.0),
+        // The stop, the turn to the venting phase (≤ 0.5 s) and the park move.
+        FaultKind::CommandLoss => s(f64::from(heartbeat_timeout_s) + 3.0),
         // Ended by homing (or by the run itself).
         FaultKind::HomingNoStop | FaultKind::HomingSpike | FaultKind::CounterWrap => None,
         _ => s(0.6),

@@ -13,6 +13,7 @@ use crate::safety::faults::Fault;
 use crate::safety::supervisor::LimitFlags;
 use crate::sensing::homing::{Homing, HomingStep};
 use crate::status::ModeKind;
+use core::f32::consts::{PI, TAU};
 
 /// The window over which holding the stopped piston must need (almost) no force before SS1
 /// switches the outputs off, s: 50 ms, ten times the force's settling after the stop ramp.
@@ -30,8 +31,29 @@ pub(super) enum AfterStop {
     Hold,
     /// Outputs off: the second half of SS1 after a fault.
     Off,
-    /// Move slowly to the park position and hold there (host lost).
+    /// Turn to a phase where both chambers breathe, then move slowly to the park position
+    /// and hold there (host lost).
     Park,
+}
+
+/// How fast the rotation turns to the venting phase before a park, rad/s (half a turn, the
+/// farthest, in 0.5 s).
+pub const VENT_SPEED_RAD_S: f32 = core::f32::consts::TAU;
+
+/// How long the park holds the piston while the rotation turns to the venting phase, s:
+/// half a turn at [`VENT_SPEED_RAD_S`] and 0.25 s for the servo to settle there. The park
+/// move's clock starts this far below zero (its path is at rest there).
+pub const VENT_TIME_S: f32 = 0.75;
+
+/// `angle_rad` brought into [0, 2π) (angles within a few turns of zero, as the step keeps
+/// them).
+fn turn_phase(angle_rad: f32) -> f32 {
+    let r = angle_rad - TAU * ((angle_rad / TAU) as i32) as f32;
+    if r < 0.0 {
+        r + TAU
+    } else {
+        r
+    }
 }
 
 /// What the position loop is doing.
@@ -116,8 +138,13 @@ impl ControlStep {
             Mode::Moving { path, elapsed_s } => {
                 *elapsed_s += dt;
                 let sp = path.sample(*elapsed_s);
+                // A park first turns to a venting phase, the piston at rest.
+                let venting = *elapsed_s < 0.0;
                 if *elapsed_s >= path.duration_s() {
                     self.mode = Mode::Holding(Setpoint::at_rest(path.target_m()));
+                }
+                if venting {
+                    self.turn_to_vent(dt);
                 }
                 Some((sp, limit))
             }
@@ -168,7 +195,7 @@ impl ControlStep {
                                 self.config.park_position_m,
                                 self.config.park_speed_mps,
                             ),
-                            elapsed_s: 0.0,
+                            elapsed_s: self.vent_delay_s(),
                         },
                     };
                     if then == AfterStop::Off {
@@ -177,6 +204,48 @@ impl ControlStep {
                 }
                 Some((sp, limit))
             }
+        }
+    }
+
+    /// The nearest phase where both chambers breathe
+    /// ([`crate::physics::port_timing::PortGeometry::venting_phases_rad`]), as a turn of the
+    /// rotation from the current reference, rad in [−π, π); `None` for a geometry without one.
+    fn vent_turn_rad(&self) -> Option<f32> {
+        let phase = turn_phase(self.theta_reference_rad);
+        self.config
+            .port_geometry
+            .venting_phases_rad()
+            .iter()
+            .flatten()
+            // The shorter way round.
+            .map(|v| turn_phase(*v - phase + PI) - PI)
+            .fold(None, |best: Option<f32>, d| match best {
+                Some(b) if b.abs() <= d.abs() => Some(b),
+                _ => Some(d),
+            })
+    }
+
+    /// Where the park move's clock starts: [`VENT_TIME_S`] below zero, the rotation turning
+    /// to a venting phase meanwhile, so the move cannot compress a sealed chamber beyond the
+    /// pressure sensors' range; 0 for a geometry with no such phase.
+    #[cold]
+    #[inline(never)]
+    fn vent_delay_s(&self) -> f32 {
+        match self.vent_turn_rad() {
+            Some(_) => -VENT_TIME_S,
+            None => 0.0,
+        }
+    }
+
+    /// One cycle of the park's turn: the rotation reference moves toward the nearest venting
+    /// phase at [`VENT_SPEED_RAD_S`] (the target is found again each cycle: the nearest stays
+    /// the nearest as the reference approaches it).
+    #[cold]
+    #[inline(never)]
+    fn turn_to_vent(&mut self, dt: f32) {
+        if let Some(d) = self.vent_turn_rad() {
+            let step = VENT_SPEED_RAD_S * dt;
+            self.theta_reference_rad += clamp_f32(d, -step, step);
         }
     }
 
