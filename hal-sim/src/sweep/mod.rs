@@ -135,6 +135,24 @@ pub fn check(plan: &Plan, base: &Base, shard: Shard) -> Result<(), String> {
 /// Where a run's log goes, if anywhere (`--keep-logs`).
 pub type LogSink<'a> = &'a (dyn Fn(u64) -> Result<Box<dyn Write>, String> + Sync);
 
+/// Runs `f` on every item over rayon's current pool, calling `done` with each result as it
+/// comes; the results in the items' order, whatever order the threads finished in. The one
+/// runner of every study: [`execute`]'s plans, the safety suite's fault sweep.
+pub fn run_each<T: Sync, R: Send>(
+    items: &[T],
+    f: impl Fn(&T) -> R + Sync,
+    done: &(dyn Fn(&R) + Sync),
+) -> Vec<R> {
+    items
+        .par_iter()
+        .map(|item| {
+            let r = f(item);
+            done(&r);
+            r
+        })
+        .collect()
+}
+
 /// Runs `runs` of `plan` over rayon's pool (checked first with [`check`]), logging at
 /// `log_rate_hz`, calling `done` with each finished row; rows in run order. A run's log is written where `logs` says, or
 /// nowhere (the run keeps a bounded copy for nothing else).
@@ -146,9 +164,9 @@ pub fn execute(
     logs: Option<LogSink<'_>>,
     done: &(dyn Fn(&Row) + Sync),
 ) -> Vec<Row> {
-    let mut rows: Vec<Row> = runs
-        .par_iter()
-        .map(|&k| {
+    let mut rows: Vec<Row> = run_each(
+        runs,
+        |&k| {
             let mut cells: Vec<String> = plan.point(k).iter().map(|v| v.to_string()).collect();
             let outcome = plan.options(k, base).and_then(|mut opts| {
                 opts.log_rate_hz = log_rate_hz;
@@ -168,11 +186,10 @@ pub fn execute(
                     cells.push(e);
                 }
             }
-            let row = Row { run: k, cells };
-            done(&row);
-            row
-        })
-        .collect();
+            Row { run: k, cells }
+        },
+        done,
+    );
     rows.sort_by_key(|r| r.run);
     rows
 }

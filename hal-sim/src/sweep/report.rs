@@ -125,14 +125,23 @@ pub fn plots(dir: &Path, t: &Table) -> Result<(), String> {
             .collect();
         lines(&dir.join(file), title, "pressure ratio", unit, &series)?;
     }
-    // Histogram of the minimum head clearance, mm, in 40 bins over its range.
     let c: Vec<f64> = column(t, "min_head_clearance_m")
         .unwrap_or_default()
         .into_iter()
         .flatten()
         .map(|m| m * 1e3)
         .collect();
-    let (lo, hi) = c
+    histogram(
+        &dir.join("clearance.svg"),
+        "Minimum head clearance over the runs",
+        "clearance, mm",
+        &c,
+    )
+}
+
+/// Writes the histogram of `values` (40 bins over their range, drawn as steps) to `path`.
+pub fn histogram(path: &Path, title: &str, unit: &str, values: &[f64]) -> Result<(), String> {
+    let (lo, hi) = values
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
             (a.min(*v), b.max(*v))
@@ -141,7 +150,7 @@ pub fn plots(dir: &Path, t: &Table) -> Result<(), String> {
         let bins = 40usize;
         let w = ((hi - lo) / bins as f64).max(1e-6);
         let mut counts = vec![0.0; bins];
-        for v in &c {
+        for v in values {
             let i = (((v - lo) / w) as usize).min(bins - 1);
             if let Some(k) = counts.get_mut(i) {
                 *k += 1.0;
@@ -159,9 +168,9 @@ pub fn plots(dir: &Path, t: &Table) -> Result<(), String> {
         (Vec::new(), Vec::new())
     };
     lines(
-        &dir.join("clearance.svg"),
-        "Minimum head clearance over the runs",
-        "clearance, mm",
+        path,
+        title,
+        unit,
         "runs",
         &[Series {
             label: "runs",
