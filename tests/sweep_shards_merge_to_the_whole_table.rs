@@ -130,13 +130,28 @@ fn a_plan_with_a_run_that_run_refuses_is_refused_before_anything_runs() {
         ("mass", "[axes]\n\"model.piston.mass_kg\" = [12.0, -3.0]\n"),
         ("fault", "[axes]\nfault = [\"overheat@1\"]\n"),
         ("axis", "[axes]\nspeeds = [1.0]\n"),
+        ("empty", "[axes]\npressure_ratio = []\n"),
+        (
+            "mode",
+            "[axes]\nvolume_ratio = [\"adaptive\", \"fixed:0.5\"]\n",
+        ),
+        ("rate", "cycles = 1\n[axes]\nseed = [1]\n"),
         ("toml", "[axes\n"),
     ] {
         let file = dir.join(format!("{name}.toml"));
         std::fs::write(&file, plan).expect("plan written");
         let out = dir.join(name);
+        // The last plan is good: its `--log-rate` is not.
+        let rate = if name == "rate" { "3000" } else { "20000" };
         assert_eq!(
-            fpc_sim(&["sweep", path(&file), "--out", path(&out)]),
+            fpc_sim(&[
+                "sweep",
+                path(&file),
+                "--out",
+                path(&out),
+                "--log-rate",
+                rate
+            ]),
             2,
             "{name}"
         );
