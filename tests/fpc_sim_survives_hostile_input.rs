@@ -242,9 +242,22 @@ fn hostile_plan(rng: &mut ChaCha8Rng) -> String {
             "\"model.nope.x\"",
             "\"model.\"",
             "speeds",
-        ][rng.random_range(0..10)];
-        let values = match rng.random_range(0..4) {
-            0 => format!("[{}]", value(rng)),
+            "volume_ratio",
+        ][rng.random_range(0..11)];
+        let modes = [
+            "\"adaptive\"",
+            "\"fixed:3.1\"",
+            "\"fixed:nan\"",
+            "\"fixed:\"",
+            "\"\"",
+        ];
+        let values = match rng.random_range(0..5) {
+            _ if axis == "volume_ratio" && rng.random_bool(0.7) => format!(
+                "[{}, {}]",
+                modes[rng.random_range(0..modes.len())],
+                modes[rng.random_range(0..modes.len())]
+            ),
+            0 | 4 => format!("[{}]", value(rng)),
             1 => format!("[{}, {}]", value(rng), value(rng)),
             2 => format!(
                 "{{ from = {}, to = {}, steps = {} }}",
@@ -562,6 +575,12 @@ fn hostile_case(sub: &str, rng: &mut ChaCha8Rng, dir: &Path) -> Case {
             }
             if rng.random_bool(0.1) {
                 args.push("--keep-logs".into());
+            }
+            if rng.random_bool(0.15) {
+                push(&mut args, "--log-rate", &num(rng));
+            }
+            if rng.random_bool(0.1) {
+                args.push("--resume".into());
             }
             push(&mut args, "--out", &out_arg);
         }
