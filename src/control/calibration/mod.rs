@@ -416,7 +416,9 @@ fn cycles(s: f32, dt: f32) -> u32 {
 }
 
 mod align;
+pub mod record;
 mod sense;
+pub mod store;
 mod sweeps;
 
 use align::Aligner;
