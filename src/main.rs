@@ -40,8 +40,14 @@ mod firmware {
     /// The 20 kHz control task (control executor, woken by each ADC burst).
     #[embassy_executor::task]
     async fn control(ports: board::ControlPorts, reset_cause: ResetCause) {
-        let never: Infallible =
-            fpc::tasks::control_run(ports, &SHARED, ControlConfig::reference(), reset_cause).await;
+        let never: Infallible = fpc::tasks::control_run(
+            ports,
+            &SHARED,
+            ControlConfig::reference(),
+            reset_cause,
+            None,
+        )
+        .await;
         match never {}
     }
 

@@ -1,5 +1,5 @@
 //! State shared between the tasks: the command mailbox, replies, the latest status, the
-//! telemetry frame queue and the watchdog check-ins.
+//! telemetry frame queue, the watchdog check-ins and the calibration record to save.
 //!
 //! Generic over the raw mutex so the firmware uses a critical-section mutex across its two
 //! executors and the simulator a no-op one on its single thread. Nothing here blocks: the
@@ -11,7 +11,9 @@ use core::sync::atomic::{AtomicU16, AtomicU32, AtomicU8, Ordering};
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::channel::Channel;
+use embassy_sync::signal::Signal;
 
+use crate::control::calibration::record::CalibrationRecord;
 use crate::control::command::{Command, Reply};
 use crate::link::telemetry::Frame;
 use crate::status::Status;
@@ -44,6 +46,8 @@ pub struct Shared<M: RawMutex> {
     telemetry_cycles: AtomicU32,
     /// Frames lost: queue full (control task) or sink full (telemetry task).
     telemetry_dropped: AtomicU32,
+    /// The newest calibration record not yet saved (a newer one replaces it).
+    calibration: Signal<M, CalibrationRecord>,
 }
 
 impl<M: RawMutex> Default for Shared<M> {
@@ -64,6 +68,7 @@ impl<M: RawMutex> Shared<M> {
             telemetry_decimation: AtomicU16::new(0),
             telemetry_cycles: AtomicU32::new(0),
             telemetry_dropped: AtomicU32::new(0),
+            calibration: Signal::new(),
         }
     }
 
@@ -152,5 +157,16 @@ impl<M: RawMutex> Shared<M> {
     /// Frames lost so far (queue full or sink full).
     pub fn telemetry_dropped(&self) -> u32 {
         self.telemetry_dropped.load(Ordering::Relaxed)
+    }
+
+    /// Control task, after a calibration routine succeeded: hands the record to the storage
+    /// task (never waits; a record not yet saved is replaced by this newer one).
+    pub fn post_calibration(&self, record: CalibrationRecord) {
+        self.calibration.signal(record);
+    }
+
+    /// Storage task: waits for the next record to save.
+    pub async fn calibration_to_save(&self) -> CalibrationRecord {
+        self.calibration.wait().await
     }
 }

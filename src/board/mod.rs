@@ -122,6 +122,15 @@ impl fpc::ports::EventLog for DefmtEvents {
     fn mode_changed(&mut self, mode: fpc::status::ModeKind) {
         defmt::info!("mode: {}", mode.name());
     }
+    fn calibration_saved(
+        &mut self,
+        result: Result<(), fpc::control::calibration::store::SaveError>,
+    ) {
+        match result {
+            Ok(()) => defmt::info!("calibration saved"),
+            Err(e) => defmt::error!("calibration not saved: {}", e),
+        }
+    }
 }
 
 /// Reads and clears the reset flags (RCC_CSR): why the MCU started.

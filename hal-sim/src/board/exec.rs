@@ -102,7 +102,7 @@ where
     simulate_with(
         world,
         &shared,
-        |io, shared| control_run(io, shared, config, ResetCause::PowerOn),
+        |io, shared| control_run(io, shared, config, ResetCause::PowerOn, None),
         each_cycle,
     )
 }
@@ -177,7 +177,7 @@ where
         // RAM starts afresh at every boot.
         let shared = SimShared::new();
         let io = control_ports(&world);
-        let mut control = pin!(control_run(io, &shared, config.clone(), cause));
+        let mut control = pin!(control_run(io, &shared, config.clone(), cause, None));
         let mut supervision = pin!(supervision_run(
             clock(&world),
             clock(&world),
