@@ -48,7 +48,7 @@ impl NorFlashError for SimFlashError {
 }
 
 /// The simulated flash.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct SimFlash {
     bytes: Vec<u8>,
     /// Per double word: programmed since its page's last erase.
