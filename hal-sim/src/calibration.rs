@@ -151,7 +151,10 @@ pub fn to_toml(record: &CalibrationRecord, source: &str) -> Result<String, Strin
             slave: sin_cos(record.sin_cos.slave),
         },
     };
-    let body = toml::to_string(&file).map_err(|e| e.to_string())?;
+    let mut body = toml::to_string(&file).map_err(|e| e.to_string())?;
+    if !body.ends_with('\n') {
+        body.push('\n');
+    }
     Ok(format!(
         "# fpc calibration: what the Calibrate routines found ({source}).\n\
          # current_sense: phase-current ADC zero, codes from mid-scale; alignment: each\n\

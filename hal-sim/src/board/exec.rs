@@ -21,11 +21,15 @@ use std::rc::Rc;
 use std::task::{Context, Waker};
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use fpc::control::calibration::record::CalibrationRecord;
+use fpc::control::calibration::store::LoadError;
 use fpc::control::config::ControlConfig;
 use fpc::ports::ControlPorts;
 use fpc::safety::faults::ResetCause;
 use fpc::shared::Shared;
 use fpc::tasks::{control_run, supervision_run, telemetry_run};
+
+use crate::board::flash::{block_on, SimFlash};
 
 use fpc::units::DacCode;
 
@@ -60,6 +64,9 @@ pub struct Execution {
     pub supervision_hung: bool,
     /// Simulated time of every watchdog reset so far, µs.
     pub resets_us: Vec<u64>,
+    /// The board's calibration flash, read by the firmware's store at every boot; `None`:
+    /// the board has no store and the configuration is the calibration.
+    pub flash: Option<SimFlash>,
 }
 
 /// The shared state as the simulator instantiates it (single thread: no-op mutex).
@@ -75,6 +82,18 @@ fn control_ports(world: &WorldRef) -> SimControlPorts {
         quadrature: peripherals(world),
         servo: peripherals(world),
         pressures: peripherals(world),
+    }
+}
+
+/// The firmware's boot read of its calibration store on `flash`; the flash comes back (a
+/// load may repair a torn save).
+fn boot_load(flash: SimFlash) -> (Result<CalibrationRecord, LoadError>, SimFlash) {
+    match crate::calibration::store(flash.clone()) {
+        Ok(mut store) => {
+            let loaded = block_on(store.load());
+            (loaded, store.into_flash())
+        }
+        Err(_) => (Err(LoadError::Flash), flash),
     }
 }
 
@@ -177,7 +196,12 @@ where
         // RAM starts afresh at every boot.
         let shared = SimShared::new();
         let io = control_ports(&world);
-        let mut control = pin!(control_run(io, &shared, config.clone(), cause, None));
+        let stored = execution.flash.take().map(|flash| {
+            let (loaded, flash) = boot_load(flash);
+            execution.flash = Some(flash);
+            loaded
+        });
+        let mut control = pin!(control_run(io, &shared, config.clone(), cause, stored));
         let mut supervision = pin!(supervision_run(
             clock(&world),
             clock(&world),
