@@ -161,7 +161,7 @@ impl NorFlash for SimFlash {
 
     async fn erase(&mut self, from: u32, to: u32) -> Result<(), SimFlashError> {
         let (from, to) = (from as usize, to as usize);
-        if from % PAGE_BYTES != 0 || to % PAGE_BYTES != 0 || to < from {
+        if !from.is_multiple_of(PAGE_BYTES) || !to.is_multiple_of(PAGE_BYTES) || to < from {
             return Err(SimFlashError::NotAligned);
         }
         self.range(from as u32, to - from)?;
@@ -181,7 +181,8 @@ impl NorFlash for SimFlash {
     }
 
     async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), SimFlashError> {
-        if offset as usize % WORD_BYTES != 0 || bytes.len() % WORD_BYTES != 0 {
+        if !(offset as usize).is_multiple_of(WORD_BYTES) || !bytes.len().is_multiple_of(WORD_BYTES)
+        {
             return Err(SimFlashError::NotAligned);
         }
         let r = self.range(offset, bytes.len())?;
