@@ -11,7 +11,6 @@ use core::sync::atomic::{AtomicU16, AtomicU32, AtomicU8, Ordering};
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::channel::Channel;
-use embassy_sync::signal::Signal;
 
 use crate::control::calibration::record::CalibrationRecord;
 use crate::control::command::{Command, Reply};
@@ -46,8 +45,10 @@ pub struct Shared<M: RawMutex> {
     telemetry_cycles: AtomicU32,
     /// Frames lost: queue full (control task) or sink full (telemetry task).
     telemetry_dropped: AtomicU32,
-    /// The newest calibration record not yet saved (a newer one replaces it).
-    calibration: Signal<M, CalibrationRecord>,
+    /// The newest calibration record not yet saved (a newer one replaces it). A channel, not
+    /// a `Signal`: an empty channel is all zeros, so `Shared` stays in `.bss` (a `Signal`
+    /// moved all 2.2 KiB of it to `.data`, whose initial image costs as much flash).
+    calibration: Channel<M, CalibrationRecord, 1>,
 }
 
 impl<M: RawMutex> Default for Shared<M> {
@@ -68,7 +69,7 @@ impl<M: RawMutex> Shared<M> {
             telemetry_decimation: AtomicU16::new(0),
             telemetry_cycles: AtomicU32::new(0),
             telemetry_dropped: AtomicU32::new(0),
-            calibration: Signal::new(),
+            calibration: Channel::new(),
         }
     }
 
@@ -162,11 +163,17 @@ impl<M: RawMutex> Shared<M> {
     /// Control task, after a calibration routine succeeded: hands the record to the storage
     /// task (never waits; a record not yet saved is replaced by this newer one).
     pub fn post_calibration(&self, record: CalibrationRecord) {
-        self.calibration.signal(record);
+        if let Err(embassy_sync::channel::TrySendError::Full(record)) =
+            self.calibration.try_send(record)
+        {
+            // Only the control task sends: after taking the older one the slot is free.
+            let _ = self.calibration.try_receive();
+            let _ = self.calibration.try_send(record);
+        }
     }
 
     /// Storage task: waits for the next record to save.
     pub async fn calibration_to_save(&self) -> CalibrationRecord {
-        self.calibration.wait().await
+        self.calibration.receive().await
     }
 }
