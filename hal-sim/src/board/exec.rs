@@ -67,6 +67,11 @@ pub struct Execution {
     /// The board's calibration flash, read by the firmware's store at every boot; `None`:
     /// the board has no store and the configuration is the calibration.
     pub flash: Option<SimFlash>,
+    /// The supply is off until this time, µs: no task runs, the outputs are low; then the
+    /// board boots from power-on.
+    pub power_off_until_us: Option<u64>,
+    /// Simulated time of every boot after a power cut, µs.
+    pub power_ups_us: Vec<u64>,
 }
 
 /// The shared state as the simulator instantiates it (single thread: no-op mutex).
@@ -212,20 +217,52 @@ where
         let decimation = world.borrow().telemetry.decimation;
         let mut telemetry = pin!(telemetry_run(telemetry_sink(&world), &shared, decimation));
         loop {
-            if !execution.control_hung {
+            let powered = execution.power_off_until_us.is_none();
+            if powered && !execution.control_hung {
                 if execution.control_busy_periods == 0 {
                     let _ = control.as_mut().poll(&mut cx);
                 } else {
                     execution.control_busy_periods -= 1;
                 }
             }
-            let _ = telemetry.as_mut().poll(&mut cx);
-            if !execution.supervision_hung {
+            if powered {
+                let _ = telemetry.as_mut().poll(&mut cx);
+            }
+            if powered && !execution.supervision_hung {
                 let _ = supervision.as_mut().poll(&mut cx);
             }
             let mut w = world.borrow_mut();
+            if !powered {
+                // No supply: the gate drivers' pull-downs hold every output low.
+                w.enabled = false;
+                w.duties = Default::default();
+                w.servo_code = DacCode::MID;
+            }
             if each_cycle(&mut w, &shared, &mut execution).is_break() {
                 break 'boot;
+            }
+            if let Some(until) = execution.power_off_until_us {
+                if w.time_us() >= until {
+                    // Power is back: a cold boot (RAM lost, watchdog in its boot window,
+                    // the flash as the cut left it).
+                    execution.power_off_until_us = None;
+                    execution.power_ups_us.push(w.time_us());
+                    execution.control_hung = false;
+                    execution.supervision_hung = false;
+                    execution.control_busy_periods = 0;
+                    if let Some(f) = execution.flash.as_mut() {
+                        *f = f.reboot();
+                    }
+                    w.watchdog_fed_us = w.time_us();
+                    w.watchdog_fed_since_boot = false;
+                    cause = ResetCause::PowerOn;
+                    w.advance();
+                    continue 'boot;
+                }
+                // The watchdog is off with the MCU.
+                w.watchdog_fed_us = w.time_us();
+                w.advance();
+                continue;
             }
             let starved = execution.watchdog_timeout_us.is_some_and(|timeout| {
                 let window = if w.watchdog_fed_since_boot {
