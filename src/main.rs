@@ -4,8 +4,15 @@
 //! - the 20 kHz control task ([`fpc::tasks::control_run`]) on a high-priority
 //!   `InterruptExecutor`, woken by the end of each ADC burst;
 //! - in thread mode: the supervision task ([`fpc::tasks::supervision_run`], 1 kHz, feeds
-//!   the watchdog), the telemetry task ([`fpc::tasks::telemetry_run`], frames to RTT up 1)
-//!   and the command task ([`fpc::tasks::command_run`], RTT down 0 in, replies on up 2).
+//!   the watchdog), the telemetry task ([`fpc::tasks::telemetry_run`], frames to RTT up 1),
+//!   the command task ([`fpc::tasks::command_run`], RTT down 0 in, replies on up 2) and the
+//!   calibration storage task ([`fpc::tasks::calibration_store_run`], saves each routine's
+//!   result to flash).
+//!
+//! With the feature `calibration-store` (`cargo fw --features calibration-store`; off by
+//! default, over the flash budget) the calibration record is read from flash at boot,
+//! before the control task starts — missing or invalid, the machine refuses `Start` until
+//! calibrated — and each routine's result is saved by the storage task.
 //!
 //! Each embassy task is a thin concrete wrapper: embassy tasks cannot be generic, the
 //! bodies are. All hardware glue is in `board` (pins, clocks, interrupts, safe state).
@@ -27,6 +34,8 @@ mod firmware {
 
     use embassy_executor::Spawner;
     use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+    use fpc::control::calibration::record::CalibrationRecord;
+    use fpc::control::calibration::store::LoadError;
     use fpc::control::config::ControlConfig;
     use fpc::safety::faults::ResetCause;
     use fpc::shared::Shared;
@@ -39,9 +48,28 @@ mod firmware {
 
     /// The 20 kHz control task (control executor, woken by each ADC burst).
     #[embassy_executor::task]
-    async fn control(ports: board::ControlPorts, reset_cause: ResetCause) {
+    async fn control(
+        ports: board::ControlPorts,
+        reset_cause: ResetCause,
+        stored: Option<Result<CalibrationRecord, LoadError>>,
+    ) {
+        let never: Infallible = fpc::tasks::control_run(
+            ports,
+            &SHARED,
+            ControlConfig::reference(),
+            reset_cause,
+            stored,
+        )
+        .await;
+        match never {}
+    }
+
+    /// The calibration storage task (thread mode): saves each routine's record to flash.
+    #[cfg(feature = "calibration-store")]
+    #[embassy_executor::task]
+    async fn calibration_store(store: board::BoardCalibrationStore) {
         let never: Infallible =
-            fpc::tasks::control_run(ports, &SHARED, ControlConfig::reference(), reset_cause).await;
+            fpc::tasks::calibration_store_run(store, &SHARED, board::DefmtEvents).await;
         match never {}
     }
 
@@ -75,6 +103,32 @@ mod firmware {
         match never {}
     }
 
+    /// Reads the calibration from flash (memory-mapped reads, well inside the watchdog's
+    /// boot window) and starts the storage task with the store.
+    #[cfg(feature = "calibration-store")]
+    async fn load_calibration(
+        spawner: &Spawner,
+        board: &mut board::Board,
+    ) -> Result<CalibrationRecord, LoadError> {
+        let stored = match board.calibration.take() {
+            Some(mut store) => {
+                let loaded = store.load().await;
+                spawner.spawn(defmt::unwrap!(calibration_store(store)));
+                loaded
+            }
+            None => Err(LoadError::Flash),
+        };
+        match &stored {
+            Ok(record) => defmt::info!("calibration loaded: {}", record.status().name()),
+            Err(e) => defmt::warn!(
+                "{} ({}): Start refused until calibrated",
+                e.status().name(),
+                e
+            ),
+        }
+        stored
+    }
+
     #[embassy_executor::main]
     async fn main(spawner: Spawner) {
         let (telemetry_sink, replies, command_source) = board::rtt::init();
@@ -83,8 +137,17 @@ mod firmware {
             ResetCause::Watchdog => defmt::error!("reset by the independent watchdog: a task hung"),
             cause => defmt::info!("boot after {}", cause),
         }
-        let board = board::init();
-        board::start_control_executor().spawn(defmt::unwrap!(control(board.control, reset_cause)));
+        #[cfg_attr(not(feature = "calibration-store"), allow(unused_mut))]
+        let mut board = board::init();
+        #[cfg(feature = "calibration-store")]
+        let stored = Some(load_calibration(&spawner, &mut board).await);
+        #[cfg(not(feature = "calibration-store"))]
+        let stored = None;
+        board::start_control_executor().spawn(defmt::unwrap!(control(
+            board.control,
+            reset_cause,
+            stored
+        )));
         spawner.spawn(defmt::unwrap!(supervision(
             board.sleep,
             board.clock,

@@ -160,4 +160,9 @@ pub trait EventLog {
     fn limit_active(&mut self, limits: crate::safety::supervisor::LimitFlags);
     /// The operating mode changed (defmt `info`).
     fn mode_changed(&mut self, mode: crate::status::ModeKind);
+    /// A calibration record was saved to flash, or the save failed (defmt `info` / `error`).
+    fn calibration_saved(
+        &mut self,
+        result: Result<(), crate::control::calibration::store::SaveError>,
+    );
 }

@@ -1,5 +1,5 @@
 //! State shared between the tasks: the command mailbox, replies, the latest status, the
-//! telemetry frame queue and the watchdog check-ins.
+//! telemetry frame queue, the watchdog check-ins and the calibration record to save.
 //!
 //! Generic over the raw mutex so the firmware uses a critical-section mutex across its two
 //! executors and the simulator a no-op one on its single thread. Nothing here blocks: the
@@ -12,6 +12,7 @@ use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::channel::Channel;
 
+use crate::control::calibration::record::CalibrationRecord;
 use crate::control::command::{Command, Reply};
 use crate::link::telemetry::Frame;
 use crate::status::Status;
@@ -44,6 +45,10 @@ pub struct Shared<M: RawMutex> {
     telemetry_cycles: AtomicU32,
     /// Frames lost: queue full (control task) or sink full (telemetry task).
     telemetry_dropped: AtomicU32,
+    /// The newest calibration record not yet saved (a newer one replaces it). A channel, not
+    /// a `Signal`: an empty channel is all zeros, so `Shared` stays in `.bss` (a `Signal`
+    /// moved all 2.2 KiB of it to `.data`, whose initial image costs as much flash).
+    calibration: Channel<M, CalibrationRecord, 1>,
 }
 
 impl<M: RawMutex> Default for Shared<M> {
@@ -64,6 +69,7 @@ impl<M: RawMutex> Shared<M> {
             telemetry_decimation: AtomicU16::new(0),
             telemetry_cycles: AtomicU32::new(0),
             telemetry_dropped: AtomicU32::new(0),
+            calibration: Channel::new(),
         }
     }
 
@@ -152,5 +158,22 @@ impl<M: RawMutex> Shared<M> {
     /// Frames lost so far (queue full or sink full).
     pub fn telemetry_dropped(&self) -> u32 {
         self.telemetry_dropped.load(Ordering::Relaxed)
+    }
+
+    /// Control task, after a calibration routine succeeded: hands the record to the storage
+    /// task (never waits; a record not yet saved is replaced by this newer one).
+    pub fn post_calibration(&self, record: CalibrationRecord) {
+        if let Err(embassy_sync::channel::TrySendError::Full(record)) =
+            self.calibration.try_send(record)
+        {
+            // Only the control task sends: after taking the older one the slot is free.
+            let _ = self.calibration.try_receive();
+            let _ = self.calibration.try_send(record);
+        }
+    }
+
+    /// Storage task: waits for the next record to save.
+    pub async fn calibration_to_save(&self) -> CalibrationRecord {
+        self.calibration.receive().await
     }
 }

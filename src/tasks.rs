@@ -6,6 +6,10 @@ use core::task::Poll;
 
 use embassy_sync::blocking_mutex::raw::RawMutex;
 
+use embedded_storage_async::nor_flash::NorFlash;
+
+use crate::control::calibration::record::CalibrationRecord;
+use crate::control::calibration::store::{CalibrationStore, LoadError};
 use crate::control::command::Refusal;
 use crate::control::command::Reply;
 use crate::control::config::ControlConfig;
@@ -39,13 +43,17 @@ pub const BOOT_WATCHDOG_TIMEOUT_US: u32 = 20_000;
 /// [`ControlStep`], write both sections' PWM and the servo command, publish the status.
 ///
 /// `reset_cause` is why the MCU started: after a watchdog reset the machine boots into the
-/// fault state. An invalid configuration keeps the outputs off for good (and keeps checking
+/// fault state. `stored` is the calibration read from flash at boot
+/// ([`CalibrationStore::load`]; `None` where there is no store and `config` is the
+/// calibration, as in the simulator): missing or invalid, the machine refuses `Start` until
+/// calibrated. Each routine that succeeds hands its record to [`calibration_store_run`]. An invalid configuration keeps the outputs off for good (and keeps checking
 /// in, so the watchdog does not reset the board into the same configuration).
 pub async fn control_run<M, T, E, C, P, Q, S, R>(
     mut ports: ControlPorts<T, E, C, P, Q, S, R>,
     shared: &Shared<M>,
     config: ControlConfig,
     reset_cause: ResetCause,
+    stored: Option<Result<CalibrationRecord, LoadError>>,
 ) -> Infallible
 where
     M: RawMutex,
@@ -67,6 +75,9 @@ where
         },
     };
     step.boot(reset_cause);
+    if let Some(loaded) = stored {
+        step.load_calibration(loaded);
+    }
     shared.publish(*step.status());
     // Which sections' outputs are switching (None: all off).
     let mut switching: Option<PerSection<bool>> = None;
@@ -105,6 +116,9 @@ where
             }
         }
         ports.servo.write(out.servo);
+        if let Some(record) = step.take_calibration_to_save() {
+            shared.post_calibration(record);
+        }
         shared.publish(*step.status());
         shared.queue_telemetry(step.status());
         shared.check_in(task_bits::CONTROL);
@@ -209,6 +223,27 @@ async fn yield_now() {
         }
     })
     .await
+}
+
+/// The calibration storage task (thread mode): saves each record the control task hands
+/// over to flash through `store`, and logs the outcome. A save erases and writes flash pages
+/// (tens of ms), which is why it never runs in the control task; a power cut during it
+/// leaves the previous record ([`CalibrationStore`]).
+pub async fn calibration_store_run<M, F, G>(
+    mut store: CalibrationStore<F>,
+    shared: &Shared<M>,
+    mut log: G,
+) -> Infallible
+where
+    M: RawMutex,
+    F: NorFlash,
+    G: EventLog,
+{
+    loop {
+        let record = shared.calibration_to_save().await;
+        let result = store.save(&record).await;
+        log.calibration_saved(result);
+    }
 }
 
 /// Period of the command task, µs: the RTT down-channel is polled at 1 kHz.

@@ -20,12 +20,15 @@ use rand_chacha::ChaCha8Rng;
 const BASE_LOG: &str = include_str!("data/hand_stroke.csv");
 /// The reference machine's model file.
 const BASE_MODEL: &str = include_str!("../hal-sim/src/plant/model/reference.toml");
+/// A calibration file as `fpc-sim calibrate` writes it for the reference machine.
+const BASE_CALIBRATION: &str = include_str!("data/calibration.toml");
 
 /// Longest a case may take: a hang detector, not a speed target (debug build, loaded CI).
 const CASE_LIMIT: Duration = Duration::from_secs(60);
 
-const SUBCOMMANDS: [&str; 11] = [
+const SUBCOMMANDS: [&str; 12] = [
     "run",
+    "calibrate",
     "derive",
     "decode",
     "lag",
@@ -374,7 +377,12 @@ fn hostile_capture(rng: &mut ChaCha8Rng) -> Vec<u8> {
 
 /// A hostile mutation of the reference model file.
 fn hostile_model(rng: &mut ChaCha8Rng) -> String {
-    let mut lines: Vec<String> = BASE_MODEL.lines().map(str::to_string).collect();
+    hostile_toml(rng, BASE_MODEL)
+}
+
+/// `base` (TOML) with one or two values made hostile, a line doubled or a key added.
+fn hostile_toml(rng: &mut ChaCha8Rng, base: &str) -> String {
+    let mut lines: Vec<String> = base.lines().map(str::to_string).collect();
     let numeric: Vec<usize> = lines
         .iter()
         .enumerate()
@@ -446,6 +454,7 @@ fn hostile_case(sub: &str, rng: &mut ChaCha8Rng, dir: &Path) -> Case {
         "energy.svg",
         "report.md",
         "results.csv",
+        "cal.toml",
     ] {
         if rng.random_bool(0.1) {
             std::fs::write(out.join(name), b"earlier output").unwrap();
@@ -497,6 +506,20 @@ fn hostile_case(sub: &str, rng: &mut ChaCha8Rng, dir: &Path) -> Case {
                 ][rng.random_range(0..6)];
                 push(&mut args, "--fault", &spec);
             }
+            if rng.random_bool(0.25) {
+                let cal = dir.join("calibration.toml");
+                let text = if rng.random_bool(0.6) {
+                    hostile_toml(rng, BASE_CALIBRATION)
+                } else {
+                    BASE_CALIBRATION.to_string()
+                };
+                std::fs::write(&cal, text).unwrap();
+                push(
+                    &mut args,
+                    "--calibration",
+                    &[cal.clone(), cal, log.clone(), dir.join("none.toml")][rng.random_range(0..4)],
+                );
+            }
             if rng.random_bool(0.2) {
                 push(
                     &mut args,
@@ -505,6 +528,25 @@ fn hostile_case(sub: &str, rng: &mut ChaCha8Rng, dir: &Path) -> Case {
                 );
             }
             push(&mut args, "--out", &out_arg);
+        }
+        "calibrate" => {
+            if rng.random_bool(0.7) {
+                push(&mut args, "--model", &model);
+            }
+            if rng.random_bool(0.3) {
+                push(&mut args, "--seed", &num(rng));
+            }
+            push(
+                &mut args,
+                "--out",
+                &[
+                    out.join("cal.toml"),
+                    out.join("cal.toml"),
+                    out_arg.join("cal.toml"),
+                    model.clone(),
+                    log.clone(),
+                ][rng.random_range(0..5)],
+            );
         }
         "decode" => {
             let capture = dir.join("capture.bin");

@@ -18,6 +18,7 @@
 //! | [`gap`] | the model-gap workflow |
 //! | [`sweep`] | studies: every run of a plan in parallel, sharded, merged |
 //! | [`plot`] | SVG plots (reports of the runs, the log tools and the gap workflow) |
+//! | [`calibration`] | calibration files (TOML), the simulated commissioning that writes one, the flash that holds one |
 //! | [`failure`] | the failure type and its exit codes |
 //! | [`output`] | outputs checked before work, staged and moved into place complete |
 //! | [`console`] | stdout/stderr lines that fail with exit 1 instead of panicking |
@@ -25,6 +26,7 @@
 #![warn(missing_docs)]
 
 pub mod board;
+pub mod calibration;
 pub mod cli;
 pub mod console;
 pub mod failure;

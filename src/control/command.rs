@@ -129,6 +129,9 @@ pub enum Refusal {
     CausePersists,
     /// The phase currents read a current with the outputs off: a current-sense offset.
     CurrentSenseOffset,
+    /// No complete calibration is loaded (missing, invalid or incomplete in flash): run the
+    /// calibration routines first.
+    NotCalibrated,
 }
 
 impl Refusal {
@@ -143,6 +146,9 @@ impl Refusal {
             Refusal::CausePersists => "the cause of the fault is still present",
             Refusal::CurrentSenseOffset => {
                 "phase currents read non-zero with the outputs off: run the current-sense calibration"
+            }
+            Refusal::NotCalibrated => {
+                "not calibrated: run current_sense, alignment, home, misalignment, cogging"
             }
         }
     }

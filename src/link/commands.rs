@@ -242,6 +242,7 @@ pub const fn refusal_code(refusal: Refusal) -> u8 {
         Refusal::Busy => 5,
         Refusal::CausePersists => 6,
         Refusal::CurrentSenseOffset => 7,
+        Refusal::NotCalibrated => 8,
     }
 }
 
@@ -255,6 +256,7 @@ pub fn refusal_from_code(code: u8) -> Option<Refusal> {
         Refusal::Busy,
         Refusal::CausePersists,
         Refusal::CurrentSenseOffset,
+        Refusal::NotCalibrated,
     ]
     .into_iter()
     .find(|r| refusal_code(*r) == code)
@@ -497,7 +499,7 @@ pub(crate) mod tests {
         }
 
         #[test]
-        fn replies_round_trip(ci in 0usize..64, res in 0u8..7, p in any::<u32>()) {
+        fn replies_round_trip(ci in 0usize..64, res in 0u8..9, p in any::<u32>()) {
             let all = all_commands();
             let mut command = all[ci % all.len()];
             if let Command::MoveTo { position_m, .. } = &mut command {

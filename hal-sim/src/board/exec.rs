@@ -21,11 +21,15 @@ use std::rc::Rc;
 use std::task::{Context, Waker};
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use fpc::control::calibration::record::CalibrationRecord;
+use fpc::control::calibration::store::LoadError;
 use fpc::control::config::ControlConfig;
 use fpc::ports::ControlPorts;
 use fpc::safety::faults::ResetCause;
 use fpc::shared::Shared;
 use fpc::tasks::{control_run, supervision_run, telemetry_run};
+
+use crate::board::flash::{block_on, SimFlash};
 
 use fpc::units::DacCode;
 
@@ -60,6 +64,14 @@ pub struct Execution {
     pub supervision_hung: bool,
     /// Simulated time of every watchdog reset so far, µs.
     pub resets_us: Vec<u64>,
+    /// The board's calibration flash, read by the firmware's store at every boot; `None`:
+    /// the board has no store and the configuration is the calibration.
+    pub flash: Option<SimFlash>,
+    /// The supply is off until this time, µs: no task runs, the outputs are low; then the
+    /// board boots from power-on.
+    pub power_off_until_us: Option<u64>,
+    /// Simulated time of every boot after a power cut, µs.
+    pub power_ups_us: Vec<u64>,
 }
 
 /// The shared state as the simulator instantiates it (single thread: no-op mutex).
@@ -75,6 +87,18 @@ fn control_ports(world: &WorldRef) -> SimControlPorts {
         quadrature: peripherals(world),
         servo: peripherals(world),
         pressures: peripherals(world),
+    }
+}
+
+/// The firmware's boot read of its calibration store on `flash`; the flash comes back (a
+/// load may repair a torn save).
+fn boot_load(flash: SimFlash) -> (Result<CalibrationRecord, LoadError>, SimFlash) {
+    match crate::calibration::store(flash.clone()) {
+        Ok(mut store) => {
+            let loaded = block_on(store.load());
+            (loaded, store.into_flash())
+        }
+        Err(_) => (Err(LoadError::Flash), flash),
     }
 }
 
@@ -102,7 +126,7 @@ where
     simulate_with(
         world,
         &shared,
-        |io, shared| control_run(io, shared, config, ResetCause::PowerOn),
+        |io, shared| control_run(io, shared, config, ResetCause::PowerOn, None),
         each_cycle,
     )
 }
@@ -177,7 +201,12 @@ where
         // RAM starts afresh at every boot.
         let shared = SimShared::new();
         let io = control_ports(&world);
-        let mut control = pin!(control_run(io, &shared, config.clone(), cause));
+        let stored = execution.flash.take().map(|flash| {
+            let (loaded, flash) = boot_load(flash);
+            execution.flash = Some(flash);
+            loaded
+        });
+        let mut control = pin!(control_run(io, &shared, config.clone(), cause, stored));
         let mut supervision = pin!(supervision_run(
             clock(&world),
             clock(&world),
@@ -188,20 +217,52 @@ where
         let decimation = world.borrow().telemetry.decimation;
         let mut telemetry = pin!(telemetry_run(telemetry_sink(&world), &shared, decimation));
         loop {
-            if !execution.control_hung {
+            let powered = execution.power_off_until_us.is_none();
+            if powered && !execution.control_hung {
                 if execution.control_busy_periods == 0 {
                     let _ = control.as_mut().poll(&mut cx);
                 } else {
                     execution.control_busy_periods -= 1;
                 }
             }
-            let _ = telemetry.as_mut().poll(&mut cx);
-            if !execution.supervision_hung {
+            if powered {
+                let _ = telemetry.as_mut().poll(&mut cx);
+            }
+            if powered && !execution.supervision_hung {
                 let _ = supervision.as_mut().poll(&mut cx);
             }
             let mut w = world.borrow_mut();
+            if !powered {
+                // No supply: the gate drivers' pull-downs hold every output low.
+                w.enabled = false;
+                w.duties = Default::default();
+                w.servo_code = DacCode::MID;
+            }
             if each_cycle(&mut w, &shared, &mut execution).is_break() {
                 break 'boot;
+            }
+            if let Some(until) = execution.power_off_until_us {
+                if w.time_us() >= until {
+                    // Power is back: a cold boot (RAM lost, watchdog in its boot window,
+                    // the flash as the cut left it).
+                    execution.power_off_until_us = None;
+                    execution.power_ups_us.push(w.time_us());
+                    execution.control_hung = false;
+                    execution.supervision_hung = false;
+                    execution.control_busy_periods = 0;
+                    if let Some(f) = execution.flash.as_mut() {
+                        *f = f.reboot();
+                    }
+                    w.watchdog_fed_us = w.time_us();
+                    w.watchdog_fed_since_boot = false;
+                    cause = ResetCause::PowerOn;
+                    w.advance();
+                    continue 'boot;
+                }
+                // The watchdog is off with the MCU.
+                w.watchdog_fed_us = w.time_us();
+                w.advance();
+                continue;
             }
             let starved = execution.watchdog_timeout_us.is_some_and(|timeout| {
                 let window = if w.watchdog_fed_since_boot {

@@ -3,11 +3,13 @@
 //! Simulated time, the sampling burst and the latched outputs behind the port traits
 //! ([`world`]), the sensor models ([`sensors`]) and their faults ([`corruption`]), the
 //! executor that polls the firmware's tasks in lock-step with simulated time ([`exec`]), and
-//! the telemetry capture ([`capture`]). It drives the [`crate::plant::dynamics`]; it knows neither the
+//! the telemetry capture ([`capture`]), and the calibration's NOR flash with an injectable
+//! power cut ([`flash`]). It drives the [`crate::plant::dynamics`]; it knows neither the
 //! fault injector nor the runner.
 
 pub mod capture;
 pub mod corruption;
 pub mod exec;
+pub mod flash;
 pub mod sensors;
 pub mod world;

@@ -408,6 +408,8 @@ pub enum Event {
     LimitActive(u64, fpc::safety::supervisor::LimitFlags),
     /// The mode changed.
     ModeChanged(u64, fpc::status::ModeKind),
+    /// A calibration record was saved (or the save failed).
+    CalibrationSaved(u64, Result<(), fpc::control::calibration::store::SaveError>),
 }
 
 /// The simulated board's event log: it records what the board would log with defmt.
@@ -430,6 +432,14 @@ impl fpc::ports::EventLog for SimEventLog {
         let mut w = self.world.borrow_mut();
         let t = w.time_us();
         w.events.push(Event::ModeChanged(t, mode));
+    }
+    fn calibration_saved(
+        &mut self,
+        result: Result<(), fpc::control::calibration::store::SaveError>,
+    ) {
+        let mut w = self.world.borrow_mut();
+        let t = w.time_us();
+        w.events.push(Event::CalibrationSaved(t, result));
     }
 }
 

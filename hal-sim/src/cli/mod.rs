@@ -6,6 +6,7 @@
 //! is one line and tests can drive every subcommand in-process.
 
 pub mod analysis;
+pub mod calibrate;
 pub mod decode;
 pub mod derive;
 pub mod energy;
@@ -37,6 +38,9 @@ pub struct Cli {
 enum Cmd {
     /// Closed-loop simulation with the firmware's tasks in the loop.
     Run(run::RunArgs),
+    /// Commission the simulated machine (the firmware's Calibrate routines) and write the
+    /// calibration file `run --calibration` loads.
+    Calibrate(calibrate::CalibrateArgs),
     /// The firmware's Savitzky–Golay differentiator over a run log's position.
     Derive(derive::DeriveArgs),
     /// Decode a captured telemetry stream into a run log (CSV).
@@ -62,6 +66,7 @@ enum Cmd {
 fn dispatch(cmd: Cmd) -> CmdResult {
     match cmd {
         Cmd::Run(args) => run::main(args),
+        Cmd::Calibrate(args) => calibrate::main(args),
         Cmd::Derive(args) => derive::main(args),
         Cmd::Decode(args) => decode::main(args),
         Cmd::Lag(args) => lag::main(args),

@@ -60,6 +60,11 @@ pub struct RunArgs {
     /// it (10000 matches the paper's logs; 1000 makes a long run's log 20 times smaller).
     #[arg(long, default_value_t = crate::run::CONTROL_RATE_HZ, value_name = "HZ")]
     pub log_rate: u32,
+    /// A calibration file (`fpc-sim calibrate` writes one): the simulated board's flash
+    /// holds it and the firmware loads it at boot, instead of the controller being handed
+    /// the model's true cogging map. A bad file exits 2 naming the key.
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<PathBuf>,
     /// Keep the files of a run that fails (stops before its cycles without an injected
     /// fault, or ends before a fault begins), for diagnosis; it still exits 1. Without it a
     /// failed run writes nothing.
@@ -85,9 +90,16 @@ pub fn main(args: RunArgs) -> CmdResult {
         .map(|spec| crate::faults::inject::parse(spec))
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| Failure::bad_input(e.0))?;
+    let calibration = args
+        .calibration
+        .as_deref()
+        .map(crate::calibration::read)
+        .transpose()
+        .map_err(Failure::bad_input)?;
     let opts = RunOptions {
         model,
         model_name,
+        calibration,
         faults,
         pressure_ratio: args.pressure_ratio,
         speed_mps: args.speed,
@@ -106,7 +118,12 @@ pub fn main(args: RunArgs) -> CmdResult {
     opts.validate().map_err(Failure::bad_input)?;
     // Every output is checked before the run: an existing one without --force, an input, an
     // unwritable place are refused now (exit 2), not after the simulation.
-    let inputs: Vec<&Path> = args.model.iter().map(PathBuf::as_path).collect();
+    let inputs: Vec<&Path> = args
+        .model
+        .iter()
+        .chain(&args.calibration)
+        .map(PathBuf::as_path)
+        .collect();
     let out = OutDir::prepare(&args.out, &OUTPUTS, args.force, &inputs)?;
     let telemetry = match &args.telemetry {
         Some(path) => {

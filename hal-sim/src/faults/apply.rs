@@ -6,7 +6,7 @@
 //! |---|---|---|
 //! | the sensors | encoder amplitude, stuck channel, phase glitch, noise burst; pressure open, short, stuck; quadrature wrap | [`SensorCorruption`], applied to every burst right after sampling |
 //! | the machine | section loss, servo stall, gas loss (a chamber vented), load step, homing friction spike | [`PlantFaults`], read by the plant's sub-step |
-//! | the board | overrun, task hang | [`Execution`]: the control task misses cycles, or a task is never polled again and the watchdog resets the board |
+//! | the board | overrun, task hang, power cut | [`Execution`]: the control task misses cycles, or a task is never polled again and the watchdog resets the board, or the board is off for a while and boots again |
 //! | the host | command loss | heartbeats every 0.7 × the timeout, then none |
 //! | the set-up | homing without a stop, time-base wrap | the world before the run starts |
 //!
@@ -134,6 +134,8 @@ fn run_on_us(spec: &FaultSpec, heartbeat_timeout_s: f32) -> Option<u64> {
         FaultKind::EncoderNoiseBurst => s(spec.param("duration_s") + 0.6),
         // The stop, the turn to the venting phase (≤ 0.5 s) and the park move.
         FaultKind::CommandLoss => s(f64::from(heartbeat_timeout_s) + 3.0),
+        // The outage, then the new boot sitting still.
+        FaultKind::PowerCut => s(spec.param("off_s") + 0.6),
         // Ended by homing (or by the run itself).
         FaultKind::HomingNoStop | FaultKind::HomingSpike | FaultKind::CounterWrap => None,
         _ => s(0.6),
@@ -318,6 +320,10 @@ impl Injector {
                 } else {
                     exec.supervision_hung = true;
                 }
+            }
+            FaultKind::PowerCut => {
+                let off_us = (p("off_s") * 1e6).round() as u64;
+                exec.power_off_until_us = Some(w.time_us() + PERIOD_US + off_us);
             }
             FaultKind::HomingSpike => {
                 // A friction spike against the creep toward head A: a force toward +x.

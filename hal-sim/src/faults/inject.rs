@@ -49,11 +49,14 @@ pub enum FaultKind {
     HomingSpike,
     /// #20: counters start just before their wrap (time base, quadrature).
     CounterWrap,
+    /// #21: the supply is lost for `off_s` (0.1 s): the board is off (outputs low), then
+    /// boots again from power-on, reading its calibration flash (`--calibration`) afresh.
+    PowerCut,
 }
 
 impl FaultKind {
     /// Every kind, with its command-line name.
-    pub const ALL: [(FaultKind, &'static str); 17] = [
+    pub const ALL: [(FaultKind, &'static str); 18] = [
         (FaultKind::EncoderAmplitude, "encoder_amplitude"),
         (FaultKind::EncoderStuck, "encoder_stuck"),
         (FaultKind::EncoderGlitch, "encoder_glitch"),
@@ -71,6 +74,7 @@ impl FaultKind {
         (FaultKind::HomingNoStop, "homing_no_stop"),
         (FaultKind::HomingSpike, "homing_spike"),
         (FaultKind::CounterWrap, "counter_wrap"),
+        (FaultKind::PowerCut, "power_cut"),
     ];
 
     /// The command-line name.
@@ -105,6 +109,7 @@ impl FaultKind {
                 ("duration_s", 0.005, 0.0, 1.0),
             ],
             FaultKind::TaskHang => &[("task", 0.0, 0.0, 1.0)],
+            FaultKind::PowerCut => &[("off_s", 0.1, 0.0, 10.0)],
             FaultKind::ServoStall
             | FaultKind::CommandLoss
             | FaultKind::HomingNoStop

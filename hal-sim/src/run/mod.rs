@@ -176,6 +176,10 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     let model = &opts.model;
     let speed = opts.peak_speed_mps();
     let mut config = control_config(model);
+    if opts.calibration.is_some() {
+        // Not the model's truth: the firmware loads the stored map from its flash at boot.
+        config.allocation.cogging = fpc::physics::cogging::HarmonicMap::none();
+    }
     // The controller's model of the machine is off by `model_error` in mass and friction.
     let k = 1.0 + opts.model_error as f32;
     config.moving_mass_kg *= k;
@@ -238,6 +242,11 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     // The board's independent watchdog runs as on the MCU (only a hung task starves it).
     let execution = Execution {
         watchdog_timeout_us: Some(opts.watchdog_timeout_us),
+        flash: opts
+            .calibration
+            .as_ref()
+            .map(crate::calibration::flash_holding)
+            .transpose()?,
         ..Execution::default()
     };
     let each_cycle = |w: &mut World, shared: &SimShared, exec: &mut Execution| {

@@ -124,6 +124,9 @@ pub struct RunOptions {
     /// Rows of the run log per second (`--log-rate`): the control rate or a whole divisor
     /// of it.
     pub log_rate_hz: u32,
+    /// A stored calibration (`--calibration`): the board's flash holds it and the firmware
+    /// loads it at boot, instead of the controller being handed the model's true cogging.
+    pub calibration: Option<fpc::control::calibration::record::CalibrationRecord>,
 }
 
 /// Something the host does at the start of a given cycle.
@@ -155,6 +158,7 @@ impl RunOptions {
             watchdog_timeout_us: WATCHDOG_TIMEOUT_US,
             volume_ratio: RatioTarget::FollowMeasured,
             log_rate_hz: CONTROL_RATE_HZ,
+            calibration: None,
         }
     }
 

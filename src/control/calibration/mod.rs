@@ -16,6 +16,9 @@
 //!
 //! The routines live in [`sense`] (current-sense zero and its monitor), [`align`] (angle
 //! alignment) and [`sweeps`] (cogging, misalignment); this module holds what they share.
+//! What they find survives a power cut: [`record`] encodes it (versioned, CRC-32) and
+//! [`store`] keeps it in NOR flash, saved by a thread-mode task after each routine and loaded
+//! at boot ([`crate::control::step::ControlStep::load_calibration`]).
 //!
 //! Why each method:
 //! - **Alignment**: a current vector at a forced angle pulls the mover until its magnets align
@@ -416,7 +419,9 @@ fn cycles(s: f32, dt: f32) -> u32 {
 }
 
 mod align;
+pub mod record;
 mod sense;
+pub mod store;
 mod sweeps;
 
 use align::Aligner;

@@ -3,6 +3,7 @@
 
 use super::modes::Mode;
 use super::{ControlStep, CycleInputs};
+use crate::control::calibration::record::{CalibrationRecord, CalibrationStatus};
 use crate::control::calibration::{Demand, Measurements};
 use crate::drive::allocation::allocate;
 use crate::motion::trajectory::Setpoint;
@@ -58,8 +59,17 @@ impl ControlStep {
         if let Demand::Done(result) = demand {
             if let Ok(outcome) = &result {
                 outcome.apply(&mut self.config);
+                self.calibration_unsaved = true;
             }
             self.calibrated.record(routine, result);
+            if self.calibration_status != CalibrationStatus::Calibrated {
+                self.calibration_status =
+                    if CalibrationRecord::of(&self.calibrated, &self.config).is_complete() {
+                        CalibrationStatus::Calibrated
+                    } else {
+                        CalibrationStatus::Incomplete
+                    };
+            }
             let hold = Setpoint::at_rest(position_m);
             (self.mode, demand) = if self.zero_raw_m.is_some() {
                 let track = Demand::Track {

@@ -2,6 +2,7 @@
 
 use super::modes::{AfterStop, Mode};
 use super::ControlStep;
+use crate::control::calibration::record::CalibrationStatus;
 use crate::control::calibration::{Calibration, Routine};
 use crate::control::command::{Command, Parameter, Refusal};
 use crate::motion::stroke::StrokeGenerator;
@@ -64,6 +65,10 @@ impl ControlStep {
                 self.check_speed(peak_speed_mps)?;
                 if !self.faults.is_empty() {
                     return Err(Refusal::FaultActive);
+                }
+                // Before the homing check: homing does not help a machine with no calibration.
+                if self.calibration_status != CalibrationStatus::Calibrated {
+                    return Err(Refusal::NotCalibrated);
                 }
                 if self.zero_raw_m.is_none() {
                     return Err(Refusal::NotHomed);
@@ -214,7 +219,40 @@ impl ControlStep {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::control::calibration::store::LoadError;
     use crate::control::config::ControlConfig;
+
+    #[test]
+    fn without_a_stored_calibration_start_is_refused_but_home_and_calibrate_are_not() {
+        for (loaded, status) in [
+            (Err(LoadError::Missing), CalibrationStatus::Missing),
+            (Err(LoadError::Flash), CalibrationStatus::Invalid),
+        ] {
+            let mut step = ControlStep::new(ControlConfig::reference()).unwrap();
+            step.load_calibration(loaded);
+            assert_eq!(step.calibration_status(), status);
+            assert_eq!(
+                status.name(),
+                ["calibration_missing", "calibration_invalid"][status as usize - 2]
+            );
+            assert_eq!(
+                step.command(Command::Start {
+                    peak_speed_mps: 2.0
+                }),
+                Err(Refusal::NotCalibrated)
+            );
+            assert_eq!(
+                step.command(Command::Calibrate {
+                    routine: Routine::CurrentSense
+                }),
+                Ok(())
+            );
+            let mut step = ControlStep::new(ControlConfig::reference()).unwrap();
+            step.load_calibration(loaded);
+            assert_eq!(step.command(Command::Home), Ok(()));
+            assert_eq!(step.take_calibration_to_save(), None);
+        }
+    }
 
     #[test]
     fn set_parameter_validates_and_changes_only_what_it_names() {

@@ -28,6 +28,8 @@ mod supervise;
 
 pub use modes::{DOB_TIME_S, HOLD_RELEASE_S};
 
+use crate::control::calibration::record::{CalibrationRecord, CalibrationStatus};
+use crate::control::calibration::store::LoadError;
 use crate::control::calibration::{Calibrated, SenseMonitor};
 use crate::control::config::{ConfigError, ControlConfig};
 use crate::drive::foc::CurrentController;
@@ -146,6 +148,10 @@ pub struct ControlStep {
     status: Status,
     /// What the calibration routines have loaded.
     calibrated: Calibrated,
+    /// Whether the machine may `Start` on its calibration.
+    calibration_status: CalibrationStatus,
+    /// A routine has finished since the record was last taken for saving.
+    calibration_unsaved: bool,
     /// The phase currents while the outputs are off (current-sense offset detection).
     sense_monitor: SenseMonitor,
 }
@@ -232,6 +238,11 @@ impl ControlStep {
             faults: FaultSet::new(),
             status: Status::INIT,
             calibrated: Calibrated::default(),
+            // The configuration as given is trusted (the simulator hands it the machine's
+            // true values); a firmware that stores its calibration says otherwise at boot
+            // ([`ControlStep::load_calibration`]).
+            calibration_status: CalibrationStatus::Calibrated,
+            calibration_unsaved: false,
             sense_monitor: SenseMonitor::new(),
             config,
         })
@@ -252,6 +263,43 @@ impl ControlStep {
             self.status.mode = self.mode_kind();
             self.brake_after_reset_in = Some(self.config.sg_window.saturating_add(5) as u16);
         }
+    }
+
+    /// Loads the calibration read from flash at boot (before the first step): the record's
+    /// parameters go into the configuration, and the machine refuses `Start` unless every
+    /// routine's result is there. Absent, corrupt or of another layout
+    /// ([`CalibrationStatus::Missing`], [`CalibrationStatus::Invalid`]): the configuration's
+    /// own values stay, `Home` and `Calibrate` are accepted, `Start` is refused until the
+    /// routines have run.
+    pub fn load_calibration(&mut self, loaded: Result<CalibrationRecord, LoadError>) {
+        match loaded {
+            Ok(record) => {
+                record.apply(&mut self.config);
+                // The decoders copy their sin/cos correction when built.
+                self.encoders = PerSection {
+                    master: SinCosDecoder::new(self.config.encoder_master),
+                    slave: SinCosDecoder::new(self.config.encoder_slave),
+                };
+                self.calibrated = record.calibrated;
+                self.calibration_status = record.status();
+            }
+            Err(e) => self.calibration_status = e.status(),
+        }
+    }
+
+    /// Whether the machine may `Start` on its calibration.
+    pub fn calibration_status(&self) -> CalibrationStatus {
+        self.calibration_status
+    }
+
+    /// The record to save, once after each routine that succeeded (the control task hands
+    /// it to the storage task; nothing of the save runs in the step).
+    pub fn take_calibration_to_save(&mut self) -> Option<CalibrationRecord> {
+        if !self.calibration_unsaved {
+            return None;
+        }
+        self.calibration_unsaved = false;
+        Some(CalibrationRecord::of(&self.calibrated, &self.config))
     }
 
     /// The configuration in use.

@@ -96,7 +96,7 @@ impl MachineModel {
     /// Parses and validates model text.
     pub fn parse(text: &str) -> Result<Self, ModelError> {
         let model: MachineModel =
-            toml::from_str(text).map_err(|e| ModelError(describe(&e, text)))?;
+            toml::from_str(text).map_err(|e| ModelError(describe_toml(&e, text)))?;
         model.validate()?;
         Ok(model)
     }
@@ -263,7 +263,7 @@ const REQUIRED_SECTIONS: [&str; 5] = ["piston", "friction", "gas", "motor", "enc
 
 /// One line naming the key (or section) at fault and the line it was found on, every echoed
 /// value cut to [`crate::failure::ECHO_CHARS`] characters; no type's debug dump.
-fn describe(e: &toml::de::Error, text: &str) -> String {
+pub(crate) fn describe_toml(e: &toml::de::Error, text: &str) -> String {
     // serde's words for types, in the file's words.
     let msg = e
         .message()
