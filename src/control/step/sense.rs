@@ -141,6 +141,7 @@ impl ControlStep {
         let failed = match (master.signal_fault, slave.signal_fault) {
             (true, true) => {
                 self.latch_as(Fault::EncoderSignal, false);
+                self.brake_without_position();
                 return both;
             }
             (true, false) => Some(Section::Master),
@@ -152,6 +153,7 @@ impl ControlStep {
             (Some(f), Some(lost)) if f != lost => {
                 // The other one was lost before: none is left.
                 self.latch_as(Fault::EncoderSignal, false);
+                self.brake_without_position();
                 return both;
             }
             (Some(f), None) => {
