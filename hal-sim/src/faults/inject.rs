@@ -10,7 +10,7 @@ use std::fmt;
 
 use crate::failure::{clip, num};
 
-/// The injectable scenarios (`faults.md` #1–15 and #20; #16–19 are bad input, tested
+/// The injectable scenarios (`faults.md` #1–15, #20 and #22; #16–19 are bad input, tested
 /// through the command, model and log readers).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum FaultKind {
@@ -49,11 +49,14 @@ pub enum FaultKind {
     HomingSpike,
     /// #20: counters start just before their wrap (time base, quadrature).
     CounterWrap,
+    /// #22: both encoders lost together: sin/cos amplitude scaled (`gain`, default 0.2) on
+    /// the master and the slave (the same as `encoder_amplitude` with `encoder=both`).
+    BothEncoders,
 }
 
 impl FaultKind {
     /// Every kind, with its command-line name.
-    pub const ALL: [(FaultKind, &'static str); 17] = [
+    pub const ALL: [(FaultKind, &'static str); 18] = [
         (FaultKind::EncoderAmplitude, "encoder_amplitude"),
         (FaultKind::EncoderStuck, "encoder_stuck"),
         (FaultKind::EncoderGlitch, "encoder_glitch"),
@@ -71,6 +74,7 @@ impl FaultKind {
         (FaultKind::HomingNoStop, "homing_no_stop"),
         (FaultKind::HomingSpike, "homing_spike"),
         (FaultKind::CounterWrap, "counter_wrap"),
+        (FaultKind::BothEncoders, "both_encoders"),
     ];
 
     /// The command-line name.
@@ -86,6 +90,7 @@ impl FaultKind {
     pub fn parameters(self) -> &'static [(&'static str, f64, f64, f64)] {
         match self {
             FaultKind::EncoderAmplitude => &[("gain", 0.2, 0.0, 10.0), ("encoder", 0.0, 0.0, 2.0)],
+            FaultKind::BothEncoders => &[("gain", 0.2, 0.0, 10.0)],
             FaultKind::EncoderStuck => &[("channel", 0.0, 0.0, 1.0)],
             FaultKind::EncoderGlitch => {
                 &[("jump_rad", 2.0, -std::f64::consts::PI, std::f64::consts::PI)]
