@@ -129,7 +129,7 @@ impl ControlStep {
     /// without a jump and the master/slave cross-check, which has nothing left to compare,
     /// stays quiet); the lost one's section is dropped (its commutation angle is gone) and
     /// the other section stops the piston (SS1). Both lost: nothing tells where the piston
-    /// is (STO).
+    /// is: STO, then braking without position ([`ControlStep::brake_without_position`]).
     #[cold]
     #[inline(never)]
     pub(super) fn encoder_fault(
