@@ -14,9 +14,10 @@
 //! encoder lost the other one gives it, and its section does the stopping; STO (outputs off
 //! at once) when no encoder can be trusted. Measured limits are stated where they apply
 //! rather than hidden: a 10 % noise burst latches at its second corrupt sample, which comes
-//! within 20 samples in most bursts but not all (#4); STO at full speed lets the piston coast
-//! into the gas of the chamber ahead, which does not always stop it (#1, both encoders); a
-//! hung control task holds its last PWM duties until the board's 3 ms watchdog resets it
+//! within 20 samples in most bursts but not all (#4); with both encoders lost the outputs go
+//! off, then the windings are short-circuited and the rotation seals the chamber ahead (#1,
+//! both encoders; every phase of the cycle in
+//! `tests/losing_both_encoders_brakes_without_position.rs`); a hung control task holds its last PWM duties until the board's 3 ms watchdog resets it
 //! (#12; 20 ms was not short enough).
 
 use std::ops::ControlFlow;
@@ -162,10 +163,10 @@ fn s01_encoder_amplitude_latches_within_two_cycles_and_the_other_encoder_stops_t
 }
 
 #[test]
-fn s01_both_encoders_lost_switch_the_outputs_off_at_once() {
-    // Nothing tells where the piston is: STO in the cycle of the latch. The piston then
-    // coasts at 4 m/s into the gas of the chamber ahead; whether that stops it short of the
-    // head is physics (the figure is printed, not asserted).
+fn s01_both_encoders_lost_switch_the_outputs_off_then_brake_without_position() {
+    // Nothing tells where the piston is: outputs off in the cycle of the latch, while the
+    // winding currents decay; then the windings are short-circuited and the rotation turns
+    // to seal the chamber ahead (no controlled stop: there is no position to stop on).
     for spec in [
         "encoder_amplitude@{b}:encoder=both",
         "encoder_amplitude@{a}:encoder=both",
@@ -177,6 +178,7 @@ fn s01_both_encoders_lost_switch_the_outputs_off_at_once() {
         assert!(r.samples_to_fault().unwrap() <= 2);
         assert_eq!(r.outputs_off_us, Some(t), "STO in the latch cycle");
         assert!(r.stop_began_us.is_none());
+        assert!(clear(&r) >= MIN_CLEARANCE_M, "{spec}");
     }
 }
 

@@ -89,7 +89,9 @@ impl Fault {
     /// Whether the position is still trustworthy under this fault, so a controlled stop
     /// (SS1) is possible; otherwise outputs go off at once (STO). For the encoder faults the
     /// controller knows more than the kind: with one encoder lost and the other good, the
-    /// good one gives the position and the reaction is SS1 on its section.
+    /// good one gives the position and the reaction is SS1 on its section; with both lost,
+    /// STO while the winding currents decay, then braking without position (short-circuited
+    /// windings, the chamber ahead sealed by the rotation: `ControlStep::step`'s fault path).
     pub const fn position_trusted(self) -> bool {
         !matches!(
             self,

@@ -269,6 +269,13 @@ impl Injector {
                 };
                 c.gain = Some((p("gain"), on));
             }
+            FaultKind::BothEncoders => {
+                let on = PerSection {
+                    master: true,
+                    slave: true,
+                };
+                c.gain = Some((p("gain"), on));
+            }
             FaultKind::EncoderStuck => c.master_stuck_channel = Some(p("channel") as u8),
             FaultKind::EncoderGlitch => c.master_phase_jump_rad = Some(p("jump_rad")),
             FaultKind::EncoderNoiseBurst => {

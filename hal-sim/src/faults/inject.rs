@@ -10,7 +10,7 @@ use std::fmt;
 
 use crate::failure::{clip, num};
 
-/// The injectable scenarios (`faults.md` #1–15 and #20; #16–19 are bad input, tested
+/// The injectable scenarios (`faults.md` #1–15, #20 and #22; #16–19 are bad input, tested
 /// through the command, model and log readers).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum FaultKind {
@@ -52,11 +52,14 @@ pub enum FaultKind {
     /// #21: the supply is lost for `off_s` (0.1 s): the board is off (outputs low), then
     /// boots again from power-on, reading its calibration flash (`--calibration`) afresh.
     PowerCut,
+    /// #22: both encoders lost together: sin/cos amplitude scaled (`gain`, default 0.2) on
+    /// the master and the slave (the same as `encoder_amplitude` with `encoder=both`).
+    BothEncoders,
 }
 
 impl FaultKind {
     /// Every kind, with its command-line name.
-    pub const ALL: [(FaultKind, &'static str); 18] = [
+    pub const ALL: [(FaultKind, &'static str); 19] = [
         (FaultKind::EncoderAmplitude, "encoder_amplitude"),
         (FaultKind::EncoderStuck, "encoder_stuck"),
         (FaultKind::EncoderGlitch, "encoder_glitch"),
@@ -75,6 +78,7 @@ impl FaultKind {
         (FaultKind::HomingSpike, "homing_spike"),
         (FaultKind::CounterWrap, "counter_wrap"),
         (FaultKind::PowerCut, "power_cut"),
+        (FaultKind::BothEncoders, "both_encoders"),
     ];
 
     /// The command-line name.
@@ -90,6 +94,7 @@ impl FaultKind {
     pub fn parameters(self) -> &'static [(&'static str, f64, f64, f64)] {
         match self {
             FaultKind::EncoderAmplitude => &[("gain", 0.2, 0.0, 10.0), ("encoder", 0.0, 0.0, 2.0)],
+            FaultKind::BothEncoders => &[("gain", 0.2, 0.0, 10.0)],
             FaultKind::EncoderStuck => &[("channel", 0.0, 0.0, 1.0)],
             FaultKind::EncoderGlitch => {
                 &[("jump_rad", 2.0, -std::f64::consts::PI, std::f64::consts::PI)]

@@ -36,14 +36,7 @@ impl ControlStep {
             }
             // A calibration drives the outputs itself, at the end of the step.
             None if matches!(self.mode, Mode::Calibrating(_)) => None,
-            None => {
-                self.currents.master.reset();
-                self.currents.slave.reset();
-                self.shares = PerSection::default();
-                self.status.force_command_n = 0.0;
-                self.sense_monitor.observe(&inputs.currents);
-                None
-            }
+            None => self.outputs_off(inputs),
         }
     }
 

@@ -1,6 +1,6 @@
 //! Host commands: what each may change, and when. A refused command changes nothing.
 
-use super::modes::{AfterStop, Mode};
+use super::modes::{AfterStop, FaultedBrake, Mode};
 use super::ControlStep;
 use crate::control::calibration::record::CalibrationStatus;
 use crate::control::calibration::{Calibration, Routine};
@@ -186,6 +186,9 @@ impl ControlStep {
                 }
                 self.config.allocation.capability = self.nominal_capability;
                 self.lost_encoder = None;
+                if matches!(self.faulted_brake, FaultedBrake::Blind(_)) {
+                    self.faulted_brake = FaultedBrake::None;
+                }
                 self.pressures_trusted = true;
                 self.faults.clear();
                 self.mode = Mode::Idle;

@@ -47,7 +47,7 @@ use crate::sensing::pressure::{StuckConfig, StuckMonitor};
 use crate::sensing::quadrature::QuadratureCounter;
 use crate::status::Status;
 use crate::units::{DacCode, PerSection, PhaseDuties, Section, Ticks};
-use modes::Mode;
+use modes::{FaultedBrake, Mode};
 use sense::Sensed;
 
 /// One burst of samples.
@@ -137,8 +137,9 @@ pub struct ControlStep {
     hold_gas_ns: f32,
     /// Each section's capability as configured (restored when faults are cleared).
     nominal_capability: PerSection<f32>,
-    /// After a watchdog reset: cycles until the piston is braked (`None`: no reset, or done).
-    brake_after_reset_in: Option<u16>,
+    /// What the faulted state still does with the outputs: brake after a watchdog reset, or
+    /// brake without position after both encoders were lost.
+    faulted_brake: FaultedBrake,
     /// Deceleration of the controlled stop in progress, m/s².
     stop_decel_mps2: f32,
     /// The stop's estimate of the force the model does not explain, N (toward +x).
@@ -231,7 +232,7 @@ impl ControlStep {
             hold_motor_ns: 0.0,
             hold_gas_ns: 0.0,
             nominal_capability: config.allocation.capability,
-            brake_after_reset_in: None,
+            faulted_brake: FaultedBrake::None,
             stop_decel_mps2: config.supervisor.brake_deceleration_mps2,
             disturbance_n: 0.0,
             limits: LimitFlags::default(),
@@ -261,7 +262,8 @@ impl ControlStep {
             self.latch(Fault::WatchdogReset);
             self.status.faults = self.faults;
             self.status.mode = self.mode_kind();
-            self.brake_after_reset_in = Some(self.config.sg_window.saturating_add(5) as u16);
+            self.faulted_brake =
+                FaultedBrake::AfterReset(self.config.sg_window.saturating_add(5) as u16);
         }
     }
 

@@ -2,7 +2,7 @@
 //! faulted, calibrating — and the setpoint each mode plans per cycle.
 
 use super::sense::Sensed;
-use super::ControlStep;
+use super::{ControlStep, CycleInputs};
 use crate::control::calibration::Calibration;
 use crate::motion::stroke::StrokeGenerator;
 use crate::motion::synchroniser::{Rotation, Synchroniser};
@@ -13,6 +13,7 @@ use crate::safety::faults::Fault;
 use crate::safety::supervisor::LimitFlags;
 use crate::sensing::homing::{Homing, HomingStep};
 use crate::status::ModeKind;
+use crate::units::{PerSection, PhaseDuties};
 use core::f32::consts::{PI, TAU};
 
 /// The window over which holding the stopped piston must need (almost) no force before SS1
@@ -54,6 +55,19 @@ fn turn_phase(angle_rad: f32) -> f32 {
     } else {
         r
     }
+}
+
+/// What the faulted state still does with the outputs (they are off otherwise).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum FaultedBrake {
+    /// Nothing.
+    None,
+    /// After a watchdog reset: cycles until the velocity estimate is valid, then a controlled
+    /// stop in the encoders' own frame ([`ControlStep::boot`]).
+    AfterReset(u16),
+    /// Both encoders lost: cycles of outputs off left before the windings are
+    /// short-circuited (0: shorted; [`ControlStep::brake_without_position`]).
+    Blind(u16),
 }
 
 /// What the position loop is doing.
@@ -106,8 +120,8 @@ impl ControlStep {
         let limit = self.config.force_limit_n;
         match &mut self.mode {
             // Calibration drives the outputs itself (`calibration_cycle`).
-            Mode::Faulted if self.brake_after_reset_in.is_some() => {
-                self.brake_after_reset();
+            Mode::Faulted if !matches!(self.faulted_brake, FaultedBrake::None) => {
+                self.faulted_cycle();
                 None
             }
             Mode::Idle | Mode::Faulted | Mode::Calibrating(_) => None,
@@ -249,17 +263,127 @@ impl ControlStep {
         }
     }
 
+    /// Both encoders lost (issue #15, `faults.md` #22): nothing tells where the piston is,
+    /// so nothing can commutate a braking force. The reaction, chosen by simulation over the
+    /// whole stroke cycle (`tests/losing_both_encoders_brakes_without_position.rs`):
+    ///
+    /// 1. Outputs off (STO) while the winding currents decay into the bus (`L·I_max/V_bus`,
+    ///    0.7 ms): shorted at once, a current that was holding the piston against the gas
+    ///    would go on pulling it for the windings' `L/R` (10 ms).
+    /// 2. Then the windings short-circuited (all six low-side switches on): the back-EMF
+    ///    drives braking currents through the windings' resistance, up to ~2.7 kN for both
+    ///    sections near 0.4 m/s, ~0.5 kN at 4.1 m/s — a strong damper at low speed.
+    /// 3. The rotation, whose own encoder is still good, turns the shorter way to the nearest
+    ///    phase where both ports of the chamber ahead (by the last trusted velocity) are
+    ///    closed, a ramp inside its sealed arc, and holds there: that chamber becomes a gas
+    ///    spring that takes the piston's kinetic energy, and the short circuit damps the
+    ///    rebound. A coasting rotation would open the chamber ahead to its intake, or hold it
+    ///    on the discharge line (a constant 2.5 kN push back over the whole stroke).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn brake_without_position(&mut self) {
+        if matches!(self.faulted_brake, FaultedBrake::Blind(_)) {
+            return;
+        }
+        let g = &self.config.port_geometry;
+        let (intake, discharge) = if self.status.velocity_mps >= 0.0 {
+            (&g.intake_b, &g.discharge_b)
+        } else {
+            (&g.intake_a, &g.discharge_a)
+        };
+        let ramp = g.ramp_rad;
+        let phase = turn_phase(self.theta_reference_rad);
+        // The two arcs between the chamber's windows, each inset by a ramp at both ends:
+        // the turn to the nearest point of either (0 inside one).
+        let mut best: Option<f32> = None;
+        for (from, to) in [
+            (intake.close_rad, discharge.open_rad),
+            (discharge.close_rad, intake.open_rad),
+        ] {
+            if turn_phase(to - from) <= 2.0 * ramp {
+                continue;
+            }
+            let start = from + ramp;
+            let span = turn_phase(to - ramp - start);
+            let into = turn_phase(phase - start);
+            let turn = if into <= span {
+                0.0
+            } else {
+                // Outside the arc: to its nearer end.
+                let back = span - into;
+                let ahead = TAU - into;
+                if back.abs() <= ahead {
+                    back
+                } else {
+                    ahead
+                }
+            };
+            best = match best {
+                Some(b) if b.abs() <= turn.abs() => Some(b),
+                _ => Some(turn),
+            };
+        }
+        let m = &self.config.motor;
+        let decay_s = m.inductance_h * m.current_limit_a / m.bus_voltage_v;
+        let cycles = clamp_f32(decay_s / self.config.sample_time_s + 1.0, 1.0, 1000.0) as u16;
+        self.faulted_brake = FaultedBrake::Blind(cycles);
+        // The phase to turn to once the windings are shorted (SS1's hold timer is free
+        // while faulted).
+        self.hold_quiet_s = turn_phase(phase + best.unwrap_or(0.0));
+    }
+
+    /// A cycle of the faulted state that still brakes: after a watchdog reset, the wait for
+    /// the velocity estimate; after both encoders were lost, the countdown to the short
+    /// circuit, and at its end the rotation sent to the sealing phase (once).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn faulted_cycle(&mut self) {
+        match self.faulted_brake {
+            FaultedBrake::None => {}
+            FaultedBrake::AfterReset(_) => self.brake_after_reset(),
+            FaultedBrake::Blind(left) => {
+                self.faulted_brake = FaultedBrake::Blind(left.saturating_sub(1));
+                if left <= 1 && !self.hold_quiet_s.is_nan() {
+                    let now = turn_phase(self.theta_reference_rad);
+                    self.theta_reference_rad += turn_phase(self.hold_quiet_s - now + PI) - PI;
+                    self.hold_quiet_s = f32::NAN;
+                }
+            }
+        }
+    }
+
+    /// The outputs with no setpoint (not calibrating): off — the current loops reset and
+    /// the phase currents watched for an offset — except with both encoders lost once the
+    /// currents have decayed: the windings short-circuited (equal duties, zero voltage on
+    /// every phase; [`ControlStep::brake_without_position`]).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn outputs_off(&mut self, inputs: &CycleInputs) -> Option<PerSection<PhaseDuties>> {
+        self.currents.master.reset();
+        self.currents.slave.reset();
+        self.shares = PerSection::default();
+        self.status.force_command_n = 0.0;
+        if self.faulted_brake == FaultedBrake::Blind(0) {
+            return Some(PerSection::default());
+        }
+        self.sense_monitor.observe(&inputs.currents);
+        None
+    }
+
     /// After a watchdog reset: counts the cycles until the velocity estimate is valid, then
     /// starts the controlled stop (see [`ControlStep::boot`]).
     #[cold]
     #[inline(never)]
     pub(super) fn brake_after_reset(&mut self) {
-        let left = self.brake_after_reset_in.unwrap_or(0);
+        let left = match self.faulted_brake {
+            FaultedBrake::AfterReset(n) => n,
+            _ => 0,
+        };
         if left > 0 {
-            self.brake_after_reset_in = Some(left - 1);
+            self.faulted_brake = FaultedBrake::AfterReset(left - 1);
             return;
         }
-        self.brake_after_reset_in = None;
+        self.faulted_brake = FaultedBrake::None;
         if self.faults.contains(Fault::EncoderSignal)
             || self.faults.contains(Fault::EncoderMismatch)
         {

@@ -129,7 +129,7 @@ impl ControlStep {
     /// without a jump and the master/slave cross-check, which has nothing left to compare,
     /// stays quiet); the lost one's section is dropped (its commutation angle is gone) and
     /// the other section stops the piston (SS1). Both lost: nothing tells where the piston
-    /// is (STO).
+    /// is: STO, then braking without position ([`ControlStep::brake_without_position`]).
     #[cold]
     #[inline(never)]
     pub(super) fn encoder_fault(
@@ -141,6 +141,7 @@ impl ControlStep {
         let failed = match (master.signal_fault, slave.signal_fault) {
             (true, true) => {
                 self.latch_as(Fault::EncoderSignal, false);
+                self.brake_without_position();
                 return both;
             }
             (true, false) => Some(Section::Master),
@@ -152,6 +153,7 @@ impl ControlStep {
             (Some(f), Some(lost)) if f != lost => {
                 // The other one was lost before: none is left.
                 self.latch_as(Fault::EncoderSignal, false);
+                self.brake_without_position();
                 return both;
             }
             (Some(f), None) => {

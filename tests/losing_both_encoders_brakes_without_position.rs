@@ -1,0 +1,125 @@
+//! Losing both encoders at full speed (`faults.md` #22, issue #15): with nothing telling
+//! where the piston is, the firmware brakes it without position — outputs off while the
+//! winding currents decay into the bus (0.7 ms), then the windings short-circuited (the
+//! back-EMF drives braking currents through their resistance) and the rotation, whose own
+//! encoder is still good, turned to the nearest phase where the chamber ahead is sealed, so
+//! its gas takes the piston's kinetic energy and the short circuit damps the rebound
+//! (`ControlStep::brake_without_position`).
+//!
+//! The fault (`both_encoders@T`: both sin/cos amplitudes ×0.2) is injected at 48 instants
+//! spread evenly over one stroke cycle of the fastest running point (PR 5.1, 4.1 m/s): both
+//! strokes, both dead points, compression, discharge and suction. The smallest head
+//! clearance from the fault on is printed per phase; every one must keep 0.3 mm, and the
+//! sealed chamber's pressure must stay within the sensors' 10 bar.
+//!
+//! Figures measured over 96 phases while choosing the reaction (README, "Both encoders
+//! lost"): STO with the rotation coasting (the reaction before) −2.2 mm (the piston reached
+//! a head in 23 of 24 phases); the short circuit alone, rotation held, −2.0 mm; the short
+//! circuit at once with the sealing turn −0.03 mm (a current that held the piston against
+//! the gas at a dead point goes on pulling for the windings' L/R = 10 ms); the reaction
+//! here ≥ 0.87 mm.
+
+use std::sync::OnceLock;
+
+use fpc::safety::faults::Fault;
+use fpc::status::ModeKind;
+use hal_sim::faults::inject::parse;
+use hal_sim::run::{run, RunOptions};
+
+/// Pressure ratio: 4.1 m/s peak, the fastest point of Fig. 3.
+const PR: f64 = 5.1;
+/// Clearance never to be crossed, m.
+const MIN_CLEARANCE_M: f64 = 0.3e-3;
+/// Instants over one stroke cycle.
+const PHASES: usize = 48;
+
+fn options(cycles: u32, faults: Vec<hal_sim::faults::inject::FaultSpec>) -> RunOptions {
+    let mut o = RunOptions::reference();
+    o.pressure_ratio = PR;
+    o.cycles = cycles;
+    o.faults = faults;
+    o
+}
+
+/// One stroke cycle of the fault-free run: (start, period), s. The start is where the
+/// velocity toward head B first exceeds 0.5 m/s in the second cycle (the first starts from
+/// the park position); the period is the time to the same crossing in the next cycle.
+fn cycle() -> (f64, f64) {
+    static C: OnceLock<(f64, f64)> = OnceLock::new();
+    *C.get_or_init(|| {
+        let out = run(&options(4, vec![])).expect("fault-free run");
+        let t = out.log.column("t_s").unwrap();
+        let v = out.log.column("v_mps").unwrap();
+        let ups: Vec<f64> = t
+            .windows(2)
+            .zip(v.windows(2))
+            .filter(|(_, v)| v[0] <= 0.5 && v[1] > 0.5)
+            .map(|(t, _)| t[1])
+            .collect();
+        let peak = v.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        println!("fault-free: peak speed {peak:.2} m/s, strokes toward head B start at {ups:?} s");
+        assert!(peak > 4.0, "full speed");
+        (ups[1], ups[2] - ups[1])
+    })
+}
+
+#[test]
+fn losing_both_encoders_at_full_speed_keeps_the_head_clearance_at_every_phase() {
+    let (start, period) = cycle();
+    let mut worst = (f64::INFINITY, 0.0);
+    let mut peak_pressure_bar = 0.0f64;
+    for i in 0..PHASES {
+        // From just before the stroke toward B starts, through the whole cycle.
+        let at = start - 2e-3 + period * i as f64 / PHASES as f64;
+        let spec = format!("both_encoders@{at:.5}");
+        let out = run(&options(20, vec![parse(&spec).unwrap()])).expect("run");
+        let r = &out.injection;
+        let onset = r.first_onset_us().expect("the fault started");
+        let (latched, fault) = r.first_fault_after_onset().expect("a fault latched");
+        let clearance = r.min_clearance_m.expect("a clearance");
+        let v = out
+            .log
+            .column("v_mps")
+            .unwrap()
+            .get((onset / 50) as usize)
+            .copied()
+            .unwrap_or(f64::NAN);
+        // The highest true chamber pressure from the fault on (the sealed chamber's gas
+        // spring), bar.
+        let t = out.log.column("t_s").unwrap();
+        let onset_s = onset as f64 * 1e-6;
+        let peak_bar = ["p_a_true_pa", "p_b_true_pa"]
+            .iter()
+            .flat_map(|c| {
+                let p = out.log.column(c).unwrap();
+                t.iter().zip(p).filter(move |(t, _)| **t >= onset_s)
+            })
+            .fold(0.0f64, |m, (_, p)| m.max(*p))
+            * 1e-5;
+        println!(
+            "phase {i:2}/{PHASES} (t = {at:.5} s, v ≈ {v:+.2} m/s): latched {} after {} \
+             samples; min head clearance {:.3} mm; chamber pressure up to {peak_bar:.1} bar",
+            fault.name(),
+            r.samples_to_fault().unwrap_or(0),
+            clearance * 1e3
+        );
+        assert_eq!(fault, Fault::EncoderSignal, "{spec}");
+        assert!(r.samples_to_fault().unwrap() <= 2, "{spec}");
+        // The currents decay first: outputs off in the latch cycle.
+        assert_eq!(r.outputs_off_us, Some(latched), "{spec}");
+        assert_eq!(r.final_mode, Some(ModeKind::Faulted), "{spec}");
+        peak_pressure_bar = peak_pressure_bar.max(peak_bar);
+        if clearance < worst.0 {
+            worst = (clearance, at);
+        }
+    }
+    println!(
+        "minimum over {PHASES} phases: {:.3} mm (fault at {:.5} s); chamber pressure up to \
+         {peak_pressure_bar:.1} bar",
+        worst.0 * 1e3,
+        worst.1
+    );
+    assert!(worst.0 >= MIN_CLEARANCE_M, "{:.3} mm", worst.0 * 1e3);
+    // The sealed chamber's gas spring stays within the pressure sensors' 10 bar.
+    assert!(peak_pressure_bar < 10.0, "{peak_pressure_bar:.1} bar");
+}
