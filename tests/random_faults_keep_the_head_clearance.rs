@@ -5,7 +5,11 @@
 //! goes through `fpc-sim run`'s own runner with a `--fault` specification, and must keep
 //! ≥ 0.3 mm between the piston and either head from the fault to the end of its outcome.
 //!
-//! Left out, and why: the homing faults and the counter wrap (no instant to randomise).
+//! Left out, and why: the homing faults and the counter wrap (no instant to randomise); a
+//! power cut, which no controller can brake (nothing is powered: at full speed the piston
+//! reaches the head, `faults_are_caught…::s21`); a cut during a calibration save, which
+//! happens at rest and is tested at every step of a save in
+//! `calibration_survives_a_power_cut.rs`.
 //!
 //! The full sweep (10,000 runs) is `#[ignore]`: CI runs it with the slow suites
 //! (`cargo test --workspace --profile slow-tests -- --ignored`, ≈ 5 min on two cores). A
@@ -65,7 +69,7 @@ fn case(index: u64) -> Case {
     let mut rng = Rng::seed_from_u64(0xFA17_5EED ^ index);
     // Two stroke cycles at the slowest speed (0.38 s each) after compression starts.
     let at = running_start_s() + 0.01 + 0.75 * rng.random::<f64>();
-    let kinds: [&dyn Fn(&mut Rng) -> String; 14] = [
+    let kinds: [&dyn Fn(&mut Rng) -> String; 15] = [
         &|r| {
             format!(
                 "encoder_amplitude@{{t}}:gain={},encoder={}",
@@ -81,6 +85,7 @@ fn case(index: u64) -> Case {
             )
         },
         &|_| "encoder_noise_burst@{t}".to_string(),
+        &|_| "both_encoders@{t}".to_string(),
         &|r| format!("pressure_open@{{t}}:chamber={}", pick(r, &["a", "b"])),
         &|r| format!("pressure_short@{{t}}:chamber={}", pick(r, &["a", "b"])),
         &|r| format!("pressure_stuck@{{t}}:chamber={}", pick(r, &["a", "b"])),
