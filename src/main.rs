@@ -103,6 +103,16 @@ mod firmware {
         match never {}
     }
 
+    /// The calibration retaining task (thread mode, no flash store): each routine's record
+    /// kept in RAM for the boot after a watchdog reset.
+    #[cfg(not(feature = "calibration-store"))]
+    #[embassy_executor::task]
+    async fn retain_calibration() {
+        let never: Infallible =
+            fpc::tasks::calibration_retain_run(&SHARED, board::retained::keep).await;
+        match never {}
+    }
+
     /// Reads the calibration from flash (memory-mapped reads, well inside the watchdog's
     /// boot window) and starts the storage task with the store.
     #[cfg(feature = "calibration-store")]
@@ -141,8 +151,10 @@ mod firmware {
         let mut board = board::init();
         #[cfg(feature = "calibration-store")]
         let stored = Some(load_calibration(&spawner, &mut board).await);
+        // Without a flash store: after a watchdog reset, the calibration the machine ran on
+        // (kept in RAM), else the built-in configuration.
         #[cfg(not(feature = "calibration-store"))]
-        let stored = None;
+        let stored = board::retained::at_boot(reset_cause).map(Ok);
         board::start_control_executor().spawn(defmt::unwrap!(control(
             board.control,
             reset_cause,
@@ -160,6 +172,8 @@ mod firmware {
             BoardSleep,
             BoardClock
         )));
+        #[cfg(not(feature = "calibration-store"))]
+        spawner.spawn(defmt::unwrap!(retain_calibration()));
         defmt::info!("running: control, supervision, telemetry and command tasks");
     }
 }

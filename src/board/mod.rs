@@ -73,6 +73,8 @@ mod adc;
 mod clocks;
 mod fault;
 mod pwm;
+#[cfg(not(feature = "calibration-store"))]
+pub mod retained;
 pub mod rtt;
 mod servo;
 mod time;

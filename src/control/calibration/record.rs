@@ -24,6 +24,7 @@
 use super::{Calibrated, Misalignment, Routine};
 use crate::control::config::ControlConfig;
 use crate::physics::cogging::{HarmonicMap, MAP_HARMONICS};
+use crate::safety::faults::ResetCause;
 use crate::sensing::encoder::SinCosCalibration;
 use crate::units::PerSection;
 
@@ -43,6 +44,22 @@ pub struct CalibrationRecord {
     pub calibrated: Calibrated,
     /// Each encoder's sin/cos correction.
     pub sin_cos: PerSection<SinCosCalibration>,
+}
+
+/// The calibration to boot with after a reset, from the copy the board keeps in RAM that no
+/// reset clears (`retained`, the last record a routine produced since power-on).
+///
+/// Only after a watchdog reset: the board was running a moment ago, with exactly this
+/// calibration (or, if no routine had run since power-on, the built-in configuration —
+/// then nothing valid is retained and `None` keeps it). After power-on the RAM holds
+/// garbage, and after the reset pin a normal start is wanted: `None`. A retained copy that
+/// fails its magic, version or CRC is `None` too (then the brake after the watchdog reset
+/// runs on the built-in configuration, as the machine ran before any calibration).
+pub fn after_reset(cause: ResetCause, retained: &[u8]) -> Option<CalibrationRecord> {
+    match cause {
+        ResetCause::Watchdog => CalibrationRecord::decode(retained).ok(),
+        ResetCause::PowerOn | ResetCause::External => None,
+    }
 }
 
 /// Whether the machine has a calibration it may run on.
@@ -417,5 +434,24 @@ mod tests {
         assert_eq!(config.allocation.cogging, r.calibrated.cogging.unwrap());
         assert_eq!(config.encoder_slave.calibration, r.sin_cos.slave);
         assert_eq!(CalibrationRecord::of(&r.calibrated, &config), r);
+    }
+
+    #[test]
+    fn only_a_watchdog_reset_boots_with_the_retained_record_and_only_an_intact_one() {
+        let record = sample();
+        let bytes = record.encode();
+        assert_eq!(after_reset(ResetCause::Watchdog, &bytes), Some(record));
+        assert_eq!(after_reset(ResetCause::PowerOn, &bytes), None);
+        assert_eq!(after_reset(ResetCause::External, &bytes), None);
+        for i in 0..RECORD_BYTES {
+            let mut bad = bytes;
+            bad[i] ^= 0x10;
+            assert_eq!(after_reset(ResetCause::Watchdog, &bad), None, "byte {i}");
+        }
+        assert_eq!(
+            after_reset(ResetCause::Watchdog, &[0xA5; RECORD_BYTES]),
+            None
+        );
+        assert_eq!(after_reset(ResetCause::Watchdog, &[]), None);
     }
 }
