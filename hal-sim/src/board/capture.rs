@@ -91,6 +91,7 @@ pub struct FrameCollector {
     duplicates: usize,
     read: usize,
     live_gaps: usize,
+    first_step: Option<u16>,
 }
 
 impl FrameCollector {
@@ -113,14 +114,12 @@ impl FrameCollector {
                     self.duplicates += 1;
                     continue;
                 }
-                // Live gap count: a sequence step other than the previous one (the final
-                // count, against the most common step, is `finish`'s).
-                let n = self.frames.len();
-                if let (Some(a), Some(b)) = (
-                    n.checked_sub(2).and_then(|i| self.frames.get(i)),
-                    self.frames.last(),
-                ) {
-                    if f.seq.wrapping_sub(b.seq) != b.seq.wrapping_sub(a.seq) {
+                // Live gap count: a sequence step other than the first one seen (the
+                // decimation, as far as the live view can tell; `finish` counts against
+                // the most common step).
+                if let Some(p) = self.frames.last() {
+                    let step = f.seq.wrapping_sub(p.seq);
+                    if *self.first_step.get_or_insert(step) != step {
                         self.live_gaps += 1;
                     }
                 }
@@ -150,7 +149,7 @@ impl FrameCollector {
         self.duplicates
     }
 
-    /// Sequence steps that differed from the step before them, so far.
+    /// Sequence steps that differed from the first step seen, so far.
     pub fn live_gaps(&self) -> usize {
         self.live_gaps
     }

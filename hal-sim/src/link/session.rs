@@ -54,8 +54,8 @@ pub struct Counters {
     pub telemetry: LinkStats,
     /// Telemetry frames repeated (not later than the frame before), left out.
     pub repeated: usize,
-    /// Sequence steps that differed from the step before: frames lost between the
-    /// firmware's queue and the host.
+    /// Sequence steps that differed from the first step seen (the decimation): frames lost
+    /// between the firmware's queue and the host.
     pub gaps: usize,
     /// The firmware's own count of frames it could not send (the last frame's `dropped`).
     pub firmware_dropped: u16,
