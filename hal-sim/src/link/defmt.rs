@@ -88,4 +88,31 @@ mod tests {
         );
         assert!(log.push(&[]).is_empty());
     }
+
+    /// With the feature: the firmware's defmt table loads and garbage on up 0 never stops
+    /// the decoder. Needs a firmware ELF, named by `FPC_FIRMWARE_ELF` (skipped without).
+    #[cfg(feature = "probe")]
+    #[test]
+    fn the_firmware_table_loads_and_garbage_does_not_stop_the_decoder() {
+        let Some(path) = std::env::var_os("FPC_FIRMWARE_ELF") else {
+            eprintln!("skipped: set FPC_FIRMWARE_ELF to the firmware ELF");
+            return;
+        };
+        let elf = std::fs::read(path).unwrap();
+        let mut log = DefmtLog::from_elf(&elf).unwrap();
+        assert!(log.decodes());
+        let mut seed = 0x9E37_79B9u32;
+        for _ in 0..2000 {
+            let bytes: Vec<u8> = (0..64)
+                .map(|_| {
+                    seed ^= seed << 13;
+                    seed ^= seed >> 17;
+                    seed ^= seed << 5;
+                    seed as u8
+                })
+                .collect();
+            let _ = log.push(&bytes);
+        }
+        assert!(DefmtLog::from_elf(b"not an elf").is_err());
+    }
 }

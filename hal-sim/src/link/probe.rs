@@ -24,6 +24,23 @@ fn other(e: impl std::fmt::Display) -> io::Error {
     io::Error::other(e.to_string())
 }
 
+/// `e` with its causes, on one line (probe-rs's top-level messages are vague: "An error with
+/// the usage of the probe occurred" hides "the selected debug probe was not found").
+fn chain(e: &dyn std::error::Error) -> String {
+    let mut parts = vec![e.to_string()];
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        parts.push(c.to_string());
+        cause = c.source();
+    }
+    parts
+        .iter()
+        .map(|p| p.split_whitespace().collect::<Vec<_>>().join(" "))
+        .map(|p| p.trim_end_matches('.').to_string())
+        .collect::<Vec<_>>()
+        .join(": ")
+}
+
 impl ProbeChannels {
     /// Attaches to the first probe found, to a running `chip`, and to its RTT control block
     /// (at the address the ELF `elf` names, if given).
@@ -33,7 +50,7 @@ impl ProbeChannels {
             ..SessionConfig::default()
         };
         let mut session = Session::auto_attach(chip, config)
-            .map_err(|e| format!("cannot attach to {chip} through a probe: {e}"))?;
+            .map_err(|e| format!("cannot attach to {chip} through a probe: {}", chain(&e)))?;
         let region = match elf {
             Some(path) => {
                 let bytes = std::fs::read(path)
@@ -47,9 +64,12 @@ impl ProbeChannels {
         };
         let mut core = session
             .core(0)
-            .map_err(|e| format!("cannot open the core of {chip}: {e}"))?;
+            .map_err(|e| format!("cannot open the core of {chip}: {}", chain(&e)))?;
         let rtt = Rtt::attach_region(&mut core, &region).map_err(|e| {
-            format!("no RTT control block found on {chip} (is the fpc firmware running?): {e}")
+            format!(
+                "no RTT control block found on {chip} (is the fpc firmware running?): {}",
+                chain(&e)
+            )
         })?;
         drop(core);
         Ok(ProbeChannels { session, rtt })
@@ -63,7 +83,7 @@ impl Channels for ProbeChannels {
             .rtt
             .up_channel(channel)
             .ok_or_else(|| other(format!("the firmware has no RTT up-channel {channel}")))?;
-        up.read(&mut core, buf).map_err(other)
+        up.read(&mut core, buf).map_err(|e| other(chain(&e)))
     }
 
     fn write_down(&mut self, channel: usize, bytes: &[u8]) -> io::Result<usize> {
@@ -72,6 +92,6 @@ impl Channels for ProbeChannels {
             .rtt
             .down_channel(channel)
             .ok_or_else(|| other(format!("the firmware has no RTT down-channel {channel}")))?;
-        down.write(&mut core, bytes).map_err(other)
+        down.write(&mut core, bytes).map_err(|e| other(chain(&e)))
     }
 }
