@@ -155,7 +155,8 @@ enum CommandArg {
     },
     /// Stop: finish the stroke (or brake a move) and hold.
     Stop,
-    /// Host keep-alive (the firmware parks the piston when they stop coming).
+    /// Host keep-alive. The first one arms the firmware's host watchdog: from then on the
+    /// piston parks when they stop coming (this tool sends one per call, none by itself).
     Heartbeat,
     /// Clear latched faults (refused while a cause persists).
     ClearFaults,
@@ -443,11 +444,11 @@ fn send(args: SendArgs) -> CmdResult {
         &command,
         Duration::from_millis(args.timeout_ms),
         |line| earlier.push(line),
-    )
-    .map_err(Failure::runtime)?;
+    );
     for line in earlier {
         outln!("{line}")?;
     }
+    let outcome = outcome.map_err(Failure::runtime)?;
     match outcome {
         Outcome::Reply(r) if r.result.is_ok() => outln!("{}", outcome_text(&outcome)),
         _ => Err(Failure::runtime(outcome_text(&outcome))),
