@@ -65,10 +65,10 @@ Example (30 s on the rig, defmt decoded with the firmware ELF):
     fpc-sim link capture --elf target/thumbv7em-none-eabihf/release/fpc --out rig-run --seconds 30
 
 The counters: frames accepted/rejected (framing or CRC: noise, a host attaching mid-frame),
-repeated, sequence gaps (frames lost between the firmware and the host: read slower, or raise
-the decimation), dropped by the firmware (frames it could not queue or send). run.csv holds
+repeated, sequence gaps (frames lost between the firmware and the host: the host read too slowly;
+raise the decimation), dropped by the firmware (frames it could not queue or send). run.csv holds
 the longest gap-free stretch, exactly as `fpc-sim decode --capture DIR/up1.bin` gives it.
-If the tool is killed before the end, nothing lands in DIR: stop captures with --seconds.";
+Ctrl-C ends a capture early and still writes the files (a second Ctrl-C abandons it).";
 
 const SEND_HELP: &str = "\
 Examples:
@@ -104,7 +104,8 @@ struct CaptureArgs {
     /// Output directory: up0.bin, up1.bin, up2.bin (raw channels) and run.csv.
     #[arg(long, value_name = "DIR", default_value = "capture")]
     out: PathBuf,
-    /// How long to record from the board, s (a replay plays to its end).
+    /// How long to record from the board, s (Ctrl-C ends it earlier; a replay plays to
+    /// its end).
     #[arg(long, value_name = "S", default_value_t = 10.0)]
     seconds: f64,
     /// Replace existing output files of the same names.
@@ -324,6 +325,26 @@ fn decoded_defmt(_bytes: &[u8], _elf: &Path) -> Result<DefmtLog, Failure> {
     Ok(DefmtLog::hex())
 }
 
+/// Set by Ctrl-C during a live capture: the capture ends and writes its files.
+static STOP: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Makes Ctrl-C end a live capture (a second Ctrl-C ends the process, exit 130).
+#[cfg(feature = "probe")]
+fn stop_on_ctrl_c() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let _ = ctrlc::set_handler(|| {
+            if STOP.swap(true, std::sync::atomic::Ordering::Relaxed) {
+                std::process::exit(130);
+            }
+        });
+    });
+}
+
+/// Without the probe there is no live capture to stop.
+#[cfg(not(feature = "probe"))]
+fn stop_on_ctrl_c() {}
+
 /// Name of the run log in a capture directory.
 const RUN_LOG: &str = "run.csv";
 
@@ -365,6 +386,10 @@ fn capture(args: CaptureArgs) -> CmdResult {
     let (mut up0, mut up1, mut up2) = (create(&names[0])?, create(&names[1])?, create(&names[2])?);
     let mut session = CaptureSession::new(defmt);
     let live = args.target.replay.is_none();
+    if live {
+        STOP.store(false, std::sync::atomic::Ordering::Relaxed);
+        stop_on_ctrl_c();
+    }
     let started = Instant::now();
     let mut shown = started;
     {
@@ -376,7 +401,10 @@ fn capture(args: CaptureArgs) -> CmdResult {
             for line in lines {
                 outln!("{line}")?;
             }
-            if session.ended() || (live && started.elapsed().as_secs_f64() >= args.seconds) {
+            let stopped = STOP.load(std::sync::atomic::Ordering::Relaxed);
+            if session.ended()
+                || (live && (stopped || started.elapsed().as_secs_f64() >= args.seconds))
+            {
                 break;
             }
             if live && shown.elapsed() >= Duration::from_secs(1) {
