@@ -30,11 +30,19 @@ down 0 commands. The tool attaches to the running board (no reset, no halt) thro
 first debug probe found; talking to a board needs fpc-sim built with the `probe` feature:
     cargo install --path hal-sim --features probe
 
-Typical session on the rig (firmware flashed and running):
-    fpc-sim link send home
-    fpc-sim link send start --speed 2.3
-    fpc-sim link capture --elf target/thumbv7em-none-eabihf/release/fpc --out rig-run --seconds 30
-    fpc-sim link send stop
+Typical session on the rig (firmware flashed and running), with the answers:
+    $ fpc-sim link send home
+    accepted: home
+    $ fpc-sim link send start --speed 2.3        (once homing has finished)
+    accepted: start --speed 2.3
+    $ fpc-sim link capture --elf target/thumbv7em-none-eabihf/release/fpc --out rig-run --seconds 30
+    1 s: telemetry 56000 bytes: frames accepted 1000, rejected 0, ... dropped by the firmware 0; ...
+    ...
+    decimation 20 control cycles per frame; wrote 30000 rows (100.0 % of the frames) ... to rig-run/run.csv
+    $ fpc-sim link send stop
+    accepted: stop
+    $ fpc-sim link send start --speed 9
+    fpc-sim: refused: start --speed 9: value outside the configured limits
 
 `capture` writes rig-run/up1.bin (the raw telemetry, what `fpc-sim decode --capture` reads),
 rig-run/run.csv (the run log), rig-run/up0.bin and up2.bin (raw defmt and replies). A capture
