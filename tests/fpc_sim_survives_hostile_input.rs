@@ -39,6 +39,7 @@ const SUBCOMMANDS: [&str; 12] = [
     "gap",
     "sweep",
     "sweep-merge",
+    "link",
 ];
 
 /// Values that break parsers and arithmetic.
@@ -572,6 +573,73 @@ fn hostile_case(sub: &str, rng: &mut ChaCha8Rng, dir: &Path) -> Case {
                     capture,
                 ][rng.random_range(0..5)],
             );
+        }
+        "link" => {
+            // Recorded channels only (a board is never attached here): a hostile capture on
+            // up 1, noise on up 0 and up 2.
+            let rec = dir.join("rec");
+            std::fs::create_dir_all(&rec).unwrap();
+            std::fs::write(rec.join("up1.bin"), hostile_capture(rng)).unwrap();
+            for name in ["up0.bin", "up2.bin"] {
+                if rng.random_bool(0.7) {
+                    let noise: Vec<u8> = (0..rng.random_range(0..300))
+                        .map(|_| rng.random::<u8>() & [0xFF, 0x0F][rng.random_range(0..2)])
+                        .collect();
+                    std::fs::write(rec.join(name), noise).unwrap();
+                }
+            }
+            let replay = [
+                rec.clone(),
+                rec.clone(),
+                rec.clone(),
+                log.clone(),
+                dir.join("none"),
+            ][rng.random_range(0..5)]
+            .clone();
+            if rng.random_bool(0.5) {
+                args.push("capture".into());
+                push(&mut args, "--replay", &replay);
+                if rng.random_bool(0.3) {
+                    push(&mut args, "--seconds", &num(rng));
+                }
+                let to = [out.clone(), out.clone(), out_arg.clone(), rec][rng.random_range(0..4)]
+                    .clone();
+                push(&mut args, "--out", &to);
+            } else {
+                args.push("send".into());
+                push(&mut args, "--replay", &replay);
+                if rng.random_bool(0.3) {
+                    push(&mut args, "--timeout-ms", &num(rng));
+                }
+                match rng.random_range(0..7) {
+                    0 => args.push("home".into()),
+                    1 => {
+                        args.push("start".into());
+                        push(&mut args, "--speed", &num(rng));
+                    }
+                    2 => {
+                        args.push("move-to".into());
+                        push(&mut args, "--position", &num(rng));
+                        push(&mut args, "--speed", &num(rng));
+                    }
+                    3 => {
+                        args.push("set-parameter".into());
+                        args.push("position-kp".into());
+                        args.push(num(rng).into());
+                    }
+                    4 => {
+                        args.push("set-volume-ratio".into());
+                        if rng.random_bool(0.5) {
+                            push(&mut args, "--ratio", &num(rng));
+                        }
+                    }
+                    5 => {
+                        args.push("calibrate".into());
+                        args.push(["cogging", "x", ""][rng.random_range(0..3)].into());
+                    }
+                    _ => args.push("no-such-command".into()),
+                }
+            }
         }
         "derive" => {
             push(&mut args, "--measured", &log);

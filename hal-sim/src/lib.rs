@@ -17,6 +17,7 @@
 //! | [`signal`] | cross-correlation lag, filtfilt, differences, strokes |
 //! | [`gap`] | the model-gap workflow |
 //! | [`sweep`] | studies: every run of a plan in parallel, sharded, merged |
+//! | [`link`] | the host link to the running board over RTT (`fpc-sim link`) |
 //! | [`plot`] | SVG plots (reports of the runs, the log tools and the gap workflow) |
 //! | [`calibration`] | calibration files (TOML), the simulated commissioning that writes one, the flash that holds one |
 //! | [`failure`] | the failure type and its exit codes |
@@ -32,6 +33,7 @@ pub mod console;
 pub mod failure;
 pub mod faults;
 pub mod gap;
+pub mod link;
 pub mod output;
 pub mod plant;
 pub mod plot;

@@ -79,6 +79,97 @@ pub fn decode_capture(bytes: &[u8], progress: impl FnMut(usize)) -> Result<Decod
     decode_stream(bytes, progress)
 }
 
+/// Incremental decoding of a telemetry stream: bytes in as they arrive, frames kept, and
+/// the counters a live display shows; [`FrameCollector::finish`] turns what was collected
+/// into the run log. [`decode_stream`] (`fpc-sim decode`) and the host link
+/// (`fpc-sim link capture`) both use it, so a live capture and a decoded file give the same
+/// log.
+#[derive(Clone, Debug, Default)]
+pub struct FrameCollector {
+    decoder: TelemetryDecoder,
+    frames: Vec<Frame>,
+    duplicates: usize,
+    read: usize,
+    live_gaps: usize,
+    first_step: Option<u16>,
+}
+
+impl FrameCollector {
+    /// A collector waiting for the first frame.
+    pub fn new() -> Self {
+        FrameCollector::default()
+    }
+
+    /// Feeds bytes (any split: a frame may straddle two calls).
+    ///
+    /// A frame that is not later than the one before it (a repeat, or a piece of the
+    /// capture replayed) is counted in [`Decoded::duplicates`] and left out.
+    pub fn push(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            if let Some(Ok(f)) = self.decoder.push(b) {
+                // Not after the last frame (the µs time base wraps every 71.6 min): a
+                // repeat or a replayed piece of the capture.
+                let last = self.frames.last();
+                if last.is_some_and(|p| (f.t.0.wrapping_sub(p.t.0) as i32) <= 0) {
+                    self.duplicates += 1;
+                    continue;
+                }
+                // Live gap count: a sequence step other than the first one seen (the
+                // decimation, as far as the live view can tell; `finish` counts against
+                // the most common step).
+                if let Some(p) = self.frames.last() {
+                    let step = f.seq.wrapping_sub(p.seq);
+                    if *self.first_step.get_or_insert(step) != step {
+                        self.live_gaps += 1;
+                    }
+                }
+                self.frames.push(f);
+            }
+        }
+        self.read += bytes.len();
+    }
+
+    /// Bytes fed so far.
+    pub fn bytes_read(&self) -> usize {
+        self.read
+    }
+
+    /// Frames accepted and rejected so far.
+    pub fn stats(&self) -> LinkStats {
+        self.decoder.stats()
+    }
+
+    /// Frames kept so far (accepted, not repeats).
+    pub fn frames(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Repeated frames so far.
+    pub fn duplicates(&self) -> usize {
+        self.duplicates
+    }
+
+    /// Sequence steps that differed from the first step seen, so far.
+    pub fn live_gaps(&self) -> usize {
+        self.live_gaps
+    }
+
+    /// The firmware's dropped-frame counter in the last frame (0 before any).
+    pub fn dropped(&self) -> u16 {
+        self.frames.last().map_or(0, |f| f.dropped)
+    }
+
+    /// The run log of everything fed: the longest gap-free run of frames.
+    pub fn finish(self) -> Result<Decoded, String> {
+        decode_frames(
+            self.decoder.stats(),
+            self.frames,
+            self.duplicates,
+            self.read,
+        )
+    }
+}
+
 /// Decodes a telemetry capture read from `source` in 64 KiB pieces (memory grows with the
 /// frames, not with the bytes). `progress` is told how many bytes have been read.
 ///
@@ -88,36 +179,33 @@ pub fn decode_stream(
     mut source: impl std::io::Read,
     mut progress: impl FnMut(usize),
 ) -> Result<Decoded, String> {
-    let mut decoder = TelemetryDecoder::new();
-    let mut frames: Vec<Frame> = Vec::new();
-    let mut duplicates = 0usize;
+    let mut collector = FrameCollector::new();
     let mut buf = vec![0u8; 1 << 16];
-    let mut read = 0usize;
     loop {
         let n = match source.read(&mut buf) {
             Ok(0) => break,
             Ok(n) => n,
             Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-            Err(e) => return Err(format!("cannot read on after {read} bytes ({e})")),
-        };
-        for &b in buf.get(..n).unwrap_or_default() {
-            if let Some(Ok(f)) = decoder.push(b) {
-                // Not after the last frame (the µs time base wraps every 71.6 min): a
-                // repeat or a replayed piece of the capture.
-                if frames
-                    .last()
-                    .is_some_and(|p| (f.t.0.wrapping_sub(p.t.0) as i32) <= 0)
-                {
-                    duplicates += 1;
-                } else {
-                    frames.push(f);
-                }
+            Err(e) => {
+                return Err(format!(
+                    "cannot read on after {} bytes ({e})",
+                    collector.bytes_read()
+                ))
             }
-        }
-        read += n;
-        progress(read);
+        };
+        collector.push(buf.get(..n).unwrap_or_default());
+        progress(collector.bytes_read());
     }
-    let stats = decoder.stats();
+    collector.finish()
+}
+
+/// The run log of decoded frames (see [`decode_stream`]).
+fn decode_frames(
+    stats: LinkStats,
+    frames: Vec<Frame>,
+    duplicates: usize,
+    read: usize,
+) -> Result<Decoded, String> {
     if frames.is_empty() {
         return Err(format!(
             "no telemetry frame in {read} bytes ({} rejected)",

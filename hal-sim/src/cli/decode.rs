@@ -5,11 +5,11 @@
 //! of frames without a gap in their sequence numbers (a run log must be uniformly sampled),
 //! and what was left out is reported.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use clap::Args;
 
-use crate::board::capture::decode_stream;
+use crate::board::capture::{decode_stream, Decoded};
 use crate::cli::analysis::progress;
 use crate::failure::{CmdResult, Failure};
 use crate::output::{show, OutFile};
@@ -47,25 +47,51 @@ pub fn main(args: DecodeArgs) -> CmdResult {
     .map_err(|e| Failure::bad_input(format!("{}: {e}", show(&args.capture))));
     bar.finish_and_clear();
     let d = decoded?;
-    let received = d.log.len() + d.left_out;
-    let lost = format!(
-        "frames accepted {}, rejected {} (framing or CRC), repeated {}, gaps {}, left out of the \
-         log {}, dropped by the firmware {}",
-        d.stats.accepted, d.stats.rejected, d.duplicates, d.gaps, d.left_out, d.dropped
-    );
-    if 2 * d.log.len() < received && !args.accept_loss {
-        return Err(Failure::bad_input(format!(
-            "{}: mostly unusable: the longest gap-free stretch holds {} of {received} frames \
-             ({:.1} %); {lost}; nothing written (--accept-loss writes that stretch anyway)",
-            show(&args.capture),
-            d.log.len(),
-            100.0 * d.log.len() as f64 / received.max(1) as f64
-        )));
+    if let Some(why) = mostly_unusable(&d) {
+        if !args.accept_loss {
+            return Err(Failure::bad_input(format!(
+                "{}: {why}; nothing written (--accept-loss writes that stretch anyway)",
+                show(&args.capture)
+            )));
+        }
     }
     d.log
         .write(&out.path())
         .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&args.out))))?;
     out.commit()?;
+    outln!("{}", counts(&d))?;
+    report_written(&d, &args.out, "fpc-sim decode")
+}
+
+/// The counts of a decoded capture, as one line: accepted, rejected, repeated, gaps, left
+/// out, dropped by the firmware.
+pub fn counts(d: &Decoded) -> String {
+    format!(
+        "frames accepted {}, rejected {} (framing or CRC), repeated {}, gaps {}, left out of the \
+         log {}, dropped by the firmware {}",
+        d.stats.accepted, d.stats.rejected, d.duplicates, d.gaps, d.left_out, d.dropped
+    )
+}
+
+/// Why a decoded capture is mostly unusable (its longest gap-free stretch holds less than
+/// half of the frames received), if it is.
+pub fn mostly_unusable(d: &Decoded) -> Option<String> {
+    let received = d.log.len() + d.left_out;
+    (2 * d.log.len() < received).then(|| {
+        format!(
+            "mostly unusable: the longest gap-free stretch holds {} of {received} frames \
+             ({:.1} %); {}",
+            d.log.len(),
+            100.0 * d.log.len() as f64 / received.max(1) as f64,
+            counts(d)
+        )
+    })
+}
+
+/// Prints what was written: decimation, rows, span and where; warns (as `tool`) when the
+/// log is shorter than run-log readers accept.
+pub fn report_written(d: &Decoded, out: &Path, tool: &str) -> CmdResult {
+    let received = d.log.len() + d.left_out;
     let span_s = match (
         d.log.column("t_s").and_then(|t| t.first()),
         d.log.column("t_s").and_then(|t| t.last()),
@@ -73,18 +99,17 @@ pub fn main(args: DecodeArgs) -> CmdResult {
         (Some(a), Some(b)) => b - a,
         _ => 0.0,
     };
-    outln!("{lost}")?;
     outln!(
         "decimation {} control cycles per frame; wrote {} rows ({:.1} % of the frames) over \
          {span_s:.4} s to {}",
         d.decimation,
         d.log.len(),
         100.0 * d.log.len() as f64 / received.max(1) as f64,
-        args.out.display()
+        out.display()
     )?;
     if d.log.len() < MIN_ROWS {
         errln!(
-            "fpc-sim decode: warning: {} rows; run-log readers need at least {MIN_ROWS}",
+            "{tool}: warning: {} rows; run-log readers need at least {MIN_ROWS}",
             d.log.len()
         )?;
     }

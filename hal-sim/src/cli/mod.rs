@@ -14,6 +14,7 @@ pub mod filters;
 pub mod forces;
 pub mod gap;
 pub mod lag;
+pub mod link;
 pub mod pv;
 pub mod run;
 pub mod sweep;
@@ -61,6 +62,8 @@ enum Cmd {
     Sweep(sweep::SweepArgs),
     /// Join the slices (`sweep --shard I/N`) of one plan into its whole table.
     SweepMerge(sweep::MergeArgs),
+    /// Talk to the running board over RTT: capture telemetry, send commands, read defmt.
+    Link(link::LinkArgs),
 }
 
 fn dispatch(cmd: Cmd) -> CmdResult {
@@ -77,6 +80,7 @@ fn dispatch(cmd: Cmd) -> CmdResult {
         Cmd::Gap(args) => gap::main(args),
         Cmd::Sweep(args) => sweep::main(args),
         Cmd::SweepMerge(args) => sweep::merge_main(args),
+        Cmd::Link(args) => link::main(args),
     }
 }
 

@@ -1,0 +1,492 @@
+//! `fpc-sim link`: the host link to the running board over RTT through a debug probe —
+//! `capture` records telemetry into a capture and a run log and shows the defmt log and the
+//! drop counters; `send` sends one command and prints the firmware's answer. `--replay DIR`
+//! runs either on recorded channel contents instead of the board.
+//!
+//! The session logic is [`crate::link`]'s; this module is the command line and the files.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use clap::{Args, Subcommand, ValueEnum};
+use fpc::control::calibration::Routine;
+use fpc::control::command::{Command, Parameter};
+use fpc::motion::synchroniser::Rotation;
+use fpc::motion::volume_ratio::RatioTarget;
+
+use crate::cli::decode::{counts, mostly_unusable, report_written};
+use crate::failure::{num, CmdResult, Failure};
+use crate::link::defmt::DefmtLog;
+use crate::link::replay::up_file;
+use crate::link::session::{outcome_text, send_command, CaptureSession, Outcome};
+use crate::link::{Channels, Replay, CHIP};
+use crate::outln;
+use crate::output::{show, OutDir};
+
+const LINK_HELP: &str = "\
+RTT channels of the fpc firmware: up 0 defmt log, up 1 telemetry, up 2 command replies,
+down 0 commands. The tool attaches to the running board (no reset, no halt) through the
+first debug probe found; talking to a board needs fpc-sim built with the `probe` feature:
+    cargo install --path hal-sim --features probe
+
+Typical session on the rig (firmware flashed and running), with the answers:
+    $ fpc-sim link send home
+    accepted: home
+    $ fpc-sim link send start --speed 2.3        (once homing has finished)
+    accepted: start --speed 2.3
+    $ fpc-sim link capture --elf target/thumbv7em-none-eabihf/release/fpc --out rig-run --seconds 30
+    1 s: telemetry 56000 bytes: frames accepted 1000, rejected 0, ... dropped by the firmware 0; ...
+    ...
+    decimation 20 control cycles per frame; wrote 30000 rows (100.0 % of the frames) ... to rig-run/run.csv
+    $ fpc-sim link send stop
+    accepted: stop
+    $ fpc-sim link send start --speed 9
+    fpc-sim: refused: start --speed 9: value outside the configured limits
+
+`capture` writes rig-run/up1.bin (the raw telemetry, what `fpc-sim decode --capture` reads),
+rig-run/run.csv (the run log), rig-run/up0.bin and up2.bin (raw defmt and replies). A capture
+directory is also a recording: `--replay rig-run` plays it back instead of the board.";
+
+/// Talk to the running board: telemetry capture, commands, defmt log.
+#[derive(Args, Debug)]
+#[command(after_help = LINK_HELP)]
+pub struct LinkArgs {
+    #[command(subcommand)]
+    action: Action,
+}
+
+#[derive(Subcommand, Debug)]
+enum Action {
+    /// Record telemetry (up 1) into DIR/up1.bin and the run log DIR/run.csv, show the defmt
+    /// log (up 0) and command replies (up 2), and the drop counters once a second.
+    #[command(after_help = CAPTURE_HELP)]
+    Capture(CaptureArgs),
+    /// Send one command on down 0 and print the firmware's answer from up 2: accepted (exit
+    /// 0), or refused or rejected with the reason (exit 1).
+    #[command(after_help = SEND_HELP)]
+    Send(SendArgs),
+}
+
+const CAPTURE_HELP: &str = "\
+Example (30 s on the rig, defmt decoded with the firmware ELF):
+    fpc-sim link capture --elf target/thumbv7em-none-eabihf/release/fpc --out rig-run --seconds 30
+
+The counters: frames accepted/rejected (framing or CRC: noise, a host attaching mid-frame),
+repeated, sequence gaps (frames lost between the firmware and the host: the host read too slowly;
+raise the decimation), dropped by the firmware (frames it could not queue or send). run.csv holds
+the longest gap-free stretch, exactly as `fpc-sim decode --capture DIR/up1.bin` gives it.
+Ctrl-C ends a capture early and still writes the files (a second Ctrl-C abandons it).";
+
+const SEND_HELP: &str = "\
+Examples:
+    fpc-sim link send home
+    fpc-sim link send start --speed 2.3
+    fpc-sim link send set-volume-ratio --ratio 3.5
+    fpc-sim link send stop
+    fpc-sim link send --replay rig-run heartbeat      (answer from a recording)
+
+Prints `accepted: start --speed 2.3`, or `refused: start --speed 2.3: not homed: home the
+axis first` (exit 1). The controller checks every value against its limits.";
+
+/// Where the channels come from.
+#[derive(Args, Debug)]
+struct Target {
+    /// Play recorded channels (DIR/up0.bin, DIR/up1.bin, DIR/up2.bin, e.g. an earlier
+    /// capture) instead of attaching to the board.
+    #[arg(long, value_name = "DIR")]
+    replay: Option<PathBuf>,
+    /// The chip to attach to (probe-rs name).
+    #[arg(long, default_value = CHIP)]
+    chip: String,
+    /// The firmware ELF that runs on the board: locates the RTT block and decodes defmt.
+    #[arg(long, value_name = "FILE")]
+    elf: Option<PathBuf>,
+}
+
+/// `fpc-sim link capture`.
+#[derive(Args, Debug)]
+struct CaptureArgs {
+    #[command(flatten)]
+    target: Target,
+    /// Output directory: up0.bin, up1.bin, up2.bin (raw channels) and run.csv.
+    #[arg(long, value_name = "DIR", default_value = "capture")]
+    out: PathBuf,
+    /// How long to record from the board, s (Ctrl-C ends it earlier; a replay plays to
+    /// its end).
+    #[arg(long, value_name = "S", default_value_t = 10.0)]
+    seconds: f64,
+    /// Replace existing output files of the same names.
+    #[arg(long)]
+    force: bool,
+    /// Write run.csv even when its gap-free stretch holds less than half of the frames.
+    #[arg(long)]
+    accept_loss: bool,
+}
+
+/// `fpc-sim link send`.
+#[derive(Args, Debug)]
+struct SendArgs {
+    #[command(flatten)]
+    target: Target,
+    /// How long to wait for the answer, ms.
+    #[arg(long, value_name = "MS", default_value_t = 1000)]
+    timeout_ms: u64,
+    #[command(subcommand)]
+    command: CommandArg,
+}
+
+/// The commands, as typed.
+#[derive(Subcommand, Debug)]
+enum CommandArg {
+    /// Find the zero: creep to head A, set x = 0 there, then park (needed before motion).
+    Home,
+    /// Move to a position and hold there (homed, idle machine).
+    MoveTo {
+        /// Target position, m from head A.
+        #[arg(long, value_name = "M", allow_negative_numbers = true)]
+        position: f32,
+        /// Peak speed of the move, m/s.
+        #[arg(long, value_name = "M/S", allow_negative_numbers = true)]
+        speed: f32,
+    },
+    /// Start compressing: continuous strokes at this peak speed (homed, holding machine).
+    Start {
+        /// Peak speed, m/s.
+        #[arg(long, value_name = "M/S", allow_negative_numbers = true)]
+        speed: f32,
+    },
+    /// Change the peak speed of the running strokes (from the next stroke on).
+    SetSpeed {
+        /// Peak speed, m/s.
+        #[arg(long, value_name = "M/S", allow_negative_numbers = true)]
+        speed: f32,
+    },
+    /// Stop: finish the stroke (or brake a move) and hold.
+    Stop,
+    /// Host keep-alive. The first one arms the firmware's host watchdog: from then on the
+    /// piston parks when they stop coming (this tool sends one per call, none by itself).
+    Heartbeat,
+    /// Clear latched faults (refused while a cause persists).
+    ClearFaults,
+    /// Compressor or expander, from the next half cycle on.
+    SetRotation {
+        /// The rotation.
+        #[arg(value_enum)]
+        rotation: RotationArg,
+    },
+    /// Built-in volume ratio: follow the measured pressure ratio, or fixed for a design
+    /// pressure ratio.
+    SetVolumeRatio {
+        /// Follow the measured pressure ratio.
+        #[arg(long, conflicts_with = "ratio", required_unless_present = "ratio")]
+        follow: bool,
+        /// Fixed, designed for this pressure ratio (> 1).
+        #[arg(long, value_name = "RATIO", allow_negative_numbers = true)]
+        ratio: Option<f32>,
+    },
+    /// Run a calibration routine and load its result.
+    Calibrate {
+        /// The routine.
+        #[arg(value_enum)]
+        routine: RoutineArg,
+    },
+    /// Set one tuning parameter (validated against its limits; refused while running).
+    SetParameter {
+        /// Which one.
+        #[arg(value_enum)]
+        name: ParameterArg,
+        /// The new value, in the parameter's unit (N/m, N·s/m, s, m, fraction).
+        #[arg(allow_negative_numbers = true)]
+        value: f32,
+    },
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum RotationArg {
+    Compressor,
+    Expander,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum RoutineArg {
+    CurrentSense,
+    Alignment,
+    Misalignment,
+    Cogging,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum ParameterArg {
+    /// Position-loop stiffness, N/m.
+    PositionKp,
+    /// Position-loop damping, N·s/m.
+    PositionKd,
+    /// Host heartbeat timeout before the piston parks, s.
+    HeartbeatTimeout,
+    /// Park position, m from head A.
+    ParkPosition,
+    /// Fraction of a dead-point error corrected per stroke.
+    DeadPointGain,
+}
+
+impl CommandArg {
+    fn command(&self) -> Command {
+        match *self {
+            CommandArg::Home => Command::Home,
+            CommandArg::MoveTo { position, speed } => Command::MoveTo {
+                position_m: position,
+                peak_speed_mps: speed,
+            },
+            CommandArg::Start { speed } => Command::Start {
+                peak_speed_mps: speed,
+            },
+            CommandArg::SetSpeed { speed } => Command::SetSpeed {
+                peak_speed_mps: speed,
+            },
+            CommandArg::Stop => Command::Stop,
+            CommandArg::Heartbeat => Command::Heartbeat,
+            CommandArg::ClearFaults => Command::ClearFaults,
+            CommandArg::SetRotation { rotation } => Command::SetRotation {
+                rotation: match rotation {
+                    RotationArg::Compressor => Rotation::Compressor,
+                    RotationArg::Expander => Rotation::Expander,
+                },
+            },
+            CommandArg::SetVolumeRatio { ratio, .. } => Command::SetVolumeRatio {
+                target: match ratio {
+                    Some(pressure_ratio) => RatioTarget::Fixed { pressure_ratio },
+                    None => RatioTarget::FollowMeasured,
+                },
+            },
+            CommandArg::Calibrate { routine } => Command::Calibrate {
+                routine: match routine {
+                    RoutineArg::CurrentSense => Routine::CurrentSense,
+                    RoutineArg::Alignment => Routine::Alignment,
+                    RoutineArg::Misalignment => Routine::Misalignment,
+                    RoutineArg::Cogging => Routine::Cogging,
+                },
+            },
+            CommandArg::SetParameter { name, value } => Command::SetParameter {
+                parameter: match name {
+                    ParameterArg::PositionKp => Parameter::PositionKp,
+                    ParameterArg::PositionKd => Parameter::PositionKd,
+                    ParameterArg::HeartbeatTimeout => Parameter::HeartbeatTimeout,
+                    ParameterArg::ParkPosition => Parameter::ParkPosition,
+                    ParameterArg::DeadPointGain => Parameter::DeadPointGain,
+                },
+                value,
+            },
+        }
+    }
+}
+
+/// Runs `fpc-sim link`.
+pub fn main(args: LinkArgs) -> CmdResult {
+    match args.action {
+        Action::Capture(a) => capture(a),
+        Action::Send(a) => send(a),
+    }
+}
+
+/// The channels named by `target`: a recording, or the board through a probe.
+fn open(target: &Target) -> Result<Box<dyn Channels>, Failure> {
+    if let Some(dir) = &target.replay {
+        return Ok(Box::new(Replay::from_dir(dir).map_err(Failure::bad_input)?));
+    }
+    open_probe(target)
+}
+
+#[cfg(feature = "probe")]
+fn open_probe(target: &Target) -> Result<Box<dyn Channels>, Failure> {
+    crate::link::probe::ProbeChannels::attach(&target.chip, target.elf.as_deref())
+        .map(|p| Box::new(p) as Box<dyn Channels>)
+        .map_err(Failure::runtime)
+}
+
+#[cfg(not(feature = "probe"))]
+fn open_probe(_target: &Target) -> Result<Box<dyn Channels>, Failure> {
+    Err(Failure::bad_input(
+        "this fpc-sim was built without the `probe` feature, so it cannot attach to a board \
+         (rebuild: cargo install --path hal-sim --features probe); --replay DIR plays \
+         recorded channels",
+    ))
+}
+
+/// The defmt view: decoded with the ELF when possible, hex otherwise.
+fn defmt_log(elf: Option<&Path>) -> Result<DefmtLog, Failure> {
+    let Some(elf) = elf else {
+        return Ok(DefmtLog::hex());
+    };
+    let bytes = std::fs::read(elf)
+        .map_err(|e| Failure::bad_input(format!("cannot read {}: {e}", show(elf))))?;
+    decoded_defmt(&bytes, elf)
+}
+
+#[cfg(feature = "probe")]
+fn decoded_defmt(bytes: &[u8], elf: &Path) -> Result<DefmtLog, Failure> {
+    DefmtLog::from_elf(bytes).map_err(|e| Failure::bad_input(format!("{}: {e}", show(elf))))
+}
+
+#[cfg(not(feature = "probe"))]
+fn decoded_defmt(_bytes: &[u8], _elf: &Path) -> Result<DefmtLog, Failure> {
+    Ok(DefmtLog::hex())
+}
+
+/// Set by Ctrl-C during a live capture: the capture ends and writes its files.
+static STOP: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Makes Ctrl-C end a live capture (a second Ctrl-C ends the process, exit 130).
+#[cfg(feature = "probe")]
+fn stop_on_ctrl_c() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let _ = ctrlc::set_handler(|| {
+            if STOP.swap(true, std::sync::atomic::Ordering::Relaxed) {
+                std::process::exit(130);
+            }
+        });
+    });
+}
+
+/// Without the probe there is no live capture to stop.
+#[cfg(not(feature = "probe"))]
+fn stop_on_ctrl_c() {}
+
+/// Name of the run log in a capture directory.
+const RUN_LOG: &str = "run.csv";
+
+fn capture(args: CaptureArgs) -> CmdResult {
+    if !(args.seconds.is_finite() && args.seconds > 0.0 && args.seconds <= 86_400.0) {
+        return Err(Failure::bad_input(format!(
+            "--seconds {}: give a duration above 0 and at most 86400 s",
+            num(args.seconds)
+        )));
+    }
+    let names: Vec<String> = (0..3).map(up_file).collect();
+    let name_refs: Vec<&str> = names.iter().map(String::as_str).collect();
+    let inputs: Vec<PathBuf> = args
+        .target
+        .replay
+        .iter()
+        .flat_map(|d| names.iter().map(move |n| d.join(n)))
+        .chain(args.target.elf.clone())
+        .collect();
+    let input_refs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+    let log_path = args.out.join(RUN_LOG);
+    if !args.force && log_path.symlink_metadata().is_ok() {
+        return Err(Failure::bad_input(format!(
+            "{} exists; refusing to overwrite it (add --force to replace the outputs)",
+            show(&log_path)
+        )));
+    }
+    let out = OutDir::prepare(&args.out, &name_refs, args.force, &input_refs)?;
+    let mut channels = open(&args.target)?;
+    let defmt = defmt_log(args.target.elf.as_deref())?;
+    if args.target.elf.is_some() && !defmt.decodes() {
+        outln!("defmt is shown as hex: decoding it needs fpc-sim built with the `probe` feature")?;
+    }
+    let create = |name: &str| {
+        std::fs::File::create(out.path(name))
+            .map(std::io::BufWriter::new)
+            .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&out.path(name)))))
+    };
+    let (mut up0, mut up1, mut up2) = (create(&names[0])?, create(&names[1])?, create(&names[2])?);
+    let mut session = CaptureSession::new(defmt);
+    let live = args.target.replay.is_none();
+    if live {
+        STOP.store(false, std::sync::atomic::Ordering::Relaxed);
+        stop_on_ctrl_c();
+    }
+    let started = Instant::now();
+    let mut shown = started;
+    {
+        let mut raw: [&mut dyn Write; 3] = [&mut up0, &mut up1, &mut up2];
+        loop {
+            let (n, lines) = session
+                .poll(&mut channels, &mut raw)
+                .map_err(|e| Failure::runtime(format!("link failed: {e}")))?;
+            for line in lines {
+                outln!("{line}")?;
+            }
+            let stopped = STOP.load(std::sync::atomic::Ordering::Relaxed);
+            if session.ended()
+                || (live && (stopped || started.elapsed().as_secs_f64() >= args.seconds))
+            {
+                break;
+            }
+            if live && shown.elapsed() >= Duration::from_secs(1) {
+                shown = Instant::now();
+                outln!(
+                    "{:.0} s: {}",
+                    started.elapsed().as_secs_f64(),
+                    session.counters()
+                )?;
+            }
+            if n == 0 {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+    }
+    for (w, name) in [
+        (&mut up0, &names[0]),
+        (&mut up1, &names[1]),
+        (&mut up2, &names[2]),
+    ] {
+        w.flush().map_err(|e| {
+            Failure::runtime(format!("cannot write {}: {e}", show(&out.path(name))))
+        })?;
+    }
+    drop((up0, up1, up2));
+    let counters = session.counters();
+    outln!("{counters}")?;
+    let decoded = session.into_telemetry().finish();
+    let why = match &decoded {
+        Ok(d) if mostly_unusable(d).is_none() || args.accept_loss => None,
+        Ok(d) => mostly_unusable(d).map(|w| format!("{w} (--accept-loss writes it anyway)")),
+        Err(e) => Some(e.clone()),
+    };
+    if let (Ok(d), None) = (&decoded, &why) {
+        d.log
+            .write(&out.path(RUN_LOG))
+            .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&log_path))))?;
+    }
+    out.commit()?;
+    match (decoded, why) {
+        (Ok(d), None) => {
+            outln!("{}", counts(&d))?;
+            report_written(&d, &log_path, "fpc-sim link capture")
+        }
+        (_, why) => Err(Failure::runtime(format!(
+            "telemetry: {}; the files are written to {} without {RUN_LOG}",
+            why.unwrap_or_default(),
+            show(&args.out)
+        ))),
+    }
+}
+
+fn send(args: SendArgs) -> CmdResult {
+    if !(1..=60_000).contains(&args.timeout_ms) {
+        return Err(Failure::bad_input(format!(
+            "--timeout-ms {}: give 1 to 60000 ms",
+            args.timeout_ms
+        )));
+    }
+    let command = args.command.command();
+    let mut channels = open(&args.target)?;
+    let mut earlier = Vec::new();
+    let outcome = send_command(
+        &mut channels,
+        &command,
+        Duration::from_millis(args.timeout_ms),
+        |line| earlier.push(line),
+    );
+    for line in earlier {
+        outln!("{line}")?;
+    }
+    let outcome = outcome.map_err(Failure::runtime)?;
+    match outcome {
+        Outcome::Reply(r) if r.result.is_ok() => outln!("{}", outcome_text(&outcome)),
+        _ => Err(Failure::runtime(outcome_text(&outcome))),
+    }
+}

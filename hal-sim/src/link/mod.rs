@@ -1,0 +1,62 @@
+//! The host link to the running board: the RTT channels as a [`Channels`] transport, and the
+//! session logic `fpc-sim link` runs on them — telemetry from up 1 into a capture and a run
+//! log, commands out on down 0 with their answers from up 2, defmt from up 0.
+//!
+//! | channel | direction | carries |
+//! |---|---|---|
+//! | up 0 | board → host | defmt log frames |
+//! | up 1 | board → host | telemetry frames ([`fpc::link::telemetry`]) |
+//! | up 2 | board → host | command replies and rejections ([`fpc::link::commands`]) |
+//! | down 0 | host → board | commands |
+//!
+//! Everything here is ordinary code over byte streams, tested on recorded channel contents
+//! through the [`Replay`] transport. Only [`probe`] (cargo feature `probe`, off by default)
+//! touches hardware: it attaches to the board with the `probe-rs` library and reads and
+//! writes the same channels by number.
+
+pub mod defmt;
+#[cfg(feature = "probe")]
+pub mod probe;
+pub mod replay;
+pub mod session;
+
+pub use replay::Replay;
+
+/// The chip of the controller board, as probe-rs names it.
+pub const CHIP: &str = "STM32G474RETx";
+
+/// RTT up-channel of the defmt log.
+pub const UP_DEFMT: usize = 0;
+/// RTT up-channel of the telemetry frames.
+pub const UP_TELEMETRY: usize = 1;
+/// RTT up-channel of the command replies.
+pub const UP_REPLIES: usize = 2;
+/// RTT down-channel of the commands.
+pub const DOWN_COMMANDS: usize = 0;
+
+/// The board's RTT channels, by number: what the session logic needs of a transport.
+///
+/// A read returns what the channel holds now (possibly nothing, `Ok(0)`); a recorded
+/// channel that has ended returns an error of kind [`std::io::ErrorKind::UnexpectedEof`]
+/// (a live board's channels never end).
+pub trait Channels {
+    /// Reads up to `buf.len()` bytes from up-channel `channel`.
+    fn read_up(&mut self, channel: usize, buf: &mut [u8]) -> std::io::Result<usize>;
+    /// Writes as many of `bytes` as down-channel `channel` has room for; returns how many.
+    fn write_down(&mut self, channel: usize, bytes: &[u8]) -> std::io::Result<usize>;
+}
+
+impl<C: Channels + ?Sized> Channels for Box<C> {
+    fn read_up(&mut self, channel: usize, buf: &mut [u8]) -> std::io::Result<usize> {
+        (**self).read_up(channel, buf)
+    }
+
+    fn write_down(&mut self, channel: usize, bytes: &[u8]) -> std::io::Result<usize> {
+        (**self).write_down(channel, bytes)
+    }
+}
+
+/// Whether `e` says a recorded channel has ended.
+pub fn is_end(e: &std::io::Error) -> bool {
+    e.kind() == std::io::ErrorKind::UnexpectedEof
+}

@@ -1,0 +1,440 @@
+//! What `fpc-sim link` does with the channels, as ordinary code over any [`Channels`]:
+//!
+//! * [`CaptureSession`]: reads the up-channels as they fill, keeps each one's raw bytes
+//!   (up 1 is exactly the capture `fpc-sim decode` reads), decodes telemetry incrementally
+//!   with the same [`FrameCollector`] as `decode` (so the run log is the same), shows the
+//!   defmt log and any answers, and counts what was lost.
+//! * [`send_command`]: one command out on down 0 (the library's encoder), its answer awaited
+//!   on up 2 with a timeout.
+
+use std::io::{self, Write};
+use std::time::{Duration, Instant};
+
+use fpc::control::command::{Command, Reply};
+use fpc::link::commands::MAX_REPLY_WIRE;
+use fpc::link::commands::{decode_answer, encode_command, Answer, MAX_COMMAND_WIRE};
+use fpc::link::frame::{Deframer, FrameError, LinkStats};
+use fpc::motion::synchroniser::Rotation;
+use fpc::motion::volume_ratio::RatioTarget;
+
+use super::defmt::DefmtLog;
+use super::{is_end, Channels, DOWN_COMMANDS, UP_DEFMT, UP_REPLIES, UP_TELEMETRY};
+use crate::board::capture::FrameCollector;
+
+/// Streaming reader of up 2: bytes in, answers out, bad frames rejected and counted.
+#[derive(Clone, Debug, Default)]
+pub struct AnswerReader {
+    deframer: Deframer<{ MAX_REPLY_WIRE }>,
+}
+
+impl AnswerReader {
+    /// A reader waiting for the first frame.
+    pub fn new() -> Self {
+        AnswerReader::default()
+    }
+
+    /// Feeds bytes; returns the answers (or why a frame was rejected) they complete.
+    pub fn push(&mut self, bytes: &[u8]) -> Vec<Result<Answer, FrameError>> {
+        bytes
+            .iter()
+            .filter_map(|&b| self.deframer.push_decoded(b, decode_answer))
+            .collect()
+    }
+
+    /// Frames accepted and rejected so far.
+    pub fn stats(&self) -> LinkStats {
+        self.deframer.stats
+    }
+}
+
+/// What the link has counted: the drop counters an operator watches.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counters {
+    /// Telemetry frames accepted and rejected (framing, CRC or payload).
+    pub telemetry: LinkStats,
+    /// Telemetry frames repeated (not later than the frame before), left out.
+    pub repeated: usize,
+    /// Sequence steps that differed from the first step seen (the decimation): frames lost
+    /// between the firmware's queue and the host.
+    pub gaps: usize,
+    /// The firmware's own count of frames it could not send (the last frame's `dropped`).
+    pub firmware_dropped: u16,
+    /// Answer frames on up 2 accepted and rejected.
+    pub answers: LinkStats,
+    /// Bytes read from up 0 (defmt).
+    pub defmt_bytes: usize,
+    /// Bytes read from up 1 (telemetry).
+    pub telemetry_bytes: usize,
+}
+
+impl std::fmt::Display for Counters {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "telemetry {} bytes: frames accepted {}, rejected {}, repeated {}, sequence gaps \
+             {}, dropped by the firmware {}; replies accepted {}, rejected {}; defmt {} bytes",
+            self.telemetry_bytes,
+            self.telemetry.accepted,
+            self.telemetry.rejected,
+            self.repeated,
+            self.gaps,
+            self.firmware_dropped,
+            self.answers.accepted,
+            self.answers.rejected,
+            self.defmt_bytes
+        )
+    }
+}
+
+/// Size of one read from a channel, bytes.
+const READ_BYTES: usize = 4096;
+
+/// A capture in progress: the up-channels read as they fill.
+pub struct CaptureSession {
+    telemetry: FrameCollector,
+    answers: AnswerReader,
+    defmt: DefmtLog,
+    defmt_bytes: usize,
+    ended: [bool; 3],
+}
+
+impl CaptureSession {
+    /// A session showing the defmt log with `defmt`.
+    pub fn new(defmt: DefmtLog) -> CaptureSession {
+        CaptureSession {
+            telemetry: FrameCollector::new(),
+            answers: AnswerReader::new(),
+            defmt,
+            defmt_bytes: 0,
+            ended: [false; 3],
+        }
+    }
+
+    /// Reads what each up-channel holds now: its raw bytes go to `raw[channel]`, telemetry
+    /// into the run log. Returns the bytes read and the lines to show (defmt, answers).
+    pub fn poll<C: Channels + ?Sized>(
+        &mut self,
+        channels: &mut C,
+        raw: &mut [&mut dyn Write; 3],
+    ) -> io::Result<(usize, Vec<String>)> {
+        let mut buf = [0u8; READ_BYTES];
+        let mut total = 0;
+        let mut lines = Vec::new();
+        for channel in [UP_DEFMT, UP_TELEMETRY, UP_REPLIES] {
+            let Some(ended) = self.ended.get_mut(channel) else {
+                continue;
+            };
+            if *ended {
+                continue;
+            }
+            let n = match channels.read_up(channel, &mut buf) {
+                Ok(n) => n,
+                Err(e) if is_end(&e) => {
+                    *ended = true;
+                    continue;
+                }
+                Err(e) => return Err(e),
+            };
+            let bytes = buf.get(..n).unwrap_or_default();
+            if let Some(sink) = raw.get_mut(channel) {
+                sink.write_all(bytes)?;
+            }
+            total += n;
+            match channel {
+                UP_TELEMETRY => self.telemetry.push(bytes),
+                UP_DEFMT => {
+                    self.defmt_bytes += n;
+                    lines.extend(self.defmt.push(bytes));
+                }
+                _ => lines.extend(self.answers.push(bytes).into_iter().map(|a| match a {
+                    Ok(answer) => answer_text(&answer),
+                    Err(e) => format!("reply frame rejected: {}", frame_error_text(e)),
+                })),
+            }
+        }
+        Ok((total, lines))
+    }
+
+    /// Whether every channel has ended (a recording played to its end).
+    pub fn ended(&self) -> bool {
+        self.ended.iter().all(|e| *e)
+    }
+
+    /// The counters so far.
+    pub fn counters(&self) -> Counters {
+        Counters {
+            telemetry: self.telemetry.stats(),
+            repeated: self.telemetry.duplicates(),
+            gaps: self.telemetry.live_gaps(),
+            firmware_dropped: self.telemetry.dropped(),
+            answers: self.answers.stats(),
+            defmt_bytes: self.defmt_bytes,
+            telemetry_bytes: self.telemetry.bytes_read(),
+        }
+    }
+
+    /// The telemetry collected, for the run log ([`FrameCollector::finish`]).
+    pub fn into_telemetry(self) -> FrameCollector {
+        self.telemetry
+    }
+}
+
+/// How a command ended: the firmware's answer to it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Outcome {
+    /// The controller's verdict.
+    Reply(Reply),
+    /// The firmware could not decode the command frame.
+    Rejected(FrameError),
+}
+
+/// Sends `command` on down 0 and waits up to `timeout` for its answer on up 2. Answers to
+/// other (earlier) commands that arrive first are passed to `other`, as text. An error is
+/// one line: the channel failed, the down-channel stayed full, or no answer came.
+pub fn send_command<C: Channels + ?Sized>(
+    channels: &mut C,
+    command: &Command,
+    timeout: Duration,
+    mut other: impl FnMut(String),
+) -> Result<Outcome, String> {
+    let mut wire = [0u8; MAX_COMMAND_WIRE];
+    let n = encode_command(command, &mut wire)
+        .map_err(|_| "the command does not fit a frame".to_string())?;
+    let wire = wire.get(..n).unwrap_or_default();
+    let started = Instant::now();
+    let mut sent = 0;
+    while sent < wire.len() {
+        let rest = wire.get(sent..).unwrap_or_default();
+        let n = channels
+            .write_down(DOWN_COMMANDS, rest)
+            .map_err(|e| format!("cannot write down-channel {DOWN_COMMANDS}: {e}"))?;
+        sent += n;
+        if n == 0 {
+            if started.elapsed() > timeout {
+                return Err(format!(
+                    "down-channel {DOWN_COMMANDS} stayed full for {} ms: is the firmware's \
+                     command task running?",
+                    timeout.as_millis()
+                ));
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+    let mut reader = AnswerReader::new();
+    let mut buf = [0u8; 256];
+    loop {
+        let n = match channels.read_up(UP_REPLIES, &mut buf) {
+            Ok(n) => n,
+            Err(e) if is_end(&e) => {
+                return Err(format!(
+                    "the recording of up-channel {UP_REPLIES} ended without an answer to `{}`",
+                    describe(command)
+                ))
+            }
+            Err(e) => return Err(format!("cannot read up-channel {UP_REPLIES}: {e}")),
+        };
+        for answer in reader.push(buf.get(..n).unwrap_or_default()) {
+            match answer {
+                Ok(Answer::Reply(reply)) if same_command(&reply.command, command) => {
+                    return Ok(Outcome::Reply(reply))
+                }
+                Ok(Answer::Rejected(reason)) => return Ok(Outcome::Rejected(reason)),
+                Ok(a) => other(format!("earlier answer: {}", answer_text(&a))),
+                Err(e) => other(format!("reply frame rejected: {}", frame_error_text(e))),
+            }
+        }
+        if n == 0 {
+            if started.elapsed() > timeout {
+                return Err(format!(
+                    "no answer to `{}` within {} ms on up-channel {UP_REPLIES}: is the \
+                     firmware running?",
+                    describe(command),
+                    timeout.as_millis()
+                ));
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+}
+
+/// Whether two commands are the same on the wire (bit for bit, so NaN equals NaN).
+fn same_command(a: &Command, b: &Command) -> bool {
+    let mut x = [0u8; MAX_COMMAND_WIRE];
+    let mut y = [0u8; MAX_COMMAND_WIRE];
+    match (encode_command(a, &mut x), encode_command(b, &mut y)) {
+        (Ok(n), Ok(m)) => x.get(..n) == y.get(..m),
+        _ => false,
+    }
+}
+
+/// A command as the operator types it after `fpc-sim link send`.
+pub fn describe(command: &Command) -> String {
+    match *command {
+        Command::Home => "home".into(),
+        Command::MoveTo {
+            position_m,
+            peak_speed_mps,
+        } => format!("move-to --position {position_m} --speed {peak_speed_mps}"),
+        Command::Stop => "stop".into(),
+        Command::Heartbeat => "heartbeat".into(),
+        Command::ClearFaults => "clear-faults".into(),
+        Command::Start { peak_speed_mps } => format!("start --speed {peak_speed_mps}"),
+        Command::SetSpeed { peak_speed_mps } => format!("set-speed --speed {peak_speed_mps}"),
+        Command::SetRotation { rotation } => format!(
+            "set-rotation {}",
+            match rotation {
+                Rotation::Compressor => "compressor",
+                Rotation::Expander => "expander",
+            }
+        ),
+        Command::SetVolumeRatio { target } => match target {
+            RatioTarget::FollowMeasured => "set-volume-ratio --follow".into(),
+            RatioTarget::Fixed { pressure_ratio } => {
+                format!("set-volume-ratio --ratio {pressure_ratio}")
+            }
+        },
+        Command::Calibrate { routine } => format!("calibrate {}", routine_name(routine as u8)),
+        Command::SetParameter { parameter, value } => {
+            format!("set-parameter {} {value}", parameter_name(parameter as u8))
+        }
+    }
+}
+
+/// Operator names of the calibration routines, by wire number.
+pub const ROUTINES: [&str; 4] = ["current-sense", "alignment", "misalignment", "cogging"];
+/// Operator names of the parameters, by wire number (from 1).
+pub const PARAMETERS: [&str; 5] = [
+    "position-kp",
+    "position-kd",
+    "heartbeat-timeout",
+    "park-position",
+    "dead-point-gain",
+];
+
+fn routine_name(code: u8) -> &'static str {
+    ROUTINES.get(usize::from(code)).copied().unwrap_or("?")
+}
+
+fn parameter_name(code: u8) -> &'static str {
+    usize::from(code)
+        .checked_sub(1)
+        .and_then(|i| PARAMETERS.get(i))
+        .copied()
+        .unwrap_or("?")
+}
+
+/// An answer as one line of text.
+pub fn answer_text(answer: &Answer) -> String {
+    match answer {
+        Answer::Reply(Reply {
+            command,
+            result: Ok(()),
+        }) => format!("accepted: {}", describe(command)),
+        Answer::Reply(Reply {
+            command,
+            result: Err(refusal),
+        }) => format!("refused: {}: {}", describe(command), refusal.reason()),
+        Answer::Rejected(reason) => format!(
+            "rejected by the firmware: the command frame {}",
+            frame_error_text(*reason)
+        ),
+    }
+}
+
+/// An outcome as one line of text.
+pub fn outcome_text(outcome: &Outcome) -> String {
+    match outcome {
+        Outcome::Reply(r) => answer_text(&Answer::Reply(*r)),
+        Outcome::Rejected(e) => answer_text(&Answer::Rejected(*e)),
+    }
+}
+
+/// What a frame error means, for an operator.
+pub fn frame_error_text(e: FrameError) -> &'static str {
+    match e {
+        FrameError::Overlong => "was too long (garbage or a lost delimiter)",
+        FrameError::Cobs => "had broken COBS framing",
+        FrameError::TooShort => "was too short",
+        FrameError::Crc => "failed its CRC (corrupted or truncated)",
+        FrameError::UnknownKind => "had an unknown kind or command tag",
+        FrameError::BadLength => "had the wrong length for its kind",
+        FrameError::BadValue => "held a value with no meaning",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::link::Replay;
+    use fpc::control::command::Refusal;
+    use fpc::link::commands::{encode_rejection, encode_reply};
+
+    fn reply_bytes(reply: &Reply) -> Vec<u8> {
+        let mut out = [0u8; MAX_REPLY_WIRE];
+        let n = encode_reply(reply, &mut out).unwrap();
+        out[..n].to_vec()
+    }
+
+    #[test]
+    fn the_answer_to_the_command_sent_is_found_behind_earlier_ones() {
+        let start = Command::Start {
+            peak_speed_mps: 2.3,
+        };
+        let mut up2 = reply_bytes(&Reply {
+            command: Command::Home,
+            result: Ok(()),
+        });
+        up2.extend([0x55, 0x66, 0x00]);
+        up2.extend(reply_bytes(&Reply {
+            command: start,
+            result: Err(Refusal::NotHomed),
+        }));
+        let mut replay = Replay::new(vec![Vec::new(), Vec::new(), up2]);
+        let mut others = Vec::new();
+        let got = send_command(&mut replay, &start, Duration::from_secs(1), |l| {
+            others.push(l)
+        })
+        .unwrap();
+        assert_eq!(
+            outcome_text(&got),
+            "refused: start --speed 2.3: not homed: home the axis first"
+        );
+        assert_eq!(others.len(), 2, "{others:?}");
+        assert_eq!(others[0], "earlier answer: accepted: home");
+        let mut wire = [0u8; MAX_COMMAND_WIRE];
+        let n = encode_command(&start, &mut wire).unwrap();
+        assert_eq!(replay.down[DOWN_COMMANDS], wire[..n]);
+    }
+
+    #[test]
+    fn a_rejection_ends_the_wait_and_no_answer_is_an_error() {
+        let mut out = [0u8; 8];
+        let n = encode_rejection(FrameError::Crc, &mut out).unwrap();
+        let mut replay = Replay::new(vec![Vec::new(), Vec::new(), out[..n].to_vec()]);
+        let got = send_command(&mut replay, &Command::Stop, Duration::from_secs(1), |_| {});
+        assert_eq!(got, Ok(Outcome::Rejected(FrameError::Crc)));
+        let mut empty = Replay::new(vec![Vec::new(), Vec::new(), vec![1, 2, 3]]);
+        let e =
+            send_command(&mut empty, &Command::Stop, Duration::from_secs(1), |_| {}).unwrap_err();
+        assert!(e.contains("without an answer to `stop`"), "{e}");
+    }
+
+    #[test]
+    fn every_command_reads_as_typed() {
+        use fpc::control::calibration::Routine;
+        use fpc::control::command::Parameter;
+        for routine in Routine::ALL {
+            assert_ne!(routine_name(routine as u8), "?");
+        }
+        for p in Parameter::ALL {
+            assert_ne!(parameter_name(p as u8), "?");
+        }
+        assert_eq!(
+            describe(&Command::SetParameter {
+                parameter: Parameter::DeadPointGain,
+                value: 0.6
+            }),
+            "set-parameter dead-point-gain 0.6"
+        );
+    }
+}

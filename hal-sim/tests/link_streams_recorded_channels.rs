@@ -1,0 +1,405 @@
+//! The host link (`fpc-sim link`) on recorded channel contents: telemetry that the
+//! simulator's firmware task wrote (decimation 1 and 20) gives through the replay transport
+//! the same capture and run log as `fpc-sim decode`; garbage and truncated streams are
+//! counted and never crash; and a command goes out as the library encodes it, through the
+//! firmware's own command task and controller, and its reply comes back as text.
+
+use std::cell::{Cell, RefCell};
+use std::collections::VecDeque;
+use std::future::{poll_fn, Future};
+use std::path::PathBuf;
+use std::pin::Pin;
+use std::rc::Rc;
+use std::task::{Context, Poll, Waker};
+use std::time::Duration;
+
+use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use fpc::control::command::{Command, Refusal, Reply};
+use fpc::control::config::ControlConfig;
+use fpc::control::step::ControlStep;
+use fpc::link::frame::DELIMITER;
+use fpc::link::telemetry::{Frame, WIRE_BYTES};
+use fpc::ports::{ByteSource, Clock, FrameSink, Sleep};
+use fpc::shared::Shared;
+use fpc::status::{ModeKind, Status};
+use fpc::units::Ticks;
+use hal_sim::link::defmt::DefmtLog;
+use hal_sim::link::session::{outcome_text, send_command, CaptureSession, Outcome};
+use hal_sim::link::{Channels, Replay};
+use hal_sim::run::{run, RunOptions};
+
+fn temp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("fpc-link-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Runs `fpc-sim` in-process; returns the exit code and what it printed.
+fn fpc_sim(args: &[&dyn AsRef<std::ffi::OsStr>]) -> (u8, String) {
+    let mut argv: Vec<std::ffi::OsString> = vec!["fpc-sim".into()];
+    argv.extend(args.iter().map(|a| a.as_ref().to_os_string()));
+    hal_sim::console::captured(|| hal_sim::cli::execute(argv))
+}
+
+/// Telemetry bytes of a short simulated run at `decimation`.
+fn recorded_telemetry(decimation: u16) -> Vec<u8> {
+    let outcome = run(&RunOptions {
+        cycles: 2,
+        telemetry_decimation: decimation,
+        ..RunOptions::reference()
+    })
+    .unwrap();
+    assert!(!outcome.telemetry.is_empty());
+    outcome.telemetry
+}
+
+/// A recording directory with these up-channels.
+fn recording(name: &str, up0: &[u8], up1: &[u8], up2: &[u8]) -> PathBuf {
+    let dir = temp(name);
+    for (i, bytes) in [up0, up1, up2].into_iter().enumerate() {
+        std::fs::write(dir.join(format!("up{i}.bin")), bytes).unwrap();
+    }
+    dir
+}
+
+/// `link capture --replay` and `decode` on the same recorded bytes give the same files.
+fn capture_equals_decode(decimation: u16) {
+    let telemetry = recorded_telemetry(decimation);
+    let rec = recording(
+        &format!("rec{decimation}"),
+        &[0x01, 0x02, 0x00],
+        &telemetry,
+        &[],
+    );
+    let out = temp(&format!("out{decimation}")).join("cap");
+    let (code, text) = fpc_sim(&[&"link", &"capture", &"--replay", &rec, &"--out", &out]);
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("rejected 0"), "{text}");
+    // Without the ELF (and the `probe` feature) defmt shows as hex, piece by piece.
+    assert!(text.contains("defmt (undecoded): 01"), "{text}");
+    assert_eq!(std::fs::read(out.join("up1.bin")).unwrap(), telemetry);
+    assert_eq!(std::fs::read(out.join("up0.bin")).unwrap(), [1, 2, 0]);
+    let decoded = out.with_file_name("decoded.csv");
+    let (code, text) = fpc_sim(&[
+        &"decode",
+        &"--capture",
+        &out.join("up1.bin"),
+        &"--out",
+        &decoded,
+    ]);
+    assert_eq!(code, 0, "{text}");
+    let live = std::fs::read_to_string(out.join("run.csv")).unwrap();
+    assert_eq!(live, std::fs::read_to_string(&decoded).unwrap());
+    assert!(live.contains(&format!("# telemetry_decimation = {decimation}")));
+    let rows = live.lines().filter(|l| !l.starts_with('#')).count() - 1;
+    assert_eq!(rows, telemetry.len() / WIRE_BYTES);
+    // A capture directory is itself a recording.
+    let again = out.with_file_name("again");
+    let (code, text) = fpc_sim(&[&"link", &"capture", &"--replay", &out, &"--out", &again]);
+    assert_eq!(code, 0, "{text}");
+    assert_eq!(
+        std::fs::read_to_string(again.join("run.csv")).unwrap(),
+        live
+    );
+}
+
+#[test]
+fn recorded_telemetry_at_full_rate_gives_decodes_run_log() {
+    capture_equals_decode(1);
+}
+
+#[test]
+fn recorded_telemetry_at_decimation_20_gives_decodes_run_log() {
+    capture_equals_decode(20);
+}
+
+/// A hand-made stream: `n` frames at decimation 1, the firmware's dropped counter at
+/// `dropped` from frame `n / 2` on.
+fn frames(n: u32, dropped: u16) -> Vec<Vec<u8>> {
+    (0..n)
+        .map(|i| {
+            let status = Status {
+                t: Ticks(1000 + 50 * i),
+                mode: ModeKind::Running,
+                position_m: i as f32 * 1e-4,
+                ..Status::INIT
+            };
+            let d = if i >= n / 2 { dropped } else { 0 };
+            let mut buf = [0u8; WIRE_BYTES];
+            let len = Frame::from_status(i as u16, d, &status)
+                .encode(&mut buf)
+                .unwrap();
+            buf[..len].to_vec()
+        })
+        .collect()
+}
+
+/// Plays `up1` through a capture session; returns the session.
+fn play(up1: Vec<u8>) -> CaptureSession {
+    let mut replay = Replay::new(vec![Vec::new(), up1, Vec::new()]);
+    let mut session = CaptureSession::new(DefmtLog::hex());
+    let (mut a, mut b, mut c) = (Vec::new(), Vec::new(), Vec::new());
+    let mut raw: [&mut dyn std::io::Write; 3] = [&mut a, &mut b, &mut c];
+    while !session.ended() {
+        session.poll(&mut replay, &mut raw).unwrap();
+    }
+    session
+}
+
+#[test]
+fn garbage_truncation_gaps_and_firmware_drops_are_counted() {
+    let f = frames(600, 7);
+    let mut stream = Vec::new();
+    // Attached mid-frame: the tail of a frame first.
+    stream.extend_from_slice(&f[0][20..]);
+    for (i, frame) in f.iter().enumerate().skip(1) {
+        match i {
+            // A frame cut short by a lost piece of the channel (delimiter kept).
+            100 => {
+                stream.extend_from_slice(&frame[..30]);
+                stream.push(DELIMITER);
+            }
+            // Garbage between frames, with and without delimiters.
+            200 => stream.extend([0x55; 300]),
+            201 => stream.extend([9, 8, 7, DELIMITER, 1, DELIMITER]),
+            // A frame lost whole: a sequence gap.
+            300 => {}
+            _ => stream.extend_from_slice(frame),
+        }
+    }
+    // The recording ends mid-frame.
+    stream.extend_from_slice(&f[5][..17]);
+    let session = play(stream);
+    let c = session.counters();
+    // 599 whole frames after the first: one cut, one lost whole, two replaced by garbage.
+    assert_eq!(c.telemetry.accepted, 599 - 4, "{c}");
+    // The partial first frame, the cut one, the overlong garbage run (up to the delimiter
+    // after 9 8 7), the one-byte frame; the frame the recording ends in never completes.
+    assert_eq!(c.telemetry.rejected, 4, "{c}");
+    assert_eq!(c.firmware_dropped, 7, "{c}");
+    // Steps 99→101, 199→202, 299→301.
+    assert_eq!(c.gaps, 3, "{c}");
+    let d = session.into_telemetry().finish().unwrap();
+    assert_eq!(d.dropped, 7);
+    assert_eq!(d.gaps, 3);
+    // The longest gap-free stretch: frames 301..600 (299 frames).
+    assert_eq!(d.log.len(), 299);
+}
+
+#[test]
+fn garbage_only_and_truncated_only_recordings_end_cleanly() {
+    let mut rng = 0x2545_F491_4F6C_DD1Du64;
+    let mut garbage = Vec::new();
+    for _ in 0..50_000 {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        garbage.push(rng as u8);
+    }
+    let c = play(garbage.clone()).counters();
+    assert_eq!(c.telemetry.accepted, 0, "{c}");
+    assert!(c.telemetry.rejected > 10, "{c}");
+
+    let truncated = frames(1, 0)[0][..40].to_vec();
+    let c = play(truncated.clone()).counters();
+    assert_eq!((c.telemetry.accepted, c.telemetry.rejected), (0, 0), "{c}");
+
+    // Through the tool: exit 1, one line, the raw channels kept, no run log.
+    for (name, up1) in [("garbage", garbage), ("truncated", truncated)] {
+        let rec = recording(name, &[], &up1, &[0x33, 0x00]);
+        let out = rec.with_file_name(format!("{name}-out"));
+        let _ = std::fs::remove_dir_all(&out);
+        let (code, text) = fpc_sim(&[&"link", &"capture", &"--replay", &rec, &"--out", &out]);
+        assert_eq!(code, 1, "{text}");
+        assert!(text.contains("no telemetry frame"), "{text}");
+        assert!(text.contains("the files are written"), "{text}");
+        assert!(text.contains("reply frame rejected"), "{text}");
+        assert_eq!(std::fs::read(out.join("up1.bin")).unwrap(), up1);
+        assert!(!out.join("run.csv").exists());
+    }
+}
+
+#[derive(Clone, Default)]
+struct Bytes(Rc<RefCell<VecDeque<u8>>>);
+
+impl ByteSource for Bytes {
+    fn read(&mut self, buf: &mut [u8]) -> usize {
+        let mut q = self.0.borrow_mut();
+        let n = buf.len().min(q.len());
+        for (slot, b) in buf.iter_mut().zip(q.drain(..n)) {
+            *slot = b;
+        }
+        n
+    }
+}
+
+#[derive(Clone, Default)]
+struct Sink(Rc<RefCell<Vec<u8>>>);
+
+impl FrameSink for Sink {
+    fn write(&mut self, bytes: &[u8]) -> usize {
+        self.0.borrow_mut().extend_from_slice(bytes);
+        bytes.len()
+    }
+}
+
+#[derive(Clone, Default)]
+struct TestClock(Rc<Cell<u32>>);
+
+impl Clock for TestClock {
+    fn now(&self) -> Ticks {
+        Ticks(self.0.get())
+    }
+}
+
+impl Sleep for TestClock {
+    async fn until(&mut self, deadline: Ticks) {
+        poll_fn(|_| {
+            if Ticks(self.0.get()).reached(deadline) {
+                Poll::Ready(())
+            } else {
+                Poll::Pending
+            }
+        })
+        .await
+    }
+}
+
+/// The board's command side, simulated: the firmware's command task on down 0 and up 2,
+/// the controller answering in between (as the control task does each cycle). Everything
+/// written to up 2 is also recorded.
+struct SimBoard {
+    down: Bytes,
+    up2: Sink,
+    clock: TestClock,
+    shared: &'static Shared<NoopRawMutex>,
+    step: ControlStep,
+    task: Pin<Box<dyn Future<Output = std::convert::Infallible>>>,
+    read: usize,
+}
+
+impl SimBoard {
+    fn new() -> SimBoard {
+        let shared: &'static Shared<NoopRawMutex> = Box::leak(Box::new(Shared::new()));
+        let (down, up2, clock) = (Bytes::default(), Sink::default(), TestClock::default());
+        let task = Box::pin(fpc::tasks::command_run(
+            down.clone(),
+            up2.clone(),
+            clock.clone(),
+            clock.clone(),
+            shared,
+        ));
+        SimBoard {
+            down,
+            up2,
+            clock,
+            shared,
+            step: ControlStep::new(ControlConfig::reference()).unwrap(),
+            task,
+            read: 0,
+        }
+    }
+
+    /// One millisecond of the board.
+    fn tick(&mut self) {
+        self.clock.0.set(self.clock.0.get().wrapping_add(1000));
+        let mut cx = Context::from_waker(Waker::noop());
+        let _ = self.task.as_mut().poll(&mut cx);
+        while let Some(command) = self.shared.take_command() {
+            let result = self.step.command(command);
+            self.shared.post_reply(Reply { command, result });
+        }
+        let _ = self.task.as_mut().poll(&mut cx);
+    }
+}
+
+impl Channels for SimBoard {
+    fn read_up(&mut self, channel: usize, buf: &mut [u8]) -> std::io::Result<usize> {
+        assert_eq!(channel, 2, "send reads replies only");
+        self.tick();
+        let all = self.up2.0.borrow();
+        let n = buf.len().min(all.len() - self.read);
+        buf[..n].copy_from_slice(&all[self.read..self.read + n]);
+        self.read += n;
+        Ok(n)
+    }
+
+    fn write_down(&mut self, channel: usize, bytes: &[u8]) -> std::io::Result<usize> {
+        assert_eq!(channel, 0);
+        self.down.0.borrow_mut().extend(bytes);
+        Ok(bytes.len())
+    }
+}
+
+fn round_trip(board: &mut SimBoard, command: Command) -> Outcome {
+    send_command(board, &command, Duration::from_secs(5), |l| {
+        panic!("unexpected answer {l}")
+    })
+    .unwrap()
+}
+
+#[test]
+fn a_command_round_trip_prints_the_controllers_answer() {
+    let mut board = SimBoard::new();
+    let start = Command::Start {
+        peak_speed_mps: 2.3,
+    };
+    // Not homed yet: the controller refuses, the reason comes back.
+    let got = round_trip(&mut board, start);
+    assert_eq!(
+        got,
+        Outcome::Reply(Reply {
+            command: start,
+            result: Err(Refusal::NotHomed)
+        })
+    );
+    assert_eq!(
+        outcome_text(&got),
+        "refused: start --speed 2.3: not homed: home the axis first"
+    );
+    let got = round_trip(&mut board, Command::Home);
+    assert_eq!(outcome_text(&got), "accepted: home");
+
+    // The same replies, recorded, through the tool as an operator types it.
+    let rec = recording("replies", &[], &[], &board.up2.0.borrow());
+    let (code, text) = fpc_sim(&[
+        &"link",
+        &"send",
+        &"--replay",
+        &rec,
+        &"start",
+        &"--speed",
+        &"2.3",
+    ]);
+    assert_eq!(code, 1, "{text}");
+    assert_eq!(
+        text.trim(),
+        "fpc-sim: refused: start --speed 2.3: not homed: home the axis first"
+    );
+    let (code, text) = fpc_sim(&[&"link", &"send", &"--replay", &rec, &"home"]);
+    assert_eq!(code, 0, "{text}");
+    assert_eq!(
+        text.trim(),
+        "earlier answer: refused: start --speed 2.3: not homed: home the axis first\naccepted: home"
+    );
+    // No answer in the recording: one line, exit 1.
+    let (code, text) = fpc_sim(&[&"link", &"send", &"--replay", &rec, &"stop"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("ended without an answer to `stop`"), "{text}");
+    // Typed arguments are checked before anything is sent.
+    let (code, _) = fpc_sim(&[&"link", &"send", &"--replay", &rec, &"start"]);
+    assert_eq!(code, 2);
+    let (code, _) = fpc_sim(&[&"link", &"send", &"--replay", &rec, &"calibrate", &"x"]);
+    assert_eq!(code, 2);
+}
+
+#[test]
+fn without_the_probe_feature_the_board_is_refused_in_one_line() {
+    if cfg!(feature = "probe") {
+        return;
+    }
+    let (code, text) = fpc_sim(&[&"link", &"send", &"home"]);
+    assert_eq!(code, 2, "{text}");
+    assert!(text.contains("--features probe"), "{text}");
+}
