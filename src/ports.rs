@@ -151,6 +151,16 @@ pub trait FrameSink {
     fn write(&mut self, bytes: &[u8]) -> usize;
 }
 
+/// Why a calibration save failed (the previous record, if any, is still the one stored).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum SaveError {
+    /// The flash refused a write or an erase (or the power went).
+    Flash,
+    /// The storage is damaged beyond repair: erase the store's pages and calibrate again.
+    Corrupted,
+}
+
 /// Operator-facing events, reported by the supervision task (never from the 20 kHz path):
 /// the board logs them with defmt at fixed levels, the simulator records them.
 pub trait EventLog {
@@ -161,8 +171,5 @@ pub trait EventLog {
     /// The operating mode changed (defmt `info`).
     fn mode_changed(&mut self, mode: crate::status::ModeKind);
     /// A calibration record was saved to flash, or the save failed (defmt `info` / `error`).
-    fn calibration_saved(
-        &mut self,
-        result: Result<(), crate::control::calibration::store::SaveError>,
-    );
+    fn calibration_saved(&mut self, result: Result<(), SaveError>);
 }

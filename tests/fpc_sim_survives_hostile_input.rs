@@ -26,7 +26,7 @@ const BASE_CALIBRATION: &str = include_str!("data/calibration.toml");
 /// Longest a case may take: a hang detector, not a speed target (debug build, loaded CI).
 const CASE_LIMIT: Duration = Duration::from_secs(60);
 
-const SUBCOMMANDS: [&str; 12] = [
+const SUBCOMMANDS: [&str; 13] = [
     "run",
     "calibrate",
     "derive",

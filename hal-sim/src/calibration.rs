@@ -11,7 +11,6 @@
 use std::path::Path;
 
 use fpc::control::calibration::record::CalibrationRecord;
-use fpc::control::calibration::store::CalibrationStore;
 use fpc::control::calibration::{Calibrated, Misalignment, Routine};
 use fpc::control::command::Command;
 use fpc::control::step::{ControlStep, CycleInputs};
@@ -24,12 +23,10 @@ use fpc::status::ModeKind;
 use fpc::units::{PerSection, Section};
 use serde::{Deserialize, Serialize};
 
-use crate::board::flash::{block_on, SimFlash, PAGE_BYTES};
 use crate::board::world::peripherals;
 use crate::plant::model::MachineModel;
 
-/// Pages of the simulated board's calibration store (the firmware reserves as many).
-pub const STORE_PAGES: usize = 4;
+pub use crate::board::flash::{holding as flash_holding, store, STORE_PAGES};
 
 /// Largest calibration file read, bytes (a real one is about 1.5 KiB).
 pub const MAX_FILE_BYTES: u64 = 64 * 1024;
@@ -300,20 +297,6 @@ pub fn read(path: &Path) -> Result<CalibrationRecord, String> {
         ))
     })?;
     parse(&text).map_err(fail)
-}
-
-/// A simulated board's flash with `record` saved by the firmware's own store (what a board
-/// calibrated earlier boots from).
-pub fn flash_holding(record: &CalibrationRecord) -> Result<SimFlash, String> {
-    let mut store = store(SimFlash::new(STORE_PAGES))?;
-    block_on(store.save(record)).map_err(|e| format!("saving to the simulated flash: {e:?}"))?;
-    Ok(store.into_flash())
-}
-
-/// The firmware's calibration store over the whole simulated flash.
-pub fn store(flash: SimFlash) -> Result<CalibrationStore<SimFlash>, String> {
-    let end = (STORE_PAGES * PAGE_BYTES) as u32;
-    CalibrationStore::new(flash, 0..end).ok_or_else(|| "the store does not fit".to_string())
 }
 
 /// One routine (or homing) of a commissioning, and how long it took on the machine.

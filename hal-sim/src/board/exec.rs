@@ -93,7 +93,7 @@ fn control_ports(world: &WorldRef) -> SimControlPorts {
 /// The firmware's boot read of its calibration store on `flash`; the flash comes back (a
 /// load may repair a torn save).
 fn boot_load(flash: SimFlash) -> (Result<CalibrationRecord, LoadError>, SimFlash) {
-    match crate::calibration::store(flash.clone()) {
+    match super::flash::store(flash.clone()) {
         Ok(mut store) => {
             let loaded = block_on(store.load());
             (loaded, store.into_flash())

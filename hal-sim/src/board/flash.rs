@@ -15,6 +15,9 @@
 //! [`SimFlashError::PowerLost`]. [`SimFlash::reboot`] gives the flash as it stands to a
 //! new session, powered again.
 
+use fpc::control::calibration::record::CalibrationRecord;
+use fpc::control::calibration::store::CalibrationStore;
+
 use embedded_storage_async::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };
@@ -216,6 +219,23 @@ pub fn block_on<F: core::future::Future>(future: F) -> F::Output {
             return out;
         }
     }
+}
+
+/// Pages of the simulated board's calibration store (the firmware reserves as many).
+pub const STORE_PAGES: usize = 4;
+
+/// A simulated board's flash with `record` saved by the firmware's own store (what a board
+/// calibrated earlier boots from).
+pub fn holding(record: &CalibrationRecord) -> Result<SimFlash, String> {
+    let mut store = store(SimFlash::new(STORE_PAGES))?;
+    block_on(store.save(record)).map_err(|e| format!("saving to the simulated flash: {e:?}"))?;
+    Ok(store.into_flash())
+}
+
+/// The firmware's calibration store over the whole simulated flash.
+pub fn store(flash: SimFlash) -> Result<CalibrationStore<SimFlash>, String> {
+    let end = (STORE_PAGES * PAGE_BYTES) as u32;
+    CalibrationStore::new(flash, 0..end).ok_or_else(|| "the store does not fit".to_string())
 }
 
 #[cfg(test)]

@@ -245,7 +245,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
         flash: opts
             .calibration
             .as_ref()
-            .map(crate::calibration::flash_holding)
+            .map(crate::board::flash::holding)
             .transpose()?,
         ..Execution::default()
     };

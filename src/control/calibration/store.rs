@@ -50,15 +50,7 @@ impl LoadError {
     }
 }
 
-/// Why a save failed (the previous record, if any, is still the one stored).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum SaveError {
-    /// The flash refused a write or an erase (or the power went).
-    Flash,
-    /// The storage is damaged beyond repair: erase the store's pages and calibrate again.
-    Corrupted,
-}
+pub use crate::ports::SaveError;
 
 /// The calibration record's store over a range of NOR flash pages (at least two).
 pub struct CalibrationStore<F: NorFlash> {
