@@ -3,7 +3,7 @@
 //! 0, 1 or 2 — never a panic, an abort or a hang — within a wall-time bound, leave its inputs
 //! and any earlier outputs untouched (no `--force`), and leave nothing behind when it fails.
 //!
-//! The default run is a few hundred cases per subcommand; the slow suite runs 10⁴ per
+//! The default run is a few dozen cases per subcommand; the slow suite runs 10⁴ per
 //! subcommand (`cargo test --profile slow-tests --test fpc_sim_survives_hostile_input --
 //! --ignored`). Set `FPC_HOSTILE_CASES` to choose another count.
 
@@ -758,96 +758,125 @@ fn push(args: &mut Vec<OsString>, flag: &str, value: &dyn AsRef<std::ffi::OsStr>
 /// Runs `count` hostile cases of every subcommand and checks each.
 fn hostile_cases(count: usize, seed: u64) {
     let root = std::env::temp_dir().join(format!("fpc-hostile-{}-{seed}", std::process::id()));
-    let mut worst: Vec<(Duration, String)> = Vec::new();
-    for sub in SUBCOMMANDS {
-        let mut rng =
-            ChaCha8Rng::seed_from_u64(seed ^ sub.len() as u64 ^ u64::from(sub.as_bytes()[0]) << 8);
-        let mut codes = [0usize; 3];
-        let mut slowest = (Duration::ZERO, String::new());
-        for i in 0..count {
-            let dir = root.join(format!("{sub}-{i}"));
-            let _ = std::fs::remove_dir_all(&dir);
-            std::fs::create_dir_all(&dir).unwrap();
-            let case = hostile_case(sub, &mut rng, &dir);
-            let before = snapshot(&case.dir);
-            let shown = case
-                .args
-                .iter()
-                .map(|a| a.to_string_lossy().into_owned())
-                .collect::<Vec<_>>()
-                .join(" ");
-            let started = Instant::now();
-            let (result, text) = hal_sim::console::captured(|| {
-                std::panic::catch_unwind(|| hal_sim::cli::execute(case.args.clone()))
-            });
-            let took = started.elapsed();
-            let code = match result {
-                Ok(code) => code,
-                Err(_) => panic!("case {sub} #{i} panicked: {shown}\n{text}"),
-            };
-            assert!(code <= 2, "case {sub} #{i}: exit {code}: {shown}\n{text}");
-            codes[usize::from(code)] += 1;
-            assert!(took < CASE_LIMIT, "case {sub} #{i} took {took:?}: {shown}");
-            if took > slowest.0 {
-                slowest = (took, shown.clone());
-            }
-            let after = snapshot(&case.dir);
-            for (path, bytes) in &before {
-                assert_eq!(
-                    after.get(path),
-                    Some(bytes),
-                    "case {sub} #{i} (exit {code}) changed {}: {shown}\n{text}",
-                    path.display()
-                );
-            }
-            let staging: Vec<_> = after
-                .keys()
-                .filter(|p| p.to_string_lossy().contains(".fpc-sim-staging"))
-                .collect();
-            assert!(
-                staging.is_empty(),
-                "case {sub} #{i} left {staging:?}: {shown}"
-            );
-            // A run that stopped early writes its complete set for diagnosis and says so.
-            if code != 0 && !text.contains("the files are written") {
-                let new: Vec<_> = after.keys().filter(|p| !before.contains_key(*p)).collect();
-                assert!(
-                    new.is_empty(),
-                    "case {sub} #{i} failed (exit {code}) but left {new:?}: {shown}\n{text}"
-                );
-                let lines = text.lines().filter(|l| !l.trim().is_empty()).count();
-                assert!(
-                    lines >= 1,
-                    "case {sub} #{i}: exit {code} said nothing: {shown}"
-                );
-                assert!(
-                    !text.contains(" { "),
-                    "case {sub} #{i}: a debug dump: {text}"
-                );
-            }
-            if std::env::var_os("FPC_HOSTILE_SHOW").is_some() {
-                println!(
-                    "{sub} #{i} exit {code}: {}",
-                    text.lines().last().unwrap_or("")
-                );
-            }
-            let _ = std::fs::remove_dir_all(&dir);
-        }
-        println!(
-            "{sub:>8}: {count} cases: exit 0 {}, 1 {}, 2 {}; slowest {:.2} s ({})",
-            codes[0],
-            codes[1],
-            codes[2],
-            slowest.0.as_secs_f64(),
-            slowest.1
-        );
-        worst.push(slowest);
+    // The subcommands are independent (each case has its own directory and the console
+    // capture is per thread), so they share the cores: the costliest first.
+    let mut order: Vec<&str> = SUBCOMMANDS.to_vec();
+    order.sort_by_key(|sub| !matches!(*sub, "calibrate" | "gap" | "run" | "sweep"));
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut summaries: Vec<(usize, String)> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..workers)
+            .map(|_| {
+                scope.spawn(|| {
+                    let mut done = Vec::new();
+                    loop {
+                        let k = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        let Some(sub) = order.get(k) else { break };
+                        done.push((k, subcommand_cases(sub, count, seed, &root)));
+                    }
+                    done
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
+            .collect()
+    });
+    summaries.sort();
+    for (_, line) in summaries {
+        println!("{line}");
     }
     let _ = std::fs::remove_dir_all(&root);
     if let Some(rss) = peak_rss_kib() {
         println!("peak RSS of the whole test: {:.0} MiB", rss as f64 / 1024.0);
         assert!(rss < 4 << 20, "peak RSS {rss} KiB");
     }
+}
+
+/// `count` hostile cases of one subcommand; its summary line.
+fn subcommand_cases(sub: &str, count: usize, seed: u64, root: &Path) -> String {
+    let mut rng =
+        ChaCha8Rng::seed_from_u64(seed ^ sub.len() as u64 ^ u64::from(sub.as_bytes()[0]) << 8);
+    let mut codes = [0usize; 3];
+    let mut slowest = (Duration::ZERO, String::new());
+    for i in 0..count {
+        let dir = root.join(format!("{sub}-{i}"));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let case = hostile_case(sub, &mut rng, &dir);
+        let before = snapshot(&case.dir);
+        let shown = case
+            .args
+            .iter()
+            .map(|a| a.to_string_lossy().into_owned())
+            .collect::<Vec<_>>()
+            .join(" ");
+        let started = Instant::now();
+        let (result, text) = hal_sim::console::captured(|| {
+            std::panic::catch_unwind(|| hal_sim::cli::execute(case.args.clone()))
+        });
+        let took = started.elapsed();
+        let code = match result {
+            Ok(code) => code,
+            Err(_) => panic!("case {sub} #{i} panicked: {shown}\n{text}"),
+        };
+        assert!(code <= 2, "case {sub} #{i}: exit {code}: {shown}\n{text}");
+        codes[usize::from(code)] += 1;
+        assert!(took < CASE_LIMIT, "case {sub} #{i} took {took:?}: {shown}");
+        if took > slowest.0 {
+            slowest = (took, shown.clone());
+        }
+        let after = snapshot(&case.dir);
+        for (path, bytes) in &before {
+            assert_eq!(
+                after.get(path),
+                Some(bytes),
+                "case {sub} #{i} (exit {code}) changed {}: {shown}\n{text}",
+                path.display()
+            );
+        }
+        let staging: Vec<_> = after
+            .keys()
+            .filter(|p| p.to_string_lossy().contains(".fpc-sim-staging"))
+            .collect();
+        assert!(
+            staging.is_empty(),
+            "case {sub} #{i} left {staging:?}: {shown}"
+        );
+        // A run that stopped early writes its complete set for diagnosis and says so.
+        if code != 0 && !text.contains("the files are written") {
+            let new: Vec<_> = after.keys().filter(|p| !before.contains_key(*p)).collect();
+            assert!(
+                new.is_empty(),
+                "case {sub} #{i} failed (exit {code}) but left {new:?}: {shown}\n{text}"
+            );
+            let lines = text.lines().filter(|l| !l.trim().is_empty()).count();
+            assert!(
+                lines >= 1,
+                "case {sub} #{i}: exit {code} said nothing: {shown}"
+            );
+            assert!(
+                !text.contains(" { "),
+                "case {sub} #{i}: a debug dump: {text}"
+            );
+        }
+        if std::env::var_os("FPC_HOSTILE_SHOW").is_some() {
+            println!(
+                "{sub} #{i} exit {code}: {}",
+                text.lines().last().unwrap_or("")
+            );
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    format!(
+        "{sub:>8}: {count} cases: exit 0 {}, 1 {}, 2 {}; slowest {:.2} s ({})",
+        codes[0],
+        codes[1],
+        codes[2],
+        slowest.0.as_secs_f64(),
+        slowest.1
+    )
 }
 
 /// The process's peak resident set, KiB (Linux).
