@@ -53,20 +53,31 @@ const POW10: [u64; 15] = [
 /// `'0'` in each of 8 bytes.
 const ASCII_ZEROS: u64 = 0x3030_3030_3030_3030;
 
-/// The 8 decimal digits of `n` (< 10⁸), zero-padded, one per byte, the first in the lowest
-/// byte (`to_le_bytes` order), as numbers 0–9 (add [`ASCII_ZEROS`] for the text): four
-/// divisions done at once in the lanes of one `u64` (each by a multiplication and a shift,
-/// exact for these ranges), instead of eight.
+/// The 4 decimal digits of every number below 10⁴, one per byte, the first in the lowest
+/// byte (`to_le_bytes` order), as numbers 0–9 (add [`ASCII_ZEROS`] for the text): 40 kB,
+/// made when compiled. A look-up is a few instructions where arithmetic takes a dozen.
+static FOUR_DIGITS: [u32; 10_000] = {
+    let mut table = [0u32; 10_000];
+    let mut n = 0;
+    while n < 10_000 {
+        let n32 = n as u32;
+        table[n] = (n32 / 1000) | (n32 / 100 % 10) << 8 | (n32 / 10 % 10) << 16 | (n32 % 10) << 24;
+        n += 1;
+    }
+    table
+};
+
+/// The 4 digits of `n` < 10⁴ ([`FOUR_DIGITS`]; 0 for a larger `n`, which never occurs).
+#[inline(always)]
+fn four_digits(n: u32) -> u32 {
+    FOUR_DIGITS.get(n as usize).copied().unwrap_or(0)
+}
+
+/// The 8 decimal digits of `n` (< 10⁸), zero-padded, one per byte as [`FOUR_DIGITS`] has
+/// them.
 #[inline(always)]
 fn eight_digits(n: u32) -> u64 {
-    // Lanes of 32 bits: the first four digits, the last four.
-    let fours = u64::from(n / 10_000) | (u64::from(n % 10_000) << 32);
-    // Lanes of 16 bits: y / 100 and y % 100 of each (y·10486 >> 20 = y / 100 for y < 10⁴).
-    let hundreds = ((fours * 10_486) >> 20) & 0x0000_007F_0000_007F;
-    let twos = hundreds | ((fours - hundreds * 100) << 16);
-    // Lanes of 8 bits: z / 10 and z % 10 of each (z·103 >> 10 = z / 10 for z < 100).
-    let tens = ((twos * 103) >> 10) & 0x000F_000F_000F_000F;
-    tens | ((twos - tens * 10) << 8)
+    u64::from(four_digits(n / 10_000)) | (u64::from(four_digits(n % 10_000)) << 32)
 }
 
 /// Longest line [`Line`] holds by default, bytes (18 values of at most 36 characters and
@@ -220,6 +231,8 @@ impl Cursor<'_> {
     #[inline(always)]
     fn whole(&mut self, v: u64) {
         match u32::try_from(v) {
+            // One digit (positions, angles, speeds): no arithmetic.
+            Ok(digit) if digit < 10 => self.push(b'0' + digit as u8),
             Ok(small) if small < 100_000_000 => {
                 let raw = eight_digits(small);
                 // Leading zero digits are the low zero bytes (the first digit is byte 0).
@@ -249,8 +262,8 @@ impl Cursor<'_> {
         self.push(b'.');
         // All `decimals` digits (the low ones of 16: `hi` then `lo`), then the trailing
         // zeros cut off.
-        let lo = eight_digits((frac % 100_000_000) as u32);
         let zeros = if decimals > 8 {
+            let lo = eight_digits((frac % 100_000_000) as u32);
             let hi = eight_digits((frac / 100_000_000) as u32);
             let n = decimals.min(16) - 8;
             self.put8((hi | ASCII_ZEROS) >> (8 * (8 - n)), n);
@@ -261,7 +274,14 @@ impl Cursor<'_> {
             } else {
                 8 + hi.leading_zeros() / 8
             }
+        } else if decimals <= 4 {
+            // Four digits are one stage fewer, in a `u32`.
+            let four = four_digits((frac % 10_000) as u32);
+            let n = decimals.max(1);
+            self.put8(u64::from((four | 0x3030_3030) >> (8 * (4 - n))), n);
+            four.leading_zeros() / 8
         } else {
+            let lo = eight_digits((frac % 100_000_000) as u32);
             let n = decimals.max(1);
             self.put8((lo | ASCII_ZEROS) >> (8 * (8 - n)), n);
             lo.leading_zeros() / 8
