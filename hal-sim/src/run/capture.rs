@@ -35,8 +35,8 @@ struct Stream<'s> {
     error: Option<std::io::Error>,
     /// Whether the head (metadata and column names) is out.
     head_written: bool,
-    /// Text of one chunk (reused).
-    bytes: Vec<u8>,
+    /// Text not yet written (reused; room for [`WRITE_BYTES`] and a line).
+    text: text::Line,
     /// Every `stride`-th row of the run, for plots.
     kept: RunLog,
     stride: usize,
@@ -60,22 +60,24 @@ pub(super) struct CapturedRow {
 /// Rows [`Capture`] reserves at most (80 MB of address space; it grows beyond).
 const MAX_RESERVED_ROWS: usize = 1 << 20;
 
-/// Rows a streamed run writes at a time (3.3 s of simulated time; ≈ 20 MB of buffers).
-pub const STREAM_CHUNK_ROWS: usize = 1 << 16;
+/// Rows a streamed run writes at a time (0.4 s of simulated time, 650 kB: the rows are
+/// still in the cache when they are written out, and few fresh pages are touched).
+pub const STREAM_CHUNK_ROWS: usize = 1 << 13;
 
 /// Most rows a streamed run holds back, waiting for homing to end, before it writes its
-/// head without the `ports` keys (8 chunks, 26 s: longer than homing may take on the
-/// reference travel; ≈ 40 MB).
-const HEAD_WAIT_ROWS: usize = 8 * STREAM_CHUNK_ROWS;
+/// head without the `ports` keys (26 s: longer than homing may take on the reference
+/// travel; ≈ 40 MB).
+const HEAD_WAIT_ROWS: usize = 1 << 19;
 
 /// Bytes of CSV text a streamed run hands to its writer at a time (above a `BufWriter`'s
 /// 1 MiB, so it goes straight through).
 const WRITE_BYTES: usize = 1 << 20;
 
-/// Most rows a streamed run keeps for its plots (≈ 3.3 s at the control rate, every other
-/// row of the default 10-cycle run: still 10 µs-fine for a plot; 9.4 MB, reserved at once
-/// so it never moves).
-pub const KEPT_ROWS: usize = 1 << 16;
+/// Most rows a streamed run keeps for its plots (≈ 0.4 s at the control rate; every 16th
+/// row of the default 10-cycle run: still ≈ 5000 points over 4.4 s, more than a plot draws
+/// (`plot::lines` keeps ≈ 4000 a series); 1.2 MB, reserved at once so it never moves).
+/// Halved as soon as it is outgrown, so a chunk's rows are kept only at the stride in force.
+pub const KEPT_ROWS: usize = 1 << 13;
 
 impl<'s> Capture<'s> {
     /// Room for a run of at most `limit_s` simulated seconds (untouched capacity costs no
@@ -88,13 +90,13 @@ impl<'s> Capture<'s> {
             let mut kept = RunLog::with_columns(&COLUMNS);
             kept.meta = log.meta.clone();
             for column in &mut kept.columns {
-                column.reserve_exact(KEPT_ROWS + STREAM_CHUNK_ROWS);
+                column.reserve_exact(KEPT_ROWS + 1);
             }
             Stream {
                 out,
                 error: None,
                 head_written: false,
-                bytes: Vec::new(),
+                text: text::Line::with_room(WRITE_BYTES),
                 kept,
                 stride: 1,
                 written: 0,
@@ -184,16 +186,16 @@ impl<'s> Capture<'s> {
             return;
         };
         let started = Instant::now();
-        s.bytes.clear();
         if !s.head_written {
             s.head_written = true;
             s.kept.meta.extend(ports);
             let mut head = String::new();
             s.kept.head_to_csv(&mut head);
-            s.bytes.extend_from_slice(head.as_bytes());
+            if s.error.is_none() {
+                s.error = s.out.write_all(head.as_bytes()).err();
+            }
         }
         let mut change = 0;
-        let mut text = text::Line::default();
         for (i, r) in self.rows.iter().enumerate() {
             while self.lines.get(change + 1).is_some_and(|l| l.0 <= i) {
                 change += 1;
@@ -203,36 +205,28 @@ impl<'s> Capture<'s> {
                 .get(change)
                 .map_or((f64::NAN, f64::NAN), |l| (l.1, l.2));
             let v = values(r, suction, discharge);
-            write_row(&mut s.bytes, &mut text, r, &v);
+            s.text
+                .row(u64::from(r.cycle), u64::from(CONTROL_PERIOD_US), &v);
+            s.text.push(b'\n');
             if (s.written + i) % s.stride == 0 {
                 s.kept.push_row(&v);
+                if s.kept.len() > KEPT_ROWS {
+                    halve(&mut s.kept);
+                    s.stride *= 2;
+                }
             }
             // Written a piece at a time, so the text stays in the cache.
-            if s.bytes.len() >= WRITE_BYTES {
+            if s.text.len() >= WRITE_BYTES {
                 if s.error.is_none() {
-                    s.error = s.out.write_all(&s.bytes).err();
+                    s.error = s.out.write_all(s.text.as_bytes()).err();
                 }
-                s.bytes.clear();
+                s.text.clear();
             }
         }
         if s.error.is_none() {
-            s.error = s.out.write_all(&s.bytes).err();
+            s.error = s.out.write_all(s.text.as_bytes()).err();
         }
-        while s.kept.len() > KEPT_ROWS {
-            for column in &mut s.kept.columns {
-                // In place: row 2k moves to k, the capacity stays.
-                let half = column.len().div_ceil(2);
-                for k in 0..half {
-                    if let Some(v) = column.get(2 * k).copied() {
-                        if let Some(slot) = column.get_mut(k) {
-                            *slot = v;
-                        }
-                    }
-                }
-                column.truncate(half);
-            }
-            s.stride *= 2;
-        }
+        s.text.clear();
         s.written += self.rows.len();
         s.writing_s += started.elapsed().as_secs_f64();
         let in_force = self.lines.last().map(|&(_, su, di)| (0, su, di));
@@ -266,6 +260,21 @@ impl<'s> Capture<'s> {
     }
 }
 
+/// Keeps every other row of `log` (row 2k moves to k, in place: the capacity stays).
+fn halve(log: &mut RunLog) {
+    for column in &mut log.columns {
+        let half = column.len().div_ceil(2);
+        for k in 0..half {
+            if let Some(v) = column.get(2 * k).copied() {
+                if let Some(slot) = column.get_mut(k) {
+                    *slot = v;
+                }
+            }
+        }
+        column.truncate(half);
+    }
+}
+
 /// Row `r`'s values in [`COLUMNS`]' order, with the line pressures in force.
 fn values(r: &CapturedRow, suction_pa: f64, discharge_pa: f64) -> [f64; 18] {
     let [a, b, c, d, e, f, g, h, i, j] = r.status.map(f64::from);
@@ -290,24 +299,6 @@ fn values(r: &CapturedRow, suction_pa: f64, discharge_pa: f64) -> [f64; 18] {
         suction_pa,
         discharge_pa,
     ]
-}
-
-/// Appends row `r` (its `values`) to `out` as one CSV line.
-fn write_row(out: &mut Vec<u8>, line: &mut text::Line, r: &CapturedRow, values: &[f64; 18]) {
-    line.clear();
-    for (k, (v, decimals)) in values.iter().zip(text::DECIMALS).enumerate() {
-        if k > 0 {
-            line.push(b',');
-        }
-        match (k, decimals) {
-            (0, _) => line.time(u64::from(r.cycle), u64::from(CONTROL_PERIOD_US)),
-            (11, _) => line.whole(u64::from(r.fault)),
-            (_, Some(d)) => line.fixed(*v, d),
-            (_, None) => line.shortest(*v),
-        }
-    }
-    line.push(b'\n');
-    out.extend_from_slice(line.as_bytes());
 }
 
 /// Appends the captured `rows` to `log` (which has [`COLUMNS`]), one column at a time; `lines`

@@ -50,33 +50,73 @@ const POW10: [u64; 15] = [
     100_000_000_000_000,
 ];
 
-/// The two digits of every number 0–99.
-const PAIRS: &[u8; 200] = b"\
-0001020304050607080910111213141516171819\
-2021222324252627282930313233343536373839\
-4041424344454647484950515253545556575859\
-6061626364656667686970717273747576777879\
-8081828384858687888990919293949596979899";
+/// `'0'` in each of 8 bytes.
+const ASCII_ZEROS: u64 = 0x3030_3030_3030_3030;
 
-/// Longest line [`Line`] holds, bytes (18 values of at most 36 characters and their commas).
+/// The 4 decimal digits of every number below 10⁴, one per byte, the first in the lowest
+/// byte (`to_le_bytes` order), as numbers 0–9 (add [`ASCII_ZEROS`] for the text): 40 kB,
+/// made when compiled. A look-up is a few instructions where arithmetic takes a dozen.
+static FOUR_DIGITS: [u32; 10_000] = {
+    let mut table = [0u32; 10_000];
+    let mut n = 0;
+    while n < 10_000 {
+        let n32 = n as u32;
+        table[n] = (n32 / 1000) | (n32 / 100 % 10) << 8 | (n32 / 10 % 10) << 16 | (n32 % 10) << 24;
+        n += 1;
+    }
+    table
+};
+
+/// The 4 digits of `n` < 10⁴ ([`FOUR_DIGITS`]; 0 for a larger `n`, which never occurs).
+#[inline(always)]
+fn four_digits(n: u32) -> u32 {
+    FOUR_DIGITS.get(n as usize).copied().unwrap_or(0)
+}
+
+/// The 8 decimal digits of `n` (< 10⁸), zero-padded, one per byte as [`FOUR_DIGITS`] has
+/// them.
+#[inline(always)]
+fn eight_digits(n: u32) -> u64 {
+    u64::from(four_digits(n / 10_000)) | (u64::from(four_digits(n % 10_000)) << 32)
+}
+
+/// Longest line [`Line`] holds by default, bytes (18 values of at most 36 characters and
+/// their commas).
 const LINE_BYTES: usize = 1024;
 
-/// One CSV line built on the stack, appended to the output in one copy.
+/// CSV text built in place: one line (the default), or many ([`Line::with_room`]) written
+/// out in one piece.
 pub struct Line {
-    buf: [u8; LINE_BYTES],
+    /// Fixed size: what it holds is `buf[..len]`.
+    buf: Vec<u8>,
     len: usize,
 }
 
 impl Default for Line {
     fn default() -> Self {
-        Line {
-            buf: [0; LINE_BYTES],
-            len: 0,
-        }
+        Self::with_room(0)
     }
 }
 
 impl Line {
+    /// Room for `bytes` of text and one more line of at most [`LINE_BYTES`].
+    pub fn with_room(bytes: usize) -> Self {
+        Line {
+            buf: vec![0; bytes + LINE_BYTES],
+            len: 0,
+        }
+    }
+
+    /// Bytes held.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether it holds nothing.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
     /// Empties the line.
     pub fn clear(&mut self) {
         self.len = 0;
@@ -87,64 +127,172 @@ impl Line {
         self.buf.get(..self.len).unwrap_or(&[])
     }
 
-    /// Appends one byte (dropped if the line is full, which [`LINE_BYTES`] rules out).
+    /// A cursor on the text (its length a local, kept in a register while it writes: the
+    /// byte stores through `buf` cannot change it).
+    #[inline(always)]
+    fn cursor(&mut self) -> Cursor<'_> {
+        Cursor {
+            buf: &mut self.buf,
+            len: self.len,
+        }
+    }
+
+    /// Appends one byte (dropped if the line is full, which its room rules out).
     pub fn push(&mut self, b: u8) {
+        let mut c = self.cursor();
+        c.push(b);
+        self.len = c.len;
+    }
+
+    /// Appends `text` (dropped if there is no room for it).
+    pub fn extend(&mut self, text: &[u8]) {
+        let mut c = self.cursor();
+        c.put(text);
+        self.len = c.len;
+    }
+
+    /// Appends a whole number.
+    pub fn whole(&mut self, v: u64) {
+        let mut c = self.cursor();
+        c.whole(v);
+        self.len = c.len;
+    }
+
+    /// Appends `v` rounded to `decimals` (≤ 14) decimals, or in its shortest round-trip form
+    /// when it is not finite or too large for them.
+    pub fn fixed(&mut self, v: f64, decimals: u32) {
+        let mut c = self.cursor();
+        c.fixed(v, decimals);
+        self.len = c.len;
+    }
+
+    /// Appends `v` in its shortest round-trip form.
+    pub fn shortest(&mut self, v: f64) {
+        let mut c = self.cursor();
+        c.shortest(v);
+        self.len = c.len;
+    }
+
+    /// Appends the time of control cycle `cycle` (`cycle` × `period_us` µs) in seconds,
+    /// exactly.
+    pub fn time(&mut self, cycle: u64, period_us: u64) {
+        let mut c = self.cursor();
+        c.time(cycle, period_us);
+        self.len = c.len;
+    }
+
+    /// Appends one row of the run log as CSV (no newline): the time of control cycle `cycle`
+    /// (exact, from `period_us`), then `values` (in [`super::COLUMNS`]' order; the first, the
+    /// time, is not read) each at its column's [`DECIMALS`].
+    pub fn row(&mut self, cycle: u64, period_us: u64, values: &[f64; 18]) {
+        let mut c = self.cursor();
+        c.row(cycle, period_us, values);
+        self.len = c.len;
+    }
+}
+
+/// Writes text into `buf` from `len` on.
+struct Cursor<'a> {
+    buf: &'a mut [u8],
+    len: usize,
+}
+
+impl Cursor<'_> {
+    /// Appends one byte (dropped if the line is full, which its room rules out).
+    #[inline(always)]
+    fn push(&mut self, b: u8) {
         if let Some(slot) = self.buf.get_mut(self.len) {
             *slot = b;
             self.len += 1;
         }
     }
 
-    fn bytes(&mut self, text: &[u8]) {
-        for &b in text {
-            self.push(b);
+    /// Appends `bytes` whole (dropped if the line is full, which its room rules out).
+    fn put(&mut self, bytes: &[u8]) {
+        let end = self.len + bytes.len();
+        if let Some(d) = self.buf.get_mut(self.len..end) {
+            d.copy_from_slice(bytes);
+            self.len = end;
         }
     }
 
-    /// Appends the `n` low decimal digits of `v` (zero-padded), two at a time.
-    fn digits(&mut self, mut v: u64, n: usize) {
-        let end = (self.len + n).min(LINE_BYTES);
-        let mut i = end;
-        while i >= self.len + 2 {
-            let pair = (v % 100) as usize * 2;
-            v /= 100;
-            if let (Some(d), Some(p)) = (self.buf.get_mut(i - 2..i), PAIRS.get(pair..pair + 2)) {
-                d.copy_from_slice(p);
-            }
-            i -= 2;
+    /// Appends the first `n` (≤ 8) bytes of `text` (the text in `to_le_bytes` order): all 8
+    /// are copied, a move of constant size, and the line grows by `n` (the rest is
+    /// overwritten next). Dropped if the line is full, which its room rules out.
+    #[inline(always)]
+    fn put8(&mut self, text: u64, n: usize) {
+        if let Some(d) = self.buf.get_mut(self.len..self.len + 8) {
+            d.copy_from_slice(&text.to_le_bytes());
+            self.len += n.min(8);
         }
-        if i > self.len {
-            if let Some(d) = self.buf.get_mut(i - 1) {
-                *d = b'0' + (v % 10) as u8;
-            }
-        }
-        self.len = end;
     }
 
     /// Appends a whole number.
-    pub fn whole(&mut self, v: u64) {
-        let n = v.checked_ilog10().map_or(1, |l| l as usize + 1);
-        self.digits(v, n);
+    #[inline(always)]
+    fn whole(&mut self, v: u64) {
+        match u32::try_from(v) {
+            // One digit (positions, angles, speeds): no arithmetic.
+            Ok(digit) if digit < 10 => self.push(b'0' + digit as u8),
+            Ok(small) if small < 100_000_000 => {
+                let raw = eight_digits(small);
+                // Leading zero digits are the low zero bytes (the first digit is byte 0).
+                let skip = (raw.trailing_zeros() / 8).min(7);
+                self.put8((raw | ASCII_ZEROS) >> (8 * skip), 8 - skip as usize);
+            }
+            _ => self.whole_large(v),
+        }
     }
 
-    /// Appends `whole`, then `.` and the `decimals` digits of `frac` without trailing zeros
-    /// (nothing when `frac` is zero).
-    fn decimal(&mut self, whole: u64, mut frac: u64, mut decimals: usize) {
+    /// [`Cursor::whole`] of 10⁸ or more.
+    #[cold]
+    #[inline(never)]
+    fn whole_large(&mut self, v: u64) {
+        self.whole(v / 100_000_000);
+        self.put8(eight_digits((v % 100_000_000) as u32) | ASCII_ZEROS, 8);
+    }
+
+    /// Appends `whole`, then `.` and the `decimals` (1 to 16) digits of `frac` without
+    /// trailing zeros (nothing when `frac` is zero).
+    #[inline(always)]
+    fn decimal(&mut self, whole: u64, frac: u64, decimals: usize) {
         self.whole(whole);
         if frac == 0 {
             return;
         }
-        while frac.is_multiple_of(10) {
-            frac /= 10;
-            decimals -= 1;
-        }
         self.push(b'.');
-        self.digits(frac, decimals);
+        // All `decimals` digits (the low ones of 16: `hi` then `lo`), then the trailing
+        // zeros cut off.
+        let zeros = if decimals > 8 {
+            let lo = eight_digits((frac % 100_000_000) as u32);
+            let hi = eight_digits((frac / 100_000_000) as u32);
+            let n = decimals.min(16) - 8;
+            self.put8((hi | ASCII_ZEROS) >> (8 * (8 - n)), n);
+            self.put8(lo | ASCII_ZEROS, 8);
+            // Trailing zero digits are the high zero bytes (the last digit is byte 7).
+            if lo != 0 {
+                lo.leading_zeros() / 8
+            } else {
+                8 + hi.leading_zeros() / 8
+            }
+        } else if decimals <= 4 {
+            // Four digits are one stage fewer, in a `u32`.
+            let four = four_digits((frac % 10_000) as u32);
+            let n = decimals.max(1);
+            self.put8(u64::from((four | 0x3030_3030) >> (8 * (4 - n))), n);
+            four.leading_zeros() / 8
+        } else {
+            let lo = eight_digits((frac % 100_000_000) as u32);
+            let n = decimals.max(1);
+            self.put8((lo | ASCII_ZEROS) >> (8 * (8 - n)), n);
+            lo.leading_zeros() / 8
+        };
+        // Fewer than `decimals`: a non-zero `frac` has a non-zero digit.
+        self.len = self.len.saturating_sub(zeros as usize);
     }
 
     /// Appends `v` rounded to `decimals` (≤ 14) decimals, or in its shortest round-trip form
     /// when it is not finite or too large for them.
-    pub fn fixed(&mut self, v: f64, decimals: u32) {
+    fn fixed(&mut self, v: f64, decimals: u32) {
         match decimals {
             2 => self.fixed_at::<2>(v),
             3 => self.fixed_at::<3>(v),
@@ -160,7 +308,7 @@ impl Line {
         }
     }
 
-    /// [`Line::fixed`] with the decimals known when compiled (the divisions become
+    /// [`Cursor::fixed`] with the decimals known when compiled (the divisions become
     /// multiplications).
     #[inline(always)]
     fn fixed_at<const D: usize>(&mut self, v: f64) {
@@ -185,13 +333,57 @@ impl Line {
     }
 
     /// Appends `v` in its shortest round-trip form.
-    pub fn shortest(&mut self, v: f64) {
-        self.bytes(ryu::Buffer::new().format(v).as_bytes());
+    fn shortest(&mut self, v: f64) {
+        self.put(ryu::Buffer::new().format(v).as_bytes());
+    }
+
+    /// [`Line::row`], each value's [`DECIMALS`] spelled out here, so each
+    /// value's decimals are known when compiled (`the_row_is_each_value_at_its_decimals`
+    /// checks it against the table).
+    fn row(&mut self, cycle: u64, period_us: u64, values: &[f64; 18]) {
+        let [_, x, x_slave, theta, f_master, f_slave, p_a, p_b, x_ref, theta_ref, v, fault, p_a_true, p_b_true, vol_a, vol_b, p_suction, p_discharge] =
+            *values;
+        self.time(cycle, period_us);
+        self.push(b',');
+        self.fixed_at::<9>(x);
+        self.push(b',');
+        self.fixed_at::<9>(x_slave);
+        self.push(b',');
+        self.fixed_at::<7>(theta);
+        self.push(b',');
+        self.fixed_at::<4>(f_master);
+        self.push(b',');
+        self.fixed_at::<4>(f_slave);
+        self.push(b',');
+        self.fixed_at::<3>(p_a);
+        self.push(b',');
+        self.fixed_at::<3>(p_b);
+        self.push(b',');
+        self.fixed_at::<9>(x_ref);
+        self.push(b',');
+        self.fixed_at::<7>(theta_ref);
+        self.push(b',');
+        self.fixed_at::<7>(v);
+        self.push(b',');
+        // A fault code: a small whole number (a negative or fractional one never occurs).
+        self.whole(fault as u64);
+        self.push(b',');
+        self.fixed_at::<3>(p_a_true);
+        self.push(b',');
+        self.fixed_at::<3>(p_b_true);
+        self.push(b',');
+        self.fixed_at::<14>(vol_a);
+        self.push(b',');
+        self.fixed_at::<14>(vol_b);
+        self.push(b',');
+        self.fixed_at::<3>(p_suction);
+        self.push(b',');
+        self.fixed_at::<3>(p_discharge);
     }
 
     /// Appends the time of control cycle `cycle` (`cycle` × `period_us` µs) in seconds,
     /// exactly.
-    pub fn time(&mut self, cycle: u64, period_us: u64) {
+    fn time(&mut self, cycle: u64, period_us: u64) {
         let us = cycle.saturating_mul(period_us);
         self.decimal(us / 1_000_000, us % 1_000_000, 6);
     }
@@ -245,6 +437,43 @@ mod tests {
         assert_eq!(text(|o| o.time(20_000, 50)), "1");
         assert_eq!(text(|o| o.time(88_003, 50)), "4.40015");
         assert_eq!(text(|o| o.whole(7)), "7");
+    }
+
+    #[test]
+    fn the_row_is_each_value_at_its_decimals() {
+        let mut rng = ChaCha8Rng::seed_from_u64(18);
+        for _ in 0..20_000 {
+            let cycle = rng.random_range(0..10_000_000u64);
+            let mut values = [0.0f64; 18];
+            for v in values.iter_mut() {
+                let mag = 10f64.powi(rng.random_range(-12..7));
+                *v = (rng.random::<f64>() * 2.0 - 1.0) * mag;
+            }
+            values[11] = f64::from(rng.random_range(0..40u8));
+            let row = text(|o| o.row(cycle, 50, &values));
+            let mut expected = text(|o| o.time(cycle, 50));
+            for (k, (v, decimals)) in values.iter().zip(DECIMALS).enumerate().skip(1) {
+                expected.push(',');
+                expected += &match (k, decimals) {
+                    (11, _) => text(|o| o.whole(*v as u64)),
+                    (_, Some(d)) => text(|o| o.fixed(*v, d)),
+                    (_, None) => text(|o| o.shortest(*v)),
+                };
+            }
+            assert_eq!(row, expected);
+        }
+    }
+
+    #[test]
+    fn whole_numbers_of_every_length() {
+        let mut v = 1u64;
+        for _ in 0..19 {
+            for w in [v - 1, v, v + 1, 3 * v, 9 * v + (v - 1)] {
+                assert_eq!(text(|o| o.whole(w)), w.to_string());
+            }
+            v *= 10;
+        }
+        assert_eq!(text(|o| o.whole(u64::MAX)), u64::MAX.to_string());
     }
 
     #[test]
