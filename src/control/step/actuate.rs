@@ -144,8 +144,10 @@ impl ControlStep {
     /// full K while the two differ by more than `disturbance_threshold_n` (300 N: a load
     /// step is followed at once, to within 300 N), at `disturbance_slow_rad_s` (250 rad/s)
     /// below it. The raw estimate also carries what the observer sees at the frequencies
-    /// of its bandwidth — the velocity estimate's noise times `K·m`, the motor's force
-    /// ripple at six times the electrical frequency (0.6–1 kHz while stroking) — and
+    /// of its bandwidth — the velocity estimate's noise times `K·m`, and what looks like
+    /// the motor's force ripple (on the reference plant, which has cogging and no
+    /// calibrated map: ±100–170 N near 600 Hz at 2.3 m/s, six times the electrical
+    /// frequency) — and
     /// passed on at full bandwidth these doubled the force reference's cycle-to-cycle
     /// change: the voltages a hung control task leaves on the bridges for the watchdog's
     /// 3 ms then drive a far larger current (the current loop's proportional gain acts on
