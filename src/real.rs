@@ -55,6 +55,21 @@ pub fn clamp_f32(x: f32, lo: f32, hi: f32) -> f32 {
     }
 }
 
+/// i64 → f32 in two exact halves, `hi·2³² + lo` with `lo` the signed low word: a plain
+/// `as f32` is a ~35-instruction library call (`__aeabi_l2f`) on the Cortex-M4, this is
+/// about seven. Exact (the same as `as f32`) for |m| < 2²⁴; beyond, one rounding in the sum,
+/// plus one in `hi` only above 2⁵⁶ (relative error ≤ 2⁻²³ either way). Domain: m ≤ 2⁶³ −
+/// 2³¹ (above, `m − lo` wraps and the sign comes out wrong); the callers' values are far
+/// smaller (the differentiator's Gram moments below 2⁵⁶, the servo's count within a few
+/// turns of its base).
+#[inline(always)]
+pub fn i64_to_f32(m: i64) -> f32 {
+    let lo = m as i32;
+    // m − lo is a multiple of 2³², so the shift is exact and |hi| ≤ 2³¹.
+    let hi = (m.wrapping_sub(i64::from(lo)) >> 32) as i32;
+    hi as f32 * 4_294_967_296.0 + lo as f32
+}
+
 /// A floating-point scalar with the few operations the physics needs.
 pub trait Real:
     Copy
@@ -201,6 +216,40 @@ impl Real for f64 {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn i64_to_f32_by_halves_is_exact_below_2_24_and_within_an_ulp_beyond() {
+        use super::i64_to_f32;
+        for m in [
+            0i64,
+            1,
+            -1,
+            4095,
+            -4096,
+            12_288,
+            -12_288,
+            (1 << 24) - 1,
+            -(1 << 24),
+        ] {
+            assert_eq!(i64_to_f32(m), m as f32, "{m}");
+        }
+        let mut x: u64 = 0x9e37_79b9_7f4a_7c15;
+        for shift in 0..64 {
+            for _ in 0..200 {
+                // xorshift64: values of every magnitude, both signs.
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                let m = (x as i64) >> shift;
+                let err = (f64::from(i64_to_f32(m)) - m as f64).abs();
+                assert!(err <= (m as f64).abs() * 2f64.powi(-23), "{m}");
+            }
+        }
+        // The ends of the domain.
+        assert_eq!(i64_to_f32(i64::MIN), i64::MIN as f32);
+        let top = i64::MAX - (1 << 31);
+        assert_eq!(i64_to_f32(top), top as f32);
+    }
+
     #[test]
     fn f32_exp_and_tanh_are_accurate_enough_for_the_friction_law() {
         use super::Real;

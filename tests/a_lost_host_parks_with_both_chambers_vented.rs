@@ -39,7 +39,12 @@ fn lost_at(pressure_ratio: f64, speed_mps: f64, at_s: f64) -> (f64, f64, String)
     let pb = log.column("p_b_true_pa").expect("p_b_true_pa");
     let pd = log.column("p_discharge_pa").expect("p_discharge_pa");
     // The phase of the rotation where the piston came to rest before the park.
-    let stop_s = r.stop_began_us.expect("a stop") as f64 * 1e-6;
+    // No stop shows when the timeout strikes with the piston at a dead point, slower than
+    // one cycle of braking takes away (150 m/s² × 50 µs = 7.5 mm/s): the stop ends in the
+    // cycle it begins, and the park starts from there — at the timeout.
+    let timeout_s = *r.heartbeats_us.last().expect("heartbeats before the loss") as f64 * 1e-6
+        + f64::from(config.heartbeat_timeout_s);
+    let stop_s = r.stop_began_us.map_or(timeout_s, |us| us as f64 * 1e-6);
     let theta = log.column("theta_rad").expect("theta_rad");
     let v = log.column("v_mps").expect("v_mps");
     let rest = t

@@ -56,6 +56,21 @@ pub struct ControlConfig {
     pub position_kp_n_per_m: f32,
     /// Position-loop damping, N·s/m.
     pub position_kd_ns_per_m: f32,
+    /// Bandwidth of the running strokes' disturbance observer, rad/s (the inverse of its
+    /// time constant): the force on the piston that the model does not explain (an external
+    /// load, a mass or gas-force error) is estimated from the measured motor force, the
+    /// model's friction and gas force and the velocity estimate, and cancelled through the
+    /// feed-forward (`ControlStep`'s actuate stage, `observe_load`). 0 switches it off;
+    /// accepted 0 ≤ K ≤ 0.5 / `sample_time_s` (10,000 rad/s at 20 kHz).
+    pub disturbance_bandwidth_rad_s: f32,
+    /// The observer's estimate is cancelled at its full bandwidth while it differs from
+    /// what is being cancelled by more than this, N (≥ 0), and at
+    /// [`ControlConfig::disturbance_slow_rad_s`] below it.
+    pub disturbance_threshold_n: f32,
+    /// How fast the cancelled estimate follows differences below the threshold, rad/s
+    /// (0 ≤ K ≤ 0.5 / `sample_time_s`): slow, so the observer's noise and the force ripple
+    /// it sees do not reach the force reference.
+    pub disturbance_slow_rad_s: f32,
     /// Total force limit of both sections, N.
     pub force_limit_n: f32,
     /// Largest commanded speed, m/s.
@@ -115,6 +130,13 @@ impl ControlConfig {
             // ≈ 40 Hz position bandwidth on 12 kg, damping 0.8.
             position_kp_n_per_m: 7.5e5,
             position_kd_ns_per_m: 4.8e3,
+            // τ = 0.25 ms, followed to within 300 N at once, then at 250 rad/s: a ±3 kN load
+            // step at any phase leaves ≥ 0.76 mm to the heads, and the force reference moves
+            // from cycle to cycle as it did without the observer
+            // (tests/a_load_step_at_any_phase_keeps_the_head_clearance.rs).
+            disturbance_bandwidth_rad_s: 4000.0,
+            disturbance_threshold_n: 300.0,
+            disturbance_slow_rad_s: 250.0,
             force_limit_n: 10_000.0,
             max_speed_mps: 4.5,
             current_gains: CurrentLoopGains::for_bandwidth(&motor, 8000.0),
@@ -145,4 +167,6 @@ pub enum ConfigError {
     Differentiator(SgError),
     /// A physical parameter is not finite and positive (names the field).
     NotPositive(&'static str),
+    /// A parameter is outside its documented range (names the field).
+    OutOfRange(&'static str),
 }

@@ -50,6 +50,7 @@
 //! `every_input_gives_the_exact_gram_moments` compares `Mₚ` bit for bit with a direct i128
 //! evaluation on arbitrary (adversarial) inputs.
 
+use crate::real::i64_to_f32;
 use crate::sensing::encoder::PositionCounts;
 
 /// Largest supported window.
@@ -310,21 +311,21 @@ impl SavitzkyGolay {
         // one multiply.
         let [t0, t1, ..] = *t;
         let [a10, ..] = *a1;
-        let m1 = to_f32(t1.wrapping_sub(t0.wrapping_mul(i64::from(a10))));
+        let m1 = i64_to_f32(t1.wrapping_sub(t0.wrapping_mul(i64::from(a10))));
         let mut velocity = v1 * m1;
         let mut acceleration = 0.0;
         if K >= 2 {
-            let m2 = to_f32(gram_moment(a2, t, 2));
+            let m2 = i64_to_f32(gram_moment(a2, t, 2));
             velocity += v2 * m2;
             acceleration += w2 * m2;
         }
         if K >= 3 {
-            let m3 = to_f32(gram_moment(a3, t, 3));
+            let m3 = i64_to_f32(gram_moment(a3, t, 3));
             velocity += v3 * m3;
             acceleration += w3 * m3;
         }
         if K >= 4 {
-            let m4 = to_f32(gram_moment(a4, t, 4));
+            let m4 = i64_to_f32(gram_moment(a4, t, 4));
             velocity += v4 * m4;
             acceleration += w4 * m4;
         }
@@ -383,16 +384,6 @@ fn binomial_coefficients(values: &[i128], degree: usize) -> Option<[i32; MAX_ORD
         }
     }
     Some(out)
-}
-
-/// i64 → f32 in two exact halves, `hi·2³² + lo` with `lo` the signed low word: one
-/// rounding in the sum (a plain `as f32` is a ~30-instruction library call on the M4).
-#[inline(always)]
-fn to_f32(m: i64) -> f32 {
-    let lo = m as i32;
-    // m − lo is a multiple of 2³², so the shift is exact and |hi| ≤ 2³¹.
-    let hi = (m.wrapping_sub(i64::from(lo)) >> 32) as i32;
-    hi as f32 * 4_294_967_296.0 + lo as f32
 }
 
 /// `C(n, q)` for the small arguments used here (n ≤ 41, q ≤ 5: at most 749 398).

@@ -144,6 +144,12 @@ pub struct ControlStep {
     stop_decel_mps2: f32,
     /// The stop's estimate of the force the model does not explain, N (toward +x).
     disturbance_n: f32,
+    /// The running disturbance observer's state, N: its bandwidth times the momentum the
+    /// known forces and the estimate account for (NaN: restarts next cycle;
+    /// [`ControlStep::observe_load`]).
+    load_observer: f32,
+    /// The running disturbance observer's estimate as cancelled, N (toward +x).
+    load_n: f32,
     limits: LimitFlags,
     faults: FaultSet,
     status: Status,
@@ -182,6 +188,23 @@ impl ControlStep {
             if !(v.is_finite() && v > 0.0) {
                 return Err(ConfigError::NotPositive(name));
             }
+        }
+        // The observer's gains per cycle must stay within [0, 0.5] (a well damped update;
+        // NaN fails too), its threshold non-negative.
+        for (name, k) in [
+            (
+                "disturbance_bandwidth_rad_s",
+                config.disturbance_bandwidth_rad_s,
+            ),
+            ("disturbance_slow_rad_s", config.disturbance_slow_rad_s),
+        ] {
+            if !(k >= 0.0 && k * config.sample_time_s <= 0.5) {
+                return Err(ConfigError::OutOfRange(name));
+            }
+        }
+        let threshold = config.disturbance_threshold_n;
+        if threshold.is_nan() || threshold < 0.0 {
+            return Err(ConfigError::OutOfRange("disturbance_threshold_n"));
         }
         let differentiator = SavitzkyGolay::new(SgConfig {
             window: config.sg_window,
@@ -235,6 +258,8 @@ impl ControlStep {
             faulted_brake: FaultedBrake::None,
             stop_decel_mps2: config.supervisor.brake_deceleration_mps2,
             disturbance_n: 0.0,
+            load_observer: f32::NAN,
+            load_n: 0.0,
             limits: LimitFlags::default(),
             faults: FaultSet::new(),
             status: Status::INIT,

@@ -361,6 +361,8 @@ impl ControlStep {
     pub(super) fn outputs_off(&mut self, inputs: &CycleInputs) -> Option<PerSection<PhaseDuties>> {
         self.currents.master.reset();
         self.currents.slave.reset();
+        self.load_observer = f32::NAN;
+        self.load_n = 0.0;
         self.shares = PerSection::default();
         self.status.force_command_n = 0.0;
         if self.faulted_brake == FaultedBrake::Blind(0) {
