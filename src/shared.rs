@@ -13,7 +13,7 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::channel::Channel;
 
 use crate::control::calibration::record::CalibrationRecord;
-use crate::control::command::{Command, Reply};
+use crate::control::command::{Command, Refusal, Reply};
 use crate::link::telemetry::Frame;
 use crate::status::Status;
 
@@ -49,6 +49,13 @@ pub struct Shared<M: RawMutex> {
     /// a `Signal`: an empty channel is all zeros, so `Shared` stays in `.bss` (a `Signal`
     /// moved all 2.2 KiB of it to `.data`, whose initial image costs as much flash).
     calibration: Channel<M, CalibrationRecord, 1>,
+    /// The record the controller now runs on, for the command task's link reads (control
+    /// task → command task, the newest replaces an unread one).
+    current_calibration: Channel<M, CalibrationRecord, 1>,
+    /// A record written over the link and checked, for the controller to load (command
+    /// task → control task), and the controller's verdict back.
+    calibration_to_load: Channel<M, CalibrationRecord, 1>,
+    calibration_loaded: Channel<M, Result<(), Refusal>, 1>,
 }
 
 impl<M: RawMutex> Default for Shared<M> {
@@ -70,6 +77,9 @@ impl<M: RawMutex> Shared<M> {
             telemetry_cycles: AtomicU32::new(0),
             telemetry_dropped: AtomicU32::new(0),
             calibration: Channel::new(),
+            current_calibration: Channel::new(),
+            calibration_to_load: Channel::new(),
+            calibration_loaded: Channel::new(),
         }
     }
 
@@ -160,20 +170,57 @@ impl<M: RawMutex> Shared<M> {
         self.telemetry_dropped.load(Ordering::Relaxed)
     }
 
-    /// Control task, after a calibration routine succeeded: hands the record to the storage
-    /// task (never waits; a record not yet saved is replaced by this newer one).
+    /// Control task, after a calibration routine succeeded (or a record written over the
+    /// link was loaded): hands the record to the storage task (never waits; a record not yet
+    /// saved is replaced by this newer one), and to the command task as the current one.
     pub fn post_calibration(&self, record: CalibrationRecord) {
-        if let Err(embassy_sync::channel::TrySendError::Full(record)) =
-            self.calibration.try_send(record)
-        {
-            // Only the control task sends: after taking the older one the slot is free.
-            let _ = self.calibration.try_receive();
-            let _ = self.calibration.try_send(record);
-        }
+        replace(&self.calibration, record);
+        self.publish_calibration(record);
+    }
+
+    /// Control task: the controller runs on `record` (at boot, and with each new one).
+    pub fn publish_calibration(&self, record: CalibrationRecord) {
+        replace(&self.current_calibration, record);
+    }
+
+    /// Command task: the record the controller runs on, if it changed since the last call.
+    pub fn take_current_calibration(&self) -> Option<CalibrationRecord> {
+        self.current_calibration.try_receive().ok()
+    }
+
+    /// Command task: a checked record written over the link, for the controller to load;
+    /// `false` if one is still waiting (the command task sends one at a time).
+    pub fn post_calibration_to_load(&self, record: CalibrationRecord) -> bool {
+        self.calibration_to_load.try_send(record).is_ok()
+    }
+
+    /// Control task: the record to load, if one was written.
+    pub fn take_calibration_to_load(&self) -> Option<CalibrationRecord> {
+        self.calibration_to_load.try_receive().ok()
+    }
+
+    /// Control task: its verdict on the record it was given to load.
+    pub fn post_calibration_loaded(&self, result: Result<(), Refusal>) {
+        let _ = self.calibration_loaded.try_send(result);
+    }
+
+    /// Command task: the controller's verdict on the record it was given, once.
+    pub fn take_calibration_loaded(&self) -> Option<Result<(), Refusal>> {
+        self.calibration_loaded.try_receive().ok()
     }
 
     /// Storage task: waits for the next record to save.
     pub async fn calibration_to_save(&self) -> CalibrationRecord {
         self.calibration.receive().await
+    }
+}
+
+/// Sends `record` into a one-slot channel that only one task sends to, replacing a record
+/// not yet taken (never waits).
+fn replace<M: RawMutex>(channel: &Channel<M, CalibrationRecord, 1>, record: CalibrationRecord) {
+    if let Err(embassy_sync::channel::TrySendError::Full(record)) = channel.try_send(record) {
+        // Only one task sends: after taking the older one the slot is free.
+        let _ = channel.try_receive();
+        let _ = channel.try_send(record);
     }
 }

@@ -14,7 +14,10 @@ use crate::control::command::Refusal;
 use crate::control::command::Reply;
 use crate::control::config::ControlConfig;
 use crate::control::step::{ControlStep, CycleInputs};
-use crate::link::commands::{encode_rejection, encode_reply, CommandReader, MAX_REPLY_WIRE};
+use crate::link::commands::{
+    encode_rejection, encode_reply, encode_transfer_reply, Request, RequestReader, Transfer,
+    TransferReply, TransferState, TransferStep, MAX_REPLY_WIRE,
+};
 use crate::link::telemetry::WIRE_BYTES;
 use crate::ports::{
     ByteSource, Clock, ControlPorts, CurrentInput, CycleTrigger, EncoderInput, EventLog, FrameSink,
@@ -78,15 +81,13 @@ where
     if let Some(loaded) = stored {
         step.load_calibration(loaded);
     }
+    shared.publish_calibration(step.calibration_record());
     shared.publish(*step.status());
     // Which sections' outputs are switching (None: all off).
     let mut switching: Option<PerSection<bool>> = None;
     loop {
         let t = ports.cycle.next_cycle().await;
-        while let Some(command) = shared.take_command() {
-            let result = step.command(command);
-            shared.post_reply(Reply { command, result });
-        }
+        serve_commands(&mut step, shared);
         let inputs = CycleInputs {
             t,
             encoders: ports.encoders.read(),
@@ -122,6 +123,20 @@ where
         shared.publish(*step.status());
         shared.queue_telemetry(step.status());
         shared.check_in(task_bits::CONTROL);
+    }
+}
+
+/// The control task's part of the command link, before each step: every pending command
+/// is handled and answered, and a calibration record written over the link is loaded (or
+/// refused) and the verdict handed back to the command task. The record is already checked
+/// (the command task decoded it), so this is a copy into the configuration, as at boot.
+pub fn serve_commands<M: RawMutex>(step: &mut ControlStep, shared: &Shared<M>) {
+    while let Some(command) = shared.take_command() {
+        let result = step.command(command);
+        shared.post_reply(Reply { command, result });
+    }
+    if let Some(record) = shared.take_calibration_to_load() {
+        shared.post_calibration_loaded(step.load_calibration_from_link(record));
     }
 }
 
@@ -266,7 +281,8 @@ where
 pub const COMMAND_POLL_US: u32 = 1000;
 
 /// The command task (thread mode): reads the down-channel, decodes and validates frames
-/// ([`CommandReader`]), posts the commands for the control task and writes every answer to
+/// ([`RequestReader`]), answers calibration reads and writes itself ([`TransferState`]; a
+/// checked commit goes to the control task, [`serve_commands`]), posts the commands for the control task and writes every answer to
 /// `replies` — the control task's accept/refuse reply for each command, a `Busy` refusal when
 /// the mailbox is full, and a rejection (with its reason) for each malformed frame. Nothing
 /// here blocks the control task: it only ever `try_`s the shared mailboxes.
@@ -284,18 +300,40 @@ where
     L: Sleep,
     K: Clock,
 {
-    let mut reader = CommandReader::new();
+    let mut reader = RequestReader::new();
+    let mut transfer = TransferState::new();
+    // The commit the controller is loading (answered once its verdict comes back).
+    let mut committing: Option<Transfer> = None;
     let mut input = [0u8; 64];
     let mut out = [0u8; MAX_REPLY_WIRE];
     let mut next = clock.now();
     loop {
         next = next.add_us(COMMAND_POLL_US);
         sleep.until(next).await;
+        if let Some(record) = shared.take_current_calibration() {
+            transfer.set_current(record.encode());
+        }
         let n = source.read(&mut input);
         for &byte in input.get(..n).unwrap_or_default() {
             let encoded = match reader.push(byte) {
                 None => continue,
-                Some(Ok(command)) => match shared.post_command(command) {
+                Some(Ok(Request::Calibration(t))) => {
+                    let reply = match transfer.handle(t) {
+                        TransferStep::Reply(reply) => reply,
+                        TransferStep::Load(record) => {
+                            if committing.is_none() && shared.post_calibration_to_load(record) {
+                                committing = Some(t);
+                                continue;
+                            }
+                            TransferReply::Verdict {
+                                transfer: t.id(),
+                                result: Err(Refusal::Busy),
+                            }
+                        }
+                    };
+                    encode_transfer_reply(&reply, &mut out)
+                }
+                Some(Ok(Request::Command(command))) => match shared.post_command(command) {
                     Ok(()) => continue,
                     Err(command) => encode_reply(
                         &Reply {
@@ -315,6 +353,17 @@ where
         while let Some(reply) = shared.take_reply() {
             if let Ok(len) = encode_reply(&reply, &mut out) {
                 let _ = replies.write(out.get(..len).unwrap_or_default());
+            }
+        }
+        if let Some(result) = shared.take_calibration_loaded() {
+            if let Some(t) = committing.take() {
+                let reply = TransferReply::Verdict {
+                    transfer: t.id(),
+                    result,
+                };
+                if let Ok(len) = encode_transfer_reply(&reply, &mut out) {
+                    let _ = replies.write(out.get(..len).unwrap_or_default());
+                }
             }
         }
     }

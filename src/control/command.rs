@@ -132,6 +132,12 @@ pub enum Refusal {
     /// No complete calibration is loaded (missing, invalid or incomplete in flash): run the
     /// calibration routines first.
     NotCalibrated,
+    /// A calibration chunk is not the next one (a chunk lost or resent out of order), or a
+    /// commit came before the whole record was written: write it again from offset 0.
+    ChunkOutOfOrder,
+    /// The calibration record written is not one (magic, version, CRC or the CRC sent do
+    /// not match): nothing changed.
+    BadRecord,
 }
 
 impl Refusal {
@@ -149,6 +155,12 @@ impl Refusal {
             }
             Refusal::NotCalibrated => {
                 "not calibrated: run current_sense, alignment, home, misalignment, cogging"
+            }
+            Refusal::ChunkOutOfOrder => {
+                "calibration chunk out of order or missing: write the record again from offset 0"
+            }
+            Refusal::BadRecord => {
+                "not a valid calibration record (magic, version or CRC): nothing changed"
             }
         }
     }

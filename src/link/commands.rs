@@ -14,6 +14,20 @@
 //! | `0x18` | [`Command::SetVolumeRatio`] | `0` (follow measured) or `1` ‖ `pressure_ratio: f32` (fixed) |
 //! | `0x19` | [`Command::Calibrate`] | `routine: u8` ([`crate::control::calibration::Routine`] as number) |
 //! | `0x1A` | [`Command::SetParameter`] | `parameter: u8` ([`crate::control::command::Parameter`] as number), `value: f32` |
+//! | `0x1B` | [`Transfer::Read`] | `offset: u8` |
+//! | `0x1C` | [`Transfer::Write`] | `offset: u8` ‖ 1..=[`CHUNK_BYTES`] record bytes |
+//! | `0x1D` | [`Transfer::Commit`] | `crc: u32` (the record's own CRC-32, its last 4 bytes) |
+//!
+//! The calibration transfer (`0x1B`..`0x1D`) is the command task's, not the controller's:
+//! the record ([`crate::control::calibration::record`], [`RECORD_BYTES`] bytes) moves in
+//! chunks of up to [`CHUNK_BYTES`] at a byte offset. A read answers the bytes of the record
+//! the controller runs on. Writes fill a staging buffer strictly in order (offset 0 starts
+//! over; any other offset must be where the previous chunk ended, else
+//! [`Refusal::ChunkOutOfOrder`] and the staging is unchanged); the commit is accepted only
+//! when all [`RECORD_BYTES`] are staged, the record decodes (magic, version, CRC) and its CRC
+//! is the one sent ([`Refusal::BadRecord`] otherwise), and the controller is idle
+//! ([`Refusal::Busy`]). Then the controller loads it as a boot load does and the storage
+//! (or retaining) task keeps it. A refused commit changes nothing.
 //!
 //! Tags are part of the wire contract: never reuse or renumber. The codec checks only the
 //! form; NaN, infinities and out-of-range values decode as sent, and the controller refuses
@@ -25,7 +39,9 @@
 //! | `0x01` | telemetry frame | see [`crate::link::telemetry`] |
 //! | `0x02` | [`Reply`] | `result: u8` (0 accepted, else [`refusal_code`]) ‖ the command's payload |
 //! | `0x03` | command frame rejected | `reason: u8` ([`FrameError`] as number) |
+//! | `0x04` | [`TransferReply`] | `0` ‖ `0x1B` ‖ `offset: u8` ‖ the bytes (an accepted read), else `result: u8` ‖ the request's tag ‖ `offset` or `crc` as u32 |
 
+use crate::control::calibration::record::RECORD_BYTES;
 use crate::control::calibration::Routine;
 use crate::control::command::Reply;
 use crate::control::command::{Command, Parameter, Refusal};
@@ -58,13 +74,24 @@ pub mod tag {
     pub const CALIBRATE: u8 = 0x19;
     /// [`crate::control::command::Command::SetParameter`].
     pub const SET_PARAMETER: u8 = 0x1A;
+    /// [`super::Transfer::Read`].
+    pub const CALIBRATION_READ: u8 = 0x1B;
+    /// [`super::Transfer::Write`].
+    pub const CALIBRATION_WRITE: u8 = 0x1C;
+    /// [`super::Transfer::Commit`].
+    pub const CALIBRATION_COMMIT: u8 = 0x1D;
 }
 
-/// Largest command payload (tag + two f32).
-pub const MAX_COMMAND_PAYLOAD: usize = 9;
+/// Largest chunk of the calibration record in one frame, bytes: 9 frames carry the
+/// [`RECORD_BYTES`] (the frame limit was raised for it, not a second framing).
+pub const CHUNK_BYTES: usize = 16;
+
+/// Largest command payload (a calibration write: tag, offset, one chunk).
+pub const MAX_COMMAND_PAYLOAD: usize = 2 + CHUNK_BYTES;
 /// Largest encoded command frame, delimiter included.
 pub const MAX_COMMAND_WIRE: usize = max_wire_len(MAX_COMMAND_PAYLOAD);
-/// Largest encoded reply frame, delimiter included (kind, result, command payload).
+/// Largest encoded reply frame, delimiter included (kind, result, command payload; a
+/// calibration chunk is no longer).
 pub const MAX_REPLY_WIRE: usize = max_wire_len(2 + MAX_COMMAND_PAYLOAD);
 
 /// Appends bytes to a payload buffer; a write past the end is counted but not stored, so
@@ -243,6 +270,8 @@ pub const fn refusal_code(refusal: Refusal) -> u8 {
         Refusal::CausePersists => 6,
         Refusal::CurrentSenseOffset => 7,
         Refusal::NotCalibrated => 8,
+        Refusal::ChunkOutOfOrder => 9,
+        Refusal::BadRecord => 10,
     }
 }
 
@@ -257,6 +286,8 @@ pub fn refusal_from_code(code: u8) -> Option<Refusal> {
         Refusal::CausePersists,
         Refusal::CurrentSenseOffset,
         Refusal::NotCalibrated,
+        Refusal::ChunkOutOfOrder,
+        Refusal::BadRecord,
     ]
     .into_iter()
     .find(|r| refusal_code(*r) == code)
@@ -291,6 +322,8 @@ pub enum Answer {
     Reply(Reply),
     /// A command frame the firmware could not decode, and why.
     Rejected(FrameError),
+    /// The command task's answer to a calibration transfer.
+    Calibration(TransferReply),
 }
 
 /// Decodes a reply or rejection payload (kinds `0x02`, `0x03`).
@@ -309,9 +342,362 @@ pub fn decode_answer(payload: &[u8]) -> Result<Answer, FrameError> {
         [KIND_REJECTED, reason] => Ok(Answer::Rejected(
             FrameError::from_code(*reason).ok_or(FrameError::BadValue)?,
         )),
+        [KIND_CALIBRATION, rest @ ..] => decode_transfer_reply(rest).map(Answer::Calibration),
         [KIND_REPLY] | [KIND_REJECTED, ..] => Err(FrameError::BadLength),
         [] => Err(FrameError::TooShort),
         _ => Err(FrameError::UnknownKind),
+    }
+}
+
+/// A chunk of the calibration record: up to [`CHUNK_BYTES`] bytes at `offset`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Chunk {
+    /// Byte offset in the record.
+    pub offset: u8,
+    len: u8,
+    bytes: [u8; CHUNK_BYTES],
+}
+
+impl Chunk {
+    /// The chunk of `data` at `offset`, or `None` if `data` is empty or longer than
+    /// [`CHUNK_BYTES`] (the range in the record is the receiver's to check).
+    pub fn new(offset: u8, data: &[u8]) -> Option<Chunk> {
+        if data.is_empty() || data.len() > CHUNK_BYTES {
+            return None;
+        }
+        let mut bytes = [0; CHUNK_BYTES];
+        bytes.get_mut(..data.len())?.copy_from_slice(data);
+        Some(Chunk {
+            offset,
+            len: data.len() as u8,
+            bytes,
+        })
+    }
+
+    /// The chunk of `record` at `offset` (as many bytes as remain, at most [`CHUNK_BYTES`]);
+    /// `None` past the end.
+    pub fn of_record(record: &[u8; RECORD_BYTES], offset: u8) -> Option<Chunk> {
+        let at = usize::from(offset);
+        let end = (at + CHUNK_BYTES).min(RECORD_BYTES);
+        Chunk::new(offset, record.get(at..end)?)
+    }
+
+    /// The bytes.
+    pub fn data(&self) -> &[u8] {
+        self.bytes.get(..usize::from(self.len)).unwrap_or_default()
+    }
+}
+
+/// A calibration transfer request (the command task answers it; see the module table).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Transfer {
+    /// Read the chunk at this offset of the record the controller runs on.
+    Read {
+        /// Byte offset.
+        offset: u8,
+    },
+    /// Stage a chunk of a new record.
+    Write(Chunk),
+    /// Check the staged record and load it; `crc` is its CRC-32 (its last four bytes).
+    Commit {
+        /// The record's CRC-32.
+        crc: u32,
+    },
+}
+
+/// A decoded down-channel frame: a controller command or a calibration transfer.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Request {
+    /// For the controller.
+    Command(Command),
+    /// For the command task's calibration transfer.
+    Calibration(Transfer),
+}
+
+/// Which request a verdict answers: its tag and its offset (read, write) or CRC (commit).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TransferId {
+    /// The request's tag ([`tag::CALIBRATION_READ`] .. [`tag::CALIBRATION_COMMIT`]).
+    pub tag: u8,
+    /// Its offset, or the CRC of a commit.
+    pub arg: u32,
+}
+
+impl Transfer {
+    /// What a verdict on this request names.
+    pub fn id(&self) -> TransferId {
+        match *self {
+            Transfer::Read { offset } => TransferId {
+                tag: tag::CALIBRATION_READ,
+                arg: offset.into(),
+            },
+            Transfer::Write(chunk) => TransferId {
+                tag: tag::CALIBRATION_WRITE,
+                arg: chunk.offset.into(),
+            },
+            Transfer::Commit { crc } => TransferId {
+                tag: tag::CALIBRATION_COMMIT,
+                arg: crc,
+            },
+        }
+    }
+}
+
+/// The command task's answer to a [`Transfer`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TransferReply {
+    /// An accepted read: the chunk asked for (`0x04 ‖ 0 ‖ 0x1B ‖ offset ‖ bytes`).
+    Chunk(Chunk),
+    /// The verdict on a write or a commit, or a refused read (`0x04 ‖ result ‖ tag ‖ arg`,
+    /// arg u32 LE).
+    Verdict {
+        /// The request answered.
+        transfer: TransferId,
+        /// Accepted, or refused with the reason.
+        result: Result<(), Refusal>,
+    },
+}
+
+fn transfer_payload(transfer: &Transfer, w: &mut Writer) {
+    match transfer {
+        Transfer::Read { offset } => {
+            w.byte(tag::CALIBRATION_READ);
+            w.byte(*offset);
+        }
+        Transfer::Write(chunk) => {
+            w.byte(tag::CALIBRATION_WRITE);
+            w.byte(chunk.offset);
+            for &b in chunk.data() {
+                w.byte(b);
+            }
+        }
+        Transfer::Commit { crc } => {
+            w.byte(tag::CALIBRATION_COMMIT);
+            for b in crc.to_le_bytes() {
+                w.byte(b);
+            }
+        }
+    }
+}
+
+/// Encodes a calibration transfer as a complete down-channel frame into `out`
+/// ([`MAX_COMMAND_WIRE`] always suffice).
+pub fn encode_transfer(transfer: &Transfer, out: &mut [u8]) -> Result<usize, BufferTooSmall> {
+    let mut payload = [0; MAX_COMMAND_PAYLOAD];
+    let mut w = Writer {
+        out: &mut payload,
+        len: 0,
+    };
+    transfer_payload(transfer, &mut w);
+    let n = w.len;
+    encode_frame(payload.get(..n).ok_or(BufferTooSmall)?, out)
+}
+
+/// Decodes a calibration transfer payload (tag ‖ fields); `None` if the tag is not one.
+fn decode_transfer(payload: &[u8]) -> Option<Result<Transfer, FrameError>> {
+    let (&t, fields) = payload.split_first()?;
+    Some(match t {
+        tag::CALIBRATION_READ => match fields {
+            [offset] => Ok(Transfer::Read { offset: *offset }),
+            _ => Err(FrameError::BadLength),
+        },
+        tag::CALIBRATION_WRITE => match fields {
+            [offset, data @ ..] => Chunk::new(*offset, data)
+                .map(Transfer::Write)
+                .ok_or(FrameError::BadLength),
+            [] => Err(FrameError::BadLength),
+        },
+        tag::CALIBRATION_COMMIT => match fields {
+            &[a, b, c, d] => Ok(Transfer::Commit {
+                crc: u32::from_le_bytes([a, b, c, d]),
+            }),
+            _ => Err(FrameError::BadLength),
+        },
+        _ => return None,
+    })
+}
+
+/// Decodes a down-channel payload: a calibration transfer or a command.
+pub fn decode_request(payload: &[u8]) -> Result<Request, FrameError> {
+    match decode_transfer(payload) {
+        Some(transfer) => transfer.map(Request::Calibration),
+        None => decode_command(payload).map(Request::Command),
+    }
+}
+
+/// Encodes a transfer reply as a complete up-channel frame into `out` ([`MAX_REPLY_WIRE`]
+/// suffice).
+pub fn encode_transfer_reply(
+    reply: &TransferReply,
+    out: &mut [u8],
+) -> Result<usize, BufferTooSmall> {
+    // A chunk: kind, 0, the read tag, offset, then its bytes. A verdict: kind, result,
+    // the request's tag, then its u32 (first byte in the head, three after).
+    let arg;
+    let (head, data) = match reply {
+        TransferReply::Chunk(chunk) => (
+            [KIND_CALIBRATION, 0, tag::CALIBRATION_READ, chunk.offset],
+            chunk.data(),
+        ),
+        TransferReply::Verdict { transfer, result } => {
+            let code = match result {
+                Ok(()) => 0,
+                Err(r) => refusal_code(*r),
+            };
+            arg = transfer.arg.to_le_bytes();
+            let (first, rest) = arg.split_first().ok_or(BufferTooSmall)?;
+            ([KIND_CALIBRATION, code, transfer.tag, *first], rest)
+        }
+    };
+    let mut payload = [0; 4 + CHUNK_BYTES];
+    let n = head.len() + data.len();
+    let (h, d) = payload.split_at_mut(head.len());
+    h.copy_from_slice(&head);
+    d.get_mut(..data.len())
+        .ok_or(BufferTooSmall)?
+        .copy_from_slice(data);
+    encode_frame(payload.get(..n).ok_or(BufferTooSmall)?, out)
+}
+
+/// Decodes a transfer reply (the payload after the kind `0x04`).
+fn decode_transfer_reply(rest: &[u8]) -> Result<TransferReply, FrameError> {
+    match rest {
+        [0, tag::CALIBRATION_READ, offset, data @ ..] if !data.is_empty() => {
+            Chunk::new(*offset, data)
+                .map(TransferReply::Chunk)
+                .ok_or(FrameError::BadLength)
+        }
+        &[code, t, a, b, c, d] => {
+            let result = match code {
+                0 => Ok(()),
+                c => Err(refusal_from_code(c).ok_or(FrameError::BadValue)?),
+            };
+            if !matches!(
+                t,
+                tag::CALIBRATION_READ | tag::CALIBRATION_WRITE | tag::CALIBRATION_COMMIT
+            ) {
+                return Err(FrameError::UnknownKind);
+            }
+            Ok(TransferReply::Verdict {
+                transfer: TransferId {
+                    tag: t,
+                    arg: u32::from_le_bytes([a, b, c, d]),
+                },
+                result,
+            })
+        }
+        _ => Err(FrameError::BadLength),
+    }
+}
+
+/// Streaming reader of the down-channel as the command task reads it: bytes in, commands
+/// and calibration transfers out, malformed frames rejected and counted.
+#[derive(Clone, Debug, Default)]
+pub struct RequestReader {
+    deframer: Deframer<{ MAX_COMMAND_WIRE }>,
+}
+
+impl RequestReader {
+    /// A reader waiting for the first frame.
+    pub const fn new() -> Self {
+        RequestReader {
+            deframer: Deframer::new(),
+        }
+    }
+
+    /// Feeds one byte; at the end of a frame returns the request or why it was rejected.
+    pub fn push(&mut self, byte: u8) -> Option<Result<Request, FrameError>> {
+        self.deframer.push_decoded(byte, decode_request)
+    }
+}
+
+/// The command task's side of the calibration transfer: the staging buffer of a write in
+/// progress and the bytes of the record the controller runs on. It answers reads and
+/// writes itself; a commit that passes its checks returns the record for the controller.
+#[derive(Clone, Debug)]
+pub struct TransferState {
+    staged: [u8; RECORD_BYTES],
+    /// Bytes staged so far, in order from offset 0.
+    filled: usize,
+    current: Option<[u8; RECORD_BYTES]>,
+}
+
+impl Default for TransferState {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// What the command task does with a transfer.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum TransferStep {
+    /// Send this reply now.
+    Reply(TransferReply),
+    /// The staged record passed every check: hand it to the controller, which answers.
+    Load(crate::control::calibration::record::CalibrationRecord),
+}
+
+impl TransferState {
+    /// Nothing staged, no current record known.
+    pub const fn new() -> Self {
+        TransferState {
+            staged: [0; RECORD_BYTES],
+            filled: 0,
+            current: None,
+        }
+    }
+
+    /// The controller now runs on `record`.
+    pub fn set_current(&mut self, record: [u8; RECORD_BYTES]) {
+        self.current = Some(record);
+    }
+
+    /// Handles one transfer request.
+    #[inline(never)]
+    pub fn handle(&mut self, transfer: Transfer) -> TransferStep {
+        use crate::control::calibration::record::CalibrationRecord;
+        let verdict = |result| {
+            TransferStep::Reply(TransferReply::Verdict {
+                transfer: transfer.id(),
+                result,
+            })
+        };
+        match transfer {
+            Transfer::Read { offset } => match &self.current {
+                None => verdict(Err(Refusal::Busy)),
+                Some(record) => match Chunk::of_record(record, offset) {
+                    Some(chunk) => TransferStep::Reply(TransferReply::Chunk(chunk)),
+                    None => verdict(Err(Refusal::OutOfRange)),
+                },
+            },
+            Transfer::Write(chunk) => {
+                let at = usize::from(chunk.offset);
+                let data = chunk.data();
+                if at != 0 && at != self.filled {
+                    return verdict(Err(Refusal::ChunkOutOfOrder));
+                }
+                match self.staged.get_mut(at..at + data.len()) {
+                    Some(slot) => slot.copy_from_slice(data),
+                    None => return verdict(Err(Refusal::OutOfRange)),
+                }
+                self.filled = at + data.len();
+                verdict(Ok(()))
+            }
+            Transfer::Commit { crc } => {
+                let filled = core::mem::take(&mut self.filled);
+                if filled != RECORD_BYTES {
+                    return verdict(Err(Refusal::ChunkOutOfOrder));
+                }
+                let sent = self.staged.get(RECORD_BYTES - 4..).unwrap_or_default();
+                if sent != crc.to_le_bytes() {
+                    return verdict(Err(Refusal::BadRecord));
+                }
+                match CalibrationRecord::decode(&self.staged) {
+                    Ok(record) => TransferStep::Load(record),
+                    Err(_) => verdict(Err(Refusal::BadRecord)),
+                }
+            }
+        }
     }
 }
 
@@ -445,6 +831,189 @@ pub(crate) mod tests {
         );
     }
 
+    fn record_bytes() -> [u8; RECORD_BYTES] {
+        crate::control::calibration::record::tests::sample().encode()
+    }
+
+    /// Writes `record` in chunks through `state`; the verdicts, then the commit's step.
+    fn write_all(state: &mut TransferState, record: &[u8; RECORD_BYTES]) -> TransferStep {
+        for (i, data) in record.chunks(CHUNK_BYTES).enumerate() {
+            let chunk = Chunk::new((i * CHUNK_BYTES) as u8, data).unwrap();
+            let t = Transfer::Write(chunk);
+            assert_eq!(
+                state.handle(t),
+                TransferStep::Reply(TransferReply::Verdict {
+                    transfer: t.id(),
+                    result: Ok(())
+                })
+            );
+        }
+        let crc = u32::from_le_bytes(record[RECORD_BYTES - 4..].try_into().unwrap());
+        state.handle(Transfer::Commit { crc })
+    }
+
+    fn refused(step: TransferStep) -> Option<Refusal> {
+        match step {
+            TransferStep::Reply(TransferReply::Verdict { result: Err(r), .. }) => Some(r),
+            _ => None,
+        }
+    }
+
+    #[test]
+    fn calibration_transfers_and_their_replies_round_trip() {
+        let record = record_bytes();
+        let chunk = Chunk::of_record(&record, 128).unwrap();
+        assert_eq!(chunk.data(), &record[128..]);
+        assert_eq!(Chunk::of_record(&record, 136), None);
+        let transfers = [
+            Transfer::Read { offset: 16 },
+            Transfer::Write(Chunk::of_record(&record, 0).unwrap()),
+            Transfer::Write(chunk),
+            Transfer::Commit { crc: 0xDEAD_BEEF },
+        ];
+        for t in transfers {
+            let mut out = [0u8; MAX_COMMAND_WIRE];
+            let n = encode_transfer(&t, &mut out).unwrap();
+            let mut r = RequestReader::new();
+            let got: Vec<_> = out[..n].iter().filter_map(|&b| r.push(b)).collect();
+            assert_eq!(got, vec![Ok(Request::Calibration(t))]);
+            for result in [
+                Ok(()),
+                Err(Refusal::ChunkOutOfOrder),
+                Err(Refusal::BadRecord),
+            ] {
+                if matches!(t, Transfer::Read { .. }) && result.is_ok() {
+                    // An accepted read is answered with its chunk, never a bare verdict.
+                    continue;
+                }
+                let reply = TransferReply::Verdict {
+                    transfer: t.id(),
+                    result,
+                };
+                assert_eq!(answer_of(&reply), Answer::Calibration(reply));
+            }
+        }
+        let reply = TransferReply::Chunk(chunk);
+        assert_eq!(answer_of(&reply), Answer::Calibration(reply));
+        // Commands still come through the same reader.
+        let mut r = RequestReader::new();
+        let got: Vec<_> = wire(&Command::Home)
+            .iter()
+            .filter_map(|&b| r.push(b))
+            .collect();
+        assert_eq!(got, vec![Ok(Request::Command(Command::Home))]);
+        // Empty or oversized chunks and short commits are malformed.
+        for payload in [
+            &[tag::CALIBRATION_WRITE, 0][..],
+            &[tag::CALIBRATION_WRITE][..],
+            &[tag::CALIBRATION_READ][..],
+            &[tag::CALIBRATION_COMMIT, 1, 2, 3][..],
+        ] {
+            assert_eq!(decode_request(payload), Err(FrameError::BadLength));
+        }
+        let mut long = vec![tag::CALIBRATION_WRITE, 0];
+        long.extend([7; CHUNK_BYTES + 1]);
+        assert_eq!(decode_request(&long), Err(FrameError::BadLength));
+    }
+
+    fn answer_of(reply: &TransferReply) -> Answer {
+        let mut out = [0u8; MAX_REPLY_WIRE];
+        let n = encode_transfer_reply(reply, &mut out).unwrap();
+        let mut d = Deframer::<{ MAX_REPLY_WIRE }>::new();
+        let got: Vec<_> = out[..n]
+            .iter()
+            .filter_map(|&b| d.push_decoded(b, decode_answer))
+            .collect();
+        assert_eq!(got.len(), 1);
+        got[0].unwrap()
+    }
+
+    #[test]
+    fn a_record_written_in_order_with_its_crc_is_loaded_and_read_back() {
+        let record = record_bytes();
+        let mut state = TransferState::new();
+        assert_eq!(
+            refused(state.handle(Transfer::Read { offset: 0 })),
+            Some(Refusal::Busy),
+            "no current record yet"
+        );
+        match write_all(&mut state, &record) {
+            TransferStep::Load(r) => assert_eq!(r.encode(), record),
+            other => panic!("{other:?}"),
+        }
+        state.set_current(record);
+        let mut back = Vec::new();
+        while back.len() < RECORD_BYTES {
+            match state.handle(Transfer::Read {
+                offset: back.len() as u8,
+            }) {
+                TransferStep::Reply(TransferReply::Chunk(c)) => back.extend_from_slice(c.data()),
+                other => panic!("{other:?}"),
+            }
+        }
+        assert_eq!(back, record);
+        assert_eq!(
+            refused(state.handle(Transfer::Read { offset: 136 })),
+            Some(Refusal::OutOfRange)
+        );
+    }
+
+    #[test]
+    fn out_of_order_missing_or_corrupt_chunks_are_refused_by_name() {
+        let record = record_bytes();
+        let crc = u32::from_le_bytes(record[RECORD_BYTES - 4..].try_into().unwrap());
+        let mut state = TransferState::new();
+        // A chunk that skips ahead is refused and leaves what was staged.
+        let first = Chunk::of_record(&record, 0).unwrap();
+        let _ = state.handle(Transfer::Write(first));
+        let skip = Chunk::of_record(&record, 32).unwrap();
+        assert_eq!(
+            refused(state.handle(Transfer::Write(skip))),
+            Some(Refusal::ChunkOutOfOrder)
+        );
+        // A commit before the whole record is staged.
+        assert_eq!(
+            refused(state.handle(Transfer::Commit { crc })),
+            Some(Refusal::ChunkOutOfOrder)
+        );
+        // Past the end.
+        let late = Chunk::new(130, &[1; 16]).unwrap();
+        assert_eq!(
+            refused(state.handle(Transfer::Write(late))),
+            Some(Refusal::ChunkOutOfOrder)
+        );
+        // A corrupted byte: the record's own CRC fails.
+        let mut bad = record;
+        bad[20] ^= 0x40;
+        assert_eq!(
+            refused(write_all(&mut state, &bad)),
+            Some(Refusal::BadRecord)
+        );
+        // A good record but another CRC sent.
+        for chunk in record.chunks(CHUNK_BYTES).enumerate() {
+            let c = Chunk::new((chunk.0 * CHUNK_BYTES) as u8, chunk.1).unwrap();
+            let _ = state.handle(Transfer::Write(c));
+        }
+        assert_eq!(
+            refused(state.handle(Transfer::Commit { crc: crc ^ 1 })),
+            Some(Refusal::BadRecord)
+        );
+        // Another layout's version.
+        let mut other = record;
+        other[4] = 2;
+        let c = crate::control::calibration::record::crc32(&other[..RECORD_BYTES - 4]);
+        other[RECORD_BYTES - 4..].copy_from_slice(&c.to_le_bytes());
+        assert_eq!(
+            refused(write_all(&mut state, &other)),
+            Some(Refusal::BadRecord)
+        );
+        // After all that, the good record still goes through.
+        assert!(matches!(
+            write_all(&mut state, &record),
+            TransferStep::Load(_)
+        ));
+    }
+
     #[test]
     fn crc_matches_the_published_check_value() {
         assert_eq!(crc16(b"123456789"), 0x29B1);
@@ -499,7 +1068,7 @@ pub(crate) mod tests {
         }
 
         #[test]
-        fn replies_round_trip(ci in 0usize..64, res in 0u8..9, p in any::<u32>()) {
+        fn replies_round_trip(ci in 0usize..64, res in 0u8..11, p in any::<u32>()) {
             let all = all_commands();
             let mut command = all[ci % all.len()];
             if let Command::MoveTo { position_m, .. } = &mut command {

@@ -24,6 +24,8 @@ pub const KIND_TELEMETRY: u8 = 0x01;
 pub const KIND_REPLY: u8 = 0x02;
 /// Message kind of a rejected (malformed) command frame.
 pub const KIND_REJECTED: u8 = 0x03;
+/// Message kind of an answer to a calibration transfer.
+pub const KIND_CALIBRATION: u8 = 0x04;
 
 /// Why a frame was rejected. The number is sent back in a `0x03` message.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -117,6 +119,8 @@ fn crc16_update(crc: u16, byte: u8) -> u16 {
 }
 
 /// Frames `payload` into `out`: payload, CRC, COBS, delimiter. Returns the bytes written.
+/// Not inlined: each answer kind's encoder calls this one copy (flash, not speed, is short).
+#[inline(never)]
 pub fn encode_frame(payload: &[u8], out: &mut [u8]) -> Result<usize, BufferTooSmall> {
     let crc = crc16(payload).to_le_bytes();
     let body = payload.iter().copied().chain(crc);

@@ -31,6 +31,7 @@ pub use modes::{DOB_TIME_S, HOLD_RELEASE_S};
 use crate::control::calibration::record::{CalibrationRecord, CalibrationStatus};
 use crate::control::calibration::store::LoadError;
 use crate::control::calibration::{Calibrated, SenseMonitor};
+use crate::control::command::Refusal;
 use crate::control::config::{ConfigError, ControlConfig};
 use crate::drive::foc::CurrentController;
 use crate::drive::servo::ServoController;
@@ -312,6 +313,27 @@ impl ControlStep {
             }
             Err(e) => self.calibration_status = e.status(),
         }
+    }
+
+    /// Loads a record written over the link (already checked: magic, version, CRC), as a
+    /// boot load does, and marks it for the storage task. Only with the outputs off and no
+    /// operation in progress ([`Mode::Idle`], else [`Refusal::Busy`]): the sin/cos decoders
+    /// restart with the new correction, so the zero found by homing no longer holds and the
+    /// machine must home again.
+    pub fn load_calibration_from_link(&mut self, record: CalibrationRecord) -> Result<(), Refusal> {
+        if !matches!(self.mode, Mode::Idle) {
+            return Err(Refusal::Busy);
+        }
+        self.load_calibration(Ok(record));
+        self.zero_raw_m = None;
+        self.calibration_unsaved = true;
+        Ok(())
+    }
+
+    /// The record of the calibration the controller runs on (what a read over the link
+    /// returns).
+    pub fn calibration_record(&self) -> CalibrationRecord {
+        CalibrationRecord::of(&self.calibrated, &self.config)
     }
 
     /// Whether the machine may `Start` on its calibration.
