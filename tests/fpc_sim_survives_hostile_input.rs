@@ -596,7 +596,30 @@ fn hostile_case(sub: &str, rng: &mut ChaCha8Rng, dir: &Path) -> Case {
                 dir.join("none"),
             ][rng.random_range(0..5)]
             .clone();
-            if rng.random_bool(0.5) {
+            if rng.random_bool(0.2) {
+                // The calibration transfer: a read into a file, or a (hostile) file written.
+                args.push("calibration".into());
+                if rng.random_bool(0.5) {
+                    args.push("read".into());
+                    push(&mut args, "--replay", &replay);
+                    let to = [out.clone(), out_arg.clone(), rec][rng.random_range(0..3)].clone();
+                    push(&mut args, "--out", &to);
+                } else {
+                    args.push("write".into());
+                    push(&mut args, "--replay", &replay);
+                    let cal = dir.join("calibration.toml");
+                    std::fs::write(&cal, hostile_toml(rng, BASE_CALIBRATION)).unwrap();
+                    args.push(
+                        [cal.clone(), cal, log.clone(), dir.join("none.toml")]
+                            [rng.random_range(0..4)]
+                        .clone()
+                        .into(),
+                    );
+                }
+                if rng.random_bool(0.3) {
+                    push(&mut args, "--timeout-ms", &num(rng));
+                }
+            } else if rng.random_bool(0.5) {
                 args.push("capture".into());
                 push(&mut args, "--replay", &replay);
                 if rng.random_bool(0.3) {

@@ -14,6 +14,7 @@ use std::task::{Context, Poll, Waker};
 use std::time::Duration;
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use fpc::control::calibration::record::CalibrationRecord;
 use fpc::control::command::{Command, Refusal, Reply};
 use fpc::control::config::ControlConfig;
 use fpc::control::step::ControlStep;
@@ -24,7 +25,9 @@ use fpc::shared::Shared;
 use fpc::status::{ModeKind, Status};
 use fpc::units::Ticks;
 use hal_sim::link::defmt::DefmtLog;
-use hal_sim::link::session::{outcome_text, send_command, CaptureSession, Outcome};
+use hal_sim::link::session::{
+    outcome_text, read_calibration, send_command, write_calibration, CaptureSession, Outcome,
+};
 use hal_sim::link::{Channels, Replay};
 use hal_sim::run::{run, RunOptions};
 
@@ -281,6 +284,12 @@ struct SimBoard {
 
 impl SimBoard {
     fn new() -> SimBoard {
+        SimBoard::booted(None)
+    }
+
+    /// The board after a boot that loaded `stored` (as from flash), as the control task
+    /// boots.
+    fn booted(stored: Option<CalibrationRecord>) -> SimBoard {
         let shared: &'static Shared<NoopRawMutex> = Box::leak(Box::new(Shared::new()));
         let (down, up2, clock) = (Bytes::default(), Sink::default(), TestClock::default());
         let task = Box::pin(fpc::tasks::command_run(
@@ -290,12 +299,17 @@ impl SimBoard {
             clock.clone(),
             shared,
         ));
+        let mut step = ControlStep::new(ControlConfig::reference()).unwrap();
+        if let Some(record) = stored {
+            step.load_calibration(Ok(record));
+        }
+        shared.publish_calibration(step.calibration_record());
         SimBoard {
             down,
             up2,
             clock,
             shared,
-            step: ControlStep::new(ControlConfig::reference()).unwrap(),
+            step,
             task,
             read: 0,
         }
@@ -306,9 +320,9 @@ impl SimBoard {
         self.clock.0.set(self.clock.0.get().wrapping_add(1000));
         let mut cx = Context::from_waker(Waker::noop());
         let _ = self.task.as_mut().poll(&mut cx);
-        while let Some(command) = self.shared.take_command() {
-            let result = self.step.command(command);
-            self.shared.post_reply(Reply { command, result });
+        fpc::tasks::serve_commands(&mut self.step, self.shared);
+        if let Some(record) = self.step.take_calibration_to_save() {
+            self.shared.post_calibration(record);
         }
         let _ = self.task.as_mut().poll(&mut cx);
     }
@@ -392,6 +406,98 @@ fn a_command_round_trip_prints_the_controllers_answer() {
     assert_eq!(code, 2);
     let (code, _) = fpc_sim(&[&"link", &"send", &"--replay", &rec, &"calibrate", &"x"]);
     assert_eq!(code, 2);
+}
+
+/// The record the storage (or retaining) task was handed last, if any.
+fn handed_to_storage(board: &SimBoard) -> Option<CalibrationRecord> {
+    let mut save = Box::pin(board.shared.calibration_to_save());
+    match save.as_mut().poll(&mut Context::from_waker(Waker::noop())) {
+        Poll::Ready(record) => Some(record),
+        Poll::Pending => None,
+    }
+}
+
+#[test]
+fn the_calibration_record_is_read_and_written_over_the_link() {
+    let file =
+        hal_sim::calibration::parse(include_str!("../../tests/data/calibration.toml")).unwrap();
+    let mut board = SimBoard::booted(Some(file));
+    let t = Duration::from_secs(5);
+    let no_other = |l: String| panic!("unexpected answer {l}");
+
+    // Read: the bytes of the record the controller runs on.
+    let read = read_calibration(&mut board, t, no_other).unwrap();
+    assert_eq!(read, file.encode());
+    // The same answers, recorded, through the tool: the file it writes loads as that record.
+    let rec = recording("cal-read", &[], &[], &board.up2.0.borrow());
+    let out = temp("cal-read-out").join("cal.toml");
+    let (code, text) = fpc_sim(&[
+        &"link",
+        &"calibration",
+        &"read",
+        &"--replay",
+        &rec,
+        &"--out",
+        &out,
+    ]);
+    assert_eq!(code, 0, "{text}");
+    assert_eq!(hal_sim::calibration::read(&out).unwrap(), file);
+
+    // Write a changed record (through its file, as an operator would): loaded as a boot
+    // load does, handed to the storage task, and read back equal.
+    let mut changed = file;
+    let map = changed.calibrated.cogging.as_mut().unwrap();
+    map.sin_n[0] += 1.5;
+    let changed_file = temp("cal-write").join("changed.toml");
+    std::fs::write(
+        &changed_file,
+        hal_sim::calibration::to_toml(&changed, "test").unwrap(),
+    )
+    .unwrap();
+    let changed = hal_sim::calibration::read(&changed_file).unwrap();
+    assert_ne!(changed, file);
+    let before = board.up2.0.borrow().len();
+    write_calibration(&mut board, &changed.encode(), t, no_other).unwrap();
+    assert_eq!(board.step.calibration_record(), changed);
+    assert_eq!(handed_to_storage(&board), Some(changed));
+    assert_eq!(
+        read_calibration(&mut board, t, no_other).unwrap(),
+        changed.encode()
+    );
+    // The write's answers, recorded, through the tool.
+    let rec = recording("cal-write-rec", &[], &[], &board.up2.0.borrow()[before..]);
+    let (code, text) = fpc_sim(&[
+        &"link",
+        &"calibration",
+        &"write",
+        &"--replay",
+        &rec,
+        &changed_file,
+    ]);
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("accepted: calibration write"), "{text}");
+
+    // A corrupted byte: the commit is refused by name and nothing changes.
+    let mut bad = file.encode();
+    bad[40] ^= 0x10;
+    let e = write_calibration(&mut board, &bad, t, no_other).unwrap_err();
+    assert!(e.contains("not a valid calibration record"), "{e}");
+    assert_eq!(board.step.calibration_record(), changed);
+    assert_eq!(handed_to_storage(&board), None);
+    assert_eq!(
+        read_calibration(&mut board, t, no_other).unwrap(),
+        changed.encode()
+    );
+
+    // Refused while an operation is in progress (homing), nothing changes.
+    let got = round_trip(&mut board, Command::Home);
+    assert_eq!(outcome_text(&got), "accepted: home");
+    let e = write_calibration(&mut board, &file.encode(), t, no_other).unwrap_err();
+    assert!(
+        e.contains("refused: calibration commit") && e.contains("busy"),
+        "{e}"
+    );
+    assert_eq!(board.step.calibration_record(), changed);
 }
 
 #[test]

@@ -1,7 +1,8 @@
 //! `fpc-sim link`: the host link to the running board over RTT through a debug probe —
 //! `capture` records telemetry into a capture and a run log and shows the defmt log and the
-//! drop counters; `send` sends one command and prints the firmware's answer. `--replay DIR`
-//! runs either on recorded channel contents instead of the board.
+//! drop counters; `send` sends one command and prints the firmware's answer; `calibration
+//! read|write` moves the calibration record between the board and a calibration file.
+//! `--replay DIR` runs any of them on recorded channel contents instead of the board.
 //!
 //! The session logic is [`crate::link`]'s; this module is the command line and the files.
 
@@ -15,14 +16,18 @@ use fpc::control::command::{Command, Parameter};
 use fpc::motion::synchroniser::Rotation;
 use fpc::motion::volume_ratio::RatioTarget;
 
+use crate::calibration::to_toml;
 use crate::cli::decode::{counts, mostly_unusable, report_written};
 use crate::failure::{num, CmdResult, Failure};
 use crate::link::defmt::DefmtLog;
 use crate::link::replay::up_file;
-use crate::link::session::{outcome_text, send_command, CaptureSession, Outcome};
+use crate::link::session::{
+    outcome_text, read_calibration, send_command, write_calibration, CaptureSession, Outcome,
+};
 use crate::link::{Channels, Replay, CHIP};
 use crate::outln;
-use crate::output::{show, OutDir};
+use crate::output::{show, OutDir, OutFile};
+use fpc::control::calibration::record::{CalibrationRecord, RECORD_BYTES};
 
 const LINK_HELP: &str = "\
 RTT channels of the fpc firmware: up 0 defmt log, up 1 telemetry, up 2 command replies,
@@ -66,6 +71,59 @@ enum Action {
     /// 0), or refused or rejected with the reason (exit 1).
     #[command(after_help = SEND_HELP)]
     Send(SendArgs),
+    /// Read the calibration record the controller runs on into a calibration file, or
+    /// write a calibration file to the board (checked and loaded by the firmware, then kept
+    /// in flash or retained RAM).
+    #[command(after_help = CALIBRATION_HELP)]
+    Calibration(CalibrationArgs),
+}
+
+const CALIBRATION_HELP: &str = "\
+Examples:
+    fpc-sim link calibration read --out rig.toml
+    fpc-sim link calibration write rig.toml
+    fpc-sim link calibration read --replay rig-run --out rig.toml    (from a recording)
+
+The record goes in 16-byte chunks, each answered; a write ends with a commit carrying the
+record's CRC-32. The firmware loads it only when the whole record arrived in order and its
+magic, version and CRC hold, and only while idle (after boot, before homing): then the
+machine must home again. Otherwise it refuses with the reason (exit 1) and changes nothing.
+The file is the one `fpc-sim calibrate --out` writes and `fpc-sim run --calibration` loads.";
+
+/// `fpc-sim link calibration`.
+#[derive(Args, Debug)]
+struct CalibrationArgs {
+    #[command(subcommand)]
+    action: CalibrationAction,
+}
+
+#[derive(Subcommand, Debug)]
+enum CalibrationAction {
+    /// Read the record the controller runs on and write it as a calibration file.
+    Read {
+        #[command(flatten)]
+        target: Target,
+        /// The calibration file to write.
+        #[arg(long, value_name = "FILE")]
+        out: PathBuf,
+        /// Replace an existing file.
+        #[arg(long)]
+        force: bool,
+        /// How long to wait for each answer, ms.
+        #[arg(long, value_name = "MS", default_value_t = 1000)]
+        timeout_ms: u64,
+    },
+    /// Send a calibration file to the board, which checks it, loads it and keeps it.
+    Write {
+        #[command(flatten)]
+        target: Target,
+        /// The calibration file (as `fpc-sim calibrate --out` writes it).
+        #[arg(value_name = "FILE")]
+        file: PathBuf,
+        /// How long to wait for each answer, ms.
+        #[arg(long, value_name = "MS", default_value_t = 1000)]
+        timeout_ms: u64,
+    },
 }
 
 const CAPTURE_HELP: &str = "\
@@ -286,6 +344,7 @@ pub fn main(args: LinkArgs) -> CmdResult {
     match args.action {
         Action::Capture(a) => capture(a),
         Action::Send(a) => send(a),
+        Action::Calibration(a) => calibration(a.action),
     }
 }
 
@@ -465,13 +524,76 @@ fn capture(args: CaptureArgs) -> CmdResult {
     }
 }
 
-fn send(args: SendArgs) -> CmdResult {
-    if !(1..=60_000).contains(&args.timeout_ms) {
+/// The answer timeout, checked.
+fn timeout(ms: u64) -> Result<Duration, Failure> {
+    if !(1..=60_000).contains(&ms) {
         return Err(Failure::bad_input(format!(
-            "--timeout-ms {}: give 1 to 60000 ms",
-            args.timeout_ms
+            "--timeout-ms {ms}: give 1 to 60000 ms"
         )));
     }
+    Ok(Duration::from_millis(ms))
+}
+
+fn calibration(action: CalibrationAction) -> CmdResult {
+    let mut earlier = Vec::new();
+    match &action {
+        CalibrationAction::Read {
+            target,
+            out,
+            force,
+            timeout_ms,
+        } => {
+            let timeout = timeout(*timeout_ms)?;
+            let inputs: Vec<&Path> = target.replay.iter().map(PathBuf::as_path).collect();
+            let file = OutFile::prepare(out, *force, &inputs)?;
+            let mut channels = open(target)?;
+            let bytes = read_calibration(&mut channels, timeout, |l| earlier.push(l));
+            for line in earlier.drain(..) {
+                outln!("{line}")?;
+            }
+            let bytes = bytes.map_err(Failure::runtime)?;
+            let record = CalibrationRecord::decode(&bytes).map_err(|e| {
+                Failure::runtime(format!(
+                    "the board sent a record that does not decode: {e:?}"
+                ))
+            })?;
+            let text = to_toml(&record, "read from the board over the link")
+                .map_err(|e| Failure::runtime(format!("the board's calibration: {e}")))?;
+            std::fs::write(file.path(), text).map_err(|e| {
+                Failure::runtime(format!("cannot write {}: {e}", show(&file.final_path())))
+            })?;
+            let written = file.final_path();
+            file.commit()?;
+            outln!(
+                "read the calibration record ({RECORD_BYTES} bytes); wrote {}",
+                show(&written)
+            )
+        }
+        CalibrationAction::Write {
+            target,
+            file,
+            timeout_ms,
+        } => {
+            let timeout = timeout(*timeout_ms)?;
+            let record = crate::calibration::read(file).map_err(Failure::bad_input)?;
+            let mut channels = open(target)?;
+            let done = write_calibration(&mut channels, &record.encode(), timeout, |l| {
+                earlier.push(l)
+            });
+            for line in earlier.drain(..) {
+                outln!("{line}")?;
+            }
+            done.map_err(Failure::runtime)?;
+            outln!(
+                "accepted: calibration write of {}: loaded, the machine must home again",
+                show(file)
+            )
+        }
+    }
+}
+
+fn send(args: SendArgs) -> CmdResult {
+    timeout(args.timeout_ms)?;
     let command = args.command.command();
     let mut channels = open(&args.target)?;
     let mut earlier = Vec::new();

@@ -6,13 +6,20 @@
 //!   defmt log and any answers, and counts what was lost.
 //! * [`send_command`]: one command out on down 0 (the library's encoder), its answer awaited
 //!   on up 2 with a timeout.
+//! * [`read_calibration`], [`write_calibration`]: the calibration record in chunks, each
+//!   answered before the next goes out, the write committed with the record's CRC.
 
+use std::collections::VecDeque;
 use std::io::{self, Write};
 use std::time::{Duration, Instant};
 
-use fpc::control::command::{Command, Reply};
+use fpc::control::calibration::record::RECORD_BYTES;
+use fpc::control::command::{Command, Refusal, Reply};
 use fpc::link::commands::MAX_REPLY_WIRE;
-use fpc::link::commands::{decode_answer, encode_command, Answer, MAX_COMMAND_WIRE};
+use fpc::link::commands::{
+    decode_answer, encode_command, encode_transfer, tag, Answer, Chunk, Transfer, TransferId,
+    TransferReply, CHUNK_BYTES, MAX_COMMAND_WIRE,
+};
 use fpc::link::frame::{Deframer, FrameError, LinkStats};
 use fpc::motion::synchroniser::Rotation;
 use fpc::motion::volume_ratio::RatioTarget;
@@ -195,65 +202,221 @@ pub fn send_command<C: Channels + ?Sized>(
     channels: &mut C,
     command: &Command,
     timeout: Duration,
-    mut other: impl FnMut(String),
+    other: impl FnMut(String),
 ) -> Result<Outcome, String> {
     let mut wire = [0u8; MAX_COMMAND_WIRE];
     let n = encode_command(command, &mut wire)
         .map_err(|_| "the command does not fit a frame".to_string())?;
-    let wire = wire.get(..n).unwrap_or_default();
-    let started = Instant::now();
-    let mut sent = 0;
-    while sent < wire.len() {
-        let rest = wire.get(sent..).unwrap_or_default();
-        let n = channels
-            .write_down(DOWN_COMMANDS, rest)
-            .map_err(|e| format!("cannot write down-channel {DOWN_COMMANDS}: {e}"))?;
-        sent += n;
-        if n == 0 {
-            if started.elapsed() > timeout {
-                return Err(format!(
-                    "down-channel {DOWN_COMMANDS} stayed full for {} ms: is the firmware's \
-                     command task running?",
-                    timeout.as_millis()
-                ));
-            }
-            std::thread::sleep(Duration::from_millis(1));
+    let mut exchange = Exchange::new(channels, timeout, other);
+    let got = exchange.ask(
+        wire.get(..n).unwrap_or_default(),
+        &describe(command),
+        |a| match a {
+            Answer::Reply(reply) if same_command(&reply.command, command) => Some(*reply),
+            _ => None,
+        },
+    )?;
+    Ok(match got {
+        Ok(reply) => Outcome::Reply(reply),
+        Err(reason) => Outcome::Rejected(reason),
+    })
+}
+
+/// Requests on down 0 and their answers on up 2, one after the other: the answers are read
+/// by one reader, so an answer that arrives in the same piece as the one before is kept.
+struct Exchange<'c, C: ?Sized, O> {
+    channels: &'c mut C,
+    reader: AnswerReader,
+    pending: VecDeque<Result<Answer, FrameError>>,
+    timeout: Duration,
+    other: O,
+}
+
+impl<'c, C: Channels + ?Sized, O: FnMut(String)> Exchange<'c, C, O> {
+    fn new(channels: &'c mut C, timeout: Duration, other: O) -> Self {
+        Exchange {
+            channels,
+            reader: AnswerReader::new(),
+            pending: VecDeque::new(),
+            timeout,
+            other,
         }
     }
-    let mut reader = AnswerReader::new();
-    let mut buf = [0u8; 256];
-    loop {
-        let n = match channels.read_up(UP_REPLIES, &mut buf) {
-            Ok(n) => n,
-            Err(e) if is_end(&e) => {
+
+    /// Sends `wire` and waits for the answer `pick` recognises (or a rejection); answers it
+    /// does not recognise go to `other`. `what` names the request in errors.
+    fn ask<T>(
+        &mut self,
+        wire: &[u8],
+        what: &str,
+        mut pick: impl FnMut(&Answer) -> Option<T>,
+    ) -> Result<Result<T, FrameError>, String> {
+        let started = Instant::now();
+        let mut sent = 0;
+        while sent < wire.len() {
+            let rest = wire.get(sent..).unwrap_or_default();
+            let n = self
+                .channels
+                .write_down(DOWN_COMMANDS, rest)
+                .map_err(|e| format!("cannot write down-channel {DOWN_COMMANDS}: {e}"))?;
+            sent += n;
+            if n == 0 {
+                if started.elapsed() > self.timeout {
+                    return Err(format!(
+                        "down-channel {DOWN_COMMANDS} stayed full for {} ms: is the firmware's \
+                         command task running?",
+                        self.timeout.as_millis()
+                    ));
+                }
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+        let mut buf = [0u8; 256];
+        loop {
+            while let Some(answer) = self.pending.pop_front() {
+                match answer {
+                    Ok(Answer::Rejected(reason)) => return Ok(Err(reason)),
+                    Ok(a) => match pick(&a) {
+                        Some(t) => return Ok(Ok(t)),
+                        None => (self.other)(format!("earlier answer: {}", answer_text(&a))),
+                    },
+                    Err(e) => {
+                        (self.other)(format!("reply frame rejected: {}", frame_error_text(e)))
+                    }
+                }
+            }
+            let n = match self.channels.read_up(UP_REPLIES, &mut buf) {
+                Ok(n) => n,
+                Err(e) if is_end(&e) => {
+                    return Err(format!(
+                        "the recording of up-channel {UP_REPLIES} ended without an answer to \
+                         `{what}`"
+                    ))
+                }
+                Err(e) => return Err(format!("cannot read up-channel {UP_REPLIES}: {e}")),
+            };
+            self.pending
+                .extend(self.reader.push(buf.get(..n).unwrap_or_default()));
+            if n == 0 {
+                if started.elapsed() > self.timeout {
+                    return Err(format!(
+                        "no answer to `{what}` within {} ms on up-channel {UP_REPLIES}: is the \
+                         firmware running?",
+                        self.timeout.as_millis()
+                    ));
+                }
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+    }
+
+    /// Sends a calibration transfer; the chunk read, or the verdict, or why it failed.
+    fn transfer(&mut self, transfer: Transfer) -> Result<Result<Option<Chunk>, Refusal>, String> {
+        let mut wire = [0u8; MAX_COMMAND_WIRE];
+        let n = encode_transfer(&transfer, &mut wire)
+            .map_err(|_| "the request does not fit a frame".to_string())?;
+        let what = transfer_text(transfer.id());
+        let got = self.ask(wire.get(..n).unwrap_or_default(), &what, |a| {
+            match (a, transfer) {
+                (Answer::Calibration(TransferReply::Chunk(c)), Transfer::Read { offset })
+                    if c.offset == offset =>
+                {
+                    Some(Ok(Some(*c)))
+                }
+                (
+                    Answer::Calibration(TransferReply::Verdict {
+                        transfer: t,
+                        result,
+                    }),
+                    _,
+                ) if *t == transfer.id() => Some(result.map(|()| None)),
+                _ => None,
+            }
+        })?;
+        got.map_err(|reason| {
+            format!(
+                "rejected by the firmware: the `{what}` frame {}",
+                frame_error_text(reason)
+            )
+        })
+    }
+}
+
+/// Reads the calibration record the controller runs on, chunk by chunk; the bytes are
+/// checked (magic, version, CRC) by the caller's decoding.
+pub fn read_calibration<C: Channels + ?Sized>(
+    channels: &mut C,
+    timeout: Duration,
+    other: impl FnMut(String),
+) -> Result<[u8; RECORD_BYTES], String> {
+    let mut exchange = Exchange::new(channels, timeout, other);
+    let mut record = [0u8; RECORD_BYTES];
+    let mut offset = 0;
+    while offset < RECORD_BYTES {
+        let transfer = Transfer::Read {
+            offset: offset as u8,
+        };
+        let chunk = match exchange.transfer(transfer)? {
+            Ok(Some(chunk)) => chunk,
+            Ok(None) => {
                 return Err(format!(
-                    "the recording of up-channel {UP_REPLIES} ended without an answer to `{}`",
-                    describe(command)
+                    "no bytes in the answer to `{}`",
+                    transfer_text(transfer.id())
                 ))
             }
-            Err(e) => return Err(format!("cannot read up-channel {UP_REPLIES}: {e}")),
-        };
-        for answer in reader.push(buf.get(..n).unwrap_or_default()) {
-            match answer {
-                Ok(Answer::Reply(reply)) if same_command(&reply.command, command) => {
-                    return Ok(Outcome::Reply(reply))
-                }
-                Ok(Answer::Rejected(reason)) => return Ok(Outcome::Rejected(reason)),
-                Ok(a) => other(format!("earlier answer: {}", answer_text(&a))),
-                Err(e) => other(format!("reply frame rejected: {}", frame_error_text(e))),
-            }
-        }
-        if n == 0 {
-            if started.elapsed() > timeout {
+            Err(r) => {
                 return Err(format!(
-                    "no answer to `{}` within {} ms on up-channel {UP_REPLIES}: is the \
-                     firmware running?",
-                    describe(command),
-                    timeout.as_millis()
-                ));
+                    "refused: {}: {}",
+                    transfer_text(transfer.id()),
+                    r.reason()
+                ))
             }
-            std::thread::sleep(Duration::from_millis(1));
-        }
+        };
+        let data = chunk.data();
+        record
+            .get_mut(offset..offset + data.len())
+            .ok_or_else(|| format!("the chunk at offset {offset} runs past the record"))?
+            .copy_from_slice(data);
+        offset += data.len();
+    }
+    Ok(record)
+}
+
+/// Writes `record` (its encoded bytes) chunk by chunk, then commits it with its CRC: the
+/// firmware checks it and loads it, or refuses it and changes nothing.
+pub fn write_calibration<C: Channels + ?Sized>(
+    channels: &mut C,
+    record: &[u8; RECORD_BYTES],
+    timeout: Duration,
+    other: impl FnMut(String),
+) -> Result<(), String> {
+    let mut exchange = Exchange::new(channels, timeout, other);
+    let mut send = |transfer: Transfer| match exchange.transfer(transfer)? {
+        Ok(_) => Ok(()),
+        Err(r) => Err(format!(
+            "refused: {}: {}",
+            transfer_text(transfer.id()),
+            r.reason()
+        )),
+    };
+    for (i, data) in record.chunks(CHUNK_BYTES).enumerate() {
+        let chunk = Chunk::new((i * CHUNK_BYTES) as u8, data)
+            .ok_or_else(|| "a chunk does not fit a frame".to_string())?;
+        send(Transfer::Write(chunk))?;
+    }
+    let crc = match record.get(RECORD_BYTES - 4..) {
+        Some(&[a, b, c, d]) => u32::from_le_bytes([a, b, c, d]),
+        _ => return Err("the record has no CRC".into()),
+    };
+    send(Transfer::Commit { crc })
+}
+
+/// A calibration transfer as one line of text.
+pub fn transfer_text(id: TransferId) -> String {
+    match id.tag {
+        tag::CALIBRATION_READ => format!("calibration read at offset {}", id.arg),
+        tag::CALIBRATION_WRITE => format!("calibration write at offset {}", id.arg),
+        _ => format!("calibration commit, CRC {:08x}", id.arg),
     }
 }
 
@@ -337,6 +500,23 @@ pub fn answer_text(answer: &Answer) -> String {
         Answer::Rejected(reason) => format!(
             "rejected by the firmware: the command frame {}",
             frame_error_text(*reason)
+        ),
+        Answer::Calibration(TransferReply::Chunk(chunk)) => format!(
+            "calibration chunk: {} bytes at offset {}",
+            chunk.data().len(),
+            chunk.offset
+        ),
+        Answer::Calibration(TransferReply::Verdict {
+            transfer,
+            result: Ok(()),
+        }) => format!("accepted: {}", transfer_text(*transfer)),
+        Answer::Calibration(TransferReply::Verdict {
+            transfer,
+            result: Err(refusal),
+        }) => format!(
+            "refused: {}: {}",
+            transfer_text(*transfer),
+            refusal.reason()
         ),
     }
 }
