@@ -21,7 +21,8 @@
 //! The calibration transfer (`0x1B`..`0x1D`) is the command task's, not the controller's:
 //! the record ([`crate::control::calibration::record`], [`RECORD_BYTES`] bytes) moves in
 //! chunks of up to [`CHUNK_BYTES`] at a byte offset. A read answers the bytes of the record
-//! the controller runs on. Writes fill a staging buffer strictly in order (offset 0 starts
+//! the controller runs on ([`Refusal::Busy`] before the control task has published it,
+//! [`Refusal::OutOfRange`] past the end). Writes fill a staging buffer strictly in order (offset 0 starts
 //! over; any other offset must be where the previous chunk ended, else
 //! [`Refusal::ChunkOutOfOrder`] and the staging is unchanged); the commit is accepted only
 //! when all [`RECORD_BYTES`] are staged, the record decodes (magic, version, CRC) and its CRC
