@@ -127,67 +127,56 @@ impl Line {
         self.buf.get(..self.len).unwrap_or(&[])
     }
 
-    /// A cursor on the text (its length a local, kept in a register while it writes: the
-    /// byte stores through `buf` cannot change it).
+    /// Runs `f` on a cursor at the line's end and keeps what it appended (the cursor's
+    /// length is a local, kept in a register while it writes: the byte stores through `buf`
+    /// cannot change it).
     #[inline(always)]
-    fn cursor(&mut self) -> Cursor<'_> {
-        Cursor {
+    fn append(&mut self, f: impl FnOnce(&mut Cursor<'_>)) {
+        let mut c = Cursor {
             buf: &mut self.buf,
             len: self.len,
-        }
+        };
+        f(&mut c);
+        self.len = c.len;
     }
 
     /// Appends one byte (dropped if the line is full, which its room rules out).
     pub fn push(&mut self, b: u8) {
-        let mut c = self.cursor();
-        c.push(b);
-        self.len = c.len;
+        self.append(|c| c.push(b));
     }
 
     /// Appends `text` (dropped if there is no room for it).
     pub fn extend(&mut self, text: &[u8]) {
-        let mut c = self.cursor();
-        c.put(text);
-        self.len = c.len;
+        self.append(|c| c.put(text));
     }
 
     /// Appends a whole number.
     pub fn whole(&mut self, v: u64) {
-        let mut c = self.cursor();
-        c.whole(v);
-        self.len = c.len;
+        self.append(|c| c.whole(v));
     }
 
     /// Appends `v` rounded to `decimals` (≤ 14) decimals, or in its shortest round-trip form
     /// when it is not finite or too large for them.
     pub fn fixed(&mut self, v: f64, decimals: u32) {
-        let mut c = self.cursor();
-        c.fixed(v, decimals);
-        self.len = c.len;
+        self.append(|c| c.fixed(v, decimals));
     }
 
     /// Appends `v` in its shortest round-trip form.
     pub fn shortest(&mut self, v: f64) {
-        let mut c = self.cursor();
-        c.shortest(v);
-        self.len = c.len;
+        self.append(|c| c.shortest(v));
     }
 
     /// Appends the time of control cycle `cycle` (`cycle` × `period_us` µs) in seconds,
     /// exactly.
     pub fn time(&mut self, cycle: u64, period_us: u64) {
-        let mut c = self.cursor();
-        c.time(cycle, period_us);
-        self.len = c.len;
+        self.append(|c| c.time(cycle, period_us));
     }
 
     /// Appends one row of the run log as CSV (no newline): the time of control cycle `cycle`
     /// (exact, from `period_us`), then `values` (in [`super::COLUMNS`]' order; the first, the
     /// time, is not read) each at its column's [`DECIMALS`].
     pub fn row(&mut self, cycle: u64, period_us: u64, values: &[f64; 18]) {
-        let mut c = self.cursor();
-        c.row(cycle, period_us, values);
-        self.len = c.len;
+        self.append(|c| c.row(cycle, period_us, values));
     }
 }
 
