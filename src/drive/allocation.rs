@@ -13,7 +13,9 @@ use crate::units::PerSection;
 /// Allocation parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AllocationConfig {
-    /// Relative capability of each section (1 = nominal, 0 = lost). Shares are proportional.
+    /// Relative capability of each section, within [0, 1] (1 = nominal, 0 = lost;
+    /// `ControlStep::new` refuses others, so [`allocate`] does not clamp it every cycle).
+    /// Shares are proportional.
     pub capability: PerSection<f32>,
     /// Peak force one nominal section can deliver, N.
     pub section_limit_n: f32,
@@ -41,13 +43,9 @@ impl AllocationConfig {
 #[inline(always)]
 pub fn allocate(config: &AllocationConfig, force_n: f32, x_m: f32) -> PerSection<f32> {
     let wanted = force_n - config.cogging.force_n(x_m);
-    if wanted.is_nan() {
-        return PerSection::default();
-    }
-    let cm = clamp_f32(config.capability.master, 0.0, 1.0);
-    let cs = clamp_f32(config.capability.slave, 0.0, 1.0);
+    let (cm, cs) = (config.capability.master, config.capability.slave);
     let total = cm + cs;
-    if total <= 0.0 {
+    if wanted.is_nan() || total.is_nan() || total <= 0.0 {
         return PerSection::default();
     }
     let share = |c: f32| {
@@ -84,5 +82,32 @@ mod tests {
         // At a quarter period the map predicts +30 N: the motors supply 30 N less.
         let f = allocate(&c, 0.0, 0.006);
         assert!((f.master + f.slave + 30.0).abs() < 0.1);
+    }
+
+    #[test]
+    fn both_sections_lost_or_nan_capability_commands_nothing() {
+        let mut c = AllocationConfig::reference();
+        c.capability = PerSection {
+            master: 0.0,
+            slave: 0.0,
+        };
+        assert_eq!(allocate(&c, 3000.0, 0.1), PerSection::default());
+        c.capability.master = f32::NAN;
+        assert_eq!(allocate(&c, 3000.0, 0.1), PerSection::default());
+    }
+
+    #[test]
+    fn the_step_refuses_a_capability_outside_zero_to_one() {
+        use crate::control::config::{ConfigError, ControlConfig};
+        use crate::control::step::ControlStep;
+        for bad in [-0.1, 1.5, f32::NAN, f32::INFINITY] {
+            let mut config = ControlConfig::reference();
+            config.allocation.capability.slave = bad;
+            assert_eq!(
+                ControlStep::new(config).err(),
+                Some(ConfigError::OutOfRange("allocation.capability.slave")),
+                "{bad}"
+            );
+        }
     }
 }

@@ -203,6 +203,21 @@ impl ControlStep {
                 return Err(ConfigError::OutOfRange(name));
             }
         }
+        // The allocation relies on capabilities within [0, 1] (NaN fails too).
+        for (name, c) in [
+            (
+                "allocation.capability.master",
+                config.allocation.capability.master,
+            ),
+            (
+                "allocation.capability.slave",
+                config.allocation.capability.slave,
+            ),
+        ] {
+            if !(0.0..=1.0).contains(&c) {
+                return Err(ConfigError::OutOfRange(name));
+            }
+        }
         let threshold = config.disturbance_threshold_n;
         if threshold.is_nan() || threshold < 0.0 {
             return Err(ConfigError::OutOfRange("disturbance_threshold_n"));
