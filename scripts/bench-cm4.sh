@@ -20,8 +20,9 @@ elf="$bench/target/thumbv7em-none-eabihf/release/fpc-bench-cm4"
 # file's rustflags, so firmware link flags in a root .cargo/config.toml (-Tlink.x -Tdefmt.x)
 # cannot add a second -Tlink.x to this link.
 cd "$bench"
+# --target-dir: the ELF read below is the one just built, whatever CARGO_TARGET_DIR says.
 RUSTFLAGS="" cargo build --release --target thumbv7em-none-eabihf \
-    --manifest-path "$bench/Cargo.toml"
+    --manifest-path "$bench/Cargo.toml" --target-dir "$bench/target"
 
 # -icount shift=10: each instruction is 1024 ns of virtual time, which the bench's timer
 # arithmetic assumes (its calibration fails otherwise). 120 s is ~50x the normal run time.
