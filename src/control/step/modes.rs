@@ -279,6 +279,13 @@ impl ControlStep {
     ///    spring that takes the piston's kinetic energy, and the short circuit damps the
     ///    rebound. A coasting rotation would open the chamber ahead to its intake, or hold it
     ///    on the discharge line (a constant 2.5 kN push back over the whole stroke).
+    ///    Except near a dead point, the chamber ahead already discharging: the line's
+    ///    pressure, which the sections had to drive the piston against, turns it there, and
+    ///    the turn back to seal that chamber (against the rotation's own speed) would leave
+    ///    it on the line through the rebound, the line pushing the piston back across the
+    ///    stroke (a plant 9 % lighter than the model reached the other head). Then the
+    ///    other chamber, ahead after the turn, is sealed: forward, the way the rotation
+    ///    already goes, past the dead-point phase where the discharge closes.
     #[cold]
     #[inline(never)]
     pub(super) fn brake_without_position(&mut self) {
@@ -286,13 +293,23 @@ impl ControlStep {
             return;
         }
         let g = &self.config.port_geometry;
-        let (intake, discharge) = if self.status.velocity_mps >= 0.0 {
+        let ramp = g.ramp_rad;
+        let phase = turn_phase(self.theta_reference_rad);
+        let toward_b = self.status.velocity_mps >= 0.0;
+        // The chamber ahead already discharging: the line turns the piston before its dead
+        // point; the chamber to seal is the other one, ahead after the turn (see above).
+        let ahead = if toward_b {
+            &g.discharge_b
+        } else {
+            &g.discharge_a
+        };
+        let discharging =
+            turn_phase(phase - ahead.open_rad) < turn_phase(ahead.close_rad - ahead.open_rad);
+        let (intake, discharge) = if toward_b != discharging {
             (&g.intake_b, &g.discharge_b)
         } else {
             (&g.intake_a, &g.discharge_a)
         };
-        let ramp = g.ramp_rad;
-        let phase = turn_phase(self.theta_reference_rad);
         // The two arcs between the chamber's windows, each inset by a ramp at both ends:
         // the turn to the nearest point of either (0 inside one).
         let mut best: Option<f32> = None;
