@@ -185,7 +185,10 @@ impl SavitzkyGolay {
                     -a
                 };
             }
-            let norm = gram_norm(&signed, n) as f64;
+            // Exact (below 2⁵³), in two u32 halves: a u64 → f64 conversion is one more
+            // library routine.
+            let norm = gram_norm(&signed, n);
+            let norm = f64::from((norm >> 32) as u32) * 4_294_967_296.0 + f64::from(norm as u32);
             let poly = monomial_coefficients(&signed);
             let (d1, d2) = derivatives_at(&poly, lag);
             *wv = (-d1 / norm * m / dt) as f32;
