@@ -67,7 +67,7 @@ pub fn fmod_f32(x: f32, y: f32) -> f32 {
     let mut ey = ((uy >> 23) & 0xFF) as i32;
     let sign = ux & 0x8000_0000;
     if uy << 1 == 0 || y.is_nan() || ex == 0xFF {
-        return (x * y) / (x * y);
+        return f32::NAN;
     }
     if ux << 1 <= uy << 1 {
         return if ux << 1 == uy << 1 { 0.0 * x } else { x };

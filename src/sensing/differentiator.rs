@@ -157,7 +157,6 @@ impl SavitzkyGolay {
         let mut alpha = [[0u32; MAX_ORDER + 1]; MAX_ORDER];
         let mut weights_v = [0.0f32; MAX_ORDER];
         let mut weights_a = [0.0f32; MAX_ORDER];
-        let lag = cfg.lag as f64;
         for (p, ((row, wv), wa)) in alpha
             .iter_mut()
             .zip(weights_v.iter_mut())
@@ -189,8 +188,11 @@ impl SavitzkyGolay {
             // library routine.
             let norm = gram_norm(&signed, n);
             let norm = f64::from((norm >> 32) as u32) * 4_294_967_296.0 + f64::from(norm as u32);
-            let poly = monomial_coefficients(&signed);
-            let (d1, d2) = derivatives_at(&poly, lag);
+            let [d1, d2] = derivatives_at_lag(&signed, cfg.lag).map(|d| {
+                // 24·Pₚ⁽ᵐ⁾(L) is an exact integer below 2⁴²: to f64 exactly in two halves.
+                let hi = (d >> 32) as i32;
+                (f64::from(hi) * 4_294_967_296.0 + f64::from(d as u32)) / 24.0
+            });
             *wv = (-d1 / norm * m / dt) as f32;
             *wa = (d2 / norm * m / (dt * dt)) as f32;
         }
@@ -369,6 +371,7 @@ fn gram_moment(alpha: &[u32; MAX_ORDER + 1], t: &Moments, p: usize) -> i64 {
 
 /// `C(n, q)` for the small arguments used here (n ≤ 41, q ≤ 5: at most 749 398; every
 /// intermediate product below 3.1·10⁷). In u32, whose division the Cortex-M4 has in hardware.
+#[inline(never)]
 fn binomial(n: usize, q: usize) -> u32 {
     let n = u32::try_from(n).unwrap_or(u32::MAX);
     let mut c: u32 = 1;
@@ -439,54 +442,32 @@ fn gcd(mut a: u32, mut b: u32) -> u32 {
     a
 }
 
-/// Monomial coefficients (ascending powers of j) of `Σ_q α_q·C(j, q)`.
-fn monomial_coefficients(alpha: &[i32; MAX_ORDER + 1]) -> [f64; MAX_ORDER + 1] {
-    let mut out = [0.0f64; MAX_ORDER + 1];
-    // C(j, q) = j(j−1)…(j−q+1)/q!, built up one factor at a time.
-    let mut falling = [0.0f64; MAX_ORDER + 1];
-    if let Some(f) = falling.first_mut() {
-        *f = 1.0;
-    }
-    let mut factorial = 1.0f64;
+/// 24·P′(L) and 24·P″(L), exactly, for P(j) = Σ_q α_q·C(j, q) (`alpha` signed): with
+/// C(j, q) = F_q(j)/q! and the falling factorial F_q(j) = j(j−1)…(j−q+1), 24/q! is an integer
+/// for q ≤ 4, so both are integers. F_q and its first two derivatives at L by the product
+/// rule, one factor (L − q) at a time. |α| ≤ 46 376 and L ≤ 40 keep every term below 2⁴²
+/// (so the f64 conversion after it is exact too).
+fn derivatives_at_lag(alpha: &[i32; MAX_ORDER + 1], lag: usize) -> [i64; 2] {
+    let l = i64::try_from(lag).unwrap_or(0);
+    // (F_q(L), F_q′(L), F_q″(L)), starting from F₀ = 1.
+    let (mut f, mut f1, mut f2) = (1i64, 0i64, 0i64);
+    let mut scale = 24i64; // 24/q!
+    let (mut d1, mut d2) = (0i64, 0i64);
     for (q, &a) in alpha.iter().enumerate() {
+        let q = q as i64;
         if q > 0 {
-            factorial *= q as f64;
-            // falling ← falling·(j − (q−1))
-            let shift = (q - 1) as f64;
-            let mut next = [0.0f64; MAX_ORDER + 1];
-            for (m, nx) in next.iter_mut().enumerate() {
-                let lower = if m > 0 {
-                    falling.get(m - 1).copied().unwrap_or(0.0)
-                } else {
-                    0.0
-                };
-                *nx = lower - shift * falling.get(m).copied().unwrap_or(0.0);
-            }
-            falling = next;
+            scale /= q;
         }
-        for (o, f) in out.iter_mut().zip(falling.iter()) {
-            *o += f64::from(a) * f / factorial;
-        }
+        let c = i64::from(a) * scale;
+        d1 += c * f1;
+        d2 += c * f2;
+        // F_{q+1}(j) = F_q(j)·(j − q)
+        let t = l - q;
+        f2 = f2 * t + 2 * f1;
+        f1 = f1 * t + f;
+        f *= t;
     }
-    out
-}
-
-/// First and second derivative at `j` of the polynomial with ascending coefficients `c`.
-fn derivatives_at(c: &[f64; MAX_ORDER + 1], j: f64) -> (f64, f64) {
-    let mut d1 = 0.0;
-    let mut d2 = 0.0;
-    let mut pow = 1.0; // j^(m−1) for d1, then j^(m−2) for d2 via `prev`
-    let mut prev = 0.0;
-    for (m, &cm) in c.iter().enumerate().skip(1) {
-        let mf = m as f64;
-        d1 += mf * cm * pow;
-        if m >= 2 {
-            d2 += mf * (mf - 1.0) * cm * prev;
-        }
-        prev = pow;
-        pow *= j;
-    }
-    (d1, d2)
+    [d1, d2]
 }
 
 #[cfg(test)]
@@ -668,6 +649,56 @@ mod tests {
         assert!(worst < 1e-6, "worst relative weight error {worst:e}");
     }
 
+    /// Monomial coefficients (ascending powers of j) of `Σ_q α_q·C(j, q)`.
+    fn monomial_coefficients(alpha: &[i32; MAX_ORDER + 1]) -> [f64; MAX_ORDER + 1] {
+        let mut out = [0.0f64; MAX_ORDER + 1];
+        // C(j, q) = j(j−1)…(j−q+1)/q!, built up one factor at a time.
+        let mut falling = [0.0f64; MAX_ORDER + 1];
+        if let Some(f) = falling.first_mut() {
+            *f = 1.0;
+        }
+        let mut factorial = 1.0f64;
+        for (q, &a) in alpha.iter().enumerate() {
+            if q > 0 {
+                factorial *= q as f64;
+                // falling ← falling·(j − (q−1))
+                let shift = (q - 1) as f64;
+                let mut next = [0.0f64; MAX_ORDER + 1];
+                for (m, nx) in next.iter_mut().enumerate() {
+                    let lower = if m > 0 {
+                        falling.get(m - 1).copied().unwrap_or(0.0)
+                    } else {
+                        0.0
+                    };
+                    *nx = lower - shift * falling.get(m).copied().unwrap_or(0.0);
+                }
+                falling = next;
+            }
+            for (o, f) in out.iter_mut().zip(falling.iter()) {
+                *o += f64::from(a) * f / factorial;
+            }
+        }
+        out
+    }
+
+    /// First and second derivative at `j` of the polynomial with ascending coefficients `c`.
+    fn derivatives_at(c: &[f64; MAX_ORDER + 1], j: f64) -> (f64, f64) {
+        let mut d1 = 0.0;
+        let mut d2 = 0.0;
+        let mut pow = 1.0; // j^(m−1) for d1, then j^(m−2) for d2 via `prev`
+        let mut prev = 0.0;
+        for (m, &cm) in c.iter().enumerate().skip(1) {
+            let mf = m as f64;
+            d1 += mf * cm * pow;
+            if m >= 2 {
+                d2 += mf * (mf - 1.0) * cm * prev;
+            }
+            prev = pow;
+            pow *= j;
+        }
+        (d1, d2)
+    }
+
     /// The weights by the Gram–Schmidt route, as `new` computed them before the closed form.
     fn reference_weights(c: SgConfig) -> ([f32; MAX_ORDER], [f32; MAX_ORDER]) {
         let (n, k) = (c.window, c.order);
@@ -707,13 +738,21 @@ mod tests {
                 let norm: i128 = g[p][..n].iter().map(|v| v * v).sum();
                 assert_eq!(i128::from(gram_norm(&signed, n)), norm, "n={n} p={p}");
                 assert!(norm < 1i128 << 53, "‖P‖² exact in f64");
+                for lag in 0..n {
+                    for d in derivatives_at_lag(&signed, lag) {
+                        assert!(d.unsigned_abs() < 1 << 42, "n={n} p={p} lag={lag}: {d}");
+                    }
+                }
             }
             assert_eq!(gram_binomial_coefficients(n, n), None);
         }
     }
 
+    /// The exact integer derivatives against the f64 route `new` used before: the same f32
+    /// weights bit for bit, except where the exact weight is zero (P′ₚ(L) = 0 by symmetry:
+    /// order 4 at the centred lag), which the f64 route left as rounding noise.
     #[test]
-    fn weights_are_bit_identical_to_the_gram_schmidt_route() {
+    fn weights_match_the_gram_schmidt_route_bit_for_bit_except_its_rounding_noise() {
         let firmware = crate::control::config::ControlConfig::reference();
         let scales = [
             (
@@ -733,8 +772,22 @@ mod tests {
                 };
                 let sg = SavitzkyGolay::new(c).unwrap();
                 let (wv, wa) = reference_weights(c);
-                assert_eq!(sg.weights_v.map(f32::to_bits), wv.map(f32::to_bits));
-                assert_eq!(sg.weights_a.map(f32::to_bits), wa.map(f32::to_bits));
+                for (weights, reference) in [(sg.weights_v, wv), (sg.weights_a, wa)] {
+                    let largest = reference.iter().fold(0.0f32, |a, w| a.max(w.abs()));
+                    for (w, r) in weights.iter().zip(&reference) {
+                        if w.to_bits() != r.to_bits() {
+                            assert!(
+                                *w == 0.0 && r.abs() <= 1e-12 * largest,
+                                "n={n} k={k} lag={lag}: {w:e}, reference {r:e}"
+                            );
+                            assert_eq!((k, 2 * lag + 1), (4, n), "only where P′₄(L) = 0");
+                        }
+                    }
+                }
+                if (n, k, lag) == (firmware.sg_window, firmware.sg_order, firmware.sg_lag) {
+                    assert_eq!(sg.weights_v.map(f32::to_bits), wv.map(f32::to_bits));
+                    assert_eq!(sg.weights_a.map(f32::to_bits), wa.map(f32::to_bits));
+                }
             }
         }
     }
