@@ -19,6 +19,13 @@ the thread-mode executor first sleeps (WFE/WFI), i.e. once main has spawned ever
 each has run up to its first wait. A system reset request, a fault (UDF, an unmapped
 access) or the step limit end the run early and fail the check.
 
+Flash outside the program reads as erased (0xFF), as on a new board, so the calibration
+store (the last four pages of bank 2) is empty: the boot must read it, log
+`calibration_missing` with "Start refused until calibrated" (the defmt frames on RTT
+up-channel 0 are decoded with the ELF's .defmt table) and neither unlock nor program nor
+erase the flash. The self-test also boots with the store pages all zeros (no valid item):
+that must be logged as `calibration_invalid`, not pass as an empty store.
+
 The ELF is run a second time as a host that attached in "block if full" mode on a full
 defmt channel and never reads: logging must not wait, the boot must still reach the idle
 executor.
@@ -32,7 +39,10 @@ import sys
 from dataclasses import dataclass, replace
 
 from elftools.elf.elffile import ELFFile
-from unicorn import Uc, UcError, UC_ARCH_ARM, UC_MODE_MCLASS, UC_MODE_THUMB, UC_HOOK_CODE
+import json
+
+from unicorn import (Uc, UcError, UC_ARCH_ARM, UC_MODE_MCLASS, UC_MODE_THUMB, UC_HOOK_CODE,
+                     UC_HOOK_MEM_READ)
 from unicorn.arm_const import (
     UC_ARM_REG_PC,
     UC_ARM_REG_SP,
@@ -49,6 +59,9 @@ FLASH = (0x0800_0000, 512 * 1024)
 RAM = (0x2000_0000, 128 * 1024)
 CCM = (0x1000_0000, 32 * 1024)
 SYSMEM = (0x1FFF_0000, 0x1_0000)  # system memory, UID, flash size: reads 0
+# The calibration store: the last four 2 KiB pages of bank 2, cut from memory.x
+# (src/board/mod.rs, CALIBRATION_STORE).
+STORE = (0x0807_E000, 4 * 2048)
 PERIPH = (0x4000_0000, 0x2000_0000)  # APB1/APB2/AHB1/AHB2 up to 0x5FFF_FFFF
 PPB = (0xE000_0000, 0x10_0000)
 
@@ -256,6 +269,8 @@ class Run:
     symbols: dict
     rtt_write: int  # defmt up-channel write offset at the end (bytes logged, mod size)
     rtt_full: bool  # the host-blocking scenario was armed
+    store_reads: set  # word addresses read in the calibration store
+    defmt: list  # decoded defmt frames: (format string, frame bytes)
 
 
 def load_elf(path):
@@ -266,15 +281,25 @@ def load_elf(path):
             for seg in elf.iter_segments()
             if seg["p_type"] == "PT_LOAD" and seg["p_filesz"] > 0
         ]
-        symbols, objects = {}, {}
+        symbols, objects, defmt = {}, {}, {}
         symtab = elf.get_section_by_name(".symtab")
+        defmt_section = None
+        for index, section in enumerate(elf.iter_sections()):
+            if section.name == ".defmt":
+                defmt_section = index
         if symtab:
             for sym in symtab.iter_symbols():
+                if defmt_section is not None and sym["st_shndx"] == defmt_section:
+                    try:
+                        defmt[sym["st_value"]] = json.loads(sym.name)["data"]
+                    except (ValueError, KeyError):
+                        pass
+                    continue
                 if sym["st_info"]["type"] == "STT_FUNC" and sym["st_size"] > 0:
                     symbols[sym["st_value"] & ~1] = (sym.name, sym["st_size"])
                 elif sym["st_info"]["type"] == "STT_OBJECT":
                     objects[sym.name] = sym["st_value"]
-    return segments, symbols, objects
+    return segments, symbols, objects, defmt
 
 
 def symbol_at(symbols, pc):
@@ -284,13 +309,57 @@ def symbol_at(symbols, pc):
     return "?"
 
 
+def rzcobs_decode(frame):
+    """One defmt frame (without its 0x00 separator) decoded from rzCOBS, read from its end
+    (defmt's encoding/rzcobs.rs: 0xxxxxxx = seven bytes, bit set = a zero byte; 1nnnnnnn =
+    n+7 bytes then a zero; 0xFF = 134 bytes). Trailing padding zeros may remain."""
+    out, i = [], len(frame)
+    while i > 0:
+        i -= 1
+        x = frame[i]
+        if x == 0xFF:
+            out.extend(reversed(frame[max(i - 134, 0):i]))
+            i -= 134
+        elif x & 0x80:
+            n = (x & 0x7F) + 7
+            out.append(0)
+            out.extend(reversed(frame[max(i - n, 0):i]))
+            i -= n
+        else:
+            for bit in range(6, -1, -1):
+                if x & (1 << bit):
+                    out.append(0)
+                elif i > 0:
+                    i -= 1
+                    out.append(frame[i])
+    return bytes(reversed(out))
+
+
+def defmt_frames(data, table):
+    """(format string, decoded frame) of each complete frame: a frame starts with its
+    format string's index, u16 little-endian."""
+    frames = []
+    for raw in data.split(b"\x00")[1:-1]:
+        if not raw:
+            continue
+        frame = rzcobs_decode(raw)
+        if len(frame) >= 2:
+            frames.append((table.get(int.from_bytes(frame[:2], "little"), "?"), frame))
+    return frames
+
+
 def run_elf(path, step_limit=STEP_LIMIT, inject=None):
-    segments, symbols, objects = load_elf(path)
+    segments, symbols, objects, defmt_table = load_elf(path)
     rtt = objects.get("_SEGGER_RTT")
     mu = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
     mu.ctl_set_cpu_model(UC_CPU_ARM_CORTEX_M4)  # has the FPU; no CPACR gate in unicorn
     for base, size in (FLASH, RAM, CCM, SYSMEM):
         mu.mem_map(base, size)
+    # Flash outside the program is erased (0xFF), as on a new board: in particular the
+    # calibration store's pages, which the boot reads.
+    mu.mem_write(FLASH[0], b"\xff" * FLASH[1])
+    if inject == "store-zeroed":
+        mu.mem_write(STORE[0], b"\x00" * STORE[1])
     for addr, data in segments:
         mu.mem_write(addr, data)
     model = Model(inject)
@@ -346,6 +415,12 @@ def run_elf(path, step_limit=STEP_LIMIT, inject=None):
             uc.emu_stop()
 
     mu.hook_add(UC_HOOK_CODE, on_code)
+    store_reads = set()
+
+    def on_store_read(uc, access, address, size, value, _):
+        store_reads.add(address & ~3)
+
+    mu.hook_add(UC_HOOK_MEM_READ, on_store_read, None, STORE[0], STORE[0] + STORE[1] - 1)
     sp, reset = struct.unpack("<II", bytes(mu.mem_read(FLASH[0], 8)))
     mu.reg_write(UC_ARM_REG_SP, sp)
     mu.reg_write(UC_ARM_REG_LR, 0xFFFF_FFFF)
@@ -356,11 +431,40 @@ def run_elf(path, step_limit=STEP_LIMIT, inject=None):
     pc = mu.reg_read(UC_ARM_REG_PC)
     if state["end"] is None:
         state["end"] = "emulation stopped"
-    rtt_write = None
+    rtt_write, frames = None, []
     if up0 is not None:
-        rtt_write = struct.unpack("<I", bytes(mu.mem_read(up0 + 12, 4)))[0]
+        buffer, size, rtt_write = struct.unpack("<III", bytes(mu.mem_read(up0 + 4, 12)))
+        if buffer and not state["rtt_full"]:
+            frames = defmt_frames(bytes(mu.mem_read(buffer, rtt_write)), defmt_table)
     return Run(model.log, state["steps"], state["end"], pc, state["idle"], symbols,
-               rtt_write, state["rtt_full"])
+               rtt_write, state["rtt_full"], store_reads, frames)
+
+
+def calibration_at_boot(run):
+    """What the boot said about the stored calibration: the status name in its log line
+    ('calibration loaded: …' or '… : Start refused until calibrated'), or None."""
+    for text, frame in run.defmt:
+        if "Start refused until calibrated" in text or text.startswith("calibration loaded"):
+            for status in (b"calibration_missing", b"calibration_invalid",
+                           b"calibration_incomplete", b"calibrated"):
+                if status in frame:
+                    return status.decode(), "Start refused" in text
+    return None
+
+
+def store_checks(run):
+    """The calibration store at boot, on an erased board: read, found empty, not written."""
+    pages = sorted({(a - STORE[0]) // 2048 for a in run.store_reads})
+    said = calibration_at_boot(run)
+    flash_ops = [w for w in run.log if w.addr in (FLASH_R + 0x08, FLASH_R + 0x14)]
+    return [
+        ("calibration store read at boot (erased pages)", len(pages) == STORE[1] // 2048,
+         f"{len(run.store_reads)} words read, pages {pages}", []),
+        ("no calibration stored: boot logs calibration_missing and refuses Start",
+         said == ("calibration_missing", True), f"logged {said}", []),
+        ("store not unlocked, programmed or erased at boot (FLASH_KEYR, FLASH_CR untouched)",
+         not flash_ops, f"{len(flash_ops)} writes", []),
+    ]
 
 
 # ---- checks (pure functions of the write log) -------------------------------------------
@@ -590,8 +694,21 @@ INJECTIONS = [
 ]
 
 
+def store_injection_test(path, step_limit):
+    """A store of zeros (not erased, no valid item): the boot must call it invalid, still
+    refuse Start, and still reach the idle executor (the check above must then fail)."""
+    run = run_elf(path, step_limit, inject="store-zeroed")
+    said = calibration_at_boot(run)
+    caught = not store_checks(run)[1][1]
+    ok = caught and said == ("calibration_invalid", True) and run.idle
+    print(f"  {'caught' if ok else 'MISSED':6s} calibration store all zeros: logged {said}, "
+          f"{run.end}")
+    return 0 if ok else 1
+
+
 def injection_test(path, step_limit):
-    missed = 0
+    print("\nself-test: a calibration store that is not empty must not pass as empty")
+    missed = store_injection_test(path, step_limit)
     print("\nself-test: hardware faults injected, the firmware must stop before running")
     for name, what in INJECTIONS:
         run = run_elf(path, step_limit, inject=name)
@@ -638,6 +755,8 @@ def main():
     results.insert(2, ("defmt never blocks: host set 'block if full', buffer full, never read",
                        blocked.rtt_full and blocked.idle,
                        f"armed: {blocked.rtt_full}; {blocked.end} after {blocked.steps} instructions", []))
+    for i, check in enumerate(store_checks(run)):
+        results.insert(3 + i, check)
     failed = 0
     for name, ok, detail, _ in results:
         failed += not ok

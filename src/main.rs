@@ -9,10 +9,9 @@
 //!   calibration storage task ([`fpc::tasks::calibration_store_run`], saves each routine's
 //!   result to flash).
 //!
-//! With the feature `calibration-store` (`cargo fw --features calibration-store`; off by
-//! default, over the flash budget) the calibration record is read from flash at boot,
-//! before the control task starts — missing or invalid, the machine refuses `Start` until
-//! calibrated — and each routine's result is saved by the storage task.
+//! The calibration record is read from flash at boot, before the control task starts —
+//! missing or invalid, the machine refuses `Start` until calibrated — and each routine's
+//! result is saved by the storage task.
 //!
 //! Each embassy task is a thin concrete wrapper: embassy tasks cannot be generic, the
 //! bodies are. All hardware glue is in `board` (pins, clocks, interrupts, safe state).
@@ -65,7 +64,6 @@ mod firmware {
     }
 
     /// The calibration storage task (thread mode): saves each routine's record to flash.
-    #[cfg(feature = "calibration-store")]
     #[embassy_executor::task]
     async fn calibration_store(store: board::BoardCalibrationStore) {
         let never: Infallible =
@@ -103,19 +101,8 @@ mod firmware {
         match never {}
     }
 
-    /// The calibration retaining task (thread mode, no flash store): each routine's record
-    /// kept in RAM for the boot after a watchdog reset.
-    #[cfg(not(feature = "calibration-store"))]
-    #[embassy_executor::task]
-    async fn retain_calibration() {
-        let never: Infallible =
-            fpc::tasks::calibration_retain_run(&SHARED, board::retained::keep).await;
-        match never {}
-    }
-
     /// Reads the calibration from flash (memory-mapped reads, well inside the watchdog's
     /// boot window) and starts the storage task with the store.
-    #[cfg(feature = "calibration-store")]
     async fn load_calibration(
         spawner: &Spawner,
         board: &mut board::Board,
@@ -147,14 +134,8 @@ mod firmware {
             ResetCause::Watchdog => defmt::error!("reset by the independent watchdog: a task hung"),
             cause => defmt::info!("boot after {}", cause),
         }
-        #[cfg_attr(not(feature = "calibration-store"), allow(unused_mut))]
         let mut board = board::init();
-        #[cfg(feature = "calibration-store")]
         let stored = Some(load_calibration(&spawner, &mut board).await);
-        // Without a flash store: after a watchdog reset, the calibration the machine ran on
-        // (kept in RAM), else the built-in configuration.
-        #[cfg(not(feature = "calibration-store"))]
-        let stored = board::retained::at_boot(reset_cause).map(Ok);
         board::start_control_executor().spawn(defmt::unwrap!(control(
             board.control,
             reset_cause,
@@ -172,8 +153,6 @@ mod firmware {
             BoardSleep,
             BoardClock
         )));
-        #[cfg(not(feature = "calibration-store"))]
-        spawner.spawn(defmt::unwrap!(retain_calibration()));
         defmt::info!("running: control, supervision, telemetry and command tasks");
     }
 }

@@ -45,20 +45,16 @@
 //! | DMA1_CHANNEL1 | 1 | end of burst: copy the samples, wake the control task |
 //! | UART5 | 2 | the control executor (`InterruptExecutor`; the UART itself is unused) |
 //! | TIM2 | 3 | embassy-time (only the thread-mode tasks wait on time) |
-//! | FLASH | 4 | end of a flash program or erase (the calibration storage task, feature `calibration-store`) |
+//! | FLASH | 4 | end of a flash program or erase (the calibration storage task) |
 //! | thread mode | — | supervision (watchdog), telemetry, commands, calibration storage |
 //!
-//! # Flash (feature `calibration-store`)
+//! # Flash
 //! The program lives in bank 1; the last four 2 KiB pages of bank 2 (0x0807_E000 to
 //! 0x0808_0000, cut from `memory.x`) hold the calibration store ([`CALIBRATION_STORE`]). In
 //! dual-bank mode the banks read while the other is written, so a page erase (≈ 22 ms) in
 //! bank 2 never stalls the control code. The async driver waits for the FLASH interrupt
 //! instead of spinning in a critical section: embassy's *blocking* region writes and erases
 //! run inside one, which would stop the 20 kHz control task for the whole erase.
-//!
-//! Off by default: `sequential-storage` and the async flash driver add ≈ 24 KiB of flash
-//! (114 KiB in all, measured), over the 96 KiB budget of `scripts/fw-size.sh`; without the
-//! feature the firmware boots with the built-in configuration taken as calibrated.
 //!
 //! # Safe state
 //! Motor outputs are off (MOE = 0, all gates driven low) from [`init`] until the control
@@ -73,8 +69,6 @@ mod adc;
 mod clocks;
 mod fault;
 mod pwm;
-#[cfg(not(feature = "calibration-store"))]
-pub mod retained;
 pub mod rtt;
 mod servo;
 mod time;
@@ -112,23 +106,19 @@ const BURST_PRIORITY: Priority = Priority::P1;
 const CONTROL_PRIORITY: Priority = Priority::P2;
 /// Priority of embassy-time's TIM2 interrupt: never delays the control task.
 const TIME_PRIORITY: Priority = Priority::P3;
-#[cfg(feature = "calibration-store")]
 /// Priority of the flash controller's interrupt: the least urgent (it only wakes the storage
 /// task).
 const FLASH_PRIORITY: Priority = Priority::P4;
 
-#[cfg(feature = "calibration-store")]
 /// The calibration store's bytes, offsets from the start of flash: the last four pages of
 /// bank 2, which `memory.x` keeps out of the program.
 pub const CALIBRATION_STORE: core::ops::Range<u32> = 0x7_E000..0x8_0000;
 
-#[cfg(feature = "calibration-store")]
 /// The calibration store on the MCU's flash.
 pub type BoardCalibrationStore = fpc::control::calibration::store::CalibrationStore<
     embassy_stm32::flash::Flash<'static, embassy_stm32::flash::Async>,
 >;
 
-#[cfg(feature = "calibration-store")]
 embassy_stm32::bind_interrupts!(struct FlashIrqs {
     FLASH => embassy_stm32::flash::InterruptHandler;
 });
@@ -144,7 +134,6 @@ pub struct Board {
     /// The running watchdog; feed it within [`watchdog::WATCHDOG_TIMEOUT_US`] (after a first
     /// feed within [`watchdog::BOOT_WATCHDOG_TIMEOUT_US`] of power-up).
     pub watchdog: BoardWatchdog,
-    #[cfg(feature = "calibration-store")]
     /// The calibration store (`None` if its range does not fit the flash's pages, which
     /// the boot then treats as an unreadable calibration).
     pub calibration: Option<BoardCalibrationStore>,
@@ -245,7 +234,6 @@ pub fn init() -> Board {
     };
     let motor_pwm = bridges.start(section1, section2);
 
-    #[cfg(feature = "calibration-store")]
     let calibration = {
         interrupt::FLASH.set_priority(FLASH_PRIORITY);
         let flash = embassy_stm32::flash::Flash::new(p.FLASH, FlashIrqs);
@@ -273,7 +261,6 @@ pub fn init() -> Board {
         clock: BoardClock,
         sleep: BoardSleep,
         watchdog,
-        #[cfg(feature = "calibration-store")]
         calibration,
     }
 }

@@ -273,7 +273,7 @@ impl Synchroniser {
 
 /// Wraps into [0, 2π).
 fn wrap(a: f32) -> f32 {
-    let r = a % TAU;
+    let r = crate::real::fmod_f32(a, TAU);
     if r < 0.0 {
         r + TAU
     } else {

@@ -11,8 +11,9 @@
 //! # How: orthogonal moments, updated recursively
 //! Number the window by sample age j = 0 (newest) … N−1. Let P₀ … P_K be the discrete
 //! orthogonal (Gram) polynomials on j = 0..N−1, each scaled to its smallest integer values
-//! (computed at init by exact integer Gram–Schmidt on 1, j, j², … — the least-squares
-//! definition itself, no pasted tables). The least-squares fit is
+//! (computed at init in exact integer arithmetic from their closed form, the Hahn
+//! polynomials; the tests check it against integer Gram–Schmidt on 1, j, j², …, the
+//! least-squares definition itself; no pasted tables). The least-squares fit is
 //! `f(j) = Σₚ Mₚ·Pₚ(j)/‖Pₚ‖²` with the *Gram moments* `Mₚ = Σⱼ Pₚ(j)·x₋ⱼ`, so
 //!
 //! `v = −(1/T)·Σₚ Mₚ·P′ₚ(L)/‖Pₚ‖²`,  `a = (1/T²)·Σₚ Mₚ·P″ₚ(L)/‖Pₚ‖²`
@@ -134,7 +135,7 @@ pub struct SavitzkyGolay {
 
 impl SavitzkyGolay {
     /// Builds the differentiator: checks the configuration and derives every constant from
-    /// the least-squares definition (integer Gram–Schmidt).
+    /// the closed form of the Gram polynomials in exact integer arithmetic.
     pub fn new(cfg: SgConfig) -> Result<Self, SgError> {
         let n = cfg.window;
         if !(3..=MAX_WINDOW).contains(&n) || n.is_multiple_of(2) {
@@ -152,54 +153,57 @@ impl SavitzkyGolay {
             return Err(SgError::Scale);
         }
         let k = cfg.order;
-        let gram = gram_polynomials(n, k).ok_or(SgError::Order)?;
 
         let mut alpha = [[0u32; MAX_ORDER + 1]; MAX_ORDER];
         let mut weights_v = [0.0f32; MAX_ORDER];
         let mut weights_a = [0.0f32; MAX_ORDER];
-        let lag = cfg.lag as f64;
-        for (p, (((row, wv), wa), values)) in alpha
+        for (p, ((row, wv), wa)) in alpha
             .iter_mut()
             .zip(weights_v.iter_mut())
             .zip(weights_a.iter_mut())
-            .zip(gram.iter().skip(1))
             .take(k)
             .enumerate()
         {
             let degree = p + 1;
-            let values = values.get(..n).ok_or(SgError::Window)?;
-            let signed = binomial_coefficients(values, degree).ok_or(SgError::Order)?;
-            // Pₚ's sign is free: make the leading coefficient positive. The coefficients
-            // then alternate in sign, αₚ_q = (−1)^(p−q)·|αₚ_q| (the discrete Chebyshev
-            // polynomials' explicit form), which lets the hot path multiply by |α| as u32
-            // with the sign folded into an add or a subtract. Checked here, not assumed.
-            let flip = signed.get(degree).is_some_and(|&a| a < 0);
-            for (q, (a, &c)) in row.iter_mut().zip(&signed).enumerate().take(degree + 1) {
-                let c = if flip { -c } else { c };
-                let expected_positive = (degree - q).is_multiple_of(2);
-                if c != 0 && (c > 0) != expected_positive {
-                    return Err(SgError::Order);
-                }
-                *a = c.unsigned_abs();
-            }
+            *row = gram_binomial_coefficients(n, degree).ok_or(SgError::Order)?;
             if degree == 1 && row.get(1) != Some(&1) {
                 return Err(SgError::Order);
             }
-            let sign = if flip { -1.0 } else { 1.0 };
-            let norm: f64 = values.iter().map(|&v| (v as f64) * (v as f64)).sum();
-            let poly = monomial_coefficients(&signed);
-            let (d1, d2) = derivatives_at(&poly, lag);
-            *wv = (-sign * d1 / norm * m / dt) as f32;
-            *wa = (sign * d2 / norm * m / (dt * dt)) as f32;
+            // The signs alternate, αₚ_q = (−1)^(p−q)·|αₚ_q|, with the leading one positive.
+            let mut signed = [0i32; MAX_ORDER + 1];
+            for (q, (s, &a)) in signed
+                .iter_mut()
+                .zip(row.iter())
+                .enumerate()
+                .take(degree + 1)
+            {
+                let a = i32::try_from(a).map_err(|_| SgError::Order)?;
+                *s = if (degree - q).is_multiple_of(2) {
+                    a
+                } else {
+                    -a
+                };
+            }
+            // Exact (below 2⁵³), in two u32 halves: a u64 → f64 conversion is one more
+            // library routine.
+            let norm = gram_norm(&signed, n);
+            let norm = f64::from((norm >> 32) as u32) * 4_294_967_296.0 + f64::from(norm as u32);
+            let [d1, d2] = derivatives_at_lag(&signed, cfg.lag).map(|d| {
+                // 24·Pₚ⁽ᵐ⁾(L) is an exact integer below 2⁴²: to f64 exactly in two halves.
+                let hi = (d >> 32) as i32;
+                (f64::from(hi) * 4_294_967_296.0 + f64::from(d as u32)) / 24.0
+            });
+            *wv = (-d1 / norm * m / dt) as f32;
+            *wa = (d2 / norm * m / (dt * dt)) as f32;
         }
 
         let mut leaving = [0u32; MAX_ORDER];
         for (q, c) in leaving.iter_mut().enumerate() {
-            *c = u32::try_from(binomial(n, q + 1)).map_err(|_| SgError::Window)?;
+            *c = binomial(n, q + 1);
         }
         let mut constant = [0i64; MAX_ORDER + 1];
         for (q, c) in constant.iter_mut().enumerate() {
-            *c = i64::try_from(binomial(n, q + 1)).map_err(|_| SgError::Window)?;
+            *c = i64::from(binomial(n, q + 1));
         }
         Ok(SavitzkyGolay {
             window: n,
@@ -365,80 +369,72 @@ fn gram_moment(alpha: &[u32; MAX_ORDER + 1], t: &Moments, p: usize) -> i64 {
         })
 }
 
-/// The coefficients of the polynomial of `degree` through `values` (at j = 0, 1, …) in the
-/// binomial basis C(j, q): its forward differences at j = 0 (Newton's formula). `None` if
-/// one does not fit an i32 (never for n ≤ 41, k ≤ 4: |α| ≤ 46 376).
-fn binomial_coefficients(values: &[i128], degree: usize) -> Option<[i32; MAX_ORDER + 1]> {
-    let mut diff = [0i128; MAX_WINDOW];
-    for (d, v) in diff.iter_mut().zip(values) {
-        *d = *v;
-    }
-    let mut out = [0i32; MAX_ORDER + 1];
-    for (q, a) in out.iter_mut().enumerate().take(degree + 1) {
-        *a = diff.first().and_then(|&d| i32::try_from(d).ok())?;
-        for i in 0..values.len().saturating_sub(q + 1) {
-            let next = diff.get(i + 1).copied().unwrap_or(0);
-            if let Some(d) = diff.get_mut(i) {
-                *d = next.checked_sub(*d)?;
-            }
-        }
-    }
-    Some(out)
-}
-
-/// `C(n, q)` for the small arguments used here (n ≤ 41, q ≤ 5: at most 749 398).
-fn binomial(n: usize, q: usize) -> u64 {
-    let mut c: u64 = 1;
-    for i in 0..q as u64 {
+/// `C(n, q)` for the small arguments used here (n ≤ 41, q ≤ 5: at most 749 398; every
+/// intermediate product below 3.1·10⁷). In u32, whose division the Cortex-M4 has in hardware.
+#[inline(never)]
+fn binomial(n: usize, q: usize) -> u32 {
+    let n = u32::try_from(n).unwrap_or(u32::MAX);
+    let mut c: u32 = 1;
+    for i in 0..q as u32 {
         // Exact at every step: c·(n−i) is divisible by i+1 (c is then C(n, i+1)).
-        c = c.saturating_mul((n as u64).saturating_sub(i)) / (i + 1);
+        c = c.saturating_mul(n.saturating_sub(i)) / (i + 1);
     }
     c
 }
 
-/// Values at j = 0..n−1 of the Gram polynomials P₀..P_k, each scaled to coprime integers:
-/// Gram–Schmidt on 1, j, j², … in exact integer arithmetic (each projection is removed
-/// by `v ← ‖P‖²·v − ⟨v, P⟩·P`, then the common factor is divided out). `None` if a value
-/// ever left i128 (impossible for n ≤ 41, k ≤ 4: intermediates stay below 2⁹³).
-fn gram_polynomials(n: usize, k: usize) -> Option<[[i128; MAX_WINDOW]; MAX_ORDER + 1]> {
-    let mut basis = [[0i128; MAX_WINDOW]; MAX_ORDER + 1];
-    for (p, poly) in basis.iter_mut().enumerate().take(k + 1) {
-        let mut v = [0i128; MAX_WINDOW];
-        for (j, x) in v.iter_mut().enumerate().take(n) {
-            *x = (j as i128).checked_pow(p as u32)?;
-        }
-        *poly = v;
+/// |αₚ_q|, q = 0..=p: the coefficients of the Gram polynomial Pₚ of the window j = 0..n−1 in
+/// the binomial basis C(j, q), as the coprime integers with a positive leading one.
+///
+/// Pₚ is the Hahn polynomial Q_p(j; 0, 0, n−1) = Σ_q (−1)^q·C(p, q)·C(p+q, q)·C(j, q)/C(n−1, q)
+/// (the discrete Chebyshev polynomial, orthogonal on j = 0..n−1 with unit weights), up to
+/// scale. Times (−1)^p·(n−1)(n−2)…(n−p) the q-th coefficient is the integer
+/// (−1)^(p−q)·C(p, q)·C(p+q, q)·q!·(n−q−1)…(n−p), at most 2 193 360 for n ≤ 41, p ≤ 4, so u32
+/// holds every step; dividing by the magnitudes' gcd gives the coprime scaling. (Coprime
+/// coefficients and coprime values are the same thing: each is an integer combination of
+/// the other, the values by Newton's formula, the coefficients as forward differences.)
+/// The tests check the result against exact Gram–Schmidt on 1, j, j², … for every window.
+/// `None` if p ≥ n or p > 4.
+fn gram_binomial_coefficients(n: usize, p: usize) -> Option<[u32; MAX_ORDER + 1]> {
+    if p > MAX_ORDER || p >= n {
+        return None;
     }
-    for p in 0..=k {
-        let (done, rest) = basis.split_at_mut(p);
-        let v = rest.first_mut()?;
-        for q in done.iter() {
-            let norm = dot(q, q, n)?;
-            let proj = dot(v, q, n)?;
-            for (x, &b) in v.iter_mut().zip(q.iter()).take(n) {
-                *x = x.checked_mul(norm)?.checked_sub(proj.checked_mul(b)?)?;
-            }
-            let g = v
-                .iter()
-                .take(n)
-                .fold(0u128, |g, x| gcd(g, x.unsigned_abs()));
-            let g = i128::try_from(g).ok().filter(|g| *g > 0)?;
-            for x in v.iter_mut().take(n) {
-                *x = x.checked_div(g)?;
-            }
+    let n32 = u32::try_from(n).ok()?;
+    let mut out = [0u32; MAX_ORDER + 1];
+    let mut g = 0u32;
+    for (q, a) in out.iter_mut().enumerate().take(p + 1) {
+        let mut v = binomial(p, q).checked_mul(binomial(p + q, q))?;
+        for i in 1..=q as u32 {
+            v = v.checked_mul(i)?;
         }
+        for i in (q + 1) as u32..=p as u32 {
+            v = v.checked_mul(n32.checked_sub(i)?)?;
+        }
+        *a = v;
+        g = gcd(g, v);
     }
-    Some(basis)
+    if g == 0 {
+        return None;
+    }
+    for a in out.iter_mut() {
+        *a /= g;
+    }
+    Some(out)
 }
 
-fn dot(a: &[i128; MAX_WINDOW], b: &[i128; MAX_WINDOW], n: usize) -> Option<i128> {
-    a.iter()
-        .zip(b)
-        .take(n)
-        .try_fold(0i128, |s, (x, y)| s.checked_add(x.checked_mul(*y)?))
+/// ‖Pₚ‖² = Σⱼ Pₚ(j)² over j = 0..n−1, from its binomial-basis coefficients. Exact: below
+/// 2⁵³ for every window (checked by the tests), so also exact as an f64.
+fn gram_norm(alpha: &[i32; MAX_ORDER + 1], n: usize) -> u64 {
+    let mut norm = 0u64;
+    for j in 0..n {
+        let value = alpha.iter().enumerate().fold(0i64, |s, (q, &a)| {
+            s.wrapping_add(i64::from(a).wrapping_mul(i64::from(binomial(j, q))))
+        });
+        norm = norm.wrapping_add(value.unsigned_abs().wrapping_mul(value.unsigned_abs()));
+    }
+    norm
 }
 
-fn gcd(mut a: u128, mut b: u128) -> u128 {
+fn gcd(mut a: u32, mut b: u32) -> u32 {
     while b != 0 {
         // b ≠ 0: the remainder is defined.
         (a, b) = (b, a % b);
@@ -446,54 +442,32 @@ fn gcd(mut a: u128, mut b: u128) -> u128 {
     a
 }
 
-/// Monomial coefficients (ascending powers of j) of `Σ_q α_q·C(j, q)`.
-fn monomial_coefficients(alpha: &[i32; MAX_ORDER + 1]) -> [f64; MAX_ORDER + 1] {
-    let mut out = [0.0f64; MAX_ORDER + 1];
-    // C(j, q) = j(j−1)…(j−q+1)/q!, built up one factor at a time.
-    let mut falling = [0.0f64; MAX_ORDER + 1];
-    if let Some(f) = falling.first_mut() {
-        *f = 1.0;
-    }
-    let mut factorial = 1.0f64;
+/// 24·P′(L) and 24·P″(L), exactly, for P(j) = Σ_q α_q·C(j, q) (`alpha` signed): with
+/// C(j, q) = F_q(j)/q! and the falling factorial F_q(j) = j(j−1)…(j−q+1), 24/q! is an integer
+/// for q ≤ 4, so both are integers. F_q and its first two derivatives at L by the product
+/// rule, one factor (L − q) at a time. |α| ≤ 46 376 and L ≤ 40 keep every term below 2⁴²
+/// (so the f64 conversion after it is exact too).
+fn derivatives_at_lag(alpha: &[i32; MAX_ORDER + 1], lag: usize) -> [i64; 2] {
+    let l = i64::try_from(lag).unwrap_or(0);
+    // (F_q(L), F_q′(L), F_q″(L)), starting from F₀ = 1.
+    let (mut f, mut f1, mut f2) = (1i64, 0i64, 0i64);
+    let mut scale = 24i64; // 24/q!
+    let (mut d1, mut d2) = (0i64, 0i64);
     for (q, &a) in alpha.iter().enumerate() {
+        let q = q as i64;
         if q > 0 {
-            factorial *= q as f64;
-            // falling ← falling·(j − (q−1))
-            let shift = (q - 1) as f64;
-            let mut next = [0.0f64; MAX_ORDER + 1];
-            for (m, nx) in next.iter_mut().enumerate() {
-                let lower = if m > 0 {
-                    falling.get(m - 1).copied().unwrap_or(0.0)
-                } else {
-                    0.0
-                };
-                *nx = lower - shift * falling.get(m).copied().unwrap_or(0.0);
-            }
-            falling = next;
+            scale /= q;
         }
-        for (o, f) in out.iter_mut().zip(falling.iter()) {
-            *o += f64::from(a) * f / factorial;
-        }
+        let c = i64::from(a) * scale;
+        d1 += c * f1;
+        d2 += c * f2;
+        // F_{q+1}(j) = F_q(j)·(j − q)
+        let t = l - q;
+        f2 = f2 * t + 2 * f1;
+        f1 = f1 * t + f;
+        f *= t;
     }
-    out
-}
-
-/// First and second derivative at `j` of the polynomial with ascending coefficients `c`.
-fn derivatives_at(c: &[f64; MAX_ORDER + 1], j: f64) -> (f64, f64) {
-    let mut d1 = 0.0;
-    let mut d2 = 0.0;
-    let mut pow = 1.0; // j^(m−1) for d1, then j^(m−2) for d2 via `prev`
-    let mut prev = 0.0;
-    for (m, &cm) in c.iter().enumerate().skip(1) {
-        let mf = m as f64;
-        d1 += mf * cm * pow;
-        if m >= 2 {
-            d2 += mf * (mf - 1.0) * cm * prev;
-        }
-        prev = pow;
-        pow *= j;
-    }
-    (d1, d2)
+    [d1, d2]
 }
 
 #[cfg(test)]
@@ -501,6 +475,79 @@ fn derivatives_at(c: &[f64; MAX_ORDER + 1], j: f64) -> (f64, f64) {
 #[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
+
+    // The reference route: exact integer Gram–Schmidt (the least-squares definition).
+
+    /// Values at j = 0..n−1 of the Gram polynomials P₀..P_k, each scaled to coprime integers:
+    /// Gram–Schmidt on 1, j, j², … in exact integer arithmetic (each projection is removed
+    /// by `v ← ‖P‖²·v − ⟨v, P⟩·P`, then the common factor is divided out). `None` if a value
+    /// ever left i128 (impossible for n ≤ 41, k ≤ 4: intermediates stay below 2⁹³).
+    fn gram_polynomials(n: usize, k: usize) -> Option<[[i128; MAX_WINDOW]; MAX_ORDER + 1]> {
+        let mut basis = [[0i128; MAX_WINDOW]; MAX_ORDER + 1];
+        for (p, poly) in basis.iter_mut().enumerate().take(k + 1) {
+            let mut v = [0i128; MAX_WINDOW];
+            for (j, x) in v.iter_mut().enumerate().take(n) {
+                *x = (j as i128).checked_pow(p as u32)?;
+            }
+            *poly = v;
+        }
+        for p in 0..=k {
+            let (done, rest) = basis.split_at_mut(p);
+            let v = rest.first_mut()?;
+            for q in done.iter() {
+                let norm = dot(q, q, n)?;
+                let proj = dot(v, q, n)?;
+                for (x, &b) in v.iter_mut().zip(q.iter()).take(n) {
+                    *x = x.checked_mul(norm)?.checked_sub(proj.checked_mul(b)?)?;
+                }
+                let g = v
+                    .iter()
+                    .take(n)
+                    .fold(0u128, |g, x| gcd128(g, x.unsigned_abs()));
+                let g = i128::try_from(g).ok().filter(|g| *g > 0)?;
+                for x in v.iter_mut().take(n) {
+                    *x = x.checked_div(g)?;
+                }
+            }
+        }
+        Some(basis)
+    }
+
+    fn dot(a: &[i128; MAX_WINDOW], b: &[i128; MAX_WINDOW], n: usize) -> Option<i128> {
+        a.iter()
+            .zip(b)
+            .take(n)
+            .try_fold(0i128, |s, (x, y)| s.checked_add(x.checked_mul(*y)?))
+    }
+
+    fn gcd128(mut a: u128, mut b: u128) -> u128 {
+        while b != 0 {
+            // b ≠ 0: the remainder is defined.
+            (a, b) = (b, a % b);
+        }
+        a
+    }
+
+    /// The coefficients of the polynomial of `degree` through `values` (at j = 0, 1, …) in the
+    /// binomial basis C(j, q): its forward differences at j = 0 (Newton's formula). `None` if
+    /// one does not fit an i32 (never for n ≤ 41, k ≤ 4: |α| ≤ 46 376).
+    fn binomial_coefficients(values: &[i128], degree: usize) -> Option<[i32; MAX_ORDER + 1]> {
+        let mut diff = [0i128; MAX_WINDOW];
+        for (d, v) in diff.iter_mut().zip(values) {
+            *d = *v;
+        }
+        let mut out = [0i32; MAX_ORDER + 1];
+        for (q, a) in out.iter_mut().enumerate().take(degree + 1) {
+            *a = diff.first().and_then(|&d| i32::try_from(d).ok())?;
+            for i in 0..values.len().saturating_sub(q + 1) {
+                let next = diff.get(i + 1).copied().unwrap_or(0);
+                if let Some(d) = diff.get_mut(i) {
+                    *d = next.checked_sub(*d)?;
+                }
+            }
+        }
+        Some(out)
+    }
 
     fn cfg(window: usize, order: usize, lag: usize) -> SgConfig {
         SgConfig {
@@ -600,6 +647,149 @@ mod tests {
             }
         }
         assert!(worst < 1e-6, "worst relative weight error {worst:e}");
+    }
+
+    /// Monomial coefficients (ascending powers of j) of `Σ_q α_q·C(j, q)`.
+    fn monomial_coefficients(alpha: &[i32; MAX_ORDER + 1]) -> [f64; MAX_ORDER + 1] {
+        let mut out = [0.0f64; MAX_ORDER + 1];
+        // C(j, q) = j(j−1)…(j−q+1)/q!, built up one factor at a time.
+        let mut falling = [0.0f64; MAX_ORDER + 1];
+        if let Some(f) = falling.first_mut() {
+            *f = 1.0;
+        }
+        let mut factorial = 1.0f64;
+        for (q, &a) in alpha.iter().enumerate() {
+            if q > 0 {
+                factorial *= q as f64;
+                // falling ← falling·(j − (q−1))
+                let shift = (q - 1) as f64;
+                let mut next = [0.0f64; MAX_ORDER + 1];
+                for (m, nx) in next.iter_mut().enumerate() {
+                    let lower = if m > 0 {
+                        falling.get(m - 1).copied().unwrap_or(0.0)
+                    } else {
+                        0.0
+                    };
+                    *nx = lower - shift * falling.get(m).copied().unwrap_or(0.0);
+                }
+                falling = next;
+            }
+            for (o, f) in out.iter_mut().zip(falling.iter()) {
+                *o += f64::from(a) * f / factorial;
+            }
+        }
+        out
+    }
+
+    /// First and second derivative at `j` of the polynomial with ascending coefficients `c`.
+    fn derivatives_at(c: &[f64; MAX_ORDER + 1], j: f64) -> (f64, f64) {
+        let mut d1 = 0.0;
+        let mut d2 = 0.0;
+        let mut pow = 1.0; // j^(m−1) for d1, then j^(m−2) for d2 via `prev`
+        let mut prev = 0.0;
+        for (m, &cm) in c.iter().enumerate().skip(1) {
+            let mf = m as f64;
+            d1 += mf * cm * pow;
+            if m >= 2 {
+                d2 += mf * (mf - 1.0) * cm * prev;
+            }
+            prev = pow;
+            pow *= j;
+        }
+        (d1, d2)
+    }
+
+    /// The weights by the Gram–Schmidt route, as `new` computed them before the closed form.
+    fn reference_weights(c: SgConfig) -> ([f32; MAX_ORDER], [f32; MAX_ORDER]) {
+        let (n, k) = (c.window, c.order);
+        let gram = gram_polynomials(n, k).unwrap();
+        let (dt, m) = (f64::from(c.sample_time_s), f64::from(c.m_per_count));
+        let mut wv = [0.0f32; MAX_ORDER];
+        let mut wa = [0.0f32; MAX_ORDER];
+        for p in 1..=k {
+            let values = &gram[p][..n];
+            let signed = binomial_coefficients(values, p).unwrap();
+            let sign = if signed[p] < 0 { -1.0 } else { 1.0 };
+            let norm: f64 = values.iter().map(|&v| (v as f64) * (v as f64)).sum();
+            let (d1, d2) = derivatives_at(&monomial_coefficients(&signed), c.lag as f64);
+            wv[p - 1] = (-sign * d1 / norm * m / dt) as f32;
+            wa[p - 1] = (sign * d2 / norm * m / (dt * dt)) as f32;
+        }
+        (wv, wa)
+    }
+
+    #[test]
+    fn closed_form_gram_polynomials_match_gram_schmidt_for_every_window() {
+        for n in (3..=MAX_WINDOW).step_by(2) {
+            let k = MAX_ORDER.min(n - 1);
+            let g = gram_polynomials(n, k).unwrap();
+            for p in 1..=k {
+                let gs = binomial_coefficients(&g[p][..n], p).unwrap();
+                let flip = if gs[p] < 0 { -1 } else { 1 };
+                let closed = gram_binomial_coefficients(n, p).unwrap();
+                let mut signed = [0i32; MAX_ORDER + 1];
+                for q in 0..=p {
+                    let expected = i64::from(gs[q]) * flip;
+                    let sign = if (p - q) % 2 == 0 { 1 } else { -1 };
+                    assert_eq!(i64::from(closed[q]) * sign, expected, "n={n} p={p} q={q}");
+                    signed[q] = gs[q] * flip as i32;
+                }
+                assert!(closed[p + 1..].iter().all(|&a| a == 0));
+                let norm: i128 = g[p][..n].iter().map(|v| v * v).sum();
+                assert_eq!(i128::from(gram_norm(&signed, n)), norm, "n={n} p={p}");
+                assert!(norm < 1i128 << 53, "‖P‖² exact in f64");
+                for lag in 0..n {
+                    for d in derivatives_at_lag(&signed, lag) {
+                        assert!(d.unsigned_abs() < 1 << 42, "n={n} p={p} lag={lag}: {d}");
+                    }
+                }
+            }
+            assert_eq!(gram_binomial_coefficients(n, n), None);
+        }
+    }
+
+    /// The exact integer derivatives against the f64 route `new` used before: the same f32
+    /// weights bit for bit, except where the exact weight is zero (P′ₚ(L) = 0 by symmetry:
+    /// order 4 at the centred lag), which the f64 route left as rounding noise.
+    #[test]
+    fn weights_match_the_gram_schmidt_route_bit_for_bit_except_its_rounding_noise() {
+        let firmware = crate::control::config::ControlConfig::reference();
+        let scales = [
+            (
+                firmware.sample_time_s,
+                firmware.encoder_master.m_per_count(),
+            ),
+            (50e-6, 1e-6),
+            (1.0, 1.0),
+            (1e-3, 3.0),
+        ];
+        for (n, k, lag) in all_configs() {
+            for (dt, m) in scales {
+                let c = SgConfig {
+                    sample_time_s: dt,
+                    m_per_count: m,
+                    ..cfg(n, k, lag)
+                };
+                let sg = SavitzkyGolay::new(c).unwrap();
+                let (wv, wa) = reference_weights(c);
+                for (weights, reference) in [(sg.weights_v, wv), (sg.weights_a, wa)] {
+                    let largest = reference.iter().fold(0.0f32, |a, w| a.max(w.abs()));
+                    for (w, r) in weights.iter().zip(&reference) {
+                        if w.to_bits() != r.to_bits() {
+                            assert!(
+                                *w == 0.0 && r.abs() <= 1e-12 * largest,
+                                "n={n} k={k} lag={lag}: {w:e}, reference {r:e}"
+                            );
+                            assert_eq!((k, 2 * lag + 1), (4, n), "only where P′₄(L) = 0");
+                        }
+                    }
+                }
+                if (n, k, lag) == (firmware.sg_window, firmware.sg_order, firmware.sg_lag) {
+                    assert_eq!(sg.weights_v.map(f32::to_bits), wv.map(f32::to_bits));
+                    assert_eq!(sg.weights_a.map(f32::to_bits), wa.map(f32::to_bits));
+                }
+            }
+        }
     }
 
     #[test]
