@@ -241,21 +241,40 @@ impl Cursor<'_> {
     }
 
     /// Appends `whole`, then `.` and the `decimals` (1 to 16) digits of `frac` without
-    /// trailing zeros (nothing when `frac` is zero).
+    /// trailing zeros (nothing when `frac` is zero). The point goes out in the same store as
+    /// the first digits wherever they fit in one (a store and its length update fewer).
     #[inline(always)]
     fn decimal(&mut self, whole: u64, frac: u64, decimals: usize) {
         self.whole(whole);
         if frac == 0 {
             return;
         }
-        self.push(b'.');
+        const POINT: u64 = b'.' as u64;
         // All `decimals` digits (the low ones of 16: `hi` then `lo`), then the trailing
         // zeros cut off.
-        let zeros = if decimals > 8 {
+        let zeros = if decimals == 9 {
+            // One digit above the low eight (positions, 1 nm): no table for it.
+            let hi = frac / 100_000_000;
+            let lo = eight_digits((frac % 100_000_000) as u32);
+            self.put8(POINT | (hi.min(9) + u64::from(b'0')) << 8, 2);
+            self.put8(lo | ASCII_ZEROS, 8);
+            // `lo` all zeros: the one digit above is not (`frac` is not zero).
+            if lo != 0 {
+                lo.leading_zeros() / 8
+            } else {
+                8
+            }
+        } else if decimals > 8 {
             let lo = eight_digits((frac % 100_000_000) as u32);
             let hi = eight_digits((frac / 100_000_000) as u32);
             let n = decimals.min(16) - 8;
-            self.put8((hi | ASCII_ZEROS) >> (8 * (8 - n)), n);
+            let digits = (hi | ASCII_ZEROS) >> (8 * (8 - n));
+            if n < 8 {
+                self.put8(POINT | digits << 8, n + 1);
+            } else {
+                self.push(b'.');
+                self.put8(digits, n);
+            }
             self.put8(lo | ASCII_ZEROS, 8);
             // Trailing zero digits are the high zero bytes (the last digit is byte 7).
             if lo != 0 {
@@ -267,12 +286,19 @@ impl Cursor<'_> {
             // Four digits are one stage fewer, in a `u32`.
             let four = four_digits((frac % 10_000) as u32);
             let n = decimals.max(1);
-            self.put8(u64::from((four | 0x3030_3030) >> (8 * (4 - n))), n);
+            let digits = u64::from((four | 0x3030_3030) >> (8 * (4 - n)));
+            self.put8(POINT | digits << 8, n + 1);
             four.leading_zeros() / 8
         } else {
             let lo = eight_digits((frac % 100_000_000) as u32);
             let n = decimals.max(1);
-            self.put8((lo | ASCII_ZEROS) >> (8 * (8 - n)), n);
+            let digits = (lo | ASCII_ZEROS) >> (8 * (8 - n));
+            if n < 8 {
+                self.put8(POINT | digits << 8, n + 1);
+            } else {
+                self.push(b'.');
+                self.put8(digits, n);
+            }
             lo.leading_zeros() / 8
         };
         // Fewer than `decimals`: a non-zero `frac` has a non-zero digit.
