@@ -335,16 +335,19 @@ impl Cursor<'_> {
     #[inline(always)]
     fn fixed_scaled(&mut self, v: f64, scale: u64, decimals: usize) {
         let scaled = v * scale as f64;
-        if scaled.is_nan() || scaled.abs() >= 9.0e18 {
-            return self.shortest(v);
+        let magnitude = scaled.abs();
+        // One comparison for both: NaN compares false.
+        if magnitude < 9.0e18 {
+            // Half away from zero, on the magnitude (`f64::round` is a library call without
+            // SSE4.1): `−x − ½` is exactly `−(x + ½)`, so this is the signed value's rounding.
+            let m = (magnitude + 0.5) as i64 as u64;
+            if scaled < 0.0 && m != 0 {
+                self.push(b'-');
+            }
+            self.decimal(m / scale, m % scale, decimals);
+        } else {
+            self.shortest(v);
         }
-        // Half away from zero (`f64::round` is a library call without SSE4.1).
-        let n = (scaled + 0.5f64.copysign(scaled)) as i64;
-        if n < 0 {
-            self.push(b'-');
-        }
-        let m = n.unsigned_abs();
-        self.decimal(m / scale, m % scale, decimals);
     }
 
     /// Appends `v` in its shortest round-trip form.
