@@ -463,9 +463,14 @@ mod tests {
         for _ in 0..20_000 {
             let cycle = rng.random_range(0..10_000_000u64);
             let mut values = [0.0f64; 18];
+            // Up to 10⁹: whole parts of eight digits and more, and values too large for their
+            // decimals; now and then a NaN.
             for v in values.iter_mut() {
-                let mag = 10f64.powi(rng.random_range(-12..7));
+                let mag = 10f64.powi(rng.random_range(-12..10));
                 *v = (rng.random::<f64>() * 2.0 - 1.0) * mag;
+            }
+            if rng.random_range(0..8) == 0 {
+                values[rng.random_range(1..18)] = f64::NAN;
             }
             values[11] = f64::from(rng.random_range(0..40u8));
             let row = text(|o| o.row(cycle, 50, &values));
