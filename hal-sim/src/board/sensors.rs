@@ -187,10 +187,12 @@ impl EncoderModel {
         self.signals_at(th, sin_cos(th))
     }
 
-    /// The signal angle `2π·x/λ` at the position the encoder reads, rad.
+    /// The signal angle `2π·x/λ` at the position the encoder reads, rad, evaluated as
+    /// `(2π·(1/λ))·x`, as the motors evaluate their electrical angle (so that a scale of the
+    /// motor's period can read the motors' sine and cosine, bit for bit).
     #[inline]
     pub fn angle_rad(&self, x_read_m: f64) -> f64 {
-        std::f64::consts::TAU * x_read_m / self.period_m
+        std::f64::consts::TAU * (1.0 / self.period_m) * x_read_m
     }
 
     /// [`EncoderModel::signals`] at the signal angle `th` with its `(sin, cos)` given (both

@@ -195,7 +195,12 @@ impl World {
         };
         let (em, es) = (&s.encoder_master, &s.encoder_slave);
         let th = em.angle_rad(x);
-        let sin_cos_th = sin_cos(th);
+        // A scale of the motor's electrical period reads the motors' angle at this position,
+        // already computed by the plant (the same formula: no trigonometry here).
+        let sin_cos_th = match plant.motors.master_angle_at(x) {
+            Some(sc) if em.period_m == plant.motors.electrical_period_m() => sc,
+            _ => sin_cos(th),
+        };
         let master = encoder(em, em.signals_at(th, sin_cos_th), noise);
         let slave_signals = match s.slave_pitch_error {
             // Same scale, same position: the same angle (one sin/cos for both).

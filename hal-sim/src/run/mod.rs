@@ -236,7 +236,8 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     let mut capture = Capture::new(limit_s, csv, &log);
     // One row every `log_stride` control cycles (`--log-rate`; checked to divide evenly).
     let log_stride = u64::from((CONTROL_RATE_HZ / opts.log_rate_hz.max(1)).max(1));
-    let mut last = Status::INIT;
+    // The mode of the last status seen (what the summary's `state` names).
+    let mut last_mode = Status::INIT.mode;
     let started = Instant::now();
 
     // The board's independent watchdog runs as on the MCU (only a hung task starves it).
@@ -258,9 +259,12 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
         if w.cycle() > 0 && w.cycle().is_multiple_of(log_stride) {
             capture.push(&status, w);
         }
-        for f in status.faults.iter() {
-            if !metrics.faults.contains(&f) {
-                metrics.faults.push(f);
+        // `iter` walks every kind of fault: only when one is latched.
+        if !status.faults.is_empty() {
+            for f in status.faults.iter() {
+                if !metrics.faults.contains(&f) {
+                    metrics.faults.push(f);
+                }
             }
         }
         metrics.peak_speed_mps = metrics.peak_speed_mps.max(w.plant.v_mps.abs());
@@ -379,7 +383,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
         if new_stage {
             stage_deadline_s = t + opts.cycle_limit_s();
         }
-        last = status;
+        last_mode = status.mode;
         let outcome_known = if injector.is_empty() {
             faulted
         } else {
@@ -479,7 +483,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             .iter()
             .map(|f| f.name().to_string())
             .collect(),
-        state: last.mode.name().to_string(),
+        state: last_mode.name().to_string(),
     };
     Ok(RunOutcome {
         summary,

@@ -241,21 +241,40 @@ impl Cursor<'_> {
     }
 
     /// Appends `whole`, then `.` and the `decimals` (1 to 16) digits of `frac` without
-    /// trailing zeros (nothing when `frac` is zero).
+    /// trailing zeros (nothing when `frac` is zero). The point goes out in the same store as
+    /// the first digits wherever they fit in one (a store and its length update fewer).
     #[inline(always)]
     fn decimal(&mut self, whole: u64, frac: u64, decimals: usize) {
         self.whole(whole);
         if frac == 0 {
             return;
         }
-        self.push(b'.');
+        const POINT: u64 = b'.' as u64;
         // All `decimals` digits (the low ones of 16: `hi` then `lo`), then the trailing
         // zeros cut off.
-        let zeros = if decimals > 8 {
+        let zeros = if decimals == 9 {
+            // One digit above the low eight (positions, 1 nm): no table for it.
+            let hi = frac / 100_000_000;
+            let lo = eight_digits((frac % 100_000_000) as u32);
+            self.put8(POINT | (hi.min(9) + u64::from(b'0')) << 8, 2);
+            self.put8(lo | ASCII_ZEROS, 8);
+            // `lo` all zeros: the one digit above is not (`frac` is not zero).
+            if lo != 0 {
+                lo.leading_zeros() / 8
+            } else {
+                8
+            }
+        } else if decimals > 8 {
             let lo = eight_digits((frac % 100_000_000) as u32);
             let hi = eight_digits((frac / 100_000_000) as u32);
             let n = decimals.min(16) - 8;
-            self.put8((hi | ASCII_ZEROS) >> (8 * (8 - n)), n);
+            let digits = (hi | ASCII_ZEROS) >> (8 * (8 - n));
+            if n < 8 {
+                self.put8(POINT | digits << 8, n + 1);
+            } else {
+                self.push(b'.');
+                self.put8(digits, n);
+            }
             self.put8(lo | ASCII_ZEROS, 8);
             // Trailing zero digits are the high zero bytes (the last digit is byte 7).
             if lo != 0 {
@@ -267,12 +286,19 @@ impl Cursor<'_> {
             // Four digits are one stage fewer, in a `u32`.
             let four = four_digits((frac % 10_000) as u32);
             let n = decimals.max(1);
-            self.put8(u64::from((four | 0x3030_3030) >> (8 * (4 - n))), n);
+            let digits = u64::from((four | 0x3030_3030) >> (8 * (4 - n)));
+            self.put8(POINT | digits << 8, n + 1);
             four.leading_zeros() / 8
         } else {
             let lo = eight_digits((frac % 100_000_000) as u32);
             let n = decimals.max(1);
-            self.put8((lo | ASCII_ZEROS) >> (8 * (8 - n)), n);
+            let digits = (lo | ASCII_ZEROS) >> (8 * (8 - n));
+            if n < 8 {
+                self.put8(POINT | digits << 8, n + 1);
+            } else {
+                self.push(b'.');
+                self.put8(digits, n);
+            }
             lo.leading_zeros() / 8
         };
         // Fewer than `decimals`: a non-zero `frac` has a non-zero digit.
@@ -309,16 +335,19 @@ impl Cursor<'_> {
     #[inline(always)]
     fn fixed_scaled(&mut self, v: f64, scale: u64, decimals: usize) {
         let scaled = v * scale as f64;
-        if scaled.is_nan() || scaled.abs() >= 9.0e18 {
-            return self.shortest(v);
+        let magnitude = scaled.abs();
+        // One comparison for both: NaN compares false.
+        if magnitude < 9.0e18 {
+            // Half away from zero, on the magnitude (`f64::round` is a library call without
+            // SSE4.1): `−x − ½` is exactly `−(x + ½)`, so this is the signed value's rounding.
+            let m = (magnitude + 0.5) as i64 as u64;
+            if scaled < 0.0 && m != 0 {
+                self.push(b'-');
+            }
+            self.decimal(m / scale, m % scale, decimals);
+        } else {
+            self.shortest(v);
         }
-        // Half away from zero (`f64::round` is a library call without SSE4.1).
-        let n = (scaled + 0.5f64.copysign(scaled)) as i64;
-        if n < 0 {
-            self.push(b'-');
-        }
-        let m = n.unsigned_abs();
-        self.decimal(m / scale, m % scale, decimals);
     }
 
     /// Appends `v` in its shortest round-trip form.
@@ -434,9 +463,14 @@ mod tests {
         for _ in 0..20_000 {
             let cycle = rng.random_range(0..10_000_000u64);
             let mut values = [0.0f64; 18];
+            // Up to 10⁹: whole parts of eight digits and more, and values too large for their
+            // decimals; now and then a NaN.
             for v in values.iter_mut() {
-                let mag = 10f64.powi(rng.random_range(-12..7));
+                let mag = 10f64.powi(rng.random_range(-12..10));
                 *v = (rng.random::<f64>() * 2.0 - 1.0) * mag;
+            }
+            if rng.random_range(0..8) == 0 {
+                values[rng.random_range(1..18)] = f64::NAN;
             }
             values[11] = f64::from(rng.random_range(0..40u8));
             let row = text(|o| o.row(cycle, 50, &values));
