@@ -23,7 +23,7 @@ pub const HOLD_RELEASE_S: f32 = 0.05;
 /// Time constant of the controlled stop's disturbance observer, s: 2 ms, four differentiator
 /// windows (its acceleration is the noisiest input) and still fast next to the 10–30 ms a
 /// stop takes.
-pub const DOB_TIME_S: f32 = 0.5e-3;
+pub const DOB_TIME_S: f32 = 2.0e-3;
 
 /// What follows a controlled stop.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
