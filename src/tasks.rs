@@ -261,22 +261,6 @@ where
     }
 }
 
-/// The calibration retaining task (boards without a flash store): each record a routine
-/// produces is handed to `keep` (the board's RAM that a watchdog reset does not clear), so
-/// the brake after such a reset runs on the calibration the machine ran on.
-pub async fn calibration_retain_run<M>(
-    shared: &Shared<M>,
-    mut keep: impl FnMut(&CalibrationRecord),
-) -> Infallible
-where
-    M: RawMutex,
-{
-    loop {
-        let record = shared.calibration_to_save().await;
-        keep(&record);
-    }
-}
-
 /// Period of the command task, µs: the RTT down-channel is polled at 1 kHz.
 pub const COMMAND_POLL_US: u32 = 1000;
 

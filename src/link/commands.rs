@@ -28,7 +28,7 @@
 //! when all [`RECORD_BYTES`] are staged, the record decodes (magic, version, CRC) and its CRC
 //! is the one sent ([`Refusal::BadRecord`] otherwise), and the controller is idle
 //! ([`Refusal::Busy`]). Then the controller loads it as a boot load does and the storage
-//! (or retaining) task keeps it. A refused commit changes nothing.
+//! task saves it in flash. A refused commit changes nothing.
 //!
 //! Tags are part of the wire contract: never reuse or renumber. The codec checks only the
 //! form; NaN, infinities and out-of-range values decode as sent, and the controller refuses

@@ -73,7 +73,7 @@ enum Action {
     Send(SendArgs),
     /// Read the calibration record the controller runs on into a calibration file, or
     /// write a calibration file to the board (checked and loaded by the firmware, then kept
-    /// in flash or retained RAM).
+    /// in flash).
     #[command(after_help = CALIBRATION_HELP)]
     Calibration(CalibrationArgs),
 }

@@ -24,7 +24,6 @@
 use super::{Calibrated, Misalignment, Routine};
 use crate::control::config::ControlConfig;
 use crate::physics::cogging::{HarmonicMap, MAP_HARMONICS};
-use crate::safety::faults::ResetCause;
 use crate::sensing::encoder::SinCosCalibration;
 use crate::units::PerSection;
 
@@ -44,22 +43,6 @@ pub struct CalibrationRecord {
     pub calibrated: Calibrated,
     /// Each encoder's sin/cos correction.
     pub sin_cos: PerSection<SinCosCalibration>,
-}
-
-/// The calibration to boot with after a reset, from the copy the board keeps in RAM that no
-/// reset clears (`retained`, the last record a routine produced since power-on).
-///
-/// Only after a watchdog reset: the board was running a moment ago, with exactly this
-/// calibration (or, if no routine had run since power-on, the built-in configuration —
-/// then nothing valid is retained and `None` keeps it). After power-on the RAM holds
-/// garbage, and after the reset pin a normal start is wanted: `None`. A retained copy that
-/// fails its magic, version or CRC is `None` too (then the brake after the watchdog reset
-/// runs on the built-in configuration, as the machine ran before any calibration).
-pub fn after_reset(cause: ResetCause, retained: &[u8]) -> Option<CalibrationRecord> {
-    match cause {
-        ResetCause::Watchdog => CalibrationRecord::decode(retained).ok(),
-        ResetCause::PowerOn | ResetCause::External => None,
-    }
 }
 
 /// Whether the machine has a calibration it may run on.
@@ -444,21 +427,17 @@ pub(crate) mod tests {
     }
 
     #[test]
-    fn only_a_watchdog_reset_boots_with_the_retained_record_and_only_an_intact_one() {
+    fn a_record_with_any_byte_corrupted_or_missing_is_refused() {
         let record = sample();
         let bytes = record.encode();
-        assert_eq!(after_reset(ResetCause::Watchdog, &bytes), Some(record));
-        assert_eq!(after_reset(ResetCause::PowerOn, &bytes), None);
-        assert_eq!(after_reset(ResetCause::External, &bytes), None);
+        assert_eq!(CalibrationRecord::decode(&bytes), Ok(record));
         for i in 0..RECORD_BYTES {
             let mut bad = bytes;
             bad[i] ^= 0x10;
-            assert_eq!(after_reset(ResetCause::Watchdog, &bad), None, "byte {i}");
+            assert!(CalibrationRecord::decode(&bad).is_err(), "byte {i}");
         }
-        assert_eq!(
-            after_reset(ResetCause::Watchdog, &[0xA5; RECORD_BYTES]),
-            None
-        );
-        assert_eq!(after_reset(ResetCause::Watchdog, &[]), None);
+        assert!(CalibrationRecord::decode(&[0xA5; RECORD_BYTES]).is_err());
+        assert!(CalibrationRecord::decode(&bytes[..RECORD_BYTES - 1]).is_err());
+        assert!(CalibrationRecord::decode(&[]).is_err());
     }
 }
