@@ -425,3 +425,27 @@ pub fn channels(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Vec<Residual>, String> 
         .filter_map(|&c| residual(ctx.data, ctx.band, &model, c))
         .collect())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plant::model::MachineModel;
+
+    #[test]
+    fn one_sample_is_judged_by_a_whole_code_and_an_rms_by_a_fraction_of_one() {
+        let m = MachineModel::reference();
+        for ch in ChannelId::ALL {
+            assert!(
+                sample_resolution(ch, &m) >= resolution(ch, &m),
+                "{ch:?}: a single sample cannot resolve more finely than an RMS"
+            );
+        }
+        // The module header's relation: the averaged yardstick is a third of a pressure
+        // code and half a current code (within the codes' rounding to whole pascal/newtons).
+        let near = |a: f64, b: f64| (a - b).abs() <= 0.05 * b;
+        let p = ChannelId::Pressure;
+        let f = ChannelId::Force;
+        assert!(near(3.0 * resolution(p, &m), sample_resolution(p, &m)));
+        assert!(near(2.0 * resolution(f, &m), sample_resolution(f, &m)));
+    }
+}
