@@ -14,12 +14,26 @@
 //!   the residual by more than a tenth of its typical largest change): practical floors, so that a
 //!   systematic but negligible mismatch (a logging offset of one sample, the rotation's
 //!   quantised speed in the friction near a reversal) is not named on long, quiet logs;
-//! - the sensors can tell it apart ([`resolution`]): it changes the channel's residual, in
-//!   RMS where it acts, by more than the channel's resolution, or it changes at least
-//!   [`MIN_RESOLVED_SHARE`] of the kept samples (and at least [`MIN_SUPPORT`]) by more than
-//!   the resolution. Where it acts, not over the whole log: a friction law that matters only
-//!   near breakaway changes few samples by several newtons and most by nothing, and the
-//!   share of slow motion in a log is not physics.
+//! - the sensors can tell it apart: it changes the channel's residual, in RMS where it acts,
+//!   by more than the channel's resolution ([`resolution`]), or it changes at least
+//!   [`MIN_RESOLVED_SHARE`] of the kept samples (and at least [`MIN_SUPPORT`]) each by more
+//!   than what one reading resolves ([`sample_resolution`]). Where it acts, not over the
+//!   whole log: a friction law that matters only near breakaway changes few samples by
+//!   several newtons and most by nothing, and the share of slow motion in a log is not
+//!   physics.
+//!
+//! **Two yardsticks of resolution.** An RMS over many samples resolves less than one sensor
+//! code (the readings are dithered by the noise, and averaging them recovers a fraction of a
+//! code): [`resolution`] is a third of a pressure code, half a current code. A single
+//! sample does not: the sparse test counts a sample only if the effect changes it by a whole
+//! code of the sensor behind the channel. Judged with the averaged yardstick, single samples
+//! let a fitted value that is "no effect" within the sensors' resolution be named: on a run
+//! of the modelled machine (PR 4.5, 0.6 m/s) the port-opening transients miss the replay by
+//! a few codes, and a port area scaled by 0.996 moves 1 % of the kept samples by 100–260 Pa
+//! (a third of a code to 0.86 of one; 53 Pa RMS where it acts), some toward the data and
+//! about as many away: `port_restriction` was named for a change no reading can resolve.
+//! A fitted effect is named only if its change from the no-effect value is resolved, in RMS
+//! or sample by sample, by the sensors that see it.
 //!
 //! "Where it acts" is where the change exceeds a tenth of its 98th percentile
 //! ([`robust_peak`]), not of its largest value.
@@ -66,11 +80,29 @@ pub fn resolution(ch: ChannelId, model: &crate::plant::model::MachineModel) -> f
     }
 }
 
+/// The smallest change of one kept sample the sparse test counts (module header): one code
+/// of the sensor behind the channel. Force: one current-sensor code (`a_per_code` of the
+/// reference current sense, 100/2048 A) times the force constant, ≈ 3.9 N on the reference
+/// drives. Pressure: one code of the reference pressure sensor, ≈ 305 Pa. Encoder: one step
+/// of the sin/cos interpolation, as [`resolution`] (already a per-sample yardstick).
+pub fn sample_resolution(ch: ChannelId, model: &crate::plant::model::MachineModel) -> f64 {
+    match ch {
+        ChannelId::Force | ChannelId::SlaveForce => {
+            f64::from(fpc::drive::foc::CurrentSense::reference().a_per_code)
+                * model.motor.force_constant_n_per_a
+        }
+        ChannelId::Encoder => resolution(ch, model),
+        ChannelId::Pressure => {
+            f64::from(fpc::sensing::pressure::PressureCalibration::reference().pa_per_code)
+        }
+    }
+}
+
 /// Fewest kept samples an effect must act on.
 pub const MIN_SUPPORT: usize = 8;
 
-/// Smallest share of the kept samples a sparse effect must change by more than the
-/// channel's resolution (see the module header).
+/// Smallest share of the kept samples a sparse effect must change, each by more than
+/// [`sample_resolution`] (see the module header).
 pub const MIN_RESOLVED_SHARE: f64 = 0.01;
 
 /// Correlation above which two candidates are reported as collinear.
@@ -102,7 +134,7 @@ pub struct Judged {
     pub change_rms: f64,
     /// The channel's resolution ([`resolution`]).
     pub resolution: f64,
-    /// Kept samples it changes by more than the resolution.
+    /// Kept samples it changes by more than one reading resolves ([`sample_resolution`]).
     pub resolved: usize,
     /// Its change to the residual at the kept samples (for the collinearity check).
     pub change: Vec<f64>,
@@ -165,6 +197,7 @@ pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual)
         }
     }
     let res = resolution(kind.channel(), &model);
+    let sample_res = sample_resolution(kind.channel(), &model);
     let explained = if s0 > 0.0 { (s0 - s1) / s0 } else { 0.0 };
     let nf = effective_n(&after.kept);
     let delta_bic = if rss_after > 0.0 && rss_before > 0.0 {
@@ -191,7 +224,7 @@ pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual)
             0.0
         },
         resolution: res,
-        resolved: change.iter().filter(|c| c.abs() > res).count(),
+        resolved: change.iter().filter(|c| c.abs() > sample_res).count(),
         change,
     })
 }
@@ -391,4 +424,28 @@ pub fn channels(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Vec<Residual>, String> 
         .iter()
         .filter_map(|&c| residual(ctx.data, ctx.band, &model, c))
         .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plant::model::MachineModel;
+
+    #[test]
+    fn one_sample_is_judged_by_a_whole_code_and_an_rms_by_a_fraction_of_one() {
+        let m = MachineModel::reference();
+        for ch in ChannelId::ALL {
+            assert!(
+                sample_resolution(ch, &m) >= resolution(ch, &m),
+                "{ch:?}: a single sample cannot resolve more finely than an RMS"
+            );
+        }
+        // The module header's relation: the averaged yardstick is a third of a pressure
+        // code and half a current code (within the codes' rounding to whole pascal/newtons).
+        let near = |a: f64, b: f64| (a - b).abs() <= 0.05 * b;
+        let p = ChannelId::Pressure;
+        let f = ChannelId::Force;
+        assert!(near(3.0 * resolution(p, &m), sample_resolution(p, &m)));
+        assert!(near(2.0 * resolution(f, &m), sample_resolution(f, &m)));
+    }
 }
