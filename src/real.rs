@@ -73,26 +73,8 @@ pub fn fmod_f32(x: f32, y: f32) -> f32 {
         return if ux << 1 == uy << 1 { 0.0 * x } else { x };
     }
     // Significands with their hidden bit; subnormals normalised (exponent below 1).
-    if ex == 0 {
-        let mut i = ux << 9;
-        while i >> 31 == 0 {
-            ex -= 1;
-            i <<= 1;
-        }
-        ux <<= (1 - ex) as u32;
-    } else {
-        ux = (ux & (u32::MAX >> 9)) | (1 << 23);
-    }
-    if ey == 0 {
-        let mut i = uy << 9;
-        while i >> 31 == 0 {
-            ey -= 1;
-            i <<= 1;
-        }
-        uy <<= (1 - ey) as u32;
-    } else {
-        uy = (uy & (u32::MAX >> 9)) | (1 << 23);
-    }
+    (ux, ex) = significand(ux, ex);
+    (uy, ey) = significand(uy, ey);
     // x mod y, one binade at a time.
     while ex > ey {
         let i = ux.wrapping_sub(uy);
@@ -123,6 +105,21 @@ pub fn fmod_f32(x: f32, y: f32) -> f32 {
         ux >>= (1 - ex) as u32;
     }
     f32::from_bits(ux | sign)
+}
+
+/// [`fmod_f32`]'s operand as (significand with its hidden bit at bit 23, exponent), from its
+/// bits and biased exponent `e` (a subnormal, `e` = 0, normalised: the exponent goes below 1).
+fn significand(bits: u32, mut e: i32) -> (u32, i32) {
+    if e == 0 {
+        let mut i = bits << 9;
+        while i >> 31 == 0 {
+            e -= 1;
+            i <<= 1;
+        }
+        (bits << (1 - e) as u32, e)
+    } else {
+        ((bits & (u32::MAX >> 9)) | (1 << 23), e)
+    }
 }
 
 /// i64 → f32 in two exact halves, `hi·2³² + lo` with `lo` the signed low word: a plain

@@ -26,7 +26,7 @@ use std::sync::OnceLock;
 use fpc::safety::faults::Fault;
 use fpc::status::ModeKind;
 use hal_sim::faults::inject::parse;
-use hal_sim::run::{run, RunOptions};
+use hal_sim::run::{run, RunOptions, RunOutcome};
 
 /// Pressure ratio: 4.1 m/s peak, the fastest point of Fig. 3.
 const PR: f64 = 5.1;
@@ -112,17 +112,8 @@ fn losing_both_encoders_at_full_speed_keeps_the_head_clearance_at_every_phase() 
             .copied()
             .unwrap_or(f64::NAN);
         // The highest true chamber pressure from the fault on (the sealed chamber's gas
-        // spring), bar.
-        let t = out.log.column("t_s").unwrap();
-        let onset_s = onset as f64 * 1e-6;
-        let peak_bar = ["p_a_true_pa", "p_b_true_pa"]
-            .iter()
-            .flat_map(|c| {
-                let p = out.log.column(c).unwrap();
-                t.iter().zip(p).filter(move |(t, _)| **t >= onset_s)
-            })
-            .fold(0.0f64, |m, (_, p)| m.max(*p))
-            * 1e-5;
+        // spring).
+        let peak_bar = peak_true_pressure_bar(&out, onset as f64 * 1e-6);
         println!(
             "phase {i:2}/{PHASES} (t = {at:.5} s, v ≈ {v:+.2} m/s): latched {} after {} \
              samples; min head clearance {:.3} mm; chamber pressure up to {peak_bar:.1} bar",
@@ -178,15 +169,7 @@ fn losing_both_encoders_with_the_plant_ten_percent_off_keeps_the_head_clearance(
                 let (_, fault) = r.first_fault_after_onset().expect("a fault latched");
                 assert_eq!(fault, Fault::EncoderSignal, "{spec}");
                 let clearance = r.min_clearance_m.expect("a clearance");
-                let t = out.log.column("t_s").unwrap();
-                let peak_bar = ["p_a_true_pa", "p_b_true_pa"]
-                    .iter()
-                    .flat_map(|c| {
-                        let p = out.log.column(c).unwrap();
-                        t.iter().zip(p).filter(move |(t, _)| **t >= onset_s)
-                    })
-                    .fold(0.0f64, |m, (_, p)| m.max(*p))
-                    * 1e-5;
+                let peak_bar = peak_true_pressure_bar(&out, onset_s);
                 peak_pressure_bar = peak_pressure_bar.max(peak_bar);
                 if clearance < least.0 {
                     least = (clearance, at);
@@ -217,4 +200,17 @@ fn losing_both_encoders_with_the_plant_ten_percent_off_keeps_the_head_clearance(
         worst.0 * 1e3,
         worst.1
     );
+}
+
+/// The highest true chamber pressure (either chamber) in the run's log from `from_s` on, bar.
+fn peak_true_pressure_bar(out: &RunOutcome, from_s: f64) -> f64 {
+    let t = out.log.column("t_s").unwrap();
+    ["p_a_true_pa", "p_b_true_pa"]
+        .iter()
+        .flat_map(|c| {
+            let p = out.log.column(c).unwrap();
+            t.iter().zip(p).filter(move |(t, _)| **t >= from_s)
+        })
+        .fold(0.0f64, |m, (_, p)| m.max(*p))
+        * 1e-5
 }

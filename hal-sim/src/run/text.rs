@@ -208,6 +208,18 @@ impl Cursor<'_> {
     /// Appends the first `n` (≤ 8) bytes of `text` (the text in `to_le_bytes` order): all 8
     /// are copied, a move of constant size, and the line grows by `n` (the rest is
     /// overwritten next). Dropped if the line is full, which its room rules out.
+    /// Appends the decimal point and the `n` (1..=8) ASCII digits in the low bytes of
+    /// `digits`: one eight-byte store with the point in front when they fit, else two.
+    #[inline(always)]
+    fn put_point_and_digits(&mut self, digits: u64, n: usize) {
+        if n < 8 {
+            self.put8(u64::from(b'.') | digits << 8, n + 1);
+        } else {
+            self.push(b'.');
+            self.put8(digits, n);
+        }
+    }
+
     #[inline(always)]
     fn put8(&mut self, text: u64, n: usize) {
         if let Some(d) = self.buf.get_mut(self.len..self.len + 8) {
@@ -268,13 +280,7 @@ impl Cursor<'_> {
             let lo = eight_digits((frac % 100_000_000) as u32);
             let hi = eight_digits((frac / 100_000_000) as u32);
             let n = decimals.min(16) - 8;
-            let digits = (hi | ASCII_ZEROS) >> (8 * (8 - n));
-            if n < 8 {
-                self.put8(POINT | digits << 8, n + 1);
-            } else {
-                self.push(b'.');
-                self.put8(digits, n);
-            }
+            self.put_point_and_digits((hi | ASCII_ZEROS) >> (8 * (8 - n)), n);
             self.put8(lo | ASCII_ZEROS, 8);
             // Trailing zero digits are the high zero bytes (the last digit is byte 7).
             if lo != 0 {
@@ -292,13 +298,7 @@ impl Cursor<'_> {
         } else {
             let lo = eight_digits((frac % 100_000_000) as u32);
             let n = decimals.max(1);
-            let digits = (lo | ASCII_ZEROS) >> (8 * (8 - n));
-            if n < 8 {
-                self.put8(POINT | digits << 8, n + 1);
-            } else {
-                self.push(b'.');
-                self.put8(digits, n);
-            }
+            self.put_point_and_digits((lo | ASCII_ZEROS) >> (8 * (8 - n)), n);
             lo.leading_zeros() / 8
         };
         // Fewer than `decimals`: a non-zero `frac` has a non-zero digit.
