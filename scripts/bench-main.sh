@@ -9,6 +9,14 @@
 # main job does. Figures, not checks (a shared machine's timing is noise); issue #17 asks
 # for ≥ 150x end to end, ≥ 250x for the loop alone and logging ≤ 10 % of a run.
 #
+# Last, where the loop's work goes, from callgrind (valgrind; skipped when it is missing):
+# x86 instructions per control cycle of the firmware's control step (`ControlStep::step` and
+# all it calls: the code the MCU runs), the plant (`Plant::advance`), the sensors
+# (`World::sample`) and the rest of the loop (the tasks' glue, the host's bookkeeping). These
+# counts are exact and the same run after run. The control step's share bounds the loop:
+# were everything else free, the loop could run at most (loop / step) times faster than
+# measured above.
+#
 #   scripts/bench-main.sh                 build fpc-sim (release), then measure
 #   FPC_SIM=path FPC_BENCH_RUNS=N scripts/bench-main.sh
 set -euo pipefail
@@ -72,4 +80,48 @@ if one and eleven:
           f"(CPU of 11 simulations less 1, over 10)")
 else:
     print("  n/a (this fpc-sim has no --bench-loop)")
+
+if not shutil.which("valgrind"):
+    print("where the loop's work goes: n/a (no valgrind here)")
+    sys.exit(0)
+profile = os.path.join(work, "callgrind.out")
+subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={profile}", sim, "run",
+                "--bench-loop", "1"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+               check=True)
+report = subprocess.run(["callgrind_annotate", "--inclusive=yes", profile],
+                        capture_output=True, text=True, check=True).stdout
+
+
+def inclusive(symbol):
+    """Instructions of `symbol` and everything it calls (None: inlined away or renamed)."""
+    for line in report.splitlines():
+        if line.rstrip().endswith("]") and f":{symbol} [" in line:
+            return int(line.split()[0].replace(",", ""))
+    return None
+
+
+cycles = round(sim_s / 50e-6)
+loop = inclusive("hal_sim::board::exec::simulate_board")
+parts = [("control step (firmware)", inclusive("fpc::control::step::ControlStep::step")),
+         ("plant", inclusive("hal_sim::plant::dynamics::Plant::advance")),
+         ("sensors", inclusive("hal_sim::board::world::World::sample"))]
+if loop is None or any(n is None for _, n in parts):
+    print("where the loop's work goes: n/a (a symbol is not in this build's profile)")
+    sys.exit(0)
+parts.append(("rest (tasks' glue, host)", loop - sum(n for _, n in parts)))
+print(f"where the loop's work goes (callgrind, x86 instructions per control cycle, "
+      f"{cycles} cycles):")
+for name, n in parts:
+    print(f"  {name:26} {n / cycles:7.0f} ({100 * n / loop:4.1f} %)")
+print(f"  {'loop':26} {loop / cycles:7.0f}")
+if one and eleven:
+    step = parts[0][1]
+    factor = sim_s / loop_cpu
+    print(f"  were all but the control step free, the loop would run at most "
+          f"{loop / step:.2f}x faster: {loop / step * factor:.0f}x real time here")
+    # At this machine's instructions per second, 250x allows this many per cycle.
+    allowed = loop / cycles * factor / 250
+    print(f"  250x here allows {allowed:.0f} instructions per cycle: "
+          f"{allowed - step / cycles:.0f} for all but the control step "
+          f"(they take {(loop - step) / cycles:.0f})")
 EOF
