@@ -134,6 +134,9 @@ pub struct ControlStep {
     /// SS1's hold: time into the current averaging window, s, and the integrals over it of
     /// the motor force and of the measured gas force, N·s.
     hold_quiet_s: f32,
+    /// Both encoders lost: the rotation's sealing turn as decided, rad, signed (which way
+    /// round it goes; [`ControlStep::brake_without_position`]).
+    sealing_turn_rad: f32,
     hold_motor_ns: f32,
     hold_gas_ns: f32,
     /// Each section's capability as configured (restored when faults are cleared).
@@ -268,6 +271,7 @@ impl ControlStep {
             lost_encoder: None,
             slave_offset_counts: 0,
             hold_quiet_s: 0.0,
+            sealing_turn_rad: 0.0,
             hold_motor_ns: 0.0,
             hold_gas_ns: 0.0,
             nominal_capability: config.allocation.capability,

@@ -8,7 +8,8 @@ use crate::motion::stroke::StrokeGenerator;
 use crate::motion::synchroniser::{Rotation, Synchroniser};
 use crate::motion::trajectory::{PointToPoint, Setpoint};
 use crate::motion::volume_ratio::Chamber;
-use crate::real::{clamp_f32, max_f32};
+use crate::physics::port_timing::PortWindow;
+use crate::real::{clamp_f32, max_f32, min_f32, sqrt_f32};
 use crate::safety::faults::Fault;
 use crate::safety::supervisor::LimitFlags;
 use crate::sensing::homing::{Homing, HomingStep};
@@ -56,6 +57,57 @@ fn turn_phase(angle_rad: f32) -> f32 {
     } else {
         r
     }
+}
+
+/// How long the rotation spends in `window` on a turn by `turn_rad` from `phase_rad`, s,
+/// driven toward the target at `accel_rad_s2` from its speed `speed_rad_s` (signed, positive
+/// forward). Against its speed it first coasts to a stop, deeper into a window it is in, and
+/// comes back: that time counts too. 0 for no turn.
+fn time_in_window(
+    phase_rad: f32,
+    turn_rad: f32,
+    window: &PortWindow<f32>,
+    speed_rad_s: f32,
+    accel_rad_s2: f32,
+) -> f32 {
+    if turn_rad == 0.0 {
+        return 0.0;
+    }
+    let length = turn_rad.abs();
+    // Speed along the turn, and the time to have come `s` along it (the later root: against
+    // the speed the rotation passes its start again on the way).
+    let v0 = if turn_rad > 0.0 {
+        speed_rad_s
+    } else {
+        -speed_rad_s
+    };
+    let reach = |s: f32| (sqrt_f32(v0 * v0 + 2.0 * accel_rad_s2 * s) - v0) / accel_rad_s2;
+    // The window in the turn's own coordinate: where it begins ahead on the path, and how
+    // far into it the path begins.
+    let (edge_ahead, edge_behind) = if turn_rad > 0.0 {
+        (window.open_rad, window.close_rad)
+    } else {
+        (window.close_rad, window.open_rad)
+    };
+    let width = turn_phase(window.close_rad - window.open_rad);
+    let forward = |a: f32, b: f32| {
+        if turn_rad > 0.0 {
+            turn_phase(b - a)
+        } else {
+            turn_phase(a - b)
+        }
+    };
+    let ahead = forward(phase_rad, edge_ahead);
+    let mut time = 0.0;
+    if ahead < length && ahead > 0.0 {
+        time += reach(min_f32(ahead + width, length)) - reach(ahead);
+    }
+    // Inside the window at the start: until the path leaves it.
+    let left = forward(phase_rad, edge_behind);
+    if forward(edge_ahead, phase_rad) < width && left > 0.0 {
+        time += reach(min_f32(left, length));
+    }
+    time
 }
 
 /// What the faulted state still does with the outputs (they are off otherwise).
@@ -287,6 +339,15 @@ impl ControlStep {
     ///    stroke (a plant 9 % lighter than the model reached the other head). Then the
     ///    other chamber, ahead after the turn, is sealed: forward, the way the rotation
     ///    already goes, past the dead-point phase where the discharge closes.
+    ///
+    ///    Which way round: the turn that holds the chamber *behind* on its discharge port
+    ///    for the least time (at full servo torque from the rotation's speed now: against
+    ///    it, the rotation must stop first), and of those the shortest. As a compressor no
+    ///    turn crosses that port, and this is the shortest turn. As an expander the rotation
+    ///    runs backwards and the chamber behind is admitting from the line: the shorter turn
+    ///    can go back through its admission, the line driving the piston into the head
+    ///    (−2.2 mm, 346 bar in the chamber ahead at PR 5.1, before this rule); the turn
+    ///    the way the rotation runs cuts the admission off.
     #[cold]
     #[inline(never)]
     pub(super) fn brake_without_position(&mut self) {
@@ -311,9 +372,22 @@ impl ControlStep {
         } else {
             (&g.intake_a, &g.discharge_a)
         };
+        // The chamber behind by the last trusted velocity: a turn that holds it on the
+        // discharge line drives the piston on toward the head (see above).
+        let behind = if toward_b {
+            &g.discharge_a
+        } else {
+            &g.discharge_b
+        };
         // The two arcs between the chamber's windows, each inset by a ramp at both ends:
-        // the turn to the nearest point of either (0 inside one).
-        let mut best: Option<f32> = None;
+        // of the turns to either end of either (0 inside one), the one that holds the
+        // behind chamber on the line for the least time — the rotation going at full
+        // torque from its speed now (against it, it must stop first) — and of those the
+        // shortest.
+        let speed = self.servo.velocity_rad_s();
+        let sc = &self.config.servo;
+        let accel = max_f32(sc.torque_full_scale_nm / sc.inertia_kgm2, 1.0);
+        let mut best: Option<(f32, f32)> = None;
         for (from, to) in [
             (intake.close_rad, discharge.open_rad),
             (discharge.close_rad, intake.open_rad),
@@ -324,22 +398,19 @@ impl ControlStep {
             let start = from + ramp;
             let span = turn_phase(to - ramp - start);
             let into = turn_phase(phase - start);
-            let turn = if into <= span {
-                0.0
+            // Inside the arc: no turn; outside: back to its far end or on to its near one.
+            let turns = if into <= span {
+                [0.0, 0.0]
             } else {
-                // Outside the arc: to its nearer end.
-                let back = span - into;
-                let ahead = TAU - into;
-                if back.abs() <= ahead {
-                    back
-                } else {
-                    ahead
-                }
+                [span - into, TAU - into]
             };
-            best = match best {
-                Some(b) if b.abs() <= turn.abs() => Some(b),
-                _ => Some(turn),
-            };
+            for turn in turns {
+                let exposed = time_in_window(phase, turn, behind, speed, accel);
+                best = match best {
+                    Some((e, b)) if (e, b.abs()) <= (exposed, turn.abs()) => Some((e, b)),
+                    _ => Some((exposed, turn)),
+                };
+            }
         }
         let m = &self.config.motor;
         let decay_s = m.inductance_h * m.current_limit_a / m.bus_voltage_v;
@@ -347,7 +418,9 @@ impl ControlStep {
         self.faulted_brake = FaultedBrake::Blind(cycles);
         // The phase to turn to once the windings are shorted (SS1's hold timer is free
         // while faulted).
-        self.hold_quiet_s = turn_phase(phase + best.unwrap_or(0.0));
+        let turn = best.map_or(0.0, |(_, turn)| turn);
+        self.hold_quiet_s = turn_phase(phase + turn);
+        self.sealing_turn_rad = turn;
     }
 
     /// A cycle of the faulted state that still brakes: after a watchdog reset, the wait for
@@ -362,8 +435,16 @@ impl ControlStep {
             FaultedBrake::Blind(left) => {
                 self.faulted_brake = FaultedBrake::Blind(left.saturating_sub(1));
                 if left <= 1 && !self.hold_quiet_s.is_nan() {
+                    // The shorter way to the target from where the rotation has coasted,
+                    // unless the turn decided goes the long way round.
                     let now = turn_phase(self.theta_reference_rad);
-                    self.theta_reference_rad += turn_phase(self.hold_quiet_s - now + PI) - PI;
+                    let mut turn = turn_phase(self.hold_quiet_s - now + PI) - PI;
+                    if self.sealing_turn_rad < -PI && turn > 0.0 {
+                        turn -= TAU;
+                    } else if self.sealing_turn_rad > PI && turn < 0.0 {
+                        turn += TAU;
+                    }
+                    self.theta_reference_rad += turn;
                     self.hold_quiet_s = f32::NAN;
                 }
             }
@@ -593,5 +674,66 @@ impl ControlStep {
         };
         self.volume_ratio
             .observe_opening(&self.config.gas, chamber, p, self.planned_discharge_pa);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::physics::port_timing::PortGeometry;
+
+    /// The same time found by stepping the motion through time: the angle at full
+    /// acceleration toward the turn from the speed now, and whether it is in the window,
+    /// tested directly at each step of 1 µs until the turn is done.
+    fn stepped(phase: f32, turn: f32, w: &PortWindow<f32>, speed: f32, accel: f32) -> f32 {
+        let (phase, turn, speed, accel) = (
+            f64::from(phase),
+            f64::from(turn),
+            f64::from(speed),
+            f64::from(accel),
+        );
+        let (open, close) = (f64::from(w.open_rad), f64::from(w.close_rad));
+        let tau = std::f64::consts::TAU;
+        let dir = turn.signum();
+        let dt = 1e-6;
+        let (mut angle, mut v, mut inside_s) = (0.0f64, speed * dir, 0.0);
+        while angle < turn.abs() {
+            let at = (phase + dir * angle).rem_euclid(tau);
+            if (at - open).rem_euclid(tau) < (close - open).rem_euclid(tau) {
+                inside_s += dt;
+            }
+            v += accel * dt;
+            angle += v * dt;
+        }
+        inside_s as f32
+    }
+
+    #[test]
+    fn the_time_in_a_window_is_the_stepped_motions() {
+        let g = PortGeometry::<f32>::reference();
+        let accel = 2500.0;
+        // Each way, with and against the speed, from inside the window, before it and past
+        // it; the coast before turning round stays well inside the region it starts in.
+        let deg = |d: f32| d.to_radians();
+        let cases = [
+            (deg(327.7), deg(38.3), -34.0),
+            (deg(327.7), deg(-225.7), -34.0),
+            (deg(250.0), deg(116.0), -34.0),
+            (deg(250.0), deg(-148.0), -34.0),
+            (deg(250.0), deg(116.0), 34.0),
+            (deg(100.0), deg(250.0), 20.0),
+            (deg(20.0), deg(-120.0), 0.0),
+            (deg(20.0), 0.0, 34.0),
+        ];
+        for (phase, turn, speed) in cases {
+            let w = &g.discharge_a;
+            let formula = time_in_window(phase, turn, w, speed, accel);
+            let reference = stepped(phase, turn, w, speed, accel);
+            println!("φ {phase:.3} turn {turn:+.3} ω {speed:+.0}: {formula:.6} s (stepped {reference:.6} s)");
+            assert!(
+                (formula - reference).abs() < 2e-5,
+                "φ {phase} turn {turn} ω {speed}: {formula} s, stepped {reference} s"
+            );
+        }
     }
 }
