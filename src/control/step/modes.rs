@@ -89,7 +89,7 @@ fn time_in_window(
     } else {
         (window.close_rad, window.open_rad)
     };
-    let width = turn_phase(window.close_rad - window.open_rad);
+    let width = window.span_rad();
     let forward = |a: f32, b: f32| {
         if turn_rad > 0.0 {
             turn_phase(b - a)
