@@ -1,8 +1,10 @@
 //! Telemetry through the real path: the firmware's control task queues frames, its
-//! telemetry task encodes them into the simulated RTT up-channel, and the host decoder turns
-//! the capture back into a run log — which equals the simulator's own run log sample for
-//! sample, bit for bit, with no frame dropped.
+//! telemetry task encodes them into the RTT up-channel in the simulated board's RAM, a host
+//! reads them there through the RTT transport as a probe does, and the decoder turns the
+//! capture back into a run log — which equals the simulator's own run log sample for
+//! sample, bit for bit, with no frame dropped, and carries the metadata `gap` reads.
 
+use fpc::link::telemetry::ChannelSet;
 use fpc::link::telemetry::DEFAULT_DECIMATION;
 use hal_sim::board::capture::{decode_capture, decoded_columns};
 use hal_sim::run::{run, RunOptions, RunOutcome};
@@ -36,7 +38,30 @@ fn assert_matches(outcome: &RunOutcome, step: usize) {
     let rows = outcome.log.len();
     assert_eq!(d.log.len(), rows.div_ceil(step), "rows");
     let mut compared = 0;
-    for name in decoded_columns() {
+    assert_eq!(d.channels, ChannelSet::ALL);
+    for key in ["force_delay_s", "theta_source", "ports", "ports_from_s"] {
+        assert_eq!(
+            d.log.meta(key).is_some(),
+            outcome.log.meta(key).is_some(),
+            "{key}"
+        );
+    }
+    assert_eq!(
+        d.log.meta("force_delay_s"),
+        outcome.log.meta("force_delay_s")
+    );
+    assert_eq!(d.log.meta("theta_source"), outcome.log.meta("theta_source"));
+    assert_eq!(d.log.meta("ports"), outcome.log.meta("ports"));
+    // The bypass closes in a cycle's host step; the first frame declared timed is the next
+    // due one, within one frame of it (the time bases are the same: `t_s` matches below).
+    let from =
+        |l: &hal_sim::runlog::RunLog| -> f64 { l.meta("ports_from_s").unwrap().parse().unwrap() };
+    let lag = from(&d.log) - from(&outcome.log);
+    assert!(
+        lag > 0.0 && lag <= step as f64 * 50e-6 + 1e-9,
+        "ports_from_s lags by {lag} s"
+    );
+    for name in decoded_columns(ChannelSet::ALL) {
         let Some(want) = outcome.log.column(name) else {
             assert_eq!(name, "mode", "run.csv lacks {name}");
             continue;
@@ -62,7 +87,7 @@ fn assert_matches(outcome: &RunOutcome, step: usize) {
 #[test]
 fn telemetry_capture_matches_run_log_at_full_rate() {
     let outcome = run_with_telemetry(1);
-    // One 56-byte frame per control cycle.
+    // One 58-byte frame per control cycle.
     assert_eq!(
         outcome.telemetry.len(),
         outcome.log.len() * fpc::link::telemetry::WIRE_BYTES

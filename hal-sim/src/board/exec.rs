@@ -24,16 +24,17 @@ use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use fpc::control::calibration::record::CalibrationRecord;
 use fpc::control::calibration::store::LoadError;
 use fpc::control::config::ControlConfig;
+use fpc::link::channels::UP_REPLIES;
 use fpc::ports::ControlPorts;
 use fpc::safety::faults::ResetCause;
 use fpc::shared::Shared;
-use fpc::tasks::{control_run, supervision_run, telemetry_run};
+use fpc::tasks::{command_run, control_run, supervision_run, telemetry_run};
 
 use crate::board::flash::{block_on, SimFlash};
 
 use fpc::units::DacCode;
 
-use crate::board::capture::telemetry_sink;
+use crate::board::capture::{command_channel, telemetry_sink, up_channel};
 use crate::board::world::{
     clock, cycle, event_log, peripherals, watchdog, SimCycle, SimPeripherals, World, WorldRef,
 };
@@ -72,6 +73,13 @@ pub struct Execution {
     pub power_off_until_us: Option<u64>,
     /// Simulated time of every boot after a power cut, µs.
     pub power_ups_us: Vec<u64>,
+    /// The firmware's command task runs too, on the RTT command channel in the board's RAM
+    /// (answers and scope recordings on the reply channel). Off by default: a caller that
+    /// posts commands to the shared state itself also takes the replies from it.
+    pub command_task: bool,
+    /// How the host declares the ports at each boot, before the tasks start (`None`: the
+    /// firmware's default, timed).
+    pub declare_at_boot: Option<fpc::link::telemetry::Ports>,
 }
 
 /// The shared state as the simulator instantiates it (single thread: no-op mutex).
@@ -145,6 +153,8 @@ where
     Fut: Future,
 {
     let world: WorldRef = Rc::new(RefCell::new(world));
+    // The firmware sets up its RTT control block first thing at boot.
+    world.borrow_mut().ram.boot_rtt();
     let io = control_ports(&world);
     {
         let mut control = pin!(control(io, shared));
@@ -198,8 +208,13 @@ where
     let mut cause = ResetCause::PowerOn;
     let mut cx = Context::from_waker(Waker::noop());
     'boot: loop {
-        // RAM starts afresh at every boot.
+        // RAM starts afresh at every boot: the shared state, and the RTT control block the
+        // firmware sets up first thing (bytes in flight are lost).
         let shared = SimShared::new();
+        world.borrow_mut().ram.boot_rtt();
+        if let Some(ports) = execution.declare_at_boot {
+            shared.declare_ports(ports);
+        }
         let io = control_ports(&world);
         let stored = execution.flash.take().map(|flash| {
             let (loaded, flash) = boot_load(flash);
@@ -216,6 +231,13 @@ where
         ));
         let decimation = world.borrow().telemetry.decimation;
         let mut telemetry = pin!(telemetry_run(telemetry_sink(&world), &shared, decimation));
+        let mut commands = pin!(command_run(
+            command_channel(&world),
+            up_channel(&world, UP_REPLIES),
+            clock(&world),
+            clock(&world),
+            &shared
+        ));
         loop {
             let powered = execution.power_off_until_us.is_none();
             if powered && !execution.control_hung {
@@ -227,6 +249,9 @@ where
             }
             if powered {
                 let _ = telemetry.as_mut().poll(&mut cx);
+                if execution.command_task {
+                    let _ = commands.as_mut().poll(&mut cx);
+                }
             }
             if powered && !execution.supervision_hung {
                 let _ = supervision.as_mut().poll(&mut cx);

@@ -36,9 +36,12 @@ pub const HOMING_SPEED_MPS: f64 = 0.01;
 pub const STALL_SPARE_S: f64 = 2.0;
 
 /// How far the section forces in a run-log row lag its position, s (`# force_delay_s`):
-/// one control period — the firmware's status reports each section's force from the current
-/// measured in the previous cycle.
-pub const FIRMWARE_FORCE_DELAY_S: f64 = 50e-6;
+/// the firmware's convention ([`fpc::link::telemetry::FORCE_DELAY_PERIODS`], one control
+/// period — its status reports each section's force from the current measured in the
+/// previous cycle), the same its telemetry declares.
+pub const FIRMWARE_FORCE_DELAY_S: f64 = (fpc::link::telemetry::FORCE_DELAY_PERIODS
+    * fpc::link::telemetry::CONTROL_PERIOD_US) as f64
+    / 1e6;
 
 /// The control rate, Hz: one run-log row per control cycle at most.
 pub const CONTROL_RATE_HZ: u32 = 1_000_000 / fpc::units::CONTROL_PERIOD_US;
