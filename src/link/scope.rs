@@ -18,8 +18,9 @@
 //! | `f_master_n`, `f_slave_n` | i16 | [`FORCE_UNIT_N`] (0.5 N) | ±16.4 kN |
 //! | `p_a_pa`, `p_b_pa` | u16 | [`PRESSURE_UNIT_PA`] (20 Pa) | 0–1.31 MPa |
 //!
-//! A value beyond its range is held at the code's limit; a decoder counts the samples at a
-//! limit and says so. The servo's count (4096 per turn, 1.5 mrad) is far coarser than the
+//! Codes are truncated toward zero (one `vcvt`): a decoded value is within one unit of the
+//! controller's. A value beyond its range is held at the code's limit; a decoder counts the
+//! samples at a limit and says so. The servo's count (4096 per turn, 1.5 mrad) is far coarser than the
 //! angle's code, the pressure sensors' noise (0.5 kPa) than the pressure's.
 //!
 //! # Up-channel messages (reply channel, up 2)

@@ -154,13 +154,15 @@ impl FrameCollector {
                     self.duplicates += 1;
                     continue;
                 }
-                // Live gap count: a sequence step other than the first one seen (the
-                // decimation, as far as the live view can tell; `finish` counts against
-                // the most common step).
+                // Live gap count: a step that is a multiple of the decimation seen so far
+                // (frames lost); any other step is a new decimation (set at run time), not
+                // a loss. `finish` counts against the most common step.
                 if let Some(p) = self.frames.last() {
                     let step = f.seq.wrapping_sub(p.seq);
-                    if *self.first_step.get_or_insert(step) != step {
-                        self.live_gaps += 1;
+                    match self.first_step {
+                        Some(d) if d == step => {}
+                        Some(d) if d > 0 && step > d && step % d == 0 => self.live_gaps += 1,
+                        _ => self.first_step = Some(step),
                     }
                 }
                 self.frames.push(f);
@@ -251,7 +253,10 @@ fn unusable(frames: &[Frame], layout_1: u32, stats: LinkStats, read: usize) -> O
     let Some(first) = frames.first() else {
         return Some(if layout_1 > 0 {
             format!(
-                "{layout_1} telemetry frames of layout 1 (kind 0x01: an older fpc firmware's,                  ten fixed channels) and none of layout {LAYOUT} in {read} bytes: this                  fpc-sim reads layout {LAYOUT}; decode the capture with the fpc-sim of the                  firmware that sent it"
+                "{layout_1} telemetry frames of layout 1 (kind 0x01: an older fpc firmware's, \
+                 ten fixed channels) and none of layout {LAYOUT} in {read} bytes: this \
+                 fpc-sim reads layout {LAYOUT}; decode the capture with the fpc-sim of the \
+                 firmware that sent it"
             )
         } else {
             format!(

@@ -14,9 +14,10 @@
 //! task started afresh with [`ResetCause::Watchdog`], while the plant keeps moving.
 
 use std::cell::RefCell;
+use std::convert::Infallible;
 use std::future::Future;
 use std::ops::ControlFlow;
-use std::pin::pin;
+use std::pin::{pin, Pin};
 use std::rc::Rc;
 use std::task::{Context, Waker};
 
@@ -318,4 +319,67 @@ where
     // The task futures, the only other holders, were dropped above, so this never clones.
     let world = Rc::try_unwrap(world).map_or_else(|rc| rc.borrow().clone(), RefCell::into_inner);
     (world, execution)
+}
+
+/// A task body as [`LinkedBoard`] holds it.
+type Task<'s> = Pin<Box<dyn Future<Output = Infallible> + 's>>;
+
+/// The simulated board run one control period at a time, with all four of the firmware's
+/// tasks — control, supervision, telemetry and commands — for a host that reaches it only
+/// the way a probe reaches the real board: through the RTT channels in its RAM
+/// (`crate::link::rtt`). No watchdog resets or power cuts here ([`simulate_board`] has
+/// them); the caller may change the plant between periods (what the rig's operator does:
+/// close a bypass, blank the ports).
+pub struct LinkedBoard<'s> {
+    world: WorldRef,
+    tasks: [Task<'s>; 4],
+}
+
+impl<'s> LinkedBoard<'s> {
+    /// Boots the firmware on `world` from power-on: its RTT control block set up, then the
+    /// tasks started with `config` and telemetry at `decimation`, sharing `shared`.
+    pub fn boot(
+        world: World,
+        config: ControlConfig,
+        shared: &'s SimShared,
+        decimation: u16,
+    ) -> LinkedBoard<'s> {
+        let world: WorldRef = Rc::new(RefCell::new(world));
+        world.borrow_mut().ram.boot_rtt();
+        let io = control_ports(&world);
+        let tasks: [Task<'s>; 4] = [
+            Box::pin(control_run(io, shared, config, ResetCause::PowerOn, None)),
+            Box::pin(supervision_run(
+                clock(&world),
+                clock(&world),
+                watchdog(&world),
+                event_log(&world),
+                shared,
+            )),
+            Box::pin(telemetry_run(telemetry_sink(&world), shared, decimation)),
+            Box::pin(command_run(
+                command_channel(&world),
+                up_channel(&world, UP_REPLIES),
+                clock(&world),
+                clock(&world),
+                shared,
+            )),
+        ];
+        LinkedBoard { world, tasks }
+    }
+
+    /// One control period: every task runs until it waits on the hardware, then the plant
+    /// advances.
+    pub fn step(&mut self) {
+        let mut cx = Context::from_waker(Waker::noop());
+        for task in &mut self.tasks {
+            let _ = task.as_mut().poll(&mut cx);
+        }
+        self.world.borrow_mut().advance();
+    }
+
+    /// The board and its plant, between periods.
+    pub fn world(&self) -> std::cell::RefMut<'_, World> {
+        self.world.borrow_mut()
+    }
 }

@@ -39,7 +39,8 @@ pub struct RunArgs {
     /// Also capture the firmware's telemetry stream into this file (`fpc-sim decode` reads it).
     #[arg(long)]
     pub telemetry: Option<PathBuf>,
-    /// Control cycles per telemetry frame (1 = every 50 µs cycle).
+    /// Control cycles per telemetry frame (1 = every 50 µs cycle; the firmware's default 10
+    /// is 2000 Hz, the slowest rate `fpc-sim gap` analyses).
     #[arg(long, default_value_t = fpc::link::telemetry::DEFAULT_DECIMATION,
           value_parser = clap::value_parser!(u16).range(1..))]
     pub telemetry_decimation: u16,
