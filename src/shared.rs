@@ -17,7 +17,7 @@ use crate::control::calibration::record::CalibrationRecord;
 use crate::control::command::{Command, Refusal, Reply};
 use crate::link::scope::{Recording, Scope, SAMPLE_BYTES};
 use crate::link::settings::LinkRequest;
-use crate::link::telemetry::{ChannelSet, Frame, Ports};
+use crate::link::telemetry::{ChannelSet, Frame, Ports, DEFAULT_CHANNELS};
 use crate::status::Status;
 
 /// Depth of the command mailbox.
@@ -48,9 +48,10 @@ pub struct Shared<M: RawMutex> {
     telemetry_cycles: AtomicU32,
     /// Frames lost: queue full (control task) or sink full (telemetry task).
     telemetry_dropped: AtomicU32,
-    /// The channels frames leave out (telemetry task): the complement, so that the initial
-    /// value (every channel) is zero and `Shared` stays in `.bss` with no flash image.
-    telemetry_channels_off: AtomicU16,
+    /// The channels frames carry (telemetry task), XOR the default set
+    /// ([`DEFAULT_CHANNELS`]): zero is the default, so `Shared` stays in `.bss` with no
+    /// flash image.
+    telemetry_channels_xor: AtomicU16,
     /// The ports as declared ([`Ports::code`]), stamped in each frame.
     ports: AtomicU8,
     /// The scope's ring and state (control task records, command task arms and reads).
@@ -88,7 +89,7 @@ impl<M: RawMutex> Shared<M> {
             telemetry_decimation: AtomicU16::new(0),
             telemetry_cycles: AtomicU32::new(0),
             telemetry_dropped: AtomicU32::new(0),
-            telemetry_channels_off: AtomicU16::new(0),
+            telemetry_channels_xor: AtomicU16::new(0),
             ports: AtomicU8::new(Ports::Timed.code()),
             scope: Mutex::new(RefCell::new(Scope::new())),
             scope_active: AtomicBool::new(false),
@@ -189,7 +190,7 @@ impl<M: RawMutex> Shared<M> {
 
     /// The channels frames carry now (telemetry task, as it encodes).
     pub fn telemetry_channels(&self) -> ChannelSet {
-        ChannelSet(!self.telemetry_channels_off.load(Ordering::Relaxed) & ChannelSet::ALL.0)
+        ChannelSet(self.telemetry_channels_xor.load(Ordering::Relaxed) ^ DEFAULT_CHANNELS.0)
     }
 
     /// One frame every `decimation` cycles now (0 = off).
@@ -216,8 +217,8 @@ impl<M: RawMutex> Shared<M> {
                 decimation,
                 channels,
             } => {
-                self.telemetry_channels_off
-                    .store(!channels.0 & ChannelSet::ALL.0, Ordering::Relaxed);
+                self.telemetry_channels_xor
+                    .store(channels.0 ^ DEFAULT_CHANNELS.0, Ordering::Relaxed);
                 // The cycle counter runs on: frames fall on the multiples of the new
                 // decimation, and the sequence's step says which one.
                 self.telemetry_decimation

@@ -164,3 +164,29 @@ fn bad_requests_and_another_firmwares_capture_are_refused_naming_what_is_wrong()
     assert!(!out.exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A tool, not a test: records a bench session on the simulated board (a 0.75 ms slave lag
+/// hidden in the plant) into the directory `FPC_BENCH_DIR` names, as up0.bin, up1.bin and
+/// up2.bin — what `docs/rig-to-model.md` plays back with `--replay`.
+#[test]
+#[ignore = "a tool: writes a recorded session to FPC_BENCH_DIR"]
+fn write_a_bench_session() {
+    let Some(dir) = std::env::var_os("FPC_BENCH_DIR") else {
+        panic!("set FPC_BENCH_DIR to the directory to write");
+    };
+    let truth = format!("{}\n[effects.slave_lag]\ndelay_s = 0.00075\n", reference());
+    let c = bench(
+        &truth,
+        16,
+        fpc::link::telemetry::DEFAULT_DECIMATION,
+        Campaign::Running {
+            speed_mps: 2.3,
+            seconds: 1.0,
+        },
+    );
+    let dir = Path::new(&dir);
+    std::fs::create_dir_all(dir).unwrap();
+    for (i, bytes) in c.raw.iter().enumerate() {
+        std::fs::write(dir.join(format!("up{i}.bin")), bytes).unwrap();
+    }
+}

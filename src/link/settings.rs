@@ -13,7 +13,7 @@
 //! | `0x22` | [`LinkRequest::ScopeDisarm`] | — | 0 |
 //!
 //! The codec checks the form; the values are checked where they are applied
-//! ([`crate::shared::Shared::apply`]): a decimation above [`MAX_DECIMATION`] or an empty
+//! (`Shared::apply`): a decimation above [`MAX_DECIMATION`] or an empty
 //! channel set is refused ([`Refusal::OutOfRange`]) and changes nothing.
 
 use crate::control::command::Refusal;

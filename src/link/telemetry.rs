@@ -86,9 +86,14 @@ pub const PAYLOAD_BYTES: usize = HEADER_BYTES + 4 * CHANNEL_COUNT;
 pub const WIRE_BYTES: usize = max_wire_len(PAYLOAD_BYTES);
 
 /// Decimation the firmware starts with: one frame every 10 control cycles, 2 kHz — the
-/// slowest rate `fpc-sim gap` analyses — with all channels, 116 kB/s (`docs/telemetry.md`
-/// states what each rate needs of a probe).
+/// slowest rate `fpc-sim gap` analyses — with [`DEFAULT_CHANNELS`]: 92 kB/s, two thirds of
+/// the RTT rate published for probe-rs (`docs/telemetry.md` states what each rate needs of a
+/// probe).
 pub const DEFAULT_DECIMATION: u16 = 10;
+
+/// The channels the firmware starts with: the seven a run log needs ([`ChannelSet::GAP`],
+/// 46 bytes a frame). `x_ref_m`, `theta_ref_rad` and `v_mps` are a request away.
+pub const DEFAULT_CHANNELS: ChannelSet = ChannelSet::GAP;
 
 /// Slowest decimation accepted: one frame every 20 000 cycles (1 Hz).
 pub const MAX_DECIMATION: u16 = 20_000;

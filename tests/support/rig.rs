@@ -45,9 +45,17 @@ pub struct Captured {
     pub counters: Counters,
 }
 
-/// One bench session on the plant of `truth`, telemetry at `decimation`.
+/// One bench session on the plant of `truth`, telemetry at `decimation` with the firmware's
+/// default channels.
 pub fn bench(truth: &str, seed: u64, decimation: u16, campaign: Campaign) -> Captured {
-    bench_with(truth, seed, decimation, ChannelSet::ALL, None, campaign)
+    bench_with(
+        truth,
+        seed,
+        decimation,
+        fpc::link::telemetry::DEFAULT_CHANNELS,
+        None,
+        campaign,
+    )
 }
 
 /// [`bench`] with the channels chosen and the probe reading at most `poll_bytes` per

@@ -3,9 +3,9 @@
 //!
 //! The tasks write the up-channels and read the down-channel in the board's RAM
 //! ([`crate::board::ram`]), exactly where the firmware's `rtt_init!` puts them; a host reads
-//! them there through the RTT transport ([`crate::link::rtt`]), as a probe does. A run with
+//! them there through the RTT transport (`link::rtt`), as a probe does. A run with
 //! telemetry on has such a host drain the telemetry channel every control period into
-//! [`TelemetryCapture::bytes`] (`crate::run`). The bytes are exactly what the board would
+//! [`TelemetryCapture::bytes`] (the `run` module). The bytes are exactly what the board would
 //! send, so `fpc-sim decode` reads both alike.
 
 use fpc::link::channels::{DOWN_COMMANDS, UP_TELEMETRY};

@@ -78,9 +78,9 @@ pub struct Execution {
     /// (answers and scope recordings on the reply channel). Off by default: a caller that
     /// posts commands to the shared state itself also takes the replies from it.
     pub command_task: bool,
-    /// How the host declares the ports at each boot, before the tasks start (`None`: the
-    /// firmware's default, timed).
-    pub declare_at_boot: Option<fpc::link::telemetry::Ports>,
+    /// What the host asks of the link at each boot, before the tasks start (how the ports
+    /// are, which channels the telemetry carries), as `fpc-sim link` would at once.
+    pub at_boot: Vec<fpc::link::settings::LinkRequest>,
 }
 
 /// The shared state as the simulator instantiates it (single thread: no-op mutex).
@@ -213,8 +213,9 @@ where
         // firmware sets up first thing (bytes in flight are lost).
         let shared = SimShared::new();
         world.borrow_mut().ram.boot_rtt();
-        if let Some(ports) = execution.declare_at_boot {
-            shared.declare_ports(ports);
+        for request in &execution.at_boot {
+            // A request the firmware refuses changes nothing, as over the link.
+            let _ = shared.apply(*request);
         }
         let io = control_ports(&world);
         let stored = execution.flash.take().map(|flash| {
@@ -327,7 +328,7 @@ type Task<'s> = Pin<Box<dyn Future<Output = Infallible> + 's>>;
 /// The simulated board run one control period at a time, with all four of the firmware's
 /// tasks — control, supervision, telemetry and commands — for a host that reaches it only
 /// the way a probe reaches the real board: through the RTT channels in its RAM
-/// (`crate::link::rtt`). No watchdog resets or power cuts here ([`simulate_board`] has
+/// (`link::rtt`). No watchdog resets or power cuts here ([`simulate_board`] has
 /// them); the caller may change the plant between periods (what the rig's operator does:
 /// close a bypass, blank the ports).
 pub struct LinkedBoard<'s> {

@@ -514,6 +514,27 @@ pub fn channels_text(set: ChannelSet) -> String {
     }
 }
 
+/// A channel set as typed: `all`, `gap`, or the channels' names joined by commas; the
+/// error names what is not a channel.
+pub fn parse_channels(text: &str) -> Result<ChannelSet, String> {
+    match text {
+        "all" => return Ok(ChannelSet::ALL),
+        "gap" => return Ok(ChannelSet::GAP),
+        _ => {}
+    }
+    let mut bits = 0u16;
+    for name in text.split(',').map(str::trim) {
+        let i = CHANNELS.iter().position(|c| *c == name).ok_or_else(|| {
+            format!(
+                "`{name}` is no channel; give all, gap, or names from {}",
+                CHANNELS.join(", ")
+            )
+        })?;
+        bits |= 1 << i;
+    }
+    Ok(ChannelSet(bits))
+}
+
 /// Sends a link request (telemetry, ports, scope) on down 0 and waits up to `timeout` for the
 /// firmware's verdict on up 2: accepted, or refused with the reason. An error is one line.
 pub fn send_link_request<C: Channels + ?Sized>(

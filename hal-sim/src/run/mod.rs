@@ -15,6 +15,7 @@ use std::time::Instant;
 
 use fpc::control::command::Command;
 use fpc::link::channels::UP_TELEMETRY;
+use fpc::link::settings::LinkRequest;
 use fpc::link::telemetry::Ports;
 use fpc::motion::volume_ratio::RatioTarget;
 use fpc::safety::faults::Fault;
@@ -252,8 +253,15 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             .as_ref()
             .map(crate::board::flash::holding)
             .transpose()?,
-        // The bypass is open from power-on; the host says so at every boot.
-        declare_at_boot: Some(Ports::Bypassed),
+        // The bypass is open from power-on and the telemetry carries the channels asked for;
+        // the host says so at every boot.
+        at_boot: vec![
+            LinkRequest::DeclarePorts(Ports::Bypassed),
+            LinkRequest::SetTelemetry {
+                decimation: opts.telemetry_decimation,
+                channels: opts.telemetry_channels,
+            },
+        ],
         ..Execution::default()
     };
     // The host of the telemetry channel: it finds the RTT control block in the board's RAM
@@ -316,7 +324,9 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                 // Close the bypass: from now on the rotation times the ports.
                 w.plant.port_mode = PortMode::Timed;
                 shared.declare_ports(Ports::Timed);
-                exec.declare_at_boot = Some(Ports::Timed);
+                if let Some(first) = exec.at_boot.first_mut() {
+                    *first = LinkRequest::DeclarePorts(Ports::Timed);
+                }
                 capture.ports_timed_from(t);
                 if opts.volume_ratio != RatioTarget::FollowMeasured {
                     let _ = shared.post_command(Command::SetVolumeRatio {

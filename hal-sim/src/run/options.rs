@@ -106,6 +106,9 @@ pub struct RunOptions {
     /// Telemetry: one frame every this many control cycles, captured in
     /// [`RunOutcome::telemetry`]; 0 = off.
     pub telemetry_decimation: u16,
+    /// The channels the telemetry frames carry (the firmware's default: the seven a run log
+    /// needs).
+    pub telemetry_channels: fpc::link::telemetry::ChannelSet,
     /// Relative error of the controller's model against the plant: its mass and friction
     /// are (1 + this) × the plant's (the acceptance runs use 0.05).
     pub model_error: f64,
@@ -154,6 +157,7 @@ impl RunOptions {
             start_us: 0,
             start_position_m: 0.005,
             telemetry_decimation: 0,
+            telemetry_channels: fpc::link::telemetry::DEFAULT_CHANNELS,
             model_error: 0.0,
             configure: None,
             schedule: Vec::new(),

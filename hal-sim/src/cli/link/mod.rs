@@ -53,7 +53,7 @@ Typical session on the rig (firmware flashed and running), with the answers:
     $ fpc-sim link send start --speed 2.3        (once homing has finished)
     accepted: start --speed 2.3
     $ fpc-sim link capture --elf target/thumbv7em-none-eabihf/release/fpc --out rig-run --seconds 30
-    1 s: telemetry 116000 bytes: frames accepted 2000, rejected 0, ... dropped by the firmware 0; ...
+    1 s: telemetry 92000 bytes: frames accepted 2000, rejected 0, ... dropped by the firmware 0; ...
     ...
     decimation 10 control cycles per frame; wrote 60000 rows (100.0 % of the frames) ... to rig-run/run.csv
     $ fpc-sim link send stop
@@ -89,7 +89,8 @@ enum Action {
     /// in flash).
     #[command(after_help = CALIBRATION_HELP)]
     Calibration(CalibrationArgs),
-    /// Set the telemetry's rate and channels (the firmware starts at 2000 Hz, every channel).
+    /// Set the telemetry's rate and channels (the firmware starts at 2000 Hz with the seven
+    /// channels a run log needs).
     #[command(after_help = TELEMETRY_HELP)]
     Telemetry(TelemetryArgs),
     /// Declare how the chambers are connected (the board cannot see it): stamped in every

@@ -7,22 +7,22 @@ use std::path::{Path, PathBuf};
 use clap::{Args, Subcommand, ValueEnum};
 use fpc::link::scope::{Trigger, SCOPE_SAMPLES};
 use fpc::link::settings::LinkRequest;
-use fpc::link::telemetry::{ChannelSet, Ports, CHANNELS, MAX_DECIMATION};
+use fpc::link::telemetry::{Ports, MAX_DECIMATION};
 
 use super::{open, timeout, Target};
 use crate::failure::{num, CmdResult, Failure};
-use crate::link::session::{send_link_request, transfer_text};
+use crate::link::session::{parse_channels, send_link_request, transfer_text};
 use crate::outln;
 
 pub(super) const TELEMETRY_HELP: &str = "\
 Examples:
-    fpc-sim link telemetry --rate 2000                  (gap's slowest rate; the default)
-    fpc-sim link telemetry --rate 5000 --channels gap   (the seven a run log needs)
+    fpc-sim link telemetry --rate 2000                  (the default: gap's slowest rate, gap's seven channels)
+    fpc-sim link telemetry --rate 5000 --channels all   (x_ref_m, theta_ref_rad, v_mps too)
     fpc-sim link telemetry --off
 
 The rate is 20000 Hz divided by a whole number (the decimation). Bytes per second on the
-probe: frame bytes x rate; every channel: 58 B (116 kB/s at 2 kHz, 1.16 MB/s at 20 kHz); gap's
-seven: 46 B (92 kB/s at 2 kHz). What probes carry: docs/telemetry.md. A host that reads
+probe: frame bytes x rate; gap's seven channels: 46 B (92 kB/s at 2 kHz, 920 kB/s at 20 kHz);
+every channel: 58 B (116 kB/s at 2 kHz). What probes carry: docs/telemetry.md. A host that reads
 slower than that loses frames: counted by the firmware (`dropped`) and by the host (sequence
 gaps); the decoded log keeps the longest stretch without a gap.";
 
@@ -53,10 +53,10 @@ pub(super) struct TelemetryArgs {
     /// No telemetry.
     #[arg(long)]
     off: bool,
-    /// The channels: `all`, `gap` (the seven a run log needs), or names joined by commas
-    /// (x_m, x_slave_m, theta_rad, f_master_n, f_slave_n, p_a_pa, p_b_pa, x_ref_m,
-    /// theta_ref_rad, v_mps).
-    #[arg(long, value_name = "SET", default_value = "all")]
+    /// The channels: `gap` (the seven a run log needs: the firmware's default), `all`, or
+    /// names joined by commas (x_m, x_slave_m, theta_rad, f_master_n, f_slave_n, p_a_pa,
+    /// p_b_pa, x_ref_m, theta_ref_rad, v_mps).
+    #[arg(long, value_name = "SET", default_value = "gap")]
     channels: String,
     /// How long to wait for the answer, ms.
     #[arg(long, value_name = "MS", default_value_t = 1000)]
@@ -191,28 +191,9 @@ pub(super) fn parse_trigger(text: &str) -> Result<Trigger, Failure> {
     }
 }
 
-/// `--channels`: all, gap, or names joined by commas.
-pub(super) fn parse_channels(text: &str) -> Result<ChannelSet, Failure> {
-    match text {
-        "all" => return Ok(ChannelSet::ALL),
-        "gap" => return Ok(ChannelSet::GAP),
-        _ => {}
-    }
-    let mut bits = 0u16;
-    for name in text.split(',').map(str::trim) {
-        let i = CHANNELS.iter().position(|c| *c == name).ok_or_else(|| {
-            Failure::bad_input(format!(
-                "--channels: `{name}` is no channel; give all, gap, or names from {}",
-                CHANNELS.join(", ")
-            ))
-        })?;
-        bits |= 1 << i;
-    }
-    Ok(ChannelSet(bits))
-}
-
 pub(super) fn telemetry(args: TelemetryArgs) -> CmdResult {
-    let channels = parse_channels(&args.channels)?;
+    let channels = parse_channels(&args.channels)
+        .map_err(|e| Failure::bad_input(format!("--channels: {e}")))?;
     let control_hz = 1e6 / f64::from(fpc::link::telemetry::CONTROL_PERIOD_US);
     let decimation = match (args.rate, args.decimation, args.off) {
         (_, _, true) => 0,
