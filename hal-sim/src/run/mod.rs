@@ -21,6 +21,7 @@ use fpc::units::CONTROL_PERIOD_S;
 use serde::Serialize;
 
 use crate::board::exec::{simulate_board, Execution, SimShared};
+use crate::published::Rig;
 use crate::board::world::World;
 use crate::failure::num;
 use crate::faults::apply::{InjectionReport, Injector};
@@ -29,6 +30,7 @@ use crate::runlog::{RunLog, REQUIRED};
 
 mod capture;
 mod options;
+pub mod spectrum;
 pub mod text;
 
 use capture::Capture;
@@ -94,6 +96,32 @@ pub struct RunOutcome {
     pub cycle_motor_work_j: Vec<f64>,
     /// What the injected faults did (empty without faults).
     pub injection: InjectionReport,
+}
+
+/// The controller a run's host talks to: the firmware on the simulated board (with the
+/// board's execution, for the fault scenarios) or the published rig's drives.
+enum Ctl<'a> {
+    Firmware(&'a SimShared, &'a mut Execution),
+    Published(&'a mut Rig),
+}
+
+impl Ctl<'_> {
+    fn status(&self) -> Status {
+        match self {
+            Ctl::Firmware(shared, _) => shared.status(),
+            Ctl::Published(rig) => rig.status(),
+        }
+    }
+
+    /// Sends `command` as the host would (the firmware takes it at its next cycle).
+    fn post(&mut self, command: Command, t_s: f64) {
+        match self {
+            Ctl::Firmware(shared, _) => {
+                let _ = shared.post_command(command);
+            }
+            Ctl::Published(rig) => rig.command(command, t_s),
+        }
+    }
 }
 
 /// Columns of the simulator's run log: the required ones, then optional ones.
@@ -214,10 +242,22 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     log.meta.push(("seed".into(), opts.seed.to_string()));
     log.meta
         .push(("volume_ratio".into(), volume_ratio_name(opts.volume_ratio)));
-    log.meta.push((
-        "force_delay_s".into(),
-        format!("{FIRMWARE_FORCE_DELAY_S:e}"),
-    ));
+    // The published drives report the force of the current sampled with the row's position.
+    let force_delay_s = match opts.controller {
+        Controller::Ours => FIRMWARE_FORCE_DELAY_S,
+        Controller::Published => 0.0,
+    };
+    log.meta
+        .push(("force_delay_s".into(), format!("{force_delay_s:e}")));
+    if opts.controller == Controller::Published {
+        log.meta.push(("controller".into(), "published".into()));
+        // Its velocity column is the drive's reading (`filters` compares it, Fig. 7).
+        for name in &mut log.names {
+            if name == "v_mps" {
+                *name = "v_drive_mps".into();
+            }
+        }
+    }
 
     let mut phase = Phase::Homing;
     let mut metrics = Metrics::default();
@@ -250,11 +290,13 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             .transpose()?,
         ..Execution::default()
     };
-    let each_cycle = |w: &mut World, shared: &SimShared, exec: &mut Execution| {
-        if !injector.is_empty() {
-            injector.step(w, shared, exec);
+    let mut each_cycle = |w: &mut World, ctl: &mut Ctl<'_>| {
+        if let Ctl::Firmware(shared, exec) = ctl {
+            if !injector.is_empty() {
+                injector.step(w, shared, exec);
+            }
         }
-        let status = shared.status();
+        let status = ctl.status();
         let t = w.time_s();
         if w.cycle() > 0 && w.cycle().is_multiple_of(log_stride) {
             capture.push(&status, w);
@@ -284,7 +326,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
         let before = phase;
         phase = match phase {
             Phase::Homing if w.cycle() == 0 => {
-                let _ = shared.post_command(Command::Home);
+                ctl.post(Command::Home, t);
                 Phase::Homing
             }
             Phase::Homing if status.homed && status.mode == ModeKind::Holding => {
@@ -292,16 +334,22 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                 w.plant.port_mode = PortMode::Timed;
                 capture.ports_timed_from(t);
                 if opts.volume_ratio != RatioTarget::FollowMeasured {
-                    let _ = shared.post_command(Command::SetVolumeRatio {
-                        target: opts.volume_ratio,
-                    });
+                    ctl.post(
+                        Command::SetVolumeRatio {
+                            target: opts.volume_ratio,
+                        },
+                        t,
+                    );
                 }
                 while let Some((_, action)) = actions.next_if(|(c, _)| *c == 0) {
-                    act(w, shared, action);
+                    act(w, ctl, action, t);
                 }
-                let _ = shared.post_command(Command::Start {
-                    peak_speed_mps: speed as f32,
-                });
+                ctl.post(
+                    Command::Start {
+                        peak_speed_mps: speed as f32,
+                    },
+                    t,
+                );
                 Phase::Running {
                     toward_b: true,
                     ref_extreme_m: f64::from(status.reference_m),
@@ -336,7 +384,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                     if !toward_b {
                         cycles_done += 1;
                         while let Some((_, action)) = actions.next_if(|(c, _)| *c <= cycles_done) {
-                            act(w, shared, action);
+                            act(w, ctl, action, t);
                         }
                         let c = &w.plant.chambers;
                         metrics
@@ -345,7 +393,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                         metrics.motor_work_at_cycle_j.push(metrics.motor_work_j);
                     }
                     if cycles_done >= opts.cycles {
-                        let _ = shared.post_command(Command::Stop);
+                        ctl.post(Command::Stop, t);
                         Phase::Stopping
                     } else {
                         Phase::Running {
@@ -425,7 +473,20 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
         }
         ControlFlow::Continue(())
     };
-    let (world, _) = simulate_board(world, config, execution, each_cycle);
+    let world = match opts.controller {
+        Controller::Ours => {
+            simulate_board(world, config, execution, |w, shared, exec| {
+                each_cycle(w, &mut Ctl::Firmware(shared, exec))
+            })
+            .0
+        }
+        Controller::Published => {
+            let mut rig = Rig::new(model, &world, opts.pressure_ratio, opts.volume_ratio);
+            crate::published::simulate(world, &mut rig, |w, rig| {
+                each_cycle(w, &mut Ctl::Published(rig))
+            })
+        }
+    };
 
     // The loop alone: writing a streamed log is not part of it, as writing the CSV after the
     // loop is not.
@@ -568,11 +629,9 @@ fn wrap_turn(x: f64) -> f64 {
 }
 
 /// Carries out a scheduled host action.
-fn act(w: &mut World, shared: &SimShared, action: HostAction) {
+fn act(w: &mut World, ctl: &mut Ctl<'_>, action: HostAction, t_s: f64) {
     match action {
         HostAction::SetLinePressureRatio(pr) => w.plant.lines.set_pressure_ratio(pr),
-        HostAction::Command(c) => {
-            let _ = shared.post_command(c);
-        }
+        HostAction::Command(c) => ctl.post(c, t_s),
     }
 }
