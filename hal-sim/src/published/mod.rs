@@ -118,7 +118,9 @@ impl Servo {
         self.last_rate = rate_ref;
         self.integral += ki * e * period_s;
         self.integral = self.integral.clamp(-self.full_scale_nm, self.full_scale_nm);
-        let t = self.inertia * accel_ref + kp * e + kd * (rate_ref - self.omega_filtered)
+        let t = self.inertia * accel_ref
+            + kp * e
+            + kd * (rate_ref - self.omega_filtered)
             + self.integral;
         t.clamp(-self.full_scale_nm, self.full_scale_nm)
     }
@@ -128,7 +130,12 @@ impl Rig {
     /// The rig of `model`, its drives zeroed on the piston where `world` has it, the rotation
     /// programmed for the pressure ratio `pressure_ratio` (a fixed volume ratio `target`
     /// programmes its design ratio instead).
-    pub fn new(model: &MachineModel, world: &World, pressure_ratio: f64, target: RatioTarget) -> Self {
+    pub fn new(
+        model: &MachineModel,
+        world: &World,
+        pressure_ratio: f64,
+        target: RatioTarget,
+    ) -> Self {
         let p = &model.published;
         let period_s = f64::from(CONTROL_PERIOD_S);
         let cycle_periods = (p.cycle_s / period_s).round().max(1.0) as u64;
@@ -371,7 +378,9 @@ impl Rig {
             master: true,
             slave: true,
         };
-        let torque = self.servo.torque(inputs.quadrature, theta_ref, rate_ref, self.period_s);
+        let torque = self
+            .servo
+            .torque(inputs.quadrature, theta_ref, rate_ref, self.period_s);
         let code = 2048.0 + torque / self.servo.full_scale_nm * 2047.0;
         world.servo_code = DacCode(code.round().clamp(0.0, 4095.0) as u16);
         let s = &mut self.status;

@@ -132,7 +132,11 @@ impl RotationProgramme {
             let slope = (p1 - p0) / (x1 - x0);
             (p0 + slope * (x - x0), slope * sp.v_mps)
         };
-        let first = if toward_b { x <= pts[1].0 } else { x >= pts[1].0 };
+        let first = if toward_b {
+            x <= pts[1].0
+        } else {
+            x >= pts[1].0
+        };
         let (phase, rate) = if first {
             seg(pts[0], pts[1])
         } else {

@@ -21,14 +21,15 @@ use fpc::units::CONTROL_PERIOD_S;
 use serde::Serialize;
 
 use crate::board::exec::{simulate_board, Execution, SimShared};
-use crate::published::Rig;
 use crate::board::world::World;
 use crate::failure::num;
 use crate::faults::apply::{InjectionReport, Injector};
 use crate::plant::chambers::PortMode;
+use crate::published::Rig;
 use crate::runlog::{RunLog, REQUIRED};
 
 mod capture;
+mod figures;
 mod options;
 pub mod spectrum;
 pub mod text;
@@ -76,6 +77,37 @@ pub struct Summary {
     pub faults: Vec<String>,
     /// Final mode.
     pub state: String,
+    /// Which controller drove the plant (`ours`, `published`).
+    pub controller: String,
+    /// Largest |F_master − F_slave| (the sections' reported forces) within ±5 ms of a dead
+    /// point, over the last 5 cycles, N (the paper's force fight, §4.1).
+    pub dead_point_force_diff_n: Option<f64>,
+    /// RMS of F_master − F_slave over the RMS of F_master + F_slave while stroking.
+    pub force_diff_rms_fraction: Option<f64>,
+    /// Largest overshoot past a dead point toward its head over the last 5 cycles, m
+    /// (negative: every dead point short of its target).
+    pub overshoot_m: Option<f64>,
+    /// Largest minus smallest position over the last 5 cycles, m.
+    pub travel_m: Option<f64>,
+    /// V_max/V_min of each chamber over the last 5 cycles, mean of A and B.
+    pub volume_ratio_reached: Option<f64>,
+    /// p_max/p_min of each chamber over the last 5 cycles, mean of A and B (the PR of the
+    /// paper's Fig. 3 read from its p–V loops; the target is the line ratio).
+    pub pv_pressure_ratio: Option<f64>,
+    /// Frequency of the largest line in 340–460 Hz of the position error (true position −
+    /// reference) while stroking, Hz.
+    pub line_hz: Option<f64>,
+    /// Its amplitude, m.
+    pub line_m: Option<f64>,
+    /// Its noise floor: the median amplitude within ±30 Hz of it, m (the line is the bin of
+    /// the band that stands highest above its floor).
+    pub line_floor_m: Option<f64>,
+    /// As `line_hz`, with the piston held at rest before the strokes (at least 0.1 s).
+    pub rest_line_hz: Option<f64>,
+    /// Its amplitude, m.
+    pub rest_line_m: Option<f64>,
+    /// Its noise floor, m.
+    pub rest_line_floor_m: Option<f64>,
 }
 
 /// A finished run: the summary and the run log.
@@ -181,6 +213,7 @@ struct Metrics {
     peak_speed_mps: f64,
     force_diff_sq: f64,
     force_diff_n: u64,
+    paper: figures::PaperFigures,
     faults: Vec<Fault>,
 }
 
@@ -322,6 +355,11 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             metrics.tracking_n += 1;
         }
         metrics.last_phase_rad = Some(w.plant.port_phase_rad());
+        if phase == Phase::Homing {
+            metrics
+                .paper
+                .before_strokes(w.plant.x_m, status.reference_m);
+        }
         let faulted = !status.faults.is_empty();
         let before = phase;
         phase = match phase {
@@ -366,6 +404,13 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                 let diff = f64::from(status.force_master_n - status.force_slave_n);
                 metrics.force_diff_sq += diff * diff;
                 metrics.force_diff_n += 1;
+                metrics.paper.stroking(
+                    t,
+                    x - f64::from(status.reference_m),
+                    f64::from(status.force_master_n),
+                    f64::from(status.force_slave_n),
+                    &w.plant,
+                );
                 metrics.extreme_m = Some(match metrics.extreme_m {
                     None => x,
                     Some(e) if toward_b => e.max(x),
@@ -381,6 +426,12 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                     let target = if toward_b { dead_b } else { dead_a };
                     let reached = metrics.extreme_m.take().unwrap_or(x);
                     metrics.dead_point_errors.push((reached - target).abs());
+                    let overshoot = if toward_b {
+                        reached - target
+                    } else {
+                        target - reached
+                    };
+                    metrics.paper.dead_point(t, overshoot);
                     if !toward_b {
                         cycles_done += 1;
                         while let Some((_, action)) = actions.next_if(|(c, _)| *c <= cycles_done) {
@@ -391,6 +442,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                             .work_at_cycle_j
                             .push(c.a.totals.work_on_gas_j + c.b.totals.work_on_gas_j);
                         metrics.motor_work_at_cycle_j.push(metrics.motor_work_j);
+                        metrics.paper.cycle_done();
                     }
                     if cycles_done >= opts.cycles {
                         ctl.post(Command::Stop, t);
@@ -495,6 +547,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     capture.finish(&mut log)?;
     let sim_time_s = world.time_s();
     let last5 = metrics.dead_point_errors.len().saturating_sub(10);
+    let paper = std::mem::take(&mut metrics.paper).finish();
     let summary = Summary {
         sim_time_s,
         wall_time_s: wall,
@@ -545,6 +598,19 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             .map(|f| f.name().to_string())
             .collect(),
         state: last_mode.name().to_string(),
+        controller: opts.controller.name().to_string(),
+        dead_point_force_diff_n: paper.dead_point_force_diff_n,
+        force_diff_rms_fraction: paper.force_diff_rms_fraction,
+        overshoot_m: paper.overshoot_m,
+        travel_m: paper.travel_m,
+        volume_ratio_reached: paper.volume_ratio_reached,
+        pv_pressure_ratio: paper.pv_pressure_ratio,
+        line_hz: paper.line_hz,
+        line_m: paper.line_m,
+        line_floor_m: paper.line_floor_m,
+        rest_line_hz: paper.rest_line_hz,
+        rest_line_m: paper.rest_line_m,
+        rest_line_floor_m: paper.rest_line_floor_m,
     };
     Ok(RunOutcome {
         summary,

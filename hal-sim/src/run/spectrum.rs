@@ -2,8 +2,11 @@
 //! run tells a self-excited loop (the paper's 400 Hz, §4) from sensor noise.
 //!
 //! One Hann-windowed FFT of the mean-removed signal ([`rustfft`]); a bin's amplitude is
-//! `2·|X_k|/Σw`, so a sine of amplitude `A` reads `A` at its bin. The floor is the median
-//! amplitude over a wider band: a line "above the noise floor" stands well clear of it.
+//! `2·|X_k|/Σw`, so a sine of amplitude `A` reads `A` at its bin. Each bin's floor is the
+//! median amplitude within ±[`FLOOR_HALF_WIDTH_HZ`] of it: a spectrum that merely falls or
+//! rises across the band (the stroke's own error, a ripple swept by the changing speed)
+//! sits on its floor, and only a narrow line stands clear of it. The line reported is the
+//! bin of the band that stands highest above its floor.
 
 use rustfft::num_complex::Complex;
 use rustfft::FftPlanner;
@@ -12,8 +15,8 @@ use serde::Serialize;
 /// Band searched for the paper's self-excitation, Hz (400 Hz ± 15 %).
 pub const LINE_BAND_HZ: (f64, f64) = (340.0, 460.0);
 
-/// Band whose median amplitude is the noise floor, Hz.
-pub const FLOOR_BAND_HZ: (f64, f64) = (200.0, 2000.0);
+/// Half-width of the neighbourhood whose median amplitude is a bin's noise floor, Hz.
+pub const FLOOR_HALF_WIDTH_HZ: f64 = 30.0;
 
 /// Fewest samples analysed (0.1 s at 20 kHz): a shorter record gives no figure.
 pub const MIN_SAMPLES: usize = 2000;
@@ -25,7 +28,7 @@ pub struct Line {
     pub hz: f64,
     /// Its amplitude, in the signal's unit.
     pub amplitude: f64,
-    /// Median amplitude over [`FLOOR_BAND_HZ`].
+    /// Median amplitude within ±[`FLOOR_HALF_WIDTH_HZ`] of the line.
     pub floor: f64,
 }
 
@@ -68,23 +71,28 @@ pub fn line_in(x: &[f64], dt_s: f64, band: (f64, f64)) -> Option<Line> {
         return None;
     }
     let spec = amplitude_spectrum(x, dt_s);
-    let (hz, amplitude) = spec
-        .iter()
-        .filter(|(f, _)| (band.0..=band.1).contains(f))
-        .copied()
-        .max_by(|a, b| a.1.total_cmp(&b.1))?;
-    let mut floor: Vec<f64> = spec
-        .iter()
-        .filter(|(f, _)| (FLOOR_BAND_HZ.0..=FLOOR_BAND_HZ.1).contains(f))
-        .map(|(_, a)| *a)
-        .collect();
-    floor.sort_by(f64::total_cmp);
-    let floor = floor.get(floor.len() / 2).copied()?;
-    Some(Line {
-        hz,
-        amplitude,
-        floor,
-    })
+    let df = spec.get(1).map_or(1.0, |b| b.0);
+    let half = (FLOOR_HALF_WIDTH_HZ / df).round().max(2.0) as usize;
+    let mut around = Vec::with_capacity(2 * half + 1);
+    spec.iter()
+        .enumerate()
+        .filter(|(_, (f, _))| (band.0..=band.1).contains(f))
+        .filter_map(|(k, &(hz, amplitude))| {
+            around.clear();
+            around.extend(
+                spec.get(k.saturating_sub(half)..(k + half + 1).min(spec.len()))?
+                    .iter()
+                    .map(|b| b.1),
+            );
+            around.sort_by(f64::total_cmp);
+            let floor = around.get(around.len() / 2).copied()?;
+            Some(Line {
+                hz,
+                amplitude,
+                floor,
+            })
+        })
+        .max_by(|a, b| a.prominence().total_cmp(&b.prominence()))
 }
 
 #[cfg(test)]
@@ -106,7 +114,11 @@ mod tests {
         assert!((line.amplitude - 3e-6).abs() < 0.1e-6, "{line:?}");
         // White noise of σ over N samples: ≈ σ·√(π/N)·√(1.5)… per bin, far below the line.
         assert!(line.prominence() > 50.0, "{line:?}");
-        let quiet: Vec<f64> = x.iter().enumerate().map(|(k, _)| 1e-6 * ((k * 7919) % 13) as f64).collect();
+        let quiet: Vec<f64> = x
+            .iter()
+            .enumerate()
+            .map(|(k, _)| 1e-6 * ((k * 7919) % 13) as f64)
+            .collect();
         assert!(line_in(&quiet[..100], dt, LINE_BAND_HZ).is_none());
     }
 }
