@@ -17,8 +17,9 @@
 //!   (the paper's model-predictive feed-forward was future work).
 //!
 //! The drives are zeroed before the run (the paper's homing — "slowly moving the piston until
-//! its extreme position and detecting the rising current" — is not simulated): `Home` moves
-//! slowly to dead point A and holds there `rest_s`, the at-rest window. No supervision: the
+//! its extreme position and detecting the rising current" — is not simulated): `Home` holds
+//! the piston where it is for `rest_s` (the at-rest window: "even when the slider was not
+//! moving", §4), then moves slowly to dead point A. No supervision: the
 //! published drives had none of this project's fault reactions, so `--fault` is refused.
 
 pub mod drive;
@@ -48,8 +49,11 @@ pub const SERVO_BANDWIDTH_HZ: f64 = 30.0;
 enum Programme {
     /// Holding the reference where it is.
     Hold,
-    /// The slow move to dead point A, then the at-rest hold until `until_s`.
-    Zeroing { until_s: f64 },
+    /// Holding the piston at rest where the drives were zeroed until `until_s` (the at-rest
+    /// window), then the slow move to dead point A.
+    AtRest { until_s: f64 },
+    /// The slow move to dead point A.
+    ToDeadPoint,
     /// Strokes; `stop` once the current stroke ends.
     Strokes { stop: bool },
 }
@@ -182,7 +186,11 @@ impl Rig {
                 master: sections.master.force_constant_n_per_a,
                 slave: sections.slave.force_constant_n_per_a,
             },
-            current_limit_a: sections.master.current_limit_a,
+            current_limit_a: if p.current_limit_a > 0.0 {
+                p.current_limit_a
+            } else {
+                sections.master.current_limit_a
+            },
             electrical_period_m: 2.0 * model.motor.pole_pitch_m,
             encoders: PerSection {
                 master: enc(codes.master),
@@ -246,20 +254,14 @@ impl Rig {
         self.cascade.reported_velocity_mps
     }
 
-    /// A command as an operator gives it: `Home` (slow move to dead point A, then the
-    /// at-rest hold), `Start` (strokes at the peak speed), `Stop` (after the current
+    /// A command as an operator gives it: `Home` (the at-rest hold, then the slow move to
+    /// dead point A), `Start` (strokes at the peak speed), `Stop` (after the current
     /// stroke). Others are ignored.
     pub fn command(&mut self, command: Command, t_s: f64) {
         match command {
             Command::Home => {
-                self.stroke = Stroke {
-                    t0_s: t_s,
-                    from_m: self.setpoint.x_m,
-                    to_m: self.dead_a_m,
-                    peak_mps: CREEP_MPS,
-                };
-                self.programme = Programme::Zeroing {
-                    until_s: self.stroke.end_s() + self.rest_s,
+                self.programme = Programme::AtRest {
+                    until_s: t_s + self.rest_s,
                 };
                 self.status.mode = ModeKind::Homing;
             }
@@ -306,7 +308,16 @@ impl Rig {
     /// The references at `t_s`, advancing the programme.
     fn programme(&mut self, t_s: f64) -> (Setpoint, f64, f64) {
         match self.programme {
-            Programme::Zeroing { until_s } if t_s >= until_s => {
+            Programme::AtRest { until_s } if t_s >= until_s => {
+                self.stroke = Stroke {
+                    t0_s: t_s,
+                    from_m: self.setpoint.x_m,
+                    to_m: self.dead_a_m,
+                    peak_mps: CREEP_MPS,
+                };
+                self.programme = Programme::ToDeadPoint;
+            }
+            Programme::ToDeadPoint if t_s >= self.stroke.end_s() => {
                 self.programme = Programme::Hold;
                 self.status.mode = ModeKind::Holding;
             }

@@ -7,7 +7,7 @@ use std::collections::VecDeque;
 
 use fpc::units::CONTROL_PERIOD_S;
 
-use super::spectrum::{line_in, LINE_BAND_HZ};
+use super::spectrum::{line_in, LINE_BAND_HZ, MIN_SAMPLES};
 use crate::plant::dynamics::Plant;
 
 /// Half-width of the window around a dead point in which the force difference counts, s.
@@ -52,6 +52,7 @@ fn widen(r: &mut (f64, f64), v: f64) {
 pub(super) struct PaperFigures {
     stroke_err: VecDeque<f64>,
     rest_err: VecDeque<f64>,
+    rest_done: bool,
     last_ref_m: Option<f32>,
     recent: VecDeque<(f64, f64)>,
     open: Option<(f64, f64)>,
@@ -72,8 +73,14 @@ fn push_bounded(q: &mut VecDeque<f64>, v: f64) {
 
 impl PaperFigures {
     /// Before the strokes: the position error counts as "at rest" while the reference stands
-    /// still.
+    /// still; the first such stretch long enough for a spectrum is kept.
     pub(super) fn before_strokes(&mut self, x_m: f64, reference_m: f32) {
+        if self.rest_err.len() >= MIN_SAMPLES && self.last_ref_m != Some(reference_m) {
+            self.rest_done = true;
+        }
+        if self.rest_done {
+            return;
+        }
         if self.last_ref_m == Some(reference_m) {
             push_bounded(&mut self.rest_err, x_m - f64::from(reference_m));
         } else {

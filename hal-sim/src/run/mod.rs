@@ -29,6 +29,7 @@ use crate::published::Rig;
 use crate::runlog::{RunLog, REQUIRED};
 
 mod capture;
+pub mod closed;
 mod figures;
 mod options;
 pub mod spectrum;
@@ -39,7 +40,7 @@ pub use options::*;
 
 /// The JSON summary of a run (`formats.md` §3). `None` is printed as `null`: a figure that
 /// this simulation cannot yet produce is never invented.
-#[derive(Clone, Debug, Serialize, PartialEq)]
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct Summary {
     /// Simulated time, s.
     pub sim_time_s: f64,
@@ -94,8 +95,9 @@ pub struct Summary {
     /// p_max/p_min of each chamber over the last 5 cycles, mean of A and B (the PR of the
     /// paper's Fig. 3 read from its p–V loops; the target is the line ratio).
     pub pv_pressure_ratio: Option<f64>,
-    /// Frequency of the largest line in 340–460 Hz of the position error (true position −
-    /// reference) while stroking, Hz.
+    /// Frequency of the line in 340–460 Hz of the measured position error (the master
+    /// encoder's position − the reference: what the rig sees of a vibration) while
+    /// stroking, Hz.
     pub line_hz: Option<f64>,
     /// Its amplitude, m.
     pub line_m: Option<f64>,
@@ -108,6 +110,10 @@ pub struct Summary {
     pub rest_line_m: Option<f64>,
     /// Its noise floor, m.
     pub rest_line_floor_m: Option<f64>,
+    /// Closed-port run (`--closed-port`): the highest pressure of chamber B, Pa.
+    pub closed_port_peak_pa: Option<f64>,
+    /// Closed-port run: chamber B's pressure at the end of the hold, Pa.
+    pub closed_port_end_pa: Option<f64>,
 }
 
 /// A finished run: the summary and the run log.
@@ -234,6 +240,9 @@ pub fn run_streamed(opts: &RunOptions, csv: &mut dyn Write) -> Result<RunOutcome
 
 fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome, String> {
     opts.validate()?;
+    if let Some(test) = opts.closed_port {
+        return closed::simulate(opts, test, csv);
+    }
     let model = &opts.model;
     let speed = opts.peak_speed_mps();
     let mut config = control_config(model);
@@ -358,7 +367,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
         if phase == Phase::Homing {
             metrics
                 .paper
-                .before_strokes(w.plant.x_m, status.reference_m);
+                .before_strokes(f64::from(status.position_m), status.reference_m);
         }
         let faulted = !status.faults.is_empty();
         let before = phase;
@@ -406,7 +415,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                 metrics.force_diff_n += 1;
                 metrics.paper.stroking(
                     t,
-                    x - f64::from(status.reference_m),
+                    f64::from(status.position_m - status.reference_m),
                     f64::from(status.force_master_n),
                     f64::from(status.force_slave_n),
                     &w.plant,
@@ -611,6 +620,8 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
         rest_line_hz: paper.rest_line_hz,
         rest_line_m: paper.rest_line_m,
         rest_line_floor_m: paper.rest_line_floor_m,
+        closed_port_peak_pa: None,
+        closed_port_end_pa: None,
     };
     Ok(RunOutcome {
         summary,

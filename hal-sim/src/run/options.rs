@@ -163,6 +163,9 @@ pub struct RunOptions {
     pub calibration: Option<fpc::control::calibration::record::CalibrationRecord>,
     /// Which controller drives the plant (`--controller`).
     pub controller: Controller,
+    /// The paper's closed-port test instead of compression cycles (`--closed-port`; the
+    /// published drives only).
+    pub closed_port: Option<super::closed::ClosedPort>,
 }
 
 /// Something the host does at the start of a given cycle.
@@ -196,6 +199,7 @@ impl RunOptions {
             log_rate_hz: CONTROL_RATE_HZ,
             calibration: None,
             controller: Controller::Ours,
+            closed_port: None,
         }
     }
 
@@ -314,6 +318,16 @@ impl RunOptions {
                      is `published.slave_lag_s`",
                 );
             }
+        }
+        if let Some(test) = &self.closed_port {
+            if self.controller != Controller::Published {
+                return Err(
+                    "--closed-port: the paper's closed-port test runs the published drives \
+                     (give --controller published)"
+                        .into(),
+                );
+            }
+            test.validate(self)?;
         }
         let (lo, hi) = CYCLES_RANGE;
         if !(lo..=hi).contains(&self.cycles) {

@@ -519,8 +519,10 @@ pub struct Published {
     pub reported_velocity_delay_s: f64,
     /// Bandwidth of each drive's current loop, Hz.
     pub current_bandwidth_hz: f64,
-    /// Time the drives hold the piston at dead point A before the strokes, s.
+    /// Time the drives hold the piston at rest before moving to dead point A, s.
     pub rest_s: f64,
+    /// Current limit of each drive, A (0 = the motor's `current_limit_a`).
+    pub current_limit_a: f64,
 }
 
 impl Default for Published {
@@ -537,6 +539,7 @@ impl Default for Published {
             reported_velocity_delay_s: 8.5e-3,
             current_bandwidth_hz: 1000.0,
             rest_s: 0.25,
+            current_limit_a: 0.0,
         }
     }
 }

@@ -123,6 +123,7 @@ pub const RANGES: &[(&str, f64, f64, &str)] = &[
     ("published.reported_velocity_delay_s", 0.0, 0.1, "s"),
     ("published.current_bandwidth_hz", 10.0, 5000.0, "Hz"),
     ("published.rest_s", 0.0, 60.0, "s"),
+    ("published.current_limit_a", 0.0, 1000.0, "A"),
 ];
 
 /// What the 12-bit ADC can carry either side of its mid-scale, codes: an encoder signal's
@@ -496,6 +497,7 @@ impl MachineModel {
             ("reported_velocity_delay_s", pu.reported_velocity_delay_s),
             ("current_bandwidth_hz", pu.current_bandwidth_hz),
             ("rest_s", pu.rest_s),
+            ("current_limit_a", pu.current_limit_a),
         ] {
             checks.push((format!("published.{k}"), v, NonNegative));
         }
