@@ -145,3 +145,29 @@ fn without_the_slaves_lag_the_same_gain_holds_still() {
     );
     assert!(rest < 1e-6, "{rest} m");
 }
+
+#[test]
+fn the_drives_velocity_reading_is_8_5_ms_late_as_in_fig_7() {
+    // The paper compared the drive's velocity with the derivative of the filtered position
+    // (§4.3): measured here the same way, on the log, against a zero-phase reference.
+    use hal_sim::signal::{butterworth_lowpass, central_difference, filtfilt, xcorr_lag};
+    let opts = RunOptions {
+        controller: Controller::Published,
+        pressure_ratio: 5.1,
+        cycles: 3,
+        ..RunOptions::reference()
+    };
+    let log = run(&opts).unwrap().log;
+    let (x, reading) = (
+        log.column("x_m").unwrap(),
+        log.column("v_drive_mps").unwrap(),
+    );
+    let dt = 50e-6;
+    let sections = butterworth_lowpass(4, 100.0, 1.0 / dt).unwrap();
+    let reference = filtfilt(&sections, &central_difference(x, dt));
+    let lag = xcorr_lag(&reference, reading, dt, Some(1000))
+        .unwrap()
+        .seconds;
+    println!("drive reading late by {:.2} ms", lag * 1e3);
+    assert!((lag - 8.5e-3).abs() < 0.2e-3, "{lag} s");
+}
