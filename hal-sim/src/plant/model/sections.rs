@@ -404,7 +404,10 @@ pub struct StribeckEffect {
 }
 
 /// `[effects.encoder_pitch_error]`: the slave encoder reads
-/// `x·(1 + scale) + A·sin(2π·x/p + φ) + A₂·sin(4π·x/p + φ₂)`.
+/// `x·(1 + scale) + A·sin(2π·x/p + φ) + A₂·sin(4π·x/p + φ₂) + S·(frac(x/p + φ/2π) − ½)
+/// + ½·D·sgn(v)`: harmonics of the pitch, a saw with a step `S` once per pitch (the pattern
+/// of the paper's Fig. 6) and a reading that differs by `D` with the direction of motion
+/// (larger moving toward +x, "from left to right").
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct PitchErrorEffect {
@@ -424,6 +427,12 @@ pub struct PitchErrorEffect {
     /// Phase φ₂ of the half-period term, rad.
     #[serde(default)]
     pub phase2_rad: f64,
+    /// Step S once per period (a saw of that height), m.
+    #[serde(default)]
+    pub step_m: f64,
+    /// Difference D between the readings moving toward +x and toward −x, m.
+    #[serde(default)]
+    pub direction_m: f64,
 }
 
 /// `[effects.heat_transfer]`: `Q̇ = UA·(T_wall − T)` in each chamber.

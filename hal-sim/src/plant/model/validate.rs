@@ -98,6 +98,8 @@ pub const RANGES: &[(&str, f64, f64, &str)] = &[
     ("effects.encoder_pitch_error.scale", -0.1, 0.1, ""),
     ("effects.encoder_pitch_error.amplitude2_m", -1e-3, 1e-3, "m"),
     ("effects.encoder_pitch_error.phase2_rad", -1e3, 1e3, "rad"),
+    ("effects.encoder_pitch_error.step_m", -1e-3, 1e-3, "m"),
+    ("effects.encoder_pitch_error.direction_m", -1e-3, 1e-3, "m"),
     ("effects.heat_transfer.ua_w_per_k", 0.0, 1e4, "W/K"),
     (
         "effects.heat_transfer.wall_temperature_k",
@@ -434,6 +436,8 @@ impl MachineModel {
                 ("scale", pe.scale, Finite),
                 ("amplitude2_m", pe.amplitude2_m, Finite),
                 ("phase2_rad", pe.phase2_rad, Finite),
+                ("step_m", pe.step_m, Finite),
+                ("direction_m", pe.direction_m, Finite),
             ] {
                 checks.push((format!("effects.encoder_pitch_error.{k}"), v, r));
             }
