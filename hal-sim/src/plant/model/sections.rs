@@ -404,8 +404,8 @@ pub struct StribeckEffect {
 }
 
 /// `[effects.encoder_pitch_error]`: the slave encoder reads
-/// `x·(1 + scale) + A·sin(2π·x/p + φ) + A₂·sin(4π·x/p + φ₂) + S·(frac(x/p + φ/2π) − ½)
-/// + ½·D·sgn(v)`: harmonics of the pitch, a saw with a step `S` once per pitch (the pattern
+/// `x·(1 + scale) + A·sin(2π·x/p + φ) + A₂·sin(4π·x/p + φ₂) + S·(frac(x/p + φ/2π) − ½) +
+/// ½·D·sgn(v)`: harmonics of the pitch, a saw with a step `S` once per pitch (the pattern
 /// of the paper's Fig. 6) and a reading that differs by `D` with the direction of motion
 /// (larger moving toward +x, "from left to right").
 #[derive(Clone, Debug, Deserialize, PartialEq)]
