@@ -503,7 +503,7 @@ pub struct Effects {
 }
 
 /// `[published]`: the published rig's drives, for `fpc-sim run --controller published`
-/// ([`crate::published`]). Every key is optional; the defaults are the paper's figures (P)
+/// (the `published` module of this crate). Every key is optional; the defaults are the paper's figures (P)
 /// and a drive commissioned as such drives are (A).
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
