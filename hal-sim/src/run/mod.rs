@@ -101,7 +101,7 @@ pub struct Summary {
     pub line_hz: Option<f64>,
     /// Its amplitude, m.
     pub line_m: Option<f64>,
-    /// Its noise floor: the median amplitude within ±30 Hz of it, m (the line is the bin of
+    /// Its noise floor: the median amplitude 15–100 Hz either side of it, m (the line is the bin of
     /// the band that stands highest above its floor).
     pub line_floor_m: Option<f64>,
     /// As `line_hz`, with the piston held at rest before the strokes (at least 0.1 s).

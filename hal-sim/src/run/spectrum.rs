@@ -3,10 +3,12 @@
 //!
 //! One Hann-windowed FFT of the mean-removed signal ([`rustfft`]); a bin's amplitude is
 //! `2·|X_k|/Σw`, so a sine of amplitude `A` reads `A` at its bin. Each bin's floor is the
-//! median amplitude within ±[`FLOOR_HALF_WIDTH_HZ`] of it: a spectrum that merely falls or
-//! rises across the band (the stroke's own error, a ripple swept by the changing speed)
-//! sits on its floor, and only a narrow line stands clear of it. The line reported is the
-//! bin of the band that stands highest above its floor.
+//! median amplitude from [`LINE_HALF_WIDTH_HZ`] to [`FLOOR_HALF_WIDTH_HZ`] either side of
+//! it: a spectrum that merely falls or rises across the band (the stroke's own error, a
+//! ripple swept by the changing speed) sits on its floor, and only a line stands clear of it
+//! — one whose frequency wanders by up to ±15 Hz (a limit cycle whose voltage headroom
+//! changes with the speed) does not raise its own floor. The line reported is the bin of
+//! the band that stands highest above its floor.
 
 use rustfft::num_complex::Complex;
 use rustfft::FftPlanner;
@@ -16,7 +18,10 @@ use serde::Serialize;
 pub const LINE_BAND_HZ: (f64, f64) = (340.0, 460.0);
 
 /// Half-width of the neighbourhood whose median amplitude is a bin's noise floor, Hz.
-pub const FLOOR_HALF_WIDTH_HZ: f64 = 30.0;
+pub const FLOOR_HALF_WIDTH_HZ: f64 = 100.0;
+
+/// Half-width around a bin left out of its floor (the line's own spread), Hz.
+pub const LINE_HALF_WIDTH_HZ: f64 = 15.0;
 
 /// Fewest samples analysed (0.1 s at 20 kHz): a shorter record gives no figure.
 pub const MIN_SAMPLES: usize = 2000;
@@ -28,7 +33,7 @@ pub struct Line {
     pub hz: f64,
     /// Its amplitude, in the signal's unit.
     pub amplitude: f64,
-    /// Median amplitude within ±[`FLOOR_HALF_WIDTH_HZ`] of the line.
+    /// Median amplitude from ±[`LINE_HALF_WIDTH_HZ`] to ±[`FLOOR_HALF_WIDTH_HZ`] of the line.
     pub floor: f64,
 }
 
@@ -73,17 +78,16 @@ pub fn line_in(x: &[f64], dt_s: f64, band: (f64, f64)) -> Option<Line> {
     let spec = amplitude_spectrum(x, dt_s);
     let df = spec.get(1).map_or(1.0, |b| b.0);
     let half = (FLOOR_HALF_WIDTH_HZ / df).round().max(2.0) as usize;
+    let gap = (LINE_HALF_WIDTH_HZ / df).round().min(half as f64 - 1.0) as usize;
     let mut around = Vec::with_capacity(2 * half + 1);
     spec.iter()
         .enumerate()
         .filter(|(_, (f, _))| (band.0..=band.1).contains(f))
         .filter_map(|(k, &(hz, amplitude))| {
             around.clear();
-            around.extend(
-                spec.get(k.saturating_sub(half)..(k + half + 1).min(spec.len()))?
-                    .iter()
-                    .map(|b| b.1),
-            );
+            let below = spec.get(k.saturating_sub(half)..k.saturating_sub(gap))?;
+            let above = spec.get((k + gap + 1).min(spec.len())..(k + half + 1).min(spec.len()))?;
+            around.extend(below.iter().chain(above).map(|b| b.1));
             around.sort_by(f64::total_cmp);
             let floor = around.get(around.len() / 2).copied()?;
             Some(Line {
