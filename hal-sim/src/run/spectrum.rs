@@ -88,8 +88,12 @@ pub fn line_in(x: &[f64], dt_s: f64, band: (f64, f64)) -> Option<Line> {
             let below = spec.get(k.saturating_sub(half)..k.saturating_sub(gap))?;
             let above = spec.get((k + gap + 1).min(spec.len())..(k + half + 1).min(spec.len()))?;
             around.extend(below.iter().chain(above).map(|b| b.1));
-            around.sort_by(f64::total_cmp);
-            let floor = around.get(around.len() / 2).copied()?;
+            let mid = around.len() / 2;
+            if mid >= around.len() {
+                return None;
+            }
+            let (_, floor, _) = around.select_nth_unstable_by(mid, f64::total_cmp);
+            let floor = *floor;
             Some(Line {
                 hz,
                 amplitude,
