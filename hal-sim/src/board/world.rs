@@ -209,7 +209,7 @@ impl World {
             // Same scale, same position: the same angle (one sin/cos for both).
             None if es.period_m == em.period_m => es.signals_at(th, sin_cos_th),
             None => es.signals(x),
-            Some(e) => es.signals(e.read_m(x)),
+            Some(e) => es.signals(e.read_moving_m(x, plant.v_mps)),
         };
         let slave = encoder(es, slave_signals, noise);
 

@@ -70,6 +70,19 @@ pub struct RunArgs {
     /// the model's true cogging map. A bad file exits 2 naming the key.
     #[arg(long, value_name = "FILE")]
     pub calibration: Option<PathBuf>,
+    /// The controller: `ours` (this firmware on the simulated board) or `published` (the
+    /// paper's master/slave drives, `[published]` in the model; a baseline to compare with).
+    #[arg(long, default_value = "ours", value_name = "NAME")]
+    pub controller: String,
+    /// The paper's closed-port test instead of compression cycles: both ports closed, the
+    /// published drives accelerate the piston from mid-travel toward head B at `--speed` and
+    /// stop it at STOP_M (m from head A), then hold it `--hold` seconds while chamber B's
+    /// pressure leaks away. Needs `--controller published`.
+    #[arg(long, value_name = "STOP_M")]
+    pub closed_port: Option<f64>,
+    /// Hold after a closed-port stop, s.
+    #[arg(long, default_value_t = 2.0, value_name = "S")]
+    pub hold: f64,
     /// Keep the files of a run that fails (stops before its cycles without an injected
     /// fault, or ends before a fault begins), for diagnosis; it still exits 1. Without it a
     /// failed run writes nothing.
@@ -117,6 +130,13 @@ pub fn main(args: RunArgs) -> CmdResult {
         volume_ratio: crate::run::parse_volume_ratio(&args.volume_ratio)
             .map_err(Failure::bad_input)?,
         log_rate_hz: args.log_rate,
+        controller: crate::run::Controller::parse(&args.controller).map_err(Failure::bad_input)?,
+        closed_port: args
+            .closed_port
+            .map(|stop_m| crate::run::closed::ClosedPort {
+                stop_m,
+                hold_s: args.hold,
+            }),
         telemetry_decimation: if args.telemetry.is_some() {
             args.telemetry_decimation
         } else {

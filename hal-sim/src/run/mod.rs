@@ -30,10 +30,14 @@ use crate::failure::num;
 use crate::faults::apply::{InjectionReport, Injector};
 use crate::link::rtt::{drain_up, ControlBlock, Locate};
 use crate::plant::chambers::PortMode;
+use crate::published::Rig;
 use crate::runlog::{RunLog, REQUIRED};
 
 mod capture;
+pub mod closed;
+mod figures;
 mod options;
+pub mod spectrum;
 pub mod text;
 
 use capture::Capture;
@@ -41,7 +45,7 @@ pub use options::*;
 
 /// The JSON summary of a run (`formats.md` §3). `None` is printed as `null`: a figure that
 /// this simulation cannot yet produce is never invented.
-#[derive(Clone, Debug, Serialize, PartialEq)]
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct Summary {
     /// Simulated time, s.
     pub sim_time_s: f64,
@@ -79,6 +83,42 @@ pub struct Summary {
     pub faults: Vec<String>,
     /// Final mode.
     pub state: String,
+    /// Which controller drove the plant (`ours`, `published`).
+    pub controller: String,
+    /// Largest |F_master − F_slave| (the sections' reported forces) within ±5 ms of a dead
+    /// point, over the last 5 cycles, N (the paper's force fight, §4.1).
+    pub dead_point_force_diff_n: Option<f64>,
+    /// RMS of F_master − F_slave over the RMS of F_master + F_slave while stroking.
+    pub force_diff_rms_fraction: Option<f64>,
+    /// Largest overshoot past a dead point toward its head over the last 5 cycles, m
+    /// (negative: every dead point short of its target).
+    pub overshoot_m: Option<f64>,
+    /// Largest minus smallest position over the last 5 cycles, m.
+    pub travel_m: Option<f64>,
+    /// V_max/V_min of each chamber over the last 5 cycles, mean of A and B.
+    pub volume_ratio_reached: Option<f64>,
+    /// p_max/p_min of each chamber over the last 5 cycles, mean of A and B (the PR of the
+    /// paper's Fig. 3 read from its p–V loops; the target is the line ratio).
+    pub pv_pressure_ratio: Option<f64>,
+    /// Frequency of the line in 340–460 Hz of the measured position error (the master
+    /// encoder's position − the reference: what the rig sees of a vibration) while
+    /// stroking, Hz.
+    pub line_hz: Option<f64>,
+    /// Its amplitude, m.
+    pub line_m: Option<f64>,
+    /// Its noise floor: the median amplitude 15–100 Hz either side of it, m (the line is the bin of
+    /// the band that stands highest above its floor).
+    pub line_floor_m: Option<f64>,
+    /// As `line_hz`, with the piston held at rest before the strokes (at least 0.1 s).
+    pub rest_line_hz: Option<f64>,
+    /// Its amplitude, m.
+    pub rest_line_m: Option<f64>,
+    /// Its noise floor, m.
+    pub rest_line_floor_m: Option<f64>,
+    /// Closed-port run (`--closed-port`): the highest pressure of chamber B, Pa.
+    pub closed_port_peak_pa: Option<f64>,
+    /// Closed-port run: chamber B's pressure at the end of the hold, Pa.
+    pub closed_port_end_pa: Option<f64>,
 }
 
 /// A finished run: the summary and the run log.
@@ -99,6 +139,32 @@ pub struct RunOutcome {
     pub cycle_motor_work_j: Vec<f64>,
     /// What the injected faults did (empty without faults).
     pub injection: InjectionReport,
+}
+
+/// The controller a run's host talks to: the firmware on the simulated board (with the
+/// board's execution, for the fault scenarios) or the published rig's drives.
+enum Ctl<'a> {
+    Firmware(&'a SimShared, &'a mut Execution),
+    Published(&'a mut Rig),
+}
+
+impl Ctl<'_> {
+    fn status(&self) -> Status {
+        match self {
+            Ctl::Firmware(shared, _) => shared.status(),
+            Ctl::Published(rig) => rig.status(),
+        }
+    }
+
+    /// Sends `command` as the host would (the firmware takes it at its next cycle).
+    fn post(&mut self, command: Command, t_s: f64) {
+        match self {
+            Ctl::Firmware(shared, _) => {
+                let _ = shared.post_command(command);
+            }
+            Ctl::Published(rig) => rig.command(command, t_s),
+        }
+    }
 }
 
 /// Columns of the simulator's run log: the required ones, then optional ones.
@@ -158,6 +224,7 @@ struct Metrics {
     peak_speed_mps: f64,
     force_diff_sq: f64,
     force_diff_n: u64,
+    paper: figures::PaperFigures,
     faults: Vec<Fault>,
 }
 
@@ -178,6 +245,9 @@ pub fn run_streamed(opts: &RunOptions, csv: &mut dyn Write) -> Result<RunOutcome
 
 fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome, String> {
     opts.validate()?;
+    if let Some(test) = opts.closed_port {
+        return closed::simulate(opts, test, csv);
+    }
     let model = &opts.model;
     let speed = opts.peak_speed_mps();
     let mut config = control_config(model);
@@ -219,10 +289,22 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     log.meta.push(("seed".into(), opts.seed.to_string()));
     log.meta
         .push(("volume_ratio".into(), volume_ratio_name(opts.volume_ratio)));
-    log.meta.push((
-        "force_delay_s".into(),
-        format!("{FIRMWARE_FORCE_DELAY_S:e}"),
-    ));
+    // The published drives report the force of the current sampled with the row's position.
+    let force_delay_s = match opts.controller {
+        Controller::Ours => FIRMWARE_FORCE_DELAY_S,
+        Controller::Published => 0.0,
+    };
+    log.meta
+        .push(("force_delay_s".into(), format!("{force_delay_s:e}")));
+    if opts.controller == Controller::Published {
+        log.meta.push(("controller".into(), "published".into()));
+        // Its velocity column is the drive's reading (`filters` compares it, Fig. 7).
+        for name in &mut log.names {
+            if name == "v_mps" {
+                *name = "v_drive_mps".into();
+            }
+        }
+    }
 
     let mut phase = Phase::Homing;
     let mut metrics = Metrics::default();
@@ -268,26 +350,29 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     // and reads the channel there every control period, as a probe does (it always keeps up).
     let mut telemetry_host: Option<ControlBlock> = None;
     let mut telemetry_error: Option<String> = None;
-    let each_cycle = |w: &mut World, shared: &SimShared, exec: &mut Execution| {
-        if opts.telemetry_decimation > 0 && telemetry_error.is_none() {
-            let block = match telemetry_host.take() {
-                Some(b) => Ok(b),
-                None => ControlBlock::find(&mut w.ram, &Locate::Scan(vec![SimRam::range()])),
-            };
-            let drained = block.and_then(|b| {
-                let World { ram, telemetry, .. } = &mut *w;
-                drain_up(&b, ram, UP_TELEMETRY, &mut telemetry.bytes).map_err(|e| e.to_string())?;
-                Ok(b)
-            });
-            match drained {
-                Ok(b) => telemetry_host = Some(b),
-                Err(e) => telemetry_error = Some(e),
+    let mut each_cycle = |w: &mut World, ctl: &mut Ctl<'_>| {
+        if let Ctl::Firmware(shared, exec) = ctl {
+            if opts.telemetry_decimation > 0 && telemetry_error.is_none() {
+                let block = match telemetry_host.take() {
+                    Some(b) => Ok(b),
+                    None => ControlBlock::find(&mut w.ram, &Locate::Scan(vec![SimRam::range()])),
+                };
+                let drained = block.and_then(|b| {
+                    let World { ram, telemetry, .. } = &mut *w;
+                    drain_up(&b, ram, UP_TELEMETRY, &mut telemetry.bytes)
+                        .map_err(|e| e.to_string())?;
+                    Ok(b)
+                });
+                match drained {
+                    Ok(b) => telemetry_host = Some(b),
+                    Err(e) => telemetry_error = Some(e),
+                }
+            }
+            if !injector.is_empty() {
+                injector.step(w, shared, exec);
             }
         }
-        if !injector.is_empty() {
-            injector.step(w, shared, exec);
-        }
-        let status = shared.status();
+        let status = ctl.status();
         let t = w.time_s();
         if w.cycle() > 0 && w.cycle().is_multiple_of(log_stride) {
             capture.push(&status, w);
@@ -313,32 +398,45 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             metrics.tracking_n += 1;
         }
         metrics.last_phase_rad = Some(w.plant.port_phase_rad());
+        if phase == Phase::Homing {
+            metrics
+                .paper
+                .before_strokes(f64::from(status.position_m), status.reference_m);
+        }
         let faulted = !status.faults.is_empty();
         let before = phase;
         phase = match phase {
             Phase::Homing if w.cycle() == 0 => {
-                let _ = shared.post_command(Command::Home);
+                ctl.post(Command::Home, t);
                 Phase::Homing
             }
             Phase::Homing if status.homed && status.mode == ModeKind::Holding => {
                 // Close the bypass: from now on the rotation times the ports.
                 w.plant.port_mode = PortMode::Timed;
-                shared.declare_ports(Ports::Timed);
-                if let Some(first) = exec.at_boot.first_mut() {
-                    *first = LinkRequest::DeclarePorts(Ports::Timed);
+                if let Ctl::Firmware(shared, exec) = ctl {
+                    shared.declare_ports(Ports::Timed);
+                    if let Some(first) = exec.at_boot.first_mut() {
+                        *first = LinkRequest::DeclarePorts(Ports::Timed);
+                    }
                 }
                 capture.ports_timed_from(t);
                 if opts.volume_ratio != RatioTarget::FollowMeasured {
-                    let _ = shared.post_command(Command::SetVolumeRatio {
-                        target: opts.volume_ratio,
-                    });
+                    ctl.post(
+                        Command::SetVolumeRatio {
+                            target: opts.volume_ratio,
+                        },
+                        t,
+                    );
                 }
                 while let Some((_, action)) = actions.next_if(|(c, _)| *c == 0) {
-                    act(w, shared, action);
+                    act(w, ctl, action, t);
                 }
-                let _ = shared.post_command(Command::Start {
-                    peak_speed_mps: speed as f32,
-                });
+                ctl.post(
+                    Command::Start {
+                        peak_speed_mps: speed as f32,
+                    },
+                    t,
+                );
                 Phase::Running {
                     toward_b: true,
                     ref_extreme_m: f64::from(status.reference_m),
@@ -355,6 +453,13 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                 let diff = f64::from(status.force_master_n - status.force_slave_n);
                 metrics.force_diff_sq += diff * diff;
                 metrics.force_diff_n += 1;
+                metrics.paper.stroking(
+                    t,
+                    f64::from(status.position_m - status.reference_m),
+                    f64::from(status.force_master_n),
+                    f64::from(status.force_slave_n),
+                    &w.plant,
+                );
                 metrics.extreme_m = Some(match metrics.extreme_m {
                     None => x,
                     Some(e) if toward_b => e.max(x),
@@ -370,19 +475,26 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                     let target = if toward_b { dead_b } else { dead_a };
                     let reached = metrics.extreme_m.take().unwrap_or(x);
                     metrics.dead_point_errors.push((reached - target).abs());
+                    let overshoot = if toward_b {
+                        reached - target
+                    } else {
+                        target - reached
+                    };
+                    metrics.paper.dead_point(t, overshoot);
                     if !toward_b {
                         cycles_done += 1;
                         while let Some((_, action)) = actions.next_if(|(c, _)| *c <= cycles_done) {
-                            act(w, shared, action);
+                            act(w, ctl, action, t);
                         }
                         let c = &w.plant.chambers;
                         metrics
                             .work_at_cycle_j
                             .push(c.a.totals.work_on_gas_j + c.b.totals.work_on_gas_j);
                         metrics.motor_work_at_cycle_j.push(metrics.motor_work_j);
+                        metrics.paper.cycle_done();
                     }
                     if cycles_done >= opts.cycles {
-                        let _ = shared.post_command(Command::Stop);
+                        ctl.post(Command::Stop, t);
                         Phase::Stopping
                     } else {
                         Phase::Running {
@@ -462,7 +574,20 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
         }
         ControlFlow::Continue(())
     };
-    let (world, _) = simulate_board(world, config, execution, each_cycle);
+    let world = match opts.controller {
+        Controller::Ours => {
+            simulate_board(world, config, execution, |w, shared, exec| {
+                each_cycle(w, &mut Ctl::Firmware(shared, exec))
+            })
+            .0
+        }
+        Controller::Published => {
+            let mut rig = Rig::new(model, &world, opts.pressure_ratio, opts.volume_ratio);
+            crate::published::simulate(world, &mut rig, |w, rig| {
+                each_cycle(w, &mut Ctl::Published(rig))
+            })
+        }
+    };
     if let Some(e) = telemetry_error {
         return Err(format!("the telemetry host failed: {e}"));
     }
@@ -474,6 +599,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     capture.finish(&mut log)?;
     let sim_time_s = world.time_s();
     let last5 = metrics.dead_point_errors.len().saturating_sub(10);
+    let paper = std::mem::take(&mut metrics.paper).finish();
     let summary = Summary {
         sim_time_s,
         wall_time_s: wall,
@@ -524,6 +650,21 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             .map(|f| f.name().to_string())
             .collect(),
         state: last_mode.name().to_string(),
+        controller: opts.controller.name().to_string(),
+        dead_point_force_diff_n: paper.dead_point_force_diff_n,
+        force_diff_rms_fraction: paper.force_diff_rms_fraction,
+        overshoot_m: paper.overshoot_m,
+        travel_m: paper.travel_m,
+        volume_ratio_reached: paper.volume_ratio_reached,
+        pv_pressure_ratio: paper.pv_pressure_ratio,
+        line_hz: paper.line_hz,
+        line_m: paper.line_m,
+        line_floor_m: paper.line_floor_m,
+        rest_line_hz: paper.rest_line_hz,
+        rest_line_m: paper.rest_line_m,
+        rest_line_floor_m: paper.rest_line_floor_m,
+        closed_port_peak_pa: None,
+        closed_port_end_pa: None,
     };
     Ok(RunOutcome {
         summary,
@@ -608,11 +749,9 @@ fn wrap_turn(x: f64) -> f64 {
 }
 
 /// Carries out a scheduled host action.
-fn act(w: &mut World, shared: &SimShared, action: HostAction) {
+fn act(w: &mut World, ctl: &mut Ctl<'_>, action: HostAction, t_s: f64) {
     match action {
         HostAction::SetLinePressureRatio(pr) => w.plant.lines.set_pressure_ratio(pr),
-        HostAction::Command(c) => {
-            let _ = shared.post_command(c);
-        }
+        HostAction::Command(c) => ctl.post(c, t_s),
     }
 }

@@ -84,6 +84,40 @@ pub fn volume_ratio_name(target: RatioTarget) -> String {
     }
 }
 
+/// Which controller drives the plant.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Controller {
+    /// This project's firmware, its task bodies on the simulated board.
+    #[default]
+    Ours,
+    /// The published rig's master/slave drives ([`crate::published`]), from the model's
+    /// `[published]` section.
+    Published,
+}
+
+impl Controller {
+    /// Parses `ours` or `published` (`--controller`, the sweep's `controller` axis).
+    pub fn parse(text: &str) -> Result<Controller, String> {
+        match text.trim() {
+            "ours" => Ok(Controller::Ours),
+            "published" => Ok(Controller::Published),
+            other => Err(format!(
+                "--controller {}: must be `ours` (this firmware) or `published` (the paper's \
+                 master/slave drives)",
+                crate::output::clip(other, 40)
+            )),
+        }
+    }
+
+    /// Its name, as `--controller` takes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Controller::Ours => "ours",
+            Controller::Published => "published",
+        }
+    }
+}
+
 /// Options of a run.
 #[derive(Clone, Debug)]
 pub struct RunOptions {
@@ -133,6 +167,11 @@ pub struct RunOptions {
     /// A stored calibration (`--calibration`): the board's flash holds it and the firmware
     /// loads it at boot, instead of the controller being handed the model's true cogging.
     pub calibration: Option<fpc::control::calibration::record::CalibrationRecord>,
+    /// Which controller drives the plant (`--controller`).
+    pub controller: Controller,
+    /// The paper's closed-port test instead of compression cycles (`--closed-port`; the
+    /// published drives only).
+    pub closed_port: Option<super::closed::ClosedPort>,
 }
 
 /// Something the host does at the start of a given cycle.
@@ -166,6 +205,8 @@ impl RunOptions {
             volume_ratio: RatioTarget::FollowMeasured,
             log_rate_hz: CONTROL_RATE_HZ,
             calibration: None,
+            controller: Controller::Ours,
+            closed_port: None,
         }
     }
 
@@ -260,6 +301,40 @@ impl RunOptions {
                     num(pr)
                 ));
             }
+        }
+        if self.controller == Controller::Published {
+            let refuse = |what: &str| {
+                Err(format!(
+                    "--controller published: {what} (the published drives have none of this \
+                     firmware's machinery)"
+                ))
+            };
+            if !self.faults.is_empty() {
+                return refuse("no --fault: the drives have no supervision to react");
+            }
+            if self.calibration.is_some() {
+                return refuse("no --calibration: the drives do not load this firmware's record");
+            }
+            if self.telemetry_decimation != 0 {
+                return refuse("no --telemetry: the drives send no telemetry frames");
+            }
+            if self.model.motor.slave_follows_master || self.model.effects.slave_lag.is_some() {
+                return refuse(
+                    "the model's `motor.slave_follows_master` / `[effects.slave_lag]` would \
+                     impose the slave's current; the slave drive is simulated here, its lag \
+                     is `published.slave_lag_s`",
+                );
+            }
+        }
+        if let Some(test) = &self.closed_port {
+            if self.controller != Controller::Published {
+                return Err(
+                    "--closed-port: the paper's closed-port test runs the published drives \
+                     (give --controller published)"
+                        .into(),
+                );
+            }
+            test.validate(self)?;
         }
         let (lo, hi) = CYCLES_RANGE;
         if !(lo..=hi).contains(&self.cycles) {
