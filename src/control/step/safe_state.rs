@@ -116,8 +116,6 @@ impl ControlStep {
 
     /// After an overcurrent: the section with the larger peak phase current is taken out;
     /// the other one stops the piston.
-    #[cold]
-    #[inline(never)]
     pub(super) fn drop_hotter_section(&mut self) {
         let m = self.currents.master.state().peak_phase_a;
         let s = self.currents.slave.state().peak_phase_a;
@@ -127,8 +125,6 @@ impl ControlStep {
     /// After a watchdog reset: the outputs stay off for the cycles the differentiator needs
     /// for a valid velocity, then [`ControlStep::brake_after_reset`] starts the controlled
     /// stop (see [`ControlStep::boot`]).
-    #[cold]
-    #[inline(never)]
     pub(super) fn await_velocity_then_brake(&mut self) {
         self.faulted_brake =
             FaultedBrake::AfterReset(self.config.sg_window.saturating_add(5) as u16);
