@@ -29,7 +29,7 @@ use super::data::{Measured, PortsMeta};
 use super::doc::{Edit, ModelDoc};
 use super::fit::{gauss_newton_nonneg, lstsq, minimise_1d};
 use super::residuals::{
-    acting_motor_force_n, channel_raw, force_raw, kept_of_raw, model_force_n, tangential_mps, Band,
+    acting_motor_force_n, channel_raw, force_raw, force_terms, kept_of_raw, tangential_mps, Band,
     ChannelId,
 };
 
@@ -444,16 +444,11 @@ pub fn acting_force_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<crate::signal::
     let model = base.model().ok()?;
     let d = ctx.data;
     let motors = acting_motor_force_n(d, 0.0);
-    let others: Vec<f64> = model_force_n(d, &model)
+    // The motor force that closes the balance with every other modelled force.
+    let acting: Vec<f64> = force_terms(d, &model)
         .iter()
-        .zip(&motors)
-        .map(|(all, m)| all - m)
-        .collect();
-    let acting: Vec<f64> = d
-        .d2x_mps2
-        .iter()
-        .zip(&others)
-        .map(|(a, o)| model.piston.mass_kg * a - o)
+        .zip(&d.d2x_mps2)
+        .map(|(f, a)| f.motor_needed_n(model.piston.mass_kg, *a))
         .collect();
     let reported = ctx.band.full(d, ChannelId::Force, &motors);
     let acting = ctx.band.full(d, ChannelId::Force, &acting);
@@ -468,13 +463,11 @@ fn actuator_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let base = doc.with(&[Edit::RemoveSection("effects.actuator_lag")]);
     let model = base.model().ok()?;
     let d = ctx.data;
-    let motors = acting_motor_force_n(d, 0.0);
     // Everything but the motor forces, once: r(d) = m·Δ²x − others − motors acting at d.
-    let fixed: Vec<f64> = model_force_n(d, &model)
+    let fixed: Vec<f64> = force_terms(d, &model)
         .iter()
-        .zip(&motors)
         .zip(&d.d2x_mps2)
-        .map(|((all, m), a)| model.piston.mass_kg * a - (all - m))
+        .map(|(f, a)| f.motor_needed_n(model.piston.mass_kg, *a))
         .collect();
     let rss = |delay: f64| -> Option<f64> {
         let late = acting_motor_force_n(d, delay.max(0.0));

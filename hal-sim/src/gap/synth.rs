@@ -9,14 +9,14 @@
 
 use std::f64::consts::PI;
 
+use fpc::physics::balance::PistonState;
+
 use crate::board::sensors::{Noise, Sensors};
 use crate::plant::chambers::PortMode;
 use crate::plant::dynamics::{Plant, PlantParams};
 use crate::plant::kinematic::CycleDrive;
 use crate::plant::model::MachineModel;
 use crate::runlog::{RunLog, REQUIRED};
-
-use super::residuals::axial_friction_n;
 
 /// Sample time of the synthetic runs, s (the simulator's 20 kHz).
 pub const SAMPLE_TIME_S: f64 = 50e-6;
@@ -168,10 +168,8 @@ fn prescribed(
     } else {
         1.0
     };
-    let law = truth.friction();
-    let cyl = truth.cylinder();
-    let cog = truth.cogging();
-    let r = 0.5 * truth.piston.bore_m;
+    let laws = truth.piston_laws();
+    let r = truth.friction_radius_m();
     let mut cols = REQUIRED.to_vec();
     cols.extend(["p_suction_pa", "p_discharge_pa"]);
     let mut log = RunLog::with_columns(&cols);
@@ -206,10 +204,17 @@ fn prescribed(
             plant.advance_kinematic(x, theta, dt);
         }
         let (pa, pb) = (plant.chambers.a.pressure_pa, plant.chambers.b.pressure_pa);
-        let gas = cyl.gas_force_n(pa, pb);
-        let fr = axial_friction_n(&law, v, omega * r);
-        let c = cog.map_or(0.0, |c| c.force_n(x));
-        let now = truth.piston.mass_kg * a - gas + fr - c;
+        // The motor force the prescribed motion needs: the balance inverted.
+        let now = laws
+            .forces(&PistonState {
+                x_m: x,
+                v_mps: v,
+                tangential_mps: omega * r,
+                pressure_a_pa: pa,
+                pressure_b_pa: pb,
+                motor_n: 0.0,
+            })
+            .motor_needed_n(laws.mass_kg, a);
         let motors = reported.replace(now).unwrap_or(now);
         let mut read = |i: usize, p: f64, off: f64, noise: &mut Noise| {
             let l = lagged.get_mut(i).map_or(p, |l| {

@@ -8,6 +8,7 @@ use crate::motion::stroke::StrokeGenerator;
 use crate::motion::synchroniser::{Rotation, Synchroniser};
 use crate::motion::trajectory::{PointToPoint, Setpoint};
 use crate::motion::volume_ratio::Chamber;
+use crate::physics::balance::PistonForces;
 use crate::physics::port_timing::PortWindow;
 use crate::real::{clamp_f32, max_f32, min_f32, sqrt_f32};
 use crate::safety::faults::Fault;
@@ -600,10 +601,10 @@ impl ControlStep {
     }
 
     /// The disturbance observer of a controlled stop: the force on the piston that the model
-    /// does not explain, `m·a − (F_motor + F_gas − F_friction(v))` from the measured
-    /// acceleration, motor force (q-currents) and gas force (when the pressures are valid;
-    /// otherwise the gas is part of what it estimates), low-passed over [`DOB_TIME_S`]. N,
-    /// toward +x.
+    /// does not explain, `m·a − (F_motor + F_gas − F_friction(v))`
+    /// ([`PistonForces::unexplained_n`]) from the measured acceleration, motor force
+    /// (q-currents) and gas force (when the pressures are valid; otherwise the gas is part of
+    /// what it estimates), low-passed over [`DOB_TIME_S`]. N, toward +x.
     #[cold]
     #[inline(never)]
     pub(super) fn observe_disturbance(&mut self, motor_force_n: f32, dt: f32) -> f32 {
@@ -614,8 +615,9 @@ impl ControlStep {
         } else {
             0.0
         };
-        let unexplained = c.moving_mass_kg * st.acceleration_mps2 - motor_force_n - gas_n
-            + c.friction.force_n(st.velocity_mps);
+        let unexplained =
+            PistonForces::known(motor_force_n, gas_n, c.friction.force_n(st.velocity_mps))
+                .unexplained_n(c.moving_mass_kg, st.acceleration_mps2);
         if unexplained.is_finite() {
             let alpha = clamp_f32(dt / DOB_TIME_S, 0.0, 1.0);
             self.disturbance_n += alpha * (unexplained - self.disturbance_n);

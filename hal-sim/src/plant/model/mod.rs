@@ -11,6 +11,7 @@
 //! a non-physical value (zero or negative where a positive quantity is meant, a port window
 //! outside one turn, …).
 
+use fpc::physics::balance::PistonLaws;
 use fpc::physics::cogging::CoggingParams;
 use fpc::physics::friction::FrictionParams;
 use fpc::physics::gas::{AnnulusLeak, Cylinder, GasProperties};
@@ -216,6 +217,21 @@ impl MachineModel {
         fpc::units::PerSection {
             master: section(&m.master),
             slave: section(&m.slave),
+        }
+    }
+
+    /// Radius at which the sliding friction acts on the rotation, m (the bore's).
+    pub fn friction_radius_m(&self) -> f64 {
+        0.5 * self.piston.bore_m
+    }
+
+    /// The laws of the force balance on the piston ([`fpc::physics::balance`]).
+    pub fn piston_laws(&self) -> PistonLaws<f64> {
+        PistonLaws {
+            mass_kg: self.piston.mass_kg,
+            cylinder: self.cylinder(),
+            friction: self.friction(),
+            cogging: self.cogging(),
         }
     }
 
