@@ -1,7 +1,9 @@
 //! Sensor models of the simulated board: the two sin/cos encoders (offsets, gain and phase
 //! errors, noise, 12-bit quantisation, the slave's pitch error), the phase-current sensing
 //! (offsets, noise), the four pressure sensors (first-order lag, offset, noise) and the
-//! servo's quadrature counter — and the seeded noise they draw from.
+//! servo's quadrature counter — and the seeded noise they draw from. Each holds its model
+//! section as it is; the laws of the transducers and the scale (lag, pitch error) are
+//! `plant::sensing`'s.
 //!
 //! Noise is cheap and deterministic: a ChaCha8 stream seeded per run, cut into 12-bit
 //! indices into a 4096-entry table of the standard normal's quantiles (tails clipped at
@@ -11,12 +13,14 @@ use std::sync::OnceLock;
 
 use fpc::drive::foc::CurrentSense;
 use fpc::sensing::pressure::PressureCalibration;
-use fpc::units::{AdcCode, PerSection};
+use fpc::units::{AdcCode, Section};
 use rand::{RngCore, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::plant::fastmath::sin_cos;
-use crate::plant::model::{EncoderSensor, MachineModel, PitchErrorEffect};
+use crate::plant::model::{
+    CurrentSensor, EncoderSensor, MachineModel, PitchErrorEffect, PressureSensor,
+};
 
 /// Entries of the normal-quantile table (12 bits).
 const TABLE_BITS: u32 = 12;
@@ -141,23 +145,14 @@ pub fn adc(code: f64) -> AdcCode {
     AdcCode(((code + 0.5) as u16).min(4095))
 }
 
-/// One sin/cos encoder at the ADC.
+/// One sin/cos encoder at the ADC: the model's `[sensors.encoder_*]` on a scale of
+/// period λ.
 #[derive(Clone, Debug, PartialEq)]
 pub struct EncoderModel {
     /// Signal period λ, m.
     pub period_m: f64,
-    /// Sine amplitude, codes.
-    pub amplitude_codes: f64,
-    /// Sine offset from mid-scale, codes.
-    pub sin_offset_codes: f64,
-    /// Cosine offset from mid-scale, codes.
-    pub cos_offset_codes: f64,
-    /// Cosine amplitude / sine amplitude − 1.
-    pub gain_mismatch: f64,
-    /// Phase error of the cosine channel, rad.
-    pub quadrature_error_rad: f64,
-    /// Noise per channel, codes RMS.
-    pub noise_codes: f64,
+    /// Amplitude, offsets, gain and phase errors, noise (the model's section).
+    pub sensor: EncoderSensor,
 }
 
 impl EncoderModel {
@@ -165,12 +160,7 @@ impl EncoderModel {
     pub fn new(period_m: f64, s: &EncoderSensor) -> Self {
         EncoderModel {
             period_m,
-            amplitude_codes: s.amplitude_codes,
-            sin_offset_codes: s.sin_offset_codes,
-            cos_offset_codes: s.cos_offset_codes,
-            gain_mismatch: s.gain_mismatch,
-            quadrature_error_rad: s.quadrature_error_rad,
-            noise_codes: s.noise_codes,
+            sensor: s.clone(),
         }
     }
 
@@ -199,96 +189,54 @@ impl EncoderModel {
     /// encoders read the same angle when they have the same period and no pitch error).
     #[inline]
     pub fn signals_at(&self, th: f64, (s, c): (f64, f64)) -> (f64, f64) {
-        let a = self.amplitude_codes;
-        let c = if self.quadrature_error_rad == 0.0 {
+        let e = &self.sensor;
+        let a = e.amplitude_codes;
+        let c = if e.quadrature_error_rad == 0.0 {
             c
         } else {
-            sin_cos(th + self.quadrature_error_rad).1
+            sin_cos(th + e.quadrature_error_rad).1
         };
-        let sin = 2048.0 + self.sin_offset_codes + a * s;
-        let cos = 2048.0 + self.cos_offset_codes + a * (1.0 + self.gain_mismatch) * c;
+        let sin = 2048.0 + e.sin_offset_codes + a * s;
+        let cos = 2048.0 + e.cos_offset_codes + a * (1.0 + e.gain_mismatch) * c;
         (sin, cos)
     }
-}
 
-/// Pitch error of the slave encoder's scale: what it reads at true position x.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PitchError {
-    /// Amplitude at the period, m.
-    pub amplitude_m: f64,
-    /// Period, m.
-    pub period_m: f64,
-    /// Phase, rad.
-    pub phase_rad: f64,
-    /// Scale error.
-    pub scale: f64,
-    /// Amplitude at half the period, m.
-    pub amplitude2_m: f64,
-    /// Phase of the half-period term, rad.
-    pub phase2_rad: f64,
-    /// Step once per period, m.
-    pub step_m: f64,
-    /// Difference between the readings moving toward +x and toward −x, m.
-    pub direction_m: f64,
-}
-
-/// Speed below which the direction-dependent reading blends through zero, m/s.
-pub const DIRECTION_BLEND_MPS: f64 = 1e-3;
-
-impl PitchError {
-    /// From `[effects.encoder_pitch_error]`.
-    pub fn new(e: &PitchErrorEffect) -> Self {
-        PitchError {
-            amplitude_m: e.amplitude_m,
-            period_m: e.period_m,
-            phase_rad: e.phase_rad,
-            scale: e.scale,
-            amplitude2_m: e.amplitude2_m,
-            phase2_rad: e.phase2_rad,
-            step_m: e.step_m,
-            direction_m: e.direction_m,
-        }
-    }
-
-    /// The position the encoder reads at true position `x_m`, at rest, m.
-    #[inline]
-    pub fn read_m(&self, x_m: f64) -> f64 {
-        self.read_moving_m(x_m, 0.0)
-    }
-
-    /// The position the encoder reads at true position `x_m` moving at `v_mps`, m.
-    #[inline]
-    pub fn read_moving_m(&self, x_m: f64, v_mps: f64) -> f64 {
-        let th = std::f64::consts::TAU * x_m / self.period_m;
-        let mut x = x_m * (1.0 + self.scale) + self.amplitude_m * sin_cos(th + self.phase_rad).0;
-        if self.amplitude2_m != 0.0 {
-            x += self.amplitude2_m * sin_cos(2.0 * th + self.phase2_rad).0;
-        }
-        if self.step_m != 0.0 {
-            let u = x_m / self.period_m + self.phase_rad / std::f64::consts::TAU;
-            x += self.step_m * (u - u.floor() - 0.5);
-        }
-        if self.direction_m != 0.0 {
-            x += 0.5 * self.direction_m * v_mps / (v_mps.abs() + DIRECTION_BLEND_MPS);
-        }
-        x
+    /// Noise per channel, codes RMS.
+    pub fn noise_codes(&self) -> f64 {
+        self.sensor.noise_codes
     }
 }
 
-/// The pressure channels, in [`PressureSensors`] order.
-pub const PRESSURE_CHANNELS: usize = 4;
-
-/// The four pressure sensors: chamber A, chamber B, suction, discharge.
+/// The four pressure sensors (chamber A, chamber B, suction, discharge): the firmware's
+/// calibration of their codes and the model's `[sensors.pressure]` (lag, offsets, noise;
+/// their laws are `plant::sensing`'s).
 #[derive(Clone, Debug, PartialEq)]
 pub struct PressureSensors {
     /// Calibration (the firmware's: the same codes mean the same pressures).
     pub calibration: PressureCalibration,
-    /// Noise, Pa RMS.
-    pub noise_pa: f64,
-    /// First-order lag, s.
-    pub time_constant_s: f64,
-    /// Offsets, Pa (A, B, suction, discharge).
-    pub offset_pa: [f64; PRESSURE_CHANNELS],
+    /// Lag, offsets and noise.
+    pub sensor: PressureSensor,
+}
+
+impl PressureSensors {
+    /// The code a sensor gives with its lag at `lagged_pa` and its offset `offset_pa`, noise
+    /// drawn from `noise`.
+    #[inline]
+    pub fn code(&self, lagged_pa: f64, offset_pa: f64, noise: &mut Noise) -> AdcCode {
+        let reading =
+            self.sensor.reading_pa(lagged_pa, offset_pa) + noise.scaled(self.sensor.noise_pa);
+        self.calibration.code_for(reading as f32)
+    }
+}
+
+impl Sensors {
+    /// The current offsets of `section`'s three phases, A.
+    pub fn current_offsets_a(&self, section: Section) -> [f64; 3] {
+        match section {
+            Section::Master => self.current_sensor.offset_master_a,
+            Section::Slave => self.current_sensor.offset_slave_a,
+        }
+    }
 }
 
 /// Everything the simulated board senses with, and how.
@@ -299,13 +247,11 @@ pub struct Sensors {
     /// Encoder on the slave section.
     pub encoder_slave: EncoderModel,
     /// Pitch error of the slave encoder's scale, if any.
-    pub slave_pitch_error: Option<PitchError>,
+    pub slave_pitch_error: Option<PitchErrorEffect>,
     /// Current-sense calibration (the firmware's reference).
     pub current: CurrentSense,
-    /// Current noise per phase, A RMS.
-    pub current_noise_a: f64,
-    /// Current offsets per phase, A.
-    pub current_offset_a: PerSection<[f64; 3]>,
+    /// Current sensing's noise and offsets (the model's `[sensors.current]`).
+    pub current_sensor: CurrentSensor,
     /// Pressure sensors.
     pub pressure: PressureSensors,
     /// Servo encoder counts per revolution.
@@ -320,13 +266,10 @@ impl Sensors {
             encoder_slave: EncoderModel::ideal(0.024),
             slave_pitch_error: None,
             current: CurrentSense::reference(),
-            current_noise_a: 0.0,
-            current_offset_a: PerSection::default(),
+            current_sensor: CurrentSensor::default(),
             pressure: PressureSensors {
                 calibration: PressureCalibration::reference(),
-                noise_pa: 0.0,
-                time_constant_s: 0.0,
-                offset_pa: [0.0; PRESSURE_CHANNELS],
+                sensor: PressureSensor::default(),
             },
             counts_per_rev: 4096,
         }
@@ -335,31 +278,15 @@ impl Sensors {
     /// The sensors a model describes.
     pub fn from_model(model: &MachineModel) -> Self {
         let s = &model.sensors;
-        let p = &s.pressure;
         Sensors {
             encoder_master: EncoderModel::new(model.encoder.period_m, &s.encoder_master),
             encoder_slave: EncoderModel::new(model.encoder.period_m, &s.encoder_slave),
-            slave_pitch_error: model
-                .effects
-                .encoder_pitch_error
-                .as_ref()
-                .map(PitchError::new),
+            slave_pitch_error: model.effects.encoder_pitch_error.clone(),
             current: CurrentSense::reference(),
-            current_noise_a: s.current.noise_a,
-            current_offset_a: PerSection {
-                master: s.current.offset_master_a,
-                slave: s.current.offset_slave_a,
-            },
+            current_sensor: s.current.clone(),
             pressure: PressureSensors {
                 calibration: PressureCalibration::reference(),
-                noise_pa: p.noise_pa,
-                time_constant_s: p.time_constant_s,
-                offset_pa: [
-                    p.offset_a_pa,
-                    p.offset_b_pa,
-                    p.offset_suction_pa,
-                    p.offset_discharge_pa,
-                ],
+                sensor: s.pressure.clone(),
             },
             counts_per_rev: model.servo.counts_per_rev,
         }
@@ -395,32 +322,5 @@ mod tests {
             assert_eq!(adc(x).0, (x + 0.5).clamp(0.0, 4095.0) as u16, "{x}");
         }
         assert_eq!(adc(f64::NAN).0, 0);
-    }
-
-    #[test]
-    fn pitch_error_reads_the_stated_pattern() {
-        let e = PitchError {
-            amplitude_m: 1e-4,
-            period_m: 0.024,
-            phase_rad: 0.0,
-            scale: 1e-3,
-            amplitude2_m: 0.0,
-            phase2_rad: 0.0,
-            step_m: 0.0,
-            direction_m: 0.0,
-        };
-        assert!((e.read_m(0.006) - (0.006 * 1.001 + 1e-4)).abs() < 1e-12);
-        // A saw of 0.1 mm stepping once a pitch, 0.05 mm more moving toward +x.
-        let saw = PitchError {
-            amplitude_m: 0.0,
-            scale: 0.0,
-            step_m: 1e-4,
-            direction_m: 5e-5,
-            ..e
-        };
-        let err = |x: f64, v: f64| saw.read_moving_m(x, v) - x;
-        assert!((err(0.0241, 0.0) - (-0.5e-4 + 1e-4 * 0.1 / 24.0)).abs() < 1e-9);
-        assert!((err(0.0239, 0.0) - (0.5e-4 - 1e-4 * 0.1 / 24.0)).abs() < 1e-9);
-        assert!((err(0.03, 2.0) - err(0.03, -2.0) - 5e-5).abs() < 1e-7);
     }
 }

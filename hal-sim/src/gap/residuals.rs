@@ -14,7 +14,6 @@
 
 use fpc::physics::balance::{PistonForces, PistonState};
 
-use crate::board::sensors::PitchError;
 use crate::plant::chambers::{Chambers, Lines, PortMode};
 use crate::plant::dynamics::PlantParams;
 use crate::plant::model::MachineModel;
@@ -343,7 +342,6 @@ pub fn force_terms(data: &Measured, model: &MachineModel) -> Vec<PistonForces<f6
     // Left in, the lag reads as friction (it follows the stroke direction) or as an actuator
     // lag (it follows the force's rate).
     let sensor = &model.sensors.pressure;
-    let tau = sensor.time_constant_s;
     (0..n)
         .map(|i| {
             let g = |v: &[f64]| v.get(i).copied().unwrap_or(0.0);
@@ -351,8 +349,16 @@ pub fn force_terms(data: &Measured, model: &MachineModel) -> Vec<PistonForces<f6
                 x_m: g(&data.x_m),
                 v_mps: g(&data.v_mps),
                 tangential_mps: g(&tang),
-                pressure_a_pa: g(&data.p_a_pa) - sensor.offset_a_pa + tau * g(&data.dp_a_pa_per_s),
-                pressure_b_pa: g(&data.p_b_pa) - sensor.offset_b_pa + tau * g(&data.dp_b_pa_per_s),
+                pressure_a_pa: sensor.true_pressure_pa(
+                    g(&data.p_a_pa),
+                    g(&data.dp_a_pa_per_s),
+                    sensor.offset_a_pa,
+                ),
+                pressure_b_pa: sensor.true_pressure_pa(
+                    g(&data.p_b_pa),
+                    g(&data.dp_b_pa_per_s),
+                    sensor.offset_b_pa,
+                ),
                 motor_n: g(&acting),
             })
         })
@@ -387,10 +393,11 @@ pub fn slave_force_prediction(data: &Measured, model: &MachineModel) -> Vec<f64>
 /// What the model says the slave encoder reads minus the master's, m.
 pub fn encoder_prediction(data: &Measured, model: &MachineModel) -> Vec<f64> {
     match &model.effects.encoder_pitch_error {
-        Some(e) => {
-            let p = PitchError::new(e);
-            data.x_m.iter().map(|&x| p.read_m(x) - x).collect()
-        }
+        Some(e) => data
+            .x_m
+            .iter()
+            .map(|&x| e.reading_at_rest_m(x) - x)
+            .collect(),
         None => vec![0.0; data.len()],
     }
 }
@@ -499,11 +506,7 @@ fn replay_from(
     // The sensors' lag is stepped with the chambers, as the plant steps it every control
     // period: stepped once per sample of a slower log it would lag by τ − dt/2 instead of
     // τ − h/2 (25 µs less on a 10 kHz log, named as leakage at speed).
-    let alpha = if sensor.time_constant_s > 0.0 {
-        1.0 - (-h / sensor.time_constant_s).exp()
-    } else {
-        1.0
-    };
+    let sensor_lag = sensor.lag(h);
     // The angle that times the ports, from the logged one (`# theta_source`): for a servo
     // count, its centre, and the piston carried within the spline's play (a play operator,
     // as the plant's spline; the piston starts centred).
@@ -550,12 +553,12 @@ fn replay_from(
                 piston = piston.max(angle - half_play).min(angle + half_play);
                 let phase = piston.rem_euclid(tau);
                 ch.step(x, phase, &lines, mode, h);
-                la += alpha * (ch.a.pressure_pa - la);
-                lb += alpha * (ch.b.pressure_pa - lb);
+                sensor_lag.step(&mut la, ch.a.pressure_pa);
+                sensor_lag.step(&mut lb, ch.b.pressure_pa);
             }
         }
-        pa.push(la + sensor.offset_a_pa);
-        pb.push(lb + sensor.offset_b_pa);
+        pa.push(sensor.reading_pa(la, sensor.offset_a_pa));
+        pb.push(sensor.reading_pa(lb, sensor.offset_b_pa));
     }
     (pa, pb)
 }

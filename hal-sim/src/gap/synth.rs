@@ -163,11 +163,8 @@ fn prescribed(
     let sensors = Sensors::from_model(truth);
     let ps = &sensors.pressure;
     let mut noise = Noise::new(seed);
-    let alpha = if ps.time_constant_s > 0.0 {
-        1.0 - (-dt / ps.time_constant_s).exp()
-    } else {
-        1.0
-    };
+    let lag = ps.sensor.lag(dt);
+    let offsets = ps.sensor.offsets_pa();
     let laws = truth.piston_laws();
     let r = truth.friction_radius_m();
     let mut cols = REQUIRED.to_vec();
@@ -216,22 +213,21 @@ fn prescribed(
             })
             .motor_needed_n(laws.mass_kg, a);
         let motors = reported.replace(now).unwrap_or(now);
-        let mut read = |i: usize, p: f64, off: f64, noise: &mut Noise| {
+        let mut read = |i: usize, p: f64, noise: &mut Noise| {
             let l = lagged.get_mut(i).map_or(p, |l| {
-                *l += alpha * (p - *l);
+                lag.step(l, p);
                 *l
             });
-            let code = ps
-                .calibration
-                .code_for((l + off + noise.scaled(ps.noise_pa)) as f32);
+            let code = ps.code(l, offsets.get(i).copied().unwrap_or(0.0), noise);
             f64::from(ps.calibration.convert(code).pressure_pa)
         };
-        let p_a = read(0, pa, ps.offset_pa[0], &mut noise);
-        let p_b = read(1, pb, ps.offset_pa[1], &mut noise);
+        let p_a = read(0, pa, &mut noise);
+        let p_b = read(1, pb, &mut noise);
         let xm = x + noise.scaled(ENCODER_NOISE_M);
         let x_true_slave = sensors
             .slave_pitch_error
-            .map_or(x, |e| e.read_moving_m(x, v));
+            .as_ref()
+            .map_or(x, |e| e.reading_m(x, v));
         let xs = x_true_slave + noise.scaled(ENCODER_NOISE_M);
         let fm = 0.5 * motors + noise.scaled(FORCE_NOISE_N);
         let fs = 0.5 * motors + noise.scaled(FORCE_NOISE_N);
