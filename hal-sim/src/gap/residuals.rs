@@ -12,6 +12,7 @@
 //! acts against the sliding velocity `(ẋ, ω·r)` of the turning piston, its axial part is
 //! `F_fr(|u|)·ẋ/|u|`.
 
+use fpc::angle::wrap_rad;
 use fpc::physics::balance::{PistonForces, PistonState};
 
 use crate::plant::chambers::{Chambers, Lines, PortMode};
@@ -551,7 +552,7 @@ fn replay_from(
                 let x = x1 + f * (x2 - x1);
                 let angle = t1 + f * (t2 - t1) + centre;
                 piston = piston.max(angle - half_play).min(angle + half_play);
-                let phase = piston.rem_euclid(tau);
+                let phase = wrap_rad(piston);
                 ch.step(x, phase, &lines, mode, h);
                 sensor_lag.step(&mut la, ch.a.pressure_pa);
                 sensor_lag.step(&mut lb, ch.b.pressure_pa);

@@ -22,6 +22,7 @@
 //! Line pressures and the port mode are inputs: [`Plant::lines`] (set during a run with
 //! [`Lines::set_pressure_ratio`] and friends) and [`Plant::port_mode`].
 
+use fpc::angle::wrap_rad;
 use fpc::drive::foc::phase_voltages;
 use fpc::physics::balance::{implicit_velocity, PistonForces};
 use fpc::physics::cogging::CoggingParams;
@@ -207,16 +208,7 @@ impl Plant {
 
     /// Rotation phase of the piston, φ = θ mod 2π, rad (what times the ports).
     pub fn port_phase_rad(&self) -> f64 {
-        let turn = std::f64::consts::TAU;
-        let a = self.rotation.piston_angle_rad;
-        // floor by conversion (cheaper than `rem_euclid`'s fmod); exact for |a| < 2⁶³ turns.
-        let turns = (a * (1.0 / turn)) as i64 as f64;
-        let phase = a - turns * turn;
-        if phase < 0.0 {
-            phase + turn
-        } else {
-            phase
-        }
+        wrap_rad(self.rotation.piston_angle_rad)
     }
 
     /// Advances the plant by `period_s` with `drive` held.
