@@ -18,6 +18,7 @@ use fpc::physics::balance::{PistonForces, PistonState};
 use crate::plant::chambers::{Chambers, Lines, PortMode};
 use crate::plant::dynamics::PlantParams;
 use crate::plant::model::MachineModel;
+use crate::plant::servo::through_play;
 use crate::signal::delayed;
 
 use super::band::{force_kernel, lowpass, sg_weights, Kernel};
@@ -551,7 +552,7 @@ fn replay_from(
                 let f = k as f64 / substeps as f64;
                 let x = x1 + f * (x2 - x1);
                 let angle = t1 + f * (t2 - t1) + centre;
-                piston = piston.max(angle - half_play).min(angle + half_play);
+                piston = through_play(piston, angle, half_play);
                 let phase = wrap_rad(piston);
                 ch.step(x, phase, &lines, mode, h);
                 sensor_lag.step(&mut la, ch.a.pressure_pa);

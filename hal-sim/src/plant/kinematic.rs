@@ -43,8 +43,12 @@ impl CycleDrive {
         v_max_mps: f64,
         pressure_ratio: f64,
     ) -> Self {
-        let ratio = pressure_ratio.max(1.0).powf(-1.0 / model.gas.gamma);
-        Self::with_volume_ratio(model, clearance_m, v_max_mps, 1.0 / ratio)
+        // V_open/V_max of an isentropic compression to the pressure ratio (the gas law's).
+        let open_share =
+            model
+                .gas_properties()
+                .isentropic_volume_m3(1.0, 1.0, pressure_ratio.max(1.0));
+        Self::with_volume_ratio(model, clearance_m, v_max_mps, 1.0 / open_share)
     }
 
     /// As [`CycleDrive::new`] with a fixed built-in volume ratio `V_max/V_open`.
