@@ -57,6 +57,8 @@ pub struct World {
     pub corruption: crate::board::corruption::SensorCorruption,
     /// What the firmware's telemetry task sent up the (simulated) RTT channel.
     pub telemetry: crate::board::capture::TelemetryCapture,
+    /// The board's RAM: the firmware's RTT control block and channels, set up at each boot.
+    pub ram: crate::board::ram::SimRam,
     noise: Noise,
     /// The pressure sensors' lagged readings, Pa (A, B, suction, discharge).
     pressure_lagged_pa: [f64; PRESSURE_CHANNELS],
@@ -96,6 +98,7 @@ impl World {
             events: Vec::new(),
             corruption: Default::default(),
             telemetry: Default::default(),
+            ram: crate::board::ram::SimRam::new(),
             noise: Noise::new(seed),
             pressure_lag,
         };

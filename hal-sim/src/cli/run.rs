@@ -39,10 +39,15 @@ pub struct RunArgs {
     /// Also capture the firmware's telemetry stream into this file (`fpc-sim decode` reads it).
     #[arg(long)]
     pub telemetry: Option<PathBuf>,
-    /// Control cycles per telemetry frame (1 = every 50 µs cycle).
+    /// Control cycles per telemetry frame (1 = every 50 µs cycle; the firmware's default 10
+    /// is 2000 Hz, the slowest rate `fpc-sim gap` analyses).
     #[arg(long, default_value_t = fpc::link::telemetry::DEFAULT_DECIMATION,
           value_parser = clap::value_parser!(u16).range(1..))]
     pub telemetry_decimation: u16,
+    /// The channels the telemetry carries: `gap` (the seven a run log needs, the firmware's
+    /// default), `all`, or names joined by commas.
+    #[arg(long, value_name = "SET", default_value = "gap")]
+    pub telemetry_channels: String,
     /// Inject a fault: `NAME@T[:k=v,…]` (`faults.md`; repeat for several). An unknown name or
     /// a malformed specification exits 2 naming it.
     #[arg(long = "fault", value_name = "SPEC")]
@@ -137,6 +142,8 @@ pub fn main(args: RunArgs) -> CmdResult {
         } else {
             0
         },
+        telemetry_channels: crate::link::session::parse_channels(&args.telemetry_channels)
+            .map_err(|e| Failure::bad_input(format!("--telemetry-channels: {e}")))?,
         ..RunOptions::reference()
     };
     opts.validate().map_err(Failure::bad_input)?;

@@ -15,6 +15,9 @@ use std::time::Instant;
 
 use fpc::angle::wrap_rad;
 use fpc::control::command::Command;
+use fpc::link::channels::UP_TELEMETRY;
+use fpc::link::settings::LinkRequest;
+use fpc::link::telemetry::Ports;
 use fpc::motion::volume_ratio::RatioTarget;
 use fpc::safety::faults::Fault;
 use fpc::status::{ModeKind, Status};
@@ -22,9 +25,11 @@ use fpc::units::CONTROL_PERIOD_S;
 use serde::Serialize;
 
 use crate::board::exec::{simulate_board, Execution, SimShared};
+use crate::board::ram::SimRam;
 use crate::board::world::World;
 use crate::failure::num;
 use crate::faults::apply::{InjectionReport, Injector};
+use crate::link::rtt::{drain_up, ControlBlock, Locate};
 use crate::plant::chambers::PortMode;
 use crate::published::Rig;
 use crate::runlog::{RunLog, REQUIRED};
@@ -331,10 +336,39 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             .as_ref()
             .map(crate::board::flash::holding)
             .transpose()?,
+        // The bypass is open from power-on and the telemetry carries the channels asked for;
+        // the host says so at every boot.
+        at_boot: vec![
+            LinkRequest::DeclarePorts(Ports::Bypassed),
+            LinkRequest::SetTelemetry {
+                decimation: opts.telemetry_decimation,
+                channels: opts.telemetry_channels,
+            },
+        ],
         ..Execution::default()
     };
+    // The host of the telemetry channel: it finds the RTT control block in the board's RAM
+    // and reads the channel there every control period, as a probe does (it always keeps up).
+    let mut telemetry_host: Option<ControlBlock> = None;
+    let mut telemetry_error: Option<String> = None;
     let mut each_cycle = |w: &mut World, ctl: &mut Ctl<'_>| {
         if let Ctl::Firmware(shared, exec) = ctl {
+            if opts.telemetry_decimation > 0 && telemetry_error.is_none() {
+                let block = match telemetry_host.take() {
+                    Some(b) => Ok(b),
+                    None => ControlBlock::find(&mut w.ram, &Locate::Scan(vec![SimRam::range()])),
+                };
+                let drained = block.and_then(|b| {
+                    let World { ram, telemetry, .. } = &mut *w;
+                    drain_up(&b, ram, UP_TELEMETRY, &mut telemetry.bytes)
+                        .map_err(|e| e.to_string())?;
+                    Ok(b)
+                });
+                match drained {
+                    Ok(b) => telemetry_host = Some(b),
+                    Err(e) => telemetry_error = Some(e),
+                }
+            }
             if !injector.is_empty() {
                 injector.step(w, shared, exec);
             }
@@ -380,6 +414,12 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             Phase::Homing if status.homed && status.mode == ModeKind::Holding => {
                 // Close the bypass: from now on the rotation times the ports.
                 w.plant.port_mode = PortMode::Timed;
+                if let Ctl::Firmware(shared, exec) = ctl {
+                    shared.declare_ports(Ports::Timed);
+                    if let Some(first) = exec.at_boot.first_mut() {
+                        *first = LinkRequest::DeclarePorts(Ports::Timed);
+                    }
+                }
                 capture.ports_timed_from(t);
                 if opts.volume_ratio != RatioTarget::FollowMeasured {
                     ctl.post(
@@ -549,6 +589,9 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             })
         }
     };
+    if let Some(e) = telemetry_error {
+        return Err(format!("the telemetry host failed: {e}"));
+    }
 
     // The loop alone: writing a streamed log is not part of it, as writing the CSV after the
     // loop is not.

@@ -36,9 +36,12 @@ pub const HOMING_SPEED_MPS: f64 = 0.01;
 pub const STALL_SPARE_S: f64 = 2.0;
 
 /// How far the section forces in a run-log row lag its position, s (`# force_delay_s`):
-/// one control period — the firmware's status reports each section's force from the current
-/// measured in the previous cycle.
-pub const FIRMWARE_FORCE_DELAY_S: f64 = 50e-6;
+/// the firmware's convention ([`fpc::link::telemetry::FORCE_DELAY_PERIODS`], one control
+/// period — its status reports each section's force from the current measured in the
+/// previous cycle), the same its telemetry declares.
+pub const FIRMWARE_FORCE_DELAY_S: f64 = (fpc::link::telemetry::FORCE_DELAY_PERIODS
+    * fpc::link::telemetry::CONTROL_PERIOD_US) as f64
+    / 1e6;
 
 /// The control rate, Hz: one run-log row per control cycle at most.
 pub const CONTROL_RATE_HZ: u32 = 1_000_000 / fpc::units::CONTROL_PERIOD_US;
@@ -137,6 +140,9 @@ pub struct RunOptions {
     /// Telemetry: one frame every this many control cycles, captured in
     /// [`RunOutcome::telemetry`]; 0 = off.
     pub telemetry_decimation: u16,
+    /// The channels the telemetry frames carry (the firmware's default: the seven a run log
+    /// needs).
+    pub telemetry_channels: fpc::link::telemetry::ChannelSet,
     /// Relative error of the controller's model against the plant: its mass and friction
     /// are (1 + this) × the plant's (the acceptance runs use 0.05).
     pub model_error: f64,
@@ -190,6 +196,7 @@ impl RunOptions {
             start_us: 0,
             start_position_m: 0.005,
             telemetry_decimation: 0,
+            telemetry_channels: fpc::link::telemetry::DEFAULT_CHANNELS,
             model_error: 0.0,
             configure: None,
             schedule: Vec::new(),
