@@ -22,6 +22,8 @@
 
 use std::f64::consts::TAU;
 
+use fpc::physics::friction::stribeck_shape;
+
 use crate::plant::fastmath::sin_cos;
 use crate::signal::{delayed, xcorr_lag};
 
@@ -219,23 +221,20 @@ fn mass_error(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     })
 }
 
-/// Per sample: the sliding speed and the axial share of a unit friction force with the sign
-/// regularised as the law does (`tanh(|u|/v_reg)·ẋ/|u|`).
+/// Per sample: the sliding speed `|u| = |(ẋ, ω·r)|` and the axial share of a unit friction
+/// force along it, the sign regularised as the law does (the law's own shape,
+/// [`fpc::physics::friction::FrictionParams::axial_direction`]).
 fn friction_direction(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<(Vec<f64>, Vec<f64>)> {
     let model = doc.model().ok()?;
-    let vreg = model.friction().sign_velocity_mps;
+    let law = model.friction();
     let tang = tangential_mps(ctx.data, &model);
-    let mut slip = Vec::with_capacity(ctx.data.len());
-    let mut dir = Vec::with_capacity(ctx.data.len());
-    for (v, t) in ctx.data.v_mps.iter().zip(&tang) {
-        let s = (v * v + t * t).sqrt();
-        slip.push(s);
-        dir.push(if s > 0.0 {
-            (s / vreg).tanh() * v / s
-        } else {
-            0.0
-        });
-    }
+    let (slip, dir) = ctx
+        .data
+        .v_mps
+        .iter()
+        .zip(&tang)
+        .map(|(v, t)| ((v * v + t * t).sqrt(), law.axial_direction(*v, *t)))
+        .unzip();
     Some((slip, dir))
 }
 
@@ -303,25 +302,12 @@ fn stribeck(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let (slip, dir) = friction_direction(ctx, &base)?;
     let fit = |log_vs: f64, zeta: f64| -> Option<(f64, f64)> {
         let vs = log_vs.exp();
+        // The law's Stribeck shape along the friction's direction (more dip than modelled
+        // leaves −ΔF·S·d in the residual).
         let raw: Vec<f64> = slip
             .iter()
             .zip(&dir)
-            .map(|(s, d)| {
-                let r = s / vs;
-                // ζ ∈ {0.5, 1, 2}: no powf; far past v_s the term is nil (skip the exp).
-                let shaped = if zeta == 1.0 {
-                    r
-                } else if zeta == 2.0 {
-                    r * r
-                } else {
-                    r.powf(zeta)
-                };
-                if shaped > 40.0 {
-                    0.0
-                } else {
-                    -(-shaped).exp() * d
-                }
-            })
+            .map(|(s, d)| -stribeck_shape(*s, vs, zeta) * d)
             .collect();
         let reg = ctx.band.kept(ctx.data, ChannelId::Force, &raw);
         let (th, rss) = lstsq(&[reg], &y)?;
