@@ -169,6 +169,12 @@ pub fn stroke_energy(fb: &ForceBalance, r: &Range<usize>, mass_kg: f64) -> Strok
     let cogging_j = work(&fb.cogging_n, x, r);
     let friction_j = work(&fb.friction_n, x, r);
     let inertia_j = work(&fb.inertia_filtered_n, x, r);
+    let left: Vec<f64> = fb
+        .expected_inertia_n
+        .iter()
+        .zip(&fb.inertia_filtered_n)
+        .map(|(net, inertia)| net - inertia)
+        .collect();
     StrokeEnergy {
         from_m: x.get(r.start).copied().unwrap_or(0.0),
         to_m: x.get(r.end.saturating_sub(1)).copied().unwrap_or(0.0),
@@ -180,6 +186,8 @@ pub fn stroke_energy(fb: &ForceBalance, r: &Range<usize>, mass_kg: f64) -> Strok
         friction_j,
         inertia_j,
         peak_kinetic_j: 0.5 * mass_kg * v_peak * v_peak,
-        balance_j: motor_j + gas_j + cogging_j - friction_j - inertia_j,
+        // The work of what the balance leaves, F_net − m·a: by the trapezoid rule's
+        // linearity, motor + gas + cogging − friction − inertia.
+        balance_j: work(&left, x, r),
     }
 }
