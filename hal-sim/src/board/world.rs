@@ -5,7 +5,8 @@
 //! deterministic: the same seed gives the same samples bit for bit. As on the board, the
 //! burst is sampled at the start of a period and the duties the control task writes act
 //! during the next period (one period of transport delay). What the sensors make of the plant
-//! (errors, noise, lag, quantisation) is [`crate::board::sensors`].
+//! (errors, noise, lag, quantisation) is [`crate::board::sensors`], after the laws of
+//! [`crate::plant::sensing`].
 
 use std::cell::RefCell;
 use std::future::poll_fn;
@@ -22,10 +23,11 @@ use fpc::ports::{
 use fpc::units::{DacCode, PerSection, PhaseDuties, Section, Ticks, CONTROL_PERIOD_US};
 
 pub use crate::board::sensors::Sensors;
-use crate::board::sensors::{adc, EncoderModel, Noise};
+use crate::board::sensors::{adc, EncoderModel};
 use crate::plant::dynamics::{Drive, Plant, PlantParams};
 use crate::plant::fastmath::{floor_i64, sin_cos};
 use crate::plant::model::MachineModel;
+use crate::plant::noise::Noise;
 use crate::plant::sensing::{FirstOrderLag, PRESSURE_CHANNELS};
 
 /// Everything the simulated board holds.

@@ -10,12 +10,13 @@
 use std::f64::consts::PI;
 
 use fpc::physics::balance::PistonState;
+use fpc::sensing::pressure::PressureCalibration;
 
-use crate::board::sensors::{Noise, Sensors};
 use crate::plant::chambers::PortMode;
 use crate::plant::dynamics::{Plant, PlantParams};
 use crate::plant::kinematic::CycleDrive;
 use crate::plant::model::MachineModel;
+use crate::plant::noise::Noise;
 use crate::runlog::{RunLog, REQUIRED};
 
 /// Sample time of the synthetic runs, s (the simulator's 20 kHz).
@@ -160,11 +161,13 @@ fn prescribed(
     let dt = SAMPLE_TIME_S;
     let mut plant = Plant::new(PlantParams::from_model(truth), x0);
     plant.port_mode = mode;
-    let sensors = Sensors::from_model(truth);
-    let ps = &sensors.pressure;
+    // The transducers' laws (plant::sensing) and the firmware's calibration of their codes,
+    // as the simulated board has them.
+    let pressure = &truth.sensors.pressure;
+    let calibration = PressureCalibration::reference();
     let mut noise = Noise::new(seed);
-    let lag = ps.sensor.lag(dt);
-    let offsets = ps.sensor.offsets_pa();
+    let lag = pressure.lag(dt);
+    let offsets = pressure.offsets_pa();
     let laws = truth.piston_laws();
     let r = truth.friction_radius_m();
     let mut cols = REQUIRED.to_vec();
@@ -218,14 +221,16 @@ fn prescribed(
                 lag.step(l, p);
                 *l
             });
-            let code = ps.code(l, offsets.get(i).copied().unwrap_or(0.0), noise);
-            f64::from(ps.calibration.convert(code).pressure_pa)
+            let offset = offsets.get(i).copied().unwrap_or(0.0);
+            let code = calibration.code_for(pressure.noisy_reading_pa(l, offset, noise) as f32);
+            f64::from(calibration.convert(code).pressure_pa)
         };
         let p_a = read(0, pa, &mut noise);
         let p_b = read(1, pb, &mut noise);
         let xm = x + noise.scaled(ENCODER_NOISE_M);
-        let x_true_slave = sensors
-            .slave_pitch_error
+        let x_true_slave = truth
+            .effects
+            .encoder_pitch_error
             .as_ref()
             .map_or(x, |e| e.reading_m(x, v));
         let xs = x_true_slave + noise.scaled(ENCODER_NOISE_M);

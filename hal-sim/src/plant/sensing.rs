@@ -3,8 +3,8 @@
 //! board's sensors (`board::sensors`, `board::world`), the synthetic runs and the model-gap
 //! workflow, which inverts them (`gap::residuals`).
 //!
-//! - **Pressure transducers** (`[sensors.pressure]`): a first-order lag `τ·ṙ = p − r` and an
-//!   offset, `reading = r + offset`. Over a step `h` with `p` held the lag is exact,
+//! - **Pressure transducers** (`[sensors.pressure]`): a first-order lag `τ·ṙ = p − r`, an
+//!   offset and noise, `reading = r + offset + n` (noise from [`crate::plant::noise`]). Over a step `h` with `p` held the lag is exact,
 //!   `r ← r + (1 − e^{−h/τ})·(p − r)` ([`FirstOrderLag`]); its inverse from a reading and its
 //!   rate is `p = reading − offset + τ·ṙ` ([`PressureSensor::true_pressure_pa`]).
 //! - **Pitch error of the slave scale** (`[effects.encoder_pitch_error]`): what it reads at a
@@ -12,6 +12,7 @@
 
 use crate::plant::fastmath::sin_cos;
 use crate::plant::model::{PitchErrorEffect, PressureSensor};
+use crate::plant::noise::Noise;
 
 /// A first-order lag stepped exactly over a fixed step with its input held.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -62,6 +63,13 @@ impl PressureSensor {
     #[inline]
     pub fn reading_pa(&self, lagged_pa: f64, offset_pa: f64) -> f64 {
         lagged_pa + offset_pa
+    }
+
+    /// What a transducer with `offset_pa` reads with its lag at `lagged_pa`, its noise
+    /// (`noise_pa` RMS) drawn from `noise`, Pa.
+    #[inline]
+    pub fn noisy_reading_pa(&self, lagged_pa: f64, offset_pa: f64, noise: &mut Noise) -> f64 {
+        self.reading_pa(lagged_pa, offset_pa) + noise.scaled(self.noise_pa)
     }
 
     /// The true pressure behind a reading, the lag undone: `reading − offset + τ·ṙ`, Pa
