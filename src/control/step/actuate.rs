@@ -27,7 +27,6 @@ impl ControlStep {
         match setpoint {
             Some((sp, limit)) => {
                 let model = self.model_forces(&sp, s.gas_force_n);
-                let model_n = model.load_n();
                 let load_n = self.observe_load(s, &model, limit);
                 // Cancelled while running strokes only: homing pushes on its end stop on
                 // purpose, a controlled stop has its own observer, and holding and moves
@@ -38,7 +37,7 @@ impl ControlStep {
                     0.0
                 };
                 let force =
-                    self.position_loop(&sp, s.position_m, &s.derivatives, model_n, cancel_n, limit);
+                    self.position_loop(&sp, s.position_m, &s.derivatives, &model, cancel_n, limit);
                 self.limits.force = force.abs() >= limit;
                 self.status.force_command_n = force;
                 let duties = self.drive_sections(inputs, s, force);
@@ -105,23 +104,24 @@ impl ControlStep {
         )
     }
 
-    /// Position loop with model feed-forward (`m·a` plus `model_n`, the load of
-    /// [`ControlStep::model_forces`]) and `cancel_n`, an estimated external force (toward
-    /// +x) to push against: total motor force, N, saturated at `limit`. Always inlined: the
-    /// calibration calls it too, and a second call site must not take it out of the step.
+    /// Position loop with model feed-forward (the motor force the force balance needs for the
+    /// setpoint's acceleration against `model`, the forces of [`ControlStep::model_forces`])
+    /// and `cancel_n`, an estimated external force (toward +x) to push against: total motor
+    /// force, N, saturated at `limit`. Always inlined: the calibration calls it too, and a
+    /// second call site must not take it out of the step.
     #[inline(always)]
     pub(super) fn position_loop(
         &self,
         sp: &Setpoint,
         position_m: f32,
         d: &Derivatives,
-        model_n: f32,
+        model: &PistonForces<f32>,
         cancel_n: f32,
         limit: f32,
     ) -> f32 {
         let c = &self.config;
         let feed_forward = if c.feed_forward {
-            c.moving_mass_kg * sp.acceleration_mps2 + model_n
+            model.motor_needed_n(c.moving_mass_kg, sp.acceleration_mps2)
         } else {
             0.0
         };
