@@ -49,15 +49,9 @@ pub const VENT_SPEED_RAD_S: f32 = core::f32::consts::TAU;
 /// move's clock starts this far below zero (its path is at rest there).
 pub const VENT_TIME_S: f32 = 0.75;
 
-/// `angle_rad` brought into [0, 2π) (angles within a few turns of zero, as the step keeps
-/// them).
+/// `angle_rad` brought into [0, 2π): the one wrap, [`crate::angle::wrap_rad`].
 fn turn_phase(angle_rad: f32) -> f32 {
-    let r = angle_rad - TAU * ((angle_rad / TAU) as i32) as f32;
-    if r < 0.0 {
-        r + TAU
-    } else {
-        r
-    }
+    crate::angle::wrap_rad(angle_rad)
 }
 
 /// How long the rotation spends in `window` on a turn by `turn_rad` from `phase_rad`, s,
