@@ -10,11 +10,14 @@
 //! their own modules ([`super::friction`], [`super::gas`], [`super::cogging`]); this module
 //! adds them up.
 //!
-//! The sum is evaluated in two orders, each for a reason, both here: [`PistonForces::net_n`]
-//! as the motor force less the load the motor works against ([`PistonForces::load_n`]: what a
-//! controller's feed-forward supplies beyond `m·a`), and [`PistonForces::driving_n`], every
-//! force but friction, for an integrator that takes friction implicitly through its secant
-//! ([`implicit_velocity`]). They differ by rounding only (a unit test holds them together).
+//! The sum is evaluated in three orders, each for a reason, all here:
+//! [`PistonForces::net_n`] as the motor force less the load the motor works against
+//! ([`PistonForces::load_n`]: what a controller's feed-forward supplies beyond `m·a`),
+//! [`PistonForces::driving_n`], every force but friction, for an integrator that takes
+//! friction implicitly through its secant ([`implicit_velocity`]), and
+//! [`PistonForces::unexplained_n`] term by term from `m·a` (the rounding order of the
+//! controlled stop's observer). They differ by rounding only (a unit test holds them
+//! together).
 
 use crate::physics::cogging::CoggingParams;
 use crate::physics::friction::FrictionParams;
@@ -72,10 +75,14 @@ impl<T: Real> PistonForces<T> {
     }
 
     /// The force the model does not explain at acceleration `accel_mps2` of a piston of
-    /// `mass_kg`: `m·ẍ − F_net`, toward +x.
+    /// `mass_kg`: `m·ẍ − F_net`, toward +x. Taken term by term from `m·ẍ`, the motor's
+    /// first, the order the controlled stop's disturbance observer has always rounded in
+    /// (f32; the absent cogging and external terms subtract exact zeros), so that a stop's
+    /// run is the same bit for bit.
     #[inline(always)]
     pub fn unexplained_n(&self, mass_kg: T, accel_mps2: T) -> T {
-        mass_kg * accel_mps2 - self.net_n()
+        mass_kg * accel_mps2 - self.motor_n - self.gas_n - self.cogging_n - self.external_n
+            + self.friction_n
     }
 
     /// The motor force that closes the balance at `accel_mps2` (the other forces as they
@@ -179,6 +186,9 @@ mod tests {
             let f = laws.forces(&state);
             let by_driving = f.driving_n() - f.friction_n;
             worst = worst.max((f.net_n() - by_driving).abs());
+            let a = 50.0 * (0.009 * k).sin();
+            let by_net = laws.mass_kg * a - f.net_n();
+            worst = worst.max((f.unexplained_n(laws.mass_kg, a) - by_net).abs());
             // The motor force the balance needs at some acceleration leaves nothing unexplained.
             let a = 100.0 * (0.003 * k).cos();
             let closed = PistonForces {
