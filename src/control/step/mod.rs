@@ -43,7 +43,7 @@ use crate::ports::{EncoderCodes, PhaseCurrentCodes, PressureCodes};
 use crate::safety::faults::{Fault, FaultSet, ResetCause};
 use crate::safety::supervisor::{LimitFlags, Supervisor};
 use crate::sensing::differentiator::{SavitzkyGolay, SgConfig};
-use crate::sensing::encoder::SinCosDecoder;
+use crate::sensing::encoder::{PositionCounts, SinCosDecoder};
 use crate::sensing::pressure::{StuckConfig, StuckMonitor};
 use crate::sensing::quadrature::QuadratureCounter;
 use crate::status::Status;
@@ -130,7 +130,7 @@ pub struct ControlStep {
     lost_encoder: Option<Section>,
     /// Master minus slave position, counts, when the master encoder was lost (the slave
     /// stands in for it at this offset).
-    slave_offset_counts: i32,
+    slave_offset_counts: PositionCounts,
     /// SS1's hold: time into the current averaging window, s, and the integrals over it of
     /// the motor force and of the measured gas force, N·s.
     hold_quiet_s: f32,
@@ -269,7 +269,7 @@ impl ControlStep {
             stuck_cycles: 0,
             pressures_trusted: true,
             lost_encoder: None,
-            slave_offset_counts: 0,
+            slave_offset_counts: PositionCounts::ZERO,
             hold_quiet_s: 0.0,
             sealing_turn_rad: 0.0,
             hold_motor_ns: 0.0,

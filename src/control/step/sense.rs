@@ -6,7 +6,7 @@ use super::{ControlStep, CycleInputs};
 use crate::real::clamp_f32;
 use crate::safety::faults::Fault;
 use crate::sensing::differentiator::Derivatives;
-use crate::sensing::encoder::{EncoderReading, SinCosDecoder};
+use crate::sensing::encoder::{EncoderReading, PositionCounts, SinCosDecoder};
 use crate::units::{AdcCode, Section, Ticks, CONTROL_PERIOD_US};
 
 /// What the sense stage found in one cycle.
@@ -61,8 +61,8 @@ impl ControlStep {
         }
         let derivatives = self.differentiator.push(master.position);
         let m_per_count = self.config.encoder_master.m_per_count();
-        let raw_m = master.position as f32 * m_per_count;
-        let slave_raw_m = slave.position as f32 * self.config.encoder_slave.m_per_count();
+        let raw_m = master.position.to_bits() as f32 * m_per_count;
+        let slave_raw_m = self.config.encoder_slave.metres(slave.position);
         let zero = self.zero_raw_m.unwrap_or(0.0);
         let position_m = raw_m - zero;
 
@@ -136,7 +136,7 @@ impl ControlStep {
         &mut self,
         master: &EncoderReading,
         slave: &EncoderReading,
-    ) -> (i32, i32) {
+    ) -> (PositionCounts, PositionCounts) {
         let both = (master.position, slave.position);
         let failed = match (master.signal_fault, slave.signal_fault) {
             (true, true) => {
@@ -182,8 +182,8 @@ impl ControlStep {
     ) {
         self.lost_encoder = Some(failed);
         self.slave_offset_counts = master.position.wrapping_sub(slave.position);
-        let master_raw_m = master.position as f32 * self.config.encoder_master.m_per_count();
-        let slave_raw_m = slave.position as f32 * self.config.encoder_slave.m_per_count();
+        let master_raw_m = self.config.encoder_master.metres(master.position);
+        let slave_raw_m = self.config.encoder_slave.metres(slave.position);
         self.zero_slave_raw_m = slave_raw_m - (master_raw_m - self.zero_raw_m.unwrap_or(0.0));
         self.drop_section(if failed == Section::Master { 0 } else { 1 });
     }
