@@ -49,7 +49,9 @@ pub const VENT_SPEED_RAD_S: f32 = core::f32::consts::TAU;
 /// move's clock starts this far below zero (its path is at rest there).
 pub const VENT_TIME_S: f32 = 0.75;
 
-/// `angle_rad` brought into [0, 2π): the one wrap, [`crate::angle::wrap_rad`].
+/// `angle_rad` brought into [0, 2π): the one wrap, [`crate::angle::wrap_rad`] (out of line:
+/// the stop and vent paths that call it are cold, and a dozen inlined copies cost flash).
+#[inline(never)]
 fn turn_phase(angle_rad: f32) -> f32 {
     crate::angle::wrap_rad(angle_rad)
 }
