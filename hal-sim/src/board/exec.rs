@@ -35,7 +35,7 @@ use crate::board::flash::{block_on, SimFlash};
 
 use fpc::units::DacCode;
 
-use crate::board::capture::{command_channel, telemetry_sink, up_channel};
+use crate::board::channels::{command_channel, telemetry_sink, up_channel};
 use crate::board::world::{
     clock, cycle, event_log, peripherals, watchdog, SimCycle, SimPeripherals, World, WorldRef,
 };

@@ -9,12 +9,12 @@ use crate::motion::stroke::StrokeGenerator;
 use crate::motion::synchroniser::{Rotation, Synchroniser};
 use crate::motion::trajectory::{PointToPoint, Setpoint};
 use crate::motion::volume_ratio::Chamber;
+use crate::physics::balance::PistonForces;
 use crate::real::{clamp_f32, max_f32};
 use crate::safety::faults::Fault;
 use crate::safety::supervisor::LimitFlags;
 use crate::sensing::homing::{Homing, HomingStep};
 use crate::status::ModeKind;
-use core::f32::consts::TAU;
 
 /// The window over which holding the stopped piston must need (almost) no force before SS1
 /// switches the outputs off, s: 50 ms, ten times the force's settling after the stop ramp.
@@ -38,15 +38,11 @@ pub(super) enum AfterStop {
     Park,
 }
 
-/// `angle_rad` brought into [0, 2π) (angles within a few turns of zero, as the step keeps
-/// them).
+/// `angle_rad` brought into [0, 2π): the one wrap, [`crate::angle::wrap_rad`] (out of line:
+/// the stop and vent paths that call it are cold, and a dozen inlined copies cost flash).
+#[inline(never)]
 pub(super) fn turn_phase(angle_rad: f32) -> f32 {
-    let r = angle_rad - TAU * ((angle_rad / TAU) as i32) as f32;
-    if r < 0.0 {
-        r + TAU
-    } else {
-        r
-    }
+    crate::angle::wrap_rad(angle_rad)
 }
 
 /// What the position loop is doing.
@@ -302,10 +298,10 @@ impl ControlStep {
     }
 
     /// The disturbance observer of a controlled stop: the force on the piston that the model
-    /// does not explain, `m·a − (F_motor + F_gas − F_friction(v))` from the measured
-    /// acceleration, motor force (q-currents) and gas force (when the pressures are valid;
-    /// otherwise the gas is part of what it estimates), low-passed over [`DOB_TIME_S`]. N,
-    /// toward +x.
+    /// does not explain, `m·a − (F_motor + F_gas − F_friction(v))`
+    /// ([`PistonForces::unexplained_n`]) from the measured acceleration, motor force
+    /// (q-currents) and gas force (when the pressures are valid; otherwise the gas is part of
+    /// what it estimates), low-passed over [`DOB_TIME_S`]. N, toward +x.
     #[cold]
     #[inline(never)]
     pub(super) fn observe_disturbance(&mut self, motor_force_n: f32, dt: f32) -> f32 {
@@ -316,8 +312,9 @@ impl ControlStep {
         } else {
             0.0
         };
-        let unexplained = c.moving_mass_kg * st.acceleration_mps2 - motor_force_n - gas_n
-            + c.friction.force_n(st.velocity_mps);
+        let unexplained =
+            PistonForces::known(motor_force_n, gas_n, c.friction.force_n(st.velocity_mps))
+                .unexplained_n(c.moving_mass_kg, st.acceleration_mps2);
         if unexplained.is_finite() {
             let alpha = clamp_f32(dt / DOB_TIME_S, 0.0, 1.0);
             self.disturbance_n += alpha * (unexplained - self.disturbance_n);
