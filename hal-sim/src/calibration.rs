@@ -386,7 +386,7 @@ pub fn commission(
             }
         }
         if let Some((routine, e)) = step.calibrated().last_error {
-            return Err(format!("{} failed: {e:?}", routine.name()));
+            return Err(format!("{} failed: {e}", routine.name()));
         }
         stages.push(Stage {
             name,
