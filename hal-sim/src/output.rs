@@ -262,50 +262,54 @@ impl OutFile {
 mod tests {
     use super::*;
 
-    fn temp(name: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("fpc-output-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        std::fs::create_dir_all(&d).unwrap();
-        d
+    /// A scratch directory, removed with everything in it when the guard drops.
+    fn temp(name: &str) -> tempfile::TempDir {
+        tempfile::Builder::new()
+            .prefix(&format!("fpc-output-{name}-"))
+            .tempdir()
+            .unwrap()
     }
 
     #[test]
     fn existing_outputs_need_force_and_inputs_are_never_replaced() {
-        let d = temp("force");
+        let dir = temp("force");
+        let d = dir.path();
         std::fs::write(d.join("a.txt"), "old").unwrap();
-        let e = OutDir::prepare(&d, &["a.txt"], false, &[]).unwrap_err();
+        let e = OutDir::prepare(d, &["a.txt"], false, &[]).unwrap_err();
         assert_eq!(e.code, 2);
         assert!(e.message.contains("--force"), "{}", e.message);
         let input = d.join("a.txt");
-        let e = OutDir::prepare(&d, &["a.txt"], true, &[&input]).unwrap_err();
+        let e = OutDir::prepare(d, &["a.txt"], true, &[&input]).unwrap_err();
         assert!(e.message.contains("input"), "{}", e.message);
-        let o = OutDir::prepare(&d, &["a.txt"], true, &[]).unwrap();
+        let o = OutDir::prepare(d, &["a.txt"], true, &[]).unwrap();
         std::fs::write(o.path("a.txt"), "new").unwrap();
         o.commit().unwrap();
         assert_eq!(std::fs::read_to_string(d.join("a.txt")).unwrap(), "new");
-        assert_eq!(std::fs::read_dir(&d).unwrap().count(), 1, "no staging left");
+        assert_eq!(std::fs::read_dir(d).unwrap().count(), 1, "no staging left");
     }
 
     #[test]
     fn a_failed_set_leaves_the_old_files() {
-        let d = temp("partial");
+        let dir = temp("partial");
+        let d = dir.path();
         std::fs::write(d.join("a.txt"), "old a").unwrap();
-        let o = OutDir::prepare(&d, &["a.txt", "b.txt"], true, &[]).unwrap();
+        let o = OutDir::prepare(d, &["a.txt", "b.txt"], true, &[]).unwrap();
         std::fs::write(o.path("a.txt"), "new a").unwrap();
         // b.txt never written: the commit refuses and nothing is replaced.
         assert_eq!(o.commit().unwrap_err().code, 1);
         assert_eq!(std::fs::read_to_string(d.join("a.txt")).unwrap(), "old a");
         assert!(!d.join("b.txt").exists());
-        let o = OutDir::prepare(&d, &["a.txt"], true, &[]).unwrap();
+        let o = OutDir::prepare(d, &["a.txt"], true, &[]).unwrap();
         std::fs::write(o.path("a.txt"), "dropped").unwrap();
         drop(o);
         assert_eq!(std::fs::read_to_string(d.join("a.txt")).unwrap(), "old a");
-        assert_eq!(std::fs::read_dir(&d).unwrap().count(), 1);
+        assert_eq!(std::fs::read_dir(d).unwrap().count(), 1);
     }
 
     #[test]
     fn unwritable_places_are_refused_before_work() {
-        let d = temp("unwritable");
+        let dir = temp("unwritable");
+        let d = dir.path();
         std::fs::write(d.join("file"), "x").unwrap();
         assert_eq!(
             OutDir::prepare(&d.join("file"), &["a"], false, &[])
@@ -321,7 +325,7 @@ mod tests {
         );
         let e = OutDir::prepare(Path::new("/"), &["a"], true, &[]).unwrap_err();
         assert!(e.message.contains("root"), "{}", e.message);
-        let e = OutFile::prepare(&d, false, &[]).unwrap_err();
+        let e = OutFile::prepare(d, false, &[]).unwrap_err();
         assert_eq!(e.code, 2, "{}", e.message);
     }
 }

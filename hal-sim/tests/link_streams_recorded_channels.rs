@@ -5,7 +5,6 @@
 //! firmware's own command task and controller, and its reply comes back as text.
 
 use std::future::Future;
-use std::path::PathBuf;
 use std::pin::Pin;
 use std::task::{Context, Poll, Waker};
 use std::time::Duration;
@@ -27,12 +26,14 @@ use hal_sim::link::session::{
 };
 use hal_sim::link::{Channels, Replay};
 use hal_sim::run::{run, RunOptions};
+use tempfile::TempDir;
 
-fn temp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("fpc-link-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch directory, removed with everything in it when the returned guard drops.
+fn temp(name: &str) -> TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("fpc-link-{name}-"))
+        .tempdir()
+        .unwrap()
 }
 
 /// Runs `fpc-sim` in-process; returns the exit code and what it printed.
@@ -55,10 +56,10 @@ fn recorded_telemetry(decimation: u16) -> Vec<u8> {
 }
 
 /// A recording directory with these up-channels.
-fn recording(name: &str, up0: &[u8], up1: &[u8], up2: &[u8]) -> PathBuf {
+fn recording(name: &str, up0: &[u8], up1: &[u8], up2: &[u8]) -> TempDir {
     let dir = temp(name);
     for (i, bytes) in [up0, up1, up2].into_iter().enumerate() {
-        std::fs::write(dir.join(format!("up{i}.bin")), bytes).unwrap();
+        std::fs::write(dir.path().join(format!("up{i}.bin")), bytes).unwrap();
     }
     dir
 }
@@ -72,8 +73,16 @@ fn capture_equals_decode(decimation: u16) {
         &telemetry,
         &[],
     );
-    let out = temp(&format!("out{decimation}")).join("cap");
-    let (code, text) = fpc_sim(&[&"link", &"capture", &"--replay", &rec, &"--out", &out]);
+    let out_dir = temp(&format!("out{decimation}"));
+    let out = out_dir.path().join("cap");
+    let (code, text) = fpc_sim(&[
+        &"link",
+        &"capture",
+        &"--replay",
+        &rec.path(),
+        &"--out",
+        &out,
+    ]);
     assert_eq!(code, 0, "{text}");
     assert!(text.contains("rejected 0"), "{text}");
     // Without the ELF (and the `probe` feature) defmt shows as hex, piece by piece.
@@ -212,9 +221,16 @@ fn garbage_only_and_truncated_only_recordings_end_cleanly() {
     // Through the tool: exit 1, one line, the raw channels kept, no run log.
     for (name, up1) in [("garbage", garbage), ("truncated", truncated)] {
         let rec = recording(name, &[], &up1, &[0x33, 0x00]);
-        let out = rec.with_file_name(format!("{name}-out"));
-        let _ = std::fs::remove_dir_all(&out);
-        let (code, text) = fpc_sim(&[&"link", &"capture", &"--replay", &rec, &"--out", &out]);
+        let out_dir = temp(&format!("{name}-out"));
+        let out = out_dir.path().join("cap");
+        let (code, text) = fpc_sim(&[
+            &"link",
+            &"capture",
+            &"--replay",
+            &rec.path(),
+            &"--out",
+            &out,
+        ]);
         assert_eq!(code, 1, "{text}");
         assert!(text.contains("no telemetry frame"), "{text}");
         assert!(text.contains("the files are written"), "{text}");
@@ -340,7 +356,7 @@ fn a_command_round_trip_prints_the_controllers_answer() {
         &"link",
         &"send",
         &"--replay",
-        &rec,
+        &rec.path(),
         &"start",
         &"--speed",
         &"2.3",
@@ -350,20 +366,27 @@ fn a_command_round_trip_prints_the_controllers_answer() {
         text.trim(),
         "fpc-sim: refused: start --speed 2.3: not homed: home the axis first"
     );
-    let (code, text) = fpc_sim(&[&"link", &"send", &"--replay", &rec, &"home"]);
+    let (code, text) = fpc_sim(&[&"link", &"send", &"--replay", &rec.path(), &"home"]);
     assert_eq!(code, 0, "{text}");
     assert_eq!(
         text.trim(),
         "earlier answer: refused: start --speed 2.3: not homed: home the axis first\naccepted: home"
     );
     // No answer in the recording: one line, exit 1.
-    let (code, text) = fpc_sim(&[&"link", &"send", &"--replay", &rec, &"stop"]);
+    let (code, text) = fpc_sim(&[&"link", &"send", &"--replay", &rec.path(), &"stop"]);
     assert_eq!(code, 1, "{text}");
     assert!(text.contains("ended without an answer to `stop`"), "{text}");
     // Typed arguments are checked before anything is sent.
-    let (code, _) = fpc_sim(&[&"link", &"send", &"--replay", &rec, &"start"]);
+    let (code, _) = fpc_sim(&[&"link", &"send", &"--replay", &rec.path(), &"start"]);
     assert_eq!(code, 2);
-    let (code, _) = fpc_sim(&[&"link", &"send", &"--replay", &rec, &"calibrate", &"x"]);
+    let (code, _) = fpc_sim(&[
+        &"link",
+        &"send",
+        &"--replay",
+        &rec.path(),
+        &"calibrate",
+        &"x",
+    ]);
     assert_eq!(code, 2);
 }
 
@@ -389,13 +412,14 @@ fn the_calibration_record_is_read_and_written_over_the_link() {
     assert_eq!(read, file.encode());
     // The same answers, recorded, through the tool: the file it writes loads as that record.
     let rec = recording("cal-read", &[], &[], &board.up2.0.borrow());
-    let out = temp("cal-read-out").join("cal.toml");
+    let out_dir = temp("cal-read-out");
+    let out = out_dir.path().join("cal.toml");
     let (code, text) = fpc_sim(&[
         &"link",
         &"calibration",
         &"read",
         &"--replay",
-        &rec,
+        &rec.path(),
         &"--out",
         &out,
     ]);
@@ -407,7 +431,8 @@ fn the_calibration_record_is_read_and_written_over_the_link() {
     let mut changed = file;
     let map = changed.calibrated.cogging.as_mut().unwrap();
     map.sin_n[0] += 1.5;
-    let changed_file = temp("cal-write").join("changed.toml");
+    let changed_dir = temp("cal-write");
+    let changed_file = changed_dir.path().join("changed.toml");
     std::fs::write(
         &changed_file,
         hal_sim::calibration::to_toml(&changed, "test").unwrap(),
@@ -430,7 +455,7 @@ fn the_calibration_record_is_read_and_written_over_the_link() {
         &"calibration",
         &"write",
         &"--replay",
-        &rec,
+        &rec.path(),
         &changed_file,
     ]);
     assert_eq!(code, 0, "{text}");

@@ -2,21 +2,23 @@
 //! key, a missing required key or a non-physical value is refused with exit code 2 and one
 //! line on stderr naming the key.
 
-use std::path::PathBuf;
 use std::process::Command;
 
 /// The minimal file of `formats.md` §2.
 const MINIMAL: &str = include_str!("data/minimal_model.toml");
 
-fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("fpc_model_cli_{name}_{}", std::process::id()));
-    let _ = std::fs::create_dir_all(&d);
-    d
+/// A scratch directory, removed with the run's files when the guard drops.
+fn dir(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("fpc_model_cli_{name}_"))
+        .tempdir()
+        .unwrap()
 }
 
 /// Runs `fpc-sim run --model <text> --cycles 1`; returns (exit code, stderr).
 fn run_with(name: &str, text: &str) -> (i32, String) {
-    let d = dir(name);
+    let scratch = dir(name);
+    let d = scratch.path();
     let model = d.join("model.toml");
     std::fs::write(&model, text).unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_fpc-sim"))

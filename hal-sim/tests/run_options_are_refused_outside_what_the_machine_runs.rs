@@ -2,11 +2,11 @@
 //! the machine cannot run is refused before any work (exit 2, naming the flag and the range),
 //! and a run that stalls or stops early ends soon and says why.
 
-use std::path::PathBuf;
 use std::process::Command;
 
 use hal_sim::faults::inject::parse;
 use hal_sim::run::{RunOptions, CYCLES_RANGE, PRESSURE_RATIO_RANGE, SPEED_RANGE_MPS};
+use tempfile::TempDir;
 
 fn options(pressure_ratio: f64, speed_mps: Option<f64>, cycles: u32) -> RunOptions {
     RunOptions {
@@ -105,28 +105,13 @@ fn a_fault_later_than_the_run_can_last_and_malformed_counts_are_refused() {
     );
 }
 
-fn dir(name: &str) -> TempDir {
-    let d = std::env::temp_dir().join(format!("fpc_run_options_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    TempDir(d)
-}
-
 /// A scratch directory removed when the test is done with it (a kept partial run's log is
 /// tens of megabytes).
-struct TempDir(PathBuf);
-
-impl std::ops::Deref for TempDir {
-    type Target = std::path::Path;
-    fn deref(&self) -> &std::path::Path {
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
+fn dir(name: &str) -> TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("fpc_run_options_{name}_"))
+        .tempdir()
+        .unwrap()
 }
 
 /// Runs `fpc-sim run ARGS --out DIR/out`: (exit code, stderr, stdout).
@@ -147,7 +132,8 @@ fn fpc_sim(d: &std::path::Path, args: &[&str]) -> (i32, String, String) {
 
 #[test]
 fn bad_flags_exit_2_with_one_line_and_write_nothing() {
-    let d = dir("flags");
+    let scratch = dir("flags");
+    let d = scratch.path();
     for args in [
         &["--pressure-ratio", "1"][..],
         &["--pressure-ratio", "1.01"],
@@ -156,7 +142,7 @@ fn bad_flags_exit_2_with_one_line_and_write_nothing() {
         &["--fault", "overrun@1:cycles=2.5"],
         &["--fault", "load_step@99999", "--cycles", "2"],
     ] {
-        let (code, err, _) = fpc_sim(&d, args);
+        let (code, err, _) = fpc_sim(d, args);
         assert_eq!(code, 2, "{args:?}: {err}");
         assert_eq!(err.trim().lines().count(), 1, "{args:?}: {err}");
         assert!(err.contains(args[0]), "{args:?}: {err}");
@@ -167,7 +153,8 @@ fn bad_flags_exit_2_with_one_line_and_write_nothing() {
 
 #[test]
 fn a_stalled_homing_ends_soon_saying_so_and_the_lowest_ratio_runs_at_top_speed() {
-    let d = dir("stall");
+    let scratch = dir("stall");
+    let d = scratch.path();
     // A 1 V bus cannot drive the piston to its stop: homing never ends. With 10 000 cycles
     // asked, the whole run's limit is hours of simulated time; homing's own limit ends it.
     let model = d.join("weak.toml");
@@ -179,7 +166,7 @@ fn a_stalled_homing_ends_soon_saying_so_and_the_lowest_ratio_runs_at_top_speed()
     std::fs::write(&model, text).unwrap();
     let started = std::time::Instant::now();
     let (code, err, out) = fpc_sim(
-        &d,
+        d,
         &[
             "--model",
             model.to_str().unwrap(),
@@ -198,7 +185,7 @@ fn a_stalled_homing_ends_soon_saying_so_and_the_lowest_ratio_runs_at_top_speed()
         "a failed run wrote run.csv"
     );
     let (code, err, _) = fpc_sim(
-        &d,
+        d,
         &[
             "--model",
             model.to_str().unwrap(),
@@ -211,8 +198,9 @@ fn a_stalled_homing_ends_soon_saying_so_and_the_lowest_ratio_runs_at_top_speed()
     assert!(d.join("out").join("run.csv").is_file(), "{err}");
 
     // A fault the run ends before is reported, and the run writes nothing.
-    let d = dir("late");
-    let (code, err, out) = fpc_sim(&d, &["--cycles", "1", "--fault", "load_step@3", "--json"]);
+    let scratch = dir("late");
+    let d = scratch.path();
+    let (code, err, out) = fpc_sim(d, &["--cycles", "1", "--fault", "load_step@3", "--json"]);
     assert_eq!(code, 1, "{err}");
     assert!(
         err.contains("load_step@3") && err.contains("never injected"),
@@ -224,9 +212,10 @@ fn a_stalled_homing_ends_soon_saying_so_and_the_lowest_ratio_runs_at_top_speed()
         "{out}"
     );
 
-    let d = dir("lowest");
+    let scratch = dir("lowest");
+    let d = scratch.path();
     let (code, err, out) = fpc_sim(
-        &d,
+        d,
         &[
             "--pressure-ratio",
             &PRESSURE_RATIO_RANGE.0.to_string(),
