@@ -853,6 +853,10 @@ fn subcommand_cases(sub: &str, count: usize, seed: u64, root: &Path) -> String {
         ChaCha8Rng::seed_from_u64(seed ^ sub.len() as u64 ^ u64::from(sub.as_bytes()[0]) << 8);
     let mut codes = [0usize; 3];
     let mut slowest = (Duration::ZERO, String::new());
+    // What each case adds: the distinct outcomes (exit code and the message's first line
+    // without its values), and the case that brought the last new one.
+    let mut outcomes = std::collections::BTreeSet::new();
+    let mut last_new = 0;
     for i in 0..count {
         let dir = root.join(format!("{sub}-{i}"));
         let _ = std::fs::remove_dir_all(&dir);
@@ -914,6 +918,9 @@ fn subcommand_cases(sub: &str, count: usize, seed: u64, root: &Path) -> String {
                 "case {sub} #{i}: a debug dump: {text}"
             );
         }
+        if outcomes.insert((code, outcome_class(&text))) {
+            last_new = i;
+        }
         if std::env::var_os("FPC_HOSTILE_SHOW").is_some() {
             println!(
                 "{sub} #{i} exit {code}: {}",
@@ -923,13 +930,52 @@ fn subcommand_cases(sub: &str, count: usize, seed: u64, root: &Path) -> String {
         let _ = std::fs::remove_dir_all(&dir);
     }
     format!(
-        "{sub:>8}: {count} cases: exit 0 {}, 1 {}, 2 {}; slowest {:.2} s ({})",
+        "{sub:>8}: {count} cases: exit 0 {}, 1 {}, 2 {}; {} distinct outcomes, the last new one \
+         at case {last_new}; slowest {:.2} s ({})",
         codes[0],
         codes[1],
         codes[2],
+        outcomes.len(),
         slowest.0.as_secs_f64(),
         slowest.1
     )
+}
+
+/// A case's outcome class: the first non-empty line it printed (clap's last line is the same
+/// `--help` hint for every refusal), with quoted parts blanked and the words that carry a
+/// value (numbers, `inf`, `NaN`, paths) dropped, so that two cases refused for the same
+/// reason count once.
+fn outcome_class(text: &str) -> String {
+    let first = text.lines().find(|l| !l.trim().is_empty()).unwrap_or("");
+    let mut unquoted = String::with_capacity(first.len());
+    let mut quoted = false;
+    let mut prev = ' ';
+    for c in first.chars() {
+        // An apostrophe inside a word ("doesn't") is not a quote.
+        let apostrophe = c == '\'' && !quoted && prev.is_alphabetic();
+        prev = c;
+        match c {
+            '\'' | '"' | '`' if !apostrophe => {
+                quoted = !quoted;
+                unquoted.push('"');
+            }
+            _ if quoted => {}
+            _ => unquoted.push(c),
+        }
+    }
+    unquoted
+        .split_whitespace()
+        .filter(|w| {
+            let bare = w
+                .trim_matches(|c: char| !c.is_alphanumeric())
+                .to_ascii_lowercase();
+            !(w.contains('/')
+                || w.chars().any(|c| c.is_ascii_digit())
+                || bare == "inf"
+                || bare == "nan")
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// The process's peak resident set, KiB (Linux).

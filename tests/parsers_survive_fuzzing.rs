@@ -7,8 +7,9 @@
 //! telemetry frame decoders have their own 10⁶-input fuzzers next to them
 //! (`src/link.rs`, `src/telemetry.rs`).
 //!
-//! 10⁶ inputs per parser are `#[ignore]` (CI runs them with `cargo test --release --
-//! --ignored`); 20,000 per parser run by default.
+//! 20,000 inputs per parser run by default. 10⁶ per parser are `#[ignore]`
+//! (`cargo test --profile slow-tests --test parsers_survive_fuzzing -- --ignored`);
+//! CI runs a slice of them (`FPC_FUZZ_INPUTS`, see `.ci/run`).
 
 use hal_sim::faults::inject;
 use hal_sim::plant::model::{MachineModel, REFERENCE_TOML};
@@ -227,26 +228,37 @@ fn parsers_refuse_fuzzed_input_without_panic() {
     }
 }
 
+/// Inputs per parser of the slow runs: `FPC_FUZZ_INPUTS`, or 10⁶ (CI runs a slice).
+fn slow_inputs() -> u32 {
+    std::env::var("FPC_FUZZ_INPUTS")
+        .ok()
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or(1_000_000)
+}
+
 #[test]
 #[ignore = "slow: 10⁶ fuzzed run logs (≈ 30 s in release)"]
 fn a_million_fuzzed_run_logs_never_panic() {
-    let (ok, refused) = run_logs(1_000_000);
-    println!("run log: 10⁶ fuzzed inputs, {ok} accepted, {refused} refused, no panic");
-    assert_eq!(ok + refused, 1_000_000);
+    let n = slow_inputs();
+    let (ok, refused) = run_logs(n);
+    println!("run log: {n} fuzzed inputs, {ok} accepted, {refused} refused, no panic");
+    assert_eq!(ok + refused, n);
 }
 
 #[test]
 #[ignore = "slow: 10⁶ fuzzed model files (≈ 30 s in release)"]
 fn a_million_fuzzed_model_files_never_panic() {
-    let (ok, refused) = model_files(1_000_000);
-    println!("model file: 10⁶ fuzzed inputs, {ok} accepted, {refused} refused, no panic");
-    assert_eq!(ok + refused, 1_000_000);
+    let n = slow_inputs();
+    let (ok, refused) = model_files(n);
+    println!("model file: {n} fuzzed inputs, {ok} accepted, {refused} refused, no panic");
+    assert_eq!(ok + refused, n);
 }
 
 #[test]
 #[ignore = "slow: 10⁶ fuzzed --fault specifications (≈ 2 s in release)"]
 fn a_million_fuzzed_fault_specs_never_panic() {
-    let (ok, refused) = fault_spec_texts(1_000_000);
-    println!("--fault spec: 10⁶ fuzzed inputs, {ok} accepted, {refused} refused, no panic");
-    assert_eq!(ok + refused, 1_000_000);
+    let n = slow_inputs();
+    let (ok, refused) = fault_spec_texts(n);
+    println!("--fault spec: {n} fuzzed inputs, {ok} accepted, {refused} refused, no panic");
+    assert_eq!(ok + refused, n);
 }
