@@ -37,7 +37,7 @@
 //!   samples are spread evenly over exactly `n` periods (constant speed, whole cycles), which
 //!   makes the projection exact.
 
-use crate::control::config::{CalibrationConfig, ControlConfig};
+use crate::control::config::ControlConfig;
 use crate::motion::trajectory::Setpoint;
 use crate::physics::cogging::HarmonicMap;
 use crate::physics::motor::Dq;
@@ -381,6 +381,7 @@ use sweeps::Sweeps;
 mod tests {
     use super::sweeps::trapezoid;
     use super::*;
+    use crate::control::config::CalibrationConfig;
     use crate::units::AdcCode;
 
     #[test]

@@ -5,14 +5,51 @@
 use super::modes::Mode;
 use super::sense::Sensed;
 use super::{ControlStep, CycleInputs};
+use crate::control::config::ControlConfig;
 use crate::drive::allocation::allocate;
-use crate::drive::servo::RotarySetpoint;
+use crate::drive::servo::{RotarySetpoint, ServoController};
+use crate::motion::synchroniser::{Rotation, Synchroniser};
 use crate::motion::trajectory::Setpoint;
+use crate::motion::volume_ratio::VolumeRatio;
 use crate::physics::balance::PistonForces;
 use crate::physics::motor::Dq;
 use crate::real::clamp_f32;
 use crate::sensing::differentiator::Derivatives;
 use crate::units::{DacCode, PerSection, PhaseDuties, Section};
+
+/// The rotation's state: the servo, the synchroniser that slaves it to the stroke, the
+/// volume ratio that places the port edge, and the reference it tracks.
+#[derive(Clone, Debug)]
+pub(super) struct RotaryAxis {
+    pub servo: ServoController,
+    pub synchroniser: Synchroniser,
+    pub volume_ratio: VolumeRatio,
+    /// Compressor or expander for the next half cycle.
+    pub direction: Rotation,
+    /// Whole turns the rotation base has moved (status angles are unwrapped with it).
+    pub turns: i32,
+    /// The rotation reference, rad (within the current turn base).
+    pub reference_rad: f32,
+    /// Speed of the rotation reference, rad/s.
+    pub reference_speed_rad_s: f32,
+    /// The discharge pressure the current half cycle's opening was planned for, Pa.
+    pub planned_discharge_pa: f32,
+}
+
+impl RotaryAxis {
+    pub(super) fn new(config: &ControlConfig) -> Self {
+        RotaryAxis {
+            servo: ServoController::new(config.servo),
+            synchroniser: Synchroniser::new(config.port_geometry, 0.0),
+            volume_ratio: VolumeRatio::new(config.volume_ratio),
+            direction: Rotation::Compressor,
+            turns: 0,
+            reference_rad: 0.0,
+            reference_speed_rad_s: 0.0,
+            planned_discharge_pa: f32::NAN,
+        }
+    }
+}
 
 impl ControlStep {
     /// The actuate stage: the position loop's force, split over both sections, and both
@@ -38,10 +75,10 @@ impl ControlStep {
                 };
                 let force =
                     self.position_loop(&sp, s.position_m, &s.derivatives, &model, cancel_n, limit);
-                self.limits.force = force.abs() >= limit;
+                self.supervision.limits.force = force.abs() >= limit;
                 self.status.force_command_n = force;
                 let duties = self.drive_sections(inputs, s, force);
-                self.limits.voltage = self.currents.master.state().voltage_limited
+                self.supervision.limits.voltage = self.currents.master.state().voltage_limited
                     || self.currents.slave.state().voltage_limited;
                 Some(duties)
             }
@@ -62,32 +99,37 @@ impl ControlStep {
     ) -> DacCode {
         let servo = if outputs_on {
             let rotary = match (&self.mode, setpoint) {
-                (Mode::Running(_), Some((sp, _))) => {
-                    self.synchroniser
-                        .setpoint(s.position_m, sp.velocity_mps, sp.acceleration_mps2)
-                }
+                (Mode::Running(_), Some((sp, _))) => self.rotary.synchroniser.setpoint(
+                    s.position_m,
+                    sp.velocity_mps,
+                    sp.acceleration_mps2,
+                ),
                 _ => RotarySetpoint {
-                    angle_rad: self.theta_reference_rad,
+                    angle_rad: self.rotary.reference_rad,
                     ..RotarySetpoint::default()
                 },
             };
-            self.theta_reference_rad = rotary.angle_rad;
-            self.theta_reference_speed_rad_s = rotary.velocity_rad_s;
-            if let Some(edge) = self.synchroniser.crossed(self.servo.angle_rad()) {
+            self.rotary.reference_rad = rotary.angle_rad;
+            self.rotary.reference_speed_rad_s = rotary.velocity_rad_s;
+            if let Some(edge) = self
+                .rotary
+                .synchroniser
+                .crossed(self.rotary.servo.angle_rad())
+            {
                 self.edge_crossed(edge.chamber, edge.rotation);
             }
-            self.servo.control(&rotary)
+            self.rotary.servo.control(&rotary)
         } else {
-            self.theta_reference_rad = self.servo.angle_rad();
-            self.servo.command(0.0)
+            self.rotary.reference_rad = self.rotary.servo.angle_rad();
+            self.rotary.servo.command(0.0)
         };
         // Keep the rotation angles within a few turns of zero (f32 resolution).
-        let turns = (self.theta_reference_rad / core::f32::consts::TAU) as i32;
+        let turns = (self.rotary.reference_rad / core::f32::consts::TAU) as i32;
         if turns.abs() >= 2 {
-            self.servo.rebase(turns);
-            self.synchroniser.rebase(turns);
-            self.theta_reference_rad -= turns as f32 * core::f32::consts::TAU;
-            self.turns = self.turns.saturating_add(turns);
+            self.rotary.servo.rebase(turns);
+            self.rotary.synchroniser.rebase(turns);
+            self.rotary.reference_rad -= turns as f32 * core::f32::consts::TAU;
+            self.rotary.turns = self.rotary.turns.saturating_add(turns);
         }
         servo
     }
@@ -179,7 +221,7 @@ impl ControlStep {
         let k = c.disturbance_bandwidth_rad_s;
         let gain = k * c.sample_time_s;
         let momentum = k * c.moving_mass_kg * s.derivatives.velocity_mps;
-        let raw = momentum - self.load_observer;
+        let raw = momentum - self.estimator.load_state;
         // Limited to ±limit, NaN to 0 (clamp_f32 would give −limit).
         let d = if raw > -limit {
             if raw < limit {
@@ -197,15 +239,15 @@ impl ControlStep {
             ..*model
         }
         .net_n();
-        self.load_observer = momentum - d + gain * (known_n + d);
-        let gap = d - self.load_n;
+        self.estimator.load_state = momentum - d + gain * (known_n + d);
+        let gap = d - self.estimator.load_n;
         let follow = if gap.abs() > c.disturbance_threshold_n {
             gain
         } else {
             c.disturbance_slow_rad_s * c.sample_time_s
         };
-        self.load_n += follow * gap;
-        self.load_n
+        self.estimator.load_n += follow * gap;
+        self.estimator.load_n
     }
 
     /// Splits the force over both sections and runs both current loops in this cycle.

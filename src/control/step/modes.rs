@@ -62,7 +62,7 @@ impl ControlStep {
     /// The plan stage: the mode machine advanced one cycle; the setpoint and the force
     /// limit, or `None` with the outputs off.
     pub(super) fn plan(&mut self, s: &Sensed) -> Option<(Setpoint, f32)> {
-        self.limits = LimitFlags::default();
+        self.supervision.limits = LimitFlags::default();
         let measured_force_n = s.force_master_n + s.force_slave_n;
         let dt = self.config.sample_time_s;
         let setpoint = self.next_setpoint(s.raw_m, s.slave_raw_m, measured_force_n, dt);
@@ -114,9 +114,9 @@ impl ControlStep {
                     // No zero yet: the position frame is the raw frame.
                 } => Some((Setpoint::at_rest(reference_m), force_limit_n)),
                 HomingStep::Found { stop_raw_m } => {
-                    self.zero_raw_m = Some(stop_raw_m);
-                    self.zero_slave_raw_m = slave_raw_m - (raw_m - stop_raw_m);
-                    self.differentiator.reset();
+                    self.sensing.zero_raw_m = Some(stop_raw_m);
+                    self.sensing.zero_slave_raw_m = slave_raw_m - (raw_m - stop_raw_m);
+                    self.sensing.differentiator.reset();
                     let here = raw_m - stop_raw_m;
                     let path = PointToPoint::new(here, self.config.park_position_m, 0.05);
                     self.mode = Mode::Moving {
@@ -158,7 +158,7 @@ impl ControlStep {
                 Some((sp, limit))
             }
             Mode::Stopping { setpoint, then } => {
-                let brake = self.stop_decel_mps2;
+                let brake = self.safe.stop_decel_mps2;
                 let v = setpoint.velocity_mps;
                 let dv = brake * dt;
                 let (v_next, a) = if v.abs() <= dv {
@@ -214,9 +214,9 @@ impl ControlStep {
             };
             return;
         }
-        self.hold_quiet_s = 0.0;
-        self.hold_motor_ns = 0.0;
-        self.hold_gas_ns = 0.0;
+        self.safe.hold_quiet_s = 0.0;
+        self.safe.hold_motor_ns = 0.0;
+        self.safe.hold_gas_ns = 0.0;
         let setpoint = match &self.mode {
             // Already stopping: keep the ramp, take the stronger reaction.
             Mode::Stopping { setpoint, then: t } => {
@@ -233,8 +233,9 @@ impl ControlStep {
                 acceleration_mps2: 0.0,
             },
         };
-        self.stop_decel_mps2 = self.stop_deceleration(setpoint.position_m, setpoint.velocity_mps);
-        self.disturbance_n = 0.0;
+        self.safe.stop_decel_mps2 =
+            self.stop_deceleration(setpoint.position_m, setpoint.velocity_mps);
+        self.estimator.stop_n = 0.0;
         self.mode = Mode::Stopping { setpoint, then };
     }
 
@@ -247,24 +248,27 @@ impl ControlStep {
     #[cold]
     #[inline(never)]
     pub(super) fn hold_released(&mut self, dt: f32) -> bool {
-        let gas_n = if self.pressures_trusted && self.pressure_bad == 0 {
+        let gas_n = if self.sensing.pressures.trusted && self.sensing.pressures.bad_cycles == 0 {
             self.config
                 .cylinder
                 .gas_force_n(self.status.pressure_a_pa, self.status.pressure_b_pa)
         } else {
             0.0
         };
-        self.hold_quiet_s += dt;
-        self.hold_motor_ns += self.status.force_command_n * dt;
-        self.hold_gas_ns += gas_n * dt;
-        if self.hold_quiet_s < HOLD_RELEASE_S {
+        self.safe.hold_quiet_s += dt;
+        self.safe.hold_motor_ns += self.status.force_command_n * dt;
+        self.safe.hold_gas_ns += gas_n * dt;
+        if self.safe.hold_quiet_s < HOLD_RELEASE_S {
             return false;
         }
-        let window = self.hold_quiet_s;
-        let (motor, gas) = (self.hold_motor_ns / window, self.hold_gas_ns / window);
-        self.hold_quiet_s = 0.0;
-        self.hold_motor_ns = 0.0;
-        self.hold_gas_ns = 0.0;
+        let window = self.safe.hold_quiet_s;
+        let (motor, gas) = (
+            self.safe.hold_motor_ns / window,
+            self.safe.hold_gas_ns / window,
+        );
+        self.safe.hold_quiet_s = 0.0;
+        self.safe.hold_motor_ns = 0.0;
+        self.safe.hold_gas_ns = 0.0;
         let stiction = self.config.friction.static_n;
         motor.abs() <= stiction && gas.abs() <= 0.5 * stiction
     }
@@ -280,7 +284,7 @@ impl ControlStep {
         let cap = self.config.allocation.capability;
         let sections = clamp_f32(cap.master, 0.0, 1.0) + clamp_f32(cap.slave, 0.0, 1.0);
         let a_max = c.brake_deceleration_mps2 * max_f32(sections, 1.0);
-        if self.zero_raw_m.is_none() {
+        if self.sensing.zero_raw_m.is_none() {
             return a_max;
         }
         let distance = if velocity_mps >= 0.0 {
@@ -307,7 +311,7 @@ impl ControlStep {
     pub(super) fn observe_disturbance(&mut self, motor_force_n: f32, dt: f32) -> f32 {
         let c = &self.config;
         let st = &self.status;
-        let gas_n = if self.pressures_trusted && self.pressure_bad == 0 {
+        let gas_n = if self.sensing.pressures.trusted && self.sensing.pressures.bad_cycles == 0 {
             c.cylinder.gas_force_n(st.pressure_a_pa, st.pressure_b_pa)
         } else {
             0.0
@@ -317,19 +321,19 @@ impl ControlStep {
                 .unexplained_n(c.moving_mass_kg, st.acceleration_mps2);
         if unexplained.is_finite() {
             let alpha = clamp_f32(dt / DOB_TIME_S, 0.0, 1.0);
-            self.disturbance_n += alpha * (unexplained - self.disturbance_n);
+            self.estimator.stop_n += alpha * (unexplained - self.estimator.stop_n);
         }
         // Never more than the sections can push against.
         let limit = c.force_limit_n;
-        self.disturbance_n = clamp_f32(self.disturbance_n, -limit, limit);
-        self.disturbance_n
+        self.estimator.stop_n = clamp_f32(self.estimator.stop_n, -limit, limit);
+        self.estimator.stop_n
     }
 
     /// Starts the rotation of a new half cycle: where the timed port edge must be crossed
     /// (discharge opening, or expander cut-off) from the measured line pressures.
     pub(super) fn begin_half(&mut self, g: &StrokeGenerator) {
         let (from, to) = g.path_ends_m();
-        let rotation = self.rotation;
+        let rotation = self.rotary.direction;
         let chamber = Synchroniser::timed_chamber(g.direction(), rotation);
         // The chamber's largest volume is where its compression starts (compressor: the
         // stroke's start) or its expansion ends (expander: the stroke's end).
@@ -337,9 +341,9 @@ impl ControlStep {
             Rotation::Compressor => from,
             Rotation::Expander => to,
         };
-        let [_, _, suction, discharge] = self.pressures_pa;
-        self.planned_discharge_pa = discharge;
-        let edge = self.volume_ratio.opening_position_m(
+        let [_, _, suction, discharge] = self.sensing.pressures.last_pa;
+        self.rotary.planned_discharge_pa = discharge;
+        let edge = self.rotary.volume_ratio.opening_position_m(
             &self.config.cylinder,
             &self.config.gas,
             chamber,
@@ -350,13 +354,13 @@ impl ControlStep {
         // The stroke reference starts where the last one ended; the piston is there too
         // within the dead-point error, and the cam clamps the progress.
         let x_start = from;
-        self.synchroniser.begin_half(
+        self.rotary.synchroniser.begin_half(
             g.direction(),
             rotation,
             x_start,
             to,
             edge,
-            self.theta_reference_rad,
+            self.rotary.reference_rad,
         );
     }
 
@@ -366,12 +370,16 @@ impl ControlStep {
         if rotation != Rotation::Compressor {
             return;
         }
-        let [a, b, _, _] = self.pressures_pa;
+        let [a, b, _, _] = self.sensing.pressures.last_pa;
         let p = match chamber {
             Chamber::A => a,
             Chamber::B => b,
         };
-        self.volume_ratio
-            .observe_opening(&self.config.gas, chamber, p, self.planned_discharge_pa);
+        self.rotary.volume_ratio.observe_opening(
+            &self.config.gas,
+            chamber,
+            p,
+            self.rotary.planned_discharge_pa,
+        );
     }
 }
