@@ -59,7 +59,7 @@ pub struct ControlConfig {
     /// time constant): the force on the piston that the model does not explain (an external
     /// load, a mass or gas-force error) is estimated from the measured motor force, the
     /// model's friction and gas force and the velocity estimate, and cancelled through the
-    /// feed-forward (`ControlStep`'s actuate stage, `observe_load`). 0 switches it off;
+    /// feed-forward (the step's `Estimator::observe_load`, cancelled in the actuate stage). 0 switches it off;
     /// accepted 0 ≤ K ≤ 0.5 / `sample_time_s` (10,000 rad/s at 20 kHz).
     pub disturbance_bandwidth_rad_s: f32,
     /// The observer's estimate is cancelled at its full bandwidth while it differs from

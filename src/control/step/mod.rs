@@ -12,12 +12,14 @@
 //! sections with each section's own encoder angle → duties for both, written in the same
 //! cycle → servo loop.
 //!
-//! The stages live in their own modules, each an `impl ControlStep` block over the state it
-//! owns: `sense` (encoders, differentiator, pressures, and what a failed encoder
+//! The stages live in their own modules, each with the state it owns (a struct of its own,
+//! one field of [`ControlStep`]) and an `impl ControlStep` block; values pass between them
+//! (`Sensed` → the plan's setpoint → the actuation's force), not through shared fields: `sense` (encoders, differentiator, pressures, and what a failed encoder
 //! changes), `supervise` (limits and faults detected, each dispatched to its reaction),
 //! `safe_state` (the reactions: SS1, STO, a section dropped, braking without position or
 //! after a reset, the park's vent turn), `modes` (the mode machine that plans the setpoint:
-//! homing, moves, strokes, controlled stops), `commands`
+//! homing, moves, strokes, controlled stops), `estimate` (both disturbance observers of the
+//! force balance: the controlled stop's and the running step's), `commands`
 //! (what a host command may change, and when), `actuate` (position loop, allocation,
 //! both sections' FOC, the servo) and `calibrate` (a calibration routine's cycle).
 
@@ -30,7 +32,8 @@ mod safe_state;
 mod sense;
 mod supervise;
 
-pub use modes::{DOB_TIME_S, HOLD_RELEASE_S};
+pub use estimate::DOB_TIME_S;
+pub use modes::HOLD_RELEASE_S;
 
 use crate::control::calibration::record::{CalibrationRecord, CalibrationStatus};
 use crate::control::calibration::store::LoadError;

@@ -9,7 +9,6 @@ use crate::motion::stroke::StrokeGenerator;
 use crate::motion::synchroniser::{Rotation, Synchroniser};
 use crate::motion::trajectory::{PointToPoint, Setpoint};
 use crate::motion::volume_ratio::Chamber;
-use crate::physics::balance::PistonForces;
 use crate::real::{clamp_f32, max_f32};
 use crate::safety::faults::Fault;
 use crate::safety::supervisor::LimitFlags;
@@ -19,12 +18,6 @@ use crate::status::ModeKind;
 /// The window over which holding the stopped piston must need (almost) no force before SS1
 /// switches the outputs off, s: 50 ms, ten times the force's settling after the stop ramp.
 pub const HOLD_RELEASE_S: f32 = 0.05;
-
-/// Time constant of the controlled stop's disturbance observer, s: 2 ms, longer than the
-/// differentiator's 1.25 ms window (its acceleration is the noisiest input) and still fast
-/// next to the 10–30 ms a stop takes. At 0.5 ms the stop rang after a watchdog reset
-/// (`tests/faults_are_caught_and_the_machine_stays_safe.rs`, s12).
-pub const DOB_TIME_S: f32 = 2.0e-3;
 
 /// What follows a controlled stop.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -176,8 +169,13 @@ impl ControlStep {
                 // The force the model does not know (an external load, the gas of a chamber
                 // whose sensor failed) is estimated and cancelled through the feed-forward:
                 // the position loop alone would yield 4 mm to 3 kN, near a head too much.
-                sp.acceleration_mps2 -=
-                    self.observe_disturbance(measured_force_n, dt) / self.config.moving_mass_kg;
+                sp.acceleration_mps2 -= self.estimator.observe_stop(
+                    &self.config,
+                    &self.status,
+                    self.sensing.pressures.usable(),
+                    measured_force_n,
+                    dt,
+                ) / self.config.moving_mass_kg;
                 if v_next == 0.0 {
                     if then == AfterStop::Off && !self.hold_released(dt) {
                         return Some((sp, limit));
@@ -248,7 +246,7 @@ impl ControlStep {
     #[cold]
     #[inline(never)]
     pub(super) fn hold_released(&mut self, dt: f32) -> bool {
-        let gas_n = if self.sensing.pressures.trusted && self.sensing.pressures.bad_cycles == 0 {
+        let gas_n = if self.sensing.pressures.usable() {
             self.config
                 .cylinder
                 .gas_force_n(self.status.pressure_a_pa, self.status.pressure_b_pa)
@@ -299,34 +297,6 @@ impl ControlStep {
             a_max
         };
         clamp_f32(needed, c.brake_deceleration_mps2, a_max)
-    }
-
-    /// The disturbance observer of a controlled stop: the force on the piston that the model
-    /// does not explain, `m·a − (F_motor + F_gas − F_friction(v))`
-    /// ([`PistonForces::unexplained_n`]) from the measured acceleration, motor force
-    /// (q-currents) and gas force (when the pressures are valid; otherwise the gas is part of
-    /// what it estimates), low-passed over [`DOB_TIME_S`]. N, toward +x.
-    #[cold]
-    #[inline(never)]
-    pub(super) fn observe_disturbance(&mut self, motor_force_n: f32, dt: f32) -> f32 {
-        let c = &self.config;
-        let st = &self.status;
-        let gas_n = if self.sensing.pressures.trusted && self.sensing.pressures.bad_cycles == 0 {
-            c.cylinder.gas_force_n(st.pressure_a_pa, st.pressure_b_pa)
-        } else {
-            0.0
-        };
-        let unexplained =
-            PistonForces::known(motor_force_n, gas_n, c.friction.force_n(st.velocity_mps))
-                .unexplained_n(c.moving_mass_kg, st.acceleration_mps2);
-        if unexplained.is_finite() {
-            let alpha = clamp_f32(dt / DOB_TIME_S, 0.0, 1.0);
-            self.estimator.stop_n += alpha * (unexplained - self.estimator.stop_n);
-        }
-        // Never more than the sections can push against.
-        let limit = c.force_limit_n;
-        self.estimator.stop_n = clamp_f32(self.estimator.stop_n, -limit, limit);
-        self.estimator.stop_n
     }
 
     /// Starts the rotation of a new half cycle: where the timed port edge must be crossed

@@ -81,6 +81,11 @@ impl PressureMonitor {
             trusted: true,
         }
     }
+
+    /// The chamber pressures may be used: not found stuck, and this cycle's sample valid.
+    pub(super) fn usable(&self) -> bool {
+        self.trusted && self.bad_cycles == 0
+    }
 }
 
 /// What the sense stage found in one cycle.
