@@ -81,18 +81,25 @@ pub fn boost_mode_on() -> bool {
     pac::PWR.cr5().read().0 & PWR_CR5_R1MODE == 0
 }
 
-/// Brings the clocks up as described in the module header. Any failed read-back of the
-/// boost bit ends in [`super::fault::boot_fault`] (no output is configured yet).
-pub fn start() -> embassy_stm32::Peripherals {
+/// PWR_CR5 bit 8 did not read back 0 (before or after the switch to the PLL): the core is
+/// not in boost mode and must not run at 170 MHz.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BoostModeOff;
+
+/// Brings the clocks up as described in the module header. A failed read-back of the boost
+/// bit is returned, not handled: the caller ends the boot (`board::init` →
+/// `fault::boot_fault`; this module stays below the fault path, which times its reset
+/// delay by [`SYSCLK_HZ`]).
+pub fn start() -> Result<embassy_stm32::Peripherals, BoostModeOff> {
     let mut p = embassy_stm32::init(boot_config());
     if !enter_boost_mode() {
-        super::fault::boot_fault(super::fault::BootCheck::BoostMode);
+        return Err(BoostModeOff);
     }
     switch_to_pll(&mut p.RCC);
     if !boost_mode_on() {
-        super::fault::boot_fault(super::fault::BootCheck::BoostMode);
+        return Err(BoostModeOff);
     }
-    p
+    Ok(p)
 }
 
 fn switch_to_pll(rcc: &mut Peri<'static, RCC>) {

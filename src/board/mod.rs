@@ -183,7 +183,10 @@ pub fn take_reset_cause() -> fpc::safety::faults::ResetCause {
 /// Brings the board up: clocks, debug freeze, servo I/O, ADC burst, PWM (running, outputs
 /// off), watchdog (running). Call once, first thing.
 pub fn init() -> Board {
-    let p = clocks::start();
+    // No output is configured yet: a failed clock check only logs and resets.
+    let Ok(p) = clocks::start() else {
+        fault::boot_fault(fault::BootCheck::BoostMode)
+    };
     freeze_on_debug_halt();
     interrupt::TIM2.set_priority(TIME_PRIORITY);
 

@@ -53,48 +53,7 @@ use crate::motion::volume_ratio::RatioTarget;
 
 use super::frame::*;
 use super::settings::{decode_link_request, is_link_tag, LinkRequest};
-
-/// Command tags (first payload byte of a down-channel frame).
-pub mod tag {
-    /// [`crate::control::command::Command::Home`].
-    pub const HOME: u8 = 0x10;
-    /// [`crate::control::command::Command::MoveTo`].
-    pub const MOVE_TO: u8 = 0x11;
-    /// [`crate::control::command::Command::Stop`].
-    pub const STOP: u8 = 0x12;
-    /// [`crate::control::command::Command::Heartbeat`].
-    pub const HEARTBEAT: u8 = 0x13;
-    /// [`crate::control::command::Command::ClearFaults`].
-    pub const CLEAR_FAULTS: u8 = 0x14;
-    /// [`crate::control::command::Command::Start`].
-    pub const START: u8 = 0x15;
-    /// [`crate::control::command::Command::SetSpeed`].
-    pub const SET_SPEED: u8 = 0x16;
-    /// [`crate::control::command::Command::SetRotation`].
-    pub const SET_ROTATION: u8 = 0x17;
-    /// [`crate::control::command::Command::SetVolumeRatio`].
-    pub const SET_VOLUME_RATIO: u8 = 0x18;
-    /// [`crate::control::command::Command::Calibrate`].
-    pub const CALIBRATE: u8 = 0x19;
-    /// [`crate::control::command::Command::SetParameter`].
-    pub const SET_PARAMETER: u8 = 0x1A;
-    /// [`super::Transfer::Read`].
-    pub const CALIBRATION_READ: u8 = 0x1B;
-    /// [`super::Transfer::Write`].
-    pub const CALIBRATION_WRITE: u8 = 0x1C;
-    /// [`super::Transfer::Commit`].
-    pub const CALIBRATION_COMMIT: u8 = 0x1D;
-    /// [`crate::link::settings::LinkRequest::SetTelemetry`].
-    pub const SET_TELEMETRY: u8 = 0x1E;
-    /// [`crate::link::settings::LinkRequest::DeclarePorts`].
-    pub const DECLARE_PORTS: u8 = 0x1F;
-    /// [`crate::link::settings::LinkRequest::ScopeArm`].
-    pub const SCOPE_ARM: u8 = 0x20;
-    /// [`crate::link::settings::LinkRequest::ScopeFire`].
-    pub const SCOPE_FIRE: u8 = 0x21;
-    /// [`crate::link::settings::LinkRequest::ScopeDisarm`].
-    pub const SCOPE_DISARM: u8 = 0x22;
-}
+use super::tag::{self, TransferId};
 
 /// Largest chunk of the calibration record in one frame, bytes: 9 frames carry the
 /// [`RECORD_BYTES`] (the frame limit was raised for it, not a second framing).
@@ -431,15 +390,6 @@ pub enum Request {
     Calibration(Transfer),
     /// For the command task: telemetry, ports, scope.
     Link(LinkRequest),
-}
-
-/// Which request a verdict answers: its tag and its offset (read, write) or CRC (commit).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct TransferId {
-    /// The request's tag ([`tag::CALIBRATION_READ`] .. [`tag::CALIBRATION_COMMIT`]).
-    pub tag: u8,
-    /// Its offset, or the CRC of a commit.
-    pub arg: u32,
 }
 
 impl Transfer {

@@ -17,9 +17,9 @@
 //! channel set is refused ([`Refusal::OutOfRange`]) and changes nothing.
 
 use crate::control::command::Refusal;
-use crate::link::commands::{tag, TransferId};
 use crate::link::frame::{encode_frame, BufferTooSmall, FrameError};
 use crate::link::scope::Trigger;
+use crate::link::tag::{self, TransferId};
 use crate::link::telemetry::{ChannelSet, Ports, MAX_DECIMATION};
 
 /// A request about the link.

@@ -16,13 +16,14 @@ use std::time::{Duration, Instant};
 use fpc::control::calibration::record::RECORD_BYTES;
 use fpc::control::command::{Command, Refusal, Reply};
 use fpc::link::commands::{
-    decode_answer, encode_command, encode_transfer, tag, Answer, Chunk, Transfer, TransferId,
-    TransferReply, CHUNK_BYTES, MAX_COMMAND_WIRE,
+    decode_answer, encode_command, encode_transfer, Answer, Chunk, Transfer, TransferReply,
+    CHUNK_BYTES, MAX_COMMAND_WIRE,
 };
 use fpc::link::frame::{Deframer, FrameError, LinkStats};
 use fpc::link::scope::Trigger;
 use fpc::link::scope::{decode_scope, MAX_SCOPE_WIRE};
 use fpc::link::settings::{encode_link_request, LinkRequest};
+use fpc::link::tag::{self, TransferId};
 use fpc::link::telemetry::{ChannelSet, Ports, CHANNELS};
 use fpc::motion::synchroniser::Rotation;
 use fpc::motion::volume_ratio::RatioTarget;

@@ -13,8 +13,9 @@
 use std::io::{self, Write};
 
 use fpc::control::command::{Command, Refusal, Reply};
-use fpc::link::commands::{encode_command, tag, Answer, TransferReply, MAX_COMMAND_WIRE};
+use fpc::link::commands::{encode_command, Answer, TransferReply, MAX_COMMAND_WIRE};
 use fpc::link::settings::{encode_link_request, LinkRequest};
+use fpc::link::tag;
 
 use super::defmt::DefmtLog;
 use super::rtt::{ControlBlock, Locate, RttChannels};

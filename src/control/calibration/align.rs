@@ -1,11 +1,9 @@
 //! Electrical-angle alignment: a current vector at forced angles, approached from both
 //! sides, tells where each section's encoder angle sits against its magnets.
 
-use super::{
-    within, CalibrationConfig, CalibrationError, Demand, Forced, Measurements, Outcome, TURN,
-};
+use super::{within, CalibrationError, Demand, Forced, Measurements, Outcome, TURN};
 use crate::angle::turns;
-use crate::control::config::ControlConfig;
+use crate::control::config::{CalibrationConfig, ControlConfig};
 use crate::physics::motor::Dq;
 use crate::real::{clamp_f32, max_f32, min_f32};
 use crate::units::{PerSection, Section};

@@ -93,90 +93,6 @@ impl Routine {
     }
 }
 
-/// Parameters of the routines, SI.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct CalibrationConfig {
-    /// Samples averaged per phase for the current-sense offsets (after `sense_settle_s`).
-    pub sense_samples: u32,
-    /// Time for the currents to decay after the outputs go off, s.
-    pub sense_settle_s: f32,
-    /// Largest plausible offset, codes: beyond it the sensor or its supply is broken and the
-    /// offsets are not loaded.
-    pub sense_max_offset_codes: f32,
-    /// Residual mean phase current with the outputs off that counts as an offset, A.
-    pub sense_detect_a: f32,
-    /// Alignment current (d, in the forced frame), A.
-    pub align_current_a: f32,
-    /// Damping of the mover during alignment (q-current in the forced frame), N·s/m.
-    pub align_damping_ns_per_m: f32,
-    /// Angles per period at which each section is aligned (≥ 1; 8 cancel cogging harmonics
-    /// 1–7).
-    pub align_points: u32,
-    /// How far past an angle the forced vector goes before approaching it from above,
-    /// fraction of a period.
-    pub align_approach_periods: f32,
-    /// Speed of the forced angle, periods per s.
-    pub align_rate_periods_per_s: f32,
-    /// Ramp of the alignment current, s.
-    pub align_ramp_s: f32,
-    /// Wait after the first pull (the mover may jump half a period), s.
-    pub align_first_settle_s: f32,
-    /// Wait at each angle before the encoder is read, s.
-    pub align_settle_s: f32,
-    /// Averaging of the encoder angle at each angle, s.
-    pub align_average_s: f32,
-    /// Largest spread of one section's estimates around their mean, fraction of a period:
-    /// more means the mover did not follow (blocked, or the section gives no force).
-    pub align_max_spread_periods: f32,
-    /// Cruise speed of the sweeps, m/s.
-    pub sweep_speed_mps: f32,
-    /// Acceleration at the ends of a sweep, m/s².
-    pub sweep_accel_mps2: f32,
-    /// Rest between sweeps, s.
-    pub sweep_rest_s: f32,
-    /// Distance kept from either head by a sweep, m.
-    pub sweep_margin_m: f32,
-    /// Periods covered at cruise speed by each cogging sweep.
-    pub cogging_periods: u32,
-    /// Periods covered at cruise speed by each misalignment sweep.
-    pub misalign_periods: u32,
-    /// d-current on the slave during the misalignment sweeps, A.
-    pub misalign_current_a: f32,
-}
-
-impl CalibrationConfig {
-    /// Reference parameters for the reference machine: alignment at 20 A (a spring of
-    /// 4.2e5 N/m, so static friction leaves 0.14 mm = 2° and cogging 0.07 mm = 1°, both
-    /// cancelled by the averaging), damping ζ ≈ 0.7 on 12 kg; sweeps at 0.1 m/s (the cogging
-    /// at 4 Hz, far below the 40 Hz position loop); 15 A on the slave shifts the master's
-    /// force by 2·80·15·sin ε = 42 N per degree.
-    pub const fn reference() -> Self {
-        CalibrationConfig {
-            sense_samples: 4000,
-            sense_settle_s: 2e-3,
-            sense_max_offset_codes: 100.0,
-            sense_detect_a: 0.5,
-            align_current_a: 20.0,
-            align_damping_ns_per_m: 3000.0,
-            align_points: 8,
-            align_approach_periods: 1.0 / 18.0,
-            align_rate_periods_per_s: 2.0,
-            align_ramp_s: 0.1,
-            align_first_settle_s: 0.2,
-            align_settle_s: 0.06,
-            align_average_s: 0.02,
-            align_max_spread_periods: 1.0 / 36.0,
-            sweep_speed_mps: 0.1,
-            sweep_accel_mps2: 1.0,
-            sweep_rest_s: 0.1,
-            sweep_margin_m: 0.01,
-            cogging_periods: 4,
-            misalign_periods: 2,
-            misalign_current_a: 15.0,
-        }
-    }
-}
-
 /// What a routine sees in one cycle.
 #[derive(Clone, Copy, Debug)]
 pub struct Measurements<'a> {
@@ -465,6 +381,7 @@ use sweeps::Sweeps;
 mod tests {
     use super::sweeps::trapezoid;
     use super::*;
+    use crate::control::config::CalibrationConfig;
     use crate::units::AdcCode;
 
     #[test]

@@ -2,8 +2,8 @@
 //! ([`SenseAverage`]), and the monitor that watches the zero while the outputs are off
 //! ([`SenseMonitor`]).
 
-use super::{cycles, within, CalibrationConfig, CalibrationError, Demand, Measurements, Outcome};
-use crate::control::config::ControlConfig;
+use super::{cycles, within, CalibrationError, Demand, Measurements, Outcome};
+use crate::control::config::{CalibrationConfig, ControlConfig};
 use crate::ports::PhaseCurrentCodes;
 use crate::units::{PerSection, Section};
 

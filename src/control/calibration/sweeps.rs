@@ -1,12 +1,9 @@
 //! The sweep routines (cogging map, slave misalignment): rests and constant-velocity legs
 //! under position control, with their cruise samples projected on harmonics.
 
-use super::{
-    within, CalibrationConfig, CalibrationError, Demand, Measurements, Misalignment, Outcome,
-    Routine, TURN,
-};
+use super::{within, CalibrationError, Demand, Measurements, Misalignment, Outcome, Routine, TURN};
 use crate::angle::{sin_cos_turns, turns};
-use crate::control::config::ControlConfig;
+use crate::control::config::{CalibrationConfig, ControlConfig};
 use crate::motion::trajectory::Setpoint;
 use crate::physics::balance::PistonForces;
 use crate::physics::cogging::{HarmonicMap, MAP_HARMONICS};

@@ -5,14 +5,51 @@
 use super::modes::Mode;
 use super::sense::Sensed;
 use super::{ControlStep, CycleInputs};
+use crate::control::config::ControlConfig;
 use crate::drive::allocation::allocate;
-use crate::drive::servo::RotarySetpoint;
+use crate::drive::servo::{RotarySetpoint, ServoController};
+use crate::motion::synchroniser::{Rotation, Synchroniser};
 use crate::motion::trajectory::Setpoint;
+use crate::motion::volume_ratio::VolumeRatio;
 use crate::physics::balance::PistonForces;
 use crate::physics::motor::Dq;
 use crate::real::clamp_f32;
 use crate::sensing::differentiator::Derivatives;
 use crate::units::{DacCode, PerSection, PhaseDuties, Section};
+
+/// The rotation's state: the servo, the synchroniser that slaves it to the stroke, the
+/// volume ratio that places the port edge, and the reference it tracks.
+#[derive(Clone, Debug)]
+pub(super) struct RotaryAxis {
+    pub servo: ServoController,
+    pub synchroniser: Synchroniser,
+    pub volume_ratio: VolumeRatio,
+    /// Compressor or expander for the next half cycle.
+    pub direction: Rotation,
+    /// Whole turns the rotation base has moved (status angles are unwrapped with it).
+    pub turns: i32,
+    /// The rotation reference, rad (within the current turn base).
+    pub reference_rad: f32,
+    /// Speed of the rotation reference, rad/s.
+    pub reference_speed_rad_s: f32,
+    /// The discharge pressure the current half cycle's opening was planned for, Pa.
+    pub planned_discharge_pa: f32,
+}
+
+impl RotaryAxis {
+    pub(super) fn new(config: &ControlConfig) -> Self {
+        RotaryAxis {
+            servo: ServoController::new(config.servo),
+            synchroniser: Synchroniser::new(config.port_geometry, 0.0),
+            volume_ratio: VolumeRatio::new(config.volume_ratio),
+            direction: Rotation::Compressor,
+            turns: 0,
+            reference_rad: 0.0,
+            reference_speed_rad_s: 0.0,
+            planned_discharge_pa: f32::NAN,
+        }
+    }
+}
 
 impl ControlStep {
     /// The actuate stage: the position loop's force, split over both sections, and both
@@ -27,7 +64,7 @@ impl ControlStep {
         match setpoint {
             Some((sp, limit)) => {
                 let model = self.model_forces(&sp, s.gas_force_n);
-                let load_n = self.observe_load(s, &model, limit);
+                let load_n = self.estimator.observe_load(&self.config, s, &model, limit);
                 // Cancelled while running strokes only: homing pushes on its end stop on
                 // purpose, a controlled stop has its own observer, and holding and moves
                 // keep the behaviour they were tuned with.
@@ -38,10 +75,10 @@ impl ControlStep {
                 };
                 let force =
                     self.position_loop(&sp, s.position_m, &s.derivatives, &model, cancel_n, limit);
-                self.limits.force = force.abs() >= limit;
+                self.supervision.limits.force = force.abs() >= limit;
                 self.status.force_command_n = force;
                 let duties = self.drive_sections(inputs, s, force);
-                self.limits.voltage = self.currents.master.state().voltage_limited
+                self.supervision.limits.voltage = self.currents.master.state().voltage_limited
                     || self.currents.slave.state().voltage_limited;
                 Some(duties)
             }
@@ -62,32 +99,37 @@ impl ControlStep {
     ) -> DacCode {
         let servo = if outputs_on {
             let rotary = match (&self.mode, setpoint) {
-                (Mode::Running(_), Some((sp, _))) => {
-                    self.synchroniser
-                        .setpoint(s.position_m, sp.velocity_mps, sp.acceleration_mps2)
-                }
+                (Mode::Running(_), Some((sp, _))) => self.rotary.synchroniser.setpoint(
+                    s.position_m,
+                    sp.velocity_mps,
+                    sp.acceleration_mps2,
+                ),
                 _ => RotarySetpoint {
-                    angle_rad: self.theta_reference_rad,
+                    angle_rad: self.rotary.reference_rad,
                     ..RotarySetpoint::default()
                 },
             };
-            self.theta_reference_rad = rotary.angle_rad;
-            self.theta_reference_speed_rad_s = rotary.velocity_rad_s;
-            if let Some(edge) = self.synchroniser.crossed(self.servo.angle_rad()) {
+            self.rotary.reference_rad = rotary.angle_rad;
+            self.rotary.reference_speed_rad_s = rotary.velocity_rad_s;
+            if let Some(edge) = self
+                .rotary
+                .synchroniser
+                .crossed(self.rotary.servo.angle_rad())
+            {
                 self.edge_crossed(edge.chamber, edge.rotation);
             }
-            self.servo.control(&rotary)
+            self.rotary.servo.control(&rotary)
         } else {
-            self.theta_reference_rad = self.servo.angle_rad();
-            self.servo.command(0.0)
+            self.rotary.reference_rad = self.rotary.servo.angle_rad();
+            self.rotary.servo.command(0.0)
         };
         // Keep the rotation angles within a few turns of zero (f32 resolution).
-        let turns = (self.theta_reference_rad / core::f32::consts::TAU) as i32;
+        let turns = (self.rotary.reference_rad / core::f32::consts::TAU) as i32;
         if turns.abs() >= 2 {
-            self.servo.rebase(turns);
-            self.synchroniser.rebase(turns);
-            self.theta_reference_rad -= turns as f32 * core::f32::consts::TAU;
-            self.turns = self.turns.saturating_add(turns);
+            self.rotary.servo.rebase(turns);
+            self.rotary.synchroniser.rebase(turns);
+            self.rotary.reference_rad -= turns as f32 * core::f32::consts::TAU;
+            self.rotary.turns = self.rotary.turns.saturating_add(turns);
         }
         servo
     }
@@ -135,79 +177,6 @@ impl ControlStep {
         }
     }
 
-    /// The running strokes' disturbance observer (issue #15): the force on the piston that
-    /// the model does not explain — an external load, the model's mass or gas-force error —
-    /// N, toward +x, within ±`limit`.
-    ///
-    /// A momentum observer. With the forces the step knows, the balance's net force
-    /// `F = F_motor + F_gas − F_fr` ([`PistonForces::net_n`]: the motor's from the measured
-    /// q-currents, the rest from `model`, [`ControlStep::model_forces`]), and the
-    /// momentum they account for, `p̂ ← p̂ + T·(F + d̂)`, the raw estimate is
-    /// `d̂ = K·(m·v − p̂)`: it follows the true disturbance d as a first-order lag,
-    /// `dd̂/dt = K·(d − d̂)`, whatever the loop commands (K =
-    /// `disturbance_bandwidth_rad_s`, 4000 rad/s: τ = 0.25 ms). It uses the velocity
-    /// estimate, not the differentiator's acceleration, which lags by half its window.
-    ///
-    /// What is cancelled is the raw estimate passed through a second, nonlinear lag: at the
-    /// full K while the two differ by more than `disturbance_threshold_n` (300 N: a load
-    /// step is followed at once, to within 300 N), at `disturbance_slow_rad_s` (250 rad/s)
-    /// below it. The raw estimate also carries what the observer sees at the frequencies
-    /// of its bandwidth — the velocity estimate's noise times `K·m`, and what looks like
-    /// the motor's force ripple (on the reference plant, which has cogging and no
-    /// calibrated map: ±100–170 N near 600 Hz at 2.3 m/s, six times the electrical
-    /// frequency) — and
-    /// passed on at full bandwidth these doubled the force reference's cycle-to-cycle
-    /// change: the voltages a hung control task leaves on the bridges for the watchdog's
-    /// 3 ms then drive a far larger current (the current loop's proportional gain acts on
-    /// the reference's last step), and of 120 hangs around a dead point the worst came
-    /// within 0.12 mm of the head (two lags at 3000 rad/s; 0.85 mm without the observer).
-    /// Slowed below the threshold, the force reference moves as it did without the
-    /// observer (worst of the same 120 hangs 0.78 mm).
-    ///
-    /// Ranges and saturation: the raw estimate is limited to ±`limit` (the force limit:
-    /// never more than the sections can push against), and the state is set back to the
-    /// limited value (`w = K·m·v − d̂`), so a saturated estimate does not wind up and
-    /// follows the load down as soon as it drops; the cancelled estimate moves toward the
-    /// raw one by at most half the gap per cycle, so it stays within the same bounds. The
-    /// motor force integrated is the one measured, not the one commanded, so a force
-    /// command held at its limit cannot wind it up either. A NaN input gives a raw estimate
-    /// of 0 and the observer restarts from the next cycle; outputs off reset it the same
-    /// way (`w` NaN, the estimate 0). State: `w = K·p̂` and the cancelled estimate, both N.
-    #[inline(always)]
-    fn observe_load(&mut self, s: &Sensed, model: &PistonForces<f32>, limit: f32) -> f32 {
-        let c = &self.config;
-        let k = c.disturbance_bandwidth_rad_s;
-        let gain = k * c.sample_time_s;
-        let momentum = k * c.moving_mass_kg * s.derivatives.velocity_mps;
-        let raw = momentum - self.load_observer;
-        // Limited to ±limit, NaN to 0 (clamp_f32 would give −limit).
-        let d = if raw > -limit {
-            if raw < limit {
-                raw
-            } else {
-                limit
-            }
-        } else if raw <= -limit {
-            -limit
-        } else {
-            0.0
-        };
-        let known_n = PistonForces {
-            motor_n: s.force_master_n + s.force_slave_n,
-            ..*model
-        }
-        .net_n();
-        self.load_observer = momentum - d + gain * (known_n + d);
-        let gap = d - self.load_n;
-        let follow = if gap.abs() > c.disturbance_threshold_n {
-            gain
-        } else {
-            c.disturbance_slow_rad_s * c.sample_time_s
-        };
-        self.load_n += follow * gap;
-        self.load_n
-    }
-
     /// Splits the force over both sections and runs both current loops in this cycle.
     pub(super) fn drive_sections(
         &mut self,
@@ -241,92 +210,5 @@ impl ControlStep {
             );
         }
         out
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::control::config::ControlConfig;
-
-    /// What the observer sees: the velocity estimate and the measured motor force.
-    fn sensed(velocity_mps: f32, motor_n: f32) -> Sensed {
-        Sensed {
-            master: Default::default(),
-            slave: Default::default(),
-            derivatives: Derivatives {
-                velocity_mps,
-                acceleration_mps2: 0.0,
-            },
-            raw_m: 0.1,
-            slave_raw_m: 0.1,
-            position_m: 0.1,
-            pressure_a_pa: 1e5,
-            pressure_b_pa: 1e5,
-            gas_force_n: 0.0,
-            force_master_n: 0.5 * motor_n,
-            force_slave_n: 0.5 * motor_n,
-        }
-    }
-
-    /// `cycles` of a piston at constant speed whose motor pushes `motor_n` (the load is
-    /// then `−motor_n`); the last estimate cancelled.
-    fn hold(c: &mut ControlStep, motor_n: f32, cycles: usize) -> f32 {
-        let mut d = 0.0;
-        for _ in 0..cycles {
-            d = c.observe_load(&sensed(1.0, motor_n), &PistonForces::default(), 10_000.0);
-        }
-        d
-    }
-
-    #[test]
-    fn the_observer_finds_a_steady_load_saturates_at_the_limit_and_recovers() {
-        let mut c = ControlStep::new(ControlConfig::reference()).unwrap();
-        // A 3 kN load toward +x the motor holds: cancelled to within the 300 N threshold in
-        // 2 ms (40 cycles), to 1 % in 20 ms.
-        let d = hold(&mut c, -3000.0, 40);
-        assert!((d - 3000.0).abs() <= 300.0, "{d}");
-        let d = hold(&mut c, -3000.0, 360);
-        assert!((d - 3000.0).abs() < 30.0, "{d}");
-        // 20 kN: the estimate stops at the 10 kN force limit...
-        let d = hold(&mut c, -20_000.0, 200);
-        assert!(d <= 10_000.0 && d > 9_900.0, "{d}");
-        // ...without winding up: the load gone, it follows down at once (within the 300 N
-        // threshold in 2 ms) and settles on zero.
-        let d = hold(&mut c, 0.0, 40);
-        assert!(d.abs() <= 300.0, "{d}");
-        let d = hold(&mut c, 0.0, 2000);
-        assert!(d.abs() < 1.0, "{d}");
-    }
-
-    #[test]
-    fn a_nan_input_gives_no_force_and_the_observer_restarts() {
-        let mut c = ControlStep::new(ControlConfig::reference()).unwrap();
-        hold(&mut c, -3000.0, 40);
-        let d = c.observe_load(
-            &sensed(f32::NAN, -3000.0),
-            &PistonForces::default(),
-            10_000.0,
-        );
-        assert!(d.is_finite(), "{d}");
-        let d = hold(&mut c, -3000.0, 400);
-        assert!((d - 3000.0).abs() < 30.0, "{d}");
-    }
-
-    #[test]
-    fn switched_off_it_estimates_nothing() {
-        let mut config = ControlConfig::reference();
-        config.disturbance_bandwidth_rad_s = 0.0;
-        let mut c = ControlStep::new(config).unwrap();
-        assert_eq!(hold(&mut c, -3000.0, 100), 0.0);
-    }
-
-    #[test]
-    fn out_of_range_observer_gains_are_refused() {
-        for k in [-1.0, f32::NAN, 20_000.0] {
-            let mut config = ControlConfig::reference();
-            config.disturbance_bandwidth_rad_s = k;
-            assert!(ControlStep::new(config).is_err(), "{k}");
-        }
     }
 }

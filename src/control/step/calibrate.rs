@@ -4,12 +4,40 @@
 use super::modes::Mode;
 use super::{ControlStep, CycleInputs};
 use crate::control::calibration::record::{CalibrationRecord, CalibrationStatus};
-use crate::control::calibration::{Demand, Measurements};
+use crate::control::calibration::{Calibrated, Demand, Measurements, SenseMonitor};
 use crate::drive::allocation::allocate;
 use crate::motion::trajectory::Setpoint;
 use crate::physics::motor::Dq;
 use crate::sensing::differentiator::Derivatives;
 use crate::units::{PerSection, PhaseDuties, Section};
+
+/// The calibration's bookkeeping: what the routines loaded, whether the machine may start on
+/// it, whether a result waits to be saved, and the current-sense monitor.
+#[derive(Clone, Debug)]
+pub(super) struct CalibrationState {
+    /// What the calibration routines have loaded.
+    pub calibrated: Calibrated,
+    /// Whether the machine may `Start` on its calibration.
+    pub status: CalibrationStatus,
+    /// A routine has finished since the record was last taken for saving.
+    pub unsaved: bool,
+    /// The phase currents while the outputs are off (current-sense offset detection).
+    pub sense_monitor: SenseMonitor,
+}
+
+impl CalibrationState {
+    pub(super) fn new() -> Self {
+        CalibrationState {
+            calibrated: Calibrated::default(),
+            // The configuration as given is trusted (the simulator hands it the machine's
+            // true values); a firmware that stores its calibration says otherwise at boot
+            // ([`ControlStep::load_calibration`]).
+            status: CalibrationStatus::Calibrated,
+            unsaved: false,
+            sense_monitor: SenseMonitor::new(),
+        }
+    }
+}
 
 impl ControlStep {
     /// One cycle of a calibration routine, after the rest of the step (supervision, status):
@@ -27,10 +55,10 @@ impl ControlStep {
         let s = self.status;
         // The encoders' electrical angles from the raw positions (20-bit resolution within
         // the period, 23 nm: far finer than any calibration needs).
-        let raw_m = s.position_m + self.zero_raw_m.unwrap_or(0.0);
-        let slave_raw_m = s.slave_position_m + self.zero_slave_raw_m;
+        let raw_m = s.position_m + self.sensing.zero_raw_m.unwrap_or(0.0);
+        let slave_raw_m = s.slave_position_m + self.sensing.zero_slave_raw_m;
         let angle_of = |x_m: f32, period_m: f32| crate::angle::turns(x_m / period_m);
-        let [pa, pb, _, _] = self.pressures_pa;
+        let [pa, pb, _, _] = self.sensing.pressures.last_pa;
         let gas_force_n = if pa.is_finite() && pb.is_finite() {
             self.config.cylinder.gas_force_n(pa, pb)
         } else {
@@ -59,19 +87,21 @@ impl ControlStep {
         if let Demand::Done(result) = demand {
             if let Ok(outcome) = &result {
                 outcome.apply(&mut self.config);
-                self.calibration_unsaved = true;
+                self.calibration.unsaved = true;
             }
-            self.calibrated.record(routine, result);
-            if self.calibration_status != CalibrationStatus::Calibrated {
-                self.calibration_status =
-                    if CalibrationRecord::of(&self.calibrated, &self.config).is_complete() {
+            self.calibration.calibrated.record(routine, result);
+            if self.calibration.status != CalibrationStatus::Calibrated {
+                self.calibration.status =
+                    if CalibrationRecord::of(&self.calibration.calibrated, &self.config)
+                        .is_complete()
+                    {
                         CalibrationStatus::Calibrated
                     } else {
                         CalibrationStatus::Incomplete
                     };
             }
             let hold = Setpoint::at_rest(position_m);
-            (self.mode, demand) = if self.zero_raw_m.is_some() {
+            (self.mode, demand) = if self.sensing.zero_raw_m.is_some() {
                 let track = Demand::Track {
                     setpoint: hold,
                     master_only: false,

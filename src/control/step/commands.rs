@@ -18,7 +18,7 @@ impl ControlStep {
         match command {
             Command::Heartbeat => {
                 // The first heartbeat arms the host watchdog; every one restarts it.
-                self.heartbeat_s = Some(0.0);
+                self.supervision.heartbeat_s = Some(0.0);
                 Ok(())
             }
             Command::Home => {
@@ -30,7 +30,7 @@ impl ControlStep {
                     return Err(Refusal::Busy);
                 }
                 self.mode = Mode::Homing(Homing::new(self.config.homing, self.raw_position_m()));
-                self.zero_raw_m = None;
+                self.sensing.zero_raw_m = None;
                 Ok(())
             }
             Command::MoveTo {
@@ -49,7 +49,7 @@ impl ControlStep {
                 if !self.faults.is_empty() {
                     return Err(Refusal::FaultActive);
                 }
-                if self.zero_raw_m.is_none() {
+                if self.sensing.zero_raw_m.is_none() {
                     return Err(Refusal::NotHomed);
                 }
                 let from = match &self.mode {
@@ -68,10 +68,10 @@ impl ControlStep {
                     return Err(Refusal::FaultActive);
                 }
                 // Before the homing check: homing does not help a machine with no calibration.
-                if self.calibration_status != CalibrationStatus::Calibrated {
+                if self.calibration.status != CalibrationStatus::Calibrated {
                     return Err(Refusal::NotCalibrated);
                 }
-                if self.zero_raw_m.is_none() {
+                if self.sensing.zero_raw_m.is_none() {
                     return Err(Refusal::NotHomed);
                 }
                 let Mode::Holding(sp) = &self.mode else {
@@ -83,7 +83,7 @@ impl ControlStep {
                 self.begin_half(&generator);
                 self.mode = Mode::Running(generator);
                 // The plausibility of the chamber pressures is judged over running strokes.
-                for m in &mut self.stuck {
+                for m in &mut self.sensing.pressures.stuck {
                     m.reset();
                 }
                 Ok(())
@@ -121,7 +121,7 @@ impl ControlStep {
                 Ok(())
             }
             Command::SetRotation { rotation } => {
-                self.rotation = rotation;
+                self.rotary.direction = rotation;
                 Ok(())
             }
             Command::SetVolumeRatio { target } => {
@@ -133,7 +133,7 @@ impl ControlStep {
                         return Err(Refusal::OutOfRange);
                     }
                 }
-                self.volume_ratio.set_target(target);
+                self.rotary.volume_ratio.set_target(target);
                 Ok(())
             }
             Command::Stop => {
@@ -150,7 +150,7 @@ impl ControlStep {
                 if routine != Routine::CurrentSense {
                     self.check_current_sense()?;
                 }
-                let homed = self.zero_raw_m.is_some();
+                let homed = self.sensing.zero_raw_m.is_some();
                 if routine.needs_homing() && !homed {
                     return Err(Refusal::NotHomed);
                 }
@@ -173,24 +173,24 @@ impl ControlStep {
                 if matches!(self.mode, Mode::Stopping { .. }) {
                     return Err(Refusal::Busy);
                 }
-                if self.encoders.master.cause_present()
-                    || self.encoders.slave.cause_present()
-                    || self.pressure_bad > 0
+                if self.sensing.encoders.master.cause_present()
+                    || self.sensing.encoders.slave.cause_present()
+                    || self.sensing.pressures.bad_cycles > 0
                 {
                     return Err(Refusal::CausePersists);
                 }
-                self.encoders.master.clear_fault();
-                self.encoders.slave.clear_fault();
+                self.sensing.encoders.master.clear_fault();
+                self.sensing.encoders.slave.clear_fault();
                 // An encoder fault loses the zero: homing is required again.
                 if self.faults.contains(Fault::EncoderSignal) {
-                    self.zero_raw_m = None;
+                    self.sensing.zero_raw_m = None;
                 }
-                self.config.allocation.capability = self.nominal_capability;
-                self.lost_encoder = None;
-                if matches!(self.faulted_brake, FaultedBrake::Blind(_)) {
-                    self.faulted_brake = FaultedBrake::None;
+                self.config.allocation.capability = self.safe.nominal_capability;
+                self.sensing.lost_encoder = None;
+                if matches!(self.safe.brake, FaultedBrake::Blind(_)) {
+                    self.safe.brake = FaultedBrake::None;
                 }
-                self.pressures_trusted = true;
+                self.sensing.pressures.trusted = true;
                 self.faults.clear();
                 self.mode = Mode::Idle;
                 Ok(())
@@ -201,7 +201,7 @@ impl ControlStep {
     /// Refuses to switch the outputs on while the phase currents read a current with the
     /// outputs off: the current loops would drive that offset into the motor.
     pub(super) fn check_current_sense(&self) -> Result<(), Refusal> {
-        if self.sense_monitor.offset_detected(&self.config) {
+        if self.calibration.sense_monitor.offset_detected(&self.config) {
             Err(Refusal::CurrentSenseOffset)
         } else {
             Ok(())

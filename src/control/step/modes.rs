@@ -9,7 +9,6 @@ use crate::motion::stroke::StrokeGenerator;
 use crate::motion::synchroniser::{Rotation, Synchroniser};
 use crate::motion::trajectory::{PointToPoint, Setpoint};
 use crate::motion::volume_ratio::Chamber;
-use crate::physics::balance::PistonForces;
 use crate::real::{clamp_f32, max_f32};
 use crate::safety::faults::Fault;
 use crate::safety::supervisor::LimitFlags;
@@ -19,12 +18,6 @@ use crate::status::ModeKind;
 /// The window over which holding the stopped piston must need (almost) no force before SS1
 /// switches the outputs off, s: 50 ms, ten times the force's settling after the stop ramp.
 pub const HOLD_RELEASE_S: f32 = 0.05;
-
-/// Time constant of the controlled stop's disturbance observer, s: 2 ms, longer than the
-/// differentiator's 1.25 ms window (its acceleration is the noisiest input) and still fast
-/// next to the 10–30 ms a stop takes. At 0.5 ms the stop rang after a watchdog reset
-/// (`tests/faults_are_caught_and_the_machine_stays_safe.rs`, s12).
-pub const DOB_TIME_S: f32 = 2.0e-3;
 
 /// What follows a controlled stop.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -62,7 +55,7 @@ impl ControlStep {
     /// The plan stage: the mode machine advanced one cycle; the setpoint and the force
     /// limit, or `None` with the outputs off.
     pub(super) fn plan(&mut self, s: &Sensed) -> Option<(Setpoint, f32)> {
-        self.limits = LimitFlags::default();
+        self.supervision.limits = LimitFlags::default();
         let measured_force_n = s.force_master_n + s.force_slave_n;
         let dt = self.config.sample_time_s;
         let setpoint = self.next_setpoint(s.raw_m, s.slave_raw_m, measured_force_n, dt);
@@ -114,9 +107,9 @@ impl ControlStep {
                     // No zero yet: the position frame is the raw frame.
                 } => Some((Setpoint::at_rest(reference_m), force_limit_n)),
                 HomingStep::Found { stop_raw_m } => {
-                    self.zero_raw_m = Some(stop_raw_m);
-                    self.zero_slave_raw_m = slave_raw_m - (raw_m - stop_raw_m);
-                    self.differentiator.reset();
+                    self.sensing.zero_raw_m = Some(stop_raw_m);
+                    self.sensing.zero_slave_raw_m = slave_raw_m - (raw_m - stop_raw_m);
+                    self.sensing.differentiator.reset();
                     let here = raw_m - stop_raw_m;
                     let path = PointToPoint::new(here, self.config.park_position_m, 0.05);
                     self.mode = Mode::Moving {
@@ -158,7 +151,7 @@ impl ControlStep {
                 Some((sp, limit))
             }
             Mode::Stopping { setpoint, then } => {
-                let brake = self.stop_decel_mps2;
+                let brake = self.safe.stop_decel_mps2;
                 let v = setpoint.velocity_mps;
                 let dv = brake * dt;
                 let (v_next, a) = if v.abs() <= dv {
@@ -176,8 +169,13 @@ impl ControlStep {
                 // The force the model does not know (an external load, the gas of a chamber
                 // whose sensor failed) is estimated and cancelled through the feed-forward:
                 // the position loop alone would yield 4 mm to 3 kN, near a head too much.
-                sp.acceleration_mps2 -=
-                    self.observe_disturbance(measured_force_n, dt) / self.config.moving_mass_kg;
+                sp.acceleration_mps2 -= self.estimator.observe_stop(
+                    &self.config,
+                    &self.status,
+                    self.sensing.pressures.usable(),
+                    measured_force_n,
+                    dt,
+                ) / self.config.moving_mass_kg;
                 if v_next == 0.0 {
                     if then == AfterStop::Off && !self.hold_released(dt) {
                         return Some((sp, limit));
@@ -214,9 +212,9 @@ impl ControlStep {
             };
             return;
         }
-        self.hold_quiet_s = 0.0;
-        self.hold_motor_ns = 0.0;
-        self.hold_gas_ns = 0.0;
+        self.safe.hold_quiet_s = 0.0;
+        self.safe.hold_motor_ns = 0.0;
+        self.safe.hold_gas_ns = 0.0;
         let setpoint = match &self.mode {
             // Already stopping: keep the ramp, take the stronger reaction.
             Mode::Stopping { setpoint, then: t } => {
@@ -233,8 +231,9 @@ impl ControlStep {
                 acceleration_mps2: 0.0,
             },
         };
-        self.stop_decel_mps2 = self.stop_deceleration(setpoint.position_m, setpoint.velocity_mps);
-        self.disturbance_n = 0.0;
+        self.safe.stop_decel_mps2 =
+            self.stop_deceleration(setpoint.position_m, setpoint.velocity_mps);
+        self.estimator.stop_n = 0.0;
         self.mode = Mode::Stopping { setpoint, then };
     }
 
@@ -247,24 +246,27 @@ impl ControlStep {
     #[cold]
     #[inline(never)]
     pub(super) fn hold_released(&mut self, dt: f32) -> bool {
-        let gas_n = if self.pressures_trusted && self.pressure_bad == 0 {
+        let gas_n = if self.sensing.pressures.usable() {
             self.config
                 .cylinder
                 .gas_force_n(self.status.pressure_a_pa, self.status.pressure_b_pa)
         } else {
             0.0
         };
-        self.hold_quiet_s += dt;
-        self.hold_motor_ns += self.status.force_command_n * dt;
-        self.hold_gas_ns += gas_n * dt;
-        if self.hold_quiet_s < HOLD_RELEASE_S {
+        self.safe.hold_quiet_s += dt;
+        self.safe.hold_motor_ns += self.status.force_command_n * dt;
+        self.safe.hold_gas_ns += gas_n * dt;
+        if self.safe.hold_quiet_s < HOLD_RELEASE_S {
             return false;
         }
-        let window = self.hold_quiet_s;
-        let (motor, gas) = (self.hold_motor_ns / window, self.hold_gas_ns / window);
-        self.hold_quiet_s = 0.0;
-        self.hold_motor_ns = 0.0;
-        self.hold_gas_ns = 0.0;
+        let window = self.safe.hold_quiet_s;
+        let (motor, gas) = (
+            self.safe.hold_motor_ns / window,
+            self.safe.hold_gas_ns / window,
+        );
+        self.safe.hold_quiet_s = 0.0;
+        self.safe.hold_motor_ns = 0.0;
+        self.safe.hold_gas_ns = 0.0;
         let stiction = self.config.friction.static_n;
         motor.abs() <= stiction && gas.abs() <= 0.5 * stiction
     }
@@ -280,7 +282,7 @@ impl ControlStep {
         let cap = self.config.allocation.capability;
         let sections = clamp_f32(cap.master, 0.0, 1.0) + clamp_f32(cap.slave, 0.0, 1.0);
         let a_max = c.brake_deceleration_mps2 * max_f32(sections, 1.0);
-        if self.zero_raw_m.is_none() {
+        if self.sensing.zero_raw_m.is_none() {
             return a_max;
         }
         let distance = if velocity_mps >= 0.0 {
@@ -297,39 +299,11 @@ impl ControlStep {
         clamp_f32(needed, c.brake_deceleration_mps2, a_max)
     }
 
-    /// The disturbance observer of a controlled stop: the force on the piston that the model
-    /// does not explain, `m·a − (F_motor + F_gas − F_friction(v))`
-    /// ([`PistonForces::unexplained_n`]) from the measured acceleration, motor force
-    /// (q-currents) and gas force (when the pressures are valid; otherwise the gas is part of
-    /// what it estimates), low-passed over [`DOB_TIME_S`]. N, toward +x.
-    #[cold]
-    #[inline(never)]
-    pub(super) fn observe_disturbance(&mut self, motor_force_n: f32, dt: f32) -> f32 {
-        let c = &self.config;
-        let st = &self.status;
-        let gas_n = if self.pressures_trusted && self.pressure_bad == 0 {
-            c.cylinder.gas_force_n(st.pressure_a_pa, st.pressure_b_pa)
-        } else {
-            0.0
-        };
-        let unexplained =
-            PistonForces::known(motor_force_n, gas_n, c.friction.force_n(st.velocity_mps))
-                .unexplained_n(c.moving_mass_kg, st.acceleration_mps2);
-        if unexplained.is_finite() {
-            let alpha = clamp_f32(dt / DOB_TIME_S, 0.0, 1.0);
-            self.disturbance_n += alpha * (unexplained - self.disturbance_n);
-        }
-        // Never more than the sections can push against.
-        let limit = c.force_limit_n;
-        self.disturbance_n = clamp_f32(self.disturbance_n, -limit, limit);
-        self.disturbance_n
-    }
-
     /// Starts the rotation of a new half cycle: where the timed port edge must be crossed
     /// (discharge opening, or expander cut-off) from the measured line pressures.
     pub(super) fn begin_half(&mut self, g: &StrokeGenerator) {
         let (from, to) = g.path_ends_m();
-        let rotation = self.rotation;
+        let rotation = self.rotary.direction;
         let chamber = Synchroniser::timed_chamber(g.direction(), rotation);
         // The chamber's largest volume is where its compression starts (compressor: the
         // stroke's start) or its expansion ends (expander: the stroke's end).
@@ -337,9 +311,9 @@ impl ControlStep {
             Rotation::Compressor => from,
             Rotation::Expander => to,
         };
-        let [_, _, suction, discharge] = self.pressures_pa;
-        self.planned_discharge_pa = discharge;
-        let edge = self.volume_ratio.opening_position_m(
+        let [_, _, suction, discharge] = self.sensing.pressures.last_pa;
+        self.rotary.planned_discharge_pa = discharge;
+        let edge = self.rotary.volume_ratio.opening_position_m(
             &self.config.cylinder,
             &self.config.gas,
             chamber,
@@ -350,13 +324,13 @@ impl ControlStep {
         // The stroke reference starts where the last one ended; the piston is there too
         // within the dead-point error, and the cam clamps the progress.
         let x_start = from;
-        self.synchroniser.begin_half(
+        self.rotary.synchroniser.begin_half(
             g.direction(),
             rotation,
             x_start,
             to,
             edge,
-            self.theta_reference_rad,
+            self.rotary.reference_rad,
         );
     }
 
@@ -366,12 +340,16 @@ impl ControlStep {
         if rotation != Rotation::Compressor {
             return;
         }
-        let [a, b, _, _] = self.pressures_pa;
+        let [a, b, _, _] = self.sensing.pressures.last_pa;
         let p = match chamber {
             Chamber::A => a,
             Chamber::B => b,
         };
-        self.volume_ratio
-            .observe_opening(&self.config.gas, chamber, p, self.planned_discharge_pa);
+        self.rotary.volume_ratio.observe_opening(
+            &self.config.gas,
+            chamber,
+            p,
+            self.rotary.planned_discharge_pa,
+        );
     }
 }

@@ -8,6 +8,7 @@
 
 use super::modes::{turn_phase, AfterStop, Mode};
 use super::{ControlStep, CycleInputs};
+use crate::control::config::ControlConfig;
 use crate::motion::trajectory::Setpoint;
 use crate::physics::port_timing::PortWindow;
 use crate::real::{clamp_f32, max_f32, min_f32, sqrt_f32};
@@ -75,6 +76,42 @@ fn time_in_window(
     time
 }
 
+/// The state of the stops and the reactions: the controlled stop's deceleration, SS1's hold
+/// window, the blind brake's sealing turn, what the faulted state still does, and each
+/// section's capability as configured.
+#[derive(Clone, Debug)]
+pub(super) struct SafeState {
+    /// Deceleration of the controlled stop in progress, m/s².
+    pub stop_decel_mps2: f32,
+    /// SS1's hold: time into the current averaging window, s, and the integrals over it of
+    /// the motor force and of the measured gas force, N·s.
+    pub hold_quiet_s: f32,
+    pub hold_motor_ns: f32,
+    pub hold_gas_ns: f32,
+    /// Both encoders lost: the rotation's sealing turn as decided, rad, signed (which way
+    /// round it goes).
+    pub sealing_turn_rad: f32,
+    /// What the faulted state still does with the outputs: brake after a watchdog reset, or
+    /// brake without position after both encoders were lost.
+    pub brake: FaultedBrake,
+    /// Each section's capability as configured (restored when faults are cleared).
+    pub nominal_capability: PerSection<f32>,
+}
+
+impl SafeState {
+    pub(super) fn new(config: &ControlConfig) -> Self {
+        SafeState {
+            stop_decel_mps2: config.supervisor.brake_deceleration_mps2,
+            hold_quiet_s: 0.0,
+            hold_motor_ns: 0.0,
+            hold_gas_ns: 0.0,
+            sealing_turn_rad: 0.0,
+            brake: FaultedBrake::None,
+            nominal_capability: config.allocation.capability,
+        }
+    }
+}
+
 /// What the faulted state still does with the outputs (they are off otherwise).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum FaultedBrake {
@@ -97,7 +134,7 @@ impl ControlStep {
     #[inline(never)]
     pub(super) fn enter_safe_state(&mut self, fault: Fault, position_trusted: bool) {
         let new = self.faults.latch(fault);
-        if !(position_trusted && self.zero_raw_m.is_some()) {
+        if !(position_trusted && self.sensing.zero_raw_m.is_some()) {
             self.mode = Mode::Faulted;
         } else if new {
             self.begin_stop(AfterStop::Off);
@@ -126,8 +163,7 @@ impl ControlStep {
     /// for a valid velocity, then [`ControlStep::brake_after_reset`] starts the controlled
     /// stop (see [`ControlStep::boot`]).
     pub(super) fn await_velocity_then_brake(&mut self) {
-        self.faulted_brake =
-            FaultedBrake::AfterReset(self.config.sg_window.saturating_add(5) as u16);
+        self.safe.brake = FaultedBrake::AfterReset(self.config.sg_window.saturating_add(5) as u16);
     }
 
     /// The outputs with no setpoint (not calibrating): off — the current loops reset and
@@ -139,14 +175,14 @@ impl ControlStep {
     pub(super) fn outputs_off(&mut self, inputs: &CycleInputs) -> Option<PerSection<PhaseDuties>> {
         self.currents.master.reset();
         self.currents.slave.reset();
-        self.load_observer = f32::NAN;
-        self.load_n = 0.0;
+        self.estimator.load_state = f32::NAN;
+        self.estimator.load_n = 0.0;
         self.shares = PerSection::default();
         self.status.force_command_n = 0.0;
-        if self.faulted_brake == FaultedBrake::Blind(0) {
+        if self.safe.brake == FaultedBrake::Blind(0) {
             return Some(PerSection::default());
         }
-        self.sense_monitor.observe(&inputs.currents);
+        self.calibration.sense_monitor.observe(&inputs.currents);
         None
     }
 
@@ -185,12 +221,12 @@ impl ControlStep {
     #[cold]
     #[inline(never)]
     pub(super) fn brake_without_position(&mut self) {
-        if matches!(self.faulted_brake, FaultedBrake::Blind(_)) {
+        if matches!(self.safe.brake, FaultedBrake::Blind(_)) {
             return;
         }
         let g = &self.config.port_geometry;
         let ramp = g.ramp_rad;
-        let phase = turn_phase(self.theta_reference_rad);
+        let phase = turn_phase(self.rotary.reference_rad);
         let toward_b = self.status.velocity_mps >= 0.0;
         // The chamber ahead already discharging: the line turns the piston before its dead
         // point; the chamber to seal is the other one, ahead after the turn (see above).
@@ -218,7 +254,7 @@ impl ControlStep {
         // behind chamber on the line for the least time — the rotation going at full
         // torque from its speed now (against it, it must stop first) — and of those the
         // shortest.
-        let speed = self.servo.velocity_rad_s();
+        let speed = self.rotary.servo.velocity_rad_s();
         let sc = &self.config.servo;
         let accel = max_f32(sc.torque_full_scale_nm / sc.inertia_kgm2, 1.0);
         let mut best: Option<(f32, f32)> = None;
@@ -249,12 +285,12 @@ impl ControlStep {
         let m = &self.config.motor;
         let decay_s = m.inductance_h * m.current_limit_a / m.bus_voltage_v;
         let cycles = clamp_f32(decay_s / self.config.sample_time_s + 1.0, 1.0, 1000.0) as u16;
-        self.faulted_brake = FaultedBrake::Blind(cycles);
+        self.safe.brake = FaultedBrake::Blind(cycles);
         // The phase to turn to once the windings are shorted (SS1's hold timer is free
         // while faulted).
         let turn = best.map_or(0.0, |(_, turn)| turn);
-        self.hold_quiet_s = turn_phase(phase + turn);
-        self.sealing_turn_rad = turn;
+        self.safe.hold_quiet_s = turn_phase(phase + turn);
+        self.safe.sealing_turn_rad = turn;
     }
 
     /// A cycle of the faulted state: nothing while no brake runs ([`FaultedBrake::None`]);
@@ -264,23 +300,23 @@ impl ControlStep {
     #[cold]
     #[inline(never)]
     pub(super) fn faulted_cycle(&mut self) {
-        match self.faulted_brake {
+        match self.safe.brake {
             FaultedBrake::None => {}
             FaultedBrake::AfterReset(_) => self.brake_after_reset(),
             FaultedBrake::Blind(left) => {
-                self.faulted_brake = FaultedBrake::Blind(left.saturating_sub(1));
-                if left <= 1 && !self.hold_quiet_s.is_nan() {
+                self.safe.brake = FaultedBrake::Blind(left.saturating_sub(1));
+                if left <= 1 && !self.safe.hold_quiet_s.is_nan() {
                     // The shorter way to the target from where the rotation has coasted,
                     // unless the turn decided goes the long way round.
-                    let now = turn_phase(self.theta_reference_rad);
-                    let mut turn = turn_phase(self.hold_quiet_s - now + PI) - PI;
-                    if self.sealing_turn_rad < -PI && turn > 0.0 {
+                    let now = turn_phase(self.rotary.reference_rad);
+                    let mut turn = turn_phase(self.safe.hold_quiet_s - now + PI) - PI;
+                    if self.safe.sealing_turn_rad < -PI && turn > 0.0 {
                         turn -= TAU;
-                    } else if self.sealing_turn_rad > PI && turn < 0.0 {
+                    } else if self.safe.sealing_turn_rad > PI && turn < 0.0 {
                         turn += TAU;
                     }
-                    self.theta_reference_rad += turn;
-                    self.hold_quiet_s = f32::NAN;
+                    self.rotary.reference_rad += turn;
+                    self.safe.hold_quiet_s = f32::NAN;
                 }
             }
         }
@@ -291,25 +327,25 @@ impl ControlStep {
     #[cold]
     #[inline(never)]
     pub(super) fn brake_after_reset(&mut self) {
-        let left = match self.faulted_brake {
+        let left = match self.safe.brake {
             FaultedBrake::AfterReset(n) => n,
             _ => 0,
         };
         if left > 0 {
-            self.faulted_brake = FaultedBrake::AfterReset(left - 1);
+            self.safe.brake = FaultedBrake::AfterReset(left - 1);
             return;
         }
-        self.faulted_brake = FaultedBrake::None;
+        self.safe.brake = FaultedBrake::None;
         if self.faults.contains(Fault::EncoderSignal)
             || self.faults.contains(Fault::EncoderMismatch)
         {
             return;
         }
-        self.hold_quiet_s = 0.0;
-        self.hold_motor_ns = 0.0;
-        self.hold_gas_ns = 0.0;
-        self.stop_decel_mps2 = self.stop_deceleration(self.status.position_m, 0.0);
-        self.disturbance_n = 0.0;
+        self.safe.hold_quiet_s = 0.0;
+        self.safe.hold_motor_ns = 0.0;
+        self.safe.hold_gas_ns = 0.0;
+        self.safe.stop_decel_mps2 = self.stop_deceleration(self.status.position_m, 0.0);
+        self.estimator.stop_n = 0.0;
         self.mode = Mode::Stopping {
             setpoint: Setpoint {
                 position_m: self.status.position_m,
@@ -324,7 +360,7 @@ impl ControlStep {
     /// ([`crate::physics::port_timing::PortGeometry::venting_phases_rad`]), as a turn of the
     /// rotation from the current reference, rad in [−π, π); `None` for a geometry without one.
     pub(super) fn vent_turn_rad(&self) -> Option<f32> {
-        let phase = turn_phase(self.theta_reference_rad);
+        let phase = turn_phase(self.rotary.reference_rad);
         self.config
             .port_geometry
             .venting_phases_rad()
@@ -358,7 +394,7 @@ impl ControlStep {
     pub(super) fn turn_to_vent(&mut self, dt: f32) {
         if let Some(d) = self.vent_turn_rad() {
             let step = VENT_SPEED_RAD_S * dt;
-            self.theta_reference_rad += clamp_f32(d, -step, step);
+            self.rotary.reference_rad += clamp_f32(d, -step, step);
         }
     }
 }

@@ -2,11 +2,91 @@
 //! changes (the other stands in for it, its section is dropped).
 
 use super::{ControlStep, CycleInputs};
+use crate::control::config::ControlConfig;
 use crate::real::clamp_f32;
 use crate::safety::faults::{Fault, Reaction};
-use crate::sensing::differentiator::Derivatives;
+use crate::sensing::differentiator::{Derivatives, SavitzkyGolay};
 use crate::sensing::encoder::{EncoderReading, PositionCounts, SinCosDecoder};
-use crate::units::{AdcCode, Section, Ticks, CONTROL_PERIOD_US};
+use crate::sensing::pressure::{StuckConfig, StuckMonitor};
+use crate::sensing::quadrature::QuadratureCounter;
+use crate::units::{AdcCode, PerSection, Section, Ticks, CONTROL_PERIOD_US};
+
+/// The sense stage's state: both decoders, the differentiator, the rotation's counter, the
+/// homed frame, the stand-in after a lost encoder and the pressure monitor.
+/// `repr(C)`: the scalars the step reads field by field first, next to the rest of the step's
+/// hot state, the large decoders and the differentiator's window last (see [`ControlStep`]).
+#[derive(Clone, Debug)]
+#[repr(C)]
+pub(super) struct Sensing {
+    /// The sampling instant of the last cycle (the deadline check).
+    pub last_t: Option<Ticks>,
+    /// Raw master position at x = 0 (set by homing), m.
+    pub zero_raw_m: Option<f32>,
+    /// Raw slave position at x = 0, m.
+    pub zero_slave_raw_m: f32,
+    /// The encoder that failed while the other still gives the position (its section is
+    /// dropped); `None` while both are good.
+    pub lost_encoder: Option<Section>,
+    /// Master minus slave position, counts, when the master encoder was lost (the slave
+    /// stands in for it at this offset).
+    pub slave_offset_counts: PositionCounts,
+    pub pressures: PressureMonitor,
+    pub quadrature: QuadratureCounter,
+    pub encoders: PerSection<SinCosDecoder>,
+    pub differentiator: SavitzkyGolay,
+}
+
+impl Sensing {
+    pub(super) fn new(config: &ControlConfig, differentiator: SavitzkyGolay) -> Self {
+        Sensing {
+            encoders: PerSection {
+                master: SinCosDecoder::new(config.encoder_master),
+                slave: SinCosDecoder::new(config.encoder_slave),
+            },
+            differentiator,
+            quadrature: QuadratureCounter::new(),
+            last_t: None,
+            zero_raw_m: None,
+            zero_slave_raw_m: 0.0,
+            lost_encoder: None,
+            slave_offset_counts: PositionCounts::ZERO,
+            pressures: PressureMonitor::new(),
+        }
+    }
+}
+
+/// The chamber and line pressures as last seen valid, and whether they may still be used.
+#[derive(Clone, Debug)]
+pub(super) struct PressureMonitor {
+    /// Last valid pressures: chamber A, chamber B, suction, discharge, Pa (NaN: none yet).
+    pub last_pa: [f32; 4],
+    /// Consecutive cycles with an invalid chamber-pressure sample.
+    pub bad_cycles: u8,
+    /// Chamber A and B readings watched for following the volume while running (a stuck
+    /// sensor); one of the two is updated per cycle.
+    pub stuck: [StuckMonitor; 2],
+    /// Cycles counted for the plausibility check (it runs every 8th cycle).
+    pub stuck_cycles: u8,
+    /// The chamber pressures may be used in the feed-forward (false once one is found stuck).
+    pub trusted: bool,
+}
+
+impl PressureMonitor {
+    fn new() -> Self {
+        PressureMonitor {
+            last_pa: [f32::NAN; 4],
+            bad_cycles: 0,
+            stuck: [StuckMonitor::new(StuckConfig::reference()); 2],
+            stuck_cycles: 0,
+            trusted: true,
+        }
+    }
+
+    /// The chamber pressures may be used: not found stuck, and this cycle's sample valid.
+    pub(super) fn usable(&self) -> bool {
+        self.trusted && self.bad_cycles == 0
+    }
+}
 
 /// What the sense stage found in one cycle.
 #[derive(Clone, Copy, Debug)]
@@ -39,50 +119,58 @@ impl ControlStep {
     /// The deadline check: a gap of more than 1.5 periods since the last cycle means at
     /// least one was missed (the decoders are caught up, the fault latched).
     pub(super) fn check_deadline(&mut self, t: Ticks) {
-        if let Some(last) = self.last_t {
+        if let Some(last) = self.sensing.last_t {
             let gap_us = t.since_us(last);
             if gap_us > (CONTROL_PERIOD_US * 3 / 2) as i32 {
                 self.latch(Fault::Deadline);
                 self.catch_up(gap_us);
             }
         }
-        self.last_t = Some(t);
+        self.sensing.last_t = Some(t);
     }
 
     /// The sense stage: both encoders decoded (a failed one replaced by the other), the
     /// master position differentiated, the pressures converted and checked, the rotation's
     /// count read, and the section forces of the last cycle's currents.
     pub(super) fn sense(&mut self, inputs: &CycleInputs) -> Sensed {
-        let mut master = self.encoders.master.update(inputs.encoders.master);
-        let mut slave = self.encoders.slave.update(inputs.encoders.slave);
-        if master.signal_fault || slave.signal_fault || self.lost_encoder.is_some() {
+        let mut master = self.sensing.encoders.master.update(inputs.encoders.master);
+        let mut slave = self.sensing.encoders.slave.update(inputs.encoders.slave);
+        if master.signal_fault || slave.signal_fault || self.sensing.lost_encoder.is_some() {
             (master.position, slave.position) = self.encoder_fault(&master, &slave);
         }
-        let derivatives = self.differentiator.push(master.position);
+        let derivatives = self.sensing.differentiator.push(master.position);
         let m_per_count = self.config.encoder_master.m_per_count();
         let raw_m = master.position.to_bits() as f32 * m_per_count;
         let slave_raw_m = self.config.encoder_slave.metres(slave.position);
-        let zero = self.zero_raw_m.unwrap_or(0.0);
+        let zero = self.sensing.zero_raw_m.unwrap_or(0.0);
         let position_m = raw_m - zero;
 
         let cal = self.config.pressure;
         let pa = cal.convert(inputs.pressures.chamber_a);
         let pb = cal.convert(inputs.pressures.chamber_b);
         let gas_force_n = match (pa.valid(), pb.valid()) {
-            (Some(a), Some(b)) if self.pressures_trusted => self.config.cylinder.gas_force_n(a, b),
+            (Some(a), Some(b)) if self.sensing.pressures.trusted => {
+                self.config.cylinder.gas_force_n(a, b)
+            }
             _ => 0.0,
         };
 
         let ps = cal.convert(inputs.pressures.suction);
         let pd = cal.convert(inputs.pressures.discharge);
-        for (slot, sample) in self.pressures_pa.iter_mut().zip([pa, pb, ps, pd]) {
+        for (slot, sample) in self
+            .sensing
+            .pressures
+            .last_pa
+            .iter_mut()
+            .zip([pa, pb, ps, pd])
+        {
             if let Some(p) = sample.valid() {
                 *slot = p;
             }
         }
 
-        let count = self.quadrature.update(inputs.quadrature);
-        self.servo.observe(count);
+        let count = self.sensing.quadrature.update(inputs.quadrature);
+        self.rotary.servo.observe(count);
 
         // Measured section forces (before this cycle's FOC step: last cycle's state).
         let kf = self.config.motor.force_constant_n_per_a;
@@ -92,17 +180,18 @@ impl ControlStep {
         // Invalid pressure samples never reach the control law (the gas feed-forward above
         // falls back to zero); two in a row latch the fault (one glitch is tolerated).
         let pressures_valid = pa.valid().is_some() && pb.valid().is_some();
-        self.pressure_bad = if pressures_valid {
+        self.sensing.pressures.bad_cycles = if pressures_valid {
             0
         } else {
-            self.pressure_bad.saturating_add(1)
+            self.sensing.pressures.bad_cycles.saturating_add(1)
         };
-        if self.pressure_bad >= 2 {
+        if self.sensing.pressures.bad_cycles >= 2 {
             self.latch(Fault::PressureSensor);
         }
         if self.running() {
-            self.stuck_cycles = self.stuck_cycles.wrapping_add(1);
-            if self.stuck_cycles & 7 == 0 {
+            self.sensing.pressures.stuck_cycles =
+                self.sensing.pressures.stuck_cycles.wrapping_add(1);
+            if self.sensing.pressures.stuck_cycles & 7 == 0 {
                 self.check_pressures_follow_volume(inputs, position_m);
             }
         }
@@ -147,7 +236,7 @@ impl ControlStep {
             // Lost earlier by the cross-check.
             (false, false) => None,
         };
-        match (failed, self.lost_encoder) {
+        match (failed, self.sensing.lost_encoder) {
             (Some(f), Some(lost)) if f != lost => {
                 // The other one was lost before: none is left.
                 self.latch(Fault::EncoderSignal);
@@ -166,8 +255,8 @@ impl ControlStep {
             }
             _ => {}
         }
-        let offset = self.slave_offset_counts;
-        match self.lost_encoder {
+        let offset = self.sensing.slave_offset_counts;
+        match self.sensing.lost_encoder {
             Some(Section::Master) => (slave.position.wrapping_add(offset), slave.position),
             Some(Section::Slave) => (master.position, master.position.wrapping_sub(offset)),
             None => both,
@@ -183,11 +272,12 @@ impl ControlStep {
         master: &EncoderReading,
         slave: &EncoderReading,
     ) {
-        self.lost_encoder = Some(failed);
-        self.slave_offset_counts = master.position.wrapping_sub(slave.position);
+        self.sensing.lost_encoder = Some(failed);
+        self.sensing.slave_offset_counts = master.position.wrapping_sub(slave.position);
         let master_raw_m = self.config.encoder_master.metres(master.position);
         let slave_raw_m = self.config.encoder_slave.metres(slave.position);
-        self.zero_slave_raw_m = slave_raw_m - (master_raw_m - self.zero_raw_m.unwrap_or(0.0));
+        self.sensing.zero_slave_raw_m =
+            slave_raw_m - (master_raw_m - self.sensing.zero_raw_m.unwrap_or(0.0));
         self.drop_section(if failed == Section::Master { 0 } else { 1 });
     }
 
@@ -211,7 +301,7 @@ impl ControlStep {
         let sound = |r: &EncoderReading, d: &SinCosDecoder| {
             !d.cause_present() && (r.amplitude_squared - 1.0).abs() < 0.1
         };
-        let (dm, ds) = (&self.encoders.master, &self.encoders.slave);
+        let (dm, ds) = (&self.sensing.encoders.master, &self.sensing.encoders.slave);
         let suspect = if odd(master, dm) && sound(slave, ds) {
             Some(Section::Master)
         } else if odd(slave, ds) && sound(master, dm) {
@@ -219,7 +309,7 @@ impl ControlStep {
         } else {
             None
         };
-        match (suspect, self.lost_encoder) {
+        match (suspect, self.sensing.lost_encoder) {
             (Some(s), None) => {
                 self.lose_encoder(s, master, slave);
                 Reaction::Ss1
@@ -240,18 +330,18 @@ impl ControlStep {
         let period = CONTROL_PERIOD_US as i32;
         let missed = ((gap_us + period / 2) / period - 1).clamp(0, 40) as u32;
         let v = self.status.velocity_mps;
-        let zero = self.zero_raw_m.unwrap_or(0.0);
+        let zero = self.sensing.zero_raw_m.unwrap_or(0.0);
         for section in Section::ALL {
             let (config, decoder, raw_m) = match section {
                 Section::Master => (
                     self.config.encoder_master,
-                    &mut self.encoders.master,
+                    &mut self.sensing.encoders.master,
                     self.status.position_m + zero,
                 ),
                 Section::Slave => (
                     self.config.encoder_slave,
-                    &mut self.encoders.slave,
-                    self.status.slave_position_m + self.zero_slave_raw_m,
+                    &mut self.sensing.encoders.slave,
+                    self.status.slave_position_m + self.sensing.zero_slave_raw_m,
                 ),
             };
             // The last angle from the last position (its 20 fraction bits are the angle's top
@@ -270,7 +360,7 @@ impl ControlStep {
                     cos: code(c),
                 });
                 if section == Section::Master {
-                    self.differentiator.push(reading.position);
+                    self.sensing.differentiator.push(reading.position);
                 }
             }
         }
@@ -284,13 +374,19 @@ impl ControlStep {
     #[cold]
     #[inline(never)]
     pub(super) fn check_pressures_follow_volume(&mut self, inputs: &CycleInputs, position_m: f32) {
-        let (monitor, code) = if self.stuck_cycles & 8 == 0 {
-            (&mut self.stuck[0], inputs.pressures.chamber_a)
+        let (monitor, code) = if self.sensing.pressures.stuck_cycles & 8 == 0 {
+            (
+                &mut self.sensing.pressures.stuck[0],
+                inputs.pressures.chamber_a,
+            )
         } else {
-            (&mut self.stuck[1], inputs.pressures.chamber_b)
+            (
+                &mut self.sensing.pressures.stuck[1],
+                inputs.pressures.chamber_b,
+            )
         };
         if monitor.update(code, position_m) {
-            self.pressures_trusted = false;
+            self.sensing.pressures.trusted = false;
             self.latch(Fault::PressurePlausibility);
         }
     }

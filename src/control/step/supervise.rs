@@ -7,7 +7,27 @@ use super::sense::Sensed;
 use super::ControlStep;
 use crate::real::max_f32;
 use crate::safety::faults::{Fault, Reaction};
-use crate::safety::supervisor::Observation;
+use crate::safety::supervisor::{LimitFlags, Observation, Supervisor};
+
+/// The supervision's state: the per-cycle checks, the host's heartbeat and the limits hit.
+#[derive(Clone, Debug)]
+pub(super) struct Supervision {
+    pub supervisor: Supervisor,
+    /// Time since the last heartbeat, s; `None` until the host sends one.
+    pub heartbeat_s: Option<f32>,
+    /// The limits hit in this cycle.
+    pub limits: LimitFlags,
+}
+
+impl Supervision {
+    pub(super) fn new() -> Self {
+        Supervision {
+            supervisor: Supervisor::new(),
+            heartbeat_s: None,
+            limits: LimitFlags::default(),
+        }
+    }
+}
 
 impl ControlStep {
     /// The supervise stage: the machine's limits checked against this cycle's measurements
@@ -15,13 +35,13 @@ impl ControlStep {
     /// heartbeat timed (host lost: park).
     pub(super) fn supervise(&mut self, s: &Sensed) {
         let dt = self.config.sample_time_s;
-        let homed = self.zero_raw_m.is_some();
+        let homed = self.sensing.zero_raw_m.is_some();
         let driving = !matches!(self.mode, Mode::Idle | Mode::Faulted);
         // The rotation times the ports only while compressing; in a stop it only holds (or,
         // after a reset, coasts down), whatever the linear motion does.
         let running = matches!(self.mode, Mode::Running(_));
         let rotation_error_rad = if running {
-            self.theta_reference_rad - self.servo.angle_rad()
+            self.rotary.reference_rad - self.rotary.servo.angle_rad()
         } else {
             0.0
         };
@@ -35,7 +55,7 @@ impl ControlStep {
             homed,
             driving: driving && !matches!(self.mode, Mode::Homing(_)),
             position_m: s.position_m,
-            slave_position_m: s.slave_raw_m - self.zero_slave_raw_m,
+            slave_position_m: s.slave_raw_m - self.sensing.zero_slave_raw_m,
             velocity_mps: s.derivatives.velocity_mps,
             reference_m: self.reference_m().unwrap_or(s.position_m),
             peak_phase_a: max_f32(
@@ -47,7 +67,10 @@ impl ControlStep {
             rotation_error_rad,
             rotation_stalled,
         };
-        let verdict = self.supervisor.check(&self.config.supervisor, &observation);
+        let verdict = self
+            .supervision
+            .supervisor
+            .check(&self.config.supervisor, &observation);
         if let Some(section) = verdict.lost_section {
             self.drop_section(section);
         }
@@ -61,12 +84,12 @@ impl ControlStep {
             self.react(fault, reaction);
         }
 
-        if let Some(elapsed) = self.heartbeat_s.as_mut() {
+        if let Some(elapsed) = self.supervision.heartbeat_s.as_mut() {
             *elapsed += dt;
             if *elapsed >= self.config.heartbeat_timeout_s {
                 // Host lost: park (a controlled stop first), not a fault. Disarmed until the
                 // host is back.
-                self.heartbeat_s = None;
+                self.supervision.heartbeat_s = None;
                 if matches!(
                     self.mode,
                     Mode::Moving { .. } | Mode::Holding(_) | Mode::Running(_)
@@ -111,6 +134,6 @@ impl ControlStep {
     #[cold]
     #[inline(never)]
     pub(super) fn rotation_stalled(&self) -> bool {
-        self.servo.velocity_rad_s().abs() < 0.25 * self.theta_reference_speed_rad_s.abs()
+        self.rotary.servo.velocity_rad_s().abs() < 0.25 * self.rotary.reference_speed_rad_s.abs()
     }
 }
