@@ -3,11 +3,12 @@
 
 use super::{ControlStep, CycleInputs};
 use crate::control::config::ControlConfig;
+use crate::ports::PressureCodes;
 use crate::real::clamp_f32;
 use crate::safety::faults::{Fault, Reaction};
 use crate::sensing::differentiator::{Derivatives, SavitzkyGolay};
 use crate::sensing::encoder::{EncoderReading, PositionCounts, SinCosDecoder};
-use crate::sensing::pressure::{StuckConfig, StuckMonitor};
+use crate::sensing::pressure::{PressureSample, StuckConfig, StuckMonitor};
 use crate::sensing::quadrature::QuadratureCounter;
 use crate::units::{AdcCode, PerSection, Section, Ticks, CONTROL_PERIOD_US};
 
@@ -86,6 +87,70 @@ impl PressureMonitor {
     pub(super) fn usable(&self) -> bool {
         self.trusted && self.bad_cycles == 0
     }
+
+    /// One cycle's converted samples (chamber A, chamber B, suction, discharge): the valid
+    /// ones become the last seen.
+    #[inline]
+    pub(super) fn remember(&mut self, samples: [PressureSample; 4]) {
+        for (slot, sample) in self.last_pa.iter_mut().zip(samples) {
+            if let Some(p) = sample.valid() {
+                *slot = p;
+            }
+        }
+    }
+
+    /// Counts a cycle whose chamber samples were not both valid (`chambers_valid` false).
+    /// True once two cycles in a row had one (one glitch is tolerated): the sensor fault
+    /// ([`Fault::PressureSensor`]).
+    #[inline]
+    pub(super) fn count_invalid(&mut self, chambers_valid: bool) -> bool {
+        self.bad_cycles = if chambers_valid {
+            0
+        } else {
+            self.bad_cycles.saturating_add(1)
+        };
+        self.bad_cycles >= 2
+    }
+
+    /// A run starts: the stuck-sensor monitors judge its strokes afresh.
+    pub(super) fn restart_stroke_watch(&mut self) {
+        for m in &mut self.stuck {
+            m.reset();
+        }
+    }
+
+    /// One running cycle: every 8th, [`Self::check_follow_volume`] on the raw chamber codes
+    /// at the master position `position_m`, m. True when a chamber sensor is found stuck.
+    #[inline]
+    pub(super) fn watch_stroke(&mut self, codes: &PressureCodes, position_m: f32) -> bool {
+        self.stuck_cycles = self.stuck_cycles.wrapping_add(1);
+        if self.stuck_cycles & 7 == 0 {
+            self.check_follow_volume(codes, position_m)
+        } else {
+            false
+        }
+    }
+
+    /// The chamber pressures must follow the volume while the piston strokes: a reading that
+    /// stays flat over half a stroke each way is stuck (`pressure::StuckMonitor`), and from
+    /// then on neither chamber pressure feeds the control law. Called every 8th cycle, for
+    /// chamber A and B in turn (each every 0.8 ms: 3 mm of travel at 4 m/s, nothing next to
+    /// the 0.1 m the check needs) to keep the 20 kHz step cheap. True when one is found stuck
+    /// (the caller latches [`Fault::PressurePlausibility`]).
+    #[cold]
+    #[inline(never)]
+    fn check_follow_volume(&mut self, codes: &PressureCodes, position_m: f32) -> bool {
+        let (monitor, code) = if self.stuck_cycles & 8 == 0 {
+            (&mut self.stuck[0], codes.chamber_a)
+        } else {
+            (&mut self.stuck[1], codes.chamber_b)
+        };
+        if monitor.update(code, position_m) {
+            self.trusted = false;
+            return true;
+        }
+        false
+    }
 }
 
 /// What the sense stage found in one cycle.
@@ -157,17 +222,7 @@ impl ControlStep {
 
         let ps = cal.convert(inputs.pressures.suction);
         let pd = cal.convert(inputs.pressures.discharge);
-        for (slot, sample) in self
-            .sensing
-            .pressures
-            .last_pa
-            .iter_mut()
-            .zip([pa, pb, ps, pd])
-        {
-            if let Some(p) = sample.valid() {
-                *slot = p;
-            }
-        }
+        self.sensing.pressures.remember([pa, pb, ps, pd]);
 
         let count = self.sensing.quadrature.update(inputs.quadrature);
         self.rotary.servo.observe(count);
@@ -179,21 +234,17 @@ impl ControlStep {
 
         // Invalid pressure samples never reach the control law (the gas feed-forward above
         // falls back to zero); two in a row latch the fault (one glitch is tolerated).
-        let pressures_valid = pa.valid().is_some() && pb.valid().is_some();
-        self.sensing.pressures.bad_cycles = if pressures_valid {
-            0
-        } else {
-            self.sensing.pressures.bad_cycles.saturating_add(1)
-        };
-        if self.sensing.pressures.bad_cycles >= 2 {
+        let chambers_valid = pa.valid().is_some() && pb.valid().is_some();
+        if self.sensing.pressures.count_invalid(chambers_valid) {
             self.latch(Fault::PressureSensor);
         }
-        if self.running() {
-            self.sensing.pressures.stuck_cycles =
-                self.sensing.pressures.stuck_cycles.wrapping_add(1);
-            if self.sensing.pressures.stuck_cycles & 7 == 0 {
-                self.check_pressures_follow_volume(inputs, position_m);
-            }
+        if self.running()
+            && self
+                .sensing
+                .pressures
+                .watch_stroke(&inputs.pressures, position_m)
+        {
+            self.latch(Fault::PressurePlausibility);
         }
         Sensed {
             master,
@@ -363,31 +414,6 @@ impl ControlStep {
                     self.sensing.differentiator.push(reading.position);
                 }
             }
-        }
-    }
-
-    /// The chamber pressures must follow the volume while the piston strokes: a reading that
-    /// stays flat over half a stroke each way is stuck (`pressure::StuckMonitor`), and from
-    /// then on neither chamber pressure feeds the control law. Called every 8th cycle, for
-    /// chamber A and B in turn (each every 0.8 ms: 3 mm of travel at 4 m/s, nothing next to
-    /// the 0.1 m the check needs) to keep the 20 kHz step cheap.
-    #[cold]
-    #[inline(never)]
-    pub(super) fn check_pressures_follow_volume(&mut self, inputs: &CycleInputs, position_m: f32) {
-        let (monitor, code) = if self.sensing.pressures.stuck_cycles & 8 == 0 {
-            (
-                &mut self.sensing.pressures.stuck[0],
-                inputs.pressures.chamber_a,
-            )
-        } else {
-            (
-                &mut self.sensing.pressures.stuck[1],
-                inputs.pressures.chamber_b,
-            )
-        };
-        if monitor.update(code, position_m) {
-            self.sensing.pressures.trusted = false;
-            self.latch(Fault::PressurePlausibility);
         }
     }
 }
