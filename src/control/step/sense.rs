@@ -10,6 +10,7 @@ use crate::sensing::differentiator::{Derivatives, SavitzkyGolay};
 use crate::sensing::encoder::{EncoderReading, PositionCounts, SinCosDecoder};
 use crate::sensing::pressure::{PressureSample, StuckConfig, StuckMonitor};
 use crate::sensing::quadrature::QuadratureCounter;
+use crate::status::Status;
 use crate::units::{AdcCode, PerSection, Section, Ticks, CONTROL_PERIOD_US};
 
 /// The sense stage's state: both decoders, the differentiator, the rotation's counter, the
@@ -52,6 +53,55 @@ impl Sensing {
             lost_encoder: None,
             slave_offset_counts: PositionCounts::ZERO,
             pressures: PressureMonitor::new(),
+        }
+    }
+
+    /// The step missed cycles (`gap_us` since the last one): the encoders moved on
+    /// meanwhile, and their decoders expect one period per sample. Feed each decoder (and
+    /// the differentiator) the samples it missed as the last velocity predicts them, so the
+    /// real sample that follows is judged against where the piston now is, not rejected as
+    /// a jump. Up to 40 missed samples (2 ms); beyond that the extrapolation means nothing
+    /// and the decoders judge the new sample as they would after a glitch. `config` gives
+    /// the encoders and the period, `status` the last cycle's positions and velocity.
+    #[cold]
+    #[inline(never)]
+    pub(super) fn catch_up(&mut self, gap_us: i32, config: &ControlConfig, status: &Status) {
+        let period = CONTROL_PERIOD_US as i32;
+        let missed = ((gap_us + period / 2) / period - 1).clamp(0, 40) as u32;
+        let v = status.velocity_mps;
+        let zero = self.zero_raw_m.unwrap_or(0.0);
+        for section in Section::ALL {
+            let (encoder, decoder, raw_m) = match section {
+                Section::Master => (
+                    config.encoder_master,
+                    &mut self.encoders.master,
+                    status.position_m + zero,
+                ),
+                Section::Slave => (
+                    config.encoder_slave,
+                    &mut self.encoders.slave,
+                    status.slave_position_m + self.zero_slave_raw_m,
+                ),
+            };
+            // The last angle from the last position (its 20 fraction bits are the angle's top
+            // bits), and the step per period, in 2⁻³² periods (wrapping).
+            let counts = (raw_m / encoder.m_per_count()) as i32;
+            let mut angle = (counts as u32) << (32 - crate::sensing::encoder::POSITION_FRAC_BITS);
+            let turns = v * config.sample_time_s / encoder.period_m;
+            let step = (turns * 4_294_967_296.0) as i64 as u32;
+            for _ in 0..missed {
+                angle = angle.wrapping_add(step);
+                let theta_rad = angle as f32 * (core::f32::consts::TAU / 4_294_967_296.0);
+                let (s, c) = encoder.calibration.codes_at(theta_rad);
+                let code = |x: f32| AdcCode(clamp_f32(x + 0.5, 0.0, 4095.0) as u16);
+                let reading = decoder.update(crate::ports::SinCosCodes {
+                    sin: code(s),
+                    cos: code(c),
+                });
+                if section == Section::Master {
+                    self.differentiator.push(reading.position);
+                }
+            }
         }
     }
 }
@@ -188,7 +238,7 @@ impl ControlStep {
             let gap_us = t.since_us(last);
             if gap_us > (CONTROL_PERIOD_US * 3 / 2) as i32 {
                 self.latch(Fault::Deadline);
-                self.catch_up(gap_us);
+                self.sensing.catch_up(gap_us, &self.config, &self.status);
             }
         }
         self.sensing.last_t = Some(t);
@@ -366,54 +416,6 @@ impl ControlStep {
                 Reaction::Ss1
             }
             _ => Reaction::Sto,
-        }
-    }
-
-    /// The step missed cycles (`gap_us` since the last one): the encoders moved on
-    /// meanwhile, and their decoders expect one period per sample. Feed each decoder (and
-    /// the differentiator) the samples it missed as the last velocity predicts them, so the
-    /// real sample that follows is judged against where the piston now is, not rejected as
-    /// a jump. Up to 40 missed samples (2 ms); beyond that the extrapolation means nothing
-    /// and the decoders judge the new sample as they would after a glitch.
-    #[cold]
-    #[inline(never)]
-    pub(super) fn catch_up(&mut self, gap_us: i32) {
-        let period = CONTROL_PERIOD_US as i32;
-        let missed = ((gap_us + period / 2) / period - 1).clamp(0, 40) as u32;
-        let v = self.status.velocity_mps;
-        let zero = self.sensing.zero_raw_m.unwrap_or(0.0);
-        for section in Section::ALL {
-            let (config, decoder, raw_m) = match section {
-                Section::Master => (
-                    self.config.encoder_master,
-                    &mut self.sensing.encoders.master,
-                    self.status.position_m + zero,
-                ),
-                Section::Slave => (
-                    self.config.encoder_slave,
-                    &mut self.sensing.encoders.slave,
-                    self.status.slave_position_m + self.sensing.zero_slave_raw_m,
-                ),
-            };
-            // The last angle from the last position (its 20 fraction bits are the angle's top
-            // bits), and the step per period, in 2⁻³² periods (wrapping).
-            let counts = (raw_m / config.m_per_count()) as i32;
-            let mut angle = (counts as u32) << (32 - crate::sensing::encoder::POSITION_FRAC_BITS);
-            let turns = v * self.config.sample_time_s / config.period_m;
-            let step = (turns * 4_294_967_296.0) as i64 as u32;
-            for _ in 0..missed {
-                angle = angle.wrapping_add(step);
-                let theta_rad = angle as f32 * (core::f32::consts::TAU / 4_294_967_296.0);
-                let (s, c) = config.calibration.codes_at(theta_rad);
-                let code = |x: f32| AdcCode(clamp_f32(x + 0.5, 0.0, 4095.0) as u16);
-                let reading = decoder.update(crate::ports::SinCosCodes {
-                    sin: code(s),
-                    cos: code(c),
-                });
-                if section == Section::Master {
-                    self.sensing.differentiator.push(reading.position);
-                }
-            }
         }
     }
 }
