@@ -97,6 +97,13 @@ impl RotaryAxis {
         servo
     }
 
+    /// Whether the rotation turns at less than a quarter of its reference's speed.
+    #[cold]
+    #[inline(never)]
+    pub(super) fn stalled(&self) -> bool {
+        self.servo.velocity_rad_s().abs() < 0.25 * self.reference_speed_rad_s.abs()
+    }
+
     /// The measured rotation crossed the timed edge: in compressor mode the discharge of
     /// `chamber` just opened, and its pressure (from `last_pa`) now says whether it opened
     /// on time.
