@@ -132,7 +132,7 @@ impl ControlStep {
                     self.mode = Mode::Holding(Setpoint::at_rest(path.target_m()));
                 }
                 if venting {
-                    self.turn_to_vent(dt);
+                    self.rotary.turn_to_vent(&self.config.port_geometry, dt);
                 }
                 Some((sp, limit))
             }
@@ -188,7 +188,7 @@ impl ControlStep {
                                 self.config.park_position_m,
                                 self.config.park_speed_mps,
                             ),
-                            elapsed_s: self.vent_delay_s(),
+                            elapsed_s: self.rotary.vent_delay_s(&self.config.port_geometry),
                         },
                     };
                     if then == AfterStop::Off {
