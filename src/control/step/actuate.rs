@@ -10,8 +10,9 @@ use crate::drive::allocation::allocate;
 use crate::drive::servo::{RotarySetpoint, ServoController};
 use crate::motion::synchroniser::{Rotation, Synchroniser};
 use crate::motion::trajectory::Setpoint;
-use crate::motion::volume_ratio::VolumeRatio;
+use crate::motion::volume_ratio::{Chamber, VolumeRatio};
 use crate::physics::balance::PistonForces;
+use crate::physics::gas::GasProperties;
 use crate::physics::motor::Dq;
 use crate::real::clamp_f32;
 use crate::sensing::differentiator::Derivatives;
@@ -48,6 +49,82 @@ impl RotaryAxis {
             reference_speed_rad_s: 0.0,
             planned_discharge_pa: f32::NAN,
         }
+    }
+
+    /// The rotate stage: the servo follows the rotation reference (while running, the
+    /// synchroniser's, locked to `stroke`, the running stroke's setpoint; `None` in every
+    /// other mode), the timed port edge is watched, and the angles are kept within a few
+    /// turns of zero. `position_m`: the master position, m; `outputs_on`: the servo may
+    /// move (otherwise its reference follows the measured angle); `gas` and `last_pa` (the
+    /// last valid pressures, chamber A, B, suction, discharge, Pa) judge a discharge opening.
+    pub(super) fn rotate(
+        &mut self,
+        position_m: f32,
+        stroke: Option<&Setpoint>,
+        outputs_on: bool,
+        gas: &GasProperties<f32>,
+        last_pa: &[f32; 4],
+    ) -> DacCode {
+        let servo = if outputs_on {
+            let rotary = match stroke {
+                Some(sp) => {
+                    self.synchroniser
+                        .setpoint(position_m, sp.velocity_mps, sp.acceleration_mps2)
+                }
+                None => RotarySetpoint {
+                    angle_rad: self.reference_rad,
+                    ..RotarySetpoint::default()
+                },
+            };
+            self.reference_rad = rotary.angle_rad;
+            self.reference_speed_rad_s = rotary.velocity_rad_s;
+            if let Some(edge) = self.synchroniser.crossed(self.servo.angle_rad()) {
+                self.edge_crossed(edge.chamber, edge.rotation, gas, last_pa);
+            }
+            self.servo.control(&rotary)
+        } else {
+            self.reference_rad = self.servo.angle_rad();
+            self.servo.command(0.0)
+        };
+        // Keep the rotation angles within a few turns of zero (f32 resolution).
+        let turns = (self.reference_rad / core::f32::consts::TAU) as i32;
+        if turns.abs() >= 2 {
+            self.servo.rebase(turns);
+            self.synchroniser.rebase(turns);
+            self.reference_rad -= turns as f32 * core::f32::consts::TAU;
+            self.turns = self.turns.saturating_add(turns);
+        }
+        servo
+    }
+
+    /// Whether the rotation turns at less than a quarter of its reference's speed.
+    #[cold]
+    #[inline(never)]
+    pub(super) fn stalled(&self) -> bool {
+        self.servo.velocity_rad_s().abs() < 0.25 * self.reference_speed_rad_s.abs()
+    }
+
+    /// The measured rotation crossed the timed edge: in compressor mode the discharge of
+    /// `chamber` just opened, and its pressure (from `last_pa`) now says whether it opened
+    /// on time.
+    #[cold]
+    #[inline(never)]
+    fn edge_crossed(
+        &mut self,
+        chamber: Chamber,
+        rotation: Rotation,
+        gas: &GasProperties<f32>,
+        last_pa: &[f32; 4],
+    ) {
+        if rotation != Rotation::Compressor {
+            return;
+        }
+        let p = match chamber {
+            Chamber::A => last_pa[0],
+            Chamber::B => last_pa[1],
+        };
+        self.volume_ratio
+            .observe_opening(gas, chamber, p, self.planned_discharge_pa);
     }
 }
 
@@ -86,52 +163,6 @@ impl ControlStep {
             None if matches!(self.mode, Mode::Calibrating(_)) => None,
             None => self.outputs_off(inputs),
         }
-    }
-
-    /// The rotate stage: the servo follows the rotation reference (while running, the
-    /// synchroniser's, locked to the stroke), the timed port edge is watched, and the angles
-    /// are kept within a few turns of zero.
-    pub(super) fn rotate(
-        &mut self,
-        s: &Sensed,
-        setpoint: Option<(Setpoint, f32)>,
-        outputs_on: bool,
-    ) -> DacCode {
-        let servo = if outputs_on {
-            let rotary = match (&self.mode, setpoint) {
-                (Mode::Running(_), Some((sp, _))) => self.rotary.synchroniser.setpoint(
-                    s.position_m,
-                    sp.velocity_mps,
-                    sp.acceleration_mps2,
-                ),
-                _ => RotarySetpoint {
-                    angle_rad: self.rotary.reference_rad,
-                    ..RotarySetpoint::default()
-                },
-            };
-            self.rotary.reference_rad = rotary.angle_rad;
-            self.rotary.reference_speed_rad_s = rotary.velocity_rad_s;
-            if let Some(edge) = self
-                .rotary
-                .synchroniser
-                .crossed(self.rotary.servo.angle_rad())
-            {
-                self.edge_crossed(edge.chamber, edge.rotation);
-            }
-            self.rotary.servo.control(&rotary)
-        } else {
-            self.rotary.reference_rad = self.rotary.servo.angle_rad();
-            self.rotary.servo.command(0.0)
-        };
-        // Keep the rotation angles within a few turns of zero (f32 resolution).
-        let turns = (self.rotary.reference_rad / core::f32::consts::TAU) as i32;
-        if turns.abs() >= 2 {
-            self.rotary.servo.rebase(turns);
-            self.rotary.synchroniser.rebase(turns);
-            self.rotary.reference_rad -= turns as f32 * core::f32::consts::TAU;
-            self.rotary.turns = self.rotary.turns.saturating_add(turns);
-        }
-        servo
     }
 
     /// The forces the model knows besides the motors' and inertia: friction at the

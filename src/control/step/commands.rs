@@ -83,9 +83,7 @@ impl ControlStep {
                 self.begin_half(&generator);
                 self.mode = Mode::Running(generator);
                 // The plausibility of the chamber pressures is judged over running strokes.
-                for m in &mut self.sensing.pressures.stuck {
-                    m.reset();
-                }
+                self.sensing.pressures.restart_stroke_watch();
                 Ok(())
             }
             Command::SetSpeed { peak_speed_mps } => {

@@ -326,7 +326,17 @@ impl ControlStep {
         self.supervise(&sensed);
         let plan = self.plan(&sensed);
         let pwm = self.actuate(inputs, &sensed, plan);
-        let servo = self.rotate(&sensed, plan, pwm.is_some());
+        let stroke = match (&self.mode, &plan) {
+            (Mode::Running(_), Some((sp, _))) => Some(sp),
+            _ => None,
+        };
+        let servo = self.rotary.rotate(
+            sensed.position_m,
+            stroke,
+            pwm.is_some(),
+            &self.config.gas,
+            &self.sensing.pressures.last_pa,
+        );
         self.publish(inputs.t, &sensed);
         let sections = self.sections_in_service();
         let pwm = if matches!(self.mode, Mode::Calibrating(_)) {

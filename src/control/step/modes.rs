@@ -8,7 +8,6 @@ use crate::control::calibration::Calibration;
 use crate::motion::stroke::StrokeGenerator;
 use crate::motion::synchroniser::{Rotation, Synchroniser};
 use crate::motion::trajectory::{PointToPoint, Setpoint};
-use crate::motion::volume_ratio::Chamber;
 use crate::real::{clamp_f32, max_f32};
 use crate::safety::faults::Fault;
 use crate::safety::supervisor::LimitFlags;
@@ -133,7 +132,7 @@ impl ControlStep {
                     self.mode = Mode::Holding(Setpoint::at_rest(path.target_m()));
                 }
                 if venting {
-                    self.turn_to_vent(dt);
+                    self.rotary.turn_to_vent(&self.config.port_geometry, dt);
                 }
                 Some((sp, limit))
             }
@@ -189,7 +188,7 @@ impl ControlStep {
                                 self.config.park_position_m,
                                 self.config.park_speed_mps,
                             ),
-                            elapsed_s: self.vent_delay_s(),
+                            elapsed_s: self.rotary.vent_delay_s(&self.config.port_geometry),
                         },
                     };
                     if then == AfterStop::Off {
@@ -331,25 +330,6 @@ impl ControlStep {
             to,
             edge,
             self.rotary.reference_rad,
-        );
-    }
-
-    /// The measured rotation crossed the timed edge: in compressor mode the discharge of
-    /// `chamber` just opened, and its pressure now says whether it opened on time.
-    pub(super) fn edge_crossed(&mut self, chamber: Chamber, rotation: Rotation) {
-        if rotation != Rotation::Compressor {
-            return;
-        }
-        let [a, b, _, _] = self.sensing.pressures.last_pa;
-        let p = match chamber {
-            Chamber::A => a,
-            Chamber::B => b,
-        };
-        self.rotary.volume_ratio.observe_opening(
-            &self.config.gas,
-            chamber,
-            p,
-            self.rotary.planned_discharge_pa,
         );
     }
 }

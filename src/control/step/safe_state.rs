@@ -6,11 +6,12 @@
 //! dispatches its reaction here ([`ControlStep::react`]); the mode machine (`modes.rs`) runs
 //! the controlled stop these reactions start.
 
+use super::actuate::RotaryAxis;
 use super::modes::{turn_phase, AfterStop, Mode};
 use super::{ControlStep, CycleInputs};
 use crate::control::config::ControlConfig;
 use crate::motion::trajectory::Setpoint;
-use crate::physics::port_timing::PortWindow;
+use crate::physics::port_timing::{PortGeometry, PortWindow};
 use crate::real::{clamp_f32, max_f32, min_f32, sqrt_f32};
 use crate::safety::faults::Fault;
 use crate::units::{PerSection, PhaseDuties};
@@ -355,14 +356,17 @@ impl ControlStep {
             then: AfterStop::Off,
         };
     }
+}
 
+/// The park's turn of the rotation to a phase where both chambers vent (the rotary state
+/// it moves, the port geometry as an argument).
+impl RotaryAxis {
     /// The nearest phase where both chambers breathe
     /// ([`crate::physics::port_timing::PortGeometry::venting_phases_rad`]), as a turn of the
     /// rotation from the current reference, rad in [−π, π); `None` for a geometry without one.
-    pub(super) fn vent_turn_rad(&self) -> Option<f32> {
-        let phase = turn_phase(self.rotary.reference_rad);
-        self.config
-            .port_geometry
+    fn vent_turn_rad(&self, geometry: &PortGeometry<f32>) -> Option<f32> {
+        let phase = turn_phase(self.reference_rad);
+        geometry
             .venting_phases_rad()
             .iter()
             .flatten()
@@ -379,8 +383,8 @@ impl ControlStep {
     /// pressure sensors' range; 0 for a geometry with no such phase.
     #[cold]
     #[inline(never)]
-    pub(super) fn vent_delay_s(&self) -> f32 {
-        match self.vent_turn_rad() {
+    pub(super) fn vent_delay_s(&self, geometry: &PortGeometry<f32>) -> f32 {
+        match self.vent_turn_rad(geometry) {
             Some(_) => -VENT_TIME_S,
             None => 0.0,
         }
@@ -391,10 +395,10 @@ impl ControlStep {
     /// the nearest as the reference approaches it).
     #[cold]
     #[inline(never)]
-    pub(super) fn turn_to_vent(&mut self, dt: f32) {
-        if let Some(d) = self.vent_turn_rad() {
+    pub(super) fn turn_to_vent(&mut self, geometry: &PortGeometry<f32>, dt: f32) {
+        if let Some(d) = self.vent_turn_rad(geometry) {
             let step = VENT_SPEED_RAD_S * dt;
-            self.rotary.reference_rad += clamp_f32(d, -step, step);
+            self.reference_rad += clamp_f32(d, -step, step);
         }
     }
 }
@@ -402,7 +406,6 @@ impl ControlStep {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::physics::port_timing::PortGeometry;
 
     /// The same time found by stepping the motion through time: the angle at full
     /// acceleration toward the turn from the speed now, and whether it is in the window,

@@ -3,12 +3,14 @@
 
 use super::{ControlStep, CycleInputs};
 use crate::control::config::ControlConfig;
+use crate::ports::PressureCodes;
 use crate::real::clamp_f32;
 use crate::safety::faults::{Fault, Reaction};
 use crate::sensing::differentiator::{Derivatives, SavitzkyGolay};
 use crate::sensing::encoder::{EncoderReading, PositionCounts, SinCosDecoder};
-use crate::sensing::pressure::{StuckConfig, StuckMonitor};
+use crate::sensing::pressure::{PressureSample, StuckConfig, StuckMonitor};
 use crate::sensing::quadrature::QuadratureCounter;
+use crate::status::Status;
 use crate::units::{AdcCode, PerSection, Section, Ticks, CONTROL_PERIOD_US};
 
 /// The sense stage's state: both decoders, the differentiator, the rotation's counter, the
@@ -53,6 +55,55 @@ impl Sensing {
             pressures: PressureMonitor::new(),
         }
     }
+
+    /// The step missed cycles (`gap_us` since the last one): the encoders moved on
+    /// meanwhile, and their decoders expect one period per sample. Feed each decoder (and
+    /// the differentiator) the samples it missed as the last velocity predicts them, so the
+    /// real sample that follows is judged against where the piston now is, not rejected as
+    /// a jump. Up to 40 missed samples (2 ms); beyond that the extrapolation means nothing
+    /// and the decoders judge the new sample as they would after a glitch. `config` gives
+    /// the encoders and the period, `status` the last cycle's positions and velocity.
+    #[cold]
+    #[inline(never)]
+    pub(super) fn catch_up(&mut self, gap_us: i32, config: &ControlConfig, status: &Status) {
+        let period = CONTROL_PERIOD_US as i32;
+        let missed = ((gap_us + period / 2) / period - 1).clamp(0, 40) as u32;
+        let v = status.velocity_mps;
+        let zero = self.zero_raw_m.unwrap_or(0.0);
+        for section in Section::ALL {
+            let (encoder, decoder, raw_m) = match section {
+                Section::Master => (
+                    config.encoder_master,
+                    &mut self.encoders.master,
+                    status.position_m + zero,
+                ),
+                Section::Slave => (
+                    config.encoder_slave,
+                    &mut self.encoders.slave,
+                    status.slave_position_m + self.zero_slave_raw_m,
+                ),
+            };
+            // The last angle from the last position (its 20 fraction bits are the angle's top
+            // bits), and the step per period, in 2⁻³² periods (wrapping).
+            let counts = (raw_m / encoder.m_per_count()) as i32;
+            let mut angle = (counts as u32) << (32 - crate::sensing::encoder::POSITION_FRAC_BITS);
+            let turns = v * config.sample_time_s / encoder.period_m;
+            let step = (turns * 4_294_967_296.0) as i64 as u32;
+            for _ in 0..missed {
+                angle = angle.wrapping_add(step);
+                let theta_rad = angle as f32 * (core::f32::consts::TAU / 4_294_967_296.0);
+                let (s, c) = encoder.calibration.codes_at(theta_rad);
+                let code = |x: f32| AdcCode(clamp_f32(x + 0.5, 0.0, 4095.0) as u16);
+                let reading = decoder.update(crate::ports::SinCosCodes {
+                    sin: code(s),
+                    cos: code(c),
+                });
+                if section == Section::Master {
+                    self.differentiator.push(reading.position);
+                }
+            }
+        }
+    }
 }
 
 /// The chamber and line pressures as last seen valid, and whether they may still be used.
@@ -85,6 +136,70 @@ impl PressureMonitor {
     /// The chamber pressures may be used: not found stuck, and this cycle's sample valid.
     pub(super) fn usable(&self) -> bool {
         self.trusted && self.bad_cycles == 0
+    }
+
+    /// One cycle's converted samples (chamber A, chamber B, suction, discharge): the valid
+    /// ones become the last seen.
+    #[inline]
+    pub(super) fn remember(&mut self, samples: [PressureSample; 4]) {
+        for (slot, sample) in self.last_pa.iter_mut().zip(samples) {
+            if let Some(p) = sample.valid() {
+                *slot = p;
+            }
+        }
+    }
+
+    /// Counts a cycle whose chamber samples were not both valid (`chambers_valid` false).
+    /// True once two cycles in a row had one (one glitch is tolerated): the sensor fault
+    /// ([`Fault::PressureSensor`]).
+    #[inline]
+    pub(super) fn count_invalid(&mut self, chambers_valid: bool) -> bool {
+        self.bad_cycles = if chambers_valid {
+            0
+        } else {
+            self.bad_cycles.saturating_add(1)
+        };
+        self.bad_cycles >= 2
+    }
+
+    /// A run starts: the stuck-sensor monitors judge its strokes afresh.
+    pub(super) fn restart_stroke_watch(&mut self) {
+        for m in &mut self.stuck {
+            m.reset();
+        }
+    }
+
+    /// One running cycle: every 8th, [`Self::check_follow_volume`] on the raw chamber codes
+    /// at the master position `position_m`, m. True when a chamber sensor is found stuck.
+    #[inline]
+    pub(super) fn watch_stroke(&mut self, codes: &PressureCodes, position_m: f32) -> bool {
+        self.stuck_cycles = self.stuck_cycles.wrapping_add(1);
+        if self.stuck_cycles & 7 == 0 {
+            self.check_follow_volume(codes, position_m)
+        } else {
+            false
+        }
+    }
+
+    /// The chamber pressures must follow the volume while the piston strokes: a reading that
+    /// stays flat over half a stroke each way is stuck (`pressure::StuckMonitor`), and from
+    /// then on neither chamber pressure feeds the control law. Called every 8th cycle, for
+    /// chamber A and B in turn (each every 0.8 ms: 3 mm of travel at 4 m/s, nothing next to
+    /// the 0.1 m the check needs) to keep the 20 kHz step cheap. True when one is found stuck
+    /// (the caller latches [`Fault::PressurePlausibility`]).
+    #[cold]
+    #[inline(never)]
+    fn check_follow_volume(&mut self, codes: &PressureCodes, position_m: f32) -> bool {
+        let (monitor, code) = if self.stuck_cycles & 8 == 0 {
+            (&mut self.stuck[0], codes.chamber_a)
+        } else {
+            (&mut self.stuck[1], codes.chamber_b)
+        };
+        if monitor.update(code, position_m) {
+            self.trusted = false;
+            return true;
+        }
+        false
     }
 }
 
@@ -123,7 +238,7 @@ impl ControlStep {
             let gap_us = t.since_us(last);
             if gap_us > (CONTROL_PERIOD_US * 3 / 2) as i32 {
                 self.latch(Fault::Deadline);
-                self.catch_up(gap_us);
+                self.sensing.catch_up(gap_us, &self.config, &self.status);
             }
         }
         self.sensing.last_t = Some(t);
@@ -157,17 +272,7 @@ impl ControlStep {
 
         let ps = cal.convert(inputs.pressures.suction);
         let pd = cal.convert(inputs.pressures.discharge);
-        for (slot, sample) in self
-            .sensing
-            .pressures
-            .last_pa
-            .iter_mut()
-            .zip([pa, pb, ps, pd])
-        {
-            if let Some(p) = sample.valid() {
-                *slot = p;
-            }
-        }
+        self.sensing.pressures.remember([pa, pb, ps, pd]);
 
         let count = self.sensing.quadrature.update(inputs.quadrature);
         self.rotary.servo.observe(count);
@@ -179,21 +284,17 @@ impl ControlStep {
 
         // Invalid pressure samples never reach the control law (the gas feed-forward above
         // falls back to zero); two in a row latch the fault (one glitch is tolerated).
-        let pressures_valid = pa.valid().is_some() && pb.valid().is_some();
-        self.sensing.pressures.bad_cycles = if pressures_valid {
-            0
-        } else {
-            self.sensing.pressures.bad_cycles.saturating_add(1)
-        };
-        if self.sensing.pressures.bad_cycles >= 2 {
+        let chambers_valid = pa.valid().is_some() && pb.valid().is_some();
+        if self.sensing.pressures.count_invalid(chambers_valid) {
             self.latch(Fault::PressureSensor);
         }
-        if self.running() {
-            self.sensing.pressures.stuck_cycles =
-                self.sensing.pressures.stuck_cycles.wrapping_add(1);
-            if self.sensing.pressures.stuck_cycles & 7 == 0 {
-                self.check_pressures_follow_volume(inputs, position_m);
-            }
+        if self.running()
+            && self
+                .sensing
+                .pressures
+                .watch_stroke(&inputs.pressures, position_m)
+        {
+            self.latch(Fault::PressurePlausibility);
         }
         Sensed {
             master,
@@ -315,79 +416,6 @@ impl ControlStep {
                 Reaction::Ss1
             }
             _ => Reaction::Sto,
-        }
-    }
-
-    /// The step missed cycles (`gap_us` since the last one): the encoders moved on
-    /// meanwhile, and their decoders expect one period per sample. Feed each decoder (and
-    /// the differentiator) the samples it missed as the last velocity predicts them, so the
-    /// real sample that follows is judged against where the piston now is, not rejected as
-    /// a jump. Up to 40 missed samples (2 ms); beyond that the extrapolation means nothing
-    /// and the decoders judge the new sample as they would after a glitch.
-    #[cold]
-    #[inline(never)]
-    pub(super) fn catch_up(&mut self, gap_us: i32) {
-        let period = CONTROL_PERIOD_US as i32;
-        let missed = ((gap_us + period / 2) / period - 1).clamp(0, 40) as u32;
-        let v = self.status.velocity_mps;
-        let zero = self.sensing.zero_raw_m.unwrap_or(0.0);
-        for section in Section::ALL {
-            let (config, decoder, raw_m) = match section {
-                Section::Master => (
-                    self.config.encoder_master,
-                    &mut self.sensing.encoders.master,
-                    self.status.position_m + zero,
-                ),
-                Section::Slave => (
-                    self.config.encoder_slave,
-                    &mut self.sensing.encoders.slave,
-                    self.status.slave_position_m + self.sensing.zero_slave_raw_m,
-                ),
-            };
-            // The last angle from the last position (its 20 fraction bits are the angle's top
-            // bits), and the step per period, in 2⁻³² periods (wrapping).
-            let counts = (raw_m / config.m_per_count()) as i32;
-            let mut angle = (counts as u32) << (32 - crate::sensing::encoder::POSITION_FRAC_BITS);
-            let turns = v * self.config.sample_time_s / config.period_m;
-            let step = (turns * 4_294_967_296.0) as i64 as u32;
-            for _ in 0..missed {
-                angle = angle.wrapping_add(step);
-                let theta_rad = angle as f32 * (core::f32::consts::TAU / 4_294_967_296.0);
-                let (s, c) = config.calibration.codes_at(theta_rad);
-                let code = |x: f32| AdcCode(clamp_f32(x + 0.5, 0.0, 4095.0) as u16);
-                let reading = decoder.update(crate::ports::SinCosCodes {
-                    sin: code(s),
-                    cos: code(c),
-                });
-                if section == Section::Master {
-                    self.sensing.differentiator.push(reading.position);
-                }
-            }
-        }
-    }
-
-    /// The chamber pressures must follow the volume while the piston strokes: a reading that
-    /// stays flat over half a stroke each way is stuck (`pressure::StuckMonitor`), and from
-    /// then on neither chamber pressure feeds the control law. Called every 8th cycle, for
-    /// chamber A and B in turn (each every 0.8 ms: 3 mm of travel at 4 m/s, nothing next to
-    /// the 0.1 m the check needs) to keep the 20 kHz step cheap.
-    #[cold]
-    #[inline(never)]
-    pub(super) fn check_pressures_follow_volume(&mut self, inputs: &CycleInputs, position_m: f32) {
-        let (monitor, code) = if self.sensing.pressures.stuck_cycles & 8 == 0 {
-            (
-                &mut self.sensing.pressures.stuck[0],
-                inputs.pressures.chamber_a,
-            )
-        } else {
-            (
-                &mut self.sensing.pressures.stuck[1],
-                inputs.pressures.chamber_b,
-            )
-        };
-        if monitor.update(code, position_m) {
-            self.sensing.pressures.trusted = false;
-            self.latch(Fault::PressurePlausibility);
         }
     }
 }

@@ -49,7 +49,7 @@ impl ControlStep {
         // cheap).
         let rotation_stalled = rotation_error_rad.abs()
             > self.config.supervisor.rotation_stall_error_rad
-            && self.rotation_stalled();
+            && self.rotary.stalled();
         let observation = Observation {
             dt_s: dt,
             homed,
@@ -128,12 +128,5 @@ impl ControlStep {
                 self.await_velocity_then_brake();
             }
         }
-    }
-
-    /// Whether the rotation turns at less than a quarter of its reference's speed.
-    #[cold]
-    #[inline(never)]
-    pub(super) fn rotation_stalled(&self) -> bool {
-        self.rotary.servo.velocity_rad_s().abs() < 0.25 * self.rotary.reference_speed_rad_s.abs()
     }
 }
