@@ -21,4 +21,9 @@ pub mod chip;
 pub mod elf;
 pub mod log;
 pub mod rtt;
+pub mod run;
+pub mod session;
 pub mod time;
+
+/// Clock cycles per instruction assumed for emulated time (see `pil/README.md`).
+pub const DEFAULT_CPI: f64 = 1.5;

@@ -10,6 +10,8 @@ pub struct DefmtLog {
     pub lines: Vec<(f64, String)>,
     /// Frames that did not decode.
     pub malformed: usize,
+    /// Lines a reader has already looked at (its own bookmark).
+    pub seen: usize,
 }
 
 impl DefmtLog {
@@ -25,6 +27,7 @@ impl DefmtLog {
             decoder: table.new_stream_decoder(),
             lines: Vec::new(),
             malformed: 0,
+            seen: 0,
         })
     }
 

@@ -1,82 +1,156 @@
-//! `fpc-pil`: see the library's documentation.
+//! `fpc-pil`: the release firmware ELF in an emulated STM32G474, closed-loop on the
+//! `hal-sim` plant (see the library's documentation and `pil/README.md`).
+//!
+//! `fpc-pil run --elf PATH [--cycles N] [--model M] [--json] [--out DIR]`: the main job's
+//! scenario; prints `fpc-sim run --json`'s summary with the instruction figures and the
+//! position difference to the host build, writes `run.csv` and the plots to `--out`.
 
 use std::path::PathBuf;
+use std::process::ExitCode;
 
-use fpc_pil::board::Board;
-use fpc_pil::chip::{Chip, ChipOptions};
+use clap::{Parser, Subcommand};
+use fpc_pil::chip::ChipOptions;
 use fpc_pil::elf::Image;
+use fpc_pil::run::{run, PilOptions};
+use hal_sim::plant::model::MachineModel;
+use hal_sim::run::RunOptions;
 
-fn main() {
-    let elf = std::env::args()
-        .nth(1)
-        .map(PathBuf::from)
-        .unwrap_or_else(|| "target/thumbv7em-none-eabihf/release/fpc".into());
-    let image = Image::read(&elf).unwrap();
-    let world = hal_sim::run::world(
-        &hal_sim::plant::model::MachineModel::reference(),
-        1,
-        0,
-        0.005,
+#[derive(Parser)]
+#[command(
+    name = "fpc-pil",
+    version,
+    about = "The release firmware ELF in an emulated STM32G474, closed-loop on the simulated plant"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// The main job's scenario on the ELF: boot with the calibration in flash, home, start
+    /// over RTT, N cycles; the same JSON as `fpc-sim run --json` and the PIL's figures.
+    Run(RunArgs),
+}
+
+#[derive(clap::Args)]
+struct RunArgs {
+    /// The firmware ELF (`cargo fw` builds target/thumbv7em-none-eabihf/release/fpc).
+    #[arg(long)]
+    elf: PathBuf,
+    /// Compression cycles.
+    #[arg(long, default_value_t = 10)]
+    cycles: u32,
+    /// Machine-model TOML (default: the embedded reference machine).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// Pressure ratio (the peak speed follows it as in `fpc-sim run`).
+    #[arg(long, default_value_t = 3.1)]
+    pressure_ratio: f64,
+    /// Noise seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Clock cycles per instruction for the emulated time and the µs figure.
+    #[arg(long, default_value_t = fpc_pil::DEFAULT_CPI)]
+    cpi: f64,
+    /// Directory for run.csv and the plots (created; default: no files).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Skip the host-build run (no position_rms_diff_vs_host_m).
+    #[arg(long)]
+    no_host: bool,
+    /// Print the JSON summary on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Cmd::Run(args) => run_cmd(args),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("fpc-pil: {e}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
+    let image = Image::read(&args.elf)?;
+    let (model, model_name) = match &args.model {
+        Some(p) => (
+            MachineModel::read(p).map_err(|e| e.0)?,
+            p.display().to_string(),
+        ),
+        None => (MachineModel::reference(), "reference".into()),
+    };
+    if !(args.cpi.is_finite() && (0.5..=5.0).contains(&args.cpi)) {
+        return Err(format!("--cpi {}: must be within [0.5, 5]", args.cpi));
+    }
+    let run_opts = RunOptions {
+        model,
+        model_name,
+        pressure_ratio: args.pressure_ratio,
+        cycles: args.cycles,
+        seed: args.seed,
+        ..RunOptions::reference()
+    };
+    run_opts.validate()?;
+    let opts = PilOptions {
+        image,
+        run: run_opts,
+        chip: ChipOptions {
+            cpi: args.cpi,
+            ..ChipOptions::default()
+        },
+        compare_with_host: !args.no_host,
+    };
+    let mut file = match &args.out {
+        Some(dir) => {
+            std::fs::create_dir_all(dir).map_err(|e| format!("--out {}: {e}", dir.display()))?;
+            let path = dir.join("run.csv");
+            Some(std::io::BufWriter::new(
+                std::fs::File::create(&path).map_err(|e| format!("{}: {e}", path.display()))?,
+            ))
+        }
+        None => None,
+    };
+    let outcome = run(&opts, file.as_mut().map(|f| f as &mut dyn std::io::Write))?;
+    drop(file);
+    if let Some(dir) = &args.out {
+        use hal_sim::cli::run::{plot_energy, plot_motion, plot_pv};
+        plot_motion(&dir.join("motion.svg"), &outcome.outcome.log)?;
+        plot_pv(&dir.join("pv.svg"), &outcome.outcome.log)?;
+        plot_energy(&dir.join("energy.svg"), &outcome.outcome)?;
+    }
+    let s = &outcome.summary;
+    let mm = |v: Option<f64>| v.map_or("n/a".into(), |m| format!("{:.3} mm", m * 1e3));
+    eprintln!(
+        "fpc-pil run: {} cycles in {:.3} s emulated ({:.1} s wall), state {}, min head clearance {}, \
+         dead-point error {}, faults [{}]; interrupt path {:.0} instructions per cycle mean, {} max \
+         ({:.1} µs at 170 MHz, CPI {}); position RMS difference to the host build {}",
+        s.run.cycles,
+        s.run.sim_time_s,
+        s.pil_wall_time_s,
+        s.run.state,
+        mm(s.run.min_head_clearance_m),
+        mm(s.run.dead_point_error_m),
+        s.run.faults.join(", "),
+        s.instructions_per_cycle_mean,
+        s.instructions_per_cycle_max,
+        s.worst_cycle_us,
+        s.cpi,
+        s.position_rms_diff_vs_host_m
+            .map_or("n/a".into(), |v| format!("{:.2} µm", v * 1e6)),
     );
-    let mut log = fpc_pil::log::DefmtLog::new(&image.bytes).unwrap();
-    let rtt_base = image.symbol("_SEGGER_RTT").unwrap();
-    let mut chip = Chip::new(image, Board::new(world), ChipOptions::default()).unwrap();
-    chip.boot().unwrap();
-    let t0 = std::time::Instant::now();
-    let mut rtt = None;
-    for k in 0..20000 {
-        if let Err(e) = chip.run_period() {
-            eprintln!("error at period {k}: {e} pc {:#x}", chip.pc());
-            break;
-        }
-        if rtt.is_none() {
-            rtt = fpc_pil::rtt::Rtt::attach(&chip, rtt_base).unwrap();
-        }
-        if let Some(r) = rtt {
-            let mut b = Vec::new();
-            r.read_up(&mut chip, 0, &mut b).unwrap();
-            let t = chip.time_s();
-            log.push(t, &b);
-        }
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(s).map_err(|e| e.to_string())?
+        );
     }
-    {
-        let soc = chip.soc();
-        println!(
-            "pending {:?}",
-            (0..118)
-                .filter(|&n| soc.nvic.pending[n])
-                .collect::<Vec<_>>()
-        );
-        println!(
-            "enabled {:?}",
-            (0..118)
-                .filter(|&n| soc.nvic.enabled[n])
-                .collect::<Vec<_>>()
-        );
-        println!(
-            "active {:?}",
-            (0..118).filter(|&n| soc.nvic.active[n]).collect::<Vec<_>>()
-        );
-        println!(
-            "prio {:?}",
-            (16..118)
-                .filter(|&n| soc.nvic.priority[n] != 0)
-                .map(|n| (n - 16, soc.nvic.priority[n]))
-                .collect::<Vec<_>>()
-        );
-        println!("sleeping {} event {}", soc.sleeping, soc.event);
-    }
-    for (t, l) in &log.lines {
-        println!("{t:.6} {l}");
-    }
-    let soc = chip.soc();
-    println!(
-        "t {:.4} s, {} instructions, pc {:#x}, ipsr {}, resets {:?}, wall {:?}",
-        fpc_pil::time::seconds(soc.time),
-        soc.instructions,
-        0,
-        soc.ipsr,
-        soc.resets,
-        t0.elapsed()
-    );
+    Ok(ExitCode::SUCCESS)
 }

@@ -154,6 +154,8 @@ struct Metrics {
     force_diff_sq: f64,
     force_diff_n: u64,
     faults: Vec<Fault>,
+    /// The homing command went out.
+    home_sent: bool,
 }
 
 /// Runs the simulation; the whole run log is kept in [`RunOutcome::log`].
@@ -173,9 +175,48 @@ pub fn run_streamed(opts: &RunOptions, csv: &mut dyn Write) -> Result<RunOutcome
 
 fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome, String> {
     opts.validate()?;
-    let model = &opts.model;
-    let speed = opts.peak_speed_mps();
-    let mut config = control_config(model);
+    let config = run_config(opts);
+    let mut injector = Injector::new(&opts.faults, &config, opts.seed);
+    let heartbeat_timeout_s = config.heartbeat_timeout_s;
+    let mut world = world(
+        &opts.model,
+        opts.seed,
+        injector.start_us(opts.start_us),
+        injector.start_position_m(opts.start_position_m),
+    );
+    injector.prepare(&mut world);
+    world.telemetry.decimation = opts.telemetry_decimation;
+    world.plant.lines.set_pressure_ratio(opts.pressure_ratio);
+    let mut driver = RunDriver::new(opts, &config, "fpc-sim run", csv);
+
+    // The board's independent watchdog runs as on the MCU (only a hung task starves it).
+    let execution = Execution {
+        watchdog_timeout_us: Some(opts.watchdog_timeout_us),
+        flash: opts
+            .calibration
+            .as_ref()
+            .map(crate::board::flash::holding)
+            .transpose()?,
+        ..Execution::default()
+    };
+    let each_cycle = |w: &mut World, shared: &SimShared, exec: &mut Execution| {
+        let injected = if injector.is_empty() {
+            None
+        } else {
+            injector.step(w, shared, exec);
+            Some(injector.finished(w.time_us(), heartbeat_timeout_s))
+        };
+        let mut link = shared;
+        driver.cycle(w, &mut link, true, injected)
+    };
+    let (world, _) = simulate_board(world, config, execution, each_cycle);
+    driver.finish(world, injector.report().clone())
+}
+
+/// The controller configuration of a run: the model's, with the options' changes (a stored
+/// calibration replaces the model's true cogging map; `model_error`; `configure`).
+pub fn run_config(opts: &RunOptions) -> fpc::control::config::ControlConfig {
+    let mut config = control_config(&opts.model);
     if opts.calibration.is_some() {
         // Not the model's truth: the firmware loads the stored map from its flash at boot.
         config.allocation.cogging = fpc::physics::cogging::HarmonicMap::none();
@@ -189,75 +230,128 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     if let Some(configure) = opts.configure {
         configure(&mut config);
     }
-    let mut actions = opts.schedule.clone();
-    actions.sort_by_key(|(cycle, _)| *cycle);
-    let mut actions = actions.into_iter().peekable();
-    let dead_a = f64::from(config.target_clearance_m);
-    let dead_b = f64::from(config.travel_m - config.target_clearance_m);
-    let mut injector = Injector::new(&opts.faults, &config, opts.seed);
-    let heartbeat_timeout_s = config.heartbeat_timeout_s;
-    let mut world = world(
-        model,
-        opts.seed,
-        injector.start_us(opts.start_us),
-        injector.start_position_m(opts.start_position_m),
-    );
-    injector.prepare(&mut world);
-    world.telemetry.decimation = opts.telemetry_decimation;
-    world.plant.lines.set_pressure_ratio(opts.pressure_ratio);
+    config
+}
 
-    let mut log = RunLog::with_columns(&COLUMNS);
-    log.meta.push(("source".into(), "fpc-sim run".into()));
-    log.meta
-        .push(("sample_rate_hz".into(), opts.log_rate_hz.to_string()));
-    log.meta.push(("model".into(), opts.model_name.clone()));
-    log.meta.push(("seed".into(), opts.seed.to_string()));
-    log.meta
-        .push(("volume_ratio".into(), volume_ratio_name(opts.volume_ratio)));
-    log.meta.push((
-        "force_delay_s".into(),
-        format!("{FIRMWARE_FORCE_DELAY_S:e}"),
-    ));
+/// The host's side of a board running the firmware, as [`RunDriver`] uses it: the status as
+/// the host last saw it, and the command channel.
+pub trait HostLink {
+    /// The firmware's status as last seen.
+    fn status(&self) -> Status;
+    /// Sends a command; false if the channel refused it (full).
+    fn post_command(&mut self, command: Command) -> bool;
+}
 
-    let mut phase = Phase::Homing;
-    let mut metrics = Metrics::default();
-    let mut cycles_done = 0u32;
-    let limit_s = opts.time_limit_s();
-    // Each stage must finish in its own time (no waiting out the whole run's limit when
-    // homing or a cycle stalls) until the first injected fault begins; after it, the
-    // injector decides when the outcome is known.
-    let first_fault_s = opts
-        .faults
-        .iter()
-        .map(|f| f.at_s)
-        .fold(f64::INFINITY, f64::min);
-    let mut stage_deadline_s = opts.homing_limit_s();
-    let mut stop_reason: Option<String> = None;
-    let mut capture = Capture::new(limit_s, csv, &log);
-    // One row every `log_stride` control cycles (`--log-rate`; checked to divide evenly).
-    let log_stride = u64::from((CONTROL_RATE_HZ / opts.log_rate_hz.max(1)).max(1));
-    // The mode of the last status seen (what the summary's `state` names).
-    let mut last_mode = Status::INIT.mode;
-    let started = Instant::now();
+impl HostLink for &SimShared {
+    fn status(&self) -> Status {
+        SimShared::status(self)
+    }
+    fn post_command(&mut self, command: Command) -> bool {
+        SimShared::post_command(self, command).is_ok()
+    }
+}
 
-    // The board's independent watchdog runs as on the MCU (only a hung task starves it).
-    let execution = Execution {
-        watchdog_timeout_us: Some(opts.watchdog_timeout_us),
-        flash: opts
-            .calibration
-            .as_ref()
-            .map(crate::board::flash::holding)
-            .transpose()?,
-        ..Execution::default()
-    };
-    let each_cycle = |w: &mut World, shared: &SimShared, exec: &mut Execution| {
-        if !injector.is_empty() {
-            injector.step(w, shared, exec);
+/// The operator of a run and its bookkeeping, one control period at a time: homes the
+/// axis, closes the bypass, starts the strokes, counts cycles, stops; collects the figures
+/// and the run log. `fpc-sim run` drives it with the host build of the firmware on the
+/// simulated board; `fpc-pil` with the release ELF in an emulated MCU.
+pub struct RunDriver<'o, 's> {
+    opts: &'o RunOptions,
+    speed: f64,
+    actions: std::iter::Peekable<std::vec::IntoIter<(u32, HostAction)>>,
+    dead_a: f64,
+    dead_b: f64,
+    log: RunLog,
+    phase: Phase,
+    metrics: Metrics,
+    cycles_done: u32,
+    limit_s: f64,
+    first_fault_s: f64,
+    stage_deadline_s: f64,
+    stop_reason: Option<String>,
+    capture: Capture<'s>,
+    log_stride: u64,
+    last_mode: fpc::status::ModeKind,
+    started: Instant,
+}
+
+impl<'o, 's> RunDriver<'o, 's> {
+    /// A run of `opts` with the controller `config`, its log's `source` named so, streamed to
+    /// `csv` if given.
+    pub fn new(
+        opts: &'o RunOptions,
+        config: &fpc::control::config::ControlConfig,
+        source: &str,
+        csv: Option<&'s mut dyn Write>,
+    ) -> Self {
+        let mut actions = opts.schedule.clone();
+        actions.sort_by_key(|(cycle, _)| *cycle);
+        let mut log = RunLog::with_columns(&COLUMNS);
+        log.meta.push(("source".into(), source.into()));
+        log.meta
+            .push(("sample_rate_hz".into(), opts.log_rate_hz.to_string()));
+        log.meta.push(("model".into(), opts.model_name.clone()));
+        log.meta.push(("seed".into(), opts.seed.to_string()));
+        log.meta
+            .push(("volume_ratio".into(), volume_ratio_name(opts.volume_ratio)));
+        log.meta.push((
+            "force_delay_s".into(),
+            format!("{FIRMWARE_FORCE_DELAY_S:e}"),
+        ));
+        let limit_s = opts.time_limit_s();
+        let capture = Capture::new(limit_s, csv, &log);
+        RunDriver {
+            opts,
+            speed: opts.peak_speed_mps(),
+            actions: actions.into_iter().peekable(),
+            dead_a: f64::from(config.target_clearance_m),
+            dead_b: f64::from(config.travel_m - config.target_clearance_m),
+            log,
+            phase: Phase::Homing,
+            metrics: Metrics::default(),
+            cycles_done: 0,
+            limit_s,
+            // Each stage must finish in its own time (no waiting out the whole run's limit
+            // when homing or a cycle stalls) until the first injected fault begins; after
+            // it, the injector decides when the outcome is known.
+            first_fault_s: opts
+                .faults
+                .iter()
+                .map(|f| f.at_s)
+                .fold(f64::INFINITY, f64::min),
+            stage_deadline_s: opts.homing_limit_s(),
+            stop_reason: None,
+            capture,
+            // One row every `log_stride` control cycles (`--log-rate`; checked to divide
+            // evenly).
+            log_stride: u64::from((CONTROL_RATE_HZ / opts.log_rate_hz.max(1)).max(1)),
+            last_mode: Status::INIT.mode,
+            started: Instant::now(),
         }
-        let status = shared.status();
+    }
+
+    /// Compression cycles completed so far.
+    pub fn cycles_done(&self) -> u32 {
+        self.cycles_done
+    }
+
+    /// One control period, after the firmware ran it and before the plant advances: looks
+    /// at the status (`fresh`: seen this period; a stale one counts for the plant's figures
+    /// only), acts, records. `injected`: the fault injector's verdict that the injected
+    /// faults' outcome is known (`None` without injected faults). Breaks when the run is over.
+    pub fn cycle(
+        &mut self,
+        w: &mut World,
+        link: &mut dyn HostLink,
+        fresh: bool,
+        injected: Option<bool>,
+    ) -> ControlFlow<()> {
+        let opts = self.opts;
+        let metrics = &mut self.metrics;
+        let status = link.status();
         let t = w.time_s();
-        if w.cycle() > 0 && w.cycle().is_multiple_of(log_stride) {
-            capture.push(&status, w);
+        if fresh && w.cycle() > 0 && w.cycle().is_multiple_of(self.log_stride) {
+            self.capture.push(&status, w);
         }
         // `iter` walks every kind of fault: only when one is latched.
         if !status.faults.is_empty() {
@@ -268,39 +362,43 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             }
         }
         metrics.peak_speed_mps = metrics.peak_speed_mps.max(w.plant.v_mps.abs());
-        if matches!(phase, Phase::Running { .. }) {
+        if matches!(self.phase, Phase::Running { .. }) {
             if let Some(e) = discharge_opening(&w.plant, metrics.last_phase_rad) {
-                metrics.opening_errors.push((cycles_done, e));
+                metrics.opening_errors.push((self.cycles_done, e));
             }
-            let e = w.plant.x_m - f64::from(status.reference_m);
-            metrics.tracking_sq_m2 += e * e;
+            if fresh {
+                let e = w.plant.x_m - f64::from(status.reference_m);
+                metrics.tracking_sq_m2 += e * e;
+                metrics.tracking_n += 1;
+            }
             metrics.motor_work_j += (w.plant.force_n.master + w.plant.force_n.slave)
                 * w.plant.v_mps
                 * f64::from(CONTROL_PERIOD_S);
-            metrics.tracking_n += 1;
         }
         metrics.last_phase_rad = Some(w.plant.port_phase_rad());
         let faulted = !status.faults.is_empty();
-        let before = phase;
-        phase = match phase {
-            Phase::Homing if w.cycle() == 0 => {
-                let _ = shared.post_command(Command::Home);
+        let before = self.phase;
+        self.phase = match self.phase {
+            // Home as soon as the link takes a command (the simulator's at once; a real
+            // board's once its RTT channels are up).
+            Phase::Homing if !self.metrics.home_sent => {
+                self.metrics.home_sent = link.post_command(Command::Home);
                 Phase::Homing
             }
             Phase::Homing if status.homed && status.mode == ModeKind::Holding => {
                 // Close the bypass: from now on the rotation times the ports.
                 w.plant.port_mode = PortMode::Timed;
-                capture.ports_timed_from(t);
+                self.capture.ports_timed_from(t);
                 if opts.volume_ratio != RatioTarget::FollowMeasured {
-                    let _ = shared.post_command(Command::SetVolumeRatio {
+                    let _ = link.post_command(Command::SetVolumeRatio {
                         target: opts.volume_ratio,
                     });
                 }
-                while let Some((_, action)) = actions.next_if(|(c, _)| *c == 0) {
-                    act(w, shared, action);
+                while let Some((_, action)) = self.actions.next_if(|(c, _)| *c == 0) {
+                    act(w, link, action);
                 }
-                let _ = shared.post_command(Command::Start {
-                    peak_speed_mps: speed as f32,
+                let _ = link.post_command(Command::Start {
+                    peak_speed_mps: self.speed as f32,
                 });
                 Phase::Running {
                     toward_b: true,
@@ -311,13 +409,16 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                 toward_b,
                 ref_extreme_m,
             } => {
+                let metrics = &mut self.metrics;
                 let x = w.plant.x_m;
                 let c = w.plant.head_clearance_m();
                 metrics.min_clearance_m =
                     Some(metrics.min_clearance_m.map_or(c, |m: f64| m.min(c)));
-                let diff = f64::from(status.force_master_n - status.force_slave_n);
-                metrics.force_diff_sq += diff * diff;
-                metrics.force_diff_n += 1;
+                if fresh {
+                    let diff = f64::from(status.force_master_n - status.force_slave_n);
+                    metrics.force_diff_sq += diff * diff;
+                    metrics.force_diff_n += 1;
+                }
                 metrics.extreme_m = Some(match metrics.extreme_m {
                     None => x,
                     Some(e) if toward_b => e.max(x),
@@ -329,14 +430,15 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                 } else {
                     r > ref_extreme_m + 20e-6
                 };
-                if turned && status.mode == ModeKind::Running {
-                    let target = if toward_b { dead_b } else { dead_a };
+                if fresh && turned && status.mode == ModeKind::Running {
+                    let target = if toward_b { self.dead_b } else { self.dead_a };
                     let reached = metrics.extreme_m.take().unwrap_or(x);
                     metrics.dead_point_errors.push((reached - target).abs());
                     if !toward_b {
-                        cycles_done += 1;
-                        while let Some((_, action)) = actions.next_if(|(c, _)| *c <= cycles_done) {
-                            act(w, shared, action);
+                        self.cycles_done += 1;
+                        let done = self.cycles_done;
+                        while let Some((_, action)) = self.actions.next_if(|(c, _)| *c <= done) {
+                            act(w, link, action);
                         }
                         let c = &w.plant.chambers;
                         metrics
@@ -344,8 +446,8 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                             .push(c.a.totals.work_on_gas_j + c.b.totals.work_on_gas_j);
                         metrics.motor_work_at_cycle_j.push(metrics.motor_work_j);
                     }
-                    if cycles_done >= opts.cycles {
-                        let _ = shared.post_command(Command::Stop);
+                    if self.cycles_done >= opts.cycles {
+                        let _ = link.post_command(Command::Stop);
                         Phase::Stopping
                     } else {
                         Phase::Running {
@@ -354,7 +456,9 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                         }
                     }
                 } else {
-                    let ref_extreme_m = if toward_b {
+                    let ref_extreme_m = if !fresh {
+                        ref_extreme_m
+                    } else if toward_b {
                         ref_extreme_m.max(r)
                     } else {
                         ref_extreme_m.min(r)
@@ -369,7 +473,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             other => other,
         };
         // A new stage (homing done, a cycle done, the stop begun) gets its own time.
-        let new_stage = match (before, phase) {
+        let new_stage = match (before, self.phase) {
             (
                 Phase::Homing
                 | Phase::Running {
@@ -381,31 +485,28 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             _ => false,
         };
         if new_stage {
-            stage_deadline_s = t + opts.cycle_limit_s();
+            self.stage_deadline_s = t + opts.cycle_limit_s();
         }
-        last_mode = status.mode;
-        let outcome_known = if injector.is_empty() {
-            faulted
-        } else {
-            injector.finished(w.time_us(), heartbeat_timeout_s)
-        };
-        if phase == Phase::Done {
+        self.last_mode = status.mode;
+        let outcome_known = injected.unwrap_or(faulted);
+        if self.phase == Phase::Done {
             return ControlFlow::Break(());
         }
         if outcome_known {
             if !faulted {
-                stop_reason = Some("the injected faults' outcome was known".into());
+                self.stop_reason = Some("the injected faults' outcome was known".into());
             }
             return ControlFlow::Break(());
         }
+        let limit_s = self.limit_s;
         if t > limit_s {
-            stop_reason = Some(format!(
+            self.stop_reason = Some(format!(
                 "the time limit of {limit_s:.1} s simulated ran out"
             ));
             return ControlFlow::Break(());
         }
-        if t > stage_deadline_s && t < first_fault_s {
-            let what = match phase {
+        if t > self.stage_deadline_s && t < self.first_fault_s {
+            let what = match self.phase {
                 Phase::Homing => format!(
                     "homing did not finish within {:.1} s simulated",
                     opts.homing_limit_s()
@@ -416,92 +517,105 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                 ),
                 _ => format!(
                     "cycle {} did not complete within {:.1} s simulated",
-                    cycles_done + 1,
+                    self.cycles_done + 1,
                     opts.cycle_limit_s()
                 ),
             };
-            stop_reason = Some(format!("no progress: {what} (mode {})", status.mode.name()));
+            self.stop_reason = Some(format!("no progress: {what} (mode {})", status.mode.name()));
             return ControlFlow::Break(());
         }
         ControlFlow::Continue(())
-    };
-    let (world, _) = simulate_board(world, config, execution, each_cycle);
+    }
 
-    // The loop alone: writing a streamed log is not part of it, as writing the CSV after the
-    // loop is not.
-    let wall = (started.elapsed().as_secs_f64() - capture.writing_s()).max(0.0);
-    // Making the columns is part of writing the log, as the CSV is: outside the timing.
-    capture.finish(&mut log)?;
-    let sim_time_s = world.time_s();
-    let last5 = metrics.dead_point_errors.len().saturating_sub(10);
-    let summary = Summary {
-        sim_time_s,
-        wall_time_s: wall,
-        realtime_factor: if wall > 0.0 {
-            sim_time_s / wall
-        } else {
-            f64::INFINITY
-        },
-        cycles: cycles_done,
-        cycles_requested: opts.cycles,
-        stopped_early: (cycles_done < opts.cycles).then(|| {
-            let names: Vec<&str> = metrics.faults.iter().map(|f| f.name()).collect();
-            match (names.is_empty(), stop_reason) {
-                (false, _) => format!("faults latched: {}", names.join(", ")),
-                (true, Some(why)) => why,
-                (true, None) => "the run ended early".to_string(),
-            }
-        }),
-        faults_not_injected: opts
-            .faults
-            .iter()
-            .filter(|f| f.at_s > sim_time_s)
-            .map(|f| format!("{}@{}", f.kind.name(), num(f.at_s)))
-            .collect(),
-        pressure_ratio_target: opts.pressure_ratio,
-        discharge_open_pressure_error: last_max(
-            &metrics
-                .opening_errors
+    /// The figures and the log of the run that ended with `world`.
+    pub fn finish(self, world: World, injection: InjectionReport) -> Result<RunOutcome, String> {
+        let RunDriver {
+            opts,
+            mut log,
+            metrics,
+            cycles_done,
+            stop_reason,
+            capture,
+            last_mode,
+            started,
+            ..
+        } = self;
+        // The loop alone: writing a streamed log is not part of it, as writing the CSV after
+        // the loop is not.
+        let wall = (started.elapsed().as_secs_f64() - capture.writing_s()).max(0.0);
+        // Making the columns is part of writing the log, as the CSV is: outside the timing.
+        capture.finish(&mut log)?;
+        let sim_time_s = world.time_s();
+        let last5 = metrics.dead_point_errors.len().saturating_sub(10);
+        let summary = Summary {
+            sim_time_s,
+            wall_time_s: wall,
+            realtime_factor: if wall > 0.0 {
+                sim_time_s / wall
+            } else {
+                f64::INFINITY
+            },
+            cycles: cycles_done,
+            cycles_requested: opts.cycles,
+            stopped_early: (cycles_done < opts.cycles).then(|| {
+                let names: Vec<&str> = metrics.faults.iter().map(|f| f.name()).collect();
+                match (names.is_empty(), stop_reason) {
+                    (false, _) => format!("faults latched: {}", names.join(", ")),
+                    (true, Some(why)) => why,
+                    (true, None) => "the run ended early".to_string(),
+                }
+            }),
+            faults_not_injected: opts
+                .faults
                 .iter()
-                .map(|(_, e)| *e)
-                .collect::<Vec<_>>(),
-            10,
-        ),
-        tracking_error_rms_m: (metrics.tracking_n > 0)
-            .then(|| (metrics.tracking_sq_m2 / metrics.tracking_n as f64).sqrt()),
-        indicated_work_j_per_cycle: indicated_work(&metrics.work_at_cycle_j),
-        dead_point_error_m: metrics
-            .dead_point_errors
-            .get(last5..)
-            .and_then(|e| e.iter().copied().reduce(f64::max)),
-        min_head_clearance_m: metrics.min_clearance_m,
-        peak_speed_mps: metrics.peak_speed_mps,
-        master_slave_force_diff_rms_n: (metrics.force_diff_n > 0)
-            .then(|| (metrics.force_diff_sq / metrics.force_diff_n as f64).sqrt()),
-        faults: metrics
-            .faults
-            .iter()
-            .map(|f| f.name().to_string())
-            .collect(),
-        state: last_mode.name().to_string(),
-    };
-    Ok(RunOutcome {
-        summary,
-        log,
-        telemetry: world.telemetry.bytes,
-        opening_errors: metrics.opening_errors,
-        cycle_work_j: metrics
-            .work_at_cycle_j
-            .windows(2)
-            .map(|w| w[1] - w[0])
-            .collect(),
-        cycle_motor_work_j: metrics
-            .motor_work_at_cycle_j
-            .windows(2)
-            .map(|w| w[1] - w[0])
-            .collect(),
-        injection: injector.report().clone(),
-    })
+                .filter(|f| f.at_s > sim_time_s)
+                .map(|f| format!("{}@{}", f.kind.name(), num(f.at_s)))
+                .collect(),
+            pressure_ratio_target: opts.pressure_ratio,
+            discharge_open_pressure_error: last_max(
+                &metrics
+                    .opening_errors
+                    .iter()
+                    .map(|(_, e)| *e)
+                    .collect::<Vec<_>>(),
+                10,
+            ),
+            tracking_error_rms_m: (metrics.tracking_n > 0)
+                .then(|| (metrics.tracking_sq_m2 / metrics.tracking_n as f64).sqrt()),
+            indicated_work_j_per_cycle: indicated_work(&metrics.work_at_cycle_j),
+            dead_point_error_m: metrics
+                .dead_point_errors
+                .get(last5..)
+                .and_then(|e| e.iter().copied().reduce(f64::max)),
+            min_head_clearance_m: metrics.min_clearance_m,
+            peak_speed_mps: metrics.peak_speed_mps,
+            master_slave_force_diff_rms_n: (metrics.force_diff_n > 0)
+                .then(|| (metrics.force_diff_sq / metrics.force_diff_n as f64).sqrt()),
+            faults: metrics
+                .faults
+                .iter()
+                .map(|f| f.name().to_string())
+                .collect(),
+            state: last_mode.name().to_string(),
+        };
+        Ok(RunOutcome {
+            summary,
+            log,
+            telemetry: world.telemetry.bytes,
+            opening_errors: metrics.opening_errors,
+            cycle_work_j: metrics
+                .work_at_cycle_j
+                .windows(2)
+                .map(|w| w[1] - w[0])
+                .collect(),
+            cycle_motor_work_j: metrics
+                .motor_work_at_cycle_j
+                .windows(2)
+                .map(|w| w[1] - w[0])
+                .collect(),
+            injection,
+        })
+    }
 }
 
 /// Largest of the last `n` values.
@@ -568,11 +682,11 @@ fn wrap_turn(x: f64) -> f64 {
 }
 
 /// Carries out a scheduled host action.
-fn act(w: &mut World, shared: &SimShared, action: HostAction) {
+fn act(w: &mut World, link: &mut dyn HostLink, action: HostAction) {
     match action {
         HostAction::SetLinePressureRatio(pr) => w.plant.lines.set_pressure_ratio(pr),
         HostAction::Command(c) => {
-            let _ = shared.post_command(c);
+            let _ = link.post_command(c);
         }
     }
 }

@@ -413,6 +413,13 @@ fn fault(uc: &mut Unicorn<Soc>, cfsr: u32, bfar: Option<u32>) -> Result<(), Chip
 
 /// The run loop: see [`Chip::run_period`].
 pub fn run_until_plant_step(chip: &mut Chip) -> Result<(), ChipError> {
+    {
+        let soc = chip.uc.get_data_mut();
+        if soc.held {
+            soc.held = false;
+            soc.release = true;
+        }
+    }
     loop {
         {
             let soc = chip.uc.get_data_mut();
@@ -421,10 +428,14 @@ pub fn run_until_plant_step(chip: &mut Chip) -> Result<(), ChipError> {
             }
             if !soc.powered {
                 // No supply: nothing runs; the plant goes on with the outputs low.
+                if soc.release {
+                    soc.release = false;
+                    soc.plant_next += 50 * crate::time::UNITS_PER_US;
+                    soc.board.outputs_off();
+                    soc.step_plant_unpowered();
+                }
                 soc.time = soc.time.max(soc.plant_next);
-                soc.plant_next += 50 * crate::time::UNITS_PER_US;
-                soc.board.outputs_off();
-                soc.step_plant_unpowered();
+                soc.held = true;
                 return Ok(());
             }
             soc.process_events();
@@ -435,8 +446,8 @@ pub fn run_until_plant_step(chip: &mut Chip) -> Result<(), ChipError> {
             chip.reset(kind)?;
             continue;
         }
-        if soc.plant_stepped {
-            soc.plant_stepped = false;
+        soc.plant_stepped = false;
+        if soc.held {
             return Ok(());
         }
         if soc.hang_pending && soc.ipsr == nvic::irq(irqn::UART5) {

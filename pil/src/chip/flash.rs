@@ -136,6 +136,16 @@ impl Flash {
         }
     }
 
+    /// The store holding `image` (a flash image of the same size, e.g. `hal-sim`'s
+    /// simulated flash after the firmware's store saved a record).
+    pub fn load_image(&mut self, image: &[u8]) {
+        let n = image.len().min(self.store.len());
+        self.store[..n].copy_from_slice(&image[..n]);
+        for (i, w) in self.store.chunks(8).enumerate() {
+            self.programmed[i] = w.iter().any(|&b| b != 0xFF);
+        }
+    }
+
     /// After a reset: the registers to their reset values, the array as it stands.
     pub fn reset(&mut self) {
         self.acr = 0x600;

@@ -191,6 +191,12 @@ pub struct Soc {
     plant_next: u64,
     /// Set when the plant advanced (a PWM period ended).
     pub plant_stepped: bool,
+    /// A period is over and the plant is due to step: the chip waits for the host, which
+    /// looks at the plant as the firmware left it (as `fpc-sim run` does between polling
+    /// the tasks and advancing the plant).
+    pub held: bool,
+    /// The host has looked: the held step may go.
+    release: bool,
     /// A reset to carry out.
     pub reset_pending: Option<ResetKind>,
     /// Every reset so far.
@@ -257,6 +263,8 @@ impl Soc {
             board,
             plant_next: 50 * UNITS_PER_US,
             plant_stepped: false,
+            held: false,
+            release: false,
             reset_pending: None,
             resets: Vec::new(),
             csr_flags: RCC_CSR_BORRSTF | RCC_CSR_PINRSTF,
@@ -470,6 +478,12 @@ impl Soc {
                     handled = true;
                 }
                 if self.tim1.next_boundary().is_some_and(|t| t <= now) {
+                    if self.tim1.next_is_update_at_peak() && !self.release {
+                        // The period is over: the host looks first (see `held`).
+                        self.held = true;
+                        return;
+                    }
+                    self.release = false;
                     let b = self.tim1.fire_boundary();
                     if b.update && b.peak {
                         self.pwm_period_end();
@@ -477,6 +491,11 @@ impl Soc {
                     handled = true;
                 }
             } else if self.plant_next <= now {
+                if !self.release {
+                    self.held = true;
+                    return;
+                }
+                self.release = false;
                 self.plant_next += 50 * UNITS_PER_US;
                 self.step_plant();
                 handled = true;
@@ -1023,6 +1042,7 @@ impl Chip {
                     .write_array(STORE_BASE + off as u32, value as u32, size, now);
                 if soc.flash.power_cut {
                     soc.powered = false;
+                    soc.plant_next = soc.time + 50 * UNITS_PER_US;
                     let _ = uc.emu_stop();
                 }
             }),
@@ -1190,6 +1210,7 @@ impl Chip {
     pub fn power_off(&mut self) {
         let soc = self.uc.get_data_mut();
         soc.powered = false;
+        soc.plant_next = soc.time + 50 * UNITS_PER_US;
         soc.board.outputs_off();
     }
 

@@ -202,6 +202,12 @@ impl Timer {
         Some(o + (k as f64 * self.boundary_ticks() as f64 * per_tick).ceil() as u64)
     }
 
+    /// Whether the next boundary is an update event at a counter peak.
+    pub fn next_is_update_at_peak(&self) -> bool {
+        let peak = !self.centre_aligned() || (self.boundaries_done + 1) % 2 == 1;
+        peak && self.rep == 0
+    }
+
     /// Handles the next boundary (call when [`Timer::next_boundary`] is due).
     pub fn fire_boundary(&mut self) -> Boundary {
         self.boundaries_done += 1;
