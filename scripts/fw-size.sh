@@ -12,7 +12,7 @@
 # (Berkeley output format, which all of them share).
 set -euo pipefail
 
-FLASH_BUDGET=$((96 * 1024))
+FLASH_BUDGET=$((128 * 1024))
 RAM_BUDGET=$((32 * 1024))
 
 cd "$(dirname "$0")/.."

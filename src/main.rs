@@ -130,6 +130,9 @@ mod firmware {
     async fn main(spawner: Spawner) {
         let (telemetry_sink, replies, command_source) = board::rtt::init();
         let reset_cause = board::take_reset_cause();
+        if let Some(cause) = board::take_kept_cause() {
+            defmt::error!("the previous run ended on the fault path: {}", cause);
+        }
         match reset_cause {
             ResetCause::Watchdog => defmt::error!("reset by the independent watchdog: a task hung"),
             cause => defmt::info!("boot after {}", cause),

@@ -174,27 +174,30 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
     })
 }
 
-/// RMS difference of `x_m` between two run logs over the time both ran strokes, the time
-/// axes aligned at each one's Start (`ports_from_s`); the second log is looked up at each
-/// row time of the first.
+/// RMS difference of `x_m` between two run logs over the strokes. The time axes are aligned
+/// on the position reference: the Start command reaches the firmware over RTT at its command
+/// task's 1 kHz poll, the host build's at the next control cycle, so the strokes begin up to
+/// a millisecond apart; the offset (in whole control periods, within ±5 ms of the two runs'
+/// Start posts) is the one that best overlays the two references. The second log is looked
+/// up at each row time of the first.
 pub fn position_rms_diff(
     pil: &hal_sim::runlog::RunLog,
     host: &hal_sim::runlog::RunLog,
 ) -> Option<f64> {
     let start = |l: &hal_sim::runlog::RunLog| l.meta("ports_from_s")?.parse::<f64>().ok();
     let (s_pil, s_host) = (start(pil)?, start(host)?);
-    let (t_p, x_p) = (pil.column("t_s")?, pil.column("x_m")?);
-    let (t_h, x_h) = (host.column("t_s")?, host.column("x_m")?);
-    let end = (t_p.last()? - s_pil).min(t_h.last()? - s_host);
-    let mut sum = 0.0;
-    let mut n = 0usize;
-    for (&t, &x) in t_p.iter().zip(x_p) {
-        let rel = t - s_pil;
-        if rel < 0.0 || rel > end {
-            continue;
-        }
-        let target = s_host + rel;
-        // The host log has a row per control period: the nearest row.
+    let (t_p, x_p, r_p) = (
+        pil.column("t_s")?,
+        pil.column("x_m")?,
+        pil.column("x_ref_m")?,
+    );
+    let (t_h, x_h, r_h) = (
+        host.column("t_s")?,
+        host.column("x_m")?,
+        host.column("x_ref_m")?,
+    );
+    let period = f64::from(fpc::units::CONTROL_PERIOD_S);
+    let nearest = |target: f64| -> Option<usize> {
         let i = t_h.partition_point(|&th| th < target);
         let j =
             if i > 0 && (i == t_h.len() || (t_h[i] - target).abs() > (target - t_h[i - 1]).abs()) {
@@ -202,9 +205,27 @@ pub fn position_rms_diff(
             } else {
                 i
             };
-        let d = x - x_h.get(j)?;
-        sum += d * d;
-        n += 1;
-    }
-    (n > 0).then(|| (sum / n as f64).sqrt())
+        (j < t_h.len() && (t_h[j] - target).abs() < period).then_some(j)
+    };
+    let rms = |shift: f64, a: &[f64], b: &[f64]| -> Option<f64> {
+        let (mut sum, mut n) = (0.0, 0usize);
+        for (i, &t) in t_p.iter().enumerate() {
+            if t < s_pil {
+                continue;
+            }
+            let Some(j) = nearest(t - s_pil + s_host + shift) else {
+                continue;
+            };
+            let d = a[i] - b[j];
+            sum += d * d;
+            n += 1;
+        }
+        (n > 100).then(|| (sum / n as f64).sqrt())
+    };
+    let shift = (-100..=100)
+        .map(|k| f64::from(k) * period)
+        .filter_map(|shift| Some((rms(shift, r_p, r_h)?, shift)))
+        .min_by(|a, b| a.0.total_cmp(&b.0))?
+        .1;
+    rms(shift, x_p, x_h)
 }

@@ -84,6 +84,7 @@ use embassy_stm32::timer::qei::{self, Qei};
 use embassy_stm32::timer::simple_pwm::PwmPin;
 
 pub use adc::{CurrentAdc, EncoderAdc, PressureAdc, SampleTrigger};
+pub use fault::take_kept_cause;
 pub use pwm::MotorPwm;
 pub use servo::{ServoEncoder, ServoTorque};
 pub use time::{BoardClock, BoardSleep};
@@ -173,6 +174,10 @@ pub fn take_reset_cause() -> fpc::safety::faults::ResetCause {
     } else if csr.borrstf() {
         ResetCause::PowerOn
     } else {
+        if csr.sftrstf() {
+            // A normal start for the machine, but not the reset pin: say which.
+            defmt::info!("reset by software (SYSRESETREQ)");
+        }
         ResetCause::External
     };
     // Clear the flags so the next reset reports its own cause.
@@ -184,6 +189,7 @@ pub fn take_reset_cause() -> fpc::safety::faults::ResetCause {
 /// off), watchdog (running). Call once, first thing.
 pub fn init() -> Board {
     let p = clocks::start();
+    check_bank_layout();
     freeze_on_debug_halt();
     interrupt::TIM2.set_priority(TIME_PRIORITY);
 
@@ -262,6 +268,17 @@ pub fn init() -> Board {
         sleep: BoardSleep,
         watchdog,
         calibration,
+    }
+}
+
+/// The flash must be in dual-bank mode (FLASH_OPTR.DBANK = 1, 2 KiB pages), as embassy's
+/// `dual-bank` feature and [`CALIBRATION_STORE`] assume; embassy's async `Flash::new` does
+/// not check it (its blocking constructor does). Otherwise a boot fault: no output has been
+/// configured yet.
+fn check_bank_layout() {
+    const OPTR_DBANK: u32 = 1 << 22;
+    if pac::FLASH.optr().read().0 & OPTR_DBANK == 0 {
+        fault::boot_fault(fault::BootCheck::FlashBankLayout);
     }
 }
 
