@@ -19,6 +19,7 @@
 pub mod board;
 pub mod chip;
 pub mod elf;
+pub mod faults;
 pub mod log;
 pub mod rtt;
 pub mod run;

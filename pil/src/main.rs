@@ -31,6 +31,18 @@ enum Cmd {
     /// The main job's scenario on the ELF: boot with the calibration in flash, home, start
     /// over RTT, N cycles; the same JSON as `fpc-sim run --json` and the PIL's figures.
     Run(RunArgs),
+    /// A fault scenario on the ELF (faults.md): boot-window, hung-control, fault-path,
+    /// torn-save, save-error, single-bank; prints the resets, the log and the faults.
+    Fault(FaultArgs),
+}
+
+#[derive(clap::Args)]
+struct FaultArgs {
+    /// The scenario.
+    scenario: String,
+    /// The firmware ELF.
+    #[arg(long)]
+    elf: PathBuf,
 }
 
 #[derive(clap::Args)]
@@ -68,6 +80,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Cmd::Run(args) => run_cmd(args),
+        Cmd::Fault(args) => fault_cmd(args),
     };
     match result {
         Ok(code) => code,
@@ -151,6 +164,44 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
             "{}",
             serde_json::to_string_pretty(s).map_err(|e| e.to_string())?
         );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
+    use fpc_pil::faults::{run, Scenario};
+    let scenario = Scenario::ALL
+        .into_iter()
+        .find(|s| s.name() == args.scenario)
+        .ok_or_else(|| {
+            let names: Vec<_> = Scenario::ALL.iter().map(|s| s.name()).collect();
+            format!(
+                "unknown scenario `{}` (one of: {})",
+                args.scenario,
+                names.join(", ")
+            )
+        })?;
+    let image = Image::read(&args.elf)?;
+    let started = std::time::Instant::now();
+    let r = run(&image, scenario)?;
+    println!(
+        "fpc-pil fault {}: injected at {}, {:.3} s emulated in {:.1} s wall, min head clearance {:.3} mm",
+        scenario.name(),
+        r.injected_at_s.map_or("-".into(), |t| format!("{t:.4} s")),
+        r.end_s,
+        started.elapsed().as_secs_f64(),
+        r.min_clearance_m * 1e3
+    );
+    for reset in &r.resets {
+        println!("  reset at {:.4} s: {:?}", reset.at_s, reset.kind);
+    }
+    println!(
+        "  faults seen: [{}]; last mode {:?}",
+        r.faults.join(", "),
+        r.final_mode
+    );
+    for (t, line) in &r.log {
+        println!("  {t:.4} {line}");
     }
     Ok(ExitCode::SUCCESS)
 }

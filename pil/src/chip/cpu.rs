@@ -313,7 +313,7 @@ pub fn install_hooks(uc: &mut Unicorn<'static, Soc>) -> Result<(), ChipError> {
             soc.event = true;
         }
         let mut stop = soc.time >= soc.deadline;
-        if soc.hang_pending && soc.ipsr == nvic::irq(irqn::UART5) {
+        if (soc.hang_pending || soc.bus_fault_pending) && soc.ipsr == nvic::irq(irqn::UART5) {
             stop = true;
         }
         if !stop && could_preempt(uc.get_data()) && takeable_now(uc).is_some() {
@@ -456,6 +456,14 @@ pub fn run_until_plant_step(chip: &mut Chip) -> Result<(), ChipError> {
             chip.uc
                 .reg_write(RegisterARM::PC, u64::from(spin | 1))
                 .map_err(err("pc"))?;
+        }
+        let soc = chip.uc.get_data_mut();
+        if soc.bus_fault_pending && soc.ipsr == nvic::irq(irqn::UART5) {
+            // A precise bus error on a data access of the control executor (as a peripheral
+            // that stops answering would give).
+            soc.bus_fault_pending = false;
+            fault(&mut chip.uc, (1 << 9) | (1 << 15), Some(0x4000_F000))?;
+            continue;
         }
         if let Some(exc) = takeable_now(&chip.uc) {
             enter(&mut chip.uc, exc)?;

@@ -76,8 +76,9 @@ pub struct FlashFaults {
     /// starts last is torn: half its double word programmed, or half its page erased, and
     /// the torn double words poisoned for ECC).
     pub cut_power_at_step: Option<u64>,
-    /// The next program step ends with this SR error flag set (and does not program).
-    pub error_on_program: Option<u32>,
+    /// The program step that makes this many steps since power-up ends with this SR error
+    /// flag set, and does not program.
+    pub error_on_program: Option<(u64, u32)>,
 }
 
 /// The flash interface.
@@ -348,13 +349,21 @@ impl Flash {
             self.sr |= sr::PGSERR;
             return;
         }
-        if let Some(flag) = self.faults.error_on_program.take() {
+        if let Some((step, flag)) = self.faults.error_on_program {
+            if self.steps + 1 != step {
+                return self.program_checked(at, data, now);
+            }
+            self.faults.error_on_program = None;
             self.steps += 1;
             // The operation ends at once with the error flag (as a write-protected or
             // sequence-error program does).
             self.sr |= flag;
             return;
         }
+        self.program_checked(at, data, now)
+    }
+
+    fn program_checked(&mut self, at: u32, data: u64, now: u64) {
         match store_index(at) {
             Some(i) => {
                 let old = self.store[i * 8..i * 8 + 8].iter().all(|&b| b == 0xFF);

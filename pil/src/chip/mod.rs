@@ -213,6 +213,10 @@ pub struct Soc {
     path_open: bool,
     /// Stop the control executor for good at its next entry (a hung control task).
     pub hang_pending: bool,
+    /// Raise a bus fault (HardFault) at the control executor's next entry.
+    pub bus_fault_pending: bool,
+    /// The ADCs never convert (a dead analog front end: the control task starves).
+    pub adc_dead: bool,
     /// Address of a `b .` the hang sends the core to.
     pub spin_address: u32,
     /// HardFaults the core raised.
@@ -273,6 +277,8 @@ impl Soc {
             recording: false,
             path_open: false,
             hang_pending: false,
+            bus_fault_pending: false,
+            adc_dead: false,
             spin_address: 0,
             faults_taken: 0,
             error: None,
@@ -328,6 +334,7 @@ impl Soc {
         self.reset_pending = None;
         self.path_open = false;
         self.hang_pending = false;
+        self.bus_fault_pending = false;
         self.board.dma_writes.clear();
     }
 
@@ -579,7 +586,7 @@ impl Soc {
         let dual = self.adc_ccr & 0x1F;
         let inj = self.adc1.injected_armed(JEXTSEL_TIM1_TRGO2);
         let reg = self.adc1.regular_armed(EXTSEL_TIM1_TRGO2);
-        if !(inj || reg) || self.burst.is_some() {
+        if !(inj || reg) || self.burst.is_some() || self.adc_dead {
             return;
         }
         let clk = self.adc_clock();
