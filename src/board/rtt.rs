@@ -1,49 +1,47 @@
-//! RTT channels: defmt logs, the telemetry stream, command replies and the command input.
+//! RTT channels: defmt logs, the telemetry stream, command replies and the command input
+//! (numbers, names and sizes: [`fpc::link::channels`]).
 //!
-//! | channel | direction | size | what |
-//! |---|---|---|---|
-//! | up 0 `defmt` | target → host | 1 KiB | defmt logs (never from the 20 kHz path) |
-//! | up 1 `telemetry` | target → host | 8 KiB | COBS telemetry frames (`fpc::link::telemetry`) |
-//! | up 2 `replies` | target → host | 512 B | command replies and rejections (`fpc::link`) |
-//! | down 0 `commands` | host → target | 256 B | command frames (`fpc::link`) |
+//! The up-channels are written with [`fpc::link::rtt_up::write_or_skip`]: a write that does
+//! not fit is dropped whole (the telemetry task counts it), so a slow or absent host can never
+//! stall the firmware or tear a frame, whatever mode the host sets in the channel's flags.
 //!
-//! The up-channels run in "no block, skip" mode: a write that does not fit is dropped whole
-//! (the telemetry task counts it), so a slow or absent host can never stall the firmware or
-//! tear a frame.
-//!
-//! The host can change a channel's mode: probe-rs sets `defmt` to "block if full" when it
-//! attaches. rtt-target's writes obey the mode, and its defmt logger writes inside a
-//! critical section, so a full buffer would stop every interrupt, the 20 kHz control one
-//! included, until the host reads. defmt therefore goes through [`Logger`] here, which
-//! writes with [`fpc::link::rtt_up::write_or_skip`] and never reads the mode flags. The
-//! telemetry and reply channels are written from thread mode with interrupts enabled, and
-//! set back to "no block, skip" before each write.
+//! Not rtt-target's own writer: the host can change a channel's mode (probe-rs sets `defmt`
+//! to "block if full" when it attaches), rtt-target's writes obey it, and its defmt logger
+//! writes inside a critical section, so a full buffer would stop every interrupt, the 20 kHz
+//! control one included, until the host reads. And in "no block, skip" mode its `write`
+//! returns the bytes it copied even when it then gives the write up uncommitted (the frame
+//! reached the end of the ring and the rest did not fit after the wrap): the telemetry task
+//! would take that for a partly sent frame, send its tail, and the host would reject a torn
+//! frame the firmware never counted as dropped. Here every up-channel goes through
+//! [`RawUp`], which reads the control block's words and never the mode flags; the command
+//! down-channel is read with rtt-target's reader.
 
 use core::cell::{Cell, RefCell};
 use core::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use cortex_m::interrupt::{CriticalSection, Mutex};
+use fpc::link::channels::{
+    COMMANDS_BYTES, DEFMT_BYTES, REPLIES_BYTES, TELEMETRY_BYTES, UP_DEFMT, UP_REPLIES, UP_TELEMETRY,
+};
 use fpc::link::rtt_up::{write_or_skip, UpBuffer};
 use fpc::ports::{ByteSource, FrameSink};
-use rtt_target::{rtt_init, ChannelMode, DownChannel, UpChannel};
+use rtt_target::{rtt_init, ChannelMode, DownChannel};
 
-/// The telemetry up-channel.
-pub struct TelemetryChannel(UpChannel);
+/// The telemetry up-channel (written by the telemetry task only).
+pub struct TelemetryChannel(());
 
 impl FrameSink for TelemetryChannel {
     fn write(&mut self, bytes: &[u8]) -> usize {
-        self.0.set_mode(ChannelMode::NoBlockSkip);
-        self.0.write(bytes)
+        RawUp::get(UP_TELEMETRY).map_or(0, |mut up| write_or_skip(&mut up, bytes))
     }
 }
 
-/// The command-reply up-channel.
-pub struct ReplyChannel(UpChannel);
+/// The command-reply up-channel (written by the command task only).
+pub struct ReplyChannel(());
 
 impl FrameSink for ReplyChannel {
     fn write(&mut self, bytes: &[u8]) -> usize {
-        self.0.set_mode(ChannelMode::NoBlockSkip);
-        self.0.write(bytes)
+        RawUp::get(UP_REPLIES).map_or(0, |mut up| write_or_skip(&mut up, bytes))
     }
 }
 
@@ -61,25 +59,25 @@ impl ByteSource for CommandChannel {
 pub fn init() -> (TelemetryChannel, ReplyChannel, CommandChannel) {
     let channels = rtt_init! {
         up: {
-            0: { size: 1024, mode: ChannelMode::NoBlockSkip, name: "defmt" }
-            1: { size: 8192, mode: ChannelMode::NoBlockSkip, name: "telemetry" }
-            2: { size: 512, mode: ChannelMode::NoBlockSkip, name: "replies" }
+            0: { size: DEFMT_BYTES, mode: ChannelMode::NoBlockSkip, name: "defmt" }
+            1: { size: TELEMETRY_BYTES, mode: ChannelMode::NoBlockSkip, name: "telemetry" }
+            2: { size: REPLIES_BYTES, mode: ChannelMode::NoBlockSkip, name: "replies" }
         }
         down: {
-            0: { size: 256, name: "commands" }
+            0: { size: COMMANDS_BYTES, name: "commands" }
         }
     };
-    // Up-channel 0 is written by [`Logger`] through the control block, not through this
-    // handle.
-    let _defmt = channels.up.0;
+    // The up-channels are written through the control block ([`RawUp`]), not through
+    // rtt-target's handles.
+    let _handles = channels.up;
     (
-        TelemetryChannel(channels.up.1),
-        ReplyChannel(channels.up.2),
+        TelemetryChannel(()),
+        ReplyChannel(()),
         CommandChannel(channels.down.0),
     )
 }
 
-/// Up-channel 0 in the RTT control block, laid out as SEGGER defines it (and rtt-target
+/// An up-channel in the RTT control block, laid out as SEGGER defines it (and rtt-target
 /// builds it): the header is 16 id bytes and two `usize` counts, then the up-channels.
 #[repr(C)]
 struct RawChannel {
@@ -100,29 +98,33 @@ extern "C" {
     static CONTROL_BLOCK: u8;
 }
 
-/// The defmt up-channel as an [`UpBuffer`]; only [`Logger`] makes one, inside its critical
-/// section.
-struct DefmtUp(&'static RawChannel);
+/// An up-channel as an [`UpBuffer`]. Each channel has one writer: defmt's is [`Logger`]
+/// (inside its critical section), telemetry's the telemetry task, replies' the command task.
+struct RawUp(&'static RawChannel);
 
-impl DefmtUp {
-    /// Up-channel 0, or `None` before [`init`] has set it up (no buffer yet).
-    fn get() -> Option<Self> {
+impl RawUp {
+    /// Up-channel `number` (one of the three [`init`] sets up), or `None` before [`init`]
+    /// has set it up (no buffer yet).
+    fn get(number: usize) -> Option<Self> {
+        if number > UP_REPLIES {
+            return None;
+        }
         // SAFETY: `_SEGGER_RTT` is the static control block of `rtt_init!`, in RAM for the
-        // whole run, with up-channel 0 right after its header; its fields are plain words
-        // and atomics, valid to read at any time (zero before `init`). Only the logger,
-        // holding its critical section, writes this channel.
+        // whole run, with its three up-channels right after its header (`number` is one of
+        // them, checked above); their fields are plain words and atomics, valid to read at
+        // any time (zero before `init`). Each channel has one writer (see the type).
         let channel = unsafe {
             &*core::ptr::addr_of!(CONTROL_BLOCK)
-                .add(HEADER_BYTES)
+                .add(HEADER_BYTES + number * core::mem::size_of::<RawChannel>())
                 .cast::<RawChannel>()
         };
         // SAFETY: see above; `buffer` is written once by `init` before `size` is read.
         let buffer = unsafe { core::ptr::addr_of!(channel.buffer).read_volatile() };
-        (!buffer.is_null()).then_some(DefmtUp(channel))
+        (!buffer.is_null()).then_some(RawUp(channel))
     }
 }
 
-impl UpBuffer for DefmtUp {
+impl UpBuffer for RawUp {
     fn size(&self) -> usize {
         // SAFETY: a plain word of the static control block (see `get`).
         unsafe { core::ptr::addr_of!(self.0.size).read_volatile() }
@@ -161,7 +163,7 @@ static INTERRUPTS_WERE_ON: Mutex<Cell<bool>> = Mutex::new(Cell::new(false));
 static ENCODER: Mutex<RefCell<defmt::Encoder>> = Mutex::new(RefCell::new(defmt::Encoder::new()));
 
 fn write_chunk(bytes: &[u8]) {
-    if let Some(mut channel) = DefmtUp::get() {
+    if let Some(mut channel) = RawUp::get(UP_DEFMT) {
         write_or_skip(&mut channel, bytes);
     }
 }

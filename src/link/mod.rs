@@ -1,7 +1,8 @@
 //! The link to the host over RTT: the framing ([`frame`], which knows no payload), the
-//! command and reply codec ([`commands`]), the telemetry frame ([`telemetry`]) and the
-//! never-blocking up-buffer writer the defmt logger uses ([`rtt_up`]).
+//! command and reply codec ([`commands`]), the telemetry frame ([`telemetry`]), the RTT
+//! channel table ([`channels`]) and the never-blocking up-buffer writer ([`rtt_up`]).
 
+pub mod channels;
 pub mod commands;
 pub mod frame;
 pub mod rtt_up;

@@ -2,14 +2,15 @@
 //!
 //! Simulated time, the sampling burst and the latched outputs behind the port traits
 //! ([`world`]), the sensor models ([`sensors`]) and their faults ([`corruption`]), the
-//! executor that polls the firmware's tasks in lock-step with simulated time ([`exec`]), and
-//! the telemetry capture ([`capture`]), and the calibration's NOR flash with an injectable
-//! power cut ([`flash`]). It drives the [`crate::plant::dynamics`]; it knows neither the
+//! executor that polls the firmware's tasks in lock-step with simulated time ([`exec`]), the
+//! telemetry capture ([`capture`]), the calibration's NOR flash with an injectable power cut
+//! ([`flash`]), and the RAM a probe reads, with the firmware's RTT channels ([`ram`]). It drives the [`crate::plant::dynamics`]; it knows neither the
 //! fault injector nor the runner.
 
 pub mod capture;
 pub mod corruption;
 pub mod exec;
 pub mod flash;
+pub mod ram;
 pub mod sensors;
 pub mod world;

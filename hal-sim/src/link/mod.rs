@@ -9,15 +9,18 @@
 //! | up 2 | board → host | command replies and rejections ([`fpc::link::commands`]) |
 //! | down 0 | host → board | commands |
 //!
-//! Everything here is ordinary code over byte streams, tested on recorded channel contents
-//! through the [`Replay`] transport. Only [`probe`] (cargo feature `probe`, off by default)
-//! touches hardware: it attaches to the board with the `probe-rs` library and reads and
-//! writes the same channels by number.
+//! Transports: [`rtt::RttChannels`] finds the RTT control block in the target's memory and
+//! reads and writes the channels there, over any [`memory::TargetMemory`] — the simulated
+//! board's RAM ([`crate::board::ram`]) in the tests, an emulated firmware image, or a probe.
+//! [`Replay`] plays recorded channel contents. [`probe`] (cargo feature `probe`, off by
+//! default) attaches to the board with the `probe-rs` library.
 
 pub mod defmt;
+pub mod memory;
 #[cfg(feature = "probe")]
 pub mod probe;
 pub mod replay;
+pub mod rtt;
 pub mod session;
 
 pub use replay::Replay;
@@ -25,14 +28,7 @@ pub use replay::Replay;
 /// The chip of the controller board, as probe-rs names it.
 pub const CHIP: &str = "STM32G474RETx";
 
-/// RTT up-channel of the defmt log.
-pub const UP_DEFMT: usize = 0;
-/// RTT up-channel of the telemetry frames.
-pub const UP_TELEMETRY: usize = 1;
-/// RTT up-channel of the command replies.
-pub const UP_REPLIES: usize = 2;
-/// RTT down-channel of the commands.
-pub const DOWN_COMMANDS: usize = 0;
+pub use fpc::link::channels::{DOWN_COMMANDS, UP_DEFMT, UP_REPLIES, UP_TELEMETRY};
 
 /// The board's RTT channels, by number: what the session logic needs of a transport.
 ///
