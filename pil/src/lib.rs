@@ -8,7 +8,8 @@
 //! | [`chip`] | the emulated MCU: core, exceptions, NVIC, timers, ADC/DMA, flash, IWDG, RCC |
 //! | [`board`] | the PCB: pins to plant signals, bridges and servo to the plant |
 //! | [`elf`] | the firmware image |
-//! | [`rtt`] | the RTT control block in target RAM |
+//! | [`session`] | the host attached as a probe: RTT (hal-sim's reader over the chip's memory), defmt, telemetry |
+//! | [`run`], [`faults`] | the main job's scenario and the fault scenarios |
 //! | [`log`] | the defmt log of up 0 |
 //! | [`time`] | emulated time |
 //!
@@ -21,7 +22,6 @@ pub mod chip;
 pub mod elf;
 pub mod faults;
 pub mod log;
-pub mod rtt;
 pub mod run;
 pub mod session;
 pub mod time;

@@ -9,6 +9,7 @@ use fpc::link::commands::{encode_command, MAX_COMMAND_WIRE};
 use fpc::link::telemetry::{Frame, TelemetryDecoder};
 use fpc::safety::faults::{Fault, FaultSet};
 use fpc::status::Status;
+use hal_sim::link::rtt::{ControlBlock, Locate};
 use hal_sim::link::session::AnswerReader;
 use hal_sim::run::HostLink;
 
@@ -16,20 +17,15 @@ use crate::board::Board;
 use crate::chip::{Chip, ChipOptions};
 use crate::elf::Image;
 use crate::log::DefmtLog;
-use crate::rtt::Rtt;
 
-/// RTT channel numbers (the firmware's `src/board/rtt.rs`).
-const UP_DEFMT: u32 = 0;
-const UP_TELEMETRY: u32 = 1;
-const UP_REPLIES: u32 = 2;
-const DOWN_COMMANDS: u32 = 0;
+use fpc::link::channels::{DOWN_COMMANDS, UP_DEFMT, UP_REPLIES, UP_TELEMETRY};
 
 /// The board running, and the host attached to it.
 pub struct Session {
     /// The emulated board.
     pub chip: Chip,
     rtt_base: u32,
-    rtt: Option<Rtt>,
+    rtt: Option<ControlBlock>,
     /// The defmt log so far.
     pub log: DefmtLog,
     telemetry: TelemetryDecoder,
@@ -125,15 +121,14 @@ impl Session {
         }
         self.fresh = false;
         if self.rtt.is_none() {
-            self.rtt = Rtt::attach(&self.chip, self.rtt_base).map_err(|e| e.to_string())?;
+            // Until the firmware has set its control block up, there is none to find.
+            let at = Locate::At(u64::from(self.rtt_base));
+            self.rtt = ControlBlock::find(&mut self.chip, &at).ok();
         }
-        let Some(rtt) = self.rtt else {
+        let Some(rtt) = self.rtt.clone() else {
             return Ok(());
         };
-        let e = |e: crate::chip::ChipError| e.to_string();
-        self.buf.clear();
-        rtt.read_up(&mut self.chip, UP_DEFMT, &mut self.buf)
-            .map_err(e)?;
+        self.read(&rtt, UP_DEFMT)?;
         if !self.buf.is_empty() {
             self.log.push(t, &self.buf);
             for (_, line) in &self.log.lines[self.log.seen..] {
@@ -143,9 +138,7 @@ impl Session {
             }
             self.log.seen = self.log.lines.len();
         }
-        self.buf.clear();
-        rtt.read_up(&mut self.chip, UP_TELEMETRY, &mut self.buf)
-            .map_err(e)?;
+        self.read(&rtt, UP_TELEMETRY)?;
         for i in 0..self.buf.len() {
             if let Some(Ok(frame)) = self.telemetry.push(self.buf[i]) {
                 if let Some(f) = Fault::from_code(frame.fault) {
@@ -156,9 +149,7 @@ impl Session {
                 self.frames += 1;
             }
         }
-        self.buf.clear();
-        rtt.read_up(&mut self.chip, UP_REPLIES, &mut self.buf)
-            .map_err(e)?;
+        self.read(&rtt, UP_REPLIES)?;
         for answer in self.answers.push(&self.buf) {
             match answer {
                 Ok(fpc::link::commands::Answer::Reply(r)) if r.result.is_err() => {
@@ -172,10 +163,25 @@ impl Session {
             let pending: Vec<u8> = self.outbox.iter().copied().collect();
             let n = rtt
                 .write_down(&mut self.chip, DOWN_COMMANDS, &pending)
-                .map_err(e)?;
+                .map_err(|e| e.to_string())?;
             self.outbox.drain(..n);
         }
         Ok(())
+    }
+
+    /// Drains up-channel `n` into `self.buf`.
+    fn read(&mut self, rtt: &ControlBlock, n: usize) -> Result<(), String> {
+        self.buf.clear();
+        let mut chunk = [0u8; 1024];
+        loop {
+            let got = rtt
+                .read_up(&mut self.chip, n, &mut chunk)
+                .map_err(|e| e.to_string())?;
+            self.buf.extend_from_slice(&chunk[..got]);
+            if got < chunk.len() {
+                return Ok(());
+            }
+        }
     }
 
     /// Queues `command` for down 0; false until the firmware's channels are up.

@@ -1286,3 +1286,19 @@ fn merge(old: u32, addr: u32, size: usize, value: u32) -> u32 {
     let mask = ((1u32 << (8 * size)) - 1) << shift;
     (old & !mask) | ((value << shift) & mask)
 }
+
+/// The chip's memory as a debug probe sees it (reads and writes while the core runs), for
+/// `hal-sim`'s RTT reader.
+impl hal_sim::link::memory::TargetMemory for Chip {
+    fn read(&mut self, address: u64, buf: &mut [u8]) -> std::io::Result<()> {
+        let a = u32::try_from(address).map_err(std::io::Error::other)?;
+        self.read_mem(a, buf)
+            .map_err(|e| std::io::Error::other(e.0))
+    }
+
+    fn write(&mut self, address: u64, bytes: &[u8]) -> std::io::Result<()> {
+        let a = u32::try_from(address).map_err(std::io::Error::other)?;
+        self.write_mem(a, bytes)
+            .map_err(|e| std::io::Error::other(e.0))
+    }
+}
