@@ -329,13 +329,13 @@ impl Flash {
             self.sr |= sr::PGSERR;
             return;
         }
-        if size != 4 || at % 4 != 0 {
+        if size != 4 || !at.is_multiple_of(4) {
             self.sr |= sr::PGAERR | sr::SIZERR;
             self.half = None;
             return;
         }
         match self.half.take() {
-            None if at % 8 == 0 => self.half = Some((at, value)),
+            None if at.is_multiple_of(8) => self.half = Some((at, value)),
             Some((first, low)) if at == first + 4 => {
                 let data = u64::from(low) | u64::from(value) << 32;
                 self.program(first, data, now);

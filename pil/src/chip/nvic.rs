@@ -146,7 +146,7 @@ impl Nvic {
 
     /// Sets a priority byte as the hardware stores it (unimplemented low bits read 0).
     pub fn set_priority(&mut self, n: usize, value: u8) {
-        if n < EXCEPTIONS && n >= 4 {
+        if (4..EXCEPTIONS).contains(&n) {
             self.priority[n] = value & PRIORITY_MASK;
         }
     }
