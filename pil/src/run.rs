@@ -120,7 +120,7 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
     let mut session = Session::new(opts.image.clone(), Board::new(world), opts.chip.clone())?;
     session.chip.soc().flash.load_image(flash.image());
     let config = hal_sim::run::run_config(&run_opts);
-    let mut driver = RunDriver::new(&run_opts, &config, "fpc-pil run", csv);
+    let mut driver = RunDriver::new(&run_opts, &config, "fpc-pil run", csv).log_each_status();
     let pil_started = Instant::now();
     let mut running_from: Option<usize> = None;
     loop {

@@ -271,6 +271,8 @@ pub struct RunDriver<'o, 's> {
     stop_reason: Option<String>,
     capture: Capture<'s>,
     log_stride: u64,
+    /// A row for every fresh status, whatever the cycle ([`RunDriver::log_each_status`]).
+    log_each_status: bool,
     last_mode: fpc::status::ModeKind,
     started: Instant,
 }
@@ -325,9 +327,18 @@ impl<'o, 's> RunDriver<'o, 's> {
             // One row every `log_stride` control cycles (`--log-rate`; checked to divide
             // evenly).
             log_stride: u64::from((CONTROL_RATE_HZ / opts.log_rate_hz.max(1)).max(1)),
+            log_each_status: false,
             last_mode: Status::INIT.mode,
             started: Instant::now(),
         }
+    }
+
+    /// Logs a row for every fresh status instead of every `log_rate_hz`-th cycle: for a
+    /// host that sees the status only in the firmware's telemetry frames (a real board's, at
+    /// the firmware's own decimation, whose frames need not fall on those cycles).
+    pub fn log_each_status(mut self) -> Self {
+        self.log_each_status = true;
+        self
     }
 
     /// Compression cycles completed so far.
@@ -350,7 +361,10 @@ impl<'o, 's> RunDriver<'o, 's> {
         let metrics = &mut self.metrics;
         let status = link.status();
         let t = w.time_s();
-        if fresh && w.cycle() > 0 && w.cycle().is_multiple_of(self.log_stride) {
+        if fresh
+            && w.cycle() > 0
+            && (self.log_each_status || w.cycle().is_multiple_of(self.log_stride))
+        {
             self.capture.push(&status, w);
         }
         // `iter` walks every kind of fault: only when one is latched.
