@@ -44,31 +44,26 @@ impl Board {
         }
     }
 
-    /// The compare values TIM1 and TIM8 put in force at an update event (CCR1..4 of each),
-    /// with their ARR: the phase duties of the next period.
-    pub fn latch_duties(&mut self, ccr: [[u32; 4]; 2], arr: [u32; 2]) {
-        let duty = |c: u32, arr: u32| {
-            let arr = u64::from(arr.max(1));
-            Duty(((u64::from(c.min(arr as u32)) << 16) / arr).min(0xFFFF) as u16)
-        };
-        let phases = |i: usize| {
-            [
-                duty(ccr[i][0], arr[i]),
-                duty(ccr[i][1], arr[i]),
-                duty(ccr[i][2], arr[i]),
-            ]
-        };
-        self.duties = PerSection {
-            master: phases(0),
-            slave: phases(1),
-        };
+    /// The compare values a timer put in force at its update event (CCR1..4), with its
+    /// ARR: the phase duties of its section (`timer` 0: TIM1, section 1; 1: TIM8, section 2)
+    /// for the next period.
+    pub fn latch_duties(&mut self, timer: usize, ccr: [u32; 4], arr: u32) {
+        let phases = [ccr[0], ccr[1], ccr[2]].map(|c| Duty::of_compare(c, arr));
+        if timer == 0 {
+            self.duties.master = phases;
+        } else {
+            self.duties.slave = phases;
+        }
     }
 
     /// One PWM period of the plant with the duties in force, bridges on where `moe`, and the
     /// servo command `dac`; then the sensors sample (the next burst).
     pub fn step(&mut self, moe: [bool; 2], dac: u16) {
         let w = &mut self.world;
+        // The chip's own timers decide what is in force (their update events): the plant
+        // applies it as it stands.
         w.duties = self.duties;
+        w.duties_in_force = self.duties;
         w.enabled = moe[0] || moe[1];
         w.sections_on = PerSection {
             master: moe[0],

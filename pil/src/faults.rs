@@ -85,6 +85,8 @@ pub struct Report {
     pub min_clearance_m: f64,
     /// Emulated time at the end, s.
     pub end_s: f64,
+    /// The boots' milestones.
+    pub milestones: Vec<(f64, crate::chip::Milestone)>,
 }
 
 impl Report {
@@ -212,6 +214,7 @@ pub fn run(image: &Image, scenario: Scenario) -> Result<Report, String> {
         faults: s.faults.iter().map(|f| f.name().to_string()).collect(),
         min_clearance_m: min_clearance,
         end_s: s.chip.time_s(),
+        milestones: soc.milestones.clone(),
     })
 }
 

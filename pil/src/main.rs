@@ -195,6 +195,13 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
     for reset in &r.resets {
         println!("  reset at {:.4} s: {:?}", reset.at_s, reset.kind);
     }
+    let mut boot = 0.0;
+    for (t, m) in &r.milestones {
+        if *m == fpc_pil::chip::Milestone::Reset {
+            boot = *t;
+        }
+        println!("  {t:.6} s (+{:.3} ms) {m:?}", (t - boot) * 1e3);
+    }
     println!(
         "  faults seen: [{}]; last mode {:?}",
         r.faults.join(", "),

@@ -8,7 +8,10 @@ use std::io::Write;
 use std::time::Instant;
 
 use fpc::control::calibration::record::CalibrationRecord;
-use hal_sim::run::{RunDriver, RunOptions, RunOutcome, Summary};
+use fpc::control::command::Command;
+use hal_sim::board::world::World;
+use hal_sim::plant::chambers::PortMode;
+use hal_sim::run::{HostLink, RunDriver, RunOptions, RunOutcome, Summary};
 use serde::Serialize;
 
 use crate::board::Board;
@@ -39,8 +42,9 @@ pub struct PilSummary {
     pub cpi: f64,
     /// The worst period's interrupt path at 170 MHz with that CPI, µs (the budget is 50).
     pub worst_cycle_us: f64,
-    /// RMS of the difference between the piston position (as the encoders report it) of
-    /// this run and of the host build on the same plant and seed, aligned at Start, m.
+    /// RMS of the difference between the piston position (the plant's) of this run and of
+    /// the host build on the same plant and seed, the same command taken by the same control
+    /// step, cycle by cycle from the strokes' start, m.
     pub position_rms_diff_vs_host_m: Option<f64>,
     /// Wall-clock time of the emulated run alone, s.
     pub pil_wall_time_s: f64,
@@ -98,14 +102,6 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
         / fpc::units::CONTROL_PERIOD_US
         / u32::from(fpc::link::telemetry::DEFAULT_DECIMATION);
 
-    let host = if opts.compare_with_host {
-        let mut h = opts.run.clone();
-        h.calibration = Some(record);
-        Some(hal_sim::run::run(&h)?)
-    } else {
-        None
-    };
-
     let flash = hal_sim::board::flash::holding(&record)?;
     let mut world = hal_sim::run::world(
         &run_opts.model,
@@ -123,11 +119,14 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
     let mut driver = RunDriver::new(&run_opts, &config, "fpc-pil run", csv).log_each_status();
     let pil_started = Instant::now();
     let mut running_from: Option<usize> = None;
+    let mut track = Track::default();
     loop {
         session.step()?;
         let fresh = session.fresh;
         let (world, mut link) = session.link();
+        let mode = world.plant.port_mode;
         let flow = driver.cycle(world, &mut link, fresh, None);
+        track.record(world, mode);
         if running_from.is_none()
             && driver.cycles_done() == 0
             && session.status.mode == fpc::status::ModeKind::Running
@@ -150,9 +149,19 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
     let mean = periods.iter().map(|p| p.interrupt_path as f64).sum::<f64>() / n;
     let max = periods.iter().map(|p| p.interrupt_path).max().unwrap_or(0);
     let thread = periods.iter().map(|p| p.thread as f64).sum::<f64>() / n;
-    let rms = host
-        .as_ref()
-        .and_then(|h| position_rms_diff(&outcome.log, &h.log));
+    let rms = if opts.compare_with_host && opts.run.schedule.is_empty() {
+        let mut h = opts.run.clone();
+        h.calibration = Some(record);
+        let taken: Vec<_> = session
+            .sent
+            .iter()
+            .map(|c| (c.command, c.taken_after_cycle))
+            .collect();
+        let host = host_replay(&h, &taken, track.bypass_closed)?;
+        position_rms_diff(&track.x_m, &host.x_m, track.start_cycle)
+    } else {
+        None
+    };
     let summary = PilSummary {
         run: outcome.summary.clone(),
         instructions_per_cycle_mean: mean,
@@ -174,58 +183,160 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
     })
 }
 
-/// RMS difference of `x_m` between two run logs over the strokes. The time axes are aligned
-/// on the position reference: the Start command reaches the firmware over RTT at its command
-/// task's 1 kHz poll, the host build's at the next control cycle, so the strokes begin up to
-/// a millisecond apart; the offset (in whole control periods, within ±5 ms of the two runs'
-/// Start posts) is the one that best overlays the two references. The second log is looked
-/// up at each row time of the first.
-pub fn position_rms_diff(
-    pil: &hal_sim::runlog::RunLog,
-    host: &hal_sim::runlog::RunLog,
-) -> Option<f64> {
-    let start = |l: &hal_sim::runlog::RunLog| l.meta("ports_from_s")?.parse::<f64>().ok();
-    let (s_pil, s_host) = (start(pil)?, start(host)?);
-    let (t_p, x_p, r_p) = (
-        pil.column("t_s")?,
-        pil.column("x_m")?,
-        pil.column("x_ref_m")?,
-    );
-    let (t_h, x_h, r_h) = (
-        host.column("t_s")?,
-        host.column("x_m")?,
-        host.column("x_ref_m")?,
-    );
-    let period = f64::from(fpc::units::CONTROL_PERIOD_S);
-    let nearest = |target: f64| -> Option<usize> {
-        let i = t_h.partition_point(|&th| th < target);
-        let j =
-            if i > 0 && (i == t_h.len() || (t_h[i] - target).abs() > (target - t_h[i - 1]).abs()) {
-                i - 1
-            } else {
-                i
-            };
-        (j < t_h.len() && (t_h[j] - target).abs() < period).then_some(j)
+/// The plant as the PIL run moved it: the piston position at every cycle, and when the
+/// operator closed the bypass and the strokes began.
+#[derive(Default)]
+struct Track {
+    /// Piston position (the plant's) at each cycle from 0, m.
+    x_m: Vec<f64>,
+    /// The cycle at which the run driver closed the start-up bypass.
+    bypass_closed: Option<u64>,
+    /// The first cycle of the strokes (the bypass closed), for the comparison.
+    start_cycle: u64,
+}
+
+impl Track {
+    /// Notes cycle `w.cycle()` after the run driver looked at it (`mode`: the port mode
+    /// before it did).
+    fn record(&mut self, w: &World, mode_before: PortMode) {
+        let c = w.cycle() as usize;
+        self.x_m.resize(c, f64::NAN);
+        self.x_m.push(w.plant.x_m);
+        if self.bypass_closed.is_none() && w.plant.port_mode != mode_before {
+            self.bypass_closed = Some(w.cycle());
+            self.start_cycle = w.cycle();
+        }
+    }
+}
+
+/// The host build's run of the same scenario: the same plant, seed and calibration, the same
+/// operator ([`RunDriver`]), with each command taken by the same control step as on the ELF
+/// (`taken`: each command the PIL's operator sent, in order, and the cycle after which its
+/// control step took it) and the bypass closed at the same cycle. Otherwise the two runs
+/// would differ by when things happened — the ELF's host sees the status one telemetry frame
+/// late and its commands wait for the command task's 1 kHz poll — not by what the two
+/// builds compute. Returns the piston position at every cycle.
+fn host_replay(
+    opts: &RunOptions,
+    taken: &[(Command, Option<u64>)],
+    bypass_closed: Option<u64>,
+) -> Result<Track, String> {
+    use hal_sim::board::exec::{simulate_board, Execution, SimShared};
+    let config = hal_sim::run::run_config(opts);
+    let mut world =
+        hal_sim::run::world(&opts.model, opts.seed, opts.start_us, opts.start_position_m);
+    world.telemetry.decimation = opts.telemetry_decimation;
+    world.plant.lines.set_pressure_ratio(opts.pressure_ratio);
+    let mut driver = RunDriver::new(opts, &config, "fpc-pil host replay", None);
+    let execution = Execution {
+        watchdog_timeout_us: Some(opts.watchdog_timeout_us),
+        flash: opts
+            .calibration
+            .as_ref()
+            .map(hal_sim::board::flash::holding)
+            .transpose()?,
+        ..Execution::default()
     };
-    let rms = |shift: f64, a: &[f64], b: &[f64]| -> Option<f64> {
-        let (mut sum, mut n) = (0.0, 0usize);
-        for (i, &t) in t_p.iter().enumerate() {
-            if t < s_pil {
-                continue;
+    let mut track = Track::default();
+    let mut replay = Replay {
+        taken,
+        posted: Vec::new(),
+        delivered: 0,
+        mismatch: None,
+    };
+    let each_cycle = |w: &mut World, shared: &SimShared, _: &mut Execution| {
+        let cycle = w.cycle();
+        replay.deliver(shared, cycle);
+        let mode = w.plant.port_mode;
+        let mut link = ReplayLink {
+            shared,
+            replay: &mut replay,
+        };
+        let flow = driver.cycle(w, &mut link, true, None);
+        // The bypass closes when it closed on the ELF's plant.
+        if w.plant.port_mode != mode && bypass_closed.is_some_and(|c| cycle < c) {
+            w.plant.port_mode = mode;
+        }
+        if bypass_closed == Some(cycle) {
+            w.plant.port_mode = PortMode::Timed;
+        }
+        replay.deliver(shared, cycle);
+        track.x_m.push(w.plant.x_m);
+        flow
+    };
+    let _ = simulate_board(world, config, execution, each_cycle);
+    if let Some(why) = replay.mismatch {
+        return Err(format!("the host build's replay of the commands: {why}"));
+    }
+    Ok(track)
+}
+
+/// The commands of a host-build run, held until the cycle the ELF took them at.
+struct Replay<'t> {
+    taken: &'t [(Command, Option<u64>)],
+    posted: Vec<Command>,
+    delivered: usize,
+    mismatch: Option<String>,
+}
+
+impl Replay<'_> {
+    /// Posts what is due at `cycle`.
+    fn deliver(&mut self, shared: &hal_sim::board::exec::SimShared, cycle: u64) {
+        while let (Some(&command), Some(&(sent, at))) = (
+            self.posted.get(self.delivered),
+            self.taken.get(self.delivered),
+        ) {
+            if command != sent {
+                self.mismatch.get_or_insert(format!(
+                    "command {} is {command:?} here, {sent:?} on the ELF",
+                    self.delivered
+                ));
+                return;
             }
-            let Some(j) = nearest(t - s_pil + s_host + shift) else {
-                continue;
-            };
-            let d = a[i] - b[j];
-            sum += d * d;
+            let Some(at) = at else { return };
+            if at > cycle {
+                return;
+            }
+            if at < cycle {
+                self.mismatch.get_or_insert(format!(
+                    "{command:?} was decided at cycle {cycle}, after the ELF took it ({at})"
+                ));
+            }
+            let _ = shared.post_command(command);
+            self.delivered += 1;
+        }
+    }
+}
+
+/// [`HostLink`] of the host replay: the status at once, commands held by [`Replay`].
+struct ReplayLink<'a, 't> {
+    shared: &'a hal_sim::board::exec::SimShared,
+    replay: &'a mut Replay<'t>,
+}
+
+impl HostLink for ReplayLink<'_, '_> {
+    fn status(&self) -> fpc::status::Status {
+        self.shared.status()
+    }
+
+    fn post_command(&mut self, command: Command) -> bool {
+        self.replay.posted.push(command);
+        true
+    }
+}
+
+/// RMS difference of the piston position between the ELF's run and the host build's, over
+/// the cycles from `from` (the strokes' start) to the end of the shorter run, m; `None`
+/// with fewer than 1,000 cycles to compare.
+pub fn position_rms_diff(pil_m: &[f64], host_m: &[f64], from: u64) -> Option<f64> {
+    let from = usize::try_from(from).ok()?;
+    let pairs = pil_m.get(from..)?.iter().zip(host_m.get(from..)?);
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (a, b) in pairs {
+        if a.is_finite() && b.is_finite() {
+            sum += (a - b) * (a - b);
             n += 1;
         }
-        (n > 100).then(|| (sum / n as f64).sqrt())
-    };
-    let shift = (-100..=100)
-        .map(|k| f64::from(k) * period)
-        .filter_map(|shift| Some((rms(shift, r_p, r_h)?, shift)))
-        .min_by(|a, b| a.0.total_cmp(&b.0))?
-        .1;
-    rms(shift, x_p, x_h)
+    }
+    (n >= 1000).then(|| (sum / n as f64).sqrt())
 }

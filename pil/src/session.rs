@@ -43,6 +43,27 @@ pub struct Session {
     outbox: VecDeque<u8>,
     resets_seen: usize,
     buf: Vec<u8>,
+    /// Every command the host sent, in order, and when the firmware took it.
+    pub sent: Vec<SentCommand>,
+    /// Bytes queued for down 0 since the channels came up.
+    queued: u64,
+    /// Bytes of down 0 the firmware has read since the channels came up.
+    consumed: u64,
+    /// Down 0's read offset at the last poll.
+    read_offset: u32,
+}
+
+/// A command the host sent over down 0.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SentCommand {
+    /// The command.
+    pub command: Command,
+    /// Where its last byte is in the stream of down 0.
+    end: u64,
+    /// The plant cycle after whose control step the firmware's command task had read it, so
+    /// that the next control step took it: the cycle at which a host build, whose commands
+    /// are taken at the next cycle, must post it to be taken by the same step.
+    pub taken_after_cycle: Option<u64>,
 }
 
 /// The status a telemetry frame carries (what the host knows of the firmware's status).
@@ -90,6 +111,10 @@ impl Session {
             outbox: VecDeque::new(),
             resets_seen: 0,
             buf: Vec::new(),
+            sent: Vec::new(),
+            queued: 0,
+            consumed: 0,
+            read_offset: 0,
         })
     }
 
@@ -118,6 +143,9 @@ impl Session {
             self.telemetry = TelemetryDecoder::new();
             self.answers = AnswerReader::new();
             self.outbox.clear();
+            self.queued = 0;
+            self.consumed = 0;
+            self.read_offset = 0;
         }
         self.fresh = false;
         if self.rtt.is_none() {
@@ -128,6 +156,7 @@ impl Session {
         let Some(rtt) = self.rtt.clone() else {
             return Ok(());
         };
+        self.track_commands(&rtt)?;
         self.read(&rtt, UP_DEFMT)?;
         if !self.buf.is_empty() {
             self.log.push(t, &self.buf);
@@ -169,6 +198,54 @@ impl Session {
         Ok(())
     }
 
+    /// Follows the firmware's reads of down 0 (its read offset): a command whose last byte
+    /// was read in this period was taken by the control step of the next cycle — or of this
+    /// one, if the read came before this cycle's control step (the read offset then already
+    /// included it when the control executor was entered).
+    fn track_commands(&mut self, rtt: &ControlBlock) -> Result<(), String> {
+        let Some(down) = rtt.down_channel(DOWN_COMMANDS) else {
+            return Ok(());
+        };
+        let word = u32::try_from(down.descriptor + DOWN_READ_OFFSET)
+            .map_err(|_| "the down-channel descriptor is outside the 32-bit space")?;
+        let soc = self.chip.soc();
+        if soc.watch_word != Some(word) {
+            soc.watch_word = Some(word);
+            soc.control_entry = None;
+        }
+        let mut w = [0u8; 4];
+        self.chip
+            .read_mem(word, &mut w)
+            .map_err(|e| e.to_string())?;
+        let read = u32::from_le_bytes(w);
+        let size = down.size.max(1);
+        let delta = u64::from((read + size - self.read_offset % size) % size);
+        if delta == 0 {
+            return Ok(());
+        }
+        let soc = self.chip.soc_ref();
+        let cycle = soc.board.world.cycle();
+        let before_step = match soc.control_entry {
+            Some((c, at_entry)) if c == cycle => {
+                u64::from((at_entry + size - self.read_offset % size) % size)
+            }
+            _ => 0,
+        };
+        let (from, to) = (self.consumed, self.consumed + delta);
+        for c in &mut self.sent {
+            if c.end > from && c.end <= to && c.taken_after_cycle.is_none() {
+                c.taken_after_cycle = Some(if c.end <= from + before_step {
+                    cycle.saturating_sub(1)
+                } else {
+                    cycle
+                });
+            }
+        }
+        self.consumed = to;
+        self.read_offset = read;
+        Ok(())
+    }
+
     /// Drains up-channel `n` into `self.buf`.
     fn read(&mut self, rtt: &ControlBlock, n: usize) -> Result<(), String> {
         self.buf.clear();
@@ -189,14 +266,7 @@ impl Session {
         if self.rtt.is_none() {
             return false;
         }
-        let mut out = [0u8; MAX_COMMAND_WIRE];
-        match encode_command(&command, &mut out) {
-            Ok(n) => {
-                self.outbox.extend(&out[..n]);
-                true
-            }
-            Err(_) => false,
-        }
+        queue(command, &mut self.outbox, &mut self.sent, &mut self.queued)
     }
 
     /// The run driver's view of this session.
@@ -206,6 +276,8 @@ impl Session {
             rtt,
             outbox,
             status,
+            sent,
+            queued,
             ..
         } = self;
         (
@@ -214,8 +286,37 @@ impl Session {
                 status: *status,
                 up: rtt.is_some(),
                 outbox,
+                sent,
+                queued,
             },
         )
+    }
+}
+
+/// Offset of the read offset in an RTT buffer descriptor (name, buffer, size, write, read,
+/// flags).
+const DOWN_READ_OFFSET: u64 = 16;
+
+/// Encodes `command` onto `outbox` and notes it in `sent`.
+fn queue(
+    command: Command,
+    outbox: &mut VecDeque<u8>,
+    sent: &mut Vec<SentCommand>,
+    queued: &mut u64,
+) -> bool {
+    let mut out = [0u8; MAX_COMMAND_WIRE];
+    match encode_command(&command, &mut out) {
+        Ok(n) => {
+            outbox.extend(&out[..n]);
+            *queued += n as u64;
+            sent.push(SentCommand {
+                command,
+                end: *queued,
+                taken_after_cycle: None,
+            });
+            true
+        }
+        Err(_) => false,
     }
 }
 
@@ -231,6 +332,8 @@ pub struct SessionLink<'a> {
     status: Status,
     up: bool,
     outbox: &'a mut VecDeque<u8>,
+    sent: &'a mut Vec<SentCommand>,
+    queued: &'a mut u64,
 }
 
 impl HostLink for SessionLink<'_> {
@@ -242,13 +345,6 @@ impl HostLink for SessionLink<'_> {
         if !self.up {
             return false;
         }
-        let mut out = [0u8; MAX_COMMAND_WIRE];
-        match encode_command(&command, &mut out) {
-            Ok(n) => {
-                self.outbox.extend(&out[..n]);
-                true
-            }
-            Err(_) => false,
-        }
+        queue(command, self.outbox, self.sent, self.queued)
     }
 }

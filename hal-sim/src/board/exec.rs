@@ -31,8 +31,6 @@ use fpc::tasks::{control_run, supervision_run, telemetry_run};
 
 use crate::board::flash::{block_on, SimFlash};
 
-use fpc::units::DacCode;
-
 use crate::board::capture::telemetry_sink;
 use crate::board::world::{
     clock, cycle, event_log, peripherals, watchdog, SimCycle, SimPeripherals, World, WorldRef,
@@ -234,9 +232,7 @@ where
             let mut w = world.borrow_mut();
             if !powered {
                 // No supply: the gate drivers' pull-downs hold every output low.
-                w.enabled = false;
-                w.duties = Default::default();
-                w.servo_code = DacCode::MID;
+                w.outputs_reset();
             }
             if each_cycle(&mut w, &shared, &mut execution).is_break() {
                 break 'boot;
@@ -273,9 +269,7 @@ where
                 w.time_us().saturating_sub(w.watchdog_fed_us) >= window
             });
             if starved {
-                w.enabled = false;
-                w.duties = Default::default();
-                w.servo_code = DacCode::MID;
+                w.outputs_reset();
                 // Started again by the boot, in its boot window, as the firmware's init does.
                 w.watchdog_fed_us = w.time_us();
                 w.watchdog_fed_since_boot = false;

@@ -221,6 +221,18 @@ pub fn enter(uc: &mut Unicorn<Soc>, exc: usize) -> Result<(), ChipError> {
     if !in_handler {
         soc.path_open = true;
     }
+    if exc == nvic::irq(irqn::UART5) {
+        soc.milestone(super::Milestone::ControlTask);
+        // The control step of this plant cycle starts (it takes the commands posted so far).
+        let cycle = soc.board.world.cycle();
+        let watched = soc.watch_word;
+        let value = watched.map_or(0, |a| {
+            let mut w = [0u8; 4];
+            let _ = uc.mem_read(u64::from(a), &mut w);
+            u32::from_le_bytes(w)
+        });
+        uc.get_data_mut().control_entry = Some((cycle, value));
+    }
     Ok(())
 }
 

@@ -227,6 +227,46 @@ pub struct Soc {
     pub store_reads: u64,
     /// The chip is unpowered (after a power cut, until [`Chip::power_on`]).
     pub powered: bool,
+    /// A RAM word to read at each entry of the control executor (the RTT command channel's
+    /// read offset, which the firmware's command task advances).
+    pub watch_word: Option<u32>,
+    /// The plant cycle of the last entry of the control executor, and `watch_word` then.
+    pub control_entry: Option<(u64, u32)>,
+    /// Milestones of each boot, the first time each is reached after a reset: (emulated
+    /// time, s; what).
+    pub milestones: Vec<(f64, Milestone)>,
+}
+
+/// A step of a boot the chip notices (the first time after each reset).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Milestone {
+    /// The core fetches the reset vector.
+    Reset,
+    /// SYSCLK switched to the PLL (RCC_CFGR.SW).
+    Pll,
+    /// TIM1's counter started (CR1.CEN): the PWM and the ADC bursts run.
+    PwmStarted,
+    /// The IWDG started (key 0xCCCC).
+    WatchdogStarted,
+    /// The control executor's interrupt entered for the first time (the control task's
+    /// first poll).
+    ControlTask,
+    /// A bridge's main output enable (TIM1 or TIM8 BDTR.MOE) set.
+    OutputsOn,
+}
+
+impl Soc {
+    /// Notes `m` if it is the first since the last reset.
+    pub(crate) fn milestone(&mut self, m: Milestone) {
+        let since_reset = self
+            .milestones
+            .iter()
+            .rposition(|(_, x)| *x == Milestone::Reset)
+            .unwrap_or(0);
+        if !self.milestones[since_reset..].iter().any(|(_, x)| *x == m) {
+            self.milestones.push((crate::time::seconds(self.time), m));
+        }
+    }
 }
 
 impl Soc {
@@ -284,6 +324,9 @@ impl Soc {
             error: None,
             store_reads: 0,
             powered: true,
+            watch_word: None,
+            control_entry: None,
+            milestones: vec![(0.0, Milestone::Reset)],
         }
     }
 
@@ -336,6 +379,8 @@ impl Soc {
         self.hang_pending = false;
         self.bus_fault_pending = false;
         self.board.dma_writes.clear();
+        self.watch_word = None;
+        self.control_entry = None;
     }
 
     /// The timer kernel clock period (APB prescalers are 1 in this firmware; an APB
@@ -508,7 +553,13 @@ impl Soc {
                 handled = true;
             }
             if self.tim8.next_boundary().is_some_and(|t| t <= now) {
-                self.tim8.fire_boundary();
+                let b = self.tim8.fire_boundary();
+                if b.update && b.peak {
+                    // TIM8 counts a few clocks behind TIM1 (started by its trigger): its
+                    // compare values go into force at its own update, just after TIM1's.
+                    let arr = self.tim8.regs[(timers::reg::ARR / 4) as usize];
+                    self.board.latch_duties(1, self.tim8.active_ccr, arr);
+                }
                 handled = true;
             }
             if self.tim2.next_boundary().is_some_and(|t| t <= now) {
@@ -553,12 +604,8 @@ impl Soc {
         // The compare values just transferred act over the next period; the plant first
         // runs the one that ended with the values in force during it.
         self.step_plant();
-        let duties = [self.tim1.active_ccr, self.tim8.active_ccr];
-        let arr = [
-            self.tim1.regs[(timers::reg::ARR / 4) as usize],
-            self.tim8.regs[11],
-        ];
-        self.board.latch_duties(duties, arr);
+        let arr = self.tim1.regs[(timers::reg::ARR / 4) as usize];
+        self.board.latch_duties(0, self.tim1.active_ccr, arr);
     }
 
     fn step_plant(&mut self) {
@@ -735,6 +782,9 @@ impl Soc {
         match addr {
             a if (base::TIM1..base::TIM1 + 0x400).contains(&a) => {
                 let started = self.tim1.write(off(base::TIM1), value, now, clk);
+                if started {
+                    self.milestone(Milestone::PwmStarted);
+                }
                 let mms = (self.tim1.regs[1] >> 4) & 7;
                 let smcr = self.tim8.regs[2];
                 let sms = (smcr & 7) | ((smcr >> 16) & 1) << 3;
@@ -755,6 +805,9 @@ impl Soc {
                 self.tim4.write(off(base::TIM4), value, now, clk);
             }
             a if (base::IWDG..base::IWDG + 0x400).contains(&a) => {
+                if off(base::IWDG) == 0 && value & 0xFFFF == 0xCCCC {
+                    self.milestone(Milestone::WatchdogStarted);
+                }
                 self.iwdg.write(off(base::IWDG), value, now)
             }
             a if (base::FLASH..base::FLASH + 0x400).contains(&a) => {
@@ -783,6 +836,10 @@ impl Soc {
             a => {
                 self.regs.insert(a, value);
             }
+        }
+        let moe = |t: &Timer| t.regs[(timers::reg::BDTR / 4) as usize] & (1 << 15) != 0;
+        if moe(&self.tim1) || moe(&self.tim8) {
+            self.milestone(Milestone::OutputsOn);
         }
         self.update_irqs();
     }
@@ -820,6 +877,9 @@ impl Soc {
         self.regs.insert(addr, v);
         if o == 0x08 || o == 0x0C {
             self.clocks_changed();
+        }
+        if o == 0x08 && v & 3 == 3 {
+            self.milestone(Milestone::Pll);
         }
     }
 
@@ -1208,6 +1268,7 @@ impl Chip {
                 ResetKind::Software => RCC_CSR_SFTRSTF,
             };
         soc.resets.push(ResetRecord { at_s, kind });
+        soc.milestones.push((at_s, Milestone::Reset));
         soc.board.outputs_off();
         self.boot()
     }
