@@ -81,8 +81,14 @@ pub struct Report {
     pub final_mode: Option<ModeKind>,
     /// Faults seen (frames and log).
     pub faults: Vec<String>,
-    /// Smallest head clearance over the scenario, m.
+    /// Smallest head clearance over the scenario (from the strokes' start where the machine
+    /// strokes: homing touches head A on purpose), m.
     pub min_clearance_m: f64,
+    /// When it was reached, emulated s.
+    pub min_clearance_at_s: f64,
+    /// Smallest head clearance from the injection on, m (infinite if nothing was injected
+    /// while the machine stroked).
+    pub min_clearance_after_m: f64,
     /// Emulated time at the end, s.
     pub end_s: f64,
     /// The boots' milestones.
@@ -96,29 +102,74 @@ impl Report {
     }
 }
 
-/// Runs `scenario` on `image`.
+/// Where the piston rests at power-on, m from head A.
+const START_POSITION_M: f64 = 1e-3;
+
+/// How long a scenario with the machine stroking goes on after the injection, s: the
+/// watchdog's 3 ms, the boot's 3 ms, the brake from full speed (≈ 10 ms), with room.
+const AFTER_INJECTION_S: f64 = 0.15;
+
+/// Where and how hard a scenario with the machine stroking injects its fault.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Options {
+    /// The fault comes this long after the Start command, s.
+    pub inject_after_start_s: f64,
+    /// Pressure ratio (the peak speed follows it, as in `fpc-sim run`).
+    pub pressure_ratio: f64,
+    /// Clock cycles per instruction of the emulated core ([`crate::DEFAULT_CPI`]).
+    pub cpi: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            inject_after_start_s: 0.25,
+            pressure_ratio: RunOptions::reference().pressure_ratio,
+            cpi: crate::DEFAULT_CPI,
+        }
+    }
+}
+
+/// Runs `scenario` on `image` with the default [`Options`].
 pub fn run(image: &Image, scenario: Scenario) -> Result<Report, String> {
-    let opts = RunOptions::reference();
+    run_with(image, scenario, &Options::default())
+}
+
+/// Runs `scenario` on `image`.
+pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Report, String> {
+    let scenario_opts = opts;
+    let opts = RunOptions {
+        pressure_ratio: scenario_opts.pressure_ratio,
+        ..RunOptions::reference()
+    };
+    opts.validate()?;
     let record = crate::run::commissioned(&opts)?;
     let store = hal_sim::board::flash::holding(&record)?;
-    let mut world = hal_sim::run::world(&opts.model, opts.seed, 0, opts.start_position_m);
+    // The piston rests 1 mm from head A, so that homing (which creeps to it) is short.
+    let mut world = hal_sim::run::world(&opts.model, opts.seed, 0, START_POSITION_M);
     world.plant.lines.set_pressure_ratio(opts.pressure_ratio);
-    let mut chip = ChipOptions::default();
+    let mut chip = ChipOptions {
+        cpi: scenario_opts.cpi,
+        ..ChipOptions::default()
+    };
     if scenario == Scenario::SingleBank {
         chip.optr &= !flash::OPTR_DBANK;
     }
     let mut s = Session::new(image.clone(), Board::new(world), chip)?;
     s.chip.soc().flash.load_image(store.image());
-    let mut min_clearance = f64::INFINITY;
+    let mut min_clearance = (f64::INFINITY, 0.0);
+    let mut after_injection = f64::INFINITY;
     let mut injected_at = None;
     let speed = opts.peak_speed_mps() as f32;
-    let step = |s: &mut Session, min: &mut f64| -> Result<(), String> {
+    let step = |s: &mut Session, min: &mut (f64, f64)| -> Result<(), String> {
         s.step()?;
         let c = s.chip.soc_ref().board.world.plant.head_clearance_m();
-        *min = min.min(c);
+        if c < min.0 {
+            *min = (c, s.chip.time_s());
+        }
         Ok(())
     };
-    let until = |s: &mut Session, min: &mut f64, t: f64| -> Result<(), String> {
+    let until = |s: &mut Session, min: &mut (f64, f64), t: f64| -> Result<(), String> {
         while s.chip.time_s() < t {
             step(s, min)?;
         }
@@ -149,7 +200,9 @@ pub fn run(image: &Image, scenario: Scenario) -> Result<Report, String> {
             s.send(Command::Start {
                 peak_speed_mps: speed,
             });
-            let t = s.chip.time_s() + 0.25;
+            // Homing touches head A on purpose: the clearance counts from the strokes.
+            min_clearance = (f64::INFINITY, 0.0);
+            let t = s.chip.time_s() + scenario_opts.inject_after_start_s;
             until(&mut s, &mut min_clearance, t)?;
             injected_at = Some(s.chip.time_s());
             if scenario == Scenario::HungControl {
@@ -157,8 +210,14 @@ pub fn run(image: &Image, scenario: Scenario) -> Result<Report, String> {
             } else {
                 s.chip.soc().bus_fault_pending = true;
             }
-            let t = s.chip.time_s() + 0.5;
+            let before = min_clearance;
+            min_clearance = (f64::INFINITY, 0.0);
+            let t = s.chip.time_s() + AFTER_INJECTION_S;
             until(&mut s, &mut min_clearance, t)?;
+            after_injection = min_clearance.0;
+            if before.0 < min_clearance.0 {
+                min_clearance = before;
+            }
         }
         Scenario::TornSave | Scenario::SaveError => {
             until(&mut s, &mut min_clearance, 0.01)?;
@@ -212,7 +271,9 @@ pub fn run(image: &Image, scenario: Scenario) -> Result<Report, String> {
         log: s.log.lines.clone(),
         final_mode: (s.frames > 0).then_some(s.status.mode),
         faults: s.faults.iter().map(|f| f.name().to_string()).collect(),
-        min_clearance_m: min_clearance,
+        min_clearance_m: min_clearance.0,
+        min_clearance_at_s: min_clearance.1,
+        min_clearance_after_m: after_injection,
         end_s: s.chip.time_s(),
         milestones: soc.milestones.clone(),
     })

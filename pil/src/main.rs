@@ -43,6 +43,15 @@ struct FaultArgs {
     /// The firmware ELF.
     #[arg(long)]
     elf: PathBuf,
+    /// Scenarios that stroke: inject this long after the Start command, s.
+    #[arg(long, default_value_t = 0.25)]
+    at: f64,
+    /// Scenarios that stroke: the pressure ratio (the peak speed follows it).
+    #[arg(long, default_value_t = 3.1)]
+    pressure_ratio: f64,
+    /// Clock cycles per instruction for the emulated time.
+    #[arg(long, default_value_t = fpc_pil::DEFAULT_CPI)]
+    cpi: f64,
 }
 
 #[derive(clap::Args)]
@@ -169,7 +178,7 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
 }
 
 fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
-    use fpc_pil::faults::{run, Scenario};
+    use fpc_pil::faults::{run_with, Scenario};
     let scenario = Scenario::ALL
         .into_iter()
         .find(|s| s.name() == args.scenario)
@@ -183,14 +192,27 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
         })?;
     let image = Image::read(&args.elf)?;
     let started = std::time::Instant::now();
-    let r = run(&image, scenario)?;
+    if !(args.at.is_finite() && (0.0..=10.0).contains(&args.at)) {
+        return Err(format!("--at {}: must be within [0, 10] s", args.at));
+    }
+    if !(args.cpi.is_finite() && (0.5..=5.0).contains(&args.cpi)) {
+        return Err(format!("--cpi {}: must be within [0.5, 5]", args.cpi));
+    }
+    let opts = fpc_pil::faults::Options {
+        inject_after_start_s: args.at,
+        pressure_ratio: args.pressure_ratio,
+        cpi: args.cpi,
+    };
+    let r = run_with(&image, scenario, &opts)?;
     println!(
-        "fpc-pil fault {}: injected at {}, {:.3} s emulated in {:.1} s wall, min head clearance {:.3} mm",
+        "fpc-pil fault {}: injected at {}, {:.3} s emulated in {:.1} s wall, min head clearance {:.3} mm at {:.4} s, {:.3} mm after the injection",
         scenario.name(),
         r.injected_at_s.map_or("-".into(), |t| format!("{t:.4} s")),
         r.end_s,
         started.elapsed().as_secs_f64(),
-        r.min_clearance_m * 1e3
+        r.min_clearance_m * 1e3,
+        r.min_clearance_at_s,
+        r.min_clearance_after_m * 1e3
     );
     for reset in &r.resets {
         println!("  reset at {:.4} s: {:?}", reset.at_s, reset.kind);

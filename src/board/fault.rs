@@ -13,12 +13,12 @@
 //! ADC bring-up) cannot hang the board. Interrupts stay masked meanwhile, so nothing can
 //! re-enable the outputs.
 //!
-//! The wait before that reset reloads the IWDG every millisecond: the running window is
-//! ≈ 3 ms, so without it the watchdog would reset first and the next boot would report a
-//! hung task (and brake as after one). The cause is also kept in an `.uninit` record
+//! The wait before that reset (1 ms by the cycle counter) reloads the IWDG all along: the
+//! running window is ≈ 3 ms, so without it the watchdog would reset first and the next
+//! boot would report a hung task (and brake as after one). The cause is also kept in an `.uninit` record
 //! ([`FaultRecord`]), which RAM keeps across a reset, and logged by the next boot
 //! ([`take_kept_cause`]): the defmt line of the fault itself is lost if no host reads it
-//! within those 10 ms.
+//! within that millisecond.
 //!
 //! NMI: a double ECC error on a flash read (FLASH_ECCR.ECCD), what a power cut during a
 //! program or an erase can leave. If the failing double word is in the calibration store,
@@ -78,15 +78,29 @@ fn reload_watchdog() {
     pac::IWDG.kr().write_value(pac::iwdg::regs::Kr(0xAAAA));
 }
 
-/// Waits ≈ 1 ms (at 170 MHz; ≈ 10 ms at the 16 MHz boot clock) so an attached host can
-/// read the last log, reloading the IWDG first so this reset, not the watchdog's, ends the
-/// fault; then resets the MCU. Short on purpose: the outputs are off and a piston at speed
-/// coasts until the next boot brakes it (measured in the emulator, `fpc-pil fault
-/// fault-path`: with a 10 ms wait it reached the head), and the cause survives the reset in
-/// [`FaultRecord`] anyway.
+/// Waits 1 ms (170,000 core clocks at 170 MHz; ≈ 10 ms at the 16 MHz boot clock) so an
+/// attached host can read the last log, reloading the IWDG all the while so this reset, not
+/// the watchdog's, ends the fault; then resets the MCU. Short on purpose: the outputs are
+/// off and a piston at speed coasts until the next boot brakes it (measured in the
+/// emulator, `fpc-pil fault fault-path`: with a 10 ms wait it reached the head), and the
+/// cause survives the reset in [`FaultRecord`] anyway.
+///
+/// Timed by the core's cycle counter (DWT CYCCNT), not `cortex_m::asm::delay`: that is a
+/// loop of at least one cycle per iteration, 3–5 on the M4 (a taken branch refills the
+/// pipeline, and flash wait states add more), so `delay(170_000)` took 3–5 ms — longer
+/// than the watchdog's 3 ms running window, which then reset first (the next boot
+/// reporting a hung task), whatever the reload before it.
 fn reset_after_log() -> ! {
     reload_watchdog();
-    cortex_m::asm::delay(SYSCLK_HZ / 1000);
+    // SAFETY: the fault path owns the core: nothing else runs (interrupts masked, or a fault
+    // handler that never returns); enabling the cycle counter has no other effect.
+    let mut core = unsafe { cortex_m::Peripherals::steal() };
+    core.DCB.enable_trace();
+    core.DWT.enable_cycle_counter();
+    let start = cortex_m::peripheral::DWT::cycle_count();
+    while cortex_m::peripheral::DWT::cycle_count().wrapping_sub(start) < SYSCLK_HZ / 1000 {
+        reload_watchdog();
+    }
     SCB::sys_reset()
 }
 

@@ -10,8 +10,9 @@
 //! [`simulate_board`] adds what the board does beyond running the tasks, for the fault
 //! scenarios of `faults.md`: a control step that overruns (the task is not polled for some
 //! periods, the outputs hold), a task that hangs, and the independent watchdog, which resets
-//! the MCU when the supervision task stops feeding it: outputs off, the shared RAM and every
-//! task started afresh with [`ResetCause::Watchdog`], while the plant keeps moving.
+//! the MCU when the supervision task stops feeding it: outputs off, the boot's
+//! [`BOOT_US`] with nothing running, then the shared RAM and every task started afresh with
+//! [`ResetCause::Watchdog`], while the plant keeps moving.
 
 use std::cell::RefCell;
 use std::future::Future;
@@ -44,6 +45,17 @@ pub const WATCHDOG_TIMEOUT_US: u64 = fpc::tasks::WATCHDOG_TIMEOUT_US as u64;
 /// ([`fpc::tasks::BOOT_WATCHDOG_TIMEOUT_US`]).
 pub const BOOT_WATCHDOG_TIMEOUT_US: u64 = fpc::tasks::BOOT_WATCHDOG_TIMEOUT_US as u64;
 
+/// Time from a reset of the MCU to the firmware's first control cycle, µs: the runtime's
+/// start at the 16 MHz reset clock (`.bss` zeroed, `.data` copied), the clock tree, the
+/// board's bring-up and the calibration read, before the control task first runs. Measured
+/// on the release ELF in the emulated STM32G474 (`fpc-pil fault hung-control`, the boot's
+/// milestones at 1.5 cycles per instruction: 2.81 ms), rounded up; `fpc-pil`'s tests
+/// check the ELF boots within it. No task runs and the outputs are off meanwhile, while
+/// the plant goes on: a simulator that booted at once would brake a moving piston that
+/// much earlier than the board can. A run's own start (t = 0) is the firmware's first
+/// cycle; only a reset within a run (the watchdog, a power cut) costs it.
+pub const BOOT_US: u64 = 3_000;
+
 /// The board's execution beyond polling the tasks: overruns, hangs and the watchdog.
 /// [`simulate_board`] hands it to the caller every period, so a fault scenario can change
 /// it at any instant.
@@ -70,6 +82,8 @@ pub struct Execution {
     pub power_off_until_us: Option<u64>,
     /// Simulated time of every boot after a power cut, µs.
     pub power_ups_us: Vec<u64>,
+    /// The MCU is booting after a reset until this time, µs ([`BOOT_US`]): no task runs.
+    pub booting_until_us: Option<u64>,
 }
 
 /// The shared state as the simulator instantiates it (single thread: no-op mutex).
@@ -179,9 +193,9 @@ where
 ///
 /// A reset, as the MCU does it: the motor outputs go off and the servo command to zero at
 /// once (the pins float, the gate drivers' pull-downs hold them low), the shared state is
-/// lost, and every task starts again from its entry with [`ResetCause::Watchdog`] at the
-/// next period. The plant is not reset: the piston keeps whatever speed it had. Returns the
-/// world and the execution at the end.
+/// lost, and every task starts again from its entry with [`ResetCause::Watchdog`] once the
+/// MCU has booted ([`BOOT_US`]). The plant is not reset: the piston keeps whatever speed it
+/// had. Returns the world and the execution at the end.
 pub fn simulate_board<F>(
     world: World,
     config: ControlConfig,
@@ -216,6 +230,14 @@ where
         let mut telemetry = pin!(telemetry_run(telemetry_sink(&world), &shared, decimation));
         loop {
             let powered = execution.power_off_until_us.is_none();
+            let now_us = world.borrow().time_us();
+            let booting = execution
+                .booting_until_us
+                .is_some_and(|until| now_us < until);
+            if !booting {
+                execution.booting_until_us = None;
+            }
+            let powered = powered && !booting;
             if powered && !execution.control_hung {
                 if execution.control_busy_periods == 0 {
                     let _ = control.as_mut().poll(&mut cx);
@@ -243,6 +265,7 @@ where
                     // the flash as the cut left it).
                     execution.power_off_until_us = None;
                     execution.power_ups_us.push(w.time_us());
+                    execution.booting_until_us = Some(w.time_us() + BOOT_US);
                     execution.control_hung = false;
                     execution.supervision_hung = false;
                     execution.control_busy_periods = 0;
@@ -274,6 +297,7 @@ where
                 w.watchdog_fed_us = w.time_us();
                 w.watchdog_fed_since_boot = false;
                 execution.resets_us.push(w.time_us());
+                execution.booting_until_us = Some(w.time_us() + BOOT_US);
                 execution.control_hung = false;
                 execution.supervision_hung = false;
                 execution.control_busy_periods = 0;

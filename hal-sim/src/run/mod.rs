@@ -207,7 +207,9 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             Some(injector.finished(w.time_us(), heartbeat_timeout_s))
         };
         let mut link = shared;
-        driver.cycle(w, &mut link, true, injected)
+        // While the MCU boots after a reset nothing reports a status.
+        let fresh = exec.booting_until_us.is_none();
+        driver.cycle(w, &mut link, fresh, injected)
     };
     let (world, _) = simulate_board(world, config, execution, each_cycle);
     driver.finish(world, injector.report().clone())

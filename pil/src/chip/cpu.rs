@@ -320,6 +320,9 @@ pub fn install_hooks(uc: &mut Unicorn<'static, Soc>) -> Result<(), ChipError> {
             }
         };
         let soc = uc.get_data_mut();
+        if addr == soc.main_address {
+            soc.milestone(super::Milestone::Main);
+        }
         soc.execute(entry & 0xFFF);
         if entry >> 31 != 0 {
             soc.event = true;

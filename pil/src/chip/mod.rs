@@ -100,7 +100,7 @@ pub struct ChipOptions {
 impl Default for ChipOptions {
     fn default() -> Self {
         ChipOptions {
-            cpi: 1.0,
+            cpi: crate::DEFAULT_CPI,
             lsi_hz: 32_000.0,
             optr: flash::OPTR_FACTORY,
         }
@@ -235,6 +235,8 @@ pub struct Soc {
     /// Milestones of each boot, the first time each is reached after a reset: (emulated
     /// time, s; what).
     pub milestones: Vec<(f64, Milestone)>,
+    /// Address of the image's `main` (for [`Milestone::Main`]).
+    pub main_address: u32,
 }
 
 /// A step of a boot the chip notices (the first time after each reset).
@@ -242,6 +244,9 @@ pub struct Soc {
 pub enum Milestone {
     /// The core fetches the reset vector.
     Reset,
+    /// `main` entered: the runtime has zeroed `.bss` and copied `.data` (at the 16 MHz
+    /// reset clock).
+    Main,
     /// SYSCLK switched to the PLL (RCC_CFGR.SW).
     Pll,
     /// TIM1's counter started (CR1.CEN): the PWM and the ADC bursts run.
@@ -327,6 +332,7 @@ impl Soc {
             watch_word: None,
             control_entry: None,
             milestones: vec![(0.0, Milestone::Reset)],
+            main_address: 0,
         }
     }
 
@@ -1174,6 +1180,7 @@ impl Chip {
         uc.mem_write(u64::from(spin), &[0xFE, 0xE7])
             .map_err(uc_err("spin"))?;
         uc.get_data_mut().spin_address = spin;
+        uc.get_data_mut().main_address = image.symbol("main").unwrap_or(0) & !1;
         cpu::install_hooks(&mut uc)?;
         Ok(Chip { uc, image })
     }
