@@ -8,6 +8,7 @@
 //! | [`Scenario::BootWindow`] | the ADCs never convert: the control task never checks in |
 //! | [`Scenario::HungControl`] | the control executor spins for ever while stroking |
 //! | [`Scenario::FaultPath`] | a bus error (HardFault) in the control executor while stroking |
+//! | [`Scenario::PanicOnStop`] | the `Stop` command while stroking, to the `test-panic-on-stop` build (it panics) |
 //! | [`Scenario::TornSave`] | the supply cut during a calibration save, the torn double word ECC-poisoned |
 //! | [`Scenario::SaveError`] | the flash controller ends a save's program with PROGERR |
 //! | [`Scenario::SingleBank`] | option bytes with DBANK = 0 |
@@ -34,6 +35,9 @@ pub enum Scenario {
     /// Item 2: a fault while running ends in the fault path's own reset, its cause logged
     /// by the next boot.
     FaultPath,
+    /// A panic while stroking (the `test-panic-on-stop` test build panics on `Stop`): the
+    /// fault path's reset, the panic's place kept across it and logged by the next boot.
+    PanicOnStop,
     /// Item 4: a power cut during a save.
     TornSave,
     /// Item 5: a flash error flag during a save.
@@ -44,10 +48,11 @@ pub enum Scenario {
 
 impl Scenario {
     /// Every scenario.
-    pub const ALL: [Scenario; 6] = [
+    pub const ALL: [Scenario; 7] = [
         Scenario::BootWindow,
         Scenario::HungControl,
         Scenario::FaultPath,
+        Scenario::PanicOnStop,
         Scenario::TornSave,
         Scenario::SaveError,
         Scenario::SingleBank,
@@ -59,6 +64,7 @@ impl Scenario {
             Scenario::BootWindow => "boot-window",
             Scenario::HungControl => "hung-control",
             Scenario::FaultPath => "fault-path",
+            Scenario::PanicOnStop => "panic-on-stop",
             Scenario::TornSave => "torn-save",
             Scenario::SaveError => "save-error",
             Scenario::SingleBank => "single-bank",
@@ -184,7 +190,7 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
             }
         }
         Scenario::SingleBank => until(&mut s, &mut min_clearance, 0.1)?,
-        Scenario::HungControl | Scenario::FaultPath => {
+        Scenario::HungControl | Scenario::FaultPath | Scenario::PanicOnStop => {
             // Home, close the bypass, start the strokes, and inject at full speed.
             let _ = MachineModel::reference;
             while !s.send(Command::Home) {
@@ -205,10 +211,12 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
             let t = s.chip.time_s() + scenario_opts.inject_after_start_s;
             until(&mut s, &mut min_clearance, t)?;
             injected_at = Some(s.chip.time_s());
-            if scenario == Scenario::HungControl {
-                s.chip.soc().hang_pending = true;
-            } else {
-                s.chip.soc().bus_fault_pending = true;
+            match scenario {
+                Scenario::HungControl => s.chip.soc().hang_pending = true,
+                Scenario::FaultPath => s.chip.soc().bus_fault_pending = true,
+                _ => {
+                    s.send(Command::Stop);
+                }
             }
             let before = min_clearance;
             min_clearance = (f64::INFINITY, 0.0);

@@ -22,6 +22,20 @@ fn image() -> Image {
     Image::read(&path).unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// The `test-panic-on-stop` test build: `FPC_PANIC_ELF` if set, else where CI puts it
+/// (`cargo build --release --target thumbv7em-none-eabihf --bin fpc --features
+/// test-panic-on-stop`, copied to `target/fpc-test-panic-on-stop`).
+fn panic_image() -> Image {
+    let path = std::env::var_os("FPC_PANIC_ELF")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/fpc-test-panic-on-stop")
+        });
+    Image::read(&path).unwrap_or_else(|e| {
+        panic!("{e} (build it: see the panic test's documentation, or set FPC_PANIC_ELF)")
+    })
+}
+
 fn scenario(s: Scenario) -> Report {
     run(&image(), s).unwrap_or_else(|e| panic!("{}: {e}", s.name()))
 }
@@ -69,6 +83,40 @@ fn a_fault_while_stroking_resets_by_the_fault_path_and_the_next_boot_logs_its_ca
         );
         fault_path_logged_and_braked(&r);
     }
+}
+
+/// A panic while stroking (the `test-panic-on-stop` build, sent `Stop`): the panic is
+/// logged, the fault path resets the chip (not the watchdog), and the next boot logs where
+/// it panicked — kept across the reset in `.uninit`, since RAM's `.bss` is zeroed and a host
+/// may not have read the panic's own line — and brakes as after a hung task. Before #28:
+/// the watchdog reset, and the next boot said "a task hung".
+#[test]
+fn a_panic_while_stroking_is_kept_across_the_reset_and_logged_by_the_next_boot() {
+    let r = run(&panic_image(), Scenario::PanicOnStop).unwrap_or_else(|e| panic!("{e}"));
+    for (t, l) in &r.log {
+        println!("{t:.4} {l}");
+    }
+    let t = r.injected_at_s.expect("not injected");
+    let first = r.resets.first().expect("no reset");
+    assert_eq!(first.kind, ResetKind::Software, "{:?}", r.resets);
+    assert!(
+        first.at_s - t < 0.01,
+        "reset {:.4} s after Stop",
+        first.at_s - t
+    );
+    assert!(!r.lines("test build: panic on the Stop command").is_empty());
+    let kept = r.lines("the previous run ended on the fault path: Panic");
+    assert!(
+        kept.iter().any(|(_, l)| l.contains("test_build.rs")),
+        "the panic's place was not logged after the reset: {kept:?}"
+    );
+    assert!(r.lines("reset by the independent watchdog").is_empty());
+    assert!(
+        r.faults.iter().any(|f| f == "watchdog_reset"),
+        "{:?}",
+        r.faults
+    );
+    assert_eq!(r.resets.len(), 1, "{:?}", r.resets);
 }
 
 /// What the boot after the fault path shows: the kept cause logged, the brake.

@@ -71,6 +71,7 @@ mod fault;
 mod pwm;
 pub mod rtt;
 mod servo;
+mod test_build;
 mod time;
 mod watchdog;
 
@@ -189,6 +190,8 @@ pub fn take_reset_cause() -> fpc::safety::faults::ResetCause {
 /// off), watchdog (running). Call once, first thing.
 pub fn init() -> Board {
     let p = clocks::start();
+    test_build::board_init();
+    test_build::timing_init();
     check_bank_layout();
     freeze_on_debug_halt();
     interrupt::TIM2.set_priority(TIME_PRIORITY);

@@ -251,6 +251,10 @@ impl PwmOutput for MotorPwm {
         for (ch, duty) in PHASES.into_iter().zip(duties) {
             tim.ccr(ch).write(|w| w.set_ccr(compare_value(duty)));
         }
+        // The control task writes the slave section last.
+        if section == Section::Slave {
+            super::test_build::step_done();
+        }
     }
 
     fn disable(&mut self) {

@@ -46,11 +46,13 @@ impl FrameSink for ReplyChannel {
 }
 
 /// The command down-channel.
-pub struct CommandChannel(DownChannel);
+pub struct CommandChannel(DownChannel, super::test_build::StopWatch);
 
 impl ByteSource for CommandChannel {
     fn read(&mut self, buf: &mut [u8]) -> usize {
-        self.0.read(buf)
+        let n = self.0.read(buf);
+        self.1.received(buf.get(..n).unwrap_or_default());
+        n
     }
 }
 
@@ -73,7 +75,7 @@ pub fn init() -> (TelemetryChannel, ReplyChannel, CommandChannel) {
     (
         TelemetryChannel(()),
         ReplyChannel(()),
-        CommandChannel(channels.down.0),
+        CommandChannel(channels.down.0, Default::default()),
     )
 }
 
