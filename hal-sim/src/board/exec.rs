@@ -30,7 +30,7 @@ use fpc::safety::faults::ResetCause;
 use fpc::shared::Shared;
 use fpc::tasks::{control_run, supervision_run, telemetry_run};
 
-use crate::board::flash::{block_on, SimFlash};
+use crate::board::flash::SimFlash;
 
 use crate::board::capture::telemetry_sink;
 use crate::board::world::{
@@ -102,16 +102,12 @@ fn control_ports(world: &WorldRef) -> SimControlPorts {
     }
 }
 
-/// The firmware's boot read of its calibration store on `flash`; the flash comes back (a
-/// load may repair a torn save).
+/// The firmware's boot read of its calibration store on `flash`, with its NMI handler for a
+/// double ECC error ([`super::flash::boot_read`]); the flash comes back (a load may repair a
+/// torn save, the NMI erase the store).
 fn boot_load(flash: SimFlash) -> (Result<CalibrationRecord, LoadError>, SimFlash) {
-    match super::flash::store(flash.clone()) {
-        Ok(mut store) => {
-            let loaded = block_on(store.load());
-            (loaded, store.into_flash())
-        }
-        Err(_) => (Err(LoadError::Flash), flash),
-    }
+    let (loaded, flash, _nmi_resets) = super::flash::boot_read(flash);
+    (loaded, flash)
 }
 
 /// The control-task ports of the simulated board.
