@@ -1,12 +1,13 @@
 //! State shared between the tasks: the command mailbox, replies, the latest status, the
-//! telemetry frame queue, the watchdog check-ins and the calibration record to save.
+//! telemetry frame queue and its settings, the ports declared, the scope, the watchdog
+//! check-ins and the calibration record to save.
 //!
 //! Generic over the raw mutex so the firmware uses a critical-section mutex across its two
 //! executors and the simulator a no-op one on its single thread. Nothing here blocks: the
 //! control task only ever `try_`s, so a slow reader can never stall the 20 kHz loop.
 
-use core::cell::Cell;
-use core::sync::atomic::{AtomicU16, AtomicU32, AtomicU8, Ordering};
+use core::cell::{Cell, RefCell};
+use core::sync::atomic::{AtomicBool, AtomicU16, AtomicU32, AtomicU8, Ordering};
 
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::blocking_mutex::Mutex;
@@ -14,7 +15,9 @@ use embassy_sync::channel::Channel;
 
 use crate::control::calibration::record::CalibrationRecord;
 use crate::control::command::{Command, Refusal, Reply};
-use crate::link::telemetry::Frame;
+use crate::link::scope::{Recording, Scope, SAMPLE_BYTES};
+use crate::link::settings::LinkRequest;
+use crate::link::telemetry::{ChannelSet, Frame, Ports, DEFAULT_CHANNELS};
 use crate::status::Status;
 
 /// Depth of the command mailbox.
@@ -45,6 +48,16 @@ pub struct Shared<M: RawMutex> {
     telemetry_cycles: AtomicU32,
     /// Frames lost: queue full (control task) or sink full (telemetry task).
     telemetry_dropped: AtomicU32,
+    /// The channels frames carry (telemetry task), XOR the default set
+    /// ([`DEFAULT_CHANNELS`]): zero is the default, so `Shared` stays in `.bss` with no
+    /// flash image.
+    telemetry_channels_xor: AtomicU16,
+    /// The ports as declared ([`Ports::code`]), stamped in each frame.
+    ports: AtomicU8,
+    /// The scope's ring and state (control task records, command task arms and reads).
+    scope: Mutex<M, RefCell<Scope>>,
+    /// The scope is armed or recording: the control task's one test while it is not.
+    scope_active: AtomicBool,
     /// The newest calibration record not yet saved (a newer one replaces it). A channel, not
     /// a `Signal`: an empty channel is all zeros, so `Shared` stays in `.bss` (a `Signal`
     /// moved all 2.2 KiB of it to `.data`, whose initial image costs as much flash).
@@ -76,6 +89,10 @@ impl<M: RawMutex> Shared<M> {
             telemetry_decimation: AtomicU16::new(0),
             telemetry_cycles: AtomicU32::new(0),
             telemetry_dropped: AtomicU32::new(0),
+            telemetry_channels_xor: AtomicU16::new(0),
+            ports: AtomicU8::new(Ports::Timed.code()),
+            scope: Mutex::new(RefCell::new(Scope::new())),
+            scope_active: AtomicBool::new(false),
             calibration: Channel::new(),
             current_calibration: Channel::new(),
             calibration_to_load: Channel::new(),
@@ -149,7 +166,8 @@ impl<M: RawMutex> Shared<M> {
         }
         let dropped = u16::try_from(self.telemetry_dropped()).unwrap_or(u16::MAX);
         // The sequence number is the cycle count modulo 2¹⁶: gaps show as steps ≠ decimation.
-        let frame = Frame::from_status(cycle as u16, dropped, status);
+        let mut frame = Frame::from_status(cycle as u16, dropped, status);
+        frame.ports = self.ports();
         if self.frames.try_send(frame).is_err() {
             self.count_telemetry_drop();
         }
@@ -168,6 +186,100 @@ impl<M: RawMutex> Shared<M> {
     /// Frames lost so far (queue full or sink full).
     pub fn telemetry_dropped(&self) -> u32 {
         self.telemetry_dropped.load(Ordering::Relaxed)
+    }
+
+    /// The channels frames carry now (telemetry task, as it encodes).
+    pub fn telemetry_channels(&self) -> ChannelSet {
+        ChannelSet(self.telemetry_channels_xor.load(Ordering::Relaxed) ^ DEFAULT_CHANNELS.0)
+    }
+
+    /// One frame every `decimation` cycles now (0 = off).
+    pub fn telemetry_decimation(&self) -> u16 {
+        self.telemetry_decimation.load(Ordering::Relaxed)
+    }
+
+    /// The ports as declared.
+    pub fn ports(&self) -> Ports {
+        Ports::from_code(self.ports.load(Ordering::Relaxed)).unwrap_or(Ports::Timed)
+    }
+
+    /// Declares how the chambers are connected (the simulator's host, or a link request).
+    pub fn declare_ports(&self, ports: Ports) {
+        self.ports.store(ports.code(), Ordering::Relaxed);
+    }
+
+    /// Command task: applies a link request (checked first: a refused one changes
+    /// nothing). The scope is armed against the latest status.
+    pub fn apply(&self, request: LinkRequest) -> Result<(), Refusal> {
+        request.check()?;
+        match request {
+            LinkRequest::SetTelemetry {
+                decimation,
+                channels,
+            } => {
+                self.telemetry_channels_xor
+                    .store(channels.0 ^ DEFAULT_CHANNELS.0, Ordering::Relaxed);
+                // The cycle counter runs on: frames fall on the multiples of the new
+                // decimation, and the sequence's step says which one.
+                self.telemetry_decimation
+                    .store(decimation, Ordering::Relaxed);
+                Ok(())
+            }
+            LinkRequest::DeclarePorts(ports) => {
+                self.declare_ports(ports);
+                Ok(())
+            }
+            LinkRequest::ScopeArm { trigger, pre } => {
+                let now = self.status();
+                self.with_scope(|s| s.arm(trigger, pre, &now))
+            }
+            LinkRequest::ScopeFire => self.with_scope(Scope::fire),
+            LinkRequest::ScopeDisarm => {
+                self.with_scope(Scope::disarm);
+                Ok(())
+            }
+        }
+    }
+
+    fn with_scope<R>(&self, f: impl FnOnce(&mut Scope) -> R) -> R {
+        self.scope.lock(|cell| {
+            let mut scope = cell.borrow_mut();
+            let r = f(&mut scope);
+            self.scope_active.store(scope.active(), Ordering::Relaxed);
+            r
+        })
+    }
+
+    /// Control task, once per cycle after the outputs are written: the scope keeps this
+    /// cycle's sample while armed or recording. Disarmed, one flag test.
+    #[inline]
+    pub fn record_scope(&self, status: &Status) {
+        if !self.scope_active.load(Ordering::Relaxed) {
+            return;
+        }
+        let ports = self.ports();
+        self.scope.lock(|cell| {
+            if let Ok(mut scope) = cell.try_borrow_mut() {
+                if !scope.record(status, ports) {
+                    self.scope_active.store(false, Ordering::Relaxed);
+                }
+            }
+        });
+    }
+
+    /// The finished recording waiting to be sent, if any.
+    pub fn scope_recording(&self) -> Option<Recording> {
+        self.scope.lock(|cell| cell.borrow().recording())
+    }
+
+    /// Sample `i` (oldest first) of the finished recording, encoded (one short lock each).
+    pub fn scope_sample(&self, i: usize) -> Option<[u8; SAMPLE_BYTES]> {
+        self.scope.lock(|cell| cell.borrow().sample_bytes(i))
+    }
+
+    /// The finished recording has been sent: the scope may be armed again.
+    pub fn scope_release(&self) {
+        self.with_scope(Scope::release);
     }
 
     /// Control task, after a calibration routine succeeded (or a record written over the

@@ -18,6 +18,9 @@ use crate::link::commands::{
     encode_rejection, encode_reply, encode_transfer_reply, Request, RequestReader, Transfer,
     TransferReply, TransferState, TransferStep, MAX_REPLY_WIRE,
 };
+use crate::link::scope::{
+    encode_chunk, encode_header, CHUNK_SAMPLES, MAX_SCOPE_WIRE, SAMPLE_BYTES,
+};
 use crate::link::telemetry::WIRE_BYTES;
 use crate::ports::{
     ByteSource, Clock, ControlPorts, CurrentInput, CycleTrigger, EncoderInput, EventLog, FrameSink,
@@ -122,6 +125,7 @@ where
         }
         shared.publish(*step.status());
         shared.queue_telemetry(step.status());
+        shared.record_scope(step.status());
         shared.check_in(task_bits::CONTROL);
     }
 }
@@ -189,9 +193,10 @@ where
 const SINK_STALL_LIMIT: u32 = 64;
 
 /// The telemetry task (thread mode): turns telemetry on at one frame every `decimation`
-/// control cycles, then encodes each frame the control task queues and writes it to `sink`
-/// (the RTT up-channel). It never holds up the control task: frames that find the queue
-/// full, or a sink that takes nothing, are dropped and counted in
+/// control cycles (a link request may change it, and the channels sent, at any time), then
+/// encodes each frame the control task queues, with the channels chosen, and writes it to
+/// `sink` (the RTT up-channel). It never holds up the control task: frames that find the
+/// queue full, or a sink that takes nothing, are dropped and counted in
 /// [`Shared::telemetry_dropped`], and the count rides in every frame.
 pub async fn telemetry_run<M, S>(mut sink: S, shared: &Shared<M>, decimation: u16) -> Infallible
 where
@@ -201,7 +206,8 @@ where
     shared.start_telemetry(decimation);
     let mut buf = [0u8; WIRE_BYTES];
     loop {
-        let frame = shared.next_frame().await;
+        let mut frame = shared.next_frame().await;
+        frame.channels = shared.telemetry_channels();
         let Ok(n) = frame.encode(&mut buf) else {
             shared.count_telemetry_drop();
             continue;
@@ -266,10 +272,13 @@ pub const COMMAND_POLL_US: u32 = 1000;
 
 /// The command task (thread mode): reads the down-channel, decodes and validates frames
 /// ([`RequestReader`]), answers calibration reads and writes itself ([`TransferState`]; a
-/// checked commit goes to the control task, [`serve_commands`]), posts the commands for the control task and writes every answer to
-/// `replies` — the control task's accept/refuse reply for each command, a `Busy` refusal when
-/// the mailbox is full, and a rejection (with its reason) for each malformed frame. Nothing
-/// here blocks the control task: it only ever `try_`s the shared mailboxes.
+/// checked commit goes to the control task, [`serve_commands`]), applies link requests
+/// (telemetry, ports, scope: [`Shared::apply`]), posts the commands for the control task and
+/// writes every answer to `replies` — the control task's accept/refuse reply for each command,
+/// a `Busy` refusal when the mailbox is full, and a rejection (with its reason) for each
+/// malformed frame. A finished scope recording goes to `replies` too, header then chunks,
+/// each retried until the channel has room ([`ScopeSender`]). Nothing here blocks the
+/// control task: it only ever `try_`s the shared mailboxes.
 pub async fn command_run<M, B, S, L, K>(
     mut source: B,
     mut replies: S,
@@ -290,6 +299,7 @@ where
     let mut committing: Option<Transfer> = None;
     let mut input = [0u8; 64];
     let mut out = [0u8; MAX_REPLY_WIRE];
+    let mut scope = ScopeSender::default();
     let mut next = clock.now();
     loop {
         next = next.add_us(COMMAND_POLL_US);
@@ -317,6 +327,13 @@ where
                     };
                     encode_transfer_reply(&reply, &mut out)
                 }
+                Some(Ok(Request::Link(request))) => encode_transfer_reply(
+                    &TransferReply::Verdict {
+                        transfer: request.id(),
+                        result: shared.apply(request),
+                    },
+                    &mut out,
+                ),
                 Some(Ok(Request::Command(command))) => match shared.post_command(command) {
                     Ok(()) => continue,
                     Err(command) => encode_reply(
@@ -350,5 +367,80 @@ where
                 }
             }
         }
+        scope.send(shared, &mut replies);
+    }
+}
+
+/// Chunks of a scope recording sent per command-task period at most (each ≈ 265 bytes on
+/// the wire).
+const SCOPE_CHUNKS_PER_POLL: usize = 2;
+
+/// The command task's sending of a finished scope recording: its header, then its chunks in
+/// order, each written whole once the reply channel has room for it (a recording is never
+/// dropped for a slow host; it waits), then the scope is released for the next one.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ScopeSender {
+    /// The recording being sent and the next message (0 = header, k = chunk k − 1).
+    sending: Option<(u8, usize)>,
+}
+
+impl ScopeSender {
+    /// Sends what fits of a finished recording to `sink`.
+    pub fn send<M: RawMutex, S: FrameSink>(&mut self, shared: &Shared<M>, sink: &mut S) {
+        let Some(recording) = shared.scope_recording() else {
+            // Disarmed while sending, or nothing recorded.
+            self.sending = None;
+            return;
+        };
+        let (id, mut next) = match self.sending {
+            Some((id, next)) if id == recording.id => (id, next),
+            _ => (recording.id, 0),
+        };
+        let samples = usize::from(recording.samples);
+        let chunks = samples.div_ceil(CHUNK_SAMPLES);
+        let mut wire = [0u8; MAX_SCOPE_WIRE];
+        for _ in 0..SCOPE_CHUNKS_PER_POLL {
+            let encoded = if next == 0 {
+                encode_header(&recording, &mut wire)
+            } else {
+                let first = (next - 1) * CHUNK_SAMPLES;
+                let mut bytes = [[0u8; SAMPLE_BYTES]; CHUNK_SAMPLES];
+                let mut n = 0;
+                for (slot, i) in bytes
+                    .iter_mut()
+                    .zip(first..samples.min(first + CHUNK_SAMPLES))
+                {
+                    if let Some(b) = shared.scope_sample(i) {
+                        *slot = b;
+                        n += 1;
+                    }
+                }
+                encode_chunk(
+                    id,
+                    (next - 1) as u16,
+                    bytes.get(..n).unwrap_or_default(),
+                    &mut wire,
+                )
+            };
+            let Ok(len) = encoded else {
+                // Cannot happen with the buffers above; give the recording up rather than
+                // loop on it.
+                shared.scope_release();
+                self.sending = None;
+                return;
+            };
+            let frame = wire.get(..len).unwrap_or_default();
+            if sink.write(frame) != frame.len() {
+                // No room now (the sink takes a frame whole or not at all): again next time.
+                break;
+            }
+            next += 1;
+            if next > chunks {
+                shared.scope_release();
+                self.sending = None;
+                return;
+            }
+        }
+        self.sending = Some((id, next));
     }
 }

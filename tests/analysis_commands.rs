@@ -218,6 +218,7 @@ fn decode_turns_a_capture_into_a_readable_run_log_and_refuses_garbage() {
         out: out.clone(),
         force: false,
         accept_loss: false,
+        recording: None,
     })
     .unwrap();
     let log = RunLog::read(&out).unwrap();
@@ -230,6 +231,7 @@ fn decode_turns_a_capture_into_a_readable_run_log_and_refuses_garbage() {
         out,
         force: true,
         accept_loss: false,
+        recording: None,
     })
     .unwrap_err();
     assert_eq!(e.code, 2);

@@ -619,6 +619,36 @@ fn hostile_case(sub: &str, rng: &mut ChaCha8Rng, dir: &Path) -> Case {
                 if rng.random_bool(0.3) {
                     push(&mut args, "--timeout-ms", &num(rng));
                 }
+            } else if rng.random_bool(0.25) {
+                // The link requests: hostile rates, channel sets, triggers and ports.
+                match rng.random_range(0..4) {
+                    0 => {
+                        args.push("telemetry".into());
+                        push(&mut args, "--rate", &num(rng));
+                        if rng.random_bool(0.5) {
+                            let sets = ["gap", "all", "x_m,p_a_pa", "x_m,,", "", "nope"];
+                            push(&mut args, "--channels", sets.choose(rng).unwrap());
+                        }
+                    }
+                    1 => {
+                        args.extend(["scope".into(), "arm".into()]);
+                        let triggers =
+                            ["command", "fault", "strokes:", "strokes:0", "strokes:99999"];
+                        push(&mut args, "--trigger", triggers.choose(rng).unwrap());
+                        if rng.random_bool(0.5) {
+                            push(&mut args, "--pre", &num(rng));
+                        }
+                    }
+                    2 => args.extend([
+                        "scope".into(),
+                        ["fire", "disarm", "arm"][rng.random_range(0..3)].into(),
+                    ]),
+                    _ => {
+                        args.push("ports".into());
+                        args.push(["timed", "sealed", "open", ""][rng.random_range(0..4)].into());
+                    }
+                }
+                push(&mut args, "--replay", &replay);
             } else if rng.random_bool(0.5) {
                 args.push("capture".into());
                 push(&mut args, "--replay", &replay);

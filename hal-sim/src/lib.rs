@@ -12,6 +12,7 @@
 //! | [`plant`] | the physics (piston, sections, rotation, chambers) and the machine-model TOML |
 //! | [`board`] | the simulated board: time, sampling, sensors and their faults, outputs, the executor, telemetry capture |
 //! | [`faults`] | `--fault` specifications and their injection into a running simulation |
+//! | [`published`] | the published rig's master/slave drives, a baseline controller written from the paper |
 //! | [`run`] | the closed-loop run and its figures |
 //! | [`runlog`] | the run-log CSV |
 //! | [`signal`] | cross-correlation lag, filtfilt, differences, strokes |
@@ -37,6 +38,7 @@ pub mod link;
 pub mod output;
 pub mod plant;
 pub mod plot;
+pub mod published;
 pub mod run;
 pub mod runlog;
 pub mod signal;

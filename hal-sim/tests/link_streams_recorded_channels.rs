@@ -96,7 +96,11 @@ fn capture_equals_decode(decimation: u16) {
     assert_eq!(live, std::fs::read_to_string(&decoded).unwrap());
     assert!(live.contains(&format!("# telemetry_decimation = {decimation}")));
     let rows = live.lines().filter(|l| !l.starts_with('#')).count() - 1;
-    assert_eq!(rows, telemetry.len() / WIRE_BYTES);
+    // The run's telemetry carries the firmware's default channels.
+    assert_eq!(
+        rows,
+        telemetry.len() / fpc::link::telemetry::DEFAULT_CHANNELS.wire_bytes()
+    );
     // A capture directory is itself a recording.
     let again = out.with_file_name("again");
     let (code, text) = fpc_sim(&[&"link", &"capture", &"--replay", &out, &"--out", &again]);

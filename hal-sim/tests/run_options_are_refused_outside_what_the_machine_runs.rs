@@ -329,3 +329,54 @@ fn a_log_at_a_lower_rate_holds_every_nth_row_of_the_full_rate_log() {
     assert!(b.contains("# sample_rate_hz = 10000"), "{b:.300}");
     assert!(a.contains("# sample_rate_hz = 20000"), "{a:.300}");
 }
+
+#[test]
+fn the_published_controller_refuses_what_its_drives_lack_and_bad_closed_port_tests() {
+    use hal_sim::plant::model::MachineModel;
+    use hal_sim::run::closed::ClosedPort;
+    use hal_sim::run::Controller;
+    assert!(Controller::parse("ours").is_ok() && Controller::parse("published").is_ok());
+    let e = Controller::parse("pid").unwrap_err();
+    assert!(e.contains("--controller pid"), "{e}");
+    let published = || RunOptions {
+        controller: Controller::Published,
+        ..options(3.1, None, 2)
+    };
+    published().validate().unwrap();
+    let mut o = published();
+    o.faults = vec![parse("load_step@1.0").unwrap()];
+    assert!(o.validate().unwrap_err().contains("--fault"));
+    let mut o = published();
+    o.model.motor.slave_follows_master = true;
+    assert!(o
+        .validate()
+        .unwrap_err()
+        .contains("motor.slave_follows_master"));
+    // The closed-port test: the published drives only, a stop compressing chamber B.
+    let test = |stop_m, hold_s| Some(ClosedPort { stop_m, hold_s });
+    let mut o = options(3.1, None, 2);
+    o.closed_port = test(0.17, 1.0);
+    assert!(o.validate().unwrap_err().contains("--controller published"));
+    for (stop, hold, flag) in [
+        (0.05, 1.0, "--closed-port"),
+        (0.2045, 1.0, "--closed-port"),
+        (f64::NAN, 1.0, "--closed-port"),
+        (0.17, 0.0, "--hold"),
+        (0.17, 100.0, "--hold"),
+    ] {
+        let mut o = published();
+        o.closed_port = test(stop, hold);
+        let e = o.validate().unwrap_err();
+        assert!(e.contains(flag), "{stop} {hold}: {e}");
+    }
+    let mut o = published();
+    o.closed_port = test(0.17, 2.0);
+    o.validate().unwrap();
+    // A drive cycle that is not a whole number of the simulator's periods is refused.
+    let text = format!(
+        "{}\n",
+        hal_sim::plant::model::REFERENCE_TOML.replace("cycle_s = 1.0e-4", "cycle_s = 1.2e-4")
+    );
+    let e = MachineModel::parse(&text).unwrap_err().0;
+    assert!(e.contains("published.cycle_s"), "{e}");
+}

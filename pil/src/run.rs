@@ -152,11 +152,32 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
     let rms = if opts.compare_with_host && opts.run.schedule.is_empty() {
         let mut h = opts.run.clone();
         h.calibration = Some(record);
-        let taken: Vec<_> = session
+        let mut taken: Vec<_> = session
             .sent
             .iter()
             .map(|c| (c.command, c.taken_after_cycle))
             .collect();
+        // The read offset places each command's read within a period; the command task (thread
+        // mode) may still be preempted by the next control step between reading a command and
+        // posting it, which then takes it a cycle later. Of the two candidates the replay keeps
+        // the one whose trajectory matches, command by command, up to the next one.
+        for i in 0..taken.len() {
+            let Some(c0) = taken[i].1 else { continue };
+            let until = taken
+                .get(i + 1)
+                .and_then(|t| t.1)
+                .unwrap_or(track.x_m.len() as u64);
+            let mut best: Option<(f64, u64)> = None;
+            for c in [c0, c0 + 1] {
+                taken[i].1 = Some(c);
+                let host = host_replay(&h, &taken, track.bypass_closed)?;
+                let d = window_rms_diff(&track.x_m, &host.x_m, c0, until);
+                if best.is_none_or(|b| d < b.0) {
+                    best = Some((d, c));
+                }
+            }
+            taken[i].1 = best.map(|b| b.1);
+        }
         let host = host_replay(&h, &taken, track.bypass_closed)?;
         position_rms_diff(&track.x_m, &host.x_m, track.start_cycle)
     } else {
@@ -322,6 +343,24 @@ impl HostLink for ReplayLink<'_, '_> {
     fn post_command(&mut self, command: Command) -> bool {
         self.replay.posted.push(command);
         true
+    }
+}
+
+/// RMS difference of two position tracks over cycles `from..until` (0 if none compare).
+fn window_rms_diff(a: &[f64], b: &[f64], from: u64, until: u64) -> f64 {
+    let (from, until) = (from as usize, until as usize);
+    let (mut sum, mut n) = (0.0, 0usize);
+    for k in from..until.min(a.len()).min(b.len()) {
+        let d = a[k] - b[k];
+        if d.is_finite() {
+            sum += d * d;
+            n += 1;
+        }
+    }
+    if n == 0 {
+        f64::INFINITY
+    } else {
+        (sum / n as f64).sqrt()
     }
 }
 

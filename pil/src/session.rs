@@ -6,6 +6,8 @@ use std::collections::VecDeque;
 
 use fpc::control::command::Command;
 use fpc::link::commands::{encode_command, MAX_COMMAND_WIRE};
+use fpc::link::settings::{encode_link_request, LinkRequest};
+use fpc::link::telemetry::{ChannelSet, Ports};
 use fpc::link::telemetry::{Frame, TelemetryDecoder};
 use fpc::safety::faults::{Fault, FaultSet};
 use fpc::status::Status;
@@ -51,6 +53,8 @@ pub struct Session {
     consumed: u64,
     /// Down 0's read offset at the last poll.
     read_offset: u32,
+    /// The ports as the host declares them to the firmware (a link request at every boot).
+    ports: Ports,
 }
 
 /// A command the host sent over down 0.
@@ -115,6 +119,7 @@ impl Session {
             queued: 0,
             consumed: 0,
             read_offset: 0,
+            ports: Ports::Bypassed,
         })
     }
 
@@ -152,6 +157,20 @@ impl Session {
             // Until the firmware has set its control block up, there is none to find.
             let at = Locate::At(u64::from(self.rtt_base));
             self.rtt = ControlBlock::find(&mut self.chip, &at).ok();
+            if self.rtt.is_some() {
+                // What the host asks of the link at every boot, as `fpc-sim link` does: every
+                // channel (the run driver reads the references and the velocity) at the
+                // default rate, and the ports as they are.
+                for request in [
+                    LinkRequest::SetTelemetry {
+                        decimation: fpc::link::telemetry::DEFAULT_DECIMATION,
+                        channels: ChannelSet::ALL,
+                    },
+                    LinkRequest::DeclarePorts(self.ports),
+                ] {
+                    queue_link(&request, &mut self.outbox, &mut self.queued);
+                }
+            }
         }
         let Some(rtt) = self.rtt.clone() else {
             return Ok(());
@@ -278,6 +297,7 @@ impl Session {
             status,
             sent,
             queued,
+            ports,
             ..
         } = self;
         (
@@ -288,8 +308,18 @@ impl Session {
                 outbox,
                 sent,
                 queued,
+                ports,
             },
         )
+    }
+}
+
+/// Encodes a link request onto `outbox` (counted in the stream of down 0, not a command).
+fn queue_link(request: &LinkRequest, outbox: &mut VecDeque<u8>, queued: &mut u64) {
+    let mut out = [0u8; MAX_COMMAND_WIRE];
+    if let Ok(n) = encode_link_request(request, &mut out) {
+        outbox.extend(&out[..n]);
+        *queued += n as u64;
     }
 }
 
@@ -334,6 +364,7 @@ pub struct SessionLink<'a> {
     outbox: &'a mut VecDeque<u8>,
     sent: &'a mut Vec<SentCommand>,
     queued: &'a mut u64,
+    ports: &'a mut Ports,
 }
 
 impl HostLink for SessionLink<'_> {
@@ -346,5 +377,16 @@ impl HostLink for SessionLink<'_> {
             return false;
         }
         queue(command, self.outbox, self.sent, self.queued)
+    }
+
+    fn ports_timed(&mut self) {
+        *self.ports = Ports::Timed;
+        if self.up {
+            queue_link(
+                &LinkRequest::DeclarePorts(Ports::Timed),
+                self.outbox,
+                self.queued,
+            );
+        }
     }
 }

@@ -138,6 +138,8 @@ pub enum Refusal {
     /// The calibration record written is not one (magic, version, CRC or the CRC sent do
     /// not match): nothing changed.
     BadRecord,
+    /// The scope is not armed with the host's trigger (`fire` needs `arm --trigger command`).
+    NotArmed,
 }
 
 impl Refusal {
@@ -162,6 +164,7 @@ impl Refusal {
             Refusal::BadRecord => {
                 "not a valid calibration record (magic, version or CRC): nothing changed"
             }
+            Refusal::NotArmed => "the scope is not armed with the command trigger: arm it first",
         }
     }
 }

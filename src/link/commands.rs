@@ -17,6 +17,7 @@
 //! | `0x1B` | [`Transfer::Read`] | `offset: u8` |
 //! | `0x1C` | [`Transfer::Write`] | `offset: u8` ‖ 1..=[`CHUNK_BYTES`] record bytes |
 //! | `0x1D` | [`Transfer::Commit`] | `crc: u32` (the record's own CRC-32, its last 4 bytes) |
+//! | `0x1E`..`0x22` | [`LinkRequest`] | see [`crate::link::settings`] |
 //!
 //! The calibration transfer (`0x1B`..`0x1D`) is the command task's, not the controller's:
 //! the record ([`crate::control::calibration::record`], [`RECORD_BYTES`] bytes) moves in
@@ -40,7 +41,8 @@
 //! | `0x01` | telemetry frame | see [`crate::link::telemetry`] |
 //! | `0x02` | [`Reply`] | `result: u8` (0 accepted, else [`refusal_code`]) ‖ the command's payload |
 //! | `0x03` | command frame rejected | `reason: u8` ([`FrameError`] as number) |
-//! | `0x04` | [`TransferReply`] | `0` ‖ `0x1B` ‖ `offset: u8` ‖ the bytes (an accepted read), else `result: u8` ‖ the request's tag ‖ `offset` or `crc` as u32 |
+//! | `0x04` | [`TransferReply`] | `0` ‖ `0x1B` ‖ `offset: u8` ‖ the bytes (an accepted read), else `result: u8` ‖ the request's tag ‖ `offset` or `crc` (a link request: its `arg`) as u32 |
+//! | `0x06`, `0x07` | scope recording | see [`crate::link::scope`] |
 
 use crate::control::calibration::record::RECORD_BYTES;
 use crate::control::calibration::Routine;
@@ -50,6 +52,7 @@ use crate::motion::synchroniser::Rotation;
 use crate::motion::volume_ratio::RatioTarget;
 
 use super::frame::*;
+use super::settings::{decode_link_request, is_link_tag, LinkRequest};
 
 /// Command tags (first payload byte of a down-channel frame).
 pub mod tag {
@@ -81,6 +84,16 @@ pub mod tag {
     pub const CALIBRATION_WRITE: u8 = 0x1C;
     /// [`super::Transfer::Commit`].
     pub const CALIBRATION_COMMIT: u8 = 0x1D;
+    /// [`crate::link::settings::LinkRequest::SetTelemetry`].
+    pub const SET_TELEMETRY: u8 = 0x1E;
+    /// [`crate::link::settings::LinkRequest::DeclarePorts`].
+    pub const DECLARE_PORTS: u8 = 0x1F;
+    /// [`crate::link::settings::LinkRequest::ScopeArm`].
+    pub const SCOPE_ARM: u8 = 0x20;
+    /// [`crate::link::settings::LinkRequest::ScopeFire`].
+    pub const SCOPE_FIRE: u8 = 0x21;
+    /// [`crate::link::settings::LinkRequest::ScopeDisarm`].
+    pub const SCOPE_DISARM: u8 = 0x22;
 }
 
 /// Largest chunk of the calibration record in one frame, bytes: 9 frames carry the
@@ -273,6 +286,7 @@ pub const fn refusal_code(refusal: Refusal) -> u8 {
         Refusal::NotCalibrated => 8,
         Refusal::ChunkOutOfOrder => 9,
         Refusal::BadRecord => 10,
+        Refusal::NotArmed => 11,
     }
 }
 
@@ -289,6 +303,7 @@ pub fn refusal_from_code(code: u8) -> Option<Refusal> {
         Refusal::NotCalibrated,
         Refusal::ChunkOutOfOrder,
         Refusal::BadRecord,
+        Refusal::NotArmed,
     ]
     .into_iter()
     .find(|r| refusal_code(*r) == code)
@@ -406,13 +421,16 @@ pub enum Transfer {
     },
 }
 
-/// A decoded down-channel frame: a controller command or a calibration transfer.
+/// A decoded down-channel frame: a controller command, a calibration transfer or a link
+/// request.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Request {
     /// For the controller.
     Command(Command),
     /// For the command task's calibration transfer.
     Calibration(Transfer),
+    /// For the command task: telemetry, ports, scope.
+    Link(LinkRequest),
 }
 
 /// Which request a verdict answers: its tag and its offset (read, write) or CRC (commit).
@@ -518,10 +536,13 @@ fn decode_transfer(payload: &[u8]) -> Option<Result<Transfer, FrameError>> {
     })
 }
 
-/// Decodes a down-channel payload: a calibration transfer or a command.
+/// Decodes a down-channel payload: a calibration transfer, a link request or a command.
 pub fn decode_request(payload: &[u8]) -> Result<Request, FrameError> {
-    match decode_transfer(payload) {
-        Some(transfer) => transfer.map(Request::Calibration),
+    if let Some(transfer) = decode_transfer(payload) {
+        return transfer.map(Request::Calibration);
+    }
+    match decode_link_request(payload) {
+        Some(request) => request.map(Request::Link),
         None => decode_command(payload).map(Request::Command),
     }
 }
@@ -576,7 +597,8 @@ fn decode_transfer_reply(rest: &[u8]) -> Result<TransferReply, FrameError> {
             if !matches!(
                 t,
                 tag::CALIBRATION_READ | tag::CALIBRATION_WRITE | tag::CALIBRATION_COMMIT
-            ) {
+            ) && !is_link_tag(t)
+            {
                 return Err(FrameError::UnknownKind);
             }
             Ok(TransferReply::Verdict {

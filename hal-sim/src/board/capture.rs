@@ -1,68 +1,104 @@
-//! Telemetry in the simulator: the sink the firmware's telemetry task writes to, and the
-//! decoding of a capture (from the simulator or from the rig's RTT channel) into a run log.
+//! The simulated board's RTT channels as the firmware's tasks see them, and the decoding of
+//! a telemetry capture (from the simulator or from the rig's RTT channel) into a run log.
 //!
-//! The simulated board's sink is the RTT up-channel with a host that always keeps up: it
-//! takes every byte into [`TelemetryCapture::bytes`]. The bytes are exactly what the
-//! board would send, so `fpc-sim decode` reads both alike.
+//! The tasks write the up-channels and read the down-channel in the board's RAM
+//! ([`crate::board::ram`]), exactly where the firmware's `rtt_init!` puts them; a host reads
+//! them there through the RTT transport (`link::rtt`), as a probe does. A run with
+//! telemetry on has such a host drain the telemetry channel every control period into
+//! [`TelemetryCapture::bytes`] (the `run` module). The bytes are exactly what the board would
+//! send, so `fpc-sim decode` reads both alike.
 
+use fpc::link::channels::{DOWN_COMMANDS, UP_TELEMETRY};
 use fpc::link::frame::LinkStats;
-use fpc::link::telemetry::{Frame, TelemetryDecoder};
-use fpc::ports::FrameSink;
+use fpc::link::telemetry::{
+    ChannelSet, Frame, Ports, TelemetryDecoder, CHANNELS, CONTROL_PERIOD_US, FORCE_DELAY_PERIODS,
+    LAYOUT, THETA_SOURCE,
+};
+use fpc::ports::{ByteSource, FrameSink};
 
 use crate::board::world::WorldRef;
-use crate::runlog::{RunLog, REQUIRED};
+use crate::runlog::RunLog;
 
-/// Telemetry of a simulated run: the rate it was asked for and the bytes sent.
+/// Telemetry of a simulated run: the rate it was asked for and the bytes a host read.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct TelemetryCapture {
-    /// One frame every this many control cycles; 0 = telemetry off (the default: a long
-    /// run at full rate would hold 1.1 MB per simulated second).
+    /// One frame every this many control cycles at boot; 0 = telemetry off (the default:
+    /// a long run at full rate would hold 1.2 MB per simulated second).
     pub decimation: u16,
-    /// Everything the telemetry task wrote to the up-channel.
+    /// Everything the host read from the telemetry up-channel.
     pub bytes: Vec<u8>,
 }
 
-/// The simulated RTT telemetry up-channel.
-pub struct SimTelemetrySink {
+/// An RTT up-channel of the simulated board, as the firmware's task writes it: into the
+/// board's RAM, whole or not at all (the firmware's `write_or_skip`).
+pub struct SimUpChannel {
     world: WorldRef,
+    channel: usize,
 }
 
-impl FrameSink for SimTelemetrySink {
+impl FrameSink for SimUpChannel {
     fn write(&mut self, bytes: &[u8]) -> usize {
-        self.world
-            .borrow_mut()
-            .telemetry
-            .bytes
-            .extend_from_slice(bytes);
-        bytes.len()
+        self.world.borrow_mut().ram.write_up(self.channel, bytes)
     }
 }
 
-/// The telemetry sink of `world`.
-pub fn telemetry_sink(world: &WorldRef) -> SimTelemetrySink {
-    SimTelemetrySink {
+/// Up-channel `channel` of `world`'s board.
+pub fn up_channel(world: &WorldRef, channel: usize) -> SimUpChannel {
+    SimUpChannel {
+        world: world.clone(),
+        channel,
+    }
+}
+
+/// The telemetry up-channel of `world`'s board.
+pub fn telemetry_sink(world: &WorldRef) -> SimUpChannel {
+    up_channel(world, UP_TELEMETRY)
+}
+
+/// The command down-channel of the simulated board, as the firmware's command task reads it.
+pub struct SimCommandChannel {
+    world: WorldRef,
+}
+
+impl ByteSource for SimCommandChannel {
+    fn read(&mut self, buf: &mut [u8]) -> usize {
+        self.world.borrow_mut().ram.read_down(DOWN_COMMANDS, buf)
+    }
+}
+
+/// The command down-channel of `world`'s board.
+pub fn command_channel(world: &WorldRef) -> SimCommandChannel {
+    SimCommandChannel {
         world: world.clone(),
     }
 }
 
-/// Columns of a decoded capture: what a frame carries, named as in the simulator's run
-/// log, then the mode number (`fpc::link::telemetry::mode_code`).
-pub fn decoded_columns() -> Vec<&'static str> {
-    REQUIRED
-        .iter()
-        .copied()
-        .chain(["x_ref_m", "theta_ref_rad", "v_mps", "fault", "mode"])
+/// Columns of a decoded capture carrying `channels`: `t_s`, the channels in run-log order
+/// (the required ones first), then the first fault and the mode number
+/// (`fpc::link::telemetry::mode_code`).
+pub fn decoded_columns(channels: ChannelSet) -> Vec<&'static str> {
+    std::iter::once("t_s")
+        .chain(
+            CHANNELS
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| channels.has(*i))
+                .map(|(_, n)| *n),
+        )
+        .chain(["fault", "mode"])
         .collect()
 }
 
 /// A decoded capture.
 #[derive(Clone, Debug)]
 pub struct Decoded {
-    /// The run log: the longest run of frames without a gap.
+    /// The run log: the longest run of frames without a gap, of one channel set and one
+    /// declaration of the ports (a bypass closing once is kept, as `# ports_from_s`).
     pub log: RunLog,
     /// Frames accepted and rejected by the decoder.
     pub stats: LinkStats,
-    /// Sequence steps other than the decimation (frames lost after the queue).
+    /// Breaks in the frames: sequence steps other than the decimation (frames lost after
+    /// the queue), a change of the rate, of the channels or of the ports declared.
     pub gaps: usize,
     /// Accepted frames left out of the log because they lie outside its gap-free run.
     pub left_out: usize,
@@ -72,6 +108,10 @@ pub struct Decoded {
     pub dropped: u16,
     /// Control cycles per frame, from the sequence numbers.
     pub decimation: u32,
+    /// Frames of telemetry layout 1 (an older firmware's), rejected.
+    pub layout_1: u32,
+    /// The channels the log's frames carried.
+    pub channels: ChannelSet,
 }
 
 /// Decodes a telemetry capture. `progress` is told how many bytes have been read.
@@ -114,13 +154,15 @@ impl FrameCollector {
                     self.duplicates += 1;
                     continue;
                 }
-                // Live gap count: a sequence step other than the first one seen (the
-                // decimation, as far as the live view can tell; `finish` counts against
-                // the most common step).
+                // Live gap count: a step that is a multiple of the decimation seen so far
+                // (frames lost); any other step is a new decimation (set at run time), not
+                // a loss. `finish` counts against the most common step.
                 if let Some(p) = self.frames.last() {
                     let step = f.seq.wrapping_sub(p.seq);
-                    if *self.first_step.get_or_insert(step) != step {
-                        self.live_gaps += 1;
+                    match self.first_step {
+                        Some(d) if d == step => {}
+                        Some(d) if d > 0 && step > d && step % d == 0 => self.live_gaps += 1,
+                        _ => self.first_step = Some(step),
                     }
                 }
                 self.frames.push(f);
@@ -144,6 +186,11 @@ impl FrameCollector {
         self.frames.len()
     }
 
+    /// The last frame kept, if any.
+    pub fn last(&self) -> Option<&Frame> {
+        self.frames.last()
+    }
+
     /// Repeated frames so far.
     pub fn duplicates(&self) -> usize {
         self.duplicates
@@ -163,6 +210,7 @@ impl FrameCollector {
     pub fn finish(self) -> Result<Decoded, String> {
         decode_frames(
             self.decoder.stats(),
+            self.decoder.layout_1(),
             self.frames,
             self.duplicates,
             self.read,
@@ -199,17 +247,57 @@ pub fn decode_stream(
     collector.finish()
 }
 
+/// Why the frames of a capture cannot make a run log, if they cannot: a layout another
+/// firmware sends, or channels a run log needs that were not sent.
+fn unusable(frames: &[Frame], layout_1: u32, stats: LinkStats, read: usize) -> Option<String> {
+    let Some(first) = frames.first() else {
+        return Some(if layout_1 > 0 {
+            format!(
+                "{layout_1} telemetry frames of layout 1 (kind 0x01: an older fpc firmware's, \
+                 ten fixed channels) and none of layout {LAYOUT} in {read} bytes: this \
+                 fpc-sim reads layout {LAYOUT}; decode the capture with the fpc-sim of the \
+                 firmware that sent it"
+            )
+        } else {
+            format!(
+                "no telemetry frame in {read} bytes ({} rejected)",
+                stats.rejected
+            )
+        });
+    };
+    let missing: Vec<&str> = CHANNELS
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| ChannelSet::GAP.has(*i) && !first.channels.has(*i))
+        .map(|(_, n)| *n)
+        .collect();
+    (!missing.is_empty() && frames.iter().all(|f| f.channels == first.channels)).then(|| {
+        format!(
+            "the telemetry carried no {}: a run log needs them (set the channels with              `fpc-sim link telemetry --channels gap` or `all`)",
+            missing.join(", ")
+        )
+    })
+}
+
 /// The run log of decoded frames (see [`decode_stream`]).
 fn decode_frames(
     stats: LinkStats,
+    layout_1: u32,
     frames: Vec<Frame>,
     duplicates: usize,
     read: usize,
 ) -> Result<Decoded, String> {
+    if let Some(why) = unusable(&frames, layout_1, stats, read) {
+        return Err(why);
+    }
+    // Only frames that can make a run log (every required channel) count.
+    let complete = |f: &Frame| (0..7).all(|i| ChannelSet::GAP.has(i) && f.channels.has(i));
+    let incomplete = frames.iter().filter(|f| !complete(f)).count();
+    let frames: Vec<Frame> = frames.into_iter().filter(complete).collect();
     if frames.is_empty() {
         return Err(format!(
-            "no telemetry frame in {read} bytes ({} rejected)",
-            stats.rejected
+            "none of the {incomplete} telemetry frames carries every channel a run log needs              ({})",
+            CHANNELS[..7].join(", ")
         ));
     }
     // The decimation is the most common sequence step; any other step is a gap.
@@ -226,11 +314,19 @@ fn decode_frames(
         .collect();
     let positive: Vec<u32> = tick_steps.iter().copied().filter(|&t| t > 0).collect();
     let tick_step = mode_of(&positive).unwrap_or(0);
-    let breaks: Vec<usize> = steps
-        .iter()
-        .zip(&tick_steps)
+    // A break: a frame lost (the step), another rate, other channels, or the ports
+    // declared otherwise — except a bypass closing (bypassed → timed or sealed), which the
+    // log states as `# ports_from_s`.
+    let breaks: Vec<usize> = frames
+        .windows(2)
+        .zip(steps.iter().zip(&tick_steps))
         .enumerate()
-        .filter(|(_, (&s, &t))| s != decimation || t != tick_step)
+        .filter(|(_, (w, (&s, &t)))| {
+            s != decimation
+                || t != tick_step
+                || w[1].channels != w[0].channels
+                || (w[1].ports != w[0].ports && w[0].ports != Ports::Bypassed)
+        })
         .map(|(i, _)| i + 1)
         .collect();
     // Longest run of frames between breaks.
@@ -244,8 +340,9 @@ fn decode_frames(
         .max_by_key(|(a, b)| (b - a, usize::MAX - a))
         .unwrap_or((0, frames.len()));
     let kept = frames.get(start..end).unwrap_or_default();
+    let channels = kept.first().map_or(ChannelSet::ALL, |f| f.channels);
 
-    let mut log = RunLog::with_columns(&decoded_columns());
+    let mut log = RunLog::with_columns(&decoded_columns(channels));
     log.meta.push(("source".into(), "fpc-sim decode".into()));
     if tick_step > 0 {
         let rate = 1e6 / f64::from(tick_step);
@@ -253,30 +350,68 @@ fn decode_frames(
     }
     log.meta
         .push(("telemetry_decimation".into(), decimation.to_string()));
+    log.meta
+        .push(("telemetry_layout".into(), LAYOUT.to_string()));
+    // The firmware's own conventions, fixed by the layout (fpc::link::telemetry).
+    log.meta.push((
+        "force_delay_s".into(),
+        format!(
+            "{:e}",
+            f64::from(FORCE_DELAY_PERIODS * CONTROL_PERIOD_US) / 1e6
+        ),
+    ));
+    log.meta
+        .push(("theta_source".into(), THETA_SOURCE.to_string()));
     // Unwrap the µs time base (it wraps every 71.6 min) from the first kept frame on.
     let mut t_us = kept.first().map_or(0, |f| u64::from(f.t.0));
     let mut prev = kept.first().map(|f| f.t);
+    let mut ports_from: Option<(Ports, f64)> = None;
     for f in kept {
         if let Some(p) = prev {
             t_us += u64::from(f.t.0.wrapping_sub(p.0));
         }
         prev = Some(f.t);
-        let v = f.values().map(f64::from);
         // Divide (correctly rounded), exactly as the simulator's clock prints its time.
-        let mut row = vec![t_us as f64 / 1e6];
-        row.extend(v);
+        let t_s = t_us as f64 / 1e6;
+        if f.ports != Ports::Bypassed && ports_from.is_none() {
+            ports_from = Some((f.ports, t_s));
+        }
+        let mut row = vec![t_s];
+        row.extend(
+            f.values()
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| channels.has(*i))
+                .map(|(_, v)| f64::from(*v)),
+        );
         row.push(f64::from(f.fault));
         row.push(f64::from(fpc::link::telemetry::mode_code(f.mode)));
         log.push_row(&row);
+    }
+    if let Some((ports, from_s)) = ports_from {
+        log.meta.push((
+            "ports".into(),
+            if ports == Ports::Sealed {
+                "closed"
+            } else {
+                "open"
+            }
+            .into(),
+        ));
+        if kept.first().is_some_and(|f| f.ports == Ports::Bypassed) {
+            log.meta.push(("ports_from_s".into(), format!("{from_s}")));
+        }
     }
     Ok(Decoded {
         log,
         stats,
         gaps: breaks.len(),
-        left_out: frames.len() - kept.len(),
+        left_out: frames.len() - kept.len() + incomplete,
         duplicates,
         dropped: frames.last().map_or(0, |f| f.dropped),
         decimation: u32::from(decimation),
+        layout_1,
+        channels,
     })
 }
 
@@ -293,6 +428,7 @@ fn mode_of<T: Ord + Copy>(values: &[T]) -> Option<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use fpc::link::telemetry::Ports;
     use fpc::status::{ModeKind, Status};
     use fpc::units::Ticks;
 
@@ -324,6 +460,123 @@ mod tests {
         assert!(t.windows(2).all(|w| ((w[1] - w[0]) - 50e-6).abs() < 1e-9));
         assert_eq!(d.log.column("x_m").unwrap()[0], f64::from(41f32 * 1e-3));
         assert_eq!(d.log.column("mode").unwrap()[0], 3.0);
+    }
+
+    fn frames(list: &[Frame]) -> Vec<u8> {
+        let mut out = Vec::new();
+        for f in list {
+            let mut buf = [0u8; fpc::link::telemetry::WIRE_BYTES];
+            let n = f.encode(&mut buf).unwrap();
+            out.extend_from_slice(&buf[..n]);
+        }
+        out
+    }
+
+    fn at(i: u32, ports: Ports, channels: ChannelSet) -> Frame {
+        let status = Status {
+            t: Ticks(1_000 + i * 500),
+            mode: ModeKind::Running,
+            position_m: 0.1,
+            ..Status::INIT
+        };
+        Frame {
+            ports,
+            channels,
+            ..Frame::from_status((i * 10) as u16, 0, &status)
+        }
+    }
+
+    #[test]
+    fn a_closing_bypass_is_stated_and_the_firmwares_conventions_written() {
+        let list: Vec<Frame> = (0..300)
+            .map(|i| {
+                at(
+                    i,
+                    if i < 120 {
+                        Ports::Bypassed
+                    } else {
+                        Ports::Timed
+                    },
+                    ChannelSet::ALL,
+                )
+            })
+            .collect();
+        let d = decode_capture(&frames(&list), |_| {}).unwrap();
+        assert_eq!((d.gaps, d.left_out, d.log.len()), (0, 0, 300));
+        let meta = |k: &str| d.log.meta(k).map(str::to_string);
+        assert_eq!(meta("sample_rate_hz").as_deref(), Some("2000"));
+        assert_eq!(meta("ports").as_deref(), Some("open"));
+        assert_eq!(meta("ports_from_s").as_deref(), Some("0.061"));
+        assert_eq!(meta("force_delay_s").as_deref(), Some("5e-5"));
+        assert_eq!(meta("theta_source").as_deref(), Some("servo_encoder"));
+        // Sealed from the start: closed, no time.
+        let sealed: Vec<Frame> = (0..200)
+            .map(|i| at(i, Ports::Sealed, ChannelSet::GAP))
+            .collect();
+        let d = decode_capture(&frames(&sealed), |_| {}).unwrap();
+        assert_eq!(d.log.meta("ports"), Some("closed"));
+        assert_eq!(d.log.meta("ports_from_s"), None);
+        assert_eq!(
+            d.log.names.len(),
+            1 + 7 + 2,
+            "t_s, gap's seven, fault, mode"
+        );
+        // Bypassed throughout: the ports are not stated (the pressures are not replayed).
+        let open: Vec<Frame> = (0..200)
+            .map(|i| at(i, Ports::Bypassed, ChannelSet::ALL))
+            .collect();
+        let d = decode_capture(&frames(&open), |_| {}).unwrap();
+        assert_eq!(d.log.meta("ports"), None);
+    }
+
+    #[test]
+    fn other_channels_or_ports_declared_otherwise_break_the_log() {
+        // Timed, then sealed (a declaration changed, not a bypass closing), then other
+        // channels: three stretches, the longest kept.
+        let list: Vec<Frame> = (0..400)
+            .map(|i| match i {
+                0..100 => at(i, Ports::Timed, ChannelSet::ALL),
+                100..350 => at(i, Ports::Sealed, ChannelSet::ALL),
+                _ => at(i, Ports::Sealed, ChannelSet::GAP),
+            })
+            .collect();
+        let d = decode_capture(&frames(&list), |_| {}).unwrap();
+        assert_eq!((d.gaps, d.left_out, d.log.len()), (2, 150, 250));
+        assert_eq!(d.log.meta("ports"), Some("closed"));
+    }
+
+    #[test]
+    fn another_firmwares_layout_and_missing_channels_are_named() {
+        // Layout 1 (kind 0x01, 52-byte payload): an older firmware's capture.
+        let mut old = Vec::new();
+        for i in 0..50u8 {
+            let mut p = [0u8; 52];
+            p[0] = 0x01;
+            p[1] = i;
+            let mut buf = [0u8; 64];
+            let n = fpc::link::frame::encode_frame(&p, &mut buf).unwrap();
+            old.extend_from_slice(&buf[..n]);
+        }
+        let e = decode_capture(&old, |_| {}).unwrap_err();
+        assert!(
+            e.contains("50 telemetry frames of layout 1") && e.contains("older fpc firmware"),
+            "{e}"
+        );
+        // Frames without the slave encoder: no run log.
+        let few: Vec<Frame> = (0..200)
+            .map(|i| at(i, Ports::Timed, ChannelSet(0b111_1101)))
+            .collect();
+        let e = decode_capture(&frames(&few), |_| {}).unwrap_err();
+        assert!(e.contains("carried no x_slave_m"), "{e}");
+        // Mixed with layout-2 frames: counted, the rest decoded.
+        let mut both = old.clone();
+        both.extend(frames(
+            &(0..200)
+                .map(|i| at(i, Ports::Timed, ChannelSet::ALL))
+                .collect::<Vec<_>>(),
+        ));
+        let d = decode_capture(&both, |_| {}).unwrap();
+        assert_eq!((d.layout_1, d.stats.rejected, d.log.len()), (50, 50, 200));
     }
 
     #[test]

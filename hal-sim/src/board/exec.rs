@@ -15,9 +15,10 @@
 //! [`ResetCause::Watchdog`], while the plant keeps moving.
 
 use std::cell::RefCell;
+use std::convert::Infallible;
 use std::future::Future;
 use std::ops::ControlFlow;
-use std::pin::pin;
+use std::pin::{pin, Pin};
 use std::rc::Rc;
 use std::task::{Context, Waker};
 
@@ -25,14 +26,15 @@ use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use fpc::control::calibration::record::CalibrationRecord;
 use fpc::control::calibration::store::LoadError;
 use fpc::control::config::ControlConfig;
+use fpc::link::channels::UP_REPLIES;
 use fpc::ports::ControlPorts;
 use fpc::safety::faults::ResetCause;
 use fpc::shared::Shared;
-use fpc::tasks::{control_run, supervision_run, telemetry_run};
+use fpc::tasks::{command_run, control_run, supervision_run, telemetry_run};
 
 use crate::board::flash::SimFlash;
 
-use crate::board::capture::telemetry_sink;
+use crate::board::capture::{command_channel, telemetry_sink, up_channel};
 use crate::board::world::{
     clock, cycle, event_log, peripherals, watchdog, SimCycle, SimPeripherals, World, WorldRef,
 };
@@ -84,6 +86,13 @@ pub struct Execution {
     pub power_ups_us: Vec<u64>,
     /// The MCU is booting after a reset until this time, µs ([`BOOT_US`]): no task runs.
     pub booting_until_us: Option<u64>,
+    /// The firmware's command task runs too, on the RTT command channel in the board's RAM
+    /// (answers and scope recordings on the reply channel). Off by default: a caller that
+    /// posts commands to the shared state itself also takes the replies from it.
+    pub command_task: bool,
+    /// What the host asks of the link at each boot, before the tasks start (how the ports
+    /// are, which channels the telemetry carries), as `fpc-sim link` would at once.
+    pub at_boot: Vec<fpc::link::settings::LinkRequest>,
 }
 
 /// The shared state as the simulator instantiates it (single thread: no-op mutex).
@@ -153,6 +162,8 @@ where
     Fut: Future,
 {
     let world: WorldRef = Rc::new(RefCell::new(world));
+    // The firmware sets up its RTT control block first thing at boot.
+    world.borrow_mut().ram.boot_rtt();
     let io = control_ports(&world);
     {
         let mut control = pin!(control(io, shared));
@@ -206,8 +217,14 @@ where
     let mut cause = ResetCause::PowerOn;
     let mut cx = Context::from_waker(Waker::noop());
     'boot: loop {
-        // RAM starts afresh at every boot.
+        // RAM starts afresh at every boot: the shared state, and the RTT control block the
+        // firmware sets up first thing (bytes in flight are lost).
         let shared = SimShared::new();
+        world.borrow_mut().ram.boot_rtt();
+        for request in &execution.at_boot {
+            // A request the firmware refuses changes nothing, as over the link.
+            let _ = shared.apply(*request);
+        }
         let io = control_ports(&world);
         let stored = execution.flash.take().map(|flash| {
             let (loaded, flash) = boot_load(flash);
@@ -224,6 +241,13 @@ where
         ));
         let decimation = world.borrow().telemetry.decimation;
         let mut telemetry = pin!(telemetry_run(telemetry_sink(&world), &shared, decimation));
+        let mut commands = pin!(command_run(
+            command_channel(&world),
+            up_channel(&world, UP_REPLIES),
+            clock(&world),
+            clock(&world),
+            &shared
+        ));
         loop {
             let powered = execution.power_off_until_us.is_none();
             let now_us = world.borrow().time_us();
@@ -243,6 +267,9 @@ where
             }
             if powered {
                 let _ = telemetry.as_mut().poll(&mut cx);
+                if execution.command_task {
+                    let _ = commands.as_mut().poll(&mut cx);
+                }
             }
             if powered && !execution.supervision_hung {
                 let _ = supervision.as_mut().poll(&mut cx);
@@ -307,4 +334,67 @@ where
     // The task futures, the only other holders, were dropped above, so this never clones.
     let world = Rc::try_unwrap(world).map_or_else(|rc| rc.borrow().clone(), RefCell::into_inner);
     (world, execution)
+}
+
+/// A task body as [`LinkedBoard`] holds it.
+type Task<'s> = Pin<Box<dyn Future<Output = Infallible> + 's>>;
+
+/// The simulated board run one control period at a time, with all four of the firmware's
+/// tasks — control, supervision, telemetry and commands — for a host that reaches it only
+/// the way a probe reaches the real board: through the RTT channels in its RAM
+/// (`link::rtt`). No watchdog resets or power cuts here ([`simulate_board`] has
+/// them); the caller may change the plant between periods (what the rig's operator does:
+/// close a bypass, blank the ports).
+pub struct LinkedBoard<'s> {
+    world: WorldRef,
+    tasks: [Task<'s>; 4],
+}
+
+impl<'s> LinkedBoard<'s> {
+    /// Boots the firmware on `world` from power-on: its RTT control block set up, then the
+    /// tasks started with `config` and telemetry at `decimation`, sharing `shared`.
+    pub fn boot(
+        world: World,
+        config: ControlConfig,
+        shared: &'s SimShared,
+        decimation: u16,
+    ) -> LinkedBoard<'s> {
+        let world: WorldRef = Rc::new(RefCell::new(world));
+        world.borrow_mut().ram.boot_rtt();
+        let io = control_ports(&world);
+        let tasks: [Task<'s>; 4] = [
+            Box::pin(control_run(io, shared, config, ResetCause::PowerOn, None)),
+            Box::pin(supervision_run(
+                clock(&world),
+                clock(&world),
+                watchdog(&world),
+                event_log(&world),
+                shared,
+            )),
+            Box::pin(telemetry_run(telemetry_sink(&world), shared, decimation)),
+            Box::pin(command_run(
+                command_channel(&world),
+                up_channel(&world, UP_REPLIES),
+                clock(&world),
+                clock(&world),
+                shared,
+            )),
+        ];
+        LinkedBoard { world, tasks }
+    }
+
+    /// One control period: every task runs until it waits on the hardware, then the plant
+    /// advances.
+    pub fn step(&mut self) {
+        let mut cx = Context::from_waker(Waker::noop());
+        for task in &mut self.tasks {
+            let _ = task.as_mut().poll(&mut cx);
+        }
+        self.world.borrow_mut().advance();
+    }
+
+    /// The board and its plant, between periods.
+    pub fn world(&self) -> std::cell::RefMut<'_, World> {
+        self.world.borrow_mut()
+    }
 }

@@ -6,8 +6,8 @@
 //! The firmware's side of the channels is here: the up-channels are written with the
 //! firmware's own writer ([`fpc::link::rtt_up::write_or_skip`], the one `board/rtt.rs` uses),
 //! the down-channel is read the way rtt-target reads it. The host's side is
-//! [`crate::link::rtt`], which knows nothing of this module: it reads and writes these bytes
-//! through [`crate::link::memory::TargetMemory`], as it does a real board's through a probe.
+//! `link::rtt`, which knows nothing of this module: it reads and writes these bytes
+//! through `link::memory::TargetMemory`, as it does a real board's through a probe.
 //!
 //! # Layout
 //! The control block sits at [`CONTROL_BLOCK`]: 16 id bytes (`"SEGGER RTT"`, NUL-padded),

@@ -226,7 +226,14 @@ pub struct PitchError {
     pub amplitude2_m: f64,
     /// Phase of the half-period term, rad.
     pub phase2_rad: f64,
+    /// Step once per period, m.
+    pub step_m: f64,
+    /// Difference between the readings moving toward +x and toward −x, m.
+    pub direction_m: f64,
 }
+
+/// Speed below which the direction-dependent reading blends through zero, m/s.
+pub const DIRECTION_BLEND_MPS: f64 = 1e-3;
 
 impl PitchError {
     /// From `[effects.encoder_pitch_error]`.
@@ -238,16 +245,31 @@ impl PitchError {
             scale: e.scale,
             amplitude2_m: e.amplitude2_m,
             phase2_rad: e.phase2_rad,
+            step_m: e.step_m,
+            direction_m: e.direction_m,
         }
     }
 
-    /// The position the encoder reads at true position `x_m`, m.
+    /// The position the encoder reads at true position `x_m`, at rest, m.
     #[inline]
     pub fn read_m(&self, x_m: f64) -> f64 {
+        self.read_moving_m(x_m, 0.0)
+    }
+
+    /// The position the encoder reads at true position `x_m` moving at `v_mps`, m.
+    #[inline]
+    pub fn read_moving_m(&self, x_m: f64, v_mps: f64) -> f64 {
         let th = std::f64::consts::TAU * x_m / self.period_m;
         let mut x = x_m * (1.0 + self.scale) + self.amplitude_m * sin_cos(th + self.phase_rad).0;
         if self.amplitude2_m != 0.0 {
             x += self.amplitude2_m * sin_cos(2.0 * th + self.phase2_rad).0;
+        }
+        if self.step_m != 0.0 {
+            let u = x_m / self.period_m + self.phase_rad / std::f64::consts::TAU;
+            x += self.step_m * (u - u.floor() - 0.5);
+        }
+        if self.direction_m != 0.0 {
+            x += 0.5 * self.direction_m * v_mps / (v_mps.abs() + DIRECTION_BLEND_MPS);
         }
         x
     }
@@ -384,7 +406,21 @@ mod tests {
             scale: 1e-3,
             amplitude2_m: 0.0,
             phase2_rad: 0.0,
+            step_m: 0.0,
+            direction_m: 0.0,
         };
         assert!((e.read_m(0.006) - (0.006 * 1.001 + 1e-4)).abs() < 1e-12);
+        // A saw of 0.1 mm stepping once a pitch, 0.05 mm more moving toward +x.
+        let saw = PitchError {
+            amplitude_m: 0.0,
+            scale: 0.0,
+            step_m: 1e-4,
+            direction_m: 5e-5,
+            ..e
+        };
+        let err = |x: f64, v: f64| saw.read_moving_m(x, v) - x;
+        assert!((err(0.0241, 0.0) - (-0.5e-4 + 1e-4 * 0.1 / 24.0)).abs() < 1e-9);
+        assert!((err(0.0239, 0.0) - (0.5e-4 - 1e-4 * 0.1 / 24.0)).abs() < 1e-9);
+        assert!((err(0.03, 2.0) - err(0.03, -2.0) - 5e-5).abs() < 1e-7);
     }
 }

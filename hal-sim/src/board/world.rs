@@ -74,6 +74,8 @@ pub struct World {
     pub corruption: crate::board::corruption::SensorCorruption,
     /// What the firmware's telemetry task sent up the (simulated) RTT channel.
     pub telemetry: crate::board::capture::TelemetryCapture,
+    /// The board's RAM: the firmware's RTT control block and channels, set up at each boot.
+    pub ram: crate::board::ram::SimRam,
     noise: Noise,
     /// The pressure sensors' lagged readings, Pa (A, B, suction, discharge).
     pressure_lagged_pa: [f64; PRESSURE_CHANNELS],
@@ -119,6 +121,7 @@ impl World {
             events: Vec::new(),
             corruption: Default::default(),
             telemetry: Default::default(),
+            ram: crate::board::ram::SimRam::new(),
             noise: Noise::new(seed),
             pressure_alpha,
         };
@@ -237,7 +240,7 @@ impl World {
             // Same scale, same position: the same angle (one sin/cos for both).
             None if es.period_m == em.period_m => es.signals_at(th, sin_cos_th),
             None => es.signals(x),
-            Some(e) => es.signals(e.read_m(x)),
+            Some(e) => es.signals(e.read_moving_m(x, plant.v_mps)),
         };
         let slave = encoder(es, slave_signals, noise);
 

@@ -14,13 +14,28 @@ use crate::output::OutDir;
 use crate::plant::model::MachineModel;
 use crate::{errln, outln};
 
+/// What the measured log must be, and how one comes from the board.
+const GAP_HELP: &str = "\
+The measured run: a run log (formats.md §1) sampled uniformly at 2000 Hz to 1 MHz (gap's
+differentiator spans 2 ms and needs 5 samples in it), at least 4 differentiator windows long.
+Its metadata are read as they are: `ports` (open, closed; absent: the pressures are not
+compared) and `ports_from_s`, `theta_source`, `force_delay_s` (absent: the forces'
+alignment is fitted).
+
+From the board, with no edits: the firmware streams 2000 Hz by default (or
+`fpc-sim link telemetry --rate 5000`); `fpc-sim link ports timed|sealed` when the ports change;
+`fpc-sim link capture --out rig-run`, then `fpc-sim gap --model M --measured rig-run/run.csv`.
+From the simulator: `fpc-sim run --telemetry up1.bin` (2000 Hz by default), then
+`fpc-sim decode --capture up1.bin --out dec.csv`. Walkthrough: docs/rig-to-model.md.";
+
 /// Find, name and add the effect missing from a model.
 #[derive(Args, Debug)]
+#[command(after_help = GAP_HELP)]
 pub struct GapArgs {
     /// The model to check (machine-model TOML).
     #[arg(long)]
     pub model: PathBuf,
-    /// The measured run (run-log CSV).
+    /// The measured run (run-log CSV, sampled at 2000 Hz or faster).
     #[arg(long)]
     pub measured: PathBuf,
     /// Output directory: model.toml, report.md, plots, gap.json.
@@ -108,4 +123,18 @@ pub fn main(args: GapArgs) -> CmdResult {
         outln!("{json}")?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::GAP_HELP;
+    use crate::gap::data::MIN_SAMPLE_RATE_HZ;
+    use fpc::link::telemetry::{CONTROL_PERIOD_US, DEFAULT_DECIMATION};
+
+    #[test]
+    fn the_help_states_the_slowest_rate_the_reader_takes_and_the_firmware_offers_it() {
+        assert!(GAP_HELP.contains(&format!("sampled uniformly at {MIN_SAMPLE_RATE_HZ} Hz")));
+        let firmware_hz = 1e6 / f64::from(CONTROL_PERIOD_US * u32::from(DEFAULT_DECIMATION));
+        assert_eq!(firmware_hz, MIN_SAMPLE_RATE_HZ);
+    }
 }

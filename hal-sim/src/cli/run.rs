@@ -39,10 +39,15 @@ pub struct RunArgs {
     /// Also capture the firmware's telemetry stream into this file (`fpc-sim decode` reads it).
     #[arg(long)]
     pub telemetry: Option<PathBuf>,
-    /// Control cycles per telemetry frame (1 = every 50 µs cycle).
+    /// Control cycles per telemetry frame (1 = every 50 µs cycle; the firmware's default 10
+    /// is 2000 Hz, the slowest rate `fpc-sim gap` analyses).
     #[arg(long, default_value_t = fpc::link::telemetry::DEFAULT_DECIMATION,
           value_parser = clap::value_parser!(u16).range(1..))]
     pub telemetry_decimation: u16,
+    /// The channels the telemetry carries: `gap` (the seven a run log needs, the firmware's
+    /// default), `all`, or names joined by commas.
+    #[arg(long, value_name = "SET", default_value = "gap")]
+    pub telemetry_channels: String,
     /// Inject a fault: `NAME@T[:k=v,…]` (`faults.md`; repeat for several). An unknown name or
     /// a malformed specification exits 2 naming it.
     #[arg(long = "fault", value_name = "SPEC")]
@@ -65,6 +70,19 @@ pub struct RunArgs {
     /// the model's true cogging map. A bad file exits 2 naming the key.
     #[arg(long, value_name = "FILE")]
     pub calibration: Option<PathBuf>,
+    /// The controller: `ours` (this firmware on the simulated board) or `published` (the
+    /// paper's master/slave drives, `[published]` in the model; a baseline to compare with).
+    #[arg(long, default_value = "ours", value_name = "NAME")]
+    pub controller: String,
+    /// The paper's closed-port test instead of compression cycles: both ports closed, the
+    /// published drives accelerate the piston from mid-travel toward head B at `--speed` and
+    /// stop it at STOP_M (m from head A), then hold it `--hold` seconds while chamber B's
+    /// pressure leaks away. Needs `--controller published`.
+    #[arg(long, value_name = "STOP_M")]
+    pub closed_port: Option<f64>,
+    /// Hold after a closed-port stop, s.
+    #[arg(long, default_value_t = 2.0, value_name = "S")]
+    pub hold: f64,
     /// Keep the files of a run that fails (stops before its cycles without an injected
     /// fault, or ends before a fault begins), for diagnosis; it still exits 1. Without it a
     /// failed run writes nothing.
@@ -112,11 +130,20 @@ pub fn main(args: RunArgs) -> CmdResult {
         volume_ratio: crate::run::parse_volume_ratio(&args.volume_ratio)
             .map_err(Failure::bad_input)?,
         log_rate_hz: args.log_rate,
+        controller: crate::run::Controller::parse(&args.controller).map_err(Failure::bad_input)?,
+        closed_port: args
+            .closed_port
+            .map(|stop_m| crate::run::closed::ClosedPort {
+                stop_m,
+                hold_s: args.hold,
+            }),
         telemetry_decimation: if args.telemetry.is_some() {
             args.telemetry_decimation
         } else {
             0
         },
+        telemetry_channels: crate::link::session::parse_channels(&args.telemetry_channels)
+            .map_err(|e| Failure::bad_input(format!("--telemetry-channels: {e}")))?,
         ..RunOptions::reference()
     };
     opts.validate().map_err(Failure::bad_input)?;

@@ -421,14 +421,27 @@ impl Measured {
     /// the chambers tens of times: a few seconds of a long log pin the parameter as well).
     /// The end of the copy is an end: its last samples leave the masks like the log's.
     pub fn head(&self, n: usize) -> Measured {
-        let n = n.min(self.len());
-        let cut = |v: &Vec<f64>| v.get(..n).unwrap_or(v).to_vec();
+        self.window(0, n)
+    }
+
+    /// `n` samples from sample `start` on, as [`Measured::head`] (times kept, so
+    /// `ports_from_s` still says when the ports' state begins); both ends of the copy are
+    /// ends, leaving the masks like the log's.
+    pub fn window(&self, start: usize, n: usize) -> Measured {
+        let start = start.min(self.len());
+        let n = n.min(self.len() - start);
+        let cut = |v: &Vec<f64>| v.get(start..start + n).unwrap_or(v).to_vec();
         let edge = 2 * self.sg_window;
         let mut inner = cut(&self.inner);
         let mut moving = cut(&self.moving);
         for v in [&mut inner, &mut moving] {
             if let Some(tail) = v.get_mut(n.saturating_sub(edge)..) {
                 tail.fill(0.0);
+            }
+            if start > 0 {
+                if let Some(head) = v.get_mut(..edge.min(n)) {
+                    head.fill(0.0);
+                }
             }
         }
         let segments = runs(&moving);

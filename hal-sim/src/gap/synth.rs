@@ -224,7 +224,9 @@ fn prescribed(
         let p_a = read(0, pa, ps.offset_pa[0], &mut noise);
         let p_b = read(1, pb, ps.offset_pa[1], &mut noise);
         let xm = x + noise.scaled(ENCODER_NOISE_M);
-        let x_true_slave = sensors.slave_pitch_error.map_or(x, |e| e.read_m(x));
+        let x_true_slave = sensors
+            .slave_pitch_error
+            .map_or(x, |e| e.read_moving_m(x, v));
         let xs = x_true_slave + noise.scaled(ENCODER_NOISE_M);
         let fm = 0.5 * motors + noise.scaled(FORCE_NOISE_N);
         let fs = 0.5 * motors + noise.scaled(FORCE_NOISE_N);

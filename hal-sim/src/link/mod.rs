@@ -12,7 +12,8 @@
 //! Transports: [`rtt::RttChannels`] finds the RTT control block in the target's memory and
 //! reads and writes the channels there, over any [`memory::TargetMemory`] — the simulated
 //! board's RAM ([`crate::board::ram`]) in the tests, an emulated firmware image, or a probe.
-//! [`Replay`] plays recorded channel contents. [`probe`] (cargo feature `probe`, off by
+//! [`simprobe::SimProbe`] is a host attached that way to the simulated board, for whole bench
+//! sessions in the tests. [`Replay`] plays recorded channel contents. [`probe`] (cargo feature `probe`, off by
 //! default) attaches to the board with the `probe-rs` library.
 
 pub mod defmt;
@@ -21,7 +22,9 @@ pub mod memory;
 pub mod probe;
 pub mod replay;
 pub mod rtt;
+pub mod scope;
 pub mod session;
+pub mod simprobe;
 
 pub use replay::Replay;
 

@@ -332,6 +332,26 @@ fn read_name<M: TargetMemory + ?Sized>(memory: &mut M, address: u64) -> Option<S
     None
 }
 
+/// Reads everything up-channel `number` holds into `out`, as a host that keeps up does;
+/// returns the bytes read.
+pub fn drain_up<M: TargetMemory + ?Sized>(
+    block: &ControlBlock,
+    memory: &mut M,
+    number: usize,
+    out: &mut Vec<u8>,
+) -> io::Result<usize> {
+    let mut buf = [0u8; 4096];
+    let mut total = 0;
+    loop {
+        let n = block.read_up(memory, number, &mut buf)?;
+        if n == 0 {
+            return Ok(total);
+        }
+        out.extend_from_slice(buf.get(..n).unwrap_or_default());
+        total += n;
+    }
+}
+
 /// A channel's (write, read) offsets, checked against its size.
 fn offsets<M: TargetMemory + ?Sized>(
     memory: &mut M,

@@ -15,23 +15,30 @@ use std::time::{Duration, Instant};
 
 use fpc::control::calibration::record::RECORD_BYTES;
 use fpc::control::command::{Command, Refusal, Reply};
-use fpc::link::commands::MAX_REPLY_WIRE;
 use fpc::link::commands::{
     decode_answer, encode_command, encode_transfer, tag, Answer, Chunk, Transfer, TransferId,
     TransferReply, CHUNK_BYTES, MAX_COMMAND_WIRE,
 };
 use fpc::link::frame::{Deframer, FrameError, LinkStats};
+use fpc::link::scope::Trigger;
+use fpc::link::scope::{decode_scope, MAX_SCOPE_WIRE};
+use fpc::link::settings::{encode_link_request, LinkRequest};
+use fpc::link::telemetry::{ChannelSet, Ports, CHANNELS};
 use fpc::motion::synchroniser::Rotation;
 use fpc::motion::volume_ratio::RatioTarget;
 
 use super::defmt::DefmtLog;
+use super::scope::{trigger_text, ScopeCollector};
 use super::{is_end, Channels, DOWN_COMMANDS, UP_DEFMT, UP_REPLIES, UP_TELEMETRY};
 use crate::board::capture::FrameCollector;
 
-/// Streaming reader of up 2: bytes in, answers out, bad frames rejected and counted.
+/// Streaming reader of up 2: bytes in, answers out, scope recordings collected
+/// ([`AnswerReader::scope`]), bad frames rejected and counted.
 #[derive(Clone, Debug, Default)]
 pub struct AnswerReader {
-    deframer: Deframer<{ MAX_REPLY_WIRE }>,
+    deframer: Deframer<{ MAX_SCOPE_WIRE }>,
+    scope: ScopeCollector,
+    stats: LinkStats,
 }
 
 impl AnswerReader {
@@ -42,15 +49,38 @@ impl AnswerReader {
 
     /// Feeds bytes; returns the answers (or why a frame was rejected) they complete.
     pub fn push(&mut self, bytes: &[u8]) -> Vec<Result<Answer, FrameError>> {
-        bytes
-            .iter()
-            .filter_map(|&b| self.deframer.push_decoded(b, decode_answer))
-            .collect()
+        let mut out = Vec::new();
+        for &b in bytes {
+            let got = match self.deframer.push(b) {
+                None => continue,
+                Some(Err(e)) => Err(e),
+                Some(Ok(payload)) => match decode_scope(payload) {
+                    Some(Ok(message)) => {
+                        self.scope.push(message);
+                        self.stats.accepted += 1;
+                        continue;
+                    }
+                    Some(Err(e)) => Err(e),
+                    None => decode_answer(payload),
+                },
+            };
+            match got {
+                Ok(_) => self.stats.accepted += 1,
+                Err(_) => self.stats.rejected += 1,
+            }
+            out.push(got);
+        }
+        out
     }
 
     /// Frames accepted and rejected so far.
     pub fn stats(&self) -> LinkStats {
-        self.deframer.stats
+        self.stats
+    }
+
+    /// The scope recordings sent on up 2 so far.
+    pub fn scope(&self) -> &ScopeCollector {
+        &self.scope
     }
 }
 
@@ -72,6 +102,8 @@ pub struct Counters {
     pub defmt_bytes: usize,
     /// Bytes read from up 1 (telemetry).
     pub telemetry_bytes: usize,
+    /// Scope recordings received whole on up 2.
+    pub scope_recordings: usize,
 }
 
 impl std::fmt::Display for Counters {
@@ -79,7 +111,8 @@ impl std::fmt::Display for Counters {
         write!(
             f,
             "telemetry {} bytes: frames accepted {}, rejected {}, repeated {}, sequence gaps \
-             {}, dropped by the firmware {}; replies accepted {}, rejected {}; defmt {} bytes",
+             {}, dropped by the firmware {}; replies accepted {}, rejected {}; scope recordings \
+             {}; defmt {} bytes",
             self.telemetry_bytes,
             self.telemetry.accepted,
             self.telemetry.rejected,
@@ -88,6 +121,7 @@ impl std::fmt::Display for Counters {
             self.firmware_dropped,
             self.answers.accepted,
             self.answers.rejected,
+            self.scope_recordings,
             self.defmt_bytes
         )
     }
@@ -103,6 +137,7 @@ pub struct CaptureSession {
     defmt: DefmtLog,
     defmt_bytes: usize,
     ended: [bool; 3],
+    received: Vec<Answer>,
 }
 
 impl CaptureSession {
@@ -114,6 +149,7 @@ impl CaptureSession {
             defmt,
             defmt_bytes: 0,
             ended: [false; 3],
+            received: Vec::new(),
         }
     }
 
@@ -153,10 +189,17 @@ impl CaptureSession {
                     self.defmt_bytes += n;
                     lines.extend(self.defmt.push(bytes));
                 }
-                _ => lines.extend(self.answers.push(bytes).into_iter().map(|a| match a {
-                    Ok(answer) => answer_text(&answer),
-                    Err(e) => format!("reply frame rejected: {}", frame_error_text(e)),
-                })),
+                _ => {
+                    for a in self.answers.push(bytes) {
+                        lines.push(match &a {
+                            Ok(answer) => answer_text(answer),
+                            Err(e) => format!("reply frame rejected: {}", frame_error_text(*e)),
+                        });
+                        if let Ok(answer) = a {
+                            self.received.push(answer);
+                        }
+                    }
+                }
             }
         }
         Ok((total, lines))
@@ -177,7 +220,24 @@ impl CaptureSession {
             answers: self.answers.stats(),
             defmt_bytes: self.defmt_bytes,
             telemetry_bytes: self.telemetry.bytes_read(),
+            scope_recordings: self.answers.scope().recordings().len(),
         }
+    }
+
+    /// The scope recordings received so far.
+    pub fn scope(&self) -> &ScopeCollector {
+        self.answers.scope()
+    }
+
+    /// The last telemetry frame received, if any.
+    pub fn last_frame(&self) -> Option<&fpc::link::telemetry::Frame> {
+        self.telemetry.last()
+    }
+
+    /// The answers received since the last call, in order (also shown as lines by
+    /// [`CaptureSession::poll`]).
+    pub fn take_answers(&mut self) -> Vec<Answer> {
+        std::mem::take(&mut self.received)
     }
 
     /// The telemetry collected, for the run log ([`FrameCollector::finish`]).
@@ -416,8 +476,91 @@ pub fn transfer_text(id: TransferId) -> String {
     match id.tag {
         tag::CALIBRATION_READ => format!("calibration read at offset {}", id.arg),
         tag::CALIBRATION_WRITE => format!("calibration write at offset {}", id.arg),
-        _ => format!("calibration commit, CRC {:08x}", id.arg),
+        tag::CALIBRATION_COMMIT => format!("calibration commit, CRC {:08x}", id.arg),
+        tag::SET_TELEMETRY => format!(
+            "telemetry --decimation {} --channels {}",
+            id.arg & 0xFFFF,
+            channels_text(ChannelSet((id.arg >> 16) as u16))
+        ),
+        tag::DECLARE_PORTS => format!(
+            "ports {}",
+            Ports::from_code(id.arg as u8).map_or("?", Ports::name)
+        ),
+        tag::SCOPE_ARM => format!(
+            "scope arm --trigger {}",
+            Trigger::from_code(id.arg as u8, (id.arg >> 8) as u16)
+                .map_or("?".to_string(), trigger_text)
+        ),
+        tag::SCOPE_FIRE => "scope fire".into(),
+        tag::SCOPE_DISARM => "scope disarm".into(),
+        other => format!("request {other:#04x}"),
     }
+}
+
+/// A channel set as typed: `all`, `gap`, or the channels' names joined by commas.
+pub fn channels_text(set: ChannelSet) -> String {
+    if set == ChannelSet::ALL {
+        "all".into()
+    } else if set == ChannelSet::GAP {
+        "gap".into()
+    } else {
+        CHANNELS
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| set.has(*i))
+            .map(|(_, n)| *n)
+            .collect::<Vec<_>>()
+            .join(",")
+    }
+}
+
+/// A channel set as typed: `all`, `gap`, or the channels' names joined by commas; the
+/// error names what is not a channel.
+pub fn parse_channels(text: &str) -> Result<ChannelSet, String> {
+    match text {
+        "all" => return Ok(ChannelSet::ALL),
+        "gap" => return Ok(ChannelSet::GAP),
+        _ => {}
+    }
+    let mut bits = 0u16;
+    for name in text.split(',').map(str::trim) {
+        let i = CHANNELS.iter().position(|c| *c == name).ok_or_else(|| {
+            format!(
+                "`{name}` is no channel; give all, gap, or names from {}",
+                CHANNELS.join(", ")
+            )
+        })?;
+        bits |= 1 << i;
+    }
+    Ok(ChannelSet(bits))
+}
+
+/// Sends a link request (telemetry, ports, scope) on down 0 and waits up to `timeout` for the
+/// firmware's verdict on up 2: accepted, or refused with the reason. An error is one line.
+pub fn send_link_request<C: Channels + ?Sized>(
+    channels: &mut C,
+    request: &LinkRequest,
+    timeout: Duration,
+    other: impl FnMut(String),
+) -> Result<Result<(), Refusal>, String> {
+    let mut wire = [0u8; MAX_COMMAND_WIRE];
+    let n = encode_link_request(request, &mut wire)
+        .map_err(|_| "the request does not fit a frame".to_string())?;
+    let id = request.id();
+    let what = transfer_text(id);
+    let mut exchange = Exchange::new(channels, timeout, other);
+    let got = exchange.ask(wire.get(..n).unwrap_or_default(), &what, |a| match a {
+        Answer::Calibration(TransferReply::Verdict { transfer, result }) if *transfer == id => {
+            Some(*result)
+        }
+        _ => None,
+    })?;
+    got.map_err(|reason| {
+        format!(
+            "rejected by the firmware: the `{what}` frame {}",
+            frame_error_text(reason)
+        )
+    })
 }
 
 /// Whether two commands are the same on the wire (bit for bit, so NaN equals NaN).
@@ -550,7 +693,7 @@ mod tests {
     use fpc::link::commands::{encode_rejection, encode_reply};
 
     fn reply_bytes(reply: &Reply) -> Vec<u8> {
-        let mut out = [0u8; MAX_REPLY_WIRE];
+        let mut out = [0u8; fpc::link::commands::MAX_REPLY_WIRE];
         let n = encode_reply(reply, &mut out).unwrap();
         out[..n].to_vec()
     }

@@ -89,6 +89,7 @@ impl<'s> Capture<'s> {
         let stream = csv.map(|out| {
             let mut kept = RunLog::with_columns(&COLUMNS);
             kept.meta = log.meta.clone();
+            kept.names = log.names.clone();
             for column in &mut kept.columns {
                 column.reserve_exact(KEPT_ROWS + 1);
             }

@@ -14,6 +14,9 @@ use std::ops::ControlFlow;
 use std::time::Instant;
 
 use fpc::control::command::Command;
+use fpc::link::channels::UP_TELEMETRY;
+use fpc::link::settings::LinkRequest;
+use fpc::link::telemetry::Ports;
 use fpc::motion::volume_ratio::RatioTarget;
 use fpc::safety::faults::Fault;
 use fpc::status::{ModeKind, Status};
@@ -21,14 +24,20 @@ use fpc::units::CONTROL_PERIOD_S;
 use serde::Serialize;
 
 use crate::board::exec::{simulate_board, Execution, SimShared};
+use crate::board::ram::SimRam;
 use crate::board::world::World;
 use crate::failure::num;
 use crate::faults::apply::{InjectionReport, Injector};
+use crate::link::rtt::{drain_up, ControlBlock, Locate};
 use crate::plant::chambers::PortMode;
+use crate::published::Rig;
 use crate::runlog::{RunLog, REQUIRED};
 
 mod capture;
+pub mod closed;
+mod figures;
 mod options;
+pub mod spectrum;
 pub mod text;
 
 use capture::Capture;
@@ -36,7 +45,7 @@ pub use options::*;
 
 /// The JSON summary of a run (`formats.md` §3). `None` is printed as `null`: a figure that
 /// this simulation cannot yet produce is never invented.
-#[derive(Clone, Debug, Serialize, PartialEq)]
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct Summary {
     /// Simulated time, s.
     pub sim_time_s: f64,
@@ -74,6 +83,42 @@ pub struct Summary {
     pub faults: Vec<String>,
     /// Final mode.
     pub state: String,
+    /// Which controller drove the plant (`ours`, `published`).
+    pub controller: String,
+    /// Largest |F_master − F_slave| (the sections' reported forces) within ±5 ms of a dead
+    /// point, over the last 5 cycles, N (the paper's force fight, §4.1).
+    pub dead_point_force_diff_n: Option<f64>,
+    /// RMS of F_master − F_slave over the RMS of F_master + F_slave while stroking.
+    pub force_diff_rms_fraction: Option<f64>,
+    /// Largest overshoot past a dead point toward its head over the last 5 cycles, m
+    /// (negative: every dead point short of its target).
+    pub overshoot_m: Option<f64>,
+    /// Largest minus smallest position over the last 5 cycles, m.
+    pub travel_m: Option<f64>,
+    /// V_max/V_min of each chamber over the last 5 cycles, mean of A and B.
+    pub volume_ratio_reached: Option<f64>,
+    /// p_max/p_min of each chamber over the last 5 cycles, mean of A and B (the PR of the
+    /// paper's Fig. 3 read from its p–V loops; the target is the line ratio).
+    pub pv_pressure_ratio: Option<f64>,
+    /// Frequency of the line in 340–460 Hz of the measured position error (the master
+    /// encoder's position − the reference: what the rig sees of a vibration) while
+    /// stroking, Hz.
+    pub line_hz: Option<f64>,
+    /// Its amplitude, m.
+    pub line_m: Option<f64>,
+    /// Its noise floor: the median amplitude 15–100 Hz either side of it, m (the line is the bin of
+    /// the band that stands highest above its floor).
+    pub line_floor_m: Option<f64>,
+    /// As `line_hz`, with the piston held at rest before the strokes (at least 0.1 s).
+    pub rest_line_hz: Option<f64>,
+    /// Its amplitude, m.
+    pub rest_line_m: Option<f64>,
+    /// Its noise floor, m.
+    pub rest_line_floor_m: Option<f64>,
+    /// Closed-port run (`--closed-port`): the highest pressure of chamber B, Pa.
+    pub closed_port_peak_pa: Option<f64>,
+    /// Closed-port run: chamber B's pressure at the end of the hold, Pa.
+    pub closed_port_end_pa: Option<f64>,
 }
 
 /// A finished run: the summary and the run log.
@@ -153,6 +198,7 @@ struct Metrics {
     peak_speed_mps: f64,
     force_diff_sq: f64,
     force_diff_n: u64,
+    paper: figures::PaperFigures,
     faults: Vec<Fault>,
     /// The homing command went out.
     home_sent: bool,
@@ -175,6 +221,9 @@ pub fn run_streamed(opts: &RunOptions, csv: &mut dyn Write) -> Result<RunOutcome
 
 fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome, String> {
     opts.validate()?;
+    if let Some(test) = opts.closed_port {
+        return closed::simulate(opts, test, csv);
+    }
     let config = run_config(opts);
     let mut injector = Injector::new(&opts.faults, &config, opts.seed);
     let heartbeat_timeout_s = config.heartbeat_timeout_s;
@@ -197,22 +246,105 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             .as_ref()
             .map(crate::board::flash::holding)
             .transpose()?,
+        // The bypass is open from power-on and the telemetry carries the channels asked for;
+        // the host says so at every boot.
+        at_boot: vec![
+            LinkRequest::DeclarePorts(Ports::Bypassed),
+            LinkRequest::SetTelemetry {
+                decimation: opts.telemetry_decimation,
+                channels: opts.telemetry_channels,
+            },
+        ],
         ..Execution::default()
     };
-    let each_cycle = |w: &mut World, shared: &SimShared, exec: &mut Execution| {
-        let injected = if injector.is_empty() {
-            None
-        } else {
-            injector.step(w, shared, exec);
-            Some(injector.finished(w.time_us(), heartbeat_timeout_s))
-        };
-        let mut link = shared;
-        // While the MCU boots after a reset nothing reports a status.
-        let fresh = exec.booting_until_us.is_none();
-        driver.cycle(w, &mut link, fresh, injected)
+    // The host of the telemetry channel: it finds the RTT control block in the board's RAM
+    // and reads the channel there every control period, as a probe does (it always keeps up).
+    let mut telemetry_host: Option<ControlBlock> = None;
+    let mut telemetry_error: Option<String> = None;
+    let world = match opts.controller {
+        Controller::Ours => {
+            let each_cycle = |w: &mut World, shared: &SimShared, exec: &mut Execution| {
+                if opts.telemetry_decimation > 0 && telemetry_error.is_none() {
+                    let block = match telemetry_host.take() {
+                        Some(b) => Ok(b),
+                        None => {
+                            ControlBlock::find(&mut w.ram, &Locate::Scan(vec![SimRam::range()]))
+                        }
+                    };
+                    let drained = block.and_then(|b| {
+                        let World { ram, telemetry, .. } = &mut *w;
+                        drain_up(&b, ram, UP_TELEMETRY, &mut telemetry.bytes)
+                            .map_err(|e| e.to_string())?;
+                        Ok(b)
+                    });
+                    match drained {
+                        Ok(b) => telemetry_host = Some(b),
+                        Err(e) => telemetry_error = Some(e),
+                    }
+                }
+                let injected = if injector.is_empty() {
+                    None
+                } else {
+                    injector.step(w, shared, exec);
+                    Some(injector.finished(w.time_us(), heartbeat_timeout_s))
+                };
+                // While the MCU boots after a reset nothing reports a status.
+                let fresh = exec.booting_until_us.is_none();
+                let mut link = FirmwareLink { shared, exec };
+                driver.cycle(w, &mut link, fresh, injected)
+            };
+            simulate_board(world, config, execution, each_cycle).0
+        }
+        Controller::Published => {
+            let mut rig = Rig::new(&opts.model, &world, opts.pressure_ratio, opts.volume_ratio);
+            crate::published::simulate(world, &mut rig, |w, rig| {
+                let t_s = w.time_s();
+                driver.cycle(w, &mut PublishedLink { rig, t_s }, true, None)
+            })
+        }
     };
-    let (world, _) = simulate_board(world, config, execution, each_cycle);
+    if let Some(e) = telemetry_error {
+        return Err(format!("the telemetry host failed: {e}"));
+    }
     driver.finish(world, injector.report().clone())
+}
+
+/// [`HostLink`] of a run on the simulated board: the firmware's shared state, and the board's
+/// execution (whose boot-time link requests follow the ports the host declares).
+struct FirmwareLink<'a> {
+    shared: &'a SimShared,
+    exec: &'a mut Execution,
+}
+
+impl HostLink for FirmwareLink<'_> {
+    fn status(&self) -> Status {
+        self.shared.status()
+    }
+    fn post_command(&mut self, command: Command) -> bool {
+        self.shared.post_command(command).is_ok()
+    }
+    fn ports_timed(&mut self) {
+        self.shared.declare_ports(Ports::Timed);
+        if let Some(first) = self.exec.at_boot.first_mut() {
+            *first = LinkRequest::DeclarePorts(Ports::Timed);
+        }
+    }
+}
+
+/// [`HostLink`] of a run with the published rig's drives (`--controller published`).
+struct PublishedLink<'a> {
+    rig: &'a mut Rig,
+    t_s: f64,
+}
+
+impl HostLink for PublishedLink<'_> {
+    fn status(&self) -> Status {
+        self.rig.status()
+    }
+    fn post_command(&mut self, command: Command) -> bool {
+        self.rig.command(command, self.t_s);
+        true
+    }
 }
 
 /// The controller configuration of a run: the model's, with the options' changes (a stored
@@ -242,6 +374,9 @@ pub trait HostLink {
     fn status(&self) -> Status;
     /// Sends a command; false if the channel refused it (full).
     fn post_command(&mut self, command: Command) -> bool;
+    /// The start-up bypass has closed: the rotation times the ports from now on (a host
+    /// that declares the ports to the firmware says so; by default nothing to do).
+    fn ports_timed(&mut self) {}
 }
 
 impl HostLink for &SimShared {
@@ -298,10 +433,22 @@ impl<'o, 's> RunDriver<'o, 's> {
         log.meta.push(("seed".into(), opts.seed.to_string()));
         log.meta
             .push(("volume_ratio".into(), volume_ratio_name(opts.volume_ratio)));
-        log.meta.push((
-            "force_delay_s".into(),
-            format!("{FIRMWARE_FORCE_DELAY_S:e}"),
-        ));
+        // The published drives report the force of the current sampled with the row's position.
+        let force_delay_s = match opts.controller {
+            Controller::Ours => FIRMWARE_FORCE_DELAY_S,
+            Controller::Published => 0.0,
+        };
+        log.meta
+            .push(("force_delay_s".into(), format!("{force_delay_s:e}")));
+        if opts.controller == Controller::Published {
+            log.meta.push(("controller".into(), "published".into()));
+            // Its velocity column is the drive's reading (`filters` compares it, Fig. 7).
+            for name in &mut log.names {
+                if name == "v_mps" {
+                    *name = "v_drive_mps".into();
+                }
+            }
+        }
         let limit_s = opts.time_limit_s();
         let capture = Capture::new(limit_s, csv, &log);
         RunDriver {
@@ -392,6 +539,11 @@ impl<'o, 's> RunDriver<'o, 's> {
                 * f64::from(CONTROL_PERIOD_S);
         }
         metrics.last_phase_rad = Some(w.plant.port_phase_rad());
+        if self.phase == Phase::Homing && fresh {
+            metrics
+                .paper
+                .before_strokes(f64::from(status.position_m), status.reference_m);
+        }
         let faulted = !status.faults.is_empty();
         let before = self.phase;
         self.phase = match self.phase {
@@ -404,6 +556,7 @@ impl<'o, 's> RunDriver<'o, 's> {
             Phase::Homing if status.homed && status.mode == ModeKind::Holding => {
                 // Close the bypass: from now on the rotation times the ports.
                 w.plant.port_mode = PortMode::Timed;
+                link.ports_timed();
                 self.capture.ports_timed_from(t);
                 if opts.volume_ratio != RatioTarget::FollowMeasured {
                     let _ = link.post_command(Command::SetVolumeRatio {
@@ -434,6 +587,13 @@ impl<'o, 's> RunDriver<'o, 's> {
                     let diff = f64::from(status.force_master_n - status.force_slave_n);
                     metrics.force_diff_sq += diff * diff;
                     metrics.force_diff_n += 1;
+                    metrics.paper.stroking(
+                        t,
+                        f64::from(status.position_m - status.reference_m),
+                        f64::from(status.force_master_n),
+                        f64::from(status.force_slave_n),
+                        &w.plant,
+                    );
                 }
                 metrics.extreme_m = Some(match metrics.extreme_m {
                     None => x,
@@ -450,6 +610,12 @@ impl<'o, 's> RunDriver<'o, 's> {
                     let target = if toward_b { self.dead_b } else { self.dead_a };
                     let reached = metrics.extreme_m.take().unwrap_or(x);
                     metrics.dead_point_errors.push((reached - target).abs());
+                    let overshoot = if toward_b {
+                        reached - target
+                    } else {
+                        target - reached
+                    };
+                    metrics.paper.dead_point(t, overshoot);
                     if !toward_b {
                         self.cycles_done += 1;
                         let done = self.cycles_done;
@@ -461,6 +627,7 @@ impl<'o, 's> RunDriver<'o, 's> {
                             .work_at_cycle_j
                             .push(c.a.totals.work_on_gas_j + c.b.totals.work_on_gas_j);
                         metrics.motor_work_at_cycle_j.push(metrics.motor_work_j);
+                        metrics.paper.cycle_done();
                     }
                     if self.cycles_done >= opts.cycles {
                         let _ = link.post_command(Command::Stop);
@@ -548,7 +715,7 @@ impl<'o, 's> RunDriver<'o, 's> {
         let RunDriver {
             opts,
             mut log,
-            metrics,
+            mut metrics,
             cycles_done,
             stop_reason,
             capture,
@@ -563,6 +730,7 @@ impl<'o, 's> RunDriver<'o, 's> {
         capture.finish(&mut log)?;
         let sim_time_s = world.time_s();
         let last5 = metrics.dead_point_errors.len().saturating_sub(10);
+        let paper = std::mem::take(&mut metrics.paper).finish();
         let summary = Summary {
             sim_time_s,
             wall_time_s: wall,
@@ -613,6 +781,21 @@ impl<'o, 's> RunDriver<'o, 's> {
                 .map(|f| f.name().to_string())
                 .collect(),
             state: last_mode.name().to_string(),
+            controller: opts.controller.name().to_string(),
+            dead_point_force_diff_n: paper.dead_point_force_diff_n,
+            force_diff_rms_fraction: paper.force_diff_rms_fraction,
+            overshoot_m: paper.overshoot_m,
+            travel_m: paper.travel_m,
+            volume_ratio_reached: paper.volume_ratio_reached,
+            pv_pressure_ratio: paper.pv_pressure_ratio,
+            line_hz: paper.line_hz,
+            line_m: paper.line_m,
+            line_floor_m: paper.line_floor_m,
+            rest_line_hz: paper.rest_line_hz,
+            rest_line_m: paper.rest_line_m,
+            rest_line_floor_m: paper.rest_line_floor_m,
+            closed_port_peak_pa: None,
+            closed_port_end_pa: None,
         };
         Ok(RunOutcome {
             summary,

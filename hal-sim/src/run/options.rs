@@ -36,9 +36,12 @@ pub const HOMING_SPEED_MPS: f64 = 0.01;
 pub const STALL_SPARE_S: f64 = 2.0;
 
 /// How far the section forces in a run-log row lag its position, s (`# force_delay_s`):
-/// one control period — the firmware's status reports each section's force from the current
-/// measured in the previous cycle.
-pub const FIRMWARE_FORCE_DELAY_S: f64 = 50e-6;
+/// the firmware's convention ([`fpc::link::telemetry::FORCE_DELAY_PERIODS`], one control
+/// period — its status reports each section's force from the current measured in the
+/// previous cycle), the same its telemetry declares.
+pub const FIRMWARE_FORCE_DELAY_S: f64 = (fpc::link::telemetry::FORCE_DELAY_PERIODS
+    * fpc::link::telemetry::CONTROL_PERIOD_US) as f64
+    / 1e6;
 
 /// The control rate, Hz: one run-log row per control cycle at most.
 pub const CONTROL_RATE_HZ: u32 = 1_000_000 / fpc::units::CONTROL_PERIOD_US;
@@ -81,6 +84,40 @@ pub fn volume_ratio_name(target: RatioTarget) -> String {
     }
 }
 
+/// Which controller drives the plant.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Controller {
+    /// This project's firmware, its task bodies on the simulated board.
+    #[default]
+    Ours,
+    /// The published rig's master/slave drives ([`crate::published`]), from the model's
+    /// `[published]` section.
+    Published,
+}
+
+impl Controller {
+    /// Parses `ours` or `published` (`--controller`, the sweep's `controller` axis).
+    pub fn parse(text: &str) -> Result<Controller, String> {
+        match text.trim() {
+            "ours" => Ok(Controller::Ours),
+            "published" => Ok(Controller::Published),
+            other => Err(format!(
+                "--controller {}: must be `ours` (this firmware) or `published` (the paper's \
+                 master/slave drives)",
+                crate::output::clip(other, 40)
+            )),
+        }
+    }
+
+    /// Its name, as `--controller` takes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Controller::Ours => "ours",
+            Controller::Published => "published",
+        }
+    }
+}
+
 /// Options of a run.
 #[derive(Clone, Debug)]
 pub struct RunOptions {
@@ -103,6 +140,9 @@ pub struct RunOptions {
     /// Telemetry: one frame every this many control cycles, captured in
     /// [`RunOutcome::telemetry`]; 0 = off.
     pub telemetry_decimation: u16,
+    /// The channels the telemetry frames carry (the firmware's default: the seven a run log
+    /// needs).
+    pub telemetry_channels: fpc::link::telemetry::ChannelSet,
     /// Relative error of the controller's model against the plant: its mass and friction
     /// are (1 + this) × the plant's (the acceptance runs use 0.05).
     pub model_error: f64,
@@ -127,6 +167,11 @@ pub struct RunOptions {
     /// A stored calibration (`--calibration`): the board's flash holds it and the firmware
     /// loads it at boot, instead of the controller being handed the model's true cogging.
     pub calibration: Option<fpc::control::calibration::record::CalibrationRecord>,
+    /// Which controller drives the plant (`--controller`).
+    pub controller: Controller,
+    /// The paper's closed-port test instead of compression cycles (`--closed-port`; the
+    /// published drives only).
+    pub closed_port: Option<super::closed::ClosedPort>,
 }
 
 /// Something the host does at the start of a given cycle.
@@ -151,6 +196,7 @@ impl RunOptions {
             start_us: 0,
             start_position_m: 0.005,
             telemetry_decimation: 0,
+            telemetry_channels: fpc::link::telemetry::DEFAULT_CHANNELS,
             model_error: 0.0,
             configure: None,
             schedule: Vec::new(),
@@ -159,6 +205,8 @@ impl RunOptions {
             volume_ratio: RatioTarget::FollowMeasured,
             log_rate_hz: CONTROL_RATE_HZ,
             calibration: None,
+            controller: Controller::Ours,
+            closed_port: None,
         }
     }
 
@@ -253,6 +301,40 @@ impl RunOptions {
                     num(pr)
                 ));
             }
+        }
+        if self.controller == Controller::Published {
+            let refuse = |what: &str| {
+                Err(format!(
+                    "--controller published: {what} (the published drives have none of this \
+                     firmware's machinery)"
+                ))
+            };
+            if !self.faults.is_empty() {
+                return refuse("no --fault: the drives have no supervision to react");
+            }
+            if self.calibration.is_some() {
+                return refuse("no --calibration: the drives do not load this firmware's record");
+            }
+            if self.telemetry_decimation != 0 {
+                return refuse("no --telemetry: the drives send no telemetry frames");
+            }
+            if self.model.motor.slave_follows_master || self.model.effects.slave_lag.is_some() {
+                return refuse(
+                    "the model's `motor.slave_follows_master` / `[effects.slave_lag]` would \
+                     impose the slave's current; the slave drive is simulated here, its lag \
+                     is `published.slave_lag_s`",
+                );
+            }
+        }
+        if let Some(test) = &self.closed_port {
+            if self.controller != Controller::Published {
+                return Err(
+                    "--closed-port: the paper's closed-port test runs the published drives \
+                     (give --controller published)"
+                        .into(),
+                );
+            }
+            test.validate(self)?;
         }
         let (lo, hi) = CYCLES_RANGE;
         if !(lo..=hi).contains(&self.cycles) {

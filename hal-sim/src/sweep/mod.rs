@@ -55,9 +55,10 @@ impl Shard {
     }
 }
 
-/// The summary fields of a row, after the axes (`formats.md` §3 less the wall clock), and
-/// `error` (a run that could not be simulated).
-pub const FIELDS: [&str; 16] = [
+/// The summary fields of a row, after the axes (`formats.md` §3 less the wall clock, and
+/// `controller`, which a plan gives as an axis), and `error` (a run that could not be
+/// simulated).
+pub const FIELDS: [&str; 28] = [
     "sim_time_s",
     "cycles",
     "cycles_requested",
@@ -73,6 +74,18 @@ pub const FIELDS: [&str; 16] = [
     "master_slave_force_diff_rms_n",
     "faults",
     "state",
+    "dead_point_force_diff_n",
+    "force_diff_rms_fraction",
+    "overshoot_m",
+    "travel_m",
+    "volume_ratio_reached",
+    "pv_pressure_ratio",
+    "line_hz",
+    "line_m",
+    "line_floor_m",
+    "rest_line_hz",
+    "rest_line_m",
+    "rest_line_floor_m",
     "error",
 ];
 
@@ -106,6 +119,18 @@ fn summary_cells(s: &Summary) -> Vec<String> {
         opt(s.master_slave_force_diff_rms_n),
         s.faults.join(";"),
         s.state.clone(),
+        opt(s.dead_point_force_diff_n),
+        opt(s.force_diff_rms_fraction),
+        opt(s.overshoot_m),
+        opt(s.travel_m),
+        opt(s.volume_ratio_reached),
+        opt(s.pv_pressure_ratio),
+        opt(s.line_hz),
+        opt(s.line_m),
+        opt(s.line_floor_m),
+        opt(s.rest_line_hz),
+        opt(s.rest_line_m),
+        opt(s.rest_line_floor_m),
         String::new(),
     ]
 }

@@ -9,6 +9,7 @@
 //! seed = { from = 1, to = 10 }            # whole numbers: every one from `from` to `to`
 //! fault = ["none", "overrun@1.5:cycles=2"]
 //! volume_ratio = ["adaptive", "fixed:3.1"]          # as `run --volume-ratio`
+//! controller = ["ours", "published"]                # as `run --controller`
 //! "model.piston.mass_kg" = [11.0, 12.0, 13.0]       # any number of the model file
 //! ```
 //!
@@ -31,7 +32,7 @@ pub const MAX_RUNS: u64 = 10_000_000;
 pub const MAX_AXIS_VALUES: usize = 100_000;
 
 /// The axes a plan may name besides `model.…` keys.
-pub const KNOWN_AXES: [&str; 7] = [
+pub const KNOWN_AXES: [&str; 8] = [
     "pressure_ratio",
     "speed_mps",
     "seed",
@@ -39,6 +40,7 @@ pub const KNOWN_AXES: [&str; 7] = [
     "model_error",
     "fault",
     "volume_ratio",
+    "controller",
 ];
 
 /// One value of an axis.
@@ -238,6 +240,10 @@ impl Plan {
                 ("seed", AxisValue::Int(s)) => opts.seed = *s as u64,
                 ("cycles", AxisValue::Int(c)) => opts.cycles = *c as u32,
                 ("fault", AxisValue::Text(t)) => opts.faults = faults(t)?,
+                ("controller", AxisValue::Text(t)) => {
+                    opts.controller = crate::run::Controller::parse(t)
+                        .map_err(|e| format!("run {k} ({}): {e}", named()))?
+                }
                 ("volume_ratio", AxisValue::Text(t)) => {
                     opts.volume_ratio = crate::run::parse_volume_ratio(t)
                         .map_err(|e| format!("run {k} ({}): {e}", named()))?
@@ -317,7 +323,7 @@ fn kind_of(name: &str) -> Result<Kind, String> {
     Ok(match name {
         "pressure_ratio" | "speed_mps" | "model_error" => Kind::Real,
         "seed" | "cycles" => Kind::Int,
-        "fault" | "volume_ratio" => Kind::Text,
+        "fault" | "volume_ratio" | "controller" => Kind::Text,
         n if n.starts_with("model.")
             && n.len() > 6
             && n.split('.').all(|p| {

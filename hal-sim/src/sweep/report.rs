@@ -10,7 +10,13 @@ use super::Table;
 use crate::plot::{lines, Series};
 
 /// The plot files [`plots`] writes.
-pub const PLOTS: [&str; 3] = ["work.svg", "opening_error.svg", "clearance.svg"];
+pub const PLOTS: [&str; 5] = [
+    "work.svg",
+    "opening_error.svg",
+    "clearance.svg",
+    "force_difference.svg",
+    "overshoot.svg",
+];
 
 /// Column `name`'s values as numbers (`None` where empty or not a number).
 fn column(t: &Table, name: &str) -> Option<Vec<Option<f64>>> {
@@ -34,13 +40,17 @@ fn text_column(t: &Table, name: &str) -> Option<Vec<String>> {
     )
 }
 
-/// Each row's curve: its peak speed and volume-ratio mode, when they are axes.
+/// Each row's curve: its controller, peak speed and volume-ratio mode, when they are axes.
 fn groups(t: &Table) -> Vec<String> {
+    let controller = text_column(t, "controller");
     let speed = text_column(t, "speed_mps");
     let mode = text_column(t, "volume_ratio");
     (0..t.rows.len())
         .map(|k| {
             let mut parts = Vec::new();
+            if let Some(c) = controller.as_ref().and_then(|c| c.get(k)) {
+                parts.push(c.clone());
+            }
             if let Some(v) = speed.as_ref().and_then(|c| c.get(k)) {
                 parts.push(format!("{v} m/s"));
             }
@@ -111,6 +121,20 @@ pub fn plots(dir: &Path, t: &Table) -> Result<(), String> {
             "Chamber pressure at discharge opening vs line",
             "|p − p_d| / p_d, %",
             100.0,
+        ),
+        (
+            "force_difference.svg",
+            "dead_point_force_diff_n",
+            "Section force difference at the dead points (±5 ms)",
+            "|F_master − F_slave|, N",
+            1.0,
+        ),
+        (
+            "overshoot.svg",
+            "overshoot_m",
+            "Overshoot past the dead points (largest of the last 5 cycles)",
+            "mm",
+            1e3,
         ),
     ] {
         let y: Vec<Option<f64>> = column(t, field)

@@ -69,6 +69,9 @@ pub struct MachineModel {
     /// Effects.
     #[serde(default)]
     pub effects: Effects,
+    /// The published rig's drives (`fpc-sim run --controller published`).
+    #[serde(default)]
+    pub published: Published,
 }
 
 /// The largest model file read, bytes (the reference file is about 6 KB).

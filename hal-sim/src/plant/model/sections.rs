@@ -404,7 +404,10 @@ pub struct StribeckEffect {
 }
 
 /// `[effects.encoder_pitch_error]`: the slave encoder reads
-/// `x·(1 + scale) + A·sin(2π·x/p + φ) + A₂·sin(4π·x/p + φ₂)`.
+/// `x·(1 + scale) + A·sin(2π·x/p + φ) + A₂·sin(4π·x/p + φ₂) + S·(frac(x/p + φ/2π) − ½) +
+/// ½·D·sgn(v)`: harmonics of the pitch, a saw with a step `S` once per pitch (the pattern
+/// of the paper's Fig. 6) and a reading that differs by `D` with the direction of motion
+/// (larger moving toward +x, "from left to right").
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct PitchErrorEffect {
@@ -424,6 +427,12 @@ pub struct PitchErrorEffect {
     /// Phase φ₂ of the half-period term, rad.
     #[serde(default)]
     pub phase2_rad: f64,
+    /// Step S once per period (a saw of that height), m.
+    #[serde(default)]
+    pub step_m: f64,
+    /// Difference D between the readings moving toward +x and toward −x, m.
+    #[serde(default)]
+    pub direction_m: f64,
 }
 
 /// `[effects.heat_transfer]`: `Q̇ = UA·(T_wall − T)` in each chamber.
@@ -491,6 +500,57 @@ pub struct Effects {
     pub actuator_lag: Option<DelayEffect>,
     /// Section-to-section misalignment.
     pub section_misalignment: Option<MisalignmentEffect>,
+}
+
+/// `[published]`: the published rig's drives, for `fpc-sim run --controller published`
+/// (the `published` module of this crate). Every key is optional; the defaults are the paper's figures (P)
+/// and a drive commissioned as such drives are (A).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct Published {
+    /// Cycle of the drives' position and velocity loop, s (a whole number of 50 µs periods).
+    pub cycle_s: f64,
+    /// Delay of the slave drive's force setpoint behind the master's, s (P: 0.75 ms).
+    pub slave_lag_s: f64,
+    /// Position gain K_v, 1/s.
+    pub position_gain_per_s: f64,
+    /// Proportional gain of the velocity PI, N·s/m.
+    pub velocity_gain_ns_per_m: f64,
+    /// Integral time of the velocity PI, s (0 = none).
+    pub velocity_integral_time_s: f64,
+    /// Velocity feed-forward, fraction of the reference velocity.
+    pub velocity_feedforward: f64,
+    /// First-order smoothing of the velocity the loop closes on, s.
+    pub velocity_filter_s: f64,
+    /// Extra delay of the velocity the loop closes on, s (8.5e-3: the loop on the reading).
+    pub loop_velocity_delay_s: f64,
+    /// Delay of the drive's velocity reading (logged as `v_drive_mps`), s (P: 8.5 ms).
+    pub reported_velocity_delay_s: f64,
+    /// Bandwidth of each drive's current loop, Hz.
+    pub current_bandwidth_hz: f64,
+    /// Time the drives hold the piston at rest before moving to dead point A, s.
+    pub rest_s: f64,
+    /// Current limit of each drive, A (0 = the motor's `current_limit_a`).
+    pub current_limit_a: f64,
+}
+
+impl Default for Published {
+    fn default() -> Self {
+        Published {
+            cycle_s: 1.0e-4,
+            slave_lag_s: 0.75e-3,
+            position_gain_per_s: 100.0,
+            velocity_gain_ns_per_m: 8000.0,
+            velocity_integral_time_s: 10e-3,
+            velocity_feedforward: 1.0,
+            velocity_filter_s: 0.0,
+            loop_velocity_delay_s: 0.0,
+            reported_velocity_delay_s: 8.5e-3,
+            current_bandwidth_hz: 1000.0,
+            rest_s: 0.25,
+            current_limit_a: 0.0,
+        }
+    }
 }
 
 /// Defaults of the optional keys in the required sections (reference machine).

@@ -98,6 +98,8 @@ pub const RANGES: &[(&str, f64, f64, &str)] = &[
     ("effects.encoder_pitch_error.scale", -0.1, 0.1, ""),
     ("effects.encoder_pitch_error.amplitude2_m", -1e-3, 1e-3, "m"),
     ("effects.encoder_pitch_error.phase2_rad", -1e3, 1e3, "rad"),
+    ("effects.encoder_pitch_error.step_m", -1e-3, 1e-3, "m"),
+    ("effects.encoder_pitch_error.direction_m", -1e-3, 1e-3, "m"),
     ("effects.heat_transfer.ua_w_per_k", 0.0, 1e4, "W/K"),
     (
         "effects.heat_transfer.wall_temperature_k",
@@ -112,6 +114,18 @@ pub const RANGES: &[(&str, f64, f64, &str)] = &[
     ("effects.port_restriction.area_scale", 0.0, 10.0, ""),
     ("effects.section_misalignment.offset_m", -0.01, 0.01, "m"),
     ("simulation.substeps_per_period", 1.0, 64.0, ""),
+    ("published.cycle_s", 5e-5, 0.01, "s"),
+    ("published.slave_lag_s", 0.0, 0.05, "s"),
+    ("published.position_gain_per_s", 0.0, 1e4, "1/s"),
+    ("published.velocity_gain_ns_per_m", 0.0, 1e7, "N·s/m"),
+    ("published.velocity_integral_time_s", 0.0, 10.0, "s"),
+    ("published.velocity_feedforward", 0.0, 2.0, ""),
+    ("published.velocity_filter_s", 0.0, 0.1, "s"),
+    ("published.loop_velocity_delay_s", 0.0, 0.1, "s"),
+    ("published.reported_velocity_delay_s", 0.0, 0.1, "s"),
+    ("published.current_bandwidth_hz", 10.0, 5000.0, "Hz"),
+    ("published.rest_s", 0.0, 60.0, "s"),
+    ("published.current_limit_a", 0.0, 1000.0, "A"),
 ];
 
 /// What the 12-bit ADC can carry either side of its mid-scale, codes: an encoder signal's
@@ -422,6 +436,8 @@ impl MachineModel {
                 ("scale", pe.scale, Finite),
                 ("amplitude2_m", pe.amplitude2_m, Finite),
                 ("phase2_rad", pe.phase2_rad, Finite),
+                ("step_m", pe.step_m, Finite),
+                ("direction_m", pe.direction_m, Finite),
             ] {
                 checks.push((format!("effects.encoder_pitch_error.{k}"), v, r));
             }
@@ -472,8 +488,33 @@ impl MachineModel {
                 Finite,
             ));
         }
+        let pu = &self.published;
+        for (k, v) in [
+            ("cycle_s", pu.cycle_s),
+            ("slave_lag_s", pu.slave_lag_s),
+            ("position_gain_per_s", pu.position_gain_per_s),
+            ("velocity_gain_ns_per_m", pu.velocity_gain_ns_per_m),
+            ("velocity_integral_time_s", pu.velocity_integral_time_s),
+            ("velocity_feedforward", pu.velocity_feedforward),
+            ("velocity_filter_s", pu.velocity_filter_s),
+            ("loop_velocity_delay_s", pu.loop_velocity_delay_s),
+            ("reported_velocity_delay_s", pu.reported_velocity_delay_s),
+            ("current_bandwidth_hz", pu.current_bandwidth_hz),
+            ("rest_s", pu.rest_s),
+            ("current_limit_a", pu.current_limit_a),
+        ] {
+            checks.push((format!("published.{k}"), v, NonNegative));
+        }
         for (key, v, rule) in &checks {
             check(key, *v, *rule)?;
+        }
+        let periods = pu.cycle_s / f64::from(fpc::units::CONTROL_PERIOD_S);
+        if (periods - periods.round()).abs() > 1e-6 {
+            return Err(ModelError(format!(
+                "`published.cycle_s` = {} s must be a whole number of the simulator's 50 µs \
+                 periods (e.g. 1e-4, 1.5e-4, 2.5e-4)",
+                num(pu.cycle_s)
+            )));
         }
         if g.gamma <= 1.0 {
             return Err(ModelError(format!(

@@ -4,7 +4,11 @@
 //! read|write` moves the calibration record between the board and a calibration file.
 //! `--replay DIR` runs any of them on recorded channel contents instead of the board.
 //!
+//! `telemetry`, `ports`, `scope` set the link up, `flash` writes the firmware ([`settings`]).
+//!
 //! The session logic is [`crate::link`]'s; this module is the command line and the files.
+
+mod settings;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -21,6 +25,7 @@ use crate::cli::decode::{counts, mostly_unusable, report_written};
 use crate::failure::{num, CmdResult, Failure};
 use crate::link::defmt::DefmtLog;
 use crate::link::replay::up_file;
+use crate::link::scope::trigger_text;
 use crate::link::session::{
     outcome_text, read_calibration, send_command, write_calibration, CaptureSession, Outcome,
 };
@@ -28,12 +33,19 @@ use crate::link::{Channels, Replay, CHIP};
 use crate::outln;
 use crate::output::{show, OutDir, OutFile};
 use fpc::control::calibration::record::{CalibrationRecord, RECORD_BYTES};
+use settings::{
+    flash, ports, scope, telemetry, FlashArgs, PortsArgs, ScopeArgs, TelemetryArgs, SCOPE_HELP,
+    TELEMETRY_HELP,
+};
 
 const LINK_HELP: &str = "\
-RTT channels of the fpc firmware: up 0 defmt log, up 1 telemetry, up 2 command replies,
-down 0 commands. The tool attaches to the running board (no reset, no halt) through the
-first debug probe found; talking to a board needs fpc-sim built with the `probe` feature:
+RTT channels of the fpc firmware: up 0 defmt log, up 1 telemetry, up 2 command replies and
+scope recordings, down 0 commands. The tool attaches to the running board (no reset, no
+halt) through the debug probe (--probe VID:PID[:SN] when several are connected), finds the
+RTT control block in its RAM (or at the ELF's _SEGGER_RTT) and reads and writes the channels
+there. Talking to a board needs fpc-sim built with the `probe` feature (about 9 minutes once):
     cargo install --path hal-sim --features probe
+The walkthrough from the bench to the augmented model: docs/rig-to-model.md.
 
 Typical session on the rig (firmware flashed and running), with the answers:
     $ fpc-sim link send home
@@ -41,17 +53,18 @@ Typical session on the rig (firmware flashed and running), with the answers:
     $ fpc-sim link send start --speed 2.3        (once homing has finished)
     accepted: start --speed 2.3
     $ fpc-sim link capture --elf target/thumbv7em-none-eabihf/release/fpc --out rig-run --seconds 30
-    1 s: telemetry 56000 bytes: frames accepted 1000, rejected 0, ... dropped by the firmware 0; ...
+    1 s: telemetry 92000 bytes: frames accepted 2000, rejected 0, ... dropped by the firmware 0; ...
     ...
-    decimation 20 control cycles per frame; wrote 30000 rows (100.0 % of the frames) ... to rig-run/run.csv
+    decimation 10 control cycles per frame; wrote 60000 rows (100.0 % of the frames) ... to rig-run/run.csv
     $ fpc-sim link send stop
     accepted: stop
     $ fpc-sim link send start --speed 9
     fpc-sim: refused: start --speed 9: value outside the configured limits
 
 `capture` writes rig-run/up1.bin (the raw telemetry, what `fpc-sim decode --capture` reads),
-rig-run/run.csv (the run log), rig-run/up0.bin and up2.bin (raw defmt and replies). A capture
-directory is also a recording: `--replay rig-run` plays it back instead of the board.";
+rig-run/run.csv (the run log, with the metadata `fpc-sim gap` reads), rig-run/scope-N.csv
+for each scope recording received, rig-run/up0.bin and up2.bin (raw defmt, replies and
+recordings). A capture directory is also a recording: `--replay rig-run` plays it back.";
 
 /// Talk to the running board: telemetry capture, commands, defmt log.
 #[derive(Args, Debug)]
@@ -76,6 +89,20 @@ enum Action {
     /// in flash).
     #[command(after_help = CALIBRATION_HELP)]
     Calibration(CalibrationArgs),
+    /// Set the telemetry's rate and channels (the firmware starts at 2000 Hz with the seven
+    /// channels a run log needs).
+    #[command(after_help = TELEMETRY_HELP)]
+    Telemetry(TelemetryArgs),
+    /// Declare how the chambers are connected (the board cannot see it): stamped in every
+    /// telemetry frame, it becomes `# ports` (and `# ports_from_s`) of the decoded log.
+    Ports(PortsArgs),
+    /// The triggered capture: every channel `gap` needs at the full 20 kHz, 25.6 ms around a
+    /// trigger, sent on up 2 and written by `capture` as scope-N.csv.
+    #[command(after_help = SCOPE_HELP)]
+    Scope(ScopeArgs),
+    /// Write a firmware ELF to the board's flash, reset the core and detach, leaving the
+    /// firmware running (needs the `probe` feature).
+    Flash(FlashArgs),
 }
 
 const CALIBRATION_HELP: &str = "\
@@ -160,6 +187,34 @@ struct Target {
     /// The firmware ELF that runs on the board: locates the RTT block and decodes defmt.
     #[arg(long, value_name = "FILE")]
     elf: Option<PathBuf>,
+    /// Which probe: VID:PID or VID:PID:SERIAL (hex ids, as `probe-rs list` prints them);
+    /// by default the only one connected.
+    #[arg(long, value_name = "VID:PID[:SN]", value_parser = probe_selector)]
+    probe: Option<String>,
+    /// SWD clock, kHz (by default the probe's).
+    #[arg(long, value_name = "KHZ", value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    speed: Option<u32>,
+    /// Hold the chip in reset while connecting (when it does not answer otherwise); this
+    /// restarts the firmware.
+    #[arg(long)]
+    connect_under_reset: bool,
+}
+
+/// `--probe`: `VID:PID` or `VID:PID:SERIAL`, the ids in hex (what probe-rs takes).
+fn probe_selector(text: &str) -> Result<String, String> {
+    let mut parts = text.splitn(3, ':');
+    let hex =
+        |p: Option<&str>| p.is_some_and(|h| !h.is_empty() && u16::from_str_radix(h, 16).is_ok());
+    let (vid, pid) = (parts.next(), parts.next());
+    let serial_ok = parts.next().is_none_or(|sn| !sn.is_empty());
+    if hex(vid) && hex(pid) && serial_ok {
+        Ok(text.to_string())
+    } else {
+        Err(format!(
+            "`{text}`: give VID:PID or VID:PID:SERIAL with hex ids, e.g. 0483:374b or \
+             0483:374b:0670FF505055877267164520"
+        ))
+    }
 }
 
 /// `fpc-sim link capture`.
@@ -345,6 +400,10 @@ pub fn main(args: LinkArgs) -> CmdResult {
         Action::Capture(a) => capture(a),
         Action::Send(a) => send(a),
         Action::Calibration(a) => calibration(a.action),
+        Action::Telemetry(a) => telemetry(a),
+        Action::Ports(a) => ports(a),
+        Action::Scope(a) => scope(a),
+        Action::Flash(a) => flash(&a.target, &a.image),
     }
 }
 
@@ -356,9 +415,20 @@ fn open(target: &Target) -> Result<Box<dyn Channels>, Failure> {
     open_probe(target)
 }
 
+/// The probe's options from the command line.
+#[cfg(feature = "probe")]
+fn probe_options(target: &Target) -> crate::link::probe::ProbeOptions {
+    crate::link::probe::ProbeOptions {
+        chip: target.chip.clone(),
+        probe: target.probe.clone(),
+        speed_khz: target.speed,
+        connect_under_reset: target.connect_under_reset,
+    }
+}
+
 #[cfg(feature = "probe")]
 fn open_probe(target: &Target) -> Result<Box<dyn Channels>, Failure> {
-    crate::link::probe::ProbeChannels::attach(&target.chip, target.elf.as_deref())
+    crate::link::probe::attach(&probe_options(target), target.elf.as_deref())
         .map(|p| Box::new(p) as Box<dyn Channels>)
         .map_err(Failure::runtime)
 }
@@ -499,6 +569,28 @@ fn capture(args: CaptureArgs) -> CmdResult {
     drop((up0, up1, up2));
     let counters = session.counters();
     outln!("{counters}")?;
+    for line in session.scope().incomplete() {
+        outln!("scope: {line}")?;
+    }
+    for rec in session.scope().recordings() {
+        let name = format!("scope-{}.csv", rec.recording.id);
+        match rec.to_log() {
+            Ok(log) => {
+                log.write(&out.path(&name)).map_err(|e| {
+                    Failure::runtime(format!("cannot write {}: {e}", show(&out.path(&name))))
+                })?;
+                outln!(
+                    "scope recording {} (trigger {}, {} samples, {} before it) written to {}",
+                    rec.recording.id,
+                    trigger_text(rec.recording.trigger),
+                    rec.recording.samples,
+                    rec.recording.pre,
+                    show(&out.final_path(&name))
+                )?;
+            }
+            Err(e) => outln!("scope: {e}")?,
+        }
+    }
     let decoded = session.into_telemetry().finish();
     let why = match &decoded {
         Ok(d) if mostly_unusable(d).is_none() || args.accept_loss => None,
