@@ -28,10 +28,13 @@ use core::task::{Context, Waker};
 
 use cortex_m_rt::{entry, exception, ExceptionFrame};
 use cortex_m_semihosting::{debug, hprintln};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use fpc::control::command::Command;
 use fpc::control::config::ControlConfig;
 use fpc::control::step::{ControlStep, CycleInputs, CycleOutputs};
 use fpc::drive::foc::CurrentController;
+use fpc::link::scope::Trigger;
+use fpc::link::settings::LinkRequest;
 use fpc::physics::cogging::HarmonicMap;
 use fpc::physics::motor::{inverse_clarke, inverse_park, Dq};
 use fpc::ports::{EncoderCodes, PhaseCurrentCodes, PressureCodes, SinCosCodes};
@@ -39,9 +42,6 @@ use fpc::real::Real;
 use fpc::sensing::differentiator::{SavitzkyGolay, SgConfig};
 use fpc::sensing::encoder::{EncoderReading, SinCosDecoder, NOMINAL_AMPLITUDE_CODES};
 use fpc::sensing::pressure::PressureCalibration;
-use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use fpc::link::scope::Trigger;
-use fpc::link::settings::LinkRequest;
 use fpc::shared::Shared;
 use fpc::status::{ModeKind, Status};
 use fpc::units::{AdcCode, PerSection, PhaseDuties, Ticks, CONTROL_PERIOD_US};
@@ -270,7 +270,11 @@ fn bench_link_extras() -> bool {
     ok &= regime("telemetry_d10_scope_off", 10, None);
     ok &= regime("telemetry_d1_scope_off", 1, None);
     // Armed: every sample kept, the trigger checked (a stroke count: the velocity test runs).
-    ok &= regime("telemetry_d10_scope_armed", 10, Some(Trigger::Strokes(1000)));
+    ok &= regime(
+        "telemetry_d10_scope_armed",
+        10,
+        Some(Trigger::Strokes(1000)),
+    );
     ok &= regime("telemetry_d1_scope_armed", 1, Some(Trigger::Strokes(1000)));
     let _ = shared.apply(LinkRequest::ScopeDisarm);
     ok
