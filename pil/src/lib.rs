@@ -10,6 +10,7 @@
 //! | [`elf`] | the firmware image |
 //! | [`session`] | the host attached as a probe: RTT (hal-sim's reader over the chip's memory), defmt, telemetry |
 //! | [`run`], [`faults`] | the main job's scenario and the fault scenarios |
+//! | [`save_timing`] | the control period while a save erases and programs flash |
 //! | [`log`] | the defmt log of up 0 |
 //! | [`time`] | emulated time |
 //!
@@ -23,6 +24,7 @@ pub mod elf;
 pub mod faults;
 pub mod log;
 pub mod run;
+pub mod save_timing;
 pub mod session;
 pub mod time;
 

@@ -304,3 +304,31 @@ fn a_single_bank_flash_is_refused_at_boot() {
     assert!(r.lines("running: control").is_empty());
     assert!(r.final_mode.is_none(), "telemetry came: the tasks ran");
 }
+
+/// Item 7: the control period while a calibration save runs. embassy's flash driver turns the
+/// data cache off for each erase and program (the emulated FLASH_ACR shows it); the periods
+/// that overlap them are timed at 4 wait states with no cache at all (every line the path
+/// enters and every flash data read waits), and must still fit the 50 µs period.
+#[test]
+fn the_control_period_during_a_save_fits_50_us_even_without_a_cache() {
+    let t = fpc_pil::save_timing::run(&image(), fpc_pil::DEFAULT_CPI).unwrap();
+    println!("{t:#?}");
+    assert_eq!(t.save_outcome, "calibration saved");
+    assert!(t.during_save.periods > 0);
+    assert!(!t.acr_during_operations.is_empty());
+    for acr in &t.acr_during_operations {
+        assert_eq!(
+            acr & (1 << 10),
+            0,
+            "data cache on during an operation: {acr:#x}"
+        );
+        assert_eq!(acr & 0xF, 4, "wait states {acr:#x}");
+    }
+    // The path reads constants from flash: the data cache's state matters to it.
+    assert!(t.during_save.flash_reads_max > 0);
+    assert!(
+        t.during_save.worst_us_uncached < t.period_us,
+        "{:.1} µs",
+        t.during_save.worst_us_uncached
+    );
+}

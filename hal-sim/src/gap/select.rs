@@ -244,9 +244,9 @@ pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual)
                 let h = &mut halves[usize::from((v * v + t * t).sqrt() >= 0.5 * vs)];
                 *h = (h.0 + 1, h.1 + b * b, h.2 + a * a);
             }
-            halves.iter().all(|&(n, s0, s1)| {
-                n >= MIN_SUPPORT && s0 > 0.0 && (s0 - s1) / s0 >= MIN_EXPLAINED
-            })
+            halves
+                .iter()
+                .all(|&(n, s0, s1)| n >= MIN_SUPPORT && s0 > 0.0 && (s0 - s1) / s0 >= MIN_EXPLAINED)
         }
         _ => true,
     };

@@ -220,6 +220,7 @@ pub fn enter(uc: &mut Unicorn<Soc>, exc: usize) -> Result<(), ChipError> {
     soc.period.exceptions += 1;
     if !in_handler {
         soc.path_open = true;
+        soc.path_entered();
     }
     if exc == nvic::irq(irqn::UART5) {
         soc.milestone(super::Milestone::ControlTask);
@@ -323,6 +324,7 @@ pub fn install_hooks(uc: &mut Unicorn<'static, Soc>) -> Result<(), ChipError> {
         if addr == soc.main_address {
             soc.milestone(super::Milestone::Main);
         }
+        soc.fetched(addr, size);
         soc.execute(entry & 0xFFF);
         if entry >> 31 != 0 {
             soc.event = true;

@@ -95,6 +95,9 @@ pub struct ChipOptions {
     pub lsi_hz: f64,
     /// FLASH_OPTR as programmed (DBANK is bit 22).
     pub optr: u32,
+    /// Count the interrupt path's flash lines and flash data reads per period (for the cycle
+    /// model of `fpc-pil save-timing`; a memory hook on the program flash slows the emulation).
+    pub flash_timing: bool,
 }
 
 impl Default for ChipOptions {
@@ -103,6 +106,7 @@ impl Default for ChipOptions {
             cpi: crate::DEFAULT_CPI,
             lsi_hz: 32_000.0,
             optr: flash::OPTR_FACTORY,
+            flash_timing: false,
         }
     }
 }
@@ -140,6 +144,22 @@ pub struct PeriodLoad {
     /// thread mode (the interrupt path of the period, nested and tail-chained handlers
     /// included).
     pub interrupt_path: u64,
+    /// With [`ChipOptions::flash_timing`]: distinct 64-bit flash lines the interrupt path
+    /// fetched instructions from (each a flash access unless the instruction cache holds it).
+    pub path_lines: u32,
+    /// With [`ChipOptions::flash_timing`]: how often the interrupt path's instruction fetch
+    /// moved into another 64-bit flash line (each a flash access if no cache held any line).
+    pub path_line_entries: u32,
+    /// With [`ChipOptions::flash_timing`]: the interrupt path's data reads of program flash
+    /// (literal pools, constants, tables; the vector fetches are not in it): each a flash
+    /// access while the data cache is off.
+    pub path_flash_reads: u32,
+    /// With [`ChipOptions::flash_timing`]: distinct 64-bit flash lines of those data reads.
+    pub path_data_lines: u32,
+    /// A flash program or erase was in progress at some point of the period.
+    pub flash_busy: bool,
+    /// The data cache was off (FLASH_ACR.DCEN = 0) at some point of the period.
+    pub dcache_off: bool,
 }
 
 /// Everything the chip holds besides the core's registers: the unicorn user data.
@@ -237,6 +257,14 @@ pub struct Soc {
     pub milestones: Vec<(f64, Milestone)>,
     /// Address of the image's `main` (for [`Milestone::Main`]).
     pub main_address: u32,
+    /// [`ChipOptions::flash_timing`].
+    pub flash_timing: bool,
+    /// The 64-bit flash lines of the period's interrupt path so far (instruction fetches).
+    path_lines: std::collections::HashSet<u32>,
+    /// The 64-bit flash lines of the period's interrupt path's data reads so far.
+    path_data_lines: std::collections::HashSet<u32>,
+    /// The flash line the last instruction fetch was in.
+    last_line: u32,
 }
 
 /// A step of a boot the chip notices (the first time after each reset).
@@ -333,6 +361,49 @@ impl Soc {
             control_entry: None,
             milestones: vec![(0.0, Milestone::Reset)],
             main_address: 0,
+            flash_timing: options.flash_timing,
+            path_lines: std::collections::HashSet::new(),
+            path_data_lines: std::collections::HashSet::new(),
+            last_line: u32::MAX,
+        }
+    }
+
+    /// Notes the flash interface's state in the period's load (busy, data cache off).
+    pub(crate) fn note_flash_state(&mut self) {
+        self.period.flash_busy |= self.flash.busy();
+        self.period.dcache_off |= self.flash.acr & (1 << 10) == 0;
+    }
+
+    /// With [`ChipOptions::flash_timing`]: the interrupt path executed `size` bytes of code
+    /// at `addr`.
+    pub(crate) fn fetched(&mut self, addr: u32, size: u32) {
+        if self.flash_timing && self.path_open && addr < STORE_BASE && size > 0 {
+            let mut line = addr & !7;
+            while line < addr + size {
+                self.path_lines.insert(line);
+                if line != self.last_line {
+                    self.period.path_line_entries += 1;
+                    self.last_line = line;
+                }
+                line += 8;
+            }
+        }
+    }
+
+    /// The interrupt path begins (an exception entry from thread mode): its first fetch is
+    /// from a new line.
+    pub(crate) fn path_entered(&mut self) {
+        self.last_line = u32::MAX;
+    }
+
+    /// With [`ChipOptions::flash_timing`]: the interrupt path read `size` bytes of program
+    /// flash at `addr` as data.
+    fn flash_read(&mut self, addr: u32, size: u32) {
+        if self.path_open {
+            self.period.path_flash_reads += 1;
+            self.path_data_lines.insert(addr & !7);
+            self.path_data_lines
+                .insert(addr.wrapping_add(size.max(1) - 1) & !7);
         }
     }
 
@@ -628,9 +699,14 @@ impl Soc {
         };
         self.board.step(on, dac as u16);
         if self.recording {
+            self.period.path_lines = self.path_lines.len() as u32;
+            self.period.path_data_lines = self.path_data_lines.len() as u32;
             self.periods.push(self.period);
         }
+        self.path_lines.clear();
+        self.path_data_lines.clear();
         self.period = PeriodLoad::default();
+        self.note_flash_state();
         self.plant_stepped = true;
     }
 
@@ -817,7 +893,8 @@ impl Soc {
                 self.iwdg.write(off(base::IWDG), value, now)
             }
             a if (base::FLASH..base::FLASH + 0x400).contains(&a) => {
-                self.flash.write_reg(off(base::FLASH), value, now)
+                self.flash.write_reg(off(base::FLASH), value, now);
+                self.note_flash_state();
             }
             a if (base::ADC1..base::ADC1 + 0x100).contains(&a) => {
                 self.adc1.write(off(base::ADC1), value)
@@ -1181,6 +1258,18 @@ impl Chip {
             .map_err(uc_err("spin"))?;
         uc.get_data_mut().spin_address = spin;
         uc.get_data_mut().main_address = image.symbol("main").unwrap_or(0) & !1;
+        if options.flash_timing {
+            uc.add_mem_hook(
+                unicorn_engine::HookType::MEM_READ,
+                u64::from(FLASH_BASE),
+                u64::from(STORE_BASE - 1),
+                |uc, _kind, addr, size, _value| {
+                    uc.get_data_mut().flash_read(addr as u32, size as u32);
+                    true
+                },
+            )
+            .map_err(uc_err("flash read hook"))?;
+        }
         cpu::install_hooks(&mut uc)?;
         Ok(Chip { uc, image })
     }
