@@ -55,6 +55,8 @@ pub struct Session {
     read_offset: u32,
     /// The ports as the host declares them to the firmware (a link request at every boot).
     ports: Ports,
+    /// The host stops reading up 0 (the defmt log), as a stalled or detached probe does.
+    pub defmt_paused: bool,
 }
 
 /// A command the host sent over down 0.
@@ -120,6 +122,7 @@ impl Session {
             consumed: 0,
             read_offset: 0,
             ports: Ports::Bypassed,
+            defmt_paused: false,
         })
     }
 
@@ -176,7 +179,11 @@ impl Session {
             return Ok(());
         };
         self.track_commands(&rtt)?;
-        self.read(&rtt, UP_DEFMT)?;
+        if self.defmt_paused {
+            self.buf.clear();
+        } else {
+            self.read(&rtt, UP_DEFMT)?;
+        }
         if !self.buf.is_empty() {
             self.log.push(t, &self.buf);
             for (_, line) in &self.log.lines[self.log.seen..] {

@@ -332,3 +332,78 @@ fn the_control_period_during_a_save_fits_50_us_even_without_a_cache() {
         t.during_save.worst_us_uncached
     );
 }
+
+/// Item 8: a defmt frame is never torn when the channel fills part-way through it. The host
+/// stops reading up 0 and leaves only 4 bytes free in it (its read offset just ahead of the
+/// write offset, as a stalled probe does), the firmware logs the mode change of the Home
+/// command, then the host reads again: that frame is missing whole, and every frame after
+/// it decodes. Before: the encoder's chunks that fitted were written, the rest dropped, and
+/// the frame's head ran into the bytes after it (one malformed frame on the host).
+#[test]
+fn a_defmt_frame_that_does_not_fit_is_dropped_whole_never_torn() {
+    use fpc::control::command::Command;
+    use fpc::status::ModeKind;
+    use fpc_pil::board::Board;
+    use fpc_pil::chip::ChipOptions;
+    use fpc_pil::session::Session;
+    use hal_sim::run::RunOptions;
+
+    let image = image();
+    let rtt = image.symbol("_SEGGER_RTT").expect("no RTT control block");
+    let opts = RunOptions::reference();
+    let record = fpc_pil::run::commissioned(&opts).unwrap();
+    let store = hal_sim::board::flash::holding(&record).unwrap();
+    let world = hal_sim::run::world(&opts.model, opts.seed, 0, 1e-3);
+    let mut s = Session::new(image, Board::new(world), ChipOptions::default()).unwrap();
+    s.chip.soc().flash.load_image(store.image());
+    while !s.log.contains("running:") || s.chip.time_s() < 0.05 {
+        s.step().unwrap();
+    }
+    // Up 0's descriptor: SizeOfBuffer, WrOff, RdOff at 32, 36, 40 of the control block.
+    let word = |s: &Session, off: u32| {
+        let mut b = [0u8; 4];
+        s.chip.read_mem(rtt + off, &mut b).unwrap();
+        u32::from_le_bytes(b)
+    };
+    let (size, write, read) = (word(&s, 32), word(&s, 36), word(&s, 40));
+    assert_eq!(write, read, "the host has read everything");
+    let free = 4;
+    s.defmt_paused = true;
+    let stalled = (write + free + 1) % size;
+    s.chip.write_mem(rtt + 40, &stalled.to_le_bytes()).unwrap();
+    while !s.send(Command::Home) {
+        s.step().unwrap();
+    }
+    while s.status.mode != ModeKind::Homing {
+        s.step().unwrap();
+    }
+    for _ in 0..100 {
+        s.step().unwrap();
+    }
+    let written = (word(&s, 36) + size - write) % size;
+    assert!(written <= free, "{written} bytes written into {free} free");
+    // The host reads again from where it stopped.
+    s.chip.write_mem(rtt + 40, &write.to_le_bytes()).unwrap();
+    s.defmt_paused = false;
+    let lines_before = s.log.lines.len();
+    while !(s.status.homed && s.status.mode == ModeKind::Holding) {
+        s.step().unwrap();
+        assert!(s.chip.time_s() < 30.0, "homing did not end");
+    }
+    for _ in 0..100 {
+        s.step().unwrap();
+    }
+    let after: Vec<_> = s.log.lines[lines_before..].iter().map(|(_, l)| l).collect();
+    assert_eq!(
+        s.log.malformed, 0,
+        "malformed frames; lines after: {after:?}"
+    );
+    assert!(
+        after.iter().all(|l| !l.contains("mode: homing")),
+        "the frame logged while the channel was full: {after:?}"
+    );
+    assert!(
+        after.iter().any(|l| l.contains("mode: holding")),
+        "the next frame is lost: {after:?}"
+    );
+}

@@ -25,7 +25,7 @@
 //! | slave encoder sin / cos | PB1 / PB2 | ADC1 / ADC2 | IN12 / IN12, regular rank 2 |
 //! | pressure chamber A / B | PB12 / PC1 | ADC1 / ADC2 | IN11 / IN7, regular rank 3 |
 //! | pressure suction / discharge | PC0 / PC2 | ADC1 / ADC2 | IN6 / IN8, regular rank 4 |
-//! | servo encoder A / B | PB6 / PB7 | TIM4 | CH1 / CH2 (AF2), encoder mode 3, filter fDTS/16 N = 8 |
+//! | servo encoder A / B | PB6 / PB7 | TIM4 | CH1 / CH2 (AF2), internal pull-ups, encoder mode 3, filter fDTS/16 N = 8 |
 //! | servo torque command | PA4 | DAC1 | OUT1, buffered, mid-scale = 0 (written before enable) |
 //! | debug, defmt over RTT | PA13 / PA14 | SWD | SWDIO / SWCLK |
 //!
@@ -76,7 +76,7 @@ mod time;
 mod watchdog;
 
 use embassy_executor::{InterruptExecutor, SendSpawner};
-use embassy_stm32::gpio::OutputType;
+use embassy_stm32::gpio::{OutputType, Pull};
 use embassy_stm32::interrupt;
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::pac;
@@ -174,11 +174,10 @@ pub fn take_reset_cause() -> fpc::safety::faults::ResetCause {
         ResetCause::Watchdog
     } else if csr.borrstf() {
         ResetCause::PowerOn
+    } else if csr.sftrstf() {
+        // Checked before the pin: a software reset drives NRST, so PINRSTF is set too.
+        ResetCause::Software
     } else {
-        if csr.sftrstf() {
-            // A normal start for the machine, but not the reset pin: say which.
-            defmt::info!("reset by software (SYSRESETREQ)");
-        }
         ResetCause::External
     };
     // Clear the flags so the next reset reports its own cause.
@@ -196,7 +195,16 @@ pub fn init() -> Board {
     freeze_on_debug_halt();
     interrupt::TIM2.set_priority(TIME_PRIORITY);
 
-    let servo_encoder = ServoEncoder::new(Qei::new(p.TIM4, p.PB6, p.PB7, qei::Config::default()));
+    let servo_encoder = ServoEncoder::new(Qei::new(
+        p.TIM4,
+        p.PB6,
+        p.PB7,
+        qei::Config {
+            ch1_pull: Pull::Up,
+            ch2_pull: Pull::Up,
+            ..qei::Config::default()
+        },
+    ));
     let servo_torque = ServoTorque::new(p.DAC1, p.PA4);
 
     use adc::{adc1_channel as adc1, adc2_channel as adc2};
