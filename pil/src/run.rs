@@ -143,6 +143,18 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
     let soc = session.chip.soc();
     let periods = std::mem::take(&mut soc.periods);
     let resets = soc.resets.len();
+    // The ELF's control task first ran in this plant cycle (its boot from power-on); the host
+    // build starts its tasks in the same one, so that every rate the firmware divides down
+    // from its control steps (the telemetry's decimation, the 1 kHz work) has the same phase
+    // to the plant and to the commands as on the ELF.
+    let first_control_us = soc
+        .milestones
+        .iter()
+        .find(|(_, m)| *m == crate::chip::Milestone::ControlTask)
+        .map(|(t, _)| {
+            let period = u64::from(fpc::units::CONTROL_PERIOD_US);
+            (t * 1e6 / period as f64).floor() as u64 * period
+        });
     let world = soc.board.world.clone();
     let outcome = driver.finish(world, Default::default())?;
     let n = periods.len().max(1) as f64;
@@ -170,7 +182,7 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
             let mut best: Option<(f64, u64)> = None;
             for c in [c0, c0 + 1] {
                 taken[i].1 = Some(c);
-                let host = host_replay(&h, &taken, track.bypass_closed)?;
+                let host = host_replay(&h, &taken, track.bypass_closed, first_control_us)?;
                 let d = window_rms_diff(&track.x_m, &host.x_m, c0, until);
                 if best.is_none_or(|b| d < b.0) {
                     best = Some((d, c));
@@ -178,7 +190,7 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
             }
             taken[i].1 = best.map(|b| b.1);
         }
-        let host = host_replay(&h, &taken, track.bypass_closed)?;
+        let host = host_replay(&h, &taken, track.bypass_closed, first_control_us)?;
         position_rms_diff(&track.x_m, &host.x_m, track.start_cycle)
     } else {
         None
@@ -241,6 +253,7 @@ fn host_replay(
     opts: &RunOptions,
     taken: &[(Command, Option<u64>)],
     bypass_closed: Option<u64>,
+    first_control_us: Option<u64>,
 ) -> Result<Track, String> {
     use hal_sim::board::exec::{simulate_board, Execution, SimShared};
     let config = hal_sim::run::run_config(opts);
@@ -256,6 +269,7 @@ fn host_replay(
             .as_ref()
             .map(hal_sim::board::flash::holding)
             .transpose()?,
+        booting_until_us: first_control_us.map(|t| t + u64::from(opts.start_us)),
         ..Execution::default()
     };
     let mut track = Track::default();
