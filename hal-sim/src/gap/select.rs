@@ -38,26 +38,6 @@
 //! "Where it acts" is where the change exceeds a tenth of its 98th percentile
 //! ([`robust_peak`]), not of its largest value.
 //!
-//! **A Stribeck band the log cannot resolve.** A friction law that differs only below a
-//! sliding speed `v_s` shows in the force balance only through the acceleration, which the
-//! differentiator takes over its whole window (`Measured::sg_window` samples). Where the
-//! piston slides slower than `v_s` for less than one window — at the dead points of strokes,
-//! which it crosses in about a millisecond — every window there mixes the band with the
-//! motion either side, and a changed `v_s` or static level cannot be told from the window's
-//! own smoothing. And a band is a shape over speeds: a log that is slow only at one speed,
-//! or only in the transients of a start from rest or a touch of a head, cannot tell a
-//! Stribeck law from a level or from what happens at the stop. So `stribeck_friction` is
-//! judged a second time on the resolved samples — those whose whole differentiator window
-//! slides slower than the fitted `v_s` ([`stribeck_resolved`]) — in each half of its band
-//! (below and above `v_s/2`): it must act on [`MIN_SUPPORT`] of them and explain
-//! [`MIN_EXPLAINED`] of the residual there, in both. Creeping strokes and holds-and-moves
-//! sweep the band slowly and pass; on the simulator's own runs (2.3 m/s, the model exact)
-//! the fitted band (≈ 0.034 m/s) is crossed in 1.3 ms at the dead points, against the 2 ms
-//! window, and its only resolved samples, the homing's start and its touch of head A, sit in
-//! the lower half, while the upper half grew worse (seed 3: 25 % explained below, −22 %
-//! above): it had explained 14–22 % where it acts, either side of [`MIN_EXPLAINED`] from one
-//! seed to the next.
-//!
 //! **Collinearity.** Two candidates of one channel whose changes to the residual correlate
 //! by more than [`COLLINEAR`], and that explain nearly as much (the other at least half of
 //! what the added one does), cannot be told apart by this run; when one is added, a warning
@@ -158,15 +138,12 @@ pub struct Judged {
     pub resolved: usize,
     /// Its change to the residual at the kept samples (for the collinearity check).
     pub change: Vec<f64>,
-    /// The log can resolve it (only `stribeck_friction` can fail: [`stribeck_resolvable`]).
-    pub resolvable: bool,
 }
 
 impl Judged {
     /// Whether it passes both tests of the module header.
     pub fn significant(&self) -> bool {
-        self.resolvable
-            && self.delta_bic >= MIN_DELTA_BIC
+        self.delta_bic >= MIN_DELTA_BIC
             && self.explained >= MIN_EXPLAINED
             && self.explained_total >= MIN_EXPLAINED_TOTAL
             && self.support >= MIN_SUPPORT
@@ -221,35 +198,6 @@ pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual)
     }
     let res = resolution(kind.channel(), &model);
     let sample_res = sample_resolution(kind.channel(), &model);
-    let resolvable = match kind {
-        EffectKind::StribeckFriction => {
-            let vs = proposal
-                .params
-                .iter()
-                .find(|(k, _)| *k == "velocity_mps")
-                .map_or(0.0, |&(_, vs)| vs);
-            let resolved = stribeck_resolved(ctx.data, &model, vs);
-            let tangential = super::residuals::tangential_mps(ctx.data, &model);
-            // Per half of the band (sliding below v_s/2, and from v_s/2 to v_s): the resolved
-            // samples where it acts, and its residual there before and after.
-            let mut halves = [(0usize, 0.0, 0.0); 2];
-            let idx = &ctx.band.idx_force;
-            for (j, ((c, b), a)) in change.iter().zip(&before.kept).zip(&after.kept).enumerate() {
-                let Some(&at) = idx.get(j) else { continue };
-                if !(peak > 0.0 && c.abs() > 0.1 * peak && resolved.get(at) == Some(&true)) {
-                    continue;
-                }
-                let v = ctx.data.v_mps.get(at).copied().unwrap_or(0.0);
-                let t = tangential.get(at).copied().unwrap_or(0.0);
-                let h = &mut halves[usize::from((v * v + t * t).sqrt() >= 0.5 * vs)];
-                *h = (h.0 + 1, h.1 + b * b, h.2 + a * a);
-            }
-            halves
-                .iter()
-                .all(|&(n, s0, s1)| n >= MIN_SUPPORT && s0 > 0.0 && (s0 - s1) / s0 >= MIN_EXPLAINED)
-        }
-        _ => true,
-    };
     let explained = if s0 > 0.0 { (s0 - s1) / s0 } else { 0.0 };
     let nf = effective_n(&after.kept);
     let delta_bic = if rss_after > 0.0 && rss_before > 0.0 {
@@ -278,40 +226,7 @@ pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual)
         resolution: res,
         resolved: change.iter().filter(|c| c.abs() > sample_res).count(),
         change,
-        resolvable,
     })
-}
-
-/// Per sample: whether the piston slides slower than `vs_mps` (axial and tangential, as the
-/// friction law sees it) over the whole differentiator window centred on it, where a
-/// Stribeck band can be resolved (module header).
-pub fn stribeck_resolved(
-    data: &super::data::Measured,
-    model: &crate::plant::model::MachineModel,
-    vs_mps: f64,
-) -> Vec<bool> {
-    let tangential = super::residuals::tangential_mps(data, model);
-    let slow: Vec<bool> = data
-        .v_mps
-        .iter()
-        .zip(&tangential)
-        .map(|(v, t)| (v * v + t * t).sqrt() < vs_mps)
-        .collect();
-    // Length of the run of slow samples through each sample, then whether the window fits.
-    let half = data.sg_window / 2;
-    let n = slow.len();
-    let mut since = vec![0usize; n]; // slow samples ending here
-    let mut run = 0;
-    for (i, s) in slow.iter().enumerate() {
-        run = if *s { run + 1 } else { 0 };
-        since[i] = run;
-    }
-    (0..n)
-        .map(|i| {
-            let end = i + half;
-            end < n && since[end] > 2 * half
-        })
-        .collect()
 }
 
 /// The number of independent samples a residual's kept samples are worth: `n / (1 + 2·Σρ_k)`
