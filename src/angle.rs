@@ -1,10 +1,14 @@
-//! Wrapping fixed-point angles and their sine and cosine.
+//! Wrapping fixed-point angles and their sine and cosine, and the one wrap of an angle in
+//! radians ([`wrap_rad`], [`wrap_signed_rad`]) that the firmware, the plant and the
+//! model-gap workflow share.
 //!
 //! An angle is a `u32` fraction of a turn: 2³² = 2π, so `i32::MIN..=i32::MAX` reads as
 //! −π..π and wrap-around is free (the encoder's electrical angle is one). Sine and cosine
 //! come from a 256-interval table with linear interpolation: |error| ≤ 7.6e-5 (the
 //! interpolation error (2π/256)²/8), against micromath's 2e-3, in about a dozen instructions.
 //! The table is computed at compile time from the Taylor series, in `f64`.
+
+use crate::real::Real;
 
 /// Entries per turn (the table holds one more, for interpolation across the last one).
 const STEPS: usize = 256;
@@ -78,6 +82,42 @@ pub fn turns(fraction: f32) -> u32 {
     }
 }
 
+/// An angle wrapped into [0, 2π), rad: `angle.rem_euclid(2π)` bit for bit (the same
+/// rounding of `r + 2π` for a tiny negative remainder, NaN for NaN). Within one turn of the
+/// range it is one comparison and at most one add, exact; beyond, the exact remainder
+/// ([`Real::rem`]: on the MCU [`crate::real::fmod_f32`], no 64-bit division).
+#[inline(always)]
+pub fn wrap_rad<T: Real>(angle_rad: T) -> T {
+    let turn = T::of(2.0) * T::PI;
+    if angle_rad >= T::ZERO {
+        if angle_rad < turn {
+            return angle_rad;
+        }
+    } else if angle_rad > -turn {
+        return angle_rad + turn;
+    }
+    wrap_far_rad(angle_rad)
+}
+
+/// [`wrap_rad`] of an angle beyond one turn of the range (or NaN): the exact remainder,
+/// out of line so that the common case inlines small.
+#[inline(never)]
+fn wrap_far_rad<T: Real>(angle_rad: T) -> T {
+    let turn = T::of(2.0) * T::PI;
+    let r = angle_rad.rem(turn);
+    if r < T::ZERO {
+        r + turn
+    } else {
+        r
+    }
+}
+
+/// An angle wrapped into [−π, π), rad (`wrap_rad(angle + π) − π`).
+#[inline]
+pub fn wrap_signed_rad<T: Real>(angle_rad: T) -> T {
+    wrap_rad(angle_rad + T::PI) - T::PI
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -94,6 +134,41 @@ mod tests {
                 .max((f64::from(c) - x.cos()).abs());
         }
         assert!(worst < 8e-5, "{worst}");
+    }
+
+    #[test]
+    fn radians_wrap_as_the_euclidean_remainder_bit_for_bit() {
+        let mut x: u64 = 0x2545_f491_4f6c_dd1d;
+        let mut checked = 0;
+        for k in -40_000i32..40_000 {
+            // Every range: within a turn, a few turns, thousands; and the exact edges.
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let scale = [1e-3, 1.0, 7.0, 1e3, 1e6][(x % 5) as usize];
+            let a = k as f64 * 1.7e-4 * scale;
+            let want = a.rem_euclid(core::f64::consts::TAU);
+            assert_eq!(wrap_rad(a).to_bits(), want.to_bits(), "{a:e}");
+            let a32 = a as f32;
+            let want32 = a32.rem_euclid(core::f32::consts::TAU);
+            assert_eq!(wrap_rad(a32).to_bits(), want32.to_bits(), "{a32:e}");
+            checked += 1;
+        }
+        for a in [
+            0.0,
+            core::f64::consts::TAU,
+            -core::f64::consts::TAU,
+            -0.0,
+            12.5,
+        ] {
+            assert_eq!(
+                wrap_rad(a).to_bits(),
+                a.rem_euclid(core::f64::consts::TAU).to_bits()
+            );
+        }
+        assert!(wrap_rad(f64::NAN).is_nan());
+        assert!((wrap_signed_rad(3.5f64) - (3.5 - core::f64::consts::TAU)).abs() < 1e-15);
+        assert!(checked > 10_000);
     }
 
     #[test]

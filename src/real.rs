@@ -107,6 +107,46 @@ pub fn fmod_f32(x: f32, y: f32) -> f32 {
     f32::from_bits(ux | sign)
 }
 
+/// `x % y` in `f64` (C's `fmod`: the exact remainder, with the sign of `x`), the same for
+/// every input as `%` and `libm::fmod`, whose bit-by-bit loop (one pass per binade between
+/// `x` and `y`: ≈ 90 x86 instructions for an angle of a thousand radians mod 2π) this skips
+/// while the quotient is below 2²⁶: with `q = trunc(x/y)` (exact, or one too large in
+/// magnitude where `x/y` rounds up to an integer) and `y = y_h + y_l` split into 26 and 27
+/// significant bits (Veltkamp), `q·y_h` and `q·y_l` are exact, `x − q·y_h` is exact
+/// (Sterbenz: within a factor 2 of `x`), and the last difference is the exact remainder,
+/// which is representable; one `y` added back corrects a quotient one too large, exactly.
+#[inline]
+pub fn rem_f64(x: f64, y: f64) -> f64 {
+    let t = x / y;
+    let y_abs = libm::fabs(y);
+    // Also refuses NaN, infinities and y = 0 (t not finite), and a y whose split would
+    // overflow or whose parts would underflow: the library routine handles them.
+    if !(libm::fabs(t) < 67_108_864.0 && y_abs > 1e-270 && y_abs < 1e290) {
+        return libm::fmod(x, y);
+    }
+    let q = t as i64 as f64;
+    let c = 134_217_729.0 * y;
+    let y_h = c - (c - y);
+    let y_l = y - y_h;
+    let r = (x - q * y_h) - q * y_l;
+    let r = if x >= 0.0 {
+        if r < 0.0 {
+            r + y_abs
+        } else {
+            r
+        }
+    } else if r > 0.0 {
+        r - y_abs
+    } else {
+        r
+    };
+    if r == 0.0 {
+        0.0 * x // a zero with the sign of x, as fmod gives
+    } else {
+        r
+    }
+}
+
 /// [`fmod_f32`]'s operand as (significand with its hidden bit at bit 23, exponent), from its
 /// bits and biased exponent `e` (a subnormal, `e` = 0, normalised: the exponent goes below 1).
 fn significand(bits: u32, mut e: i32) -> (u32, i32) {
@@ -175,6 +215,8 @@ pub trait Real:
     fn max(self, other: Self) -> Self;
     /// The smaller of the two.
     fn min(self, other: Self) -> Self;
+    /// `self % y`: the exact remainder, with the sign of `self` (C's `fmod`).
+    fn rem(self, y: Self) -> Self;
 }
 
 impl Real for f32 {
@@ -229,6 +271,10 @@ impl Real for f32 {
     fn min(self, other: f32) -> f32 {
         min_f32(self, other)
     }
+    #[inline]
+    fn rem(self, y: f32) -> f32 {
+        fmod_f32(self, y)
+    }
 }
 
 impl Real for f64 {
@@ -279,6 +325,10 @@ impl Real for f64 {
     fn min(self, other: f64) -> f64 {
         f64::min(self, other)
     }
+    #[inline]
+    fn rem(self, y: f64) -> f64 {
+        rem_f64(self, y)
+    }
 }
 
 #[cfg(test)]
@@ -323,6 +373,62 @@ mod tests {
             // Any bit patterns, and the angles the synchroniser wraps.
             same(f32::from_bits(rng.random()), f32::from_bits(rng.random()));
             same(rng.random_range(-2000.0f32..2000.0), tau);
+        }
+    }
+
+    #[test]
+    fn rem_f64_is_bit_identical_to_the_remainder_operator() {
+        use super::rem_f64;
+        use rand::{Rng, SeedableRng};
+        let same = |x: f64, y: f64| {
+            let (got, want) = (rem_f64(x, y), x % y);
+            assert!(
+                got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()),
+                "{x:e} % {y:e}: {got:e}, want {want:e}"
+            );
+        };
+        let tau = core::f64::consts::TAU;
+        let special = [
+            0.0,
+            -0.0,
+            f64::MIN_POSITIVE,
+            5e-324,
+            1.0,
+            -1.0,
+            tau,
+            -tau,
+            2.0 * tau,
+            3.0 * tau,
+            -7.0 * tau,
+            67_108_863.0 * tau,
+            67_108_864.0 * tau,
+            1e30,
+            f64::MAX,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+        ];
+        for &x in &special {
+            for &y in &special {
+                same(x, y);
+            }
+        }
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        for _ in 0..1_000_000 {
+            // Any bit patterns; angles of every size mod 2π; exact multiples and their
+            // neighbours, where the quotient rounds up.
+            same(f64::from_bits(rng.random()), f64::from_bits(rng.random()));
+            same(rng.random_range(-1e4..1e4), tau);
+            same(rng.random_range(-4e8..4e8), tau);
+            let k = rng.random_range(-100_000i64..100_000) as f64 * tau;
+            for x in [
+                k,
+                f64::from_bits(k.to_bits().wrapping_add(1)),
+                f64::from_bits(k.to_bits().wrapping_sub(1)),
+            ] {
+                same(x, tau);
+            }
+            same(rng.random_range(-50.0..50.0), rng.random_range(1e-3..10.0));
         }
     }
 

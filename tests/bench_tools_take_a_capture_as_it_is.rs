@@ -165,14 +165,17 @@ fn bad_requests_and_another_firmwares_capture_are_refused_naming_what_is_wrong()
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// A tool, not a test: records a bench session on the simulated board (a 0.75 ms slave lag
-/// hidden in the plant) into the directory `FPC_BENCH_DIR` names, as up0.bin, up1.bin and
-/// up2.bin — what `docs/rig-to-model.md` plays back with `--replay`.
+/// Records a bench session on the simulated board (a 0.75 ms slave lag hidden in the plant)
+/// as up0.bin, up1.bin and up2.bin — what `docs/rig-to-model.md` plays back with `--replay` —
+/// into the directory `FPC_BENCH_DIR` names (or a scratch one), and checks that its telemetry
+/// decodes to a run log. Slow (a second of machine time through the link), so marked.
 #[test]
-#[ignore = "a tool: writes a recorded session to FPC_BENCH_DIR"]
+#[ignore = "slow: records a bench session (to FPC_BENCH_DIR, if set)"]
 fn write_a_bench_session() {
-    let Some(dir) = std::env::var_os("FPC_BENCH_DIR") else {
-        panic!("set FPC_BENCH_DIR to the directory to write");
+    let keep = std::env::var_os("FPC_BENCH_DIR");
+    let dir = match &keep {
+        Some(d) => Path::new(d).to_path_buf(),
+        None => tmp("session"),
     };
     let truth = format!("{}\n[effects.slave_lag]\ndelay_s = 0.00075\n", reference());
     let c = bench(
@@ -184,9 +187,32 @@ fn write_a_bench_session() {
             seconds: 1.0,
         },
     );
-    let dir = Path::new(&dir);
-    std::fs::create_dir_all(dir).unwrap();
+    std::fs::create_dir_all(&dir).unwrap();
+    // up0 (defmt) may be empty: the simulated board logs no defmt text.
     for (i, bytes) in c.raw.iter().enumerate() {
         std::fs::write(dir.join(format!("up{i}.bin")), bytes).unwrap();
+    }
+    let csv = dir.join("up1.csv");
+    assert_eq!(
+        fpc_sim(&[
+            "decode",
+            "--capture",
+            s(&dir.join("up1.bin")),
+            "--out",
+            s(&csv),
+            "--force"
+        ]),
+        0
+    );
+    let log = RunLog::read(&csv).unwrap();
+    assert!(
+        log.len() > 1000,
+        "{} rows from a second at 2 kHz",
+        log.len()
+    );
+    if keep.is_none() {
+        let _ = std::fs::remove_dir_all(&dir);
+    } else {
+        let _ = std::fs::remove_file(&csv);
     }
 }

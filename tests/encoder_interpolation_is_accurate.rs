@@ -27,7 +27,7 @@ fn stroke_errors(config: EncoderConfig, truth: &SinCosCalibration, noise: f64) -
         let r = dec.update(encoder_codes(x, PERIOD_M, truth, noise, &mut rng));
         assert!(!r.signal_fault, "signal fault at x = {x}");
         // The decoder starts at the fraction of a period the first sample shows: x0 < λ.
-        errors.push(f64::from(r.position) * m - x);
+        errors.push(f64::from(r.position.to_bits()) * m - x);
     }
     errors
 }
@@ -99,12 +99,12 @@ fn noise_of_1_mv_costs_what_the_physics_says() {
         let x = 0.05 + k as f64 / 64.0 * PERIOD_M;
         let mut dec = SinCosDecoder::new(config);
         let first = dec.update(encoder_codes(x, PERIOD_M, &cal, 0.0, &mut rng));
-        let centre = f64::from(first.position) * m;
+        let centre = f64::from(first.position.to_bits()) * m;
         for _ in 0..500 {
             let codes = encoder_codes(x, PERIOD_M, &cal, noise, &mut rng);
             let r = dec.update(codes);
             assert!(!r.signal_fault);
-            let got = f64::from(r.position) * m;
+            let got = f64::from(r.position.to_bits()) * m;
             dev.push(got - centre);
             // The ideal decode of the same codes, f64 atan2: what the decoder itself adds.
             let s = f64::from(codes.sin.centered());

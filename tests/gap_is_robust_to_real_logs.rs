@@ -4,8 +4,8 @@
 
 mod support;
 
-use hal_sim::board::sensors::Noise;
 use hal_sim::gap::synth::decimate;
+use hal_sim::plant::noise::Noise;
 use hal_sim::runlog::{RunLog, REQUIRED};
 use support::gap::*;
 

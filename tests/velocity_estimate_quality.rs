@@ -116,7 +116,7 @@ fn firmware_velocity_is_prompt_and_clean_on_a_4_mps_stroke() {
         let (x, _, _) = truth(ti);
         let r = dec.update(encoder_codes(x, period_m, &cal, noise_codes, &mut rng));
         assert!(!r.rejected && !r.signal_fault, "sample {i} rejected");
-        let xm = f64::from(r.position) * m;
+        let xm = f64::from(r.position.to_bits()) * m;
         let d = sg.push(r.position);
         let fd = last_x.map_or(0.0, |l| (xm - l) / DT_S);
         last_x = Some(xm);

@@ -386,7 +386,7 @@ pub fn commission(
             }
         }
         if let Some((routine, e)) = step.calibrated().last_error {
-            return Err(format!("{} failed: {e:?}", routine.name()));
+            return Err(format!("{} failed: {e}", routine.name()));
         }
         stages.push(Stage {
             name,
@@ -408,46 +408,16 @@ fn calibrate(routine: Routine) -> Command {
 mod tests {
     use super::*;
 
-    fn record() -> CalibrationRecord {
-        let mut map = HarmonicMap::none();
-        map.sin_n = [29.7, -0.3, 0.01, 0.0];
-        map.cos_n = [4.1, 0.2, 0.0, -0.02];
-        CalibrationRecord {
-            calibrated: Calibrated {
-                current_sense: Some(PerSection {
-                    master: [16.3, -10.2, 6.1],
-                    slave: [-12.3, 0.0, 18.4],
-                }),
-                alignment: Some(PerSection {
-                    master: 0x0123_4567,
-                    slave: 0xF000_0001,
-                }),
-                misalignment: Some(Misalignment {
-                    slave_angle_offset: 0xF010_0000,
-                    correction_periods: 0.004,
-                    misalignment_m: 1.5e-3,
-                    encoder_offset_m: -2e-6,
-                }),
-                cogging: Some(map),
-                last_error: None,
-            },
-            sin_cos: PerSection {
-                master: SinCosCalibration::ideal(1500.0),
-                slave: SinCosCalibration::ideal(1490.5),
-            },
-        }
-    }
-
     #[test]
     fn a_file_round_trips_the_record_bit_for_bit() {
-        let r = record();
+        let r = CalibrationRecord::example();
         let text = to_toml(&r, "test").unwrap();
         assert_eq!(parse(&text), Ok(r), "{text}");
     }
 
     #[test]
     fn a_bad_file_is_refused_naming_the_key() {
-        let text = to_toml(&record(), "test").unwrap();
+        let text = to_toml(&CalibrationRecord::example(), "test").unwrap();
         let cases = [
             ("misalignment_m = ", "misalignment_mm = ", "misalignment_mm"),
             ("period_m = 0.024", "period_m = -0.024", "cogging.period_m"),

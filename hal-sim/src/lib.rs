@@ -17,6 +17,7 @@
 //! | [`runlog`] | the run-log CSV |
 //! | [`signal`] | cross-correlation lag, filtfilt, differences, strokes |
 //! | [`gap`] | the model-gap workflow |
+//! | [`balance`] | the force balance along a log and the works of a stroke (`fpc-sim forces`, `energy`) |
 //! | [`sweep`] | studies: every run of a plan in parallel, sharded, merged |
 //! | [`link`] | the host link to the running board over RTT (`fpc-sim link`) |
 //! | [`plot`] | SVG plots (reports of the runs, the log tools and the gap workflow) |
@@ -27,6 +28,7 @@
 //! | [`cli`] | `fpc-sim`: a module per subcommand and the log tools' shared plumbing |
 #![warn(missing_docs)]
 
+pub mod balance;
 pub mod board;
 pub mod calibration;
 pub mod cli;

@@ -10,7 +10,7 @@
 use std::ops::Range;
 
 use fpc::sensing::differentiator::{SavitzkyGolay, SgConfig};
-use fpc::sensing::encoder::EncoderConfig;
+use fpc::sensing::encoder::{EncoderConfig, PositionCounts};
 use rustfft::num_complex::Complex;
 use rustfft::FftPlanner;
 
@@ -529,7 +529,7 @@ pub fn firmware_derivatives(
         let counts = (x / f64::from(m_per_count))
             .round()
             .clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32;
-        let d = sg.push(counts);
+        let d = sg.push(PositionCounts::from_bits(counts));
         if i >= s.lag {
             v.push(f64::from(d.velocity_mps));
             a.push(f64::from(d.acceleration_mps2));

@@ -4,12 +4,9 @@
 //! counted and never crash; and a command goes out as the library encodes it, through the
 //! firmware's own command task and controller, and its reply comes back as text.
 
-use std::cell::{Cell, RefCell};
-use std::collections::VecDeque;
-use std::future::{poll_fn, Future};
+use std::future::Future;
 use std::path::PathBuf;
 use std::pin::Pin;
-use std::rc::Rc;
 use std::task::{Context, Poll, Waker};
 use std::time::Duration;
 
@@ -20,10 +17,10 @@ use fpc::control::config::ControlConfig;
 use fpc::control::step::ControlStep;
 use fpc::link::frame::DELIMITER;
 use fpc::link::telemetry::{Frame, WIRE_BYTES};
-use fpc::ports::{ByteSource, Clock, FrameSink, Sleep};
 use fpc::shared::Shared;
 use fpc::status::{ModeKind, Status};
 use fpc::units::Ticks;
+use hal_sim::board::loopback::{ByteQueue, ByteSink, SteppedClock};
 use hal_sim::link::defmt::DefmtLog;
 use hal_sim::link::session::{
     outcome_text, read_calibration, send_command, write_calibration, CaptureSession, Outcome,
@@ -227,59 +224,13 @@ fn garbage_only_and_truncated_only_recordings_end_cleanly() {
     }
 }
 
-#[derive(Clone, Default)]
-struct Bytes(Rc<RefCell<VecDeque<u8>>>);
-
-impl ByteSource for Bytes {
-    fn read(&mut self, buf: &mut [u8]) -> usize {
-        let mut q = self.0.borrow_mut();
-        let n = buf.len().min(q.len());
-        for (slot, b) in buf.iter_mut().zip(q.drain(..n)) {
-            *slot = b;
-        }
-        n
-    }
-}
-
-#[derive(Clone, Default)]
-struct Sink(Rc<RefCell<Vec<u8>>>);
-
-impl FrameSink for Sink {
-    fn write(&mut self, bytes: &[u8]) -> usize {
-        self.0.borrow_mut().extend_from_slice(bytes);
-        bytes.len()
-    }
-}
-
-#[derive(Clone, Default)]
-struct TestClock(Rc<Cell<u32>>);
-
-impl Clock for TestClock {
-    fn now(&self) -> Ticks {
-        Ticks(self.0.get())
-    }
-}
-
-impl Sleep for TestClock {
-    async fn until(&mut self, deadline: Ticks) {
-        poll_fn(|_| {
-            if Ticks(self.0.get()).reached(deadline) {
-                Poll::Ready(())
-            } else {
-                Poll::Pending
-            }
-        })
-        .await
-    }
-}
-
 /// The board's command side, simulated: the firmware's command task on down 0 and up 2,
 /// the controller answering in between (as the control task does each cycle). Everything
 /// written to up 2 is also recorded.
 struct SimBoard {
-    down: Bytes,
-    up2: Sink,
-    clock: TestClock,
+    down: ByteQueue,
+    up2: ByteSink,
+    clock: SteppedClock,
     shared: &'static Shared<NoopRawMutex>,
     step: ControlStep,
     task: Pin<Box<dyn Future<Output = std::convert::Infallible>>>,
@@ -295,7 +246,11 @@ impl SimBoard {
     /// boots.
     fn booted(stored: Option<CalibrationRecord>) -> SimBoard {
         let shared: &'static Shared<NoopRawMutex> = Box::leak(Box::new(Shared::new()));
-        let (down, up2, clock) = (Bytes::default(), Sink::default(), TestClock::default());
+        let (down, up2, clock) = (
+            ByteQueue::default(),
+            ByteSink::default(),
+            SteppedClock::default(),
+        );
         let task = Box::pin(fpc::tasks::command_run(
             down.clone(),
             up2.clone(),
@@ -321,7 +276,7 @@ impl SimBoard {
 
     /// One millisecond of the board.
     fn tick(&mut self) {
-        self.clock.0.set(self.clock.0.get().wrapping_add(1000));
+        self.clock.step(1000);
         let mut cx = Context::from_waker(Waker::noop());
         let _ = self.task.as_mut().poll(&mut cx);
         fpc::tasks::serve_commands(&mut self.step, self.shared);
@@ -345,7 +300,7 @@ impl Channels for SimBoard {
 
     fn write_down(&mut self, channel: usize, bytes: &[u8]) -> std::io::Result<usize> {
         assert_eq!(channel, 0);
-        self.down.0.borrow_mut().extend(bytes);
+        self.down.push(bytes);
         Ok(bytes.len())
     }
 }

@@ -105,11 +105,28 @@ fn a_fault_later_than_the_run_can_last_and_malformed_counts_are_refused() {
     );
 }
 
-fn dir(name: &str) -> PathBuf {
+fn dir(name: &str) -> TempDir {
     let d = std::env::temp_dir().join(format!("fpc_run_options_{name}_{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
-    d
+    TempDir(d)
+}
+
+/// A scratch directory removed when the test is done with it (a kept partial run's log is
+/// tens of megabytes).
+struct TempDir(PathBuf);
+
+impl std::ops::Deref for TempDir {
+    type Target = std::path::Path;
+    fn deref(&self) -> &std::path::Path {
+        &self.0
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }
 
 /// Runs `fpc-sim run ARGS --out DIR/out`: (exit code, stderr, stdout).

@@ -855,7 +855,7 @@ pub(crate) mod tests {
     }
 
     fn record_bytes() -> [u8; RECORD_BYTES] {
-        crate::control::calibration::record::tests::sample().encode()
+        crate::control::calibration::record::CalibrationRecord::example().encode()
     }
 
     /// Writes `record` in chunks through `state`; the verdicts, then the commit's step.

@@ -198,8 +198,9 @@ pub struct LinkStats {
 /// without delimiter is rejected once, then skipped up to the next delimiter.
 #[derive(Clone, Debug)]
 pub struct Deframer<const N: usize> {
-    raw: [u8; N],
-    raw_len: usize,
+    /// The encoded bytes since the last delimiter (a bounded buffer: a push past `N` fails
+    /// and marks the frame overlong).
+    raw: heapless::Vec<u8, N>,
     overflowed: bool,
     payload: [u8; N],
     /// Frames accepted and rejected so far.
@@ -216,8 +217,7 @@ impl<const N: usize> Deframer<N> {
     /// An empty receiver, waiting for the first frame.
     pub const fn new() -> Self {
         Deframer {
-            raw: [0; N],
-            raw_len: 0,
+            raw: heapless::Vec::new(),
             overflowed: false,
             payload: [0; N],
             stats: LinkStats {
@@ -231,25 +231,22 @@ impl<const N: usize> Deframer<N> {
     /// payload (CRC stripped) or why it was rejected; otherwise `None`.
     pub fn push(&mut self, byte: u8) -> Option<Result<&[u8], FrameError>> {
         if byte != DELIMITER {
-            match self.raw.get_mut(self.raw_len) {
-                Some(slot) => {
-                    *slot = byte;
-                    self.raw_len += 1;
-                }
-                None => self.overflowed = true,
+            if self.raw.push(byte).is_err() {
+                self.overflowed = true;
             }
             return None;
         }
-        let len = core::mem::take(&mut self.raw_len);
         if core::mem::take(&mut self.overflowed) {
+            self.raw.clear();
             self.stats.rejected = self.stats.rejected.wrapping_add(1);
             return Some(Err(FrameError::Overlong));
         }
-        if len == 0 {
+        if self.raw.is_empty() {
             // Back-to-back delimiters: an idle line, not a frame.
             return None;
         }
-        let result = self.check(len);
+        let result = self.check();
+        self.raw.clear();
         match result {
             Ok(_) => self.stats.accepted = self.stats.accepted.wrapping_add(1),
             Err(_) => self.stats.rejected = self.stats.rejected.wrapping_add(1),
@@ -257,10 +254,9 @@ impl<const N: usize> Deframer<N> {
         Some(result.map(|n| self.payload.get(..n).unwrap_or_default()))
     }
 
-    /// Decodes the `len` raw bytes into the payload buffer; returns the payload length.
-    fn check(&mut self, len: usize) -> Result<usize, FrameError> {
-        let raw = self.raw.get(..len).ok_or(FrameError::Overlong)?;
-        let n = cobs_decode(raw, &mut self.payload)?;
+    /// Decodes the raw bytes into the payload buffer; returns the payload length.
+    fn check(&mut self) -> Result<usize, FrameError> {
+        let n = cobs_decode(&self.raw, &mut self.payload)?;
         if n < 3 {
             return Err(FrameError::TooShort);
         }

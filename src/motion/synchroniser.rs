@@ -19,6 +19,7 @@
 //! the controller moves by whole turns ([`Synchroniser::rebase`]) so `f32` never runs out of
 //! precision however long the machine runs.
 
+use crate::angle::{wrap_rad, wrap_signed_rad};
 use crate::real::clamp_f32;
 use core::f32::consts::{PI, TAU};
 
@@ -144,9 +145,9 @@ impl Synchroniser {
             Rotation::Expander => -1.0,
         };
         // Rotation from the start of the half to the edge, in the direction of rotation.
-        let to_edge = wrap(sign * (edge_phase - start_phase));
+        let to_edge = wrap_rad(sign * (edge_phase - start_phase));
         // The nominal start is the dead-point phase nearest to where the rotation is now.
-        let theta_nominal = theta_now_rad - wrap_signed(theta_now_rad - start_phase);
+        let theta_nominal = theta_now_rad - wrap_signed_rad(theta_now_rad - start_phase);
         self.theta_start_rad = theta_now_rad;
         self.theta_end_rad = theta_nominal + sign * PI;
         let theta_edge = theta_nominal + sign * to_edge;
@@ -271,21 +272,6 @@ impl Synchroniser {
     }
 }
 
-/// Wraps into [0, 2π).
-fn wrap(a: f32) -> f32 {
-    let r = crate::real::fmod_f32(a, TAU);
-    if r < 0.0 {
-        r + TAU
-    } else {
-        r
-    }
-}
-
-/// Wraps into [−π, π).
-fn wrap_signed(a: f32) -> f32 {
-    wrap(a + PI) - PI
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -365,7 +351,9 @@ mod tests {
         assert!((s.setpoint(0.204, 0.0, 0.0).angle_rad + PI).abs() < 1e-4);
         let edge = s.setpoint(0.05, 0.0, 0.0).angle_rad;
         let geometry = PortGeometry::<f32>::reference();
-        assert!((wrap(edge) - geometry.half_open_rad(Port::DischargeA)).abs() < 1e-3);
+        assert!(
+            (crate::angle::wrap_rad(edge) - geometry.half_open_rad(Port::DischargeA)).abs() < 1e-3
+        );
         assert_eq!(s.crossed(-0.1), None);
         assert!(s.crossed(edge - 0.01).is_some());
         assert_eq!(s.crossed(edge - 0.02), None, "reported once");

@@ -39,41 +39,69 @@ impl<T: Real> FrictionParams<T> {
         }
     }
 
-    /// Friction force at velocity `v_mps`, N, with the sign of `v` (it opposes motion).
+    /// Friction force at velocity `v_mps`, N, with the sign of `v` (it opposes motion):
+    /// `(F_c + (F_s − F_c)·`[`stribeck_shape`]`)·`[`sign_magnitude`]`·sgn(v) + b·v`.
     ///
-    /// Exact zero at rest; past 10 regularisation velocities tanh is 1 to 4e-9 and past 16
-    /// Stribeck velocities the dip is below 1e-7 of its size, so those terms are skipped
-    /// there (the firmware evaluates this every cycle).
+    /// Exact zero at rest; the shapes skip their transcendental functions where they are
+    /// within 1e-7 of their limits (the firmware evaluates this every cycle).
     #[inline]
     pub fn force_n(&self, v_mps: T) -> T {
         if v_mps == T::ZERO {
             return T::ZERO;
         }
         let speed = v_mps.abs();
-        let sign_ratio = speed / self.sign_velocity_mps;
-        let magnitude = if sign_ratio >= T::of(10.0) {
-            T::ONE
-        } else {
-            sign_ratio.tanh()
-        };
+        let magnitude = sign_magnitude(speed, self.sign_velocity_mps);
         let sgn = if v_mps > T::ZERO {
             magnitude
         } else {
             -magnitude
         };
-        let ratio = speed / self.stribeck_velocity_mps;
-        let stribeck = if ratio >= T::of(16.0) {
-            T::ZERO
-        } else {
-            // ζ = 1 is the common case; skip powf there (it is the expensive part on the MCU).
-            let shaped = if self.stribeck_exponent == T::ONE {
-                ratio
-            } else {
-                ratio.powf(self.stribeck_exponent)
+        let stribeck =
+            match stribeck_term(speed, self.stribeck_velocity_mps, self.stribeck_exponent) {
+                Some(shape) => (self.static_n - self.coulomb_n) * shape,
+                None => T::ZERO,
             };
-            (self.static_n - self.coulomb_n) * (-shaped).exp()
-        };
         (self.coulomb_n + stribeck) * sgn + self.viscous_ns_per_m * v_mps
+    }
+}
+
+/// The regularised sign's magnitude at `speed ≥ 0`: `tanh(speed/v_reg)`, exactly 1 from 10
+/// regularisation velocities on (where tanh is 1 to 4e-9).
+#[inline(always)]
+pub fn sign_magnitude<T: Real>(speed: T, sign_velocity_mps: T) -> T {
+    let ratio = speed / sign_velocity_mps;
+    if ratio >= T::of(10.0) {
+        T::ONE
+    } else {
+        ratio.tanh()
+    }
+}
+
+/// The Stribeck dip's shape at `speed ≥ 0`: `e^{−(speed/v_s)^ζ}`, exactly 0 where the
+/// exponent reaches 16 (the dip below 1.2e-7 of its size, whatever ζ). ζ = 1, the common
+/// case, and ζ = 2 take no `powf` (the expensive part on the MCU).
+#[inline(always)]
+pub fn stribeck_shape<T: Real>(speed: T, stribeck_velocity_mps: T, exponent: T) -> T {
+    stribeck_term(speed, stribeck_velocity_mps, exponent).unwrap_or(T::ZERO)
+}
+
+/// [`stribeck_shape`], `None` where it is cut to 0 (so that the law can skip the dip's
+/// product there too).
+#[inline(always)]
+fn stribeck_term<T: Real>(speed: T, stribeck_velocity_mps: T, exponent: T) -> Option<T> {
+    let ratio = speed / stribeck_velocity_mps;
+    let cut = T::of(16.0);
+    let shaped = if exponent == T::ONE {
+        ratio
+    } else if exponent == T::of(2.0) {
+        ratio * ratio
+    } else {
+        ratio.powf(exponent)
+    };
+    if shaped >= cut {
+        None
+    } else {
+        Some((-shaped).exp())
     }
 }
 
@@ -88,6 +116,32 @@ impl<T: Real> FrictionParams<T> {
             .sqrt()
             .max(T::of(1e-9));
         self.force_n(slip) / slip
+    }
+
+    /// The axial friction of the piston sliding at `v_axial_mps` while its surface moves
+    /// at `v_tangential_mps` around the axis: `F(|u|)·v/|u|` ([`Self::sliding_secant`]),
+    /// and without rotation the law itself, `F(v)`. N, opposing +x motion when positive.
+    #[inline]
+    pub fn axial_force_n(&self, v_axial_mps: T, v_tangential_mps: T) -> T {
+        if v_tangential_mps == T::ZERO {
+            self.force_n(v_axial_mps)
+        } else {
+            self.sliding_secant(v_axial_mps, v_tangential_mps) * v_axial_mps
+        }
+    }
+
+    /// The axial share of a unit friction force along the sliding velocity, with the sign
+    /// regularised as the law does: `tanh(|u|/v_reg)·v/|u|` (0 at zero slip). The axial
+    /// friction is `(F_c + (F_s − F_c)·S(|u|))·d + b·v` with this `d` and the Stribeck shape
+    /// `S`: linear in F_c, F_s − F_c and b, as the model-gap fit uses it.
+    #[inline]
+    pub fn axial_direction(&self, v_axial_mps: T, v_tangential_mps: T) -> T {
+        let slip = (v_axial_mps * v_axial_mps + v_tangential_mps * v_tangential_mps).sqrt();
+        if slip > T::ZERO {
+            sign_magnitude(slip, self.sign_velocity_mps) * v_axial_mps / slip
+        } else {
+            T::ZERO
+        }
     }
 }
 
@@ -123,6 +177,41 @@ mod tests {
         let k = f.sliding_secant(0.3, 0.4);
         assert!((k * 0.5 - f.force_n(0.5)).abs() < 1e-9);
         assert!(k * 0.3 < f.force_n(0.3));
+    }
+
+    #[test]
+    fn the_dip_is_cut_only_where_it_is_negligible_whatever_its_exponent() {
+        // Each shape against e^{−r^ζ} itself: never more than 1.2e-7 off, for ζ below 1 too
+        // (a cut at 16 Stribeck velocities left e^{−4} = 1.8 % of the dip at ζ = 0.5).
+        for zeta in [0.3, 0.5, 1.0, 1.7, 2.0, 3.0] {
+            let mut worst = 0.0f64;
+            for i in 0..20_000 {
+                let speed = i as f64 * 1e-3;
+                let exact = (-(speed / 0.02f64).powf(zeta)).exp();
+                worst = worst.max((stribeck_shape(speed, 0.02, zeta) - exact).abs());
+            }
+            assert!(worst < 1.2e-7, "ζ = {zeta}: {worst:e}");
+        }
+        assert!(stribeck_shape(0.5f64, 0.02, 0.5) > 6e-3); // e^{−5}: not cut
+        assert_eq!(stribeck_shape(6.0f64, 0.02, 0.5), 0.0);
+        assert!((sign_magnitude(0.5e-3f64, 1e-3) - 0.5f64.tanh()).abs() < 1e-15);
+        assert_eq!(sign_magnitude(0.01f64, 1e-3), 1.0);
+    }
+
+    #[test]
+    fn the_axial_friction_is_the_law_without_rotation_and_its_direction_splits_it() {
+        let f = FrictionParams::<f64>::reference();
+        assert_eq!(f.axial_force_n(0.7, 0.0), f.force_n(0.7));
+        // Linear in F_c, F_s − F_c and b along the direction d.
+        for (v, t) in [(0.3, 0.4), (-1.5, 0.2), (2e-3, 1e-3), (0.05, 0.0)] {
+            let slip = f64::hypot(v, t);
+            let d = f.axial_direction(v, t);
+            let s = stribeck_shape(slip, f.stribeck_velocity_mps, f.stribeck_exponent);
+            let by_parts =
+                (f.coulomb_n + (f.static_n - f.coulomb_n) * s) * d + f.viscous_ns_per_m * v;
+            assert!((f.axial_force_n(v, t) - by_parts).abs() < 1e-9, "{v} {t}");
+        }
+        assert_eq!(f.axial_direction(0.0, 0.0), 0.0);
     }
 
     #[test]

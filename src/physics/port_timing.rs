@@ -25,6 +25,7 @@
 //!
 //! One geometry for the simulator's plant (`f64`) and the firmware's synchroniser (`f32`).
 
+use crate::angle::wrap_rad;
 use crate::real::Real;
 
 /// The four ports.
@@ -73,7 +74,7 @@ impl<T: Real> PortWindow<T> {
     /// Angular length of the window, rad, in (0, 2π] (equal edges: a full turn).
     #[inline]
     pub fn span_rad(&self) -> T {
-        let s = wrap_phase_rad(self.close_rad - self.open_rad);
+        let s = wrap_rad(self.close_rad - self.open_rad);
         if s > T::ZERO {
             s
         } else {
@@ -84,7 +85,7 @@ impl<T: Real> PortWindow<T> {
     /// Open fraction 0..1 at `phase_rad` in [0, 2π) with ramps of `ramp_rad` at both edges.
     #[inline]
     pub fn fraction(&self, phase_rad: T, ramp_rad: T) -> T {
-        let into = wrap_phase_rad(phase_rad - self.open_rad);
+        let into = wrap_rad(phase_rad - self.open_rad);
         let span = self.span_rad();
         if into >= span {
             return T::ZERO;
@@ -105,21 +106,6 @@ impl<T: Real> PortWindow<T> {
 fn smoothstep<T: Real>(t: T) -> T {
     let t = t.max(T::ZERO).min(T::ONE);
     t * t * (T::of(3.0) - T::of(2.0) * t)
-}
-
-/// Wraps an angle within one turn of [0, 2π) into [0, 2π) (inputs in (−2π, 4π) are exact;
-/// others are brought one turn closer). The plant and the firmware wrap the unwrapped
-/// rotation angle themselves (`rem_euclid`, or a wrapping fixed-point angle).
-#[inline]
-pub fn wrap_phase_rad<T: Real>(angle_rad: T) -> T {
-    let turn = T::of(2.0) * T::PI;
-    if angle_rad < T::ZERO {
-        angle_rad + turn
-    } else if angle_rad >= turn {
-        angle_rad - turn
-    } else {
-        angle_rad
-    }
 }
 
 /// Open fraction (0 = closed, 1 = fully open) of each port.
@@ -217,7 +203,7 @@ impl<T: Real> PortGeometry<T> {
     pub fn half_open_rad(&self, port: Port) -> T {
         let w = self.window(port);
         let half_ramp = (T::of(0.5) * self.ramp_rad).min(T::of(0.5) * w.span_rad());
-        wrap_phase_rad(w.open_rad + half_ramp)
+        wrap_rad(w.open_rad + half_ramp)
     }
 
     /// Open fraction of every port at rotation phase `phase_rad` ∈ [0, 2π).
@@ -248,7 +234,7 @@ impl<T: Real> PortGeometry<T> {
     /// moves the piston with the rotation at one of them, so neither chamber can be
     /// compressed sealed. Two evaluations: cheap enough for the control step's cold path.
     pub fn venting_phases_rad(&self) -> [Option<T>; 2] {
-        let middle = |w: &PortWindow<T>| wrap_phase_rad(w.open_rad + T::of(0.5) * w.span_rad());
+        let middle = |w: &PortWindow<T>| wrap_rad(w.open_rad + T::of(0.5) * w.span_rad());
         let keep = |phase: T| (self.venting(phase) >= T::of(0.5)).then_some(phase);
         [
             keep(middle(&self.discharge_b)),

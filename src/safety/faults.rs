@@ -1,4 +1,5 @@
-//! Faults: one enum with stable numbers, and the latched fault set.
+//! Faults: one enum with stable numbers, the reaction each asks for, and the latched fault
+//! set.
 //!
 //! Numbers are part of the telemetry and run-log contract (`fault` column): never reuse or
 //! renumber. Each variant's doc line is written for the operator: what it means and the fix.
@@ -86,16 +87,66 @@ impl Fault {
         Fault::ALL.iter().copied().find(|f| *f as u8 == code)
     }
 
-    /// Whether the position is still trustworthy under this fault, so a controlled stop
-    /// (SS1) is possible; otherwise outputs go off at once (STO). For the encoder faults the
-    /// controller knows more than the kind: with one encoder lost and the other good, the
-    /// good one gives the position and the reaction is SS1 on its section; with both lost,
-    /// STO while the winding currents decay, then braking without position (short-circuited
-    /// windings, the chamber ahead sealed by the rotation: `ControlStep::step`'s fault path).
+    /// The reaction this fault asks for (`faults.md`: SS1 while the position is still
+    /// trustworthy, STO when it is not, and the drive's own reactions built on them).
+    ///
+    /// For the encoder faults this is the reaction when no encoder can be trusted; the
+    /// control step knows more than the kind: with one encoder lost and the other good, the
+    /// good one stands in (the lost one's section dropped) and the reaction is SS1 on the
+    /// other section; two encoders that disagree where one is clearly the wrong one,
+    /// likewise (`control/step/sense.rs`).
+    pub const fn reaction(self) -> Reaction {
+        match self {
+            Fault::EncoderSignal => Reaction::BrakeWithoutPosition,
+            Fault::EncoderMismatch | Fault::ConfigInvalid => Reaction::Sto,
+            Fault::Overcurrent => Reaction::DropSection,
+            Fault::WatchdogReset => Reaction::BrakeAfterReset,
+            Fault::PressureSensor
+            | Fault::PressurePlausibility
+            | Fault::FollowingError
+            | Fault::SectionFault
+            | Fault::Overspeed
+            | Fault::BrakingEnvelope
+            | Fault::RotationSync
+            | Fault::Deadline
+            | Fault::HomingFailed => Reaction::Ss1,
+        }
+    }
+}
+
+/// What the machine does when a fault latches: the stop functions of IEC 61800-5-2 (SS1,
+/// STO) and the drive's own reactions built on them. [`Fault::reaction`] chooses one per
+/// fault; the control step carries each out (`control/step/safe_state.rs`), and every one
+/// ends with the outputs off and the fault latched until an explicit clear.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Reaction {
+    /// Safe stop 1: a controlled stop on the braking envelope, held until holding the piston
+    /// needs no force, then the outputs off. Needs the position (homed, trusted): without
+    /// it, STO.
+    Ss1,
+    /// Safe torque off: the outputs off at once (the position cannot be trusted).
+    Sto,
+    /// The section with the larger phase current taken out of the allocation, then SS1 on
+    /// the other (either section alone can stop the piston).
+    DropSection,
+    /// No position left (both encoders lost): STO while the winding currents decay, then
+    /// the windings short-circuited and the rotation turned to seal the chamber ahead, whose
+    /// gas takes the piston's energy (`faults.md` #22).
+    BrakeWithoutPosition,
+    /// After a watchdog reset: the outputs off until the velocity estimate is valid, then a
+    /// controlled stop in the encoders' own frame, the outputs off once holding needs no
+    /// force; where the heads are is unknown until homing (`faults.md` #12).
+    BrakeAfterReset,
+}
+
+impl Reaction {
+    /// Whether the reaction stops the piston under control (it needs a position it can
+    /// trust), rather than switching the outputs off at once.
     pub const fn position_trusted(self) -> bool {
-        !matches!(
+        matches!(
             self,
-            Fault::EncoderSignal | Fault::EncoderMismatch | Fault::ConfigInvalid
+            Reaction::Ss1 | Reaction::DropSection | Reaction::BrakeAfterReset
         )
     }
 }
@@ -183,6 +234,26 @@ mod tests {
             assert_eq!(Fault::from_code(*f as u8), Some(*f));
         }
         assert_eq!(Fault::from_code(0), None);
+    }
+
+    #[test]
+    fn the_reaction_is_a_controlled_stop_exactly_where_the_position_is_trusted() {
+        // `faults.md`: SS1 while the position is still trustworthy, STO when it is not. The
+        // faults that take it away are the encoders' and a configuration that cannot be
+        // believed; every other fault stops the piston under control.
+        for f in Fault::ALL {
+            let untrusted = matches!(
+                f,
+                Fault::EncoderSignal | Fault::EncoderMismatch | Fault::ConfigInvalid
+            );
+            assert_eq!(f.reaction().position_trusted(), !untrusted, "{}", f.name());
+        }
+        assert_eq!(Fault::Overcurrent.reaction(), Reaction::DropSection);
+        assert_eq!(
+            Fault::EncoderSignal.reaction(),
+            Reaction::BrakeWithoutPosition
+        );
+        assert_eq!(Fault::WatchdogReset.reaction(), Reaction::BrakeAfterReset);
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! Safety: the fault vocabulary and the per-cycle supervision.
 //!
-//! The faults and the latched set ([`faults`]); the checks run every cycle, the braking
+//! The faults, the reaction each asks for and the latched set ([`faults`]); the checks run every cycle, the braking
 //! envelope and the limit flags ([`supervisor`]). Depends only on the scalar helpers, so
 //! every layer above may report into it.
 

@@ -1,8 +1,8 @@
 //! Supervision in the 20 kHz step: the checks that decide when the machine must stop.
 //!
 //! Each check is a small filter over one measured quantity; a check that trips names a
-//! [`Fault`]. The controller latches it and chooses the reaction from
-//! [`Fault::position_trusted`]: a controlled stop on the braking envelope (SS1) while the
+//! [`Fault`]. The controller latches it and carries out its reaction
+//! ([`Fault::reaction`]): a controlled stop on the braking envelope (SS1) while the
 //! position can be trusted, outputs off at once (STO) when it cannot. SS1 ends in a hold
 //! that releases the outputs only once holding needs no force (a compressed chamber would
 //! otherwise throw the piston). Limits that are merely active (force saturated, envelope

@@ -29,7 +29,7 @@
 //! acceleration at K = 2 on the Cortex-M4 (QEMU benchmark `bench/cm4`; budget 120).
 //!
 //! # Number formats
-//! - Input `x`: [`PositionCounts`], i32, Q12.20 encoder periods (LSB λ/2²⁰ ≈ 22.9 nm). It may
+//! - Input `x`: [`PositionCounts`], `I12F20` (Q12.20 encoder periods in an i32) (LSB λ/2²⁰ ≈ 22.9 nm). It may
 //!   wrap: it is unwrapped on entry, `X ← X + (x ⊖ x_prev)` with the wrapping i32 difference
 //!   sign-extended, so a window that straddles the i32 wrap is differentiated correctly.
 //! - `X`, the history ring, `T_q` and `Mₚ`: i64 in wrapping arithmetic, i.e. exact in the
@@ -127,8 +127,8 @@ pub struct SavitzkyGolay {
     /// the oldest. Sized to a power of two so that masking the index proves it in bounds.
     ring: [i64; RING],
     head: usize,
-    /// Last raw input and its unwrapped value.
-    last_input: PositionCounts,
+    /// Last raw input (the count's bits) and its unwrapped value.
+    last_input: i32,
     unwrapped: i64,
     started: bool,
 }
@@ -250,6 +250,8 @@ impl SavitzkyGolay {
     /// N-th sample on.
     #[inline]
     pub fn push(&mut self, x: PositionCounts) -> Derivatives {
+        // The core works on the raw count: exact wrapping integers from here on.
+        let x = x.to_bits();
         if !self.started {
             self.start(x);
             return Derivatives::default();
@@ -264,7 +266,7 @@ impl SavitzkyGolay {
         }
     }
 
-    fn start(&mut self, x: PositionCounts) {
+    fn start(&mut self, x: i32) {
         let xn = i64::from(x);
         self.ring.fill(xn);
         self.head = 0;
@@ -277,7 +279,7 @@ impl SavitzkyGolay {
     }
 
     #[inline(always)]
-    fn advance<const K: usize>(&mut self, x: PositionCounts) -> Derivatives {
+    fn advance<const K: usize>(&mut self, x: i32) -> Derivatives {
         let newest = self
             .unwrapped
             .wrapping_add(i64::from(x.wrapping_sub(self.last_input)));
@@ -476,6 +478,11 @@ fn derivatives_at_lag(alpha: &[i32; MAX_ORDER + 1], lag: usize) -> [i64; 2] {
 mod tests {
     use super::*;
 
+    /// A position of `n` raw counts.
+    fn bits(n: i32) -> PositionCounts {
+        PositionCounts::from_bits(n)
+    }
+
     // The reference route: exact integer Gram–Schmidt (the least-squares definition).
 
     /// Values at j = 0..n−1 of the Gram polynomials P₀..P_k, each scaled to coprime integers:
@@ -633,10 +640,10 @@ mod tests {
                 // A zero history, then the window: the impulse is 10⁶ counts tall so the
                 // f32 output rounding is negligible.
                 sg.reset();
-                sg.push(0);
+                sg.push(bits(0));
                 let mut d = Derivatives::default();
                 for j in 0..n {
-                    d = sg.push(if j == at { 1_000_000 } else { 0 });
+                    d = sg.push(bits(if j == at { 1_000_000 } else { 0 }));
                 }
                 let ev = (f64::from(d.velocity_mps) / 1e6 - hv[at]).abs() / scale_v;
                 worst = worst.max(ev);
@@ -850,7 +857,7 @@ mod tests {
             let mut unwrapped = 0i128;
             let mut last = None::<i32>;
             for &x in &xs {
-                let d = sg.push(x);
+                let d = sg.push(bits(x));
                 prop_assert!(d.velocity_mps.is_finite() && d.acceleration_mps2.is_finite());
                 unwrapped = match last {
                     None => i128::from(x),
@@ -885,7 +892,7 @@ mod tests {
             for i in 0..200 {
                 t = i as f64 * 50e-6;
                 let x = x0 + (v * t + 0.5 * a * t * t) * 1e8;
-                d = sg.push((x.round() as i64) as i32); // wraps past i32::MAX
+                d = sg.push(bits((x.round() as i64) as i32)); // wraps past i32::MAX
             }
             let te = t - lag as f64 * 50e-6;
             assert!(
@@ -900,11 +907,11 @@ mod tests {
     fn reset_restarts_from_the_next_sample() {
         let mut sg = SavitzkyGolay::new(cfg(5, 2, 0)).unwrap();
         for i in 0..10 {
-            sg.push(i * 1000);
+            sg.push(bits(i * 1000));
         }
         sg.reset();
-        assert_eq!(sg.push(-5), Derivatives::default());
-        assert_eq!(sg.push(-5), Derivatives::default());
+        assert_eq!(sg.push(bits(-5)), Derivatives::default());
+        assert_eq!(sg.push(bits(-5)), Derivatives::default());
     }
 
     #[test]

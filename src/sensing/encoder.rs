@@ -43,9 +43,12 @@ use crate::units::{AdcCode, ADC_FULL_SCALE};
 
 /// Fractional bits of position per encoder period: LSB = λ/2²⁰.
 pub const POSITION_FRAC_BITS: u32 = 20;
+const _: () = assert!(PositionCounts::FRAC_NBITS == POSITION_FRAC_BITS);
 
-/// Position along the axis in encoder counts of λ/2²⁰ (≈ 22.9 nm at λ = 24 mm), wrapping.
-pub type PositionCounts = i32;
+/// Position along the axis in encoder periods, Q12.20 (`fixed`'s `I12F20`: 12 integer bits of
+/// periods, 20 fractional; LSB λ/2²⁰ ≈ 22.9 nm at λ = 24 mm), wrapping. The raw count is
+/// [`fixed::FixedI32::to_bits`]; [`EncoderConfig::metres`] converts to metres.
+pub type PositionCounts = fixed::types::I12F20;
 
 /// Nominal amplitude of the encoder signals at the ADC, codes: 1 Vpp (0.5 V amplitude)
 /// scaled to ≈ 80 % of the 3.3 V range by the analog front end.
@@ -329,6 +332,12 @@ impl EncoderConfig {
     pub fn m_per_count(&self) -> f32 {
         self.period_m / (1u32 << POSITION_FRAC_BITS) as f32
     }
+
+    /// A position in metres from the decoder's start (the count times [`Self::m_per_count`]).
+    #[inline]
+    pub fn metres(&self, position: PositionCounts) -> f32 {
+        position.to_bits() as f32 * self.m_per_count()
+    }
 }
 
 /// One decoded sample.
@@ -357,7 +366,7 @@ impl EncoderReading {
 /// exact whatever the counters read).
 #[inline]
 pub fn difference_counts(master: PositionCounts, slave: PositionCounts) -> i32 {
-    slave.wrapping_sub(master)
+    slave.wrapping_sub(master).to_bits()
 }
 
 /// Decoder state of one sin/cos encoder.
@@ -542,10 +551,11 @@ impl SinCosDecoder {
         }
 
         EncoderReading {
-            position: self
-                .periods
-                .wrapping_shl(POSITION_FRAC_BITS)
-                .wrapping_add((self.angle >> (32 - POSITION_FRAC_BITS)) as i32),
+            position: PositionCounts::from_bits(
+                self.periods
+                    .wrapping_shl(POSITION_FRAC_BITS)
+                    .wrapping_add((self.angle >> (32 - POSITION_FRAC_BITS)) as i32),
+            ),
             angle: self.angle,
             amplitude_squared,
             rejected: !accepted,
@@ -649,7 +659,7 @@ mod tests {
         for i in 0..20_000 {
             let x = 0.001 + i as f32 * 1e-5; // 0.2 m at 10 µm per sample
             let r = dec.update(codes(core::f32::consts::TAU * x / lambda, 1600.0));
-            let est = r.position as f32 * cfg.m_per_count();
+            let est = cfg.metres(r.position);
             worst = worst.max((est - x).abs());
             assert!(!r.signal_fault && !r.rejected);
         }
@@ -667,7 +677,7 @@ mod tests {
             let r = dec.update(codes(theta, 1600.0));
             assert_eq!(r.rejected, i == 100);
             assert!(!r.signal_fault);
-            last = r.position;
+            last = r.position.to_bits();
         }
         let expect = 1.99 / core::f32::consts::TAU * (1u32 << 20) as f32;
         assert!((last as f32 - expect).abs() < 200.0, "{last} vs {expect}");

@@ -1,5 +1,10 @@
 //! What the model-gap proofs share: truth and model files made from the reference machine,
-//! the synthetic runs, and running the workflow on them.
+//! the synthetic runs, running the workflow on them, and the generalisation benchmarks'
+//! one scorer ([`score`]).
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
 
 use hal_sim::gap::{analyse, GapJson, GapOptions};
 use hal_sim::plant::model::{MachineModel, REFERENCE_TOML};
@@ -142,4 +147,289 @@ pub fn show(label: &str, j: &GapJson) {
         ef.join("; "),
         j.warnings
     );
+}
+
+// ---------------------------------------------------------------------------------------
+// The generalisation benchmarks' scorer: both plants written apart from `hal-sim`
+// (`tests/foreign_plant`, `tests/independent_plant`) are scored by this one code.
+// ---------------------------------------------------------------------------------------
+
+/// What the workflow named on one log: each effect with its parameters, or why the log was
+/// refused or the workflow failed.
+pub type Named = Result<BTreeMap<String, BTreeMap<String, f64>>, String>;
+
+/// Runs the workflow on a generated log (CSV text) and its nominal model exactly as
+/// `fpc-sim gap` takes them: `RunLog::parse`, then `gap::analyse` with the default options.
+pub fn name_effects(csv: &str, model_toml: &str) -> Named {
+    RunLog::parse(csv)
+        .map_err(|e| format!("log refused: {e}"))
+        .and_then(|log| {
+            analyse(model_toml, &log, &GapOptions::default())
+                .map_err(|f| format!("gap failed (exit {}): {}", f.code, f.message))
+        })
+        .map(|out| {
+            out.json
+                .effects
+                .iter()
+                .map(|e| (e.name.clone(), e.params.clone()))
+                .collect()
+        })
+}
+
+/// `each(i)` for `i` in `0..n`, spread over the machine's cores, in order of `i`.
+pub fn par_map<T: Send>(n: usize, each: impl Fn(usize) -> T + Sync) -> Vec<T> {
+    let next = AtomicUsize::new(0);
+    let out = Mutex::new(Vec::with_capacity(n));
+    let workers = std::thread::available_parallelism().map_or(2, |w| w.get());
+    std::thread::scope(|s| {
+        for _ in 0..workers {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                if i >= n {
+                    break;
+                }
+                let r = each(i);
+                out.lock().expect("a worker panicked").push((i, r));
+            });
+        }
+    });
+    let mut v = out.into_inner().expect("a worker panicked");
+    v.sort_by_key(|(i, _)| *i);
+    v.into_iter().map(|(_, r)| r).collect()
+}
+
+/// How far a named parameter lies from the hidden truth.
+#[derive(Clone, Debug)]
+pub struct ParamError {
+    /// The parameter and its unit, as the table prints it (`"cogging period, %"`).
+    pub what: &'static str,
+    /// The error, in that unit.
+    pub error: f64,
+    /// Its tolerance, in the same unit.
+    pub tolerance: f64,
+    /// Truth and finding, for the list of cases outside.
+    pub detail: String,
+}
+
+/// One case of a benchmark, scored.
+#[derive(Clone, Debug)]
+pub struct BenchCase {
+    /// Names the case in the lists (index, seed, rate, chambers, stroke…).
+    pub label: String,
+    /// The group of the breakdown of exact answers (rate and chambers).
+    pub group: String,
+    /// The effects hidden in the log.
+    pub hidden: BTreeSet<String>,
+    /// What the workflow named.
+    pub named: Named,
+    /// The parameter errors of the hidden effects the workflow named.
+    pub params: Vec<ParamError>,
+    /// Generating and analysing the log, s.
+    pub seconds: f64,
+}
+
+impl BenchCase {
+    /// Whether exactly the hidden effects were named.
+    pub fn exact(&self) -> bool {
+        self.named
+            .as_ref()
+            .is_ok_and(|n| n.keys().eq(self.hidden.iter()))
+    }
+}
+
+/// How the named parameters are held to their tolerances.
+#[derive(Clone, Copy, Debug)]
+pub enum ParamRule {
+    /// Every case within its tolerance.
+    Every,
+    /// At least `within_percent` of the cases within their tolerance, none further off than
+    /// `gross_factor` tolerances.
+    Share {
+        /// Share within, %.
+        within_percent: f64,
+        /// Largest error, in tolerances.
+        gross_factor: f64,
+    },
+}
+
+/// The acceptance of a benchmark (issue #13).
+#[derive(Clone, Copy, Debug)]
+pub struct Acceptance {
+    /// Least recall of every effect, %.
+    pub min_recall_percent: f64,
+    /// Most null logs with anything named, %.
+    pub max_false_alarm_percent: f64,
+    /// Most logs with an effect named that was not hidden, %.
+    pub max_wrong_extra_percent: f64,
+    /// The parameters' rule.
+    pub params: ParamRule,
+}
+
+fn percent(n: usize, d: usize) -> f64 {
+    if d == 0 {
+        100.0
+    } else {
+        100.0 * n as f64 / d as f64
+    }
+}
+
+/// Prints the benchmark's table — recall per effect, false alarms on null logs, logs with a
+/// wrong extra effect, logs refused, parameter errors, exact answers by group, every case
+/// not named exactly right — and returns the acceptance thresholds it misses (a log the
+/// workflow refuses or fails on is always one).
+pub fn score(title: &str, cases: &[BenchCase], acc: &Acceptance) -> Vec<String> {
+    let mut misses = vec![];
+    let n = cases.len();
+    let secs: Vec<f64> = cases.iter().map(|c| c.seconds).collect();
+    println!(
+        "\n{title}: {n} cases; {:.2} s per case (generate and analyse), worst {:.2} s",
+        secs.iter().sum::<f64>() / n.max(1) as f64,
+        secs.iter().copied().fold(0.0, f64::max)
+    );
+
+    let effects: BTreeSet<&String> = cases.iter().flat_map(|c| &c.hidden).collect();
+    println!(
+        "\n{:<22} {:>6} {:>6} {:>8}",
+        "effect", "hidden", "named", "recall"
+    );
+    for e in effects {
+        let with: Vec<&BenchCase> = cases.iter().filter(|c| c.hidden.contains(e)).collect();
+        let hit = with
+            .iter()
+            .filter(|c| c.named.as_ref().is_ok_and(|n| n.contains_key(e)))
+            .count();
+        let recall = percent(hit, with.len());
+        println!("{e:<22} {:>6} {hit:>6} {recall:>7.1}%", with.len());
+        if recall < acc.min_recall_percent {
+            misses.push(format!(
+                "recall of {e} {recall:.1} % < {} %",
+                acc.min_recall_percent
+            ));
+        }
+    }
+
+    let nulls: Vec<&BenchCase> = cases.iter().filter(|c| c.hidden.is_empty()).collect();
+    let alarms = nulls
+        .iter()
+        .filter(|c| c.named.as_ref().map_or(true, |n| !n.is_empty()))
+        .count();
+    let fa = percent(alarms, nulls.len());
+    println!(
+        "\nfalse alarms on null logs: {alarms} of {} ({fa:.1} %)",
+        nulls.len()
+    );
+    if !nulls.is_empty() && fa > acc.max_false_alarm_percent {
+        misses.push(format!(
+            "false alarms {fa:.1} % > {} %",
+            acc.max_false_alarm_percent
+        ));
+    }
+    let extra = |c: &BenchCase| {
+        c.named
+            .as_ref()
+            .is_ok_and(|n| n.keys().any(|k| !c.hidden.contains(k)))
+    };
+    let extras = cases.iter().filter(|c| extra(c)).count();
+    let we = percent(extras, n);
+    println!("wrong extra effects: {extras} of {n} logs ({we:.1} %)");
+    if we > acc.max_wrong_extra_percent {
+        misses.push(format!(
+            "wrong extras {we:.1} % > {} %",
+            acc.max_wrong_extra_percent
+        ));
+    }
+    let refused = cases.iter().filter(|c| c.named.is_err()).count();
+    println!("logs refused or failed: {refused}");
+    if refused > 0 {
+        misses.push(format!("{refused} logs refused or failed"));
+    }
+    let mut extra_names: BTreeMap<&String, usize> = BTreeMap::new();
+    for c in cases {
+        if let Ok(named) = &c.named {
+            for k in named.keys().filter(|k| !c.hidden.contains(*k)) {
+                *extra_names.entry(k).or_default() += 1;
+            }
+        }
+    }
+    if !extra_names.is_empty() {
+        println!("named without being hidden: {extra_names:?}");
+    }
+
+    println!(
+        "\n{:<24} {:>5} {:>10} {:>10} {:>10} {:>9}",
+        "parameter", "n", "median", "worst", "tolerance", "within"
+    );
+    let mut kinds: Vec<&'static str> = cases
+        .iter()
+        .flat_map(|c| c.params.iter().map(|p| p.what))
+        .collect();
+    kinds.sort_unstable();
+    kinds.dedup();
+    for what in kinds {
+        let errs: Vec<(&BenchCase, &ParamError)> = cases
+            .iter()
+            .flat_map(|c| {
+                c.params
+                    .iter()
+                    .filter(|p| p.what == what)
+                    .map(move |p| (c, p))
+            })
+            .collect();
+        let mut sorted: Vec<f64> = errs.iter().map(|(_, p)| p.error).collect();
+        sorted.sort_by(f64::total_cmp);
+        let tol = errs.first().map_or(0.0, |(_, p)| p.tolerance);
+        let within = errs.iter().filter(|(_, p)| p.error <= p.tolerance).count();
+        let worst = sorted.last().copied().unwrap_or(0.0);
+        println!(
+            "{what:<24} {:>5} {:>10.3} {worst:>10.3} {tol:>10.3} {:>8.1}%",
+            sorted.len(),
+            sorted[sorted.len() / 2],
+            percent(within, sorted.len())
+        );
+        let outside: Vec<String> = errs
+            .iter()
+            .filter(|(_, p)| p.error > p.tolerance)
+            .map(|(c, p)| format!("{} ({})", c.label, p.detail))
+            .collect();
+        if !outside.is_empty() {
+            println!("  outside ±{tol}: {}", outside.join(", "));
+        }
+        let missed = match acc.params {
+            ParamRule::Every => !outside.is_empty(),
+            ParamRule::Share {
+                within_percent,
+                gross_factor,
+            } => {
+                percent(within, sorted.len()) < within_percent
+                    || errs
+                        .iter()
+                        .any(|(_, p)| p.error > gross_factor * p.tolerance)
+            }
+        };
+        if missed {
+            misses.push(format!(
+                "{what}: {} outside ±{tol} (worst {worst:.3}): {}",
+                outside.len(),
+                outside.join(", ")
+            ));
+        }
+    }
+
+    println!("\nexactly right (named = hidden), by group:");
+    let groups: BTreeSet<&String> = cases.iter().map(|c| &c.group).collect();
+    for g in groups {
+        let group: Vec<&BenchCase> = cases.iter().filter(|c| &c.group == g).collect();
+        let exact = group.iter().filter(|c| c.exact()).count();
+        println!("  {g:<20} {exact:>4} of {:>4}", group.len());
+    }
+    let wrong: Vec<&BenchCase> = cases.iter().filter(|c| !c.exact()).collect();
+    println!("\ncases not named exactly right: {} of {n}", wrong.len());
+    for c in wrong {
+        let named = match &c.named {
+            Ok(names) => format!("{:?}", names.keys().collect::<Vec<_>>()),
+            Err(e) => e.clone(),
+        };
+        println!("  {}: hidden {:?}, named {named}", c.label, c.hidden);
+    }
+    misses
 }

@@ -40,7 +40,9 @@ use fpc::physics::motor::{inverse_clarke, inverse_park, Dq};
 use fpc::ports::{EncoderCodes, PhaseCurrentCodes, PressureCodes, SinCosCodes};
 use fpc::real::Real;
 use fpc::sensing::differentiator::{SavitzkyGolay, SgConfig};
-use fpc::sensing::encoder::{EncoderReading, SinCosDecoder, NOMINAL_AMPLITUDE_CODES};
+use fpc::sensing::encoder::{
+    EncoderReading, PositionCounts, SinCosDecoder, NOMINAL_AMPLITUDE_CODES,
+};
 use fpc::sensing::pressure::PressureCalibration;
 use fpc::shared::Shared;
 use fpc::status::{ModeKind, Status};
@@ -614,7 +616,7 @@ struct Sample {
     /// Encoder channels.
     codes: SinCosCodes,
     /// Position, counts (what the differentiator is fed).
-    position: i32,
+    position: PositionCounts,
     /// Electrical angle, 2³² = one period.
     angle: u32,
     /// Velocity, m/s.
@@ -644,7 +646,7 @@ impl Sample {
                 sin: code(NOMINAL_AMPLITUDE_CODES * sin, 1.0),
                 cos: code(NOMINAL_AMPLITUDE_CODES * cos, 1.0),
             },
-            position: (x_m / encoder.m_per_count()) as i32,
+            position: PositionCounts::from_bits((x_m / encoder.m_per_count()) as i32),
             angle: (periods * 4_294_967_296.0) as i64 as u32,
             velocity_mps,
             currents: amps.map(|a| code(a / config.current_sense.master.a_per_code, 3.0)),

@@ -1,23 +1,17 @@
-//! The simulated board's RTT channels as the firmware's tasks see them, and the decoding of
-//! a telemetry capture (from the simulator or from the rig's RTT channel) into a run log.
+//! A telemetry capture and its decoding (from the simulator or from the rig's RTT channel)
+//! into a run log.
 //!
-//! The tasks write the up-channels and read the down-channel in the board's RAM
-//! ([`crate::board::ram`]), exactly where the firmware's `rtt_init!` puts them; a host reads
-//! them there through the RTT transport (`link::rtt`), as a probe does. A run with
-//! telemetry on has such a host drain the telemetry channel every control period into
-//! [`TelemetryCapture::bytes`] (the `run` module). The bytes are exactly what the board would
-//! send, so `fpc-sim decode` reads both alike.
+//! A run with telemetry on has a host drain the board's telemetry channel
+//! ([`crate::board::channels`]) every control period into [`TelemetryCapture::bytes`] (the
+//! `run` module). The bytes are exactly what the board would send, so `fpc-sim decode` reads
+//! both alike.
 
-use fpc::link::channels::{DOWN_COMMANDS, UP_TELEMETRY};
+use crate::runlog::RunLog;
 use fpc::link::frame::LinkStats;
 use fpc::link::telemetry::{
     ChannelSet, Frame, Ports, TelemetryDecoder, CHANNELS, CONTROL_PERIOD_US, FORCE_DELAY_PERIODS,
     LAYOUT, THETA_SOURCE,
 };
-use fpc::ports::{ByteSource, FrameSink};
-
-use crate::board::world::WorldRef;
-use crate::runlog::RunLog;
 
 /// Telemetry of a simulated run: the rate it was asked for and the bytes a host read.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -27,50 +21,6 @@ pub struct TelemetryCapture {
     pub decimation: u16,
     /// Everything the host read from the telemetry up-channel.
     pub bytes: Vec<u8>,
-}
-
-/// An RTT up-channel of the simulated board, as the firmware's task writes it: into the
-/// board's RAM, whole or not at all (the firmware's `write_or_skip`).
-pub struct SimUpChannel {
-    world: WorldRef,
-    channel: usize,
-}
-
-impl FrameSink for SimUpChannel {
-    fn write(&mut self, bytes: &[u8]) -> usize {
-        self.world.borrow_mut().ram.write_up(self.channel, bytes)
-    }
-}
-
-/// Up-channel `channel` of `world`'s board.
-pub fn up_channel(world: &WorldRef, channel: usize) -> SimUpChannel {
-    SimUpChannel {
-        world: world.clone(),
-        channel,
-    }
-}
-
-/// The telemetry up-channel of `world`'s board.
-pub fn telemetry_sink(world: &WorldRef) -> SimUpChannel {
-    up_channel(world, UP_TELEMETRY)
-}
-
-/// The command down-channel of the simulated board, as the firmware's command task reads it.
-pub struct SimCommandChannel {
-    world: WorldRef,
-}
-
-impl ByteSource for SimCommandChannel {
-    fn read(&mut self, buf: &mut [u8]) -> usize {
-        self.world.borrow_mut().ram.read_down(DOWN_COMMANDS, buf)
-    }
-}
-
-/// The command down-channel of `world`'s board.
-pub fn command_channel(world: &WorldRef) -> SimCommandChannel {
-    SimCommandChannel {
-        world: world.clone(),
-    }
 }
 
 /// Columns of a decoded capture carrying `channels`: `t_s`, the channels in run-log order

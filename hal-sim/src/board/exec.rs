@@ -34,7 +34,7 @@ use fpc::tasks::{command_run, control_run, supervision_run, telemetry_run};
 
 use crate::board::flash::SimFlash;
 
-use crate::board::capture::{command_channel, telemetry_sink, up_channel};
+use crate::board::channels::{command_channel, telemetry_sink, up_channel};
 use crate::board::world::{
     clock, cycle, event_log, peripherals, watchdog, SimCycle, SimPeripherals, World, WorldRef,
 };

@@ -3,14 +3,18 @@
 //! Simulated time, the sampling burst and the latched outputs behind the port traits
 //! ([`world`]), the sensor models ([`sensors`]) and their faults ([`corruption`]), the
 //! executor that polls the firmware's tasks in lock-step with simulated time ([`exec`]), the
-//! telemetry capture ([`capture`]), the calibration's NOR flash with an injectable power cut
-//! ([`flash`]), and the RAM a probe reads, with the firmware's RTT channels ([`ram`]). It drives the [`crate::plant::dynamics`]; it knows neither the
-//! fault injector nor the runner.
+//! RTT channels the tasks write and read ([`channels`]), the telemetry capture
+//! ([`capture`]), the calibration's NOR flash with an injectable power cut
+//! ([`flash`]), the RAM a probe reads, with the firmware's RTT channels ([`ram`]), and
+//! in-memory ports for running one task body alone ([`loopback`]). It drives the
+//! [`crate::plant::dynamics`]; it knows neither the fault injector nor the runner.
 
 pub mod capture;
+pub mod channels;
 pub mod corruption;
 pub mod exec;
 pub mod flash;
+pub mod loopback;
 pub mod ram;
 pub mod sensors;
 pub mod world;

@@ -3,7 +3,8 @@
 //!
 //! Time advances only in [`World::advance`], one control period at a time, so a run is
 //! deterministic: the same seed gives the same samples bit for bit. What the sensors make of
-//! the plant (errors, noise, lag, quantisation) is [`crate::board::sensors`].
+//! the plant (errors, noise, lag, quantisation) is [`crate::board::sensors`], after the laws
+//! of [`crate::plant::sensing`].
 //!
 //! # When the duties act (the board's timers, RM0440 §29.3)
 //! The burst is sampled at the PWM counter peak that starts period k (TIM1's OC4REF, one
@@ -37,10 +38,12 @@ use fpc::ports::{
 use fpc::units::{DacCode, Duty, PerSection, PhaseDuties, Section, Ticks, CONTROL_PERIOD_US};
 
 pub use crate::board::sensors::Sensors;
-use crate::board::sensors::{adc, EncoderModel, Noise, PRESSURE_CHANNELS};
+use crate::board::sensors::{adc, EncoderModel};
 use crate::plant::dynamics::{Drive, Plant, PlantParams};
 use crate::plant::fastmath::{floor_i64, sin_cos};
 use crate::plant::model::MachineModel;
+use crate::plant::noise::Noise;
+use crate::plant::sensing::{FirstOrderLag, PRESSURE_CHANNELS};
 
 /// Everything the simulated board holds.
 #[derive(Clone)]
@@ -79,8 +82,8 @@ pub struct World {
     noise: Noise,
     /// The pressure sensors' lagged readings, Pa (A, B, suction, discharge).
     pressure_lagged_pa: [f64; PRESSURE_CHANNELS],
-    /// Per-period factor of the pressure sensors' first-order lag.
-    pressure_alpha: f64,
+    /// The pressure sensors' first-order lag, stepped once a period.
+    pressure_lag: FirstOrderLag,
 }
 
 #[derive(Clone, Copy, Debug, Default)]
@@ -95,12 +98,7 @@ impl World {
     /// A world at simulated time zero (the time base reads `start_us`, to exercise its wrap).
     pub fn new(plant: Plant, sensors: Sensors, seed: u64, start_us: u32) -> Self {
         let period_s = f64::from(CONTROL_PERIOD_US) * 1e-6;
-        let tau = sensors.pressure.time_constant_s;
-        let pressure_alpha = if tau > 0.0 {
-            1.0 - (-period_s / tau).exp()
-        } else {
-            1.0
-        };
+        let pressure_lag = sensors.pressure.sensor.lag(period_s);
         let mut w = World {
             pressure_lagged_pa: true_pressures(&plant),
             plant,
@@ -123,7 +121,7 @@ impl World {
             telemetry: Default::default(),
             ram: crate::board::ram::SimRam::new(),
             noise: Noise::new(seed),
-            pressure_alpha,
+            pressure_lag,
         };
         w.sample();
         w
@@ -224,8 +222,8 @@ impl World {
         let noise = &mut self.noise;
         let x = plant.x_m;
         let encoder = |m: &EncoderModel, (sin, cos): (f64, f64), noise: &mut Noise| SinCosCodes {
-            sin: adc(sin + noise.scaled(m.noise_codes)),
-            cos: adc(cos + noise.scaled(m.noise_codes)),
+            sin: adc(sin + noise.scaled(m.noise_codes())),
+            cos: adc(cos + noise.scaled(m.noise_codes())),
         };
         let (em, es) = (&s.encoder_master, &s.encoder_slave);
         let th = em.angle_rad(x);
@@ -236,21 +234,22 @@ impl World {
             _ => sin_cos(th),
         };
         let master = encoder(em, em.signals_at(th, sin_cos_th), noise);
-        let slave_signals = match s.slave_pitch_error {
+        let slave_signals = match &s.slave_pitch_error {
             // Same scale, same position: the same angle (one sin/cos for both).
             None if es.period_m == em.period_m => es.signals_at(th, sin_cos_th),
             None => es.signals(x),
-            Some(e) => es.signals(e.read_moving_m(x, plant.v_mps)),
+            Some(e) => es.signals(e.reading_m(x, plant.v_mps)),
         };
         let slave = encoder(es, slave_signals, noise);
 
         let codes_per_a = 1.0 / f64::from(s.current.a_per_code);
         let mut current = |section: Section| {
-            let offsets = s.current_offset_a.get(section);
+            let offsets = s.current_offsets_a(section);
             let i = plant.phase_currents(section);
             let mut codes = [adc(0.0); 3];
             for ((code, a), off) in codes.iter_mut().zip(i).zip(offsets) {
-                *code = adc(2048.0 + (a + off + noise.scaled(s.current_noise_a)) * codes_per_a);
+                *code =
+                    adc(2048.0 + (a + off + noise.scaled(s.current_sensor.noise_a)) * codes_per_a);
             }
             codes
         };
@@ -269,11 +268,10 @@ impl World {
             .iter_mut()
             .zip(self.pressure_lagged_pa.iter_mut())
             .zip(truth)
-            .zip(p.offset_pa)
+            .zip(p.sensor.offsets_pa())
         {
-            *lagged += self.pressure_alpha * (t - *lagged);
-            let reading = *lagged + off + noise.scaled(p.noise_pa);
-            *code = p.calibration.code_for(reading as f32);
+            self.pressure_lag.step(lagged, t);
+            *code = p.code(*lagged, off, noise);
         }
         let [chamber_a, chamber_b, suction, discharge] = codes;
         self.burst = Burst {

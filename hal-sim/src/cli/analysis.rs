@@ -1,5 +1,6 @@
 //! What the log-analysis subcommands (`decode`, `lag`, `filters`, `forces`, `energy`, `pv`)
-//! share: reading the run log and the model with the exit codes of `formats.md`, looking up
+//! share: reading the run log and the model with the exit codes of `formats.md` (and the
+//! force balance along it, [`crate::balance`], for `forces` and `energy`), looking up
 //! columns, the output directory, and progress bars.
 
 use std::io::IsTerminal;
@@ -7,6 +8,7 @@ use std::path::Path;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
+use crate::balance::{force_balance, read_measured, ForceBalance};
 use crate::failure::Failure;
 use crate::output::OutDir;
 use crate::plant::model::MachineModel;
@@ -247,4 +249,30 @@ pub fn interior(len: usize, dt: f64) -> std::ops::Range<usize> {
     } else {
         0..len
     }
+}
+
+/// The samples of `v` in `range`, N → kN (empty where the range is out of the data).
+pub fn kilonewtons(v: &[f64], range: std::ops::Range<usize>) -> Vec<f64> {
+    v.get(range)
+        .unwrap_or_default()
+        .iter()
+        .map(|f| f * 1e-3)
+        .collect()
+}
+
+/// The first steps of the force plots (`forces`, `energy`): the log and the model read, the
+/// log's sample time, and the force balance ([`force_balance`]) under the zero-phase filter.
+pub fn read_force_balance(
+    io: &LogToolArgs,
+    filter: &ZeroPhaseArgs,
+    steps: &Steps,
+) -> Result<(RunLog, MachineModel, f64, ForceBalance), Failure> {
+    let log = read_log(&io.measured)?;
+    let model = read_model(io.model.as_deref())?;
+    let dt = sample_time_s(&log)?;
+    steps.next("filtering");
+    let data = read_measured(&log, &model)
+        .map_err(|e| Failure::bad_input(format!("{}: {e}", io.measured.display())))?;
+    let fb = force_balance(&data, &model, &filter.sections(dt)?)?;
+    Ok((log, model, dt, fb))
 }

@@ -18,6 +18,7 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 use fpc::control::config::ControlConfig;
 use fpc::sensing::differentiator::{Derivatives, SavitzkyGolay, SgConfig};
+use fpc::sensing::encoder::PositionCounts;
 
 use crate::failure::{CmdResult, Failure};
 use crate::runlog::RunLog;
@@ -160,7 +161,7 @@ pub fn derive(x_m: &[f64], sample_time_s: f64, s: Settings) -> Result<Derived, S
         let mut sg = make(lag)?;
         let mut d = Derivatives::default();
         for &c in window {
-            d = sg.push(c);
+            d = sg.push(PositionCounts::from_bits(c));
         }
         Ok(d)
     };
@@ -170,7 +171,7 @@ pub fn derive(x_m: &[f64], sample_time_s: f64, s: Settings) -> Result<Derived, S
     // Interior: the window ending at i estimates row i − lag.
     let mut sg = make(s.lag)?;
     for (i, &c) in counts.iter().enumerate() {
-        let d = sg.push(c);
+        let d = sg.push(PositionCounts::from_bits(c));
         if i + 1 >= n {
             if let Some(o) = out.get_mut(i - s.lag) {
                 *o = d;

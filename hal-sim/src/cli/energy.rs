@@ -1,20 +1,12 @@
 //! `fpc-sim energy` (the paper's Fig. 9): where the motor's work goes along one stroke —
 //! into the gas, into friction, and into the piston's inertia (stored while accelerating,
-//! given back while decelerating).
-//!
-//! Works are `∫F dx` along the stroke (trapezoid rule on the logged position):
-//! motor `F_master + F_slave`, gas `(p_a − p_b)·A_eff` (work done *on* the piston; negative
-//! while it compresses), friction `F_fr(v)` (dissipated, positive) and inertia `m·a`
-//! (= the change of kinetic energy). Their balance `W_motor + W_gas − W_fr − W_inertia`
-//! measures how well the log and the model agree.
-
-use std::ops::Range;
+//! given back while decelerating). The works and their balance are
+//! [`crate::balance::stroke_energy`]'s, of the force balance `fpc-sim forces` plots.
 
 use clap::Args;
-use serde::Serialize;
 
-use crate::cli::analysis::{LogToolArgs, Steps, ZeroPhaseArgs};
-use crate::cli::forces::{kilonewtons, read_force_balance, ForceBalance};
+use crate::balance::{stroke_energy, work};
+use crate::cli::analysis::{kilonewtons, read_force_balance, LogToolArgs, Steps, ZeroPhaseArgs};
 use crate::console::Num;
 use crate::failure::{CmdResult, Failure};
 use crate::outln;
@@ -33,71 +25,6 @@ pub struct EnergyArgs {
     #[command(flatten)]
     #[allow(missing_docs)]
     pub filter: ZeroPhaseArgs,
-}
-
-/// The works of one stroke, J.
-#[derive(Clone, Debug, Serialize, PartialEq)]
-pub struct StrokeEnergy {
-    /// Where the stroke starts and ends, m.
-    pub from_m: f64,
-    /// End of the stroke, m.
-    pub to_m: f64,
-    /// Work of both motor sections.
-    pub motor_j: f64,
-    /// Motor work until the peak speed (acceleration).
-    pub motor_accelerating_j: f64,
-    /// Motor work after the peak speed (deceleration; negative: the motor brakes).
-    pub motor_decelerating_j: f64,
-    /// Work done on the piston by the gas.
-    pub gas_j: f64,
-    /// Work dissipated by friction.
-    pub friction_j: f64,
-    /// Work into inertia over the stroke (kinetic energy at the end minus at the start).
-    pub inertia_j: f64,
-    /// Kinetic energy at the peak speed: what inertia stores and gives back.
-    pub peak_kinetic_j: f64,
-    /// `motor + gas − friction − inertia`: zero when log and model agree.
-    pub balance_j: f64,
-}
-
-/// `∫ f dx` over `r` (trapezoid rule).
-fn work(f: &[f64], x: &[f64], r: &Range<usize>) -> f64 {
-    let f = f.get(r.clone()).unwrap_or_default();
-    let x = x.get(r.clone()).unwrap_or_default();
-    f.windows(2)
-        .zip(x.windows(2))
-        .map(|(f, x)| 0.5 * (f[0] + f[1]) * (x[1] - x[0]))
-        .sum()
-}
-
-/// The works of stroke `r` of a force balance, for a piston of `mass_kg`.
-pub fn stroke_energy(fb: &ForceBalance, r: &Range<usize>, mass_kg: f64) -> StrokeEnergy {
-    let x = &fb.x_m;
-    let peak_at = r
-        .clone()
-        .max_by(|&a, &b| {
-            let va = fb.v_mps.get(a).map_or(0.0, |v| v.abs());
-            let vb = fb.v_mps.get(b).map_or(0.0, |v| v.abs());
-            va.total_cmp(&vb)
-        })
-        .unwrap_or(r.start);
-    let v_peak = fb.v_mps.get(peak_at).copied().unwrap_or(0.0);
-    let motor_j = work(&fb.motor_n, x, r);
-    let gas_j = work(&fb.gas_n, x, r);
-    let friction_j = work(&fb.friction_n, x, r);
-    let inertia_j = work(&fb.inertia_filtered_n, x, r);
-    StrokeEnergy {
-        from_m: x.get(r.start).copied().unwrap_or(0.0),
-        to_m: x.get(r.end.saturating_sub(1)).copied().unwrap_or(0.0),
-        motor_j,
-        motor_accelerating_j: work(&fb.motor_n, x, &(r.start..peak_at + 1)),
-        motor_decelerating_j: work(&fb.motor_n, x, &(peak_at..r.end)),
-        gas_j,
-        friction_j,
-        inertia_j,
-        peak_kinetic_j: 0.5 * mass_kg * v_peak * v_peak,
-        balance_j: motor_j + gas_j - friction_j - inertia_j,
-    }
 }
 
 /// Runs `fpc-sim energy`.
@@ -126,6 +53,7 @@ pub fn main(args: EnergyArgs) -> CmdResult {
         ("inertia m·a", kn(&fb.inertia_filtered_n)),
         ("gas force", kn(&fb.gas_n)),
         ("friction force", kn(&fb.friction_n)),
+        ("cogging force", kn(&fb.cogging_n)),
     ];
     let path = out.path("energy.svg");
     curves(
@@ -150,6 +78,7 @@ pub fn main(args: EnergyArgs) -> CmdResult {
         ),
         ("gas work on the piston", cumulative(&fb.gas_n)),
         ("friction work", cumulative(&fb.friction_n)),
+        ("cogging work on the piston", cumulative(&fb.cogging_n)),
     ];
     let work_path = out.path("energy_work.svg");
     curves(
@@ -171,11 +100,12 @@ pub fn main(args: EnergyArgs) -> CmdResult {
         Num(r.len() as f64 * dt)
     )?;
     outln!(
-        "motor {:.2} J (accelerating {:.2} J, decelerating {:.2} J), gas {:.2} J, friction {:.2} J",
+        "motor {:.2} J (accelerating {:.2} J, decelerating {:.2} J), gas {:.2} J, cogging {:.2} J, friction {:.2} J",
         Num(e.motor_j),
         Num(e.motor_accelerating_j),
         Num(e.motor_decelerating_j),
         Num(e.gas_j),
+        Num(e.cogging_j),
         Num(e.friction_j)
     )?;
     outln!(

@@ -178,6 +178,7 @@ mod tests {
         // Push an impulse of one count through the firmware's own filter (centred): its
         // outputs are the weights times metres per count.
         use fpc::sensing::differentiator::{SavitzkyGolay, SgConfig};
+        use fpc::sensing::encoder::PositionCounts;
         let (n, dt, mpc) = (41usize, 50e-6, 1e-6f32);
         let mut sg = SavitzkyGolay::new(SgConfig {
             window: n,
@@ -189,7 +190,10 @@ mod tests {
         .unwrap();
         let mut out = Vec::new();
         for i in 0..2 * n {
-            out.push(sg.push(i32::from(i == n)).acceleration_mps2);
+            out.push(
+                sg.push(PositionCounts::from_bits(i32::from(i == n)))
+                    .acceleration_mps2,
+            );
         }
         let w = sg_weights(n, 2, 2, dt).unwrap();
         // Output k (k ≥ n) sees the impulse at window position 2n − 1 − k … as a dot product

@@ -187,6 +187,16 @@ impl Measured {
     /// Reads what the workflow needs from a validated log; `encoder_period_m` scales the
     /// firmware differentiator's counts. The error names the metadata key or column.
     pub fn from_log(log: &RunLog, encoder_period_m: f64) -> Result<Self, String> {
+        Self::from_log_down_to(log, encoder_period_m, MIN_SAMPLE_RATE_HZ)
+    }
+
+    /// [`Measured::from_log`] for a log sampled at `min_rate_hz` or faster (the plots of
+    /// `fpc-sim forces` and `energy` read slower logs than the workflow fits).
+    pub fn from_log_down_to(
+        log: &RunLog,
+        encoder_period_m: f64,
+        min_rate_hz: f64,
+    ) -> Result<Self, String> {
         let col = |name: &str| -> Result<Vec<f64>, String> {
             log.column(name)
                 .map(<[f64]>::to_vec)
@@ -219,10 +229,10 @@ impl Measured {
             ));
         }
         let rate = 1.0 / dt_s;
-        if !(MIN_SAMPLE_RATE_HZ..=MAX_SAMPLE_RATE_HZ).contains(&rate) {
+        if !(min_rate_hz..=MAX_SAMPLE_RATE_HZ).contains(&rate) {
             return Err(format!(
                 "column `t_s`: sample rate {rate:.6e} Hz; the workflow analyses logs sampled at \
-                 {MIN_SAMPLE_RATE_HZ} Hz to {MAX_SAMPLE_RATE_HZ:e} Hz"
+                 {min_rate_hz} Hz to {MAX_SAMPLE_RATE_HZ:e} Hz"
             ));
         }
         let ports = match log.meta("ports").map(str::trim) {

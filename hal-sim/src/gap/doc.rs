@@ -3,19 +3,19 @@
 //! the edited document is what gets evaluated and written — so `DIR/model.toml` is exactly
 //! the model the "after" figures were computed with.
 
-use crate::plant::model::MachineModel;
+use crate::plant::model::{Key, MachineModel, SectionKey};
 
-/// One change to the model document.
+/// One change to the model document, its keys typed ([`crate::plant::model::model_key!`]).
 #[derive(Clone, Debug, PartialEq)]
 pub enum Edit {
-    /// Sets `section.key` (section a dotted path such as `effects.cogging`) to a number.
-    Set(&'static str, &'static str, f64),
-    /// Sets `section.key` to a boolean.
-    SetBool(&'static str, &'static str, bool),
-    /// Removes `section.key`.
-    RemoveKey(&'static str, &'static str),
+    /// Sets a key to a number.
+    Set(Key, f64),
+    /// Sets a key to a boolean.
+    SetBool(Key, bool),
+    /// Removes a key.
+    RemoveKey(Key),
     /// Removes a whole section.
-    RemoveSection(&'static str),
+    RemoveSection(SectionKey),
 }
 
 /// A model file as an editable TOML table.
@@ -42,15 +42,15 @@ impl ModelDoc {
         MachineModel::parse(&self.to_text()?).map_err(|e| e.0)
     }
 
-    /// A number at `section.key`, if present.
-    pub fn number(&self, section: &str, key: &str) -> Option<f64> {
-        let v = self.section(section)?.get(key)?;
+    /// The number at `key`, if present.
+    pub fn number(&self, key: Key) -> Option<f64> {
+        let v = self.section(key.section)?.get(key.name)?;
         v.as_float().or_else(|| v.as_integer().map(|i| i as f64))
     }
 
     /// Whether the section exists.
-    pub fn has_section(&self, section: &str) -> bool {
-        self.section(section).is_some()
+    pub fn has_section(&self, section: SectionKey) -> bool {
+        self.section(section.0).is_some()
     }
 
     fn section(&self, path: &str) -> Option<&toml::Table> {
@@ -74,24 +74,24 @@ impl ModelDoc {
         let mut d = self.clone();
         for e in edits {
             match e {
-                Edit::Set(s, k, v) => {
-                    if let Some(t) = d.section_mut(s) {
-                        t.insert(k.to_string(), toml::Value::Float(*v));
+                Edit::Set(k, v) => {
+                    if let Some(t) = d.section_mut(k.section) {
+                        t.insert(k.name.to_string(), toml::Value::Float(*v));
                     }
                 }
-                Edit::SetBool(s, k, v) => {
-                    if let Some(t) = d.section_mut(s) {
-                        t.insert(k.to_string(), toml::Value::Boolean(*v));
+                Edit::SetBool(k, v) => {
+                    if let Some(t) = d.section_mut(k.section) {
+                        t.insert(k.name.to_string(), toml::Value::Boolean(*v));
                     }
                 }
-                Edit::RemoveKey(s, k) => {
-                    if d.section(s).is_some() {
-                        if let Some(t) = d.section_mut(s) {
-                            t.remove(*k);
+                Edit::RemoveKey(k) => {
+                    if d.section(k.section).is_some() {
+                        if let Some(t) = d.section_mut(k.section) {
+                            t.remove(k.name);
                         }
                     }
                 }
-                Edit::RemoveSection(path) => {
+                Edit::RemoveSection(SectionKey(path)) => {
                     let (parent, name) = match path.rsplit_once('.') {
                         Some((p, n)) => (Some(p), n),
                         None => (None, *path),
@@ -114,14 +114,15 @@ impl ModelDoc {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::plant::model::{model_key, model_section};
 
     #[test]
     fn edits_add_replace_and_remove_effects_and_the_result_loads() {
         let doc = ModelDoc::parse(crate::plant::model::REFERENCE_TOML).unwrap();
         let d = doc.with(&[
-            Edit::RemoveSection("effects.cogging"),
-            Edit::Set("effects.slave_lag", "delay_s", 7.5e-4),
-            Edit::Set("piston", "mass_kg", 13.0),
+            Edit::RemoveSection(model_section!(effects.cogging)),
+            Edit::Set(model_key!(effects.slave_lag / delay_s), 7.5e-4),
+            Edit::Set(model_key!(piston / mass_kg), 13.0),
         ]);
         let m = d.model().unwrap();
         assert!(m.effects.cogging.is_none());
@@ -130,10 +131,11 @@ mod tests {
             Some(7.5e-4)
         );
         assert_eq!(m.piston.mass_kg, 13.0);
-        assert_eq!(d.number("piston", "mass_kg"), Some(13.0));
-        assert!(!d.has_section("effects.cogging") && doc.has_section("effects.cogging"));
+        assert_eq!(d.number(model_key!(piston / mass_kg)), Some(13.0));
+        let cogging = model_section!(effects.cogging);
+        assert!(!d.has_section(cogging) && doc.has_section(cogging));
         // A bad value is refused by the model's own validation, naming the key.
-        let bad = doc.with(&[Edit::Set("piston", "mass_kg", -1.0)]);
+        let bad = doc.with(&[Edit::Set(model_key!(piston / mass_kg), -1.0)]);
         assert!(bad.model().unwrap_err().contains("piston.mass_kg"));
     }
 }

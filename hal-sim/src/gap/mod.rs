@@ -32,6 +32,7 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 
 use crate::failure::Failure;
+use crate::plant::model::{model_key, model_section};
 use crate::runlog::RunLog;
 
 use data::Measured;
@@ -186,7 +187,9 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         };
         let augmented = selection
             .doc
-            .with(&[doc::Edit::RemoveSection("effects.actuator_lag")])
+            .with(&[doc::Edit::RemoveSection(model_section!(
+                effects.actuator_lag
+            ))])
             .model()
             .map_err(Failure::runtime)?;
         let Some(next) = align::estimate(&measured, &band, &augmented) else {
@@ -281,7 +284,7 @@ fn effect_rows(ctx: &Ctx<'_>, selection: &Selection) -> Result<Vec<EffectJson>, 
                 .proposal
                 .params
                 .iter()
-                .find(|p| p.0 == "velocity_mps")
+                .find(|p| p.0 == model_key!(effects.stribeck_friction / velocity_mps).name)
                 .map_or(0.02, |p| p.1);
             (
                 Some(low_speed_rms(ctx, &raw_b, vs)),

@@ -8,15 +8,17 @@
 //! | `encoder` | `x_slave − x_master` minus the model's pitch error, judged while moving, mean removed per stretch of motion (a constant offset between the encoders is a zero, not an effect, and homing may set it anew at each standstill) |
 //! | `pressure` | `p_A, p_B` minus the chambers replayed along the measured x(t) (and rotation, with open ports) through the model's chambers and pressure sensors |
 //!
-//! Friction acts against the sliding velocity `(ẋ, ω·r)` of the turning piston, as in the
-//! plant (`plant.rs`): its axial part is `F_fr(|u|)·ẋ/|u|`.
+//! The force balance is the library's ([`fpc::physics::balance`]), as in the plant: friction
+//! acts against the sliding velocity `(ẋ, ω·r)` of the turning piston, its axial part is
+//! `F_fr(|u|)·ẋ/|u|`.
 
-use fpc::physics::friction::FrictionParams;
+use fpc::angle::wrap_rad;
+use fpc::physics::balance::{PistonForces, PistonState};
 
-use crate::board::sensors::PitchError;
 use crate::plant::chambers::{Chambers, Lines, PortMode};
 use crate::plant::dynamics::PlantParams;
 use crate::plant::model::MachineModel;
+use crate::plant::servo::through_play;
 use crate::signal::delayed;
 
 use super::band::{force_kernel, lowpass, sg_weights, Kernel};
@@ -317,23 +319,17 @@ pub fn acting_motor_force_n(data: &Measured, delay_s: f64) -> Vec<f64> {
     shifted(&motors, (delay_s + data.force_align_s) / data.dt_s)
 }
 
-/// Axial friction of the turning piston, N: the law at the sliding speed `|(v, ω·r)|`,
-/// along the axial direction.
-#[inline]
-pub fn axial_friction_n(law: &FrictionParams<f64>, v_mps: f64, tangential_mps: f64) -> f64 {
-    // The plant's own law (fpc::physics::friction), so model and plant can never disagree.
-    law.sliding_secant(v_mps, tangential_mps) * v_mps
-}
-
 /// The tangential sliding speed ω·r at every sample, m/s.
 pub fn tangential_mps(data: &Measured, model: &MachineModel) -> Vec<f64> {
-    let r = 0.5 * model.piston.bore_m;
+    let r = model.friction_radius_m();
     data.omega_rad_s.iter().map(|w| w * r).collect()
 }
 
-/// Everything the model's force terms add up to at every sample, toward +x (motor forces as
-/// they act, gas, cogging, minus friction), N.
-pub fn model_force_n(data: &Measured, model: &MachineModel) -> Vec<f64> {
+/// The forces of the balance on the piston at every sample, by the model's laws
+/// ([`fpc::physics::balance`]): the motor forces as they act (realigned and late by the
+/// model's actuator lag), the gas force of the chambers' true pressures, cogging at x and
+/// friction along the sliding velocity `(ẋ, ω·r)`.
+pub fn force_terms(data: &Measured, model: &MachineModel) -> Vec<PistonForces<f64>> {
     let n = data.len();
     let delay = model
         .effects
@@ -341,36 +337,50 @@ pub fn model_force_n(data: &Measured, model: &MachineModel) -> Vec<f64> {
         .as_ref()
         .map_or(0.0, |l| l.delay_s);
     let acting = acting_motor_force_n(data, delay);
-    let cyl = model.cylinder();
-    let law = model.friction();
-    let cog = model.cogging();
+    let laws = model.piston_laws();
     let tang = tangential_mps(data, model);
     // The gas force acts with the chambers' true pressures: the readings less the model's
     // sensor offsets, with the sensors' first-order lag undone (p = p_read + τ·ṗ_read).
     // Left in, the lag reads as friction (it follows the stroke direction) or as an actuator
     // lag (it follows the force's rate).
     let sensor = &model.sensors.pressure;
-    let tau = sensor.time_constant_s;
     (0..n)
         .map(|i| {
             let g = |v: &[f64]| v.get(i).copied().unwrap_or(0.0);
-            let pa = g(&data.p_a_pa) - sensor.offset_a_pa + tau * g(&data.dp_a_pa_per_s);
-            let pb = g(&data.p_b_pa) - sensor.offset_b_pa + tau * g(&data.dp_b_pa_per_s);
-            let gas = cyl.gas_force_n(pa, pb);
-            let fr = axial_friction_n(&law, g(&data.v_mps), g(&tang));
-            let c = cog.map_or(0.0, |c| c.force_n(g(&data.x_m)));
-            g(&acting) + gas - fr + c
+            laws.forces(&PistonState {
+                x_m: g(&data.x_m),
+                v_mps: g(&data.v_mps),
+                tangential_mps: g(&tang),
+                pressure_a_pa: sensor.true_pressure_pa(
+                    g(&data.p_a_pa),
+                    g(&data.dp_a_pa_per_s),
+                    sensor.offset_a_pa,
+                ),
+                pressure_b_pa: sensor.true_pressure_pa(
+                    g(&data.p_b_pa),
+                    g(&data.dp_b_pa_per_s),
+                    sensor.offset_b_pa,
+                ),
+                motor_n: g(&acting),
+            })
         })
         .collect()
 }
 
-/// The raw force-balance residual `m·Δ²x − ΣF_model`, N.
+/// Everything the model's force terms add up to at every sample, toward +x (motor forces as
+/// they act, gas, cogging, minus friction), N.
+pub fn model_force_n(data: &Measured, model: &MachineModel) -> Vec<f64> {
+    force_terms(data, model).iter().map(|f| f.net_n()).collect()
+}
+
+/// The raw force-balance residual `m·Δ²x − ΣF_model`, N: the force the model does not
+/// explain ([`PistonForces::unexplained_n`]).
 pub fn force_raw(data: &Measured, model: &MachineModel) -> Vec<f64> {
     let m = model.piston.mass_kg;
-    model_force_n(data, model)
-        .into_iter()
+    force_terms(data, model)
+        .iter()
         .zip(&data.d2x_mps2)
-        .map(|(f, a)| m * a - f)
+        .map(|(f, a)| f.unexplained_n(m, *a))
         .collect()
 }
 
@@ -385,10 +395,11 @@ pub fn slave_force_prediction(data: &Measured, model: &MachineModel) -> Vec<f64>
 /// What the model says the slave encoder reads minus the master's, m.
 pub fn encoder_prediction(data: &Measured, model: &MachineModel) -> Vec<f64> {
     match &model.effects.encoder_pitch_error {
-        Some(e) => {
-            let p = PitchError::new(e);
-            data.x_m.iter().map(|&x| p.read_m(x) - x).collect()
-        }
+        Some(e) => data
+            .x_m
+            .iter()
+            .map(|&x| e.reading_at_rest_m(x) - x)
+            .collect(),
         None => vec![0.0; data.len()],
     }
 }
@@ -497,11 +508,7 @@ fn replay_from(
     // The sensors' lag is stepped with the chambers, as the plant steps it every control
     // period: stepped once per sample of a slower log it would lag by τ − dt/2 instead of
     // τ − h/2 (25 µs less on a 10 kHz log, named as leakage at speed).
-    let alpha = if sensor.time_constant_s > 0.0 {
-        1.0 - (-h / sensor.time_constant_s).exp()
-    } else {
-        1.0
-    };
+    let sensor_lag = sensor.lag(h);
     // The angle that times the ports, from the logged one (`# theta_source`): for a servo
     // count, its centre, and the piston carried within the spline's play (a play operator,
     // as the plant's spline; the piston starts centred).
@@ -545,15 +552,15 @@ fn replay_from(
                 let f = k as f64 / substeps as f64;
                 let x = x1 + f * (x2 - x1);
                 let angle = t1 + f * (t2 - t1) + centre;
-                piston = piston.max(angle - half_play).min(angle + half_play);
-                let phase = piston.rem_euclid(tau);
+                piston = through_play(piston, angle, half_play);
+                let phase = wrap_rad(piston);
                 ch.step(x, phase, &lines, mode, h);
-                la += alpha * (ch.a.pressure_pa - la);
-                lb += alpha * (ch.b.pressure_pa - lb);
+                sensor_lag.step(&mut la, ch.a.pressure_pa);
+                sensor_lag.step(&mut lb, ch.b.pressure_pa);
             }
         }
-        pa.push(la + sensor.offset_a_pa);
-        pb.push(lb + sensor.offset_b_pa);
+        pa.push(sensor.reading_pa(la, sensor.offset_a_pa));
+        pb.push(sensor.reading_pa(lb, sensor.offset_b_pa));
     }
     (pa, pb)
 }

@@ -9,14 +9,15 @@
 
 use std::f64::consts::PI;
 
-use crate::board::sensors::{Noise, Sensors};
+use fpc::physics::balance::PistonState;
+use fpc::sensing::pressure::PressureCalibration;
+
 use crate::plant::chambers::PortMode;
 use crate::plant::dynamics::{Plant, PlantParams};
 use crate::plant::kinematic::CycleDrive;
 use crate::plant::model::MachineModel;
+use crate::plant::noise::Noise;
 use crate::runlog::{RunLog, REQUIRED};
-
-use super::residuals::axial_friction_n;
 
 /// Sample time of the synthetic runs, s (the simulator's 20 kHz).
 pub const SAMPLE_TIME_S: f64 = 50e-6;
@@ -160,18 +161,15 @@ fn prescribed(
     let dt = SAMPLE_TIME_S;
     let mut plant = Plant::new(PlantParams::from_model(truth), x0);
     plant.port_mode = mode;
-    let sensors = Sensors::from_model(truth);
-    let ps = &sensors.pressure;
+    // The transducers' laws (plant::sensing) and the firmware's calibration of their codes,
+    // as the simulated board has them.
+    let pressure = &truth.sensors.pressure;
+    let calibration = PressureCalibration::reference();
     let mut noise = Noise::new(seed);
-    let alpha = if ps.time_constant_s > 0.0 {
-        1.0 - (-dt / ps.time_constant_s).exp()
-    } else {
-        1.0
-    };
-    let law = truth.friction();
-    let cyl = truth.cylinder();
-    let cog = truth.cogging();
-    let r = 0.5 * truth.piston.bore_m;
+    let lag = pressure.lag(dt);
+    let offsets = pressure.offsets_pa();
+    let laws = truth.piston_laws();
+    let r = truth.friction_radius_m();
     let mut cols = REQUIRED.to_vec();
     cols.extend(["p_suction_pa", "p_discharge_pa"]);
     let mut log = RunLog::with_columns(&cols);
@@ -206,27 +204,35 @@ fn prescribed(
             plant.advance_kinematic(x, theta, dt);
         }
         let (pa, pb) = (plant.chambers.a.pressure_pa, plant.chambers.b.pressure_pa);
-        let gas = cyl.gas_force_n(pa, pb);
-        let fr = axial_friction_n(&law, v, omega * r);
-        let c = cog.map_or(0.0, |c| c.force_n(x));
-        let now = truth.piston.mass_kg * a - gas + fr - c;
+        // The motor force the prescribed motion needs: the balance inverted.
+        let now = laws
+            .forces(&PistonState {
+                x_m: x,
+                v_mps: v,
+                tangential_mps: omega * r,
+                pressure_a_pa: pa,
+                pressure_b_pa: pb,
+                motor_n: 0.0,
+            })
+            .motor_needed_n(laws.mass_kg, a);
         let motors = reported.replace(now).unwrap_or(now);
-        let mut read = |i: usize, p: f64, off: f64, noise: &mut Noise| {
+        let mut read = |i: usize, p: f64, noise: &mut Noise| {
             let l = lagged.get_mut(i).map_or(p, |l| {
-                *l += alpha * (p - *l);
+                lag.step(l, p);
                 *l
             });
-            let code = ps
-                .calibration
-                .code_for((l + off + noise.scaled(ps.noise_pa)) as f32);
-            f64::from(ps.calibration.convert(code).pressure_pa)
+            let offset = offsets.get(i).copied().unwrap_or(0.0);
+            let code = calibration.code_for(pressure.noisy_reading_pa(l, offset, noise) as f32);
+            f64::from(calibration.convert(code).pressure_pa)
         };
-        let p_a = read(0, pa, ps.offset_pa[0], &mut noise);
-        let p_b = read(1, pb, ps.offset_pa[1], &mut noise);
+        let p_a = read(0, pa, &mut noise);
+        let p_b = read(1, pb, &mut noise);
         let xm = x + noise.scaled(ENCODER_NOISE_M);
-        let x_true_slave = sensors
-            .slave_pitch_error
-            .map_or(x, |e| e.read_moving_m(x, v));
+        let x_true_slave = truth
+            .effects
+            .encoder_pitch_error
+            .as_ref()
+            .map_or(x, |e| e.reading_m(x, v));
         let xs = x_true_slave + noise.scaled(ENCODER_NOISE_M);
         let fm = 0.5 * motors + noise.scaled(FORCE_NOISE_N);
         let fs = 0.5 * motors + noise.scaled(FORCE_NOISE_N);

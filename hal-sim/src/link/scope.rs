@@ -10,8 +10,10 @@
 
 use std::collections::BTreeMap;
 
+use fpc::link::frame::Deframer;
 use fpc::link::scope::{
-    sample_values, Recording, ScopeMessage, Trigger, CHUNK_SAMPLES, SAMPLE_BYTES, THETA_UNIT_RAD,
+    decode_scope, sample_values, Recording, ScopeMessage, Trigger, CHUNK_SAMPLES, MAX_SCOPE_WIRE,
+    SAMPLE_BYTES, THETA_UNIT_RAD,
 };
 use fpc::link::telemetry::{
     mode_code, Ports, CONTROL_PERIOD_US, FORCE_DELAY_PERIODS, THETA_SOURCE,
@@ -277,9 +279,16 @@ impl ScopeRecording {
 /// Every scope recording in a capture of the reply channel (raw bytes of up 2): the whole
 /// ones, and a line for each one that is not.
 pub fn decode_scope_capture(bytes: &[u8]) -> (Vec<ScopeRecording>, Vec<String>) {
-    let mut reader = crate::link::session::AnswerReader::new();
-    let _ = reader.push(bytes);
-    let scope = reader.scope();
+    // The reply channel's frames; the answers among them are not wanted here.
+    let mut deframer = Deframer::<{ MAX_SCOPE_WIRE }>::default();
+    let mut scope = ScopeCollector::new();
+    for &b in bytes {
+        if let Some(Ok(payload)) = deframer.push(b) {
+            if let Some(Ok(message)) = decode_scope(payload) {
+                scope.push(message);
+            }
+        }
+    }
     (scope.recordings().to_vec(), scope.incomplete())
 }
 

@@ -2,7 +2,7 @@
 //! sections, the rotation, and the gas in both chambers, configured by the machine model.
 //!
 //! `m·ẍ = F_master + F_slave + (p_A − p_B)·A_eff + F_cog(x) − F_fr + F_stop` (`machine.md`;
-//! the cogging force is the library's law, positive toward +x). State is `f64`; every law is
+//! the balance is the library's, [`fpc::physics::balance`]). State is `f64`; every law is
 //! the library's own, evaluated in `f64`. The plant advances in fixed sub-steps inside each
 //! 50 µs control period with the PWM duties held, as the averaged inverter applies them:
 //! currents (explicit), piston (semi-implicit Euler, friction implicit through its secant
@@ -22,7 +22,9 @@
 //! Line pressures and the port mode are inputs: [`Plant::lines`] (set during a run with
 //! [`Lines::set_pressure_ratio`] and friends) and [`Plant::port_mode`].
 
+use fpc::angle::wrap_rad;
 use fpc::drive::foc::phase_voltages;
+use fpc::physics::balance::{implicit_velocity, PistonForces};
 use fpc::physics::cogging::CoggingParams;
 use fpc::physics::friction::FrictionParams;
 use fpc::physics::motor::{clarke, AlphaBeta, Dq};
@@ -73,7 +75,7 @@ impl PlantParams {
             mass_kg: model.piston.mass_kg,
             travel_m: model.piston.travel_m,
             friction: model.friction(),
-            friction_radius_m: 0.5 * model.piston.bore_m,
+            friction_radius_m: model.friction_radius_m(),
             stop_stiffness_n_per_m: model.piston.stop_stiffness_n_per_m,
             stop_damping_ns_per_m: model.piston.stop_damping_ns_per_m,
             sections: SectionParams {
@@ -206,16 +208,7 @@ impl Plant {
 
     /// Rotation phase of the piston, φ = θ mod 2π, rad (what times the ports).
     pub fn port_phase_rad(&self) -> f64 {
-        let turn = std::f64::consts::TAU;
-        let a = self.rotation.piston_angle_rad;
-        // floor by conversion (cheaper than `rem_euclid`'s fmod); exact for |a| < 2⁶³ turns.
-        let turns = (a * (1.0 / turn)) as i64 as f64;
-        let phase = a - turns * turn;
-        if phase < 0.0 {
-            phase + turn
-        } else {
-            phase
-        }
+        wrap_rad(self.rotation.piston_angle_rad)
     }
 
     /// Advances the plant by `period_s` with `drive` held.
@@ -260,14 +253,16 @@ impl Plant {
         let r = p.friction_radius_m;
         let tangential = self.rotation.piston_speed_rad_s * r;
         let secant = p.friction.sliding_secant(self.v_mps, tangential);
-        let driving = self.force_n.master
-            + self.force_n.slave
-            + self.chambers.gas_force_n()
-            + self.cogging_force_n
-            + stop
-            + self.injected.external_force_n;
+        // The balance's forces but friction, which acts implicitly through its secant.
+        let forces = PistonForces {
+            motor_n: self.force_n.master + self.force_n.slave,
+            gas_n: self.chambers.gas_force_n(),
+            cogging_n: self.cogging_force_n,
+            external_n: stop + self.injected.external_force_n,
+            friction_n: 0.0,
+        };
         let dt_over_m = dt / p.mass_kg;
-        let v_new = (self.v_mps + dt_over_m * driving) / (1.0 + dt_over_m * secant);
+        let v_new = implicit_velocity(self.v_mps, forces.driving_n(), secant, dt_over_m);
         self.friction_force_n = secant * v_new;
         self.a_mps2 = (v_new - self.v_mps) / dt;
         self.v_mps = v_new;

@@ -9,6 +9,7 @@
 
 use std::f64::consts::{PI, TAU};
 
+use fpc::angle::wrap_rad;
 use fpc::physics::port_timing::Port;
 
 use crate::plant::dynamics::Plant;
@@ -42,8 +43,12 @@ impl CycleDrive {
         v_max_mps: f64,
         pressure_ratio: f64,
     ) -> Self {
-        let ratio = pressure_ratio.max(1.0).powf(-1.0 / model.gas.gamma);
-        Self::with_volume_ratio(model, clearance_m, v_max_mps, 1.0 / ratio)
+        // V_open/V_max of an isentropic compression to the pressure ratio (the gas law's).
+        let open_share =
+            model
+                .gas_properties()
+                .isentropic_volume_m3(1.0, 1.0, pressure_ratio.max(1.0));
+        Self::with_volume_ratio(model, clearance_m, v_max_mps, 1.0 / open_share)
     }
 
     /// As [`CycleDrive::new`] with a fixed built-in volume ratio `V_max/V_open`.
@@ -80,8 +85,7 @@ impl CycleDrive {
     /// Piston position (m) and rotation angle (rad, unwrapped) at time `t_s`.
     pub fn at(&self, t_s: f64) -> (f64, f64) {
         let total = self.omega_rad_s * t_s;
-        let turns = (total / TAU).floor();
-        let psi = total - turns * TAU;
+        let psi = wrap_rad(total);
         let x = self.x_mid_m - self.amplitude_m * psi.cos();
         let bend = |psi: f64, from: f64, knee_in: f64, knee_out: f64, to: f64| {
             // Maps [from, knee_in] → [from, knee_out] and [knee_in, to] → [knee_out, to].
@@ -96,7 +100,8 @@ impl CycleDrive {
         } else {
             bend(psi, PI, self.open_a_phase_rad, self.edge_a_rad, TAU)
         };
-        (x, turns * TAU + theta)
+        // The whole turns done, and the bent phase within this one.
+        (x, (total - psi) + theta)
     }
 
     /// Drives `plant` from `t0_s` to `t1_s` in steps of `dt_s`, calling `each` after every step

@@ -3,10 +3,11 @@
 //!
 //! The machine model ([`model`], TOML), the piston, sections and rotation ([`dynamics`]),
 //! the gas in both chambers ([`chambers`]), the motor sections' electrics ([`motor`]), the
-//! rotation servo ([`servo`]), prescribed motion without the controller ([`kinematic`]) and
-//! fast numerics for the hot path ([`fastmath`]). The plant knows neither the simulated
-//! board around it nor the fault injector: faults of the machine are state it reads
-//! ([`dynamics::PlantFaults`]).
+//! rotation servo ([`servo`]), the laws of the sensors before their converters ([`sensing`])
+//! and the seeded noise they draw from ([`noise`]), prescribed motion without the controller
+//! ([`kinematic`]) and fast numerics for the hot path ([`fastmath`]). The plant knows neither
+//! the simulated board around it nor the fault injector: faults of the machine are state it
+//! reads ([`dynamics::PlantFaults`]).
 
 pub mod chambers;
 pub mod dynamics;
@@ -14,4 +15,6 @@ pub mod fastmath;
 pub mod kinematic;
 pub mod model;
 pub mod motor;
+pub mod noise;
+pub mod sensing;
 pub mod servo;

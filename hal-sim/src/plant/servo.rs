@@ -131,10 +131,23 @@ impl Rotation {
         self.servo_speed_rad_s = w_new;
         self.servo_angle_rad += w_new * dt_s;
         let before = self.piston_angle_rad;
-        self.piston_angle_rad = self
-            .piston_angle_rad
-            .clamp(self.servo_angle_rad - half, self.servo_angle_rad + half);
+        self.piston_angle_rad = through_play(self.piston_angle_rad, self.servo_angle_rad, half);
         self.piston_speed_rad_s = (self.piston_angle_rad - before) * k.inv_dt;
+    }
+}
+
+/// The spline's play operator: where the carried side (the piston) stands once the driving
+/// side (the servo) is at `driver`, with `half_play` either way — it stays where it is
+/// until a flank of the play reaches it, then it is carried along. Rad.
+#[inline]
+pub fn through_play(carried: f64, driver: f64, half_play: f64) -> f64 {
+    let (lo, hi) = (driver - half_play, driver + half_play);
+    if carried < lo {
+        lo
+    } else if carried > hi {
+        hi
+    } else {
+        carried
     }
 }
 

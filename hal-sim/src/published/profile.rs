@@ -98,13 +98,15 @@ impl RotationProgramme {
     /// the pressure ratio `pr`.
     pub fn new(model: &MachineModel, dead_a_m: f64, dead_b_m: f64, pr: f64) -> Self {
         let cyl = model.cylinder();
-        let k = pr.max(1.0).powf(-1.0 / model.gas.gamma);
+        let gas = model.gas_properties();
+        // Where an isentropic compression from the chamber's largest volume reaches `pr`.
+        let open = |v_max_m3: f64| gas.isentropic_volume_m3(1.0, v_max_m3, pr.max(1.0));
         let ports = model.port_geometry();
         RotationProgramme {
             dead_a_m,
             dead_b_m,
-            open_b_m: cyl.position_for_volume_b_m(cyl.volume_b_m3(dead_a_m) * k),
-            open_a_m: cyl.position_for_volume_a_m(cyl.volume_a_m3(dead_b_m) * k),
+            open_b_m: cyl.position_for_volume_b_m(open(cyl.volume_b_m3(dead_a_m))),
+            open_a_m: cyl.position_for_volume_a_m(open(cyl.volume_a_m3(dead_b_m))),
             edge_b_rad: ports.half_open_rad(Port::DischargeB),
             edge_a_rad: ports.half_open_rad(Port::DischargeA),
         }

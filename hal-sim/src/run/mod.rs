@@ -13,6 +13,7 @@ use std::io::Write;
 use std::ops::ControlFlow;
 use std::time::Instant;
 
+use fpc::angle::wrap_rad;
 use fpc::control::command::Command;
 use fpc::link::channels::UP_TELEMETRY;
 use fpc::link::settings::LinkRequest;
@@ -847,7 +848,7 @@ fn discharge_opening(
     let last = last_phase_rad?;
     let now = plant.port_phase_rad();
     let ports = &plant.chambers.params.ports;
-    let advance = wrap_turn(now - last);
+    let advance = wrap_rad(now - last);
     // Reverse rotation (expander: the discharge port is the admission) or standstill: no
     // discharge opening to judge.
     if advance == 0.0 || advance >= std::f64::consts::PI {
@@ -857,27 +858,13 @@ fn discharge_opening(
         (Port::DischargeA, &plant.chambers.a),
         (Port::DischargeB, &plant.chambers.b),
     ] {
-        let to_edge = wrap_turn(ports.half_open_rad(port) - last);
+        let to_edge = wrap_rad(ports.half_open_rad(port) - last);
         if to_edge > 0.0 && to_edge <= advance {
             let pd = plant.lines.discharge_pa;
             return Some((chamber.pressure_pa - pd).abs() / pd);
         }
     }
     None
-}
-
-/// `x.rem_euclid(2π)`: within one turn of the range (the phases here are in [0, 2π)) one add
-/// does it, bit for bit, without `rem_euclid`'s `fmod` (a slow library loop).
-#[inline]
-fn wrap_turn(x: f64) -> f64 {
-    let turn = std::f64::consts::TAU;
-    if (0.0..turn).contains(&x) {
-        x
-    } else if x > -turn && x < 0.0 {
-        x + turn
-    } else {
-        x.rem_euclid(turn)
-    }
 }
 
 /// Carries out a scheduled host action.

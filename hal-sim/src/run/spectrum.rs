@@ -110,7 +110,7 @@ mod tests {
     #[test]
     fn a_sine_in_noise_reads_its_frequency_and_amplitude() {
         let dt = 50e-6;
-        let mut noise = crate::board::sensors::Noise::new(3);
+        let mut noise = crate::plant::noise::Noise::new(3);
         let x: Vec<f64> = (0..20_000)
             .map(|k| {
                 let t = k as f64 * dt;

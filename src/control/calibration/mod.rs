@@ -293,6 +293,38 @@ pub enum CalibrationError {
     NoRoom,
 }
 
+impl core::fmt::Display for CalibrationError {
+    /// What failed and what to check, in a line (the variants' own documentation).
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let section = |s: &Section| match s {
+            Section::Master => "master",
+            Section::Slave => "slave",
+        };
+        match self {
+            CalibrationError::CurrentSenseOffset { section: s, phase } => write!(
+                f,
+                "the {} section's phase {} current zero is beyond the plausible range: check \
+                 its sense amplifier and its supply",
+                section(s),
+                char::from(b'a' + phase % 3)
+            ),
+            CalibrationError::AlignmentSpread { section: s } => write!(
+                f,
+                "the mover did not follow the {} section's forced vector (the estimates \
+                 disagree): the section gives no force or the mover is blocked; check its phases",
+                section(s)
+            ),
+            CalibrationError::MisalignmentImplausible => f.write_str(
+                "the master's force did not change as a slave frame error would explain: check \
+                 the slave's phases and both force constants",
+            ),
+            CalibrationError::NoRoom => {
+                f.write_str("no room for the sweeps between the heads from where the piston is")
+            }
+        }
+    }
+}
+
 /// Every parameter the calibration has loaded so far, and the last failure.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Calibrated {

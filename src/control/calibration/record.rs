@@ -93,6 +93,45 @@ pub enum RecordError {
 }
 
 impl CalibrationRecord {
+    /// A record with every routine's result and both encoders' corrections set, to
+    /// representative values none of which is a default: what the codecs of the record
+    /// (its flash bytes, the link's transfer, the calibration file) are checked on.
+    pub fn example() -> CalibrationRecord {
+        let mut map = HarmonicMap::none();
+        map.sin_n = [30.0, -1.5, 0.25, 0.0];
+        map.cos_n = [4.0, 0.5, 0.0, -0.125];
+        CalibrationRecord {
+            calibrated: Calibrated {
+                current_sense: Some(PerSection {
+                    master: [16.3, -10.2, 6.1],
+                    slave: [-12.3, 0.0, 18.4],
+                }),
+                alignment: Some(PerSection {
+                    master: 12_345,
+                    slave: 0xF000_0000,
+                }),
+                misalignment: Some(Misalignment {
+                    slave_angle_offset: 0xF010_0000,
+                    correction_periods: 0.004,
+                    misalignment_m: 1.5e-3,
+                    encoder_offset_m: -2e-6,
+                }),
+                cogging: Some(map),
+                last_error: None,
+            },
+            sin_cos: PerSection {
+                master: SinCosCalibration::ideal(1500.0),
+                slave: SinCosCalibration {
+                    sin_offset: 3.0,
+                    cos_offset: -2.0,
+                    sin_amplitude: 1490.0,
+                    cos_amplitude: 1510.0,
+                    phase_rad: 0.01,
+                },
+            },
+        }
+    }
+
     /// The record of what `calibrated` holds and the sin/cos correction `config` uses.
     pub fn of(calibrated: &Calibrated, config: &ControlConfig) -> Self {
         CalibrationRecord {
@@ -331,44 +370,8 @@ pub fn crc32(data: &[u8]) -> u32 {
 }
 
 #[cfg(test)]
-pub(crate) mod tests {
+mod tests {
     use super::*;
-
-    pub(crate) fn sample() -> CalibrationRecord {
-        let mut map = HarmonicMap::none();
-        map.sin_n = [30.0, -1.5, 0.25, 0.0];
-        map.cos_n = [4.0, 0.5, 0.0, -0.125];
-        CalibrationRecord {
-            calibrated: Calibrated {
-                current_sense: Some(PerSection {
-                    master: [16.3, -10.2, 6.1],
-                    slave: [-12.3, 0.0, 18.4],
-                }),
-                alignment: Some(PerSection {
-                    master: 12_345,
-                    slave: 0xF000_0000,
-                }),
-                misalignment: Some(Misalignment {
-                    slave_angle_offset: 0xF010_0000,
-                    correction_periods: 0.004,
-                    misalignment_m: 1.5e-3,
-                    encoder_offset_m: -2e-6,
-                }),
-                cogging: Some(map),
-                last_error: None,
-            },
-            sin_cos: PerSection {
-                master: SinCosCalibration::ideal(1500.0),
-                slave: SinCosCalibration {
-                    sin_offset: 3.0,
-                    cos_offset: -2.0,
-                    sin_amplitude: 1490.0,
-                    cos_amplitude: 1510.0,
-                    phase_rad: 0.01,
-                },
-            },
-        }
-    }
 
     #[test]
     fn crc_matches_the_published_check_value() {
@@ -377,7 +380,7 @@ pub(crate) mod tests {
 
     #[test]
     fn a_record_round_trips_bit_for_bit() {
-        let r = sample();
+        let r = CalibrationRecord::example();
         assert!(r.is_complete());
         assert_eq!(CalibrationRecord::decode(&r.encode()), Ok(r));
         let mut partial = r;
@@ -390,7 +393,7 @@ pub(crate) mod tests {
 
     #[test]
     fn damaged_or_foreign_records_are_refused_by_name() {
-        let bytes = sample().encode();
+        let bytes = CalibrationRecord::example().encode();
         for i in 0..RECORD_BYTES {
             for bit in 0..8 {
                 let mut b = bytes;
@@ -405,7 +408,7 @@ pub(crate) mod tests {
             CalibrationRecord::decode(&bytes[..100]),
             Err(RecordError::Length)
         );
-        let mut nan = sample();
+        let mut nan = CalibrationRecord::example();
         nan.sin_cos.slave.phase_rad = f32::NAN;
         assert_eq!(
             CalibrationRecord::decode(&nan.encode()),
@@ -415,7 +418,7 @@ pub(crate) mod tests {
 
     #[test]
     fn a_loaded_record_sets_every_calibrated_field() {
-        let r = sample();
+        let r = CalibrationRecord::example();
         let mut config = ControlConfig::reference();
         r.apply(&mut config);
         assert_eq!(config.angle_offset.master, 12_345);
@@ -428,7 +431,7 @@ pub(crate) mod tests {
 
     #[test]
     fn a_record_with_any_byte_corrupted_or_missing_is_refused() {
-        let record = sample();
+        let record = CalibrationRecord::example();
         let bytes = record.encode();
         assert_eq!(CalibrationRecord::decode(&bytes), Ok(record));
         for i in 0..RECORD_BYTES {

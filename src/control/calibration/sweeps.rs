@@ -8,6 +8,7 @@ use super::{
 use crate::angle::{sin_cos_turns, turns};
 use crate::control::config::ControlConfig;
 use crate::motion::trajectory::Setpoint;
+use crate::physics::balance::PistonForces;
 use crate::physics::cogging::{HarmonicMap, MAP_HARMONICS};
 use crate::real::clamp_f32;
 
@@ -268,8 +269,11 @@ impl Sums {
     fn add(&mut self, config: &ControlConfig, m: &Measurements, slot: usize) {
         match self {
             Sums::Cogging { n, sin, cos } => {
-                // The cogging estimate: what neither the motors nor the gas explain.
-                let y = -(m.force_n.master + m.force_n.slave + m.gas_force_n);
+                // The cogging estimate: what neither the motors nor the gas explain at
+                // constant velocity — the balance with friction left in it, which the two
+                // directions' mean cancels.
+                let y = PistonForces::known(m.force_n.master + m.force_n.slave, m.gas_force_n, 0.0)
+                    .unexplained_n(config.moving_mass_kg, 0.0);
                 let period = config.motor.electrical_period_m;
                 let (s1, c1) = sin_cos_turns(turns(m.position_m / period));
                 let (mut s, mut c) = (s1, c1);

@@ -8,6 +8,7 @@ use super::{ControlStep, CycleInputs};
 use crate::drive::allocation::allocate;
 use crate::drive::servo::RotarySetpoint;
 use crate::motion::trajectory::Setpoint;
+use crate::physics::balance::PistonForces;
 use crate::physics::motor::Dq;
 use crate::real::clamp_f32;
 use crate::sensing::differentiator::Derivatives;
@@ -25,8 +26,8 @@ impl ControlStep {
     ) -> Option<PerSection<PhaseDuties>> {
         match setpoint {
             Some((sp, limit)) => {
-                let model_n = self.model_force_n(&sp, s.gas_force_n);
-                let load_n = self.observe_load(s, model_n, limit);
+                let model = self.model_forces(&sp, s.gas_force_n);
+                let load_n = self.observe_load(s, &model, limit);
                 // Cancelled while running strokes only: homing pushes on its end stop on
                 // purpose, a controlled stop has its own observer, and holding and moves
                 // keep the behaviour they were tuned with.
@@ -36,7 +37,7 @@ impl ControlStep {
                     0.0
                 };
                 let force =
-                    self.position_loop(&sp, s.position_m, &s.derivatives, model_n, cancel_n, limit);
+                    self.position_loop(&sp, s.position_m, &s.derivatives, &model, cancel_n, limit);
                 self.limits.force = force.abs() >= limit;
                 self.status.force_command_n = force;
                 let duties = self.drive_sections(inputs, s, force);
@@ -91,30 +92,36 @@ impl ControlStep {
         servo
     }
 
-    /// The forces the model knows besides inertia, as the motor must supply them: friction
-    /// at the reference velocity less the measured gas force, N.
+    /// The forces the model knows besides the motors' and inertia: friction at the
+    /// reference velocity and the measured gas force (their load,
+    /// [`PistonForces::load_n`], is what the motor must supply beyond `m·a`).
     #[inline(always)]
-    pub(super) fn model_force_n(&self, sp: &Setpoint, gas_force_n: f32) -> f32 {
-        self.config.friction.force_n(sp.velocity_mps) - gas_force_n
+    pub(super) fn model_forces(&self, sp: &Setpoint, gas_force_n: f32) -> PistonForces<f32> {
+        PistonForces::known(
+            0.0,
+            gas_force_n,
+            self.config.friction.force_n(sp.velocity_mps),
+        )
     }
 
-    /// Position loop with model feed-forward (`m·a` plus `model_n`, from
-    /// [`ControlStep::model_force_n`]) and `cancel_n`, an estimated external force (toward
-    /// +x) to push against: total motor force, N, saturated at `limit`. Always inlined: the
-    /// calibration calls it too, and a second call site must not take it out of the step.
+    /// Position loop with model feed-forward (the motor force the force balance needs for the
+    /// setpoint's acceleration against `model`, the forces of [`ControlStep::model_forces`])
+    /// and `cancel_n`, an estimated external force (toward +x) to push against: total motor
+    /// force, N, saturated at `limit`. Always inlined: the calibration calls it too, and a
+    /// second call site must not take it out of the step.
     #[inline(always)]
     pub(super) fn position_loop(
         &self,
         sp: &Setpoint,
         position_m: f32,
         d: &Derivatives,
-        model_n: f32,
+        model: &PistonForces<f32>,
         cancel_n: f32,
         limit: f32,
     ) -> f32 {
         let c = &self.config;
         let feed_forward = if c.feed_forward {
-            c.moving_mass_kg * sp.acceleration_mps2 + model_n
+            model.motor_needed_n(c.moving_mass_kg, sp.acceleration_mps2)
         } else {
             0.0
         };
@@ -132,8 +139,9 @@ impl ControlStep {
     /// the model does not explain — an external load, the model's mass or gas-force error —
     /// N, toward +x, within ±`limit`.
     ///
-    /// A momentum observer. With the forces the step knows, `F = F_motor + F_gas − F_fr`
-    /// (the motor's from the measured q-currents; `model_n` = `F_fr − F_gas`), and the
+    /// A momentum observer. With the forces the step knows, the balance's net force
+    /// `F = F_motor + F_gas − F_fr` ([`PistonForces::net_n`]: the motor's from the measured
+    /// q-currents, the rest from `model`, [`ControlStep::model_forces`]), and the
     /// momentum they account for, `p̂ ← p̂ + T·(F + d̂)`, the raw estimate is
     /// `d̂ = K·(m·v − p̂)`: it follows the true disturbance d as a first-order lag,
     /// `dd̂/dt = K·(d − d̂)`, whatever the loop commands (K =
@@ -166,7 +174,7 @@ impl ControlStep {
     /// of 0 and the observer restarts from the next cycle; outputs off reset it the same
     /// way (`w` NaN, the estimate 0). State: `w = K·p̂` and the cancelled estimate, both N.
     #[inline(always)]
-    fn observe_load(&mut self, s: &Sensed, model_n: f32, limit: f32) -> f32 {
+    fn observe_load(&mut self, s: &Sensed, model: &PistonForces<f32>, limit: f32) -> f32 {
         let c = &self.config;
         let k = c.disturbance_bandwidth_rad_s;
         let gain = k * c.sample_time_s;
@@ -184,7 +192,11 @@ impl ControlStep {
         } else {
             0.0
         };
-        let known_n = s.force_master_n + s.force_slave_n - model_n;
+        let known_n = PistonForces {
+            motor_n: s.force_master_n + s.force_slave_n,
+            ..*model
+        }
+        .net_n();
         self.load_observer = momentum - d + gain * (known_n + d);
         let gap = d - self.load_n;
         let follow = if gap.abs() > c.disturbance_threshold_n {
@@ -262,7 +274,7 @@ mod tests {
     fn hold(c: &mut ControlStep, motor_n: f32, cycles: usize) -> f32 {
         let mut d = 0.0;
         for _ in 0..cycles {
-            d = c.observe_load(&sensed(1.0, motor_n), 0.0, 10_000.0);
+            d = c.observe_load(&sensed(1.0, motor_n), &PistonForces::default(), 10_000.0);
         }
         d
     }
@@ -291,7 +303,11 @@ mod tests {
     fn a_nan_input_gives_no_force_and_the_observer_restarts() {
         let mut c = ControlStep::new(ControlConfig::reference()).unwrap();
         hold(&mut c, -3000.0, 40);
-        let d = c.observe_load(&sensed(f32::NAN, -3000.0), 0.0, 10_000.0);
+        let d = c.observe_load(
+            &sensed(f32::NAN, -3000.0),
+            &PistonForces::default(),
+            10_000.0,
+        );
         assert!(d.is_finite(), "{d}");
         let d = hold(&mut c, -3000.0, 400);
         assert!((d - 3000.0).abs() < 30.0, "{d}");

@@ -114,9 +114,9 @@ impl ControlStep {
                     velocity_mps: s.velocity_mps,
                     acceleration_mps2: s.acceleration_mps2,
                 };
-                let model_n = self.model_force_n(&setpoint, gas_force_n);
+                let model = self.model_forces(&setpoint, gas_force_n);
                 let force =
-                    self.position_loop(&setpoint, position_m, &derivatives, model_n, 0.0, limit);
+                    self.position_loop(&setpoint, position_m, &derivatives, &model, 0.0, limit);
                 let mut allocation = self.config.allocation;
                 if master_only {
                     allocation.capability.slave = 0.0;

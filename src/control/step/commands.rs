@@ -1,6 +1,7 @@
 //! Host commands: what each may change, and when. A refused command changes nothing.
 
-use super::modes::{AfterStop, FaultedBrake, Mode};
+use super::modes::{AfterStop, Mode};
+use super::safe_state::FaultedBrake;
 use super::ControlStep;
 use crate::control::calibration::record::CalibrationStatus;
 use crate::control::calibration::{Calibration, Routine};

@@ -14,8 +14,10 @@
 //!
 //! The stages live in their own modules, each an `impl ControlStep` block over the state it
 //! owns: `sense` (encoders, differentiator, pressures, and what a failed encoder
-//! changes), `supervise` (limits and faults, the safe-state reaction), `modes` (the mode
-//! machine that plans the setpoint: homing, moves, strokes, controlled stops), `commands`
+//! changes), `supervise` (limits and faults detected, each dispatched to its reaction),
+//! `safe_state` (the reactions: SS1, STO, a section dropped, braking without position or
+//! after a reset, the park's vent turn), `modes` (the mode machine that plans the setpoint:
+//! homing, moves, strokes, controlled stops), `commands`
 //! (what a host command may change, and when), `actuate` (position loop, allocation,
 //! both sections' FOC, the servo) and `calibrate` (a calibration routine's cycle).
 
@@ -23,6 +25,7 @@ mod actuate;
 mod calibrate;
 mod commands;
 mod modes;
+mod safe_state;
 mod sense;
 mod supervise;
 
@@ -43,12 +46,13 @@ use crate::ports::{EncoderCodes, PhaseCurrentCodes, PressureCodes};
 use crate::safety::faults::{Fault, FaultSet, ResetCause};
 use crate::safety::supervisor::{LimitFlags, Supervisor};
 use crate::sensing::differentiator::{SavitzkyGolay, SgConfig};
-use crate::sensing::encoder::SinCosDecoder;
+use crate::sensing::encoder::{PositionCounts, SinCosDecoder};
 use crate::sensing::pressure::{StuckConfig, StuckMonitor};
 use crate::sensing::quadrature::QuadratureCounter;
 use crate::status::Status;
 use crate::units::{DacCode, PerSection, PhaseDuties, Section, Ticks};
-use modes::{FaultedBrake, Mode};
+use modes::Mode;
+use safe_state::FaultedBrake;
 use sense::Sensed;
 
 /// One burst of samples.
@@ -130,12 +134,12 @@ pub struct ControlStep {
     lost_encoder: Option<Section>,
     /// Master minus slave position, counts, when the master encoder was lost (the slave
     /// stands in for it at this offset).
-    slave_offset_counts: i32,
+    slave_offset_counts: PositionCounts,
     /// SS1's hold: time into the current averaging window, s, and the integrals over it of
     /// the motor force and of the measured gas force, N·s.
     hold_quiet_s: f32,
     /// Both encoders lost: the rotation's sealing turn as decided, rad, signed (which way
-    /// round it goes; [`ControlStep::brake_without_position`]).
+    /// round it goes; `safe_state.rs`).
     sealing_turn_rad: f32,
     hold_motor_ns: f32,
     hold_gas_ns: f32,
@@ -269,7 +273,7 @@ impl ControlStep {
             stuck_cycles: 0,
             pressures_trusted: true,
             lost_encoder: None,
-            slave_offset_counts: 0,
+            slave_offset_counts: PositionCounts::ZERO,
             hold_quiet_s: 0.0,
             sealing_turn_rad: 0.0,
             hold_motor_ns: 0.0,
@@ -304,11 +308,10 @@ impl ControlStep {
     /// needs no force. Where the heads are is unknown until homing; the fault stays latched.
     pub fn boot(&mut self, cause: ResetCause) {
         if cause == ResetCause::Watchdog {
+            // Its reaction waits for the velocity, then brakes (`Reaction::BrakeAfterReset`).
             self.latch(Fault::WatchdogReset);
             self.status.faults = self.faults;
             self.status.mode = self.mode_kind();
-            self.faulted_brake =
-                FaultedBrake::AfterReset(self.config.sg_window.saturating_add(5) as u16);
         }
     }
 

@@ -1,12 +1,11 @@
 //! The sense stage: what the samples say about the machine, and what a failed encoder
 //! changes (the other stands in for it, its section is dropped).
 
-use super::modes::Mode;
 use super::{ControlStep, CycleInputs};
 use crate::real::clamp_f32;
-use crate::safety::faults::Fault;
+use crate::safety::faults::{Fault, Reaction};
 use crate::sensing::differentiator::Derivatives;
-use crate::sensing::encoder::{EncoderReading, SinCosDecoder};
+use crate::sensing::encoder::{EncoderReading, PositionCounts, SinCosDecoder};
 use crate::units::{AdcCode, Section, Ticks, CONTROL_PERIOD_US};
 
 /// What the sense stage found in one cycle.
@@ -61,8 +60,8 @@ impl ControlStep {
         }
         let derivatives = self.differentiator.push(master.position);
         let m_per_count = self.config.encoder_master.m_per_count();
-        let raw_m = master.position as f32 * m_per_count;
-        let slave_raw_m = slave.position as f32 * self.config.encoder_slave.m_per_count();
+        let raw_m = master.position.to_bits() as f32 * m_per_count;
+        let slave_raw_m = self.config.encoder_slave.metres(slave.position);
         let zero = self.zero_raw_m.unwrap_or(0.0);
         let position_m = raw_m - zero;
 
@@ -101,7 +100,7 @@ impl ControlStep {
         if self.pressure_bad >= 2 {
             self.latch(Fault::PressureSensor);
         }
-        if matches!(self.mode, Mode::Running(_)) {
+        if self.running() {
             self.stuck_cycles = self.stuck_cycles.wrapping_add(1);
             if self.stuck_cycles & 7 == 0 {
                 self.check_pressures_follow_volume(inputs, position_m);
@@ -129,19 +128,18 @@ impl ControlStep {
     /// without a jump and the master/slave cross-check, which has nothing left to compare,
     /// stays quiet); the lost one's section is dropped (its commutation angle is gone) and
     /// the other section stops the piston (SS1). Both lost: nothing tells where the piston
-    /// is: STO, then braking without position ([`ControlStep::brake_without_position`]).
+    /// is: STO, then braking without position ([`Reaction::BrakeWithoutPosition`]).
     #[cold]
     #[inline(never)]
     pub(super) fn encoder_fault(
         &mut self,
         master: &EncoderReading,
         slave: &EncoderReading,
-    ) -> (i32, i32) {
+    ) -> (PositionCounts, PositionCounts) {
         let both = (master.position, slave.position);
         let failed = match (master.signal_fault, slave.signal_fault) {
             (true, true) => {
-                self.latch_as(Fault::EncoderSignal, false);
-                self.brake_without_position();
+                self.latch(Fault::EncoderSignal);
                 return both;
             }
             (true, false) => Some(Section::Master),
@@ -152,14 +150,19 @@ impl ControlStep {
         match (failed, self.lost_encoder) {
             (Some(f), Some(lost)) if f != lost => {
                 // The other one was lost before: none is left.
-                self.latch_as(Fault::EncoderSignal, false);
-                self.brake_without_position();
+                self.latch(Fault::EncoderSignal);
                 return both;
             }
             (Some(f), None) => {
-                let trusted = !self.faults.contains(Fault::EncoderMismatch);
+                // The other stands in: SS1 on its section, unless the two disagreed before
+                // (then neither is trusted: STO).
+                let reaction = if self.faults.contains(Fault::EncoderMismatch) {
+                    Reaction::Sto
+                } else {
+                    Reaction::Ss1
+                };
                 self.lose_encoder(f, master, slave);
-                self.latch_as(Fault::EncoderSignal, trusted);
+                self.react(Fault::EncoderSignal, reaction);
             }
             _ => {}
         }
@@ -182,8 +185,8 @@ impl ControlStep {
     ) {
         self.lost_encoder = Some(failed);
         self.slave_offset_counts = master.position.wrapping_sub(slave.position);
-        let master_raw_m = master.position as f32 * self.config.encoder_master.m_per_count();
-        let slave_raw_m = slave.position as f32 * self.config.encoder_slave.m_per_count();
+        let master_raw_m = self.config.encoder_master.metres(master.position);
+        let slave_raw_m = self.config.encoder_slave.metres(slave.position);
         self.zero_slave_raw_m = slave_raw_m - (master_raw_m - self.zero_raw_m.unwrap_or(0.0));
         self.drop_section(if failed == Section::Master { 0 } else { 1 });
     }
@@ -193,10 +196,15 @@ impl ControlStep {
     /// 10 % (a stuck channel passes the amplitude window near the axes and drifts before
     /// the filter trips) — and the other does not, the other is trusted: the suspect is lost
     /// as if its filter had tripped, and SS1 runs on the other (the position carries at most
-    /// the disagreement, 2 mm). Otherwise nothing says which one is right: STO.
+    /// the disagreement, 2 mm). Otherwise nothing says which one is right: STO. Returns the
+    /// reaction for the supervise stage to carry out.
     #[cold]
     #[inline(never)]
-    pub(super) fn encoder_mismatch(&mut self, master: &EncoderReading, slave: &EncoderReading) {
+    pub(super) fn encoder_mismatch(
+        &mut self,
+        master: &EncoderReading,
+        slave: &EncoderReading,
+    ) -> Reaction {
         let odd = |r: &EncoderReading, d: &SinCosDecoder| {
             d.cause_present() || (r.amplitude_squared - 1.0).abs() > 0.2
         };
@@ -214,9 +222,9 @@ impl ControlStep {
         match (suspect, self.lost_encoder) {
             (Some(s), None) => {
                 self.lose_encoder(s, master, slave);
-                self.latch_as(Fault::EncoderMismatch, true);
+                Reaction::Ss1
             }
-            _ => self.latch_as(Fault::EncoderMismatch, false),
+            _ => Reaction::Sto,
         }
     }
 

@@ -1,11 +1,12 @@
-//! The supervise stage: limits and faults, and the one place that moves the machine to its
-//! safe state (SS1 while the position can be trusted, STO when it cannot).
+//! The supervise stage: limits and faults detected, and the one place that dispatches a
+//! latched fault to its reaction ([`ControlStep::react`]: one `match` on
+//! [`Reaction`]); the reactions themselves are in `safe_state.rs`.
 
 use super::modes::{AfterStop, Mode};
 use super::sense::Sensed;
 use super::ControlStep;
 use crate::real::max_f32;
-use crate::safety::faults::Fault;
+use crate::safety::faults::{Fault, Reaction};
 use crate::safety::supervisor::Observation;
 
 impl ControlStep {
@@ -51,17 +52,13 @@ impl ControlStep {
             self.drop_section(section);
         }
         if let Some(fault) = verdict.fault {
-            if fault == Fault::Overcurrent {
-                // Drop the section with the excessive current; the other one stops the piston.
-                let m = self.currents.master.state().peak_phase_a;
-                let s = self.currents.slave.state().peak_phase_a;
-                self.drop_section(if m >= s { 0 } else { 1 });
-            }
-            if fault == Fault::EncoderMismatch {
-                self.encoder_mismatch(&s.master, &s.slave);
-            } else {
-                self.latch(fault);
-            }
+            // Two encoders that disagree: the readings may show which one is wrong (it is
+            // taken out, SS1 on the other); the fault's kind alone cannot.
+            let reaction = match fault {
+                Fault::EncoderMismatch => self.encoder_mismatch(&s.master, &s.slave),
+                _ => fault.reaction(),
+            };
+            self.react(fault, reaction);
         }
 
         if let Some(elapsed) = self.heartbeat_s.as_mut() {
@@ -80,34 +77,33 @@ impl ControlStep {
         }
     }
 
-    /// Latches `fault` and starts its reaction: SS1 while the position can be trusted,
-    /// STO when it cannot (see [`Fault::position_trusted`]).
+    /// Latches `fault` and starts the reaction it asks for ([`Fault::reaction`]).
     pub(super) fn latch(&mut self, fault: Fault) {
-        self.latch_as(fault, fault.position_trusted());
+        self.react(fault, fault.reaction());
     }
 
-    /// The one place that moves the machine to its safe state: latches `fault`; with the
-    /// position trusted (and known: homed) a controlled stop on the braking envelope that
-    /// ends with the outputs off (SS1), otherwise the outputs off at once (STO) — also when
-    /// the fault was already latched with the position still trusted then.
+    /// The one dispatch from a fault to the safe state: latches `fault` and carries out
+    /// `reaction` (`safe_state.rs`). Each reaction starts SS1 (a controlled stop ending with
+    /// the outputs off; STO while not homed) or STO, the section or braking steps around it.
     #[cold]
     #[inline(never)]
-    pub(super) fn latch_as(&mut self, fault: Fault, position_trusted: bool) {
-        let new = self.faults.latch(fault);
-        if !(position_trusted && self.zero_raw_m.is_some()) {
-            self.mode = Mode::Faulted;
-        } else if new {
-            self.begin_stop(AfterStop::Off);
-        }
-    }
-
-    /// Takes a section out of the allocation (lost, or switched off after an overcurrent).
-    pub(super) fn drop_section(&mut self, index: usize) {
-        let cap = &mut self.config.allocation.capability;
-        if index == 0 {
-            cap.master = 0.0;
-        } else {
-            cap.slave = 0.0;
+    pub(super) fn react(&mut self, fault: Fault, reaction: Reaction) {
+        match reaction {
+            Reaction::Ss1 | Reaction::Sto => {
+                self.enter_safe_state(fault, reaction.position_trusted());
+            }
+            Reaction::DropSection => {
+                self.drop_hotter_section();
+                self.enter_safe_state(fault, true);
+            }
+            Reaction::BrakeWithoutPosition => {
+                self.enter_safe_state(fault, false);
+                self.brake_without_position();
+            }
+            Reaction::BrakeAfterReset => {
+                self.enter_safe_state(fault, true);
+                self.await_velocity_then_brake();
+            }
         }
     }
 

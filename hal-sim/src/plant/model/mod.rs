@@ -11,6 +11,7 @@
 //! a non-physical value (zero or negative where a positive quantity is meant, a port window
 //! outside one turn, …).
 
+use fpc::physics::balance::PistonLaws;
 use fpc::physics::cogging::CoggingParams;
 use fpc::physics::friction::FrictionParams;
 use fpc::physics::gas::{AnnulusLeak, Cylinder, GasProperties};
@@ -29,8 +30,9 @@ pub const REFERENCE_TOML: &str = include_str!("reference.toml");
 /// master's force (`formats.md` §2), on time.
 pub const PAPER_SLAVE_LAG_S: f64 = 0.75e-3;
 
-mod sections;
+#[macro_use]
 pub mod validate;
+mod sections;
 
 pub use sections::*;
 
@@ -73,6 +75,53 @@ pub struct MachineModel {
     #[serde(default)]
     pub published: Published,
 }
+
+/// A key of the model file, `section.name` (the section a dotted path such as
+/// `effects.cogging`): made by [`model_key!`] from the model's own fields, so that a
+/// renamed field fails to compile where its key is used.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Key {
+    /// The section's dotted path.
+    pub section: &'static str,
+    /// The key in it.
+    pub name: &'static str,
+}
+
+/// A section of the model file, its dotted path: made by [`model_section!`] from the
+/// model's own fields.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SectionKey(pub &'static str);
+
+/// The typed key of the model's field at `section.path / field`: `model_key!(effects.cogging
+/// / amplitude_n)` is `effects.cogging.amplitude_n`, checked at compile time against
+/// [`MachineModel`]'s fields (through an optional section too).
+macro_rules! model_key {
+    ($($part:ident).+ / $field:ident) => {{
+        #[allow(dead_code)]
+        fn exists(m: &$crate::plant::model::MachineModel) {
+            use $crate::plant::model::validate::SectionSlot;
+            let _ = m.$($part).+.section().map(|s| &s.$field);
+        }
+        $crate::plant::model::Key {
+            section: stringify!($($part).+),
+            name: stringify!($field),
+        }
+    }};
+}
+pub(crate) use model_key;
+
+/// The typed path of the model's section at `section.path`, checked at compile time.
+macro_rules! model_section {
+    ($($part:ident).+) => {{
+        #[allow(dead_code)]
+        fn exists(m: &$crate::plant::model::MachineModel) {
+            use $crate::plant::model::validate::SectionSlot;
+            let _ = m.$($part).+.section();
+        }
+        $crate::plant::model::SectionKey(stringify!($($part).+))
+    }};
+}
+pub(crate) use model_section;
 
 /// The largest model file read, bytes (the reference file is about 6 KB).
 pub const MAX_MODEL_BYTES: u64 = 1 << 20;
@@ -216,6 +265,21 @@ impl MachineModel {
         fpc::units::PerSection {
             master: section(&m.master),
             slave: section(&m.slave),
+        }
+    }
+
+    /// Radius at which the sliding friction acts on the rotation, m (the bore's).
+    pub fn friction_radius_m(&self) -> f64 {
+        0.5 * self.piston.bore_m
+    }
+
+    /// The laws of the force balance on the piston ([`fpc::physics::balance`]).
+    pub fn piston_laws(&self) -> PistonLaws<f64> {
+        PistonLaws {
+            mass_kg: self.piston.mass_kg,
+            cylinder: self.cylinder(),
+            friction: self.friction(),
+            cogging: self.cogging(),
         }
     }
 

@@ -1,9 +1,14 @@
 //! The sections of the model file, one struct each, as serde reads them: the required
 //! physics sections, the project's own sections with the reference machine's values as
-//! defaults, and the `[effects.*]` the model-gap workflow adds.
+//! defaults, and the `[effects.*]` the model-gap workflow adds. Each states the rule and
+//! the physical range of its numeric keys right after it (`checks!`, `validate::Checked`):
+//! a key is its field, so a renamed field renames its check.
 
 use fpc::physics::port_timing::{PortGeometry, PortWindow};
 use serde::{Deserialize, Deserializer};
+
+use super::validate::Rule::*;
+use super::validate::ADC_HALF_RANGE_CODES;
 
 /// An array of exactly `N` numbers: a longer or shorter one is refused naming its length
 /// (serde's fixed-size arrays leave extra elements unread).
@@ -39,6 +44,17 @@ pub struct Piston {
     pub stop_damping_ns_per_m: f64,
 }
 
+checks!(Piston {
+    mass_kg: Positive, 0.01, 1000.0, "kg";
+    bore_m: Positive, 1e-3, 1.0, "m";
+    rod_m: NonNegative, 0.0, 0.5, "m";
+    travel_m: Positive, 1e-3, 2.0, "m";
+    dead_length_a_m: NonNegative, 0.0, 0.5, "m";
+    dead_length_b_m: NonNegative, 0.0, 0.5, "m";
+    stop_stiffness_n_per_m: Positive, 1e3, 1e12, "N/m";
+    stop_damping_ns_per_m: NonNegative, 0.0, 1e8, "N·s/m";
+});
+
 /// `[friction]`.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -54,6 +70,14 @@ pub struct Friction {
     /// Stribeck exponent.
     pub stribeck_exponent: Option<f64>,
 }
+
+checks!(Friction {
+    coulomb_n: NonNegative, 0.0, 1e5, "N";
+    viscous_ns_per_m: NonNegative, 0.0, 1e6, "N·s/m";
+    static_n: Positive, 0.0, 1e5, "N";
+    stribeck_velocity_mps: Positive, 1e-5, 10.0, "m/s";
+    stribeck_exponent: Positive, 0.1, 10.0, "";
+});
 
 /// `[gas]`.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -73,6 +97,14 @@ pub struct Gas {
     pub viscosity_pa_s: f64,
 }
 
+checks!(Gas {
+    gamma: Positive, 1.0, 1.7, "";
+    gas_constant_j_per_kg_k: Positive, 10.0, 5000.0, "J/(kg·K)";
+    temperature_k: Positive, 50.0, 1000.0, "K";
+    ambient_pa: Positive, 1e4, 2e5, "Pa";
+    viscosity_pa_s: Positive, 1e-7, 1e-2, "Pa·s";
+});
+
 /// Optional per-section overrides of `[motor]` (`[motor.master]`, `[motor.slave]`).
 #[derive(Clone, Debug, Default, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -84,6 +116,17 @@ pub struct SectionOverride {
     /// Synchronous inductance, H.
     pub inductance_h: Option<f64>,
 }
+
+checks!(SectionOverride {
+    force_constant_n_per_a: Positive, FORCE_CONSTANT.0, FORCE_CONSTANT.1, "N/A";
+    resistance_ohm: Positive, RESISTANCE.0, RESISTANCE.1, "Ω";
+    inductance_h: Positive, INDUCTANCE.0, INDUCTANCE.1, "H";
+});
+
+/// Ranges a section's electrics share with its overrides, (min, max).
+const FORCE_CONSTANT: (f64, f64) = (0.1, 1e4);
+const RESISTANCE: (f64, f64) = (1e-4, 1e3);
+const INDUCTANCE: (f64, f64) = (1e-7, 10.0);
 
 /// `[motor]`.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -117,6 +160,15 @@ pub struct Motor {
     pub slave: SectionOverride,
 }
 
+checks!(Motor {
+    pole_pitch_m: Positive, 1e-3, 0.5, "m";
+    force_constant_n_per_a: Positive, FORCE_CONSTANT.0, FORCE_CONSTANT.1, "N/A";
+    resistance_ohm: Positive, RESISTANCE.0, RESISTANCE.1, "Ω";
+    inductance_h: Positive, INDUCTANCE.0, INDUCTANCE.1, "H";
+    bus_voltage_v: Positive, 1.0, 2000.0, "V";
+    current_limit_a: Positive, 0.1, 1000.0, "A";
+});
+
 /// `[encoder]`.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -124,6 +176,10 @@ pub struct Encoder {
     /// Signal period λ, m.
     pub period_m: f64,
 }
+
+checks!(Encoder {
+    period_m: Positive, 1e-6, 0.1, "m";
+});
 
 /// `[ports]`: the port windows in rotation phase (degrees, 0 = dead point A) and the flow
 /// areas. See [`fpc::physics::port_timing`].
@@ -151,6 +207,17 @@ pub struct Ports {
     /// Discharge coefficient C_d.
     pub discharge_coefficient: f64,
 }
+
+checks!(Ports {
+    intake_a_deg: Degrees, 0.0, 360.0, "°";
+    discharge_a_deg: Degrees, 0.0, 360.0, "°";
+    intake_b_deg: Degrees, 0.0, 360.0, "°";
+    discharge_b_deg: Degrees, 0.0, 360.0, "°";
+    ramp_deg: NonNegative, 0.0, 90.0, "°";
+    intake_area_m2: Positive, 1e-8, 0.1, "m²";
+    discharge_area_m2: Positive, 1e-8, 0.1, "m²";
+    discharge_coefficient: InUnit(1.0), 0.0, 1.0, "";
+});
 
 impl Default for Ports {
     fn default() -> Self {
@@ -182,6 +249,11 @@ pub struct Lines {
     pub pressure_ratio: f64,
 }
 
+checks!(Lines {
+    suction_pa: Positive, 1e4, 1e6, "Pa";
+    pressure_ratio: Positive, 1.0, 20.0, "";
+});
+
 impl Default for Lines {
     fn default() -> Self {
         Lines {
@@ -212,6 +284,17 @@ pub struct Servo {
     /// Quadrature counts per revolution (after ×4 decoding).
     pub counts_per_rev: u32,
 }
+
+checks!(Servo {
+    inertia_kgm2: Positive, 1e-7, 10.0, "kg·m²";
+    viscous_nms_per_rad: NonNegative, 0.0, 100.0, "N·m·s/rad";
+    coulomb_nm: NonNegative, 0.0, 100.0, "N·m";
+    torque_full_scale_nm: Positive, 1e-3, 1000.0, "N·m";
+    torque_limit_nm: Positive, 1e-3, 1000.0, "N·m";
+    torque_time_constant_s: NonNegative, 0.0, 0.1, "s";
+    backlash_rad: NonNegative, 0.0, 0.5, "rad";
+    counts_per_rev: Count, 256.0, 1048576.0, "counts";
+});
 
 impl Default for Servo {
     fn default() -> Self {
@@ -246,6 +329,15 @@ pub struct EncoderSensor {
     pub noise_codes: f64,
 }
 
+checks!(EncoderSensor {
+    amplitude_codes: Positive, 1.0, ADC_HALF_RANGE_CODES, "codes";
+    sin_offset_codes: Finite, -2047.0, 2047.0, "codes";
+    cos_offset_codes: Finite, -2047.0, 2047.0, "codes";
+    gain_mismatch: Finite, -0.99, 10.0, "";
+    quadrature_error_rad: Finite, -1.0, 1.0, "rad";
+    noise_codes: NonNegative, 0.0, 200.0, "codes";
+});
+
 impl Default for EncoderSensor {
     fn default() -> Self {
         EncoderSensor {
@@ -272,6 +364,12 @@ pub struct CurrentSensor {
     #[serde(deserialize_with = "exact_array")]
     pub offset_slave_a: [f64; 3],
 }
+
+checks!(CurrentSensor {
+    noise_a: NonNegative, 0.0, 10.0, "A";
+    offset_master_a: Finite, -10.0, 10.0, "A";
+    offset_slave_a: Finite, -10.0, 10.0, "A";
+});
 
 impl Default for CurrentSensor {
     fn default() -> Self {
@@ -300,6 +398,15 @@ pub struct PressureSensor {
     /// Offset of the discharge-line sensor, Pa.
     pub offset_discharge_pa: f64,
 }
+
+checks!(PressureSensor {
+    noise_pa: NonNegative, 0.0, 1e5, "Pa";
+    time_constant_s: NonNegative, 0.0, 1.0, "s";
+    offset_a_pa: Finite, -1e5, 1e5, "Pa";
+    offset_b_pa: Finite, -1e5, 1e5, "Pa";
+    offset_suction_pa: Finite, -1e5, 1e5, "Pa";
+    offset_discharge_pa: Finite, -1e5, 1e5, "Pa";
+});
 
 impl Default for PressureSensor {
     fn default() -> Self {
@@ -342,6 +449,13 @@ pub struct Limits {
     pub max_speed_mps: f64,
 }
 
+checks!(Limits {
+    target_head_clearance_m: Positive, 1e-5, 0.05, "m";
+    min_head_clearance_m: NonNegative, 0.0, 0.05, "m";
+    force_limit_n: Positive, 1.0, 1e6, "N";
+    max_speed_mps: Positive, 0.1, 10.0, "m/s";
+});
+
 impl Default for Limits {
     fn default() -> Self {
         Limits {
@@ -360,6 +474,10 @@ pub struct Simulation {
     /// Plant sub-steps per 50 µs control period.
     pub substeps_per_period: u32,
 }
+
+checks!(Simulation {
+    substeps_per_period: Count, 1.0, 64.0, "";
+});
 
 impl Default for Simulation {
     fn default() -> Self {
@@ -382,6 +500,12 @@ pub struct CoggingEffect {
     pub phase_rad: f64,
 }
 
+checks!(CoggingEffect {
+    amplitude_n: Finite, -1e4, 1e4, "N";
+    period_m: Positive, 1e-4, 1.0, "m";
+    phase_rad: Finite, -1e3, 1e3, "rad";
+});
+
 /// `[effects.slave_lag]` (and `[effects.actuator_lag]`): a transport delay.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -389,6 +513,10 @@ pub struct DelayEffect {
     /// Delay, s.
     pub delay_s: f64,
 }
+
+checks!(DelayEffect {
+    delay_s: NonNegative, 0.0, 5e-3, "s";
+});
 
 /// `[effects.stribeck_friction]`: replaces the Stribeck part of `[friction]`.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -402,6 +530,12 @@ pub struct StribeckEffect {
     #[serde(default = "d::one")]
     pub exponent: f64,
 }
+
+checks!(StribeckEffect {
+    static_n: NonNegative, 0.0, 1e5, "N";
+    velocity_mps: Positive, 1e-5, 10.0, "m/s";
+    exponent: Positive, 0.1, 10.0, "";
+});
 
 /// `[effects.encoder_pitch_error]`: the slave encoder reads
 /// `x·(1 + scale) + A·sin(2π·x/p + φ) + A₂·sin(4π·x/p + φ₂) + S·(frac(x/p + φ/2π) − ½) +
@@ -435,6 +569,17 @@ pub struct PitchErrorEffect {
     pub direction_m: f64,
 }
 
+checks!(PitchErrorEffect {
+    amplitude_m: Finite, -1e-3, 1e-3, "m";
+    period_m: Positive, 1e-4, 1.0, "m";
+    phase_rad: Finite, -1e3, 1e3, "rad";
+    scale: Finite, -0.1, 0.1, "";
+    amplitude2_m: Finite, -1e-3, 1e-3, "m";
+    phase2_rad: Finite, -1e3, 1e3, "rad";
+    step_m: Finite, -1e-3, 1e-3, "m";
+    direction_m: Finite, -1e-3, 1e-3, "m";
+});
+
 /// `[effects.heat_transfer]`: `Q̇ = UA·(T_wall − T)` in each chamber.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -444,6 +589,11 @@ pub struct HeatTransferEffect {
     /// Wall temperature, K (default: `gas.temperature_k`).
     pub wall_temperature_k: Option<f64>,
 }
+
+checks!(HeatTransferEffect {
+    ua_w_per_k: NonNegative, 0.0, 1e4, "W/K";
+    wall_temperature_k: Positive, 50.0, 1000.0, "K";
+});
 
 /// `[effects.leakage]`: laminar clearance leaks, piston seal A↔B and rod seals to ambient.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -461,6 +611,13 @@ pub struct LeakageEffect {
     pub rod_seal_length_m: f64,
 }
 
+checks!(LeakageEffect {
+    gap_m: NonNegative, 0.0, 1e-3, "m";
+    seal_length_m: Positive, 1e-4, 1.0, "m";
+    rod_gap_m: NonNegative, 0.0, 1e-3, "m";
+    rod_seal_length_m: Positive, 1e-4, 1.0, "m";
+});
+
 /// `[effects.port_restriction]`: the ports pass less than their geometry says.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -468,6 +625,10 @@ pub struct PortRestrictionEffect {
     /// Factor on every port's effective area C_d·A (1 = as designed).
     pub area_scale: f64,
 }
+
+checks!(PortRestrictionEffect {
+    area_scale: InUnit(10.0), 0.0, 10.0, "";
+});
 
 /// `[effects.section_misalignment]`: the slave section's magnets sit `offset_m` along x from
 /// where its encoder says (paper Eq. 4), so its commutation is off by 2π·offset/λ.
@@ -477,6 +638,10 @@ pub struct MisalignmentEffect {
     /// Offset D_dif, m.
     pub offset_m: f64,
 }
+
+checks!(MisalignmentEffect {
+    offset_m: Finite, -0.01, 0.01, "m";
+});
 
 /// `[effects]`: what the model-gap workflow adds. Absent = not in the physics.
 #[derive(Clone, Debug, Default, Deserialize, PartialEq)]
@@ -533,6 +698,21 @@ pub struct Published {
     /// Current limit of each drive, A (0 = the motor's `current_limit_a`).
     pub current_limit_a: f64,
 }
+
+checks!(Published {
+    cycle_s: NonNegative, 5e-5, 0.01, "s";
+    slave_lag_s: NonNegative, 0.0, 0.05, "s";
+    position_gain_per_s: NonNegative, 0.0, 1e4, "1/s";
+    velocity_gain_ns_per_m: NonNegative, 0.0, 1e7, "N·s/m";
+    velocity_integral_time_s: NonNegative, 0.0, 10.0, "s";
+    velocity_feedforward: NonNegative, 0.0, 2.0, "";
+    velocity_filter_s: NonNegative, 0.0, 0.1, "s";
+    loop_velocity_delay_s: NonNegative, 0.0, 0.1, "s";
+    reported_velocity_delay_s: NonNegative, 0.0, 0.1, "s";
+    current_bandwidth_hz: NonNegative, 10.0, 5000.0, "Hz";
+    rest_s: NonNegative, 0.0, 60.0, "s";
+    current_limit_a: NonNegative, 0.0, 1000.0, "A";
+});
 
 impl Default for Published {
     fn default() -> Self {

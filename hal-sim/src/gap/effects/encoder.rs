@@ -1,0 +1,99 @@
+//! The encoder channel's candidate: the slave scale's pitch error (a spatial periodogram of
+//! the slave-minus-master reading, then the harmonic and scale fit).
+
+use crate::plant::model::{model_key, model_section};
+
+use super::super::doc::{Edit, ModelDoc};
+use super::super::fit::{lstsq, minimise_1d};
+use super::super::residuals::{channel_raw, kept_of_raw, ChannelId};
+use super::{harmonics, kept_span, Ctx, EffectKind, Proposal};
+
+pub(super) fn pitch_error(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
+    let base = doc.with(&[Edit::RemoveSection(model_section!(
+        effects.encoder_pitch_error
+    ))]);
+    let model = base.model().ok()?;
+    let d = ctx.data;
+    let raw = channel_raw(d, &model, ChannelId::Encoder)?;
+    let y = kept_of_raw(d, ctx.band, ChannelId::Encoder, &raw);
+    let lambda = model.encoder.period_m;
+    let idx = &ctx.band.idx_encoder;
+    let xk: Vec<f64> = idx.iter().filter_map(|&i| d.x_m.get(i).copied()).collect();
+    // The quick scan demeans its columns per motion stretch at the kept samples, as the
+    // residual is demeaned per stretch at every sample.
+    let seg_of: Vec<usize> = idx
+        .iter()
+        .map(|&i| {
+            d.segments
+                .iter()
+                .position(|s| s.contains(&i))
+                .unwrap_or(usize::MAX)
+        })
+        .collect();
+    let demean_kept = |col: Vec<f64>| -> Vec<f64> {
+        let mut sums: std::collections::BTreeMap<usize, (f64, usize)> = Default::default();
+        for (v, s) in col.iter().zip(&seg_of) {
+            let e = sums.entry(*s).or_insert((0.0, 0));
+            e.0 += v;
+            e.1 += 1;
+        }
+        col.iter()
+            .zip(&seg_of)
+            .map(|(v, s)| v - sums.get(s).map_or(0.0, |(t, c)| t / (*c).max(1) as f64))
+            .collect()
+    };
+    let lin = demean_kept(xk.clone());
+    let (f_lo, f_hi) = (1.0 / (2.0 * lambda), 1.0 / (0.5 * lambda));
+    let df = 1.0 / (8.0 * kept_span(&xk));
+    let steps = ((f_hi - f_lo) / df).ceil().min(4000.0) as usize;
+    let mut best: Option<(f64, f64)> = None;
+    for i in 0..=steps {
+        let f = f_lo + df * i as f64;
+        let mut cols = vec![lin.clone()];
+        cols.extend(harmonics(&xk, f, true).into_iter().map(&demean_kept));
+        if let Some((_, rss)) = lstsq(&cols, &y) {
+            if best.is_none_or(|b| rss < b.1) {
+                best = Some((f, rss));
+            }
+        }
+    }
+    let f0 = best?.0;
+    // Refine with the columns demeaned and filtered exactly as the residual is.
+    let fitf = |f: f64| -> Option<(Vec<f64>, f64)> {
+        let filt =
+            |col: Vec<f64>| kept_of_raw(d, ctx.band, ChannelId::Encoder, &d.demean_segments(&col));
+        let mut cols = vec![filt(d.x_m.clone())];
+        let hs = harmonics(&d.x_m, f, true);
+        // Columns in the order sin f, cos f, sin 2f, cos 2f.
+        cols.extend(hs.into_iter().map(filt));
+        lstsq(&cols, &y)
+    };
+    let (f, _) = minimise_1d(f0 - df, f0 + df, 5, 16, |f| fitf(f).map(|r| r.1))?;
+    let (th, _) = fitf(f)?;
+    let g = |i: usize| th.get(i).copied().unwrap_or(0.0);
+    let (scale, a1, b1, a2, b2) = (g(0), g(1), g(2), g(3), g(4));
+    Some(Proposal::setting(
+        EffectKind::EncoderPitchError,
+        &[
+            (
+                model_key!(effects.encoder_pitch_error / amplitude_m),
+                a1.hypot(b1),
+            ),
+            (model_key!(effects.encoder_pitch_error / period_m), 1.0 / f),
+            (
+                model_key!(effects.encoder_pitch_error / phase_rad),
+                b1.atan2(a1),
+            ),
+            (model_key!(effects.encoder_pitch_error / scale), scale),
+            (
+                model_key!(effects.encoder_pitch_error / amplitude2_m),
+                a2.hypot(b2),
+            ),
+            (
+                model_key!(effects.encoder_pitch_error / phase2_rad),
+                b2.atan2(a2),
+            ),
+        ],
+        6,
+    ))
+}

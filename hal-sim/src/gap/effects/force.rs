@@ -1,0 +1,287 @@
+//! The force channel's candidates: mass error, Coulomb, viscous and Stribeck friction (the
+//! law's own shapes as regressors), cogging (a spatial periodogram, then the harmonic fit)
+//! and an actuator lag.
+
+use fpc::physics::friction::stribeck_shape;
+
+use crate::plant::model::{model_key, model_section};
+use crate::signal::xcorr_lag;
+
+use super::super::doc::{Edit, ModelDoc};
+use super::super::fit::{lstsq, minimise_1d};
+use super::super::residuals::{
+    acting_motor_force_n, force_raw, force_terms, tangential_mps, ChannelId,
+};
+use super::{harmonics, kept_span, Ctx, EffectKind, Proposal, MAX_LAG_S};
+
+/// The force residual of `doc` at the kept samples.
+fn force_kept(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Vec<f64>> {
+    let model = doc.model().ok()?;
+    let raw = force_raw(ctx.data, &model);
+    Some(ctx.band.kept(ctx.data, ChannelId::Force, &raw))
+}
+
+/// Fits `y ≈ θ·reg` for one force-channel regressor given raw.
+fn one_coefficient(ctx: &Ctx<'_>, y: &[f64], raw_regressor: &[f64]) -> Option<f64> {
+    let reg = ctx.band.kept(ctx.data, ChannelId::Force, raw_regressor);
+    lstsq(&[reg], y).map(|(th, _)| th.first().copied().unwrap_or(0.0))
+}
+
+pub(super) fn mass_error(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
+    let model = doc.model().ok()?;
+    let y = force_kept(ctx, doc)?;
+    // r = (m_model − m_true)·ẍ.
+    let theta = one_coefficient(ctx, &y, &ctx.data.d2x_mps2)?;
+    let mass = model.piston.mass_kg - theta;
+    // Outside half to twice the modelled mass it is not a mass error but something else
+    // correlating with ẍ (a slow run barely accelerates).
+    let plausible = mass > 0.5 * model.piston.mass_kg && mass < 2.0 * model.piston.mass_kg;
+    plausible.then(|| {
+        Proposal::setting(
+            EffectKind::MassError,
+            &[(model_key!(piston / mass_kg), mass)],
+            1,
+        )
+    })
+}
+
+/// Per sample: the sliding speed `|u| = |(ẋ, ω·r)|` and the axial share of a unit friction
+/// force along it, the sign regularised as the law does (the law's own shape,
+/// [`fpc::physics::friction::FrictionParams::axial_direction`]).
+fn friction_direction(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<(Vec<f64>, Vec<f64>)> {
+    let model = doc.model().ok()?;
+    let law = model.friction();
+    let tang = tangential_mps(ctx.data, &model);
+    let (slip, dir) = ctx
+        .data
+        .v_mps
+        .iter()
+        .zip(&tang)
+        .map(|(v, t)| ((v * v + t * t).sqrt(), law.axial_direction(*v, *t)))
+        .unzip();
+    Some((slip, dir))
+}
+
+/// The edits that shift every friction level by `delta_n` (Coulomb and, where present, the
+/// static levels: the Stribeck dip keeps its depth).
+fn friction_level_edits(doc: &ModelDoc, delta_n: f64) -> Option<(f64, Vec<Edit>)> {
+    let coulomb = doc.number(model_key!(friction / coulomb_n))? + delta_n;
+    if coulomb < 0.0 {
+        return None;
+    }
+    let mut edits = vec![Edit::Set(model_key!(friction / coulomb_n), coulomb)];
+    if let Some(s) = doc.number(model_key!(friction / static_n)) {
+        edits.push(Edit::Set(
+            model_key!(friction / static_n),
+            (s + delta_n).max(0.0),
+        ));
+    }
+    if let Some(s) = doc.number(model_key!(effects.stribeck_friction / static_n)) {
+        edits.push(Edit::Set(
+            model_key!(effects.stribeck_friction / static_n),
+            (s + delta_n).max(0.0),
+        ));
+    }
+    Some((coulomb, edits))
+}
+
+pub(super) fn coulomb(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
+    let y = force_kept(ctx, doc)?;
+    let (_, dir) = friction_direction(ctx, doc)?;
+    // More friction than modelled leaves −ΔF·direction in the residual.
+    let neg: Vec<f64> = dir.iter().map(|d| -d).collect();
+    let delta = one_coefficient(ctx, &y, &neg)?;
+    let (coulomb, edits) = friction_level_edits(doc, delta)?;
+    Some(Proposal {
+        kind: EffectKind::CoulombFriction,
+        params: vec![(model_key!(friction / coulomb_n).name, coulomb)],
+        edits,
+        k: 1,
+    })
+}
+
+pub(super) fn viscous(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
+    let y = force_kept(ctx, doc)?;
+    let neg: Vec<f64> = ctx.data.v_mps.iter().map(|v| -v).collect();
+    let delta = one_coefficient(ctx, &y, &neg)?;
+    // A viscous coefficient is not negative: a fit below zero (a machine with almost none,
+    // and noise) is held at zero rather than dropped.
+    let b = (doc.number(model_key!(friction / viscous_ns_per_m))? + delta).max(0.0);
+    Some(Proposal::setting(
+        EffectKind::ViscousFriction,
+        &[(model_key!(friction / viscous_ns_per_m), b)],
+        1,
+    ))
+}
+
+/// Stribeck velocities searched, m/s (log-spaced).
+const STRIBECK_RANGE_MPS: (f64, f64) = (1e-3, 0.3);
+
+pub(super) fn stribeck(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
+    let base = doc.with(&[
+        Edit::RemoveSection(model_section!(effects.stribeck_friction)),
+        Edit::RemoveKey(model_key!(friction / static_n)),
+    ]);
+    let coulomb = base.number(model_key!(friction / coulomb_n))?;
+    let y = force_kept(ctx, &base)?;
+    let (slip, dir) = friction_direction(ctx, &base)?;
+    let fit = |log_vs: f64, zeta: f64| -> Option<(f64, f64)> {
+        let vs = log_vs.exp();
+        // The law's Stribeck shape along the friction's direction (more dip than modelled
+        // leaves −ΔF·S·d in the residual).
+        let raw: Vec<f64> = slip
+            .iter()
+            .zip(&dir)
+            .map(|(s, d)| -stribeck_shape(*s, vs, zeta) * d)
+            .collect();
+        let reg = ctx.band.kept(ctx.data, ChannelId::Force, &raw);
+        let (th, rss) = lstsq(&[reg], &y)?;
+        let dip = th.first().copied()?;
+        (dip > 0.0).then_some((dip, rss))
+    };
+    let (lo, hi) = (STRIBECK_RANGE_MPS.0.ln(), STRIBECK_RANGE_MPS.1.ln());
+    let mut best: Option<(f64, f64, f64)> = None; // (rss, log v_s, ζ)
+    for zeta in [0.5, 1.0, 2.0] {
+        if let Some((lv, rss)) = minimise_1d(lo, hi, 13, 14, |lv| fit(lv, zeta).map(|f| f.1)) {
+            if best.is_none_or(|b| rss < b.0) {
+                best = Some((rss, lv, zeta));
+            }
+        }
+    }
+    let (_, lv, zeta) = best?;
+    let (dip, _) = fit(lv, zeta)?;
+    let (static_n, vs) = (coulomb + dip, lv.exp());
+    let mut p = Proposal::setting(
+        EffectKind::StribeckFriction,
+        &[
+            (model_key!(effects.stribeck_friction / static_n), static_n),
+            (model_key!(effects.stribeck_friction / velocity_mps), vs),
+            (model_key!(effects.stribeck_friction / exponent), zeta),
+        ],
+        3,
+    );
+    // The effect's static level replaces the section's.
+    p.edits
+        .insert(0, Edit::RemoveKey(model_key!(friction / static_n)));
+    Some(p)
+}
+
+/// Spatial periodogram: for each spatial frequency (1/m) of `freqs`, the residual sum of
+/// squares of `y` against `base` columns plus sin/cos at that frequency (and at twice it
+/// when `second`) evaluated at the positions `x` (unfiltered: a quick scan). Returns the
+/// best frequency.
+fn periodogram(
+    y: &[f64],
+    x: &[f64],
+    base: &[Vec<f64>],
+    freqs: impl Iterator<Item = f64>,
+    second: bool,
+) -> Option<f64> {
+    let mut best: Option<(f64, f64)> = None;
+    for f in freqs {
+        let mut cols = base.to_vec();
+        cols.extend(harmonics(x, f, second));
+        if let Some((_, rss)) = lstsq(&cols, y) {
+            if best.is_none_or(|b| rss < b.1) {
+                best = Some((f, rss));
+            }
+        }
+    }
+    best.map(|b| b.0)
+}
+
+pub(super) fn cogging(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
+    let base = doc.with(&[Edit::RemoveSection(model_section!(effects.cogging))]);
+    let pole = base.number(model_key!(motor / pole_pitch_m))?;
+    let y = force_kept(ctx, &base)?;
+    let xk: Vec<f64> = ctx
+        .band
+        .idx_force
+        .iter()
+        .filter_map(|&i| ctx.data.x_m.get(i).copied())
+        .collect();
+    let (f_lo, f_hi) = (1.0 / (2.5 * pole), 1.0 / (0.4 * pole));
+    let df = 1.0 / (8.0 * kept_span(&xk));
+    let steps = ((f_hi - f_lo) / df).ceil().min(4000.0) as usize;
+    let f0 = periodogram(
+        &y,
+        &xk,
+        &[],
+        (0..=steps).map(|i| f_lo + df * i as f64),
+        false,
+    )?;
+    // Refine with the regressors filtered exactly as the residual is.
+    let fitf = |f: f64| -> Option<(Vec<f64>, f64)> {
+        let cols: Vec<Vec<f64>> = harmonics(&ctx.data.x_m, f, false)
+            .iter()
+            .map(|h| ctx.band.kept(ctx.data, ChannelId::Force, h))
+            .collect();
+        lstsq(&cols, &y)
+    };
+    let (f, _) = minimise_1d(f0 - df, f0 + df, 5, 16, |f| fitf(f).map(|r| r.1))?;
+    let (th, _) = fitf(f)?;
+    let (a, b) = (th.first().copied()?, th.get(1).copied()?);
+    let (amp, phase, period) = (a.hypot(b), b.atan2(a), 1.0 / f);
+    Some(Proposal::setting(
+        EffectKind::Cogging,
+        &[
+            (model_key!(effects.cogging / amplitude_n), amp),
+            (model_key!(effects.cogging / period_m), period),
+            (model_key!(effects.cogging / phase_rad), phase),
+        ],
+        3,
+    ))
+}
+
+/// How far the force that acts on the piston lags the force the drives report, by FFT
+/// cross-correlation of the two (both through the force kernel): the acting force is
+/// `m·ẍ` less every other modelled force. `None` if there is too little motion.
+pub fn acting_force_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<crate::signal::Lag> {
+    let base = doc.with(&[Edit::RemoveSection(model_section!(effects.actuator_lag))]);
+    let model = base.model().ok()?;
+    let d = ctx.data;
+    let motors = acting_motor_force_n(d, 0.0);
+    // The motor force that closes the balance with every other modelled force.
+    let acting: Vec<f64> = force_terms(d, &model)
+        .iter()
+        .zip(&d.d2x_mps2)
+        .map(|(f, a)| f.motor_needed_n(model.piston.mass_kg, *a))
+        .collect();
+    let reported = ctx.band.full(d, ChannelId::Force, &motors);
+    let acting = ctx.band.full(d, ChannelId::Force, &acting);
+    let max = (MAX_LAG_S / d.dt_s).round() as usize;
+    xcorr_lag(&reported, &acting, d.dt_s, Some(max)).ok()
+}
+
+/// Longest actuator lag searched, s.
+pub const MAX_ACTUATOR_LAG_S: f64 = 5e-3;
+
+pub(super) fn actuator_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
+    let base = doc.with(&[Edit::RemoveSection(model_section!(effects.actuator_lag))]);
+    let model = base.model().ok()?;
+    let d = ctx.data;
+    // Everything but the motor forces, once: r(d) = m·Δ²x − others − motors acting at d.
+    let fixed: Vec<f64> = force_terms(d, &model)
+        .iter()
+        .zip(&d.d2x_mps2)
+        .map(|(f, a)| f.motor_needed_n(model.piston.mass_kg, *a))
+        .collect();
+    let rss = |delay: f64| -> Option<f64> {
+        let late = acting_motor_force_n(d, delay.max(0.0));
+        let raw: Vec<f64> = fixed.iter().zip(&late).map(|(f, m)| f - m).collect();
+        Some(super::super::fit::sumsq(&ctx.band.kept(
+            d,
+            ChannelId::Force,
+            &raw,
+        )))
+    };
+    // A grid of about one step per sample (the cross-correlation's peak is too flat on smooth
+    // strokes to pick the lag alone), then golden section.
+    let grid = ((MAX_ACTUATOR_LAG_S / d.dt_s).round() as usize + 1).clamp(11, 201);
+    let (delay, _) = minimise_1d(0.0, MAX_ACTUATOR_LAG_S, grid, 16, rss)?;
+    Some(Proposal::setting(
+        EffectKind::ActuatorLag,
+        &[(model_key!(effects.actuator_lag / delay_s), delay)],
+        1,
+    ))
+}

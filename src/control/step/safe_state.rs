@@ -1,0 +1,425 @@
+//! The safe state: what the machine does once a fault has latched, each reaction of
+//! [`crate::safety::faults::Reaction`] carried out — SS1 (a controlled stop, then the outputs
+//! off) or STO (outputs off at once), a section taken out of the allocation, braking without
+//! position after both encoders were lost, braking after a watchdog reset — and the park's
+//! turn to a venting phase when the host is lost. The supervise stage detects a fault and
+//! dispatches its reaction here ([`ControlStep::react`]); the mode machine (`modes.rs`) runs
+//! the controlled stop these reactions start.
+
+use super::modes::{turn_phase, AfterStop, Mode};
+use super::{ControlStep, CycleInputs};
+use crate::motion::trajectory::Setpoint;
+use crate::physics::port_timing::PortWindow;
+use crate::real::{clamp_f32, max_f32, min_f32, sqrt_f32};
+use crate::safety::faults::Fault;
+use crate::units::{PerSection, PhaseDuties};
+use core::f32::consts::{PI, TAU};
+
+/// How fast the rotation turns to the venting phase before a park, rad/s (half a turn, the
+/// farthest, in 0.5 s).
+pub const VENT_SPEED_RAD_S: f32 = core::f32::consts::TAU;
+
+/// How long the park holds the piston while the rotation turns to the venting phase, s:
+/// half a turn at [`VENT_SPEED_RAD_S`] and 0.25 s for the servo to settle there. The park
+/// move's clock starts this far below zero (its path is at rest there).
+pub const VENT_TIME_S: f32 = 0.75;
+
+/// How long the rotation spends in `window` on a turn by `turn_rad` from `phase_rad`, s,
+/// driven toward the target at `accel_rad_s2` from its speed `speed_rad_s` (signed, positive
+/// forward). Against its speed it first coasts to a stop, deeper into a window it is in, and
+/// comes back: that time counts too. 0 for no turn.
+fn time_in_window(
+    phase_rad: f32,
+    turn_rad: f32,
+    window: &PortWindow<f32>,
+    speed_rad_s: f32,
+    accel_rad_s2: f32,
+) -> f32 {
+    if turn_rad == 0.0 {
+        return 0.0;
+    }
+    let length = turn_rad.abs();
+    // Speed along the turn, and the time to have come `s` along it (the later root: against
+    // the speed the rotation passes its start again on the way).
+    let v0 = if turn_rad > 0.0 {
+        speed_rad_s
+    } else {
+        -speed_rad_s
+    };
+    let reach = |s: f32| (sqrt_f32(v0 * v0 + 2.0 * accel_rad_s2 * s) - v0) / accel_rad_s2;
+    // The window in the turn's own coordinate: where it begins ahead on the path, and how
+    // far into it the path begins.
+    let (edge_ahead, edge_behind) = if turn_rad > 0.0 {
+        (window.open_rad, window.close_rad)
+    } else {
+        (window.close_rad, window.open_rad)
+    };
+    let width = window.span_rad();
+    let forward = |a: f32, b: f32| {
+        if turn_rad > 0.0 {
+            turn_phase(b - a)
+        } else {
+            turn_phase(a - b)
+        }
+    };
+    let ahead = forward(phase_rad, edge_ahead);
+    let mut time = 0.0;
+    if ahead < length && ahead > 0.0 {
+        time += reach(min_f32(ahead + width, length)) - reach(ahead);
+    }
+    // Inside the window at the start: until the path leaves it.
+    let left = forward(phase_rad, edge_behind);
+    if forward(edge_ahead, phase_rad) < width && left > 0.0 {
+        time += reach(min_f32(left, length));
+    }
+    time
+}
+
+/// What the faulted state still does with the outputs (they are off otherwise).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum FaultedBrake {
+    /// Nothing.
+    None,
+    /// After a watchdog reset: cycles until the velocity estimate is valid, then a controlled
+    /// stop in the encoders' own frame ([`ControlStep::boot`]).
+    AfterReset(u16),
+    /// Both encoders lost: cycles of outputs off left before the windings are
+    /// short-circuited (0: shorted; [`ControlStep::brake_without_position`]).
+    Blind(u16),
+}
+
+impl ControlStep {
+    /// SS1 or STO for `fault`, the stop every reaction ends in: latches `fault`; with the
+    /// position trusted (and known: homed) a controlled stop on the braking envelope that
+    /// ends with the outputs off (SS1), otherwise the outputs off at once (STO) — also when
+    /// the fault was already latched with the position still trusted then.
+    #[cold]
+    #[inline(never)]
+    pub(super) fn enter_safe_state(&mut self, fault: Fault, position_trusted: bool) {
+        let new = self.faults.latch(fault);
+        if !(position_trusted && self.zero_raw_m.is_some()) {
+            self.mode = Mode::Faulted;
+        } else if new {
+            self.begin_stop(AfterStop::Off);
+        }
+    }
+
+    /// Takes a section out of the allocation (lost, or switched off after an overcurrent).
+    pub(super) fn drop_section(&mut self, index: usize) {
+        let cap = &mut self.config.allocation.capability;
+        if index == 0 {
+            cap.master = 0.0;
+        } else {
+            cap.slave = 0.0;
+        }
+    }
+
+    /// After an overcurrent: the section with the larger peak phase current is taken out;
+    /// the other one stops the piston.
+    pub(super) fn drop_hotter_section(&mut self) {
+        let m = self.currents.master.state().peak_phase_a;
+        let s = self.currents.slave.state().peak_phase_a;
+        self.drop_section(if m >= s { 0 } else { 1 });
+    }
+
+    /// After a watchdog reset: the outputs stay off for the cycles the differentiator needs
+    /// for a valid velocity, then [`ControlStep::brake_after_reset`] starts the controlled
+    /// stop (see [`ControlStep::boot`]).
+    pub(super) fn await_velocity_then_brake(&mut self) {
+        self.faulted_brake =
+            FaultedBrake::AfterReset(self.config.sg_window.saturating_add(5) as u16);
+    }
+
+    /// The outputs with no setpoint (not calibrating): off — the current loops reset and
+    /// the phase currents watched for an offset — except with both encoders lost once the
+    /// currents have decayed: the windings short-circuited (equal duties, zero voltage on
+    /// every phase; [`ControlStep::brake_without_position`]).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn outputs_off(&mut self, inputs: &CycleInputs) -> Option<PerSection<PhaseDuties>> {
+        self.currents.master.reset();
+        self.currents.slave.reset();
+        self.load_observer = f32::NAN;
+        self.load_n = 0.0;
+        self.shares = PerSection::default();
+        self.status.force_command_n = 0.0;
+        if self.faulted_brake == FaultedBrake::Blind(0) {
+            return Some(PerSection::default());
+        }
+        self.sense_monitor.observe(&inputs.currents);
+        None
+    }
+
+    /// Both encoders lost (issue #15, `faults.md` #22): nothing tells where the piston is,
+    /// so nothing can commutate a braking force. The reaction, chosen by simulation over the
+    /// whole stroke cycle (`tests/losing_both_encoders_brakes_without_position.rs`):
+    ///
+    /// 1. Outputs off (STO) while the winding currents decay into the bus (`L·I_max/V_bus`,
+    ///    0.7 ms): shorted at once, a current that was holding the piston against the gas
+    ///    would go on pulling it for the windings' `L/R` (10 ms).
+    /// 2. Then the windings short-circuited (all six low-side switches on): the back-EMF
+    ///    drives braking currents through the windings' resistance, up to ~2.7 kN for both
+    ///    sections near 0.4 m/s, ~0.5 kN at 4.1 m/s — a strong damper at low speed.
+    /// 3. The rotation, whose own encoder is still good, turns the shorter way to the nearest
+    ///    phase where both ports of the chamber ahead (by the last trusted velocity) are
+    ///    closed, a ramp inside its sealed arc, and holds there: that chamber becomes a gas
+    ///    spring that takes the piston's kinetic energy, and the short circuit damps the
+    ///    rebound. A coasting rotation would open the chamber ahead to its intake, or hold it
+    ///    on the discharge line (a constant 2.5 kN push back over the whole stroke).
+    ///    Except near a dead point, the chamber ahead already discharging: the line's
+    ///    pressure, which the sections had to drive the piston against, turns it there, and
+    ///    the turn back to seal that chamber (against the rotation's own speed) would leave
+    ///    it on the line through the rebound, the line pushing the piston back across the
+    ///    stroke (a plant 9 % lighter than the model reached the other head). Then the
+    ///    other chamber, ahead after the turn, is sealed: forward, the way the rotation
+    ///    already goes, past the dead-point phase where the discharge closes.
+    ///
+    ///    Which way round: the turn that holds the chamber *behind* on its discharge port
+    ///    for the least time (at full servo torque from the rotation's speed now: against
+    ///    it, the rotation must stop first), and of those the shortest. As a compressor no
+    ///    turn crosses that port, and this is the shortest turn. As an expander the rotation
+    ///    runs backwards and the chamber behind is admitting from the line: the shorter turn
+    ///    can go back through its admission, the line driving the piston into the head
+    ///    (−2.2 mm, 346 bar in the chamber ahead at PR 5.1, before this rule); the turn
+    ///    the way the rotation runs cuts the admission off.
+    #[cold]
+    #[inline(never)]
+    pub(super) fn brake_without_position(&mut self) {
+        if matches!(self.faulted_brake, FaultedBrake::Blind(_)) {
+            return;
+        }
+        let g = &self.config.port_geometry;
+        let ramp = g.ramp_rad;
+        let phase = turn_phase(self.theta_reference_rad);
+        let toward_b = self.status.velocity_mps >= 0.0;
+        // The chamber ahead already discharging: the line turns the piston before its dead
+        // point; the chamber to seal is the other one, ahead after the turn (see above).
+        let ahead = if toward_b {
+            &g.discharge_b
+        } else {
+            &g.discharge_a
+        };
+        let discharging =
+            turn_phase(phase - ahead.open_rad) < turn_phase(ahead.close_rad - ahead.open_rad);
+        let (intake, discharge) = if toward_b != discharging {
+            (&g.intake_b, &g.discharge_b)
+        } else {
+            (&g.intake_a, &g.discharge_a)
+        };
+        // The chamber behind by the last trusted velocity: a turn that holds it on the
+        // discharge line drives the piston on toward the head (see above).
+        let behind = if toward_b {
+            &g.discharge_a
+        } else {
+            &g.discharge_b
+        };
+        // The two arcs between the chamber's windows, each inset by a ramp at both ends:
+        // of the turns to either end of either (0 inside one), the one that holds the
+        // behind chamber on the line for the least time — the rotation going at full
+        // torque from its speed now (against it, it must stop first) — and of those the
+        // shortest.
+        let speed = self.servo.velocity_rad_s();
+        let sc = &self.config.servo;
+        let accel = max_f32(sc.torque_full_scale_nm / sc.inertia_kgm2, 1.0);
+        let mut best: Option<(f32, f32)> = None;
+        for (from, to) in [
+            (intake.close_rad, discharge.open_rad),
+            (discharge.close_rad, intake.open_rad),
+        ] {
+            if turn_phase(to - from) <= 2.0 * ramp {
+                continue;
+            }
+            let start = from + ramp;
+            let span = turn_phase(to - ramp - start);
+            let into = turn_phase(phase - start);
+            // Inside the arc: no turn; outside: back to its far end or on to its near one.
+            let turns = if into <= span {
+                [0.0, 0.0]
+            } else {
+                [span - into, TAU - into]
+            };
+            for turn in turns {
+                let exposed = time_in_window(phase, turn, behind, speed, accel);
+                best = match best {
+                    Some((e, b)) if (e, b.abs()) <= (exposed, turn.abs()) => Some((e, b)),
+                    _ => Some((exposed, turn)),
+                };
+            }
+        }
+        let m = &self.config.motor;
+        let decay_s = m.inductance_h * m.current_limit_a / m.bus_voltage_v;
+        let cycles = clamp_f32(decay_s / self.config.sample_time_s + 1.0, 1.0, 1000.0) as u16;
+        self.faulted_brake = FaultedBrake::Blind(cycles);
+        // The phase to turn to once the windings are shorted (SS1's hold timer is free
+        // while faulted).
+        let turn = best.map_or(0.0, |(_, turn)| turn);
+        self.hold_quiet_s = turn_phase(phase + turn);
+        self.sealing_turn_rad = turn;
+    }
+
+    /// A cycle of the faulted state: nothing while no brake runs ([`FaultedBrake::None`]);
+    /// after a watchdog reset, the wait for the velocity estimate; after both encoders were
+    /// lost, the countdown to the short circuit, and at its end the rotation sent to the
+    /// sealing phase (once).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn faulted_cycle(&mut self) {
+        match self.faulted_brake {
+            FaultedBrake::None => {}
+            FaultedBrake::AfterReset(_) => self.brake_after_reset(),
+            FaultedBrake::Blind(left) => {
+                self.faulted_brake = FaultedBrake::Blind(left.saturating_sub(1));
+                if left <= 1 && !self.hold_quiet_s.is_nan() {
+                    // The shorter way to the target from where the rotation has coasted,
+                    // unless the turn decided goes the long way round.
+                    let now = turn_phase(self.theta_reference_rad);
+                    let mut turn = turn_phase(self.hold_quiet_s - now + PI) - PI;
+                    if self.sealing_turn_rad < -PI && turn > 0.0 {
+                        turn -= TAU;
+                    } else if self.sealing_turn_rad > PI && turn < 0.0 {
+                        turn += TAU;
+                    }
+                    self.theta_reference_rad += turn;
+                    self.hold_quiet_s = f32::NAN;
+                }
+            }
+        }
+    }
+
+    /// After a watchdog reset: counts the cycles until the velocity estimate is valid, then
+    /// starts the controlled stop (see [`ControlStep::boot`]).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn brake_after_reset(&mut self) {
+        let left = match self.faulted_brake {
+            FaultedBrake::AfterReset(n) => n,
+            _ => 0,
+        };
+        if left > 0 {
+            self.faulted_brake = FaultedBrake::AfterReset(left - 1);
+            return;
+        }
+        self.faulted_brake = FaultedBrake::None;
+        if self.faults.contains(Fault::EncoderSignal)
+            || self.faults.contains(Fault::EncoderMismatch)
+        {
+            return;
+        }
+        self.hold_quiet_s = 0.0;
+        self.hold_motor_ns = 0.0;
+        self.hold_gas_ns = 0.0;
+        self.stop_decel_mps2 = self.stop_deceleration(self.status.position_m, 0.0);
+        self.disturbance_n = 0.0;
+        self.mode = Mode::Stopping {
+            setpoint: Setpoint {
+                position_m: self.status.position_m,
+                velocity_mps: self.status.velocity_mps,
+                acceleration_mps2: 0.0,
+            },
+            then: AfterStop::Off,
+        };
+    }
+
+    /// The nearest phase where both chambers breathe
+    /// ([`crate::physics::port_timing::PortGeometry::venting_phases_rad`]), as a turn of the
+    /// rotation from the current reference, rad in [−π, π); `None` for a geometry without one.
+    pub(super) fn vent_turn_rad(&self) -> Option<f32> {
+        let phase = turn_phase(self.theta_reference_rad);
+        self.config
+            .port_geometry
+            .venting_phases_rad()
+            .iter()
+            .flatten()
+            // The shorter way round.
+            .map(|v| turn_phase(*v - phase + PI) - PI)
+            .fold(None, |best: Option<f32>, d| match best {
+                Some(b) if b.abs() <= d.abs() => Some(b),
+                _ => Some(d),
+            })
+    }
+
+    /// Where the park move's clock starts: [`VENT_TIME_S`] below zero, the rotation turning
+    /// to a venting phase meanwhile, so the move cannot compress a sealed chamber beyond the
+    /// pressure sensors' range; 0 for a geometry with no such phase.
+    #[cold]
+    #[inline(never)]
+    pub(super) fn vent_delay_s(&self) -> f32 {
+        match self.vent_turn_rad() {
+            Some(_) => -VENT_TIME_S,
+            None => 0.0,
+        }
+    }
+
+    /// One cycle of the park's turn: the rotation reference moves toward the nearest venting
+    /// phase at [`VENT_SPEED_RAD_S`] (the target is found again each cycle: the nearest stays
+    /// the nearest as the reference approaches it).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn turn_to_vent(&mut self, dt: f32) {
+        if let Some(d) = self.vent_turn_rad() {
+            let step = VENT_SPEED_RAD_S * dt;
+            self.theta_reference_rad += clamp_f32(d, -step, step);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::physics::port_timing::PortGeometry;
+
+    /// The same time found by stepping the motion through time: the angle at full
+    /// acceleration toward the turn from the speed now, and whether it is in the window,
+    /// tested directly at each step of 1 µs until the turn is done.
+    fn stepped(phase: f32, turn: f32, w: &PortWindow<f32>, speed: f32, accel: f32) -> f32 {
+        let (phase, turn, speed, accel) = (
+            f64::from(phase),
+            f64::from(turn),
+            f64::from(speed),
+            f64::from(accel),
+        );
+        let (open, close) = (f64::from(w.open_rad), f64::from(w.close_rad));
+        let tau = std::f64::consts::TAU;
+        let dir = turn.signum();
+        let dt = 1e-6;
+        let (mut angle, mut v, mut inside_s) = (0.0f64, speed * dir, 0.0);
+        while angle < turn.abs() {
+            let at = (phase + dir * angle).rem_euclid(tau);
+            if (at - open).rem_euclid(tau) < (close - open).rem_euclid(tau) {
+                inside_s += dt;
+            }
+            v += accel * dt;
+            angle += v * dt;
+        }
+        inside_s as f32
+    }
+
+    #[test]
+    fn the_time_in_a_window_is_the_stepped_motions() {
+        let g = PortGeometry::<f32>::reference();
+        let accel = 2500.0;
+        // Each way, with and against the speed, from inside the window, before it and past
+        // it; the coast before turning round stays well inside the region it starts in.
+        let deg = |d: f32| d.to_radians();
+        let cases = [
+            (deg(327.7), deg(38.3), -34.0),
+            (deg(327.7), deg(-225.7), -34.0),
+            (deg(250.0), deg(116.0), -34.0),
+            (deg(250.0), deg(-148.0), -34.0),
+            (deg(250.0), deg(116.0), 34.0),
+            (deg(100.0), deg(250.0), 20.0),
+            (deg(20.0), deg(-120.0), 0.0),
+            (deg(20.0), 0.0, 34.0),
+        ];
+        for (phase, turn, speed) in cases {
+            let w = &g.discharge_a;
+            let formula = time_in_window(phase, turn, w, speed, accel);
+            let reference = stepped(phase, turn, w, speed, accel);
+            println!("φ {phase:.3} turn {turn:+.3} ω {speed:+.0}: {formula:.6} s (stepped {reference:.6} s)");
+            assert!(
+                (formula - reference).abs() < 2e-5,
+                "φ {phase} turn {turn} ω {speed}: {formula} s, stepped {reference} s"
+            );
+        }
+    }
+}
