@@ -167,6 +167,14 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
         plot_motion(&dir.join("motion.svg"), &outcome.outcome.log)?;
         plot_pv(&dir.join("pv.svg"), &outcome.outcome.log)?;
         plot_energy(&dir.join("energy.svg"), &outcome.outcome)?;
+        // The firmware's own account (boot milestones, faults), for a run that went wrong.
+        let log: String = outcome
+            .defmt
+            .iter()
+            .map(|(t, line)| format!("{t:.6} {line}\n"))
+            .collect();
+        let path = dir.join("defmt.log");
+        std::fs::write(&path, log).map_err(|e| format!("{}: {e}", path.display()))?;
     }
     let s = &outcome.summary;
     let mm = |v: Option<f64>| v.map_or("n/a".into(), |m| format!("{:.3} mm", m * 1e3));
