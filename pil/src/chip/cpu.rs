@@ -293,10 +293,16 @@ fn exit(uc: &mut Unicorn<Soc>, exc_return: u32) -> Result<(), ChipError> {
 /// After a peripheral write: stop at once for a reset; a pending interrupt is seen by the
 /// next block's check.
 pub fn after_write(uc: &mut Unicorn<Soc>) {
-    let soc = uc.get_data();
+    let soc = uc.get_data_mut();
     if soc.reset_pending.is_some() || !soc.powered {
         let _ = uc.emu_stop();
+        return;
     }
+    // A write can bring the next peripheral event forward (a counter started: TIM1's first
+    // peak 25 µs after CEN, before the 50 µs plant step the run was aimed at). The run then
+    // stops at that event, not past it: otherwise the event is handled late, when the counter
+    // has already turned (the boot's check of TIM1's first update read DIR = up).
+    soc.deadline = soc.deadline.min(soc.next_event());
 }
 
 /// Whether the pending exception of highest priority could pre-empt what runs now,
