@@ -110,6 +110,7 @@ RESET_VALUES = {
     PWR + 0x08: 0x0000_8000,  # CR3
     PWR + 0x80: 0x0000_0100,  # CR5: R1MODE = 1 (range-1 normal mode)
     FLASH_R + 0x00: 0x0000_0600,
+    FLASH_R + 0x20: 0xFFEF_F8AA,  # OPTR as shipped: DBANK = 1 (the boot checks it)
     GPIOA + 0x00: 0xABFF_FFFF,
     GPIOB + 0x00: 0xFFFF_FEBF,
     ADC1 + 0x08: 0x2000_0000,  # CR: DEEPPWD

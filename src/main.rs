@@ -129,10 +129,18 @@ mod firmware {
     #[embassy_executor::main]
     async fn main(spawner: Spawner) {
         let (telemetry_sink, replies, command_source) = board::rtt::init();
-        let reset_cause = board::take_reset_cause();
+        let mut reset_cause = board::take_reset_cause();
         match reset_cause {
             ResetCause::Watchdog => defmt::error!("reset by the independent watchdog: a task hung"),
             cause => defmt::info!("boot after {}", cause),
+        }
+        if let Some(cause) = board::take_kept_cause() {
+            defmt::error!("the previous run ended on the fault path: {}", cause);
+            if cause.while_running() {
+                // The piston may still be moving, its outputs off since the fault: the
+                // control task brakes it as after a hung task.
+                reset_cause = ResetCause::Watchdog;
+            }
         }
         let mut board = board::init();
         let stored = Some(load_calibration(&spawner, &mut board).await);

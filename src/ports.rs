@@ -159,6 +159,10 @@ pub enum SaveError {
     Flash,
     /// The storage is damaged beyond repair: erase the store's pages and calibrate again.
     Corrupted,
+    /// The flash reported success but reading the record back gave something else: a
+    /// write the flash controller failed without saying so (embassy-stm32 0.6's async
+    /// driver clears the error flags in its interrupt, `docs/upstream-flash-error-flags.md`).
+    Verify,
 }
 
 /// Operator-facing events, reported by the supervision task (never from the 20 kHz path):

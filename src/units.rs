@@ -95,7 +95,40 @@ impl Duty {
     pub fn fraction(self) -> f32 {
         f32::from(self.0) / 65535.0
     }
+
+    /// The compare value, 0..=`arr`, that makes this duty on a centre-aligned timer counting
+    /// to `arr` (PWM mode 1: high while CNT < CCR), rounded to nearest: what the board
+    /// writes to CCRx.
+    #[inline]
+    pub const fn compare_value(self, arr: u16) -> u16 {
+        ((self.0 as u32 * arr as u32 + 0x8000) >> 16) as u16
+    }
+
+    /// The duty compare value `c` makes on a timer counting to `arr` (c/arr; above `arr`,
+    /// always high), to the nearest Q0.16 step.
+    #[inline]
+    pub const fn of_compare(c: u32, arr: u32) -> Duty {
+        let arr = if arr == 0 { 1 } else { arr };
+        let c = if c > arr { arr } else { c };
+        let q = (c as u64 * 65535 + arr as u64 / 2) / arr as u64;
+        Duty(if q > 65535 { 65535 } else { q as u16 })
+    }
+
+    /// This duty as the board's timers make it: rounded to one of their
+    /// [`PWM_COMPARE_STEPS`] compare steps per period (what the bridge applies).
+    #[inline]
+    pub const fn as_switched(self) -> Duty {
+        Duty::of_compare(
+            self.compare_value(PWM_COMPARE_STEPS) as u32,
+            PWM_COMPARE_STEPS as u32,
+        )
+    }
 }
+
+/// Compare steps of the board's PWM timers per period: TIM1/TIM8's auto-reload value,
+/// 170 MHz / (2 × 20 kHz) centre-aligned (`src/board/pwm.rs` checks it is its ARR). A duty
+/// is switched in steps of 1/4250 of the period, ≈ 15 Q0.16 steps.
+pub const PWM_COMPARE_STEPS: u16 = 4250;
 
 /// The three phase duties of one motor section.
 pub type PhaseDuties = [Duty; 3];
@@ -167,6 +200,29 @@ mod tests {
         assert_eq!(Duty::from_fraction(2.0), Duty(65535));
         assert_eq!(Duty::from_fraction(f32::NAN), Duty::HALF);
         assert!((Duty::from_fraction(0.25).fraction() - 0.25).abs() < 1e-4);
+    }
+
+    #[test]
+    fn a_switched_duty_is_the_nearest_timer_step() {
+        let steps = f64::from(PWM_COMPARE_STEPS);
+        for raw in (0..=u16::MAX).step_by(7).chain([u16::MAX]) {
+            let d = Duty(raw);
+            let c = d.compare_value(PWM_COMPARE_STEPS);
+            // The board's rounding: the compare value nearest to duty·ARR (Q0.16 scale).
+            let exact = f64::from(raw) * steps / 65536.0;
+            assert!((f64::from(c) - exact).abs() <= 0.5, "{raw}: {c} vs {exact}");
+            // What that compare value makes, c/ARR, to half a Q0.16 step.
+            let switched = d.as_switched().fraction();
+            assert!(
+                (f64::from(switched) - f64::from(c) / steps).abs() <= 0.5 / 65535.0 + 1e-7,
+                "{raw}"
+            );
+        }
+        assert_eq!(Duty::of_compare(4250, 4250), Duty(65535));
+        assert_eq!(Duty::of_compare(9999, 4250), Duty(65535));
+        assert_eq!(Duty::of_compare(0, 4250), Duty(0));
+        assert_eq!(Duty::of_compare(1, 0), Duty(65535));
+        assert_eq!(Duty::HALF.as_switched(), Duty::of_compare(2125, 4250));
     }
 
     #[test]

@@ -322,6 +322,7 @@ fn configure_dma(dma: &Peri<'static, DMA1_CH1>) {
 /// before the regular one started).
 #[interrupt]
 fn DMA1_CHANNEL1() {
+    super::test_build::burst_begins();
     pac::DMA1.ifcr().write(|w| w.set_gif(DMA_CHANNEL, true));
     let t = now_ticks();
     let injected = |adc: pac::adc::Adc| core::array::from_fn(|i| adc.jdr(i).read().jdata());
@@ -350,6 +351,7 @@ pub struct SampleTrigger;
 impl CycleTrigger for SampleTrigger {
     async fn next_cycle(&mut self) -> Ticks {
         let burst = BURST_READY.wait().await;
+        super::test_build::control_cycle();
         CURRENT.lock(|c| c.set(burst));
         burst.t
     }

@@ -13,6 +13,19 @@
 //! ADC bring-up) cannot hang the board. Interrupts stay masked meanwhile, so nothing can
 //! re-enable the outputs.
 //!
+//! The wait before that reset (1 ms by the cycle counter) reloads the IWDG all along: the
+//! running window is ≈ 3 ms, so without it the watchdog would reset first and the next
+//! boot would report a hung task (and brake as after one). The cause is also kept in an `.uninit` record
+//! ([`FaultRecord`]), which RAM keeps across a reset, and logged by the next boot
+//! ([`take_kept_cause`]): the defmt line of the fault itself is lost if no host reads it
+//! within that millisecond.
+//!
+//! NMI: a double ECC error on a flash read (FLASH_ECCR.ECCD), what a power cut during a
+//! program or an erase can leave. If the failing double word is in the calibration store,
+//! the store is erased (its pages only) before the reset, so the next boot finds no
+//! calibration (Start refused until calibrated) instead of reading the same word again and
+//! resetting for ever.
+//!
 //! `panic-probe` is not linked: it has no hook to run before its own logging.
 
 use core::panic::PanicInfo;
@@ -39,6 +52,10 @@ pub enum BootCheck {
     AdcCfgr = 3,
     /// ADC12_CCR (dual mode, DMA mode, clock prescaler) did not read back as written.
     Adc12Ccr = 4,
+    /// FLASH_OPTR.DBANK is 0 (one bank of 4 KiB pages): the firmware is built for dual-bank
+    /// mode (2 KiB pages), and the calibration store's erases would hit other pages. Set
+    /// DBANK = 1 in the option bytes (STM32CubeProgrammer, "User Configuration").
+    FlashBankLayout = 5,
 }
 
 /// Safe torque off: both bridges' gates low (TIM1/TIM8 MOE = 0 with OSSI = 1 forces every
@@ -56,11 +73,152 @@ pub fn boot_fault(check: BootCheck) -> ! {
     reset_after_log()
 }
 
-/// Waits ≈ 10 ms (at 170 MHz; ≈ 100 ms at the 16 MHz boot clock) so an attached host can
-/// read the last log, then resets the MCU. The IWDG, if already running, may reset first.
+/// The IWDG's reload key (IWDG_KR = 0xAAAA): no effect while the watchdog is stopped.
+fn reload_watchdog() {
+    pac::IWDG.kr().write_value(pac::iwdg::regs::Kr(0xAAAA));
+}
+
+/// Waits 1 ms (170,000 core clocks at 170 MHz; ≈ 10 ms at the 16 MHz boot clock) so an
+/// attached host can read the last log, reloading the IWDG all the while so this reset, not
+/// the watchdog's, ends the fault; then resets the MCU. Short on purpose: the outputs are
+/// off and a piston at speed coasts until the next boot brakes it (measured in the
+/// emulator, `fpc-pil fault fault-path`: with a 10 ms wait it reached the head), and the
+/// cause survives the reset in [`FaultRecord`] anyway.
+///
+/// Timed by the core's cycle counter (DWT CYCCNT), not `cortex_m::asm::delay`: that is a
+/// loop of at least one cycle per iteration, 3–5 on the M4 (a taken branch refills the
+/// pipeline, and flash wait states add more), so `delay(170_000)` took 3–5 ms — longer
+/// than the watchdog's 3 ms running window, which then reset first (the next boot
+/// reporting a hung task), whatever the reload before it.
 fn reset_after_log() -> ! {
-    cortex_m::asm::delay(SYSCLK_HZ / 100);
+    reload_watchdog();
+    // SAFETY: the fault path owns the core: nothing else runs (interrupts masked, or a fault
+    // handler that never returns); enabling the cycle counter has no other effect.
+    let mut core = unsafe { cortex_m::Peripherals::steal() };
+    core.DCB.enable_trace();
+    core.DWT.enable_cycle_counter();
+    let start = cortex_m::peripheral::DWT::cycle_count();
+    while cortex_m::peripheral::DWT::cycle_count().wrapping_sub(start) < SYSCLK_HZ / 1000 {
+        reload_watchdog();
+    }
     SCB::sys_reset()
+}
+
+impl KeptCause {
+    /// Whether the machine may have been moving when it happened: the next boot then brakes
+    /// as after a watchdog reset. A flash ECC error is met at boot, at a standstill.
+    pub fn while_running(&self) -> bool {
+        !matches!(self, KeptCause::FlashEcc { .. })
+    }
+}
+
+/// Why the previous run ended, kept across the reset (RAM is not cleared by a reset, and
+/// `.uninit` is not zeroed at boot).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
+pub enum KeptCause {
+    /// A panic at this source line (file and line as the panic reported them).
+    Panic {
+        /// Source file.
+        file: &'static str,
+        /// Line.
+        line: u32,
+    },
+    /// A HardFault with the stacked PC.
+    HardFault {
+        /// Faulting instruction's address.
+        pc: u32,
+    },
+    /// A double ECC error at this flash address (the store was erased if it was in it).
+    FlashEcc {
+        /// The failing double word.
+        address: u32,
+        /// It was in the calibration store, which was erased.
+        store_erased: bool,
+    },
+    /// An NMI that was not a flash ECC error.
+    Nmi,
+    /// An interrupt without a handler.
+    Unexpected {
+        /// Its IRQ number.
+        irqn: i16,
+    },
+}
+
+/// The record's layout: magic, kind, two words of detail.
+#[repr(C)]
+struct FaultRecord {
+    magic: u32,
+    kind: u32,
+    a: u32,
+    b: u32,
+}
+
+const RECORD_MAGIC: u32 = 0xFA17_5AFE;
+
+#[link_section = ".uninit.FAULT_RECORD"]
+static mut FAULT_RECORD: core::mem::MaybeUninit<FaultRecord> = core::mem::MaybeUninit::uninit();
+
+fn keep(kind: u32, a: u32, b: u32) {
+    // SAFETY: called with interrupts masked on the fault path only; the record is plain
+    // words written with volatile stores to a static nothing else holds a reference to.
+    unsafe {
+        core::ptr::addr_of_mut!(FAULT_RECORD)
+            .cast::<FaultRecord>()
+            .write_volatile(FaultRecord {
+                magic: RECORD_MAGIC ^ kind,
+                kind,
+                a,
+                b,
+            });
+    }
+}
+
+/// The cause the previous run kept, if it ended on the fault path; the record is cleared.
+/// Call once at boot, before anything can fault.
+pub fn take_kept_cause() -> Option<KeptCause> {
+    // SAFETY: the record is read as plain words (any bit pattern is a valid u32) before any
+    // fault path can write it, then cleared; nothing else refers to it.
+    let r = unsafe {
+        let p = core::ptr::addr_of_mut!(FAULT_RECORD).cast::<FaultRecord>();
+        let r = p.read_volatile();
+        p.write_volatile(FaultRecord {
+            magic: 0,
+            kind: 0,
+            a: 0,
+            b: 0,
+        });
+        r
+    };
+    if r.magic != RECORD_MAGIC ^ r.kind {
+        return None;
+    }
+    match r.kind {
+        1 => {
+            // The file name is a string in this image's flash: accept it only if it is.
+            let (ptr, len) = (r.a, (r.b >> 20) as usize);
+            let flash = 0x0800_0000..0x0808_0000u32;
+            let file = if flash.contains(&ptr) && flash.contains(&(ptr + len as u32)) {
+                // SAFETY: the range lies in flash, which holds this image's constants; the
+                // bytes are checked to be UTF-8 below.
+                let bytes = unsafe { core::slice::from_raw_parts(ptr as *const u8, len) };
+                core::str::from_utf8(bytes).unwrap_or("?")
+            } else {
+                "?"
+            };
+            Some(KeptCause::Panic {
+                file,
+                line: r.b & 0xF_FFFF,
+            })
+        }
+        2 => Some(KeptCause::HardFault { pc: r.a }),
+        3 => Some(KeptCause::FlashEcc {
+            address: r.a,
+            store_erased: r.b != 0,
+        }),
+        4 => Some(KeptCause::Nmi),
+        5 => Some(KeptCause::Unexpected { irqn: r.a as i16 }),
+        _ => None,
+    }
 }
 
 #[panic_handler]
@@ -71,13 +229,19 @@ fn panic(info: &PanicInfo) -> ! {
     // of core::fmt (float formatting alone is ~17 KiB of flash).
     let message = info.message().as_str().unwrap_or("(formatted message)");
     match info.location() {
-        Some(l) => defmt::error!(
-            "panic at {=str}:{=u32}: {=str}",
-            l.file(),
-            l.line(),
-            message
-        ),
-        None => defmt::error!("panic: {=str}", message),
+        Some(l) => {
+            let file = l.file();
+            keep(
+                1,
+                file.as_ptr() as u32,
+                (file.len().min(0xFFF) as u32) << 20 | l.line().min(0xF_FFFF),
+            );
+            defmt::error!("panic at {=str}:{=u32}: {=str}", file, l.line(), message)
+        }
+        None => {
+            keep(1, 0, 0);
+            defmt::error!("panic: {=str}", message)
+        }
     }
     cortex_m::asm::udf()
 }
@@ -88,8 +252,92 @@ fn panic(info: &PanicInfo) -> ! {
 #[exception]
 unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
     safe_outputs_off();
+    // A panic already kept its cause (its `udf` lands here): keep that one.
+    // SAFETY: plain words of the record, read while nothing else runs.
+    let kept_panic = unsafe {
+        let r = core::ptr::addr_of!(FAULT_RECORD)
+            .cast::<FaultRecord>()
+            .read_volatile();
+        r.kind == 1 && r.magic == RECORD_MAGIC ^ 1
+    };
+    if !kept_panic {
+        keep(2, frame.pc(), 0);
+    }
     defmt::error!("HardFault at pc {=u32:#010x}", frame.pc());
     reset_after_log()
+}
+
+/// FLASH_ECCR bits (RM0440 §5.7.8).
+const ECCR_ECCD: u32 = 1 << 31;
+const ECCR_BK_ECC: u32 = 1 << 21;
+const ECCR_ADDR: u32 = 0x7_FFF8;
+
+// SAFETY: cortex-m-rt requires exception handlers that take no frame to be plain or unsafe
+// fns; this one reads and writes flash-interface registers through the PAC, erases the
+// calibration store's pages when the ECC error is in them, and resets.
+#[exception]
+unsafe fn NonMaskableInt() {
+    cortex_m::interrupt::disable();
+    safe_outputs_off();
+    let eccr = pac::FLASH.eccr().read().0;
+    if eccr & ECCR_ECCD == 0 {
+        keep(4, 0, 0);
+        defmt::error!("NMI (not a flash ECC error)");
+        reset_after_log()
+    }
+    let bank = if eccr & ECCR_BK_ECC != 0 { 0x4_0000 } else { 0 };
+    let offset = bank + (eccr & ECCR_ADDR);
+    let address = 0x0800_0000 + offset;
+    let in_store = super::CALIBRATION_STORE.contains(&offset);
+    // ECCD is cleared by writing 1 (the other bits written back unchanged).
+    pac::FLASH.eccr().write_value(pac::flash::regs::Eccr(eccr));
+    keep(3, address, u32::from(in_store));
+    defmt::error!(
+        "flash double ECC error at {=u32:#010x}{=str}",
+        address,
+        if in_store {
+            ": in the calibration store, erasing it (calibrate again)"
+        } else {
+            ""
+        }
+    );
+    if in_store {
+        erase_calibration_store();
+    }
+    reset_after_log()
+}
+
+/// Erases the calibration store's pages with the interrupts masked (the fault path: nothing
+/// else may run), reloading the IWDG while each erase (≈ 22 ms, longer than the boot
+/// window) runs in bank 2 and this code in bank 1.
+fn erase_calibration_store() {
+    const CR_PER: u32 = 1 << 1;
+    const CR_BKER: u32 = 1 << 11;
+    const CR_STRT: u32 = 1 << 16;
+    const CR_LOCK: u32 = 1 << 31;
+    const SR_BSY: u32 = 1 << 16;
+    let flash = pac::FLASH;
+    let wait = || {
+        while flash.sr().read().0 & SR_BSY != 0 {
+            reload_watchdog();
+        }
+    };
+    wait();
+    if flash.cr().read().0 & CR_LOCK != 0 {
+        flash.keyr().write_value(0x4567_0123);
+        flash.keyr().write_value(0xCDEF_89AB);
+    }
+    let first = (super::CALIBRATION_STORE.start - 0x4_0000) / 2048;
+    let last = (super::CALIBRATION_STORE.end - 0x4_0000) / 2048;
+    for page in first..last {
+        // Clear the error flags (write 1), then one page erase in bank 2.
+        flash.sr().write_value(pac::flash::regs::Sr(0xC3FB));
+        flash.cr().write_value(pac::flash::regs::Cr(
+            CR_PER | CR_BKER | (page << 3) | CR_STRT,
+        ));
+        wait();
+    }
+    flash.cr().write_value(pac::flash::regs::Cr(CR_LOCK));
 }
 
 // SAFETY: cortex-m-rt requires `DefaultHandler` to be an `unsafe fn`. It runs for any
@@ -99,6 +347,7 @@ unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
 unsafe fn DefaultHandler(irqn: i16) {
     cortex_m::interrupt::disable();
     safe_outputs_off();
+    keep(5, irqn as u32, 0);
     defmt::error!("unexpected exception or interrupt {=i16}", irqn);
     reset_after_log()
 }

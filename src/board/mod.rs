@@ -25,7 +25,7 @@
 //! | slave encoder sin / cos | PB1 / PB2 | ADC1 / ADC2 | IN12 / IN12, regular rank 2 |
 //! | pressure chamber A / B | PB12 / PC1 | ADC1 / ADC2 | IN11 / IN7, regular rank 3 |
 //! | pressure suction / discharge | PC0 / PC2 | ADC1 / ADC2 | IN6 / IN8, regular rank 4 |
-//! | servo encoder A / B | PB6 / PB7 | TIM4 | CH1 / CH2 (AF2), encoder mode 3, filter fDTS/16 N = 8 |
+//! | servo encoder A / B | PB6 / PB7 | TIM4 | CH1 / CH2 (AF2), internal pull-ups, encoder mode 3, filter fDTS/16 N = 8 |
 //! | servo torque command | PA4 | DAC1 | OUT1, buffered, mid-scale = 0 (written before enable) |
 //! | debug, defmt over RTT | PA13 / PA14 | SWD | SWDIO / SWCLK |
 //!
@@ -71,11 +71,12 @@ mod fault;
 mod pwm;
 pub mod rtt;
 mod servo;
+mod test_build;
 mod time;
 mod watchdog;
 
 use embassy_executor::{InterruptExecutor, SendSpawner};
-use embassy_stm32::gpio::OutputType;
+use embassy_stm32::gpio::{OutputType, Pull};
 use embassy_stm32::interrupt;
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::pac;
@@ -84,6 +85,7 @@ use embassy_stm32::timer::qei::{self, Qei};
 use embassy_stm32::timer::simple_pwm::PwmPin;
 
 pub use adc::{CurrentAdc, EncoderAdc, PressureAdc, SampleTrigger};
+pub use fault::take_kept_cause;
 pub use pwm::MotorPwm;
 pub use servo::{ServoEncoder, ServoTorque};
 pub use time::{BoardClock, BoardSleep};
@@ -172,6 +174,9 @@ pub fn take_reset_cause() -> fpc::safety::faults::ResetCause {
         ResetCause::Watchdog
     } else if csr.borrstf() {
         ResetCause::PowerOn
+    } else if csr.sftrstf() {
+        // Checked before the pin: a software reset drives NRST, so PINRSTF is set too.
+        ResetCause::Software
     } else {
         ResetCause::External
     };
@@ -187,10 +192,22 @@ pub fn init() -> Board {
     let Ok(p) = clocks::start() else {
         fault::boot_fault(fault::BootCheck::BoostMode)
     };
+    test_build::board_init();
+    test_build::timing_init();
+    check_bank_layout();
     freeze_on_debug_halt();
     interrupt::TIM2.set_priority(TIME_PRIORITY);
 
-    let servo_encoder = ServoEncoder::new(Qei::new(p.TIM4, p.PB6, p.PB7, qei::Config::default()));
+    let servo_encoder = ServoEncoder::new(Qei::new(
+        p.TIM4,
+        p.PB6,
+        p.PB7,
+        qei::Config {
+            ch1_pull: Pull::Up,
+            ch2_pull: Pull::Up,
+            ..qei::Config::default()
+        },
+    ));
     let servo_torque = ServoTorque::new(p.DAC1, p.PA4);
 
     use adc::{adc1_channel as adc1, adc2_channel as adc2};
@@ -265,6 +282,17 @@ pub fn init() -> Board {
         sleep: BoardSleep,
         watchdog,
         calibration,
+    }
+}
+
+/// The flash must be in dual-bank mode (FLASH_OPTR.DBANK = 1, 2 KiB pages), as embassy's
+/// `dual-bank` feature and [`CALIBRATION_STORE`] assume; embassy's async `Flash::new` does
+/// not check it (its blocking constructor does). Otherwise a boot fault: no output has been
+/// configured yet.
+fn check_bank_layout() {
+    const OPTR_DBANK: u32 = 1 << 22;
+    if pac::FLASH.optr().read().0 & OPTR_DBANK == 0 {
+        fault::boot_fault(fault::BootCheck::FlashBankLayout);
     }
 }
 

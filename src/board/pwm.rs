@@ -71,10 +71,15 @@ fn timer(section: Section) -> TimAdv {
     }
 }
 
+const _: () = assert!(
+    PWM_ARR == fpc::units::PWM_COMPARE_STEPS,
+    "the simulators switch the duties in steps of fpc::units::PWM_COMPARE_STEPS"
+);
+
 /// Q0.16 duty to a compare value in 0..=ARR, rounded to nearest.
 #[inline]
 fn compare_value(duty: fpc::units::Duty) -> u16 {
-    ((u32::from(duty.0) * u32::from(PWM_ARR) + 0x8000) >> 16) as u16
+    duty.compare_value(PWM_ARR)
 }
 
 /// The gate pins of one section (high side, low side per phase), held so they stay in
@@ -245,6 +250,10 @@ impl PwmOutput for MotorPwm {
         let tim = timer(section);
         for (ch, duty) in PHASES.into_iter().zip(duties) {
             tim.ccr(ch).write(|w| w.set_ccr(compare_value(duty)));
+        }
+        // The control task writes the slave section last.
+        if section == Section::Slave {
+            super::test_build::step_done();
         }
     }
 

@@ -18,16 +18,29 @@ pub const ENCODER_FILTER: FilterValue = FilterValue::FDTS_DIV16_N8;
 
 /// [`QuadratureInput`]: TIM4 in encoder mode 3 (both edges of both channels, ×4), 16-bit
 /// counter wrapping at 65535; the library extends it.
+///
+/// The encoder's A/B outputs must drive both levels (push-pull, or a differential line
+/// receiver on the board for an RS-422 encoder), at 3.3 V logic levels. The inputs have the
+/// internal pull-ups on (25–55 kΩ) so that an unplugged cable reads a steady high instead of
+/// counting noise; they are far too weak for an open-collector encoder (≈ 4 µs rise with
+/// 100 pF of cable, against 2.44 µs between edges at 100 rev/s), which needs external
+/// pull-ups of about 1 kΩ.
 pub struct ServoEncoder(Qei<'static, TIM4>);
 
 impl ServoEncoder {
-    /// Wraps a configured encoder-mode timer and sets its input filter
-    /// ([`ENCODER_FILTER`]).
+    /// Wraps an encoder-mode timer and sets its input filter ([`ENCODER_FILTER`]) with the
+    /// counter stopped: embassy's constructor starts the counter (CEN) before it switches
+    /// the pins to their alternate function, unfiltered. The counter is then cleared, so
+    /// nothing counted without the filter remains, and started again.
     pub fn new(qei: Qei<'static, TIM4>) -> Self {
-        pac::TIM4.ccmr_input(0).modify(|w| {
+        let tim = pac::TIM4;
+        tim.cr1().modify(|w| w.set_cen(false));
+        tim.ccmr_input(0).modify(|w| {
             w.set_icf(0, ENCODER_FILTER);
             w.set_icf(1, ENCODER_FILTER);
         });
+        tim.cnt().write(|w| w.set_cnt(0));
+        tim.cr1().modify(|w| w.set_cen(true));
         ServoEncoder(qei)
     }
 }

@@ -1,8 +1,13 @@
 //! The independent watchdog (IWDG, LSI-clocked), fed only by the supervision task.
 //!
-//! Two windows: [`BOOT_WATCHDOG_TIMEOUT_US`] from power-up to the first feed (board bring-up
+//! Two windows: [`BOOT_WATCHDOG_TIMEOUT_US`] from the start to the first feed (board bring-up
 //! and building the control step come first, with the outputs off), then
 //! [`WATCHDOG_TIMEOUT_US`] for good: the first feed shortens the reload value.
+//!
+//! The start is embassy's `new()` + `unleash()` (0x5555, PR, RLR, 0xCCCC), then a reload once
+//! PR and RLR have reached the watchdog's clock domain (IWDG_SR = 0): RM0440 §37.3.2 starts
+//! the down-counter from 0xFFF, not from RLR, so without that reload the first window would
+//! be 4096 ticks (≈ 512 ms at /4) instead of 20 ms.
 
 use embassy_stm32::pac;
 use embassy_stm32::pac::iwdg::vals::Key;
@@ -33,10 +38,14 @@ pub struct BoardWatchdog {
 }
 
 impl BoardWatchdog {
-    /// Configures the IWDG for the boot window and starts it.
+    /// Configures the IWDG for the boot window and starts it; the boot window runs from
+    /// here.
     pub fn start(iwdg: Peri<'static, IWDG>) -> Self {
         let mut wdg = IndependentWatchdog::new(iwdg, BOOT_WATCHDOG_TIMEOUT_US);
         wdg.unleash();
+        // PVU and RVU clear within 6 LSI cycles (≈ 200 µs): the reload then loads RLR.
+        while pac::IWDG.sr().read().0 != 0 {}
+        wdg.pet();
         BoardWatchdog {
             wdg,
             running_window: false,
@@ -46,6 +55,9 @@ impl BoardWatchdog {
 
 impl Watchdog for BoardWatchdog {
     fn feed(&mut self) {
+        if !super::test_build::feed_allowed() {
+            return;
+        }
         if !self.running_window {
             // Unlock and write the shorter reload; the IWDG takes it over within a few LSI
             // cycles (RVU), so at the latest the next feed reloads the counter with it.

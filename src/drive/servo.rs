@@ -35,7 +35,10 @@ impl ServoConfig {
             inertia_kgm2: 2e-3,
             kp_nm_per_rad: 72.0,
             kd_nms_per_rad: 0.6,
-            torque_full_scale_nm: 5.0,
+            // The reference machine's drive (its model, `reference.toml`: 20 N·m, enough
+            // for the piston's sliding friction at 4 m/s). With 5 N·m here the flashed
+            // firmware commanded 4× the torque it meant, its loop gain 4× the simulator's.
+            torque_full_scale_nm: 20.0,
             velocity_filter_s: 5e-4,
             sample_time_s: 50e-6,
         }
@@ -162,10 +165,12 @@ mod tests {
 
     #[test]
     fn dac_code_round_trips_and_saturates() {
-        let mut s = ServoController::new(ServoConfig::reference());
-        for t in [-5.0, -1.0, 0.0, 2.5, 5.0] {
+        let config = ServoConfig::reference();
+        let fs = config.torque_full_scale_nm;
+        let mut s = ServoController::new(config);
+        for t in [-fs, -1.0, 0.0, 2.5, fs] {
             let c = s.command(t);
-            assert!((torque_of_code(c, 5.0) - t).abs() < 5.0 / 2047.0);
+            assert!((torque_of_code(c, fs) - t).abs() < fs / 2047.0);
         }
         assert_eq!(s.command(100.0), DacCode(4095));
         assert_eq!(s.command(f32::NAN), DacCode(2048));

@@ -157,8 +157,12 @@ impl Reaction {
 pub enum ResetCause {
     /// Power-on or brown-out: a normal start.
     PowerOn,
-    /// The reset pin or a software reset: a normal start.
+    /// The reset pin: a normal start.
     External,
+    /// A software reset (SCB AIRCR.SYSRESETREQ, RCC_CSR.SFTRSTF; the pin flag is set too, as
+    /// the reset drives NRST): a normal start. The fault path ends in one; its cause, kept
+    /// across the reset, is logged separately.
+    Software,
     /// The independent watchdog: a task hung. The machine starts with
     /// [`Fault::WatchdogReset`] latched and its outputs off.
     Watchdog,

@@ -10,8 +10,9 @@
 //! [`simulate_board`] adds what the board does beyond running the tasks, for the fault
 //! scenarios of `faults.md`: a control step that overruns (the task is not polled for some
 //! periods, the outputs hold), a task that hangs, and the independent watchdog, which resets
-//! the MCU when the supervision task stops feeding it: outputs off, the shared RAM and every
-//! task started afresh with [`ResetCause::Watchdog`], while the plant keeps moving.
+//! the MCU when the supervision task stops feeding it: outputs off, the boot's
+//! [`BOOT_US`] with nothing running, then the shared RAM and every task started afresh with
+//! [`ResetCause::Watchdog`], while the plant keeps moving.
 
 use std::cell::RefCell;
 use std::convert::Infallible;
@@ -31,9 +32,7 @@ use fpc::safety::faults::ResetCause;
 use fpc::shared::Shared;
 use fpc::tasks::{command_run, control_run, supervision_run, telemetry_run};
 
-use crate::board::flash::{block_on, SimFlash};
-
-use fpc::units::DacCode;
+use crate::board::flash::SimFlash;
 
 use crate::board::channels::{command_channel, telemetry_sink, up_channel};
 use crate::board::world::{
@@ -47,6 +46,17 @@ pub const WATCHDOG_TIMEOUT_US: u64 = fpc::tasks::WATCHDOG_TIMEOUT_US as u64;
 /// Timeout of the board's watchdog from a boot to its first feed, µs
 /// ([`fpc::tasks::BOOT_WATCHDOG_TIMEOUT_US`]).
 pub const BOOT_WATCHDOG_TIMEOUT_US: u64 = fpc::tasks::BOOT_WATCHDOG_TIMEOUT_US as u64;
+
+/// Time from a reset of the MCU to the firmware's first control cycle, µs: the runtime's
+/// start at the 16 MHz reset clock (`.bss` zeroed, `.data` copied), the clock tree, the
+/// board's bring-up and the calibration read, before the control task first runs. Measured
+/// on the release ELF in the emulated STM32G474 (`fpc-pil fault hung-control`, the boot's
+/// milestones at 1.5 cycles per instruction: 2.81 ms), rounded up; `fpc-pil`'s tests
+/// check the ELF boots within it. No task runs and the outputs are off meanwhile, while
+/// the plant goes on: a simulator that booted at once would brake a moving piston that
+/// much earlier than the board can. A run's own start (t = 0) is the firmware's first
+/// cycle; only a reset within a run (the watchdog, a power cut) costs it.
+pub const BOOT_US: u64 = 3_000;
 
 /// The board's execution beyond polling the tasks: overruns, hangs and the watchdog.
 /// [`simulate_board`] hands it to the caller every period, so a fault scenario can change
@@ -74,6 +84,8 @@ pub struct Execution {
     pub power_off_until_us: Option<u64>,
     /// Simulated time of every boot after a power cut, µs.
     pub power_ups_us: Vec<u64>,
+    /// The MCU is booting after a reset until this time, µs ([`BOOT_US`]): no task runs.
+    pub booting_until_us: Option<u64>,
     /// The firmware's command task runs too, on the RTT command channel in the board's RAM
     /// (answers and scope recordings on the reply channel). Off by default: a caller that
     /// posts commands to the shared state itself also takes the replies from it.
@@ -99,16 +111,12 @@ fn control_ports(world: &WorldRef) -> SimControlPorts {
     }
 }
 
-/// The firmware's boot read of its calibration store on `flash`; the flash comes back (a
-/// load may repair a torn save).
+/// The firmware's boot read of its calibration store on `flash`, with its NMI handler for a
+/// double ECC error ([`super::flash::boot_read`]); the flash comes back (a load may repair a
+/// torn save, the NMI erase the store).
 fn boot_load(flash: SimFlash) -> (Result<CalibrationRecord, LoadError>, SimFlash) {
-    match super::flash::store(flash.clone()) {
-        Ok(mut store) => {
-            let loaded = block_on(store.load());
-            (loaded, store.into_flash())
-        }
-        Err(_) => (Err(LoadError::Flash), flash),
-    }
+    let (loaded, flash, _nmi_resets) = super::flash::boot_read(flash);
+    (loaded, flash)
 }
 
 /// The control-task ports of the simulated board.
@@ -192,9 +200,9 @@ where
 ///
 /// A reset, as the MCU does it: the motor outputs go off and the servo command to zero at
 /// once (the pins float, the gate drivers' pull-downs hold them low), the shared state is
-/// lost, and every task starts again from its entry with [`ResetCause::Watchdog`] at the
-/// next period. The plant is not reset: the piston keeps whatever speed it had. Returns the
-/// world and the execution at the end.
+/// lost, and every task starts again from its entry with [`ResetCause::Watchdog`] once the
+/// MCU has booted ([`BOOT_US`]). The plant is not reset: the piston keeps whatever speed it
+/// had. Returns the world and the execution at the end.
 pub fn simulate_board<F>(
     world: World,
     config: ControlConfig,
@@ -242,6 +250,14 @@ where
         ));
         loop {
             let powered = execution.power_off_until_us.is_none();
+            let now_us = world.borrow().time_us();
+            let booting = execution
+                .booting_until_us
+                .is_some_and(|until| now_us < until);
+            if !booting {
+                execution.booting_until_us = None;
+            }
+            let powered = powered && !booting;
             if powered && !execution.control_hung {
                 if execution.control_busy_periods == 0 {
                     let _ = control.as_mut().poll(&mut cx);
@@ -261,9 +277,7 @@ where
             let mut w = world.borrow_mut();
             if !powered {
                 // No supply: the gate drivers' pull-downs hold every output low.
-                w.enabled = false;
-                w.duties = Default::default();
-                w.servo_code = DacCode::MID;
+                w.outputs_reset();
             }
             if each_cycle(&mut w, &shared, &mut execution).is_break() {
                 break 'boot;
@@ -274,6 +288,7 @@ where
                     // the flash as the cut left it).
                     execution.power_off_until_us = None;
                     execution.power_ups_us.push(w.time_us());
+                    execution.booting_until_us = Some(w.time_us() + BOOT_US);
                     execution.control_hung = false;
                     execution.supervision_hung = false;
                     execution.control_busy_periods = 0;
@@ -300,13 +315,12 @@ where
                 w.time_us().saturating_sub(w.watchdog_fed_us) >= window
             });
             if starved {
-                w.enabled = false;
-                w.duties = Default::default();
-                w.servo_code = DacCode::MID;
+                w.outputs_reset();
                 // Started again by the boot, in its boot window, as the firmware's init does.
                 w.watchdog_fed_us = w.time_us();
                 w.watchdog_fed_since_boot = false;
                 execution.resets_us.push(w.time_us());
+                execution.booting_until_us = Some(w.time_us() + BOOT_US);
                 execution.control_hung = false;
                 execution.supervision_hung = false;
                 execution.control_busy_periods = 0;

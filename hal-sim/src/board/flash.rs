@@ -14,6 +14,15 @@
 //! in address order — and every operation from then on fail with
 //! [`SimFlashError::PowerLost`]. [`SimFlash::reboot`] gives the flash as it stands to a
 //! new session, powered again.
+//!
+//! **ECC poison** ([`SimFlash::with_ecc_poison`]): the G4 stores 8 ECC bits with every double
+//! word (RM0440 §5.3.9). A program or an erase cut half-way leaves cells whose data and ECC
+//! disagree, and reading such a double word is a double ECC error: FLASH_ECCR.ECCD and an NMI
+//! (the firmware's handler erases the store and resets, `src/board/fault.rs`). In this mode a
+//! torn program poisons its double word, a torn erase every double word of the page it did not
+//! reach, and a read that touches a poisoned double word fails with
+//! [`SimFlashError::EccDouble`] (the NMI) instead of returning the half-programmed data. An
+//! erase clears the poison. Without it, a torn word reads as its half-programmed bytes.
 
 use fpc::control::calibration::record::CalibrationRecord;
 use fpc::control::calibration::store::CalibrationStore;
@@ -38,6 +47,10 @@ pub enum SimFlashError {
     NotAligned,
     /// A double word written twice since its page was erased (not all zeros the second time).
     WrittenTwice,
+    /// A read touched a double word whose ECC does not match its data (a torn program or
+    /// erase, in ECC-poison mode): the double ECC error, an NMI on the chip. The offset of
+    /// the double word.
+    EccDouble(u32),
 }
 
 impl NorFlashError for SimFlashError {
@@ -45,7 +58,9 @@ impl NorFlashError for SimFlashError {
         match self {
             SimFlashError::OutOfBounds => NorFlashErrorKind::OutOfBounds,
             SimFlashError::NotAligned => NorFlashErrorKind::NotAligned,
-            SimFlashError::PowerLost | SimFlashError::WrittenTwice => NorFlashErrorKind::Other,
+            SimFlashError::PowerLost
+            | SimFlashError::WrittenTwice
+            | SimFlashError::EccDouble(_) => NorFlashErrorKind::Other,
         }
     }
 }
@@ -63,6 +78,12 @@ pub struct SimFlash {
     /// The step that tears.
     cut_at: Option<u64>,
     powered: bool,
+    /// Torn operations leave double ECC errors (see the module header).
+    ecc_poison: bool,
+    /// Per double word: its data and ECC disagree.
+    poisoned: Vec<bool>,
+    /// The first double ECC error a read met since the last reboot (its offset).
+    ecc_error: Option<u32>,
 }
 
 impl SimFlash {
@@ -75,7 +96,29 @@ impl SimFlash {
             steps: 0,
             cut_at: None,
             powered: true,
+            ecc_poison: false,
+            poisoned: vec![false; pages * PAGE_BYTES / WORD_BYTES],
+            ecc_error: None,
         }
+    }
+
+    /// `pages` erased pages whose torn operations leave double ECC errors (module header).
+    pub fn with_ecc_poison(pages: usize) -> Self {
+        SimFlash {
+            ecc_poison: true,
+            ..SimFlash::new(pages)
+        }
+    }
+
+    /// The first double ECC error a read met since the last reboot: the offset of its double
+    /// word (the chip's FLASH_ECCR.ADDR_ECC, its NMI).
+    pub fn ecc_error(&self) -> Option<u32> {
+        self.ecc_error
+    }
+
+    /// Double words whose data and ECC disagree.
+    pub fn poisoned_words(&self) -> usize {
+        self.poisoned.iter().filter(|p| **p).count()
     }
 
     /// Arms a power cut: step `step` from now tears, nothing after it happens.
@@ -100,6 +143,7 @@ impl SimFlash {
             steps: 0,
             cut_at: None,
             powered: true,
+            ecc_error: None,
             ..self.clone()
         }
     }
@@ -149,6 +193,14 @@ impl ReadNorFlash for SimFlash {
             return Err(SimFlashError::PowerLost);
         }
         let r = self.range(offset, bytes.len())?;
+        if !r.is_empty() {
+            let words = r.start / WORD_BYTES..=(r.end - 1) / WORD_BYTES;
+            if let Some(w) = words.into_iter().find(|&w| self.poisoned[w]) {
+                let at = (w * WORD_BYTES) as u32;
+                self.ecc_error.get_or_insert(at);
+                return Err(SimFlashError::EccDouble(at));
+            }
+        }
         bytes.copy_from_slice(&self.bytes[r]);
         Ok(())
     }
@@ -174,8 +226,14 @@ impl NorFlash for SimFlash {
             let erased = if tears { PAGE_BYTES / 2 } else { PAGE_BYTES };
             self.bytes[start..start + erased].fill(0xFF);
             let words = start / WORD_BYTES..(start + erased) / WORD_BYTES;
-            self.written[words].fill(false);
+            self.written[words.clone()].fill(false);
+            self.poisoned[words].fill(false);
             if tears {
+                if self.ecc_poison {
+                    // The cells the erase did not reach are half-way: data and ECC disagree.
+                    let rest = (start + erased) / WORD_BYTES..(start + PAGE_BYTES) / WORD_BYTES;
+                    self.poisoned[rest].fill(true);
+                }
                 return Err(SimFlashError::PowerLost);
             }
             self.wear[page] += 1;
@@ -202,6 +260,7 @@ impl NorFlash for SimFlash {
             }
             self.written[word] = true;
             if tears {
+                self.poisoned[word] |= self.ecc_poison;
                 return Err(SimFlashError::PowerLost);
             }
         }
@@ -232,6 +291,49 @@ pub fn holding(record: &CalibrationRecord) -> Result<SimFlash, String> {
     Ok(store.into_flash())
 }
 
+/// The board's boot read of its calibration store, with the firmware's NMI handler
+/// (`src/board/fault.rs`): a double ECC error in the store erases the store's pages and
+/// resets, and the next boot reads an empty store (calibration missing). Returns the load,
+/// the flash as the boots left it, and the resets the NMI made (0 or 1: never a loop).
+pub fn boot_read(
+    flash: SimFlash,
+) -> (
+    Result<CalibrationRecord, fpc::control::calibration::store::LoadError>,
+    SimFlash,
+    u32,
+) {
+    let mut flash = flash;
+    flash.ecc_error = None;
+    let mut resets = 0;
+    loop {
+        let mut s = match store(flash.clone()) {
+            Ok(s) => s,
+            Err(_) => {
+                return (
+                    Err(fpc::control::calibration::store::LoadError::Flash),
+                    flash,
+                    resets,
+                )
+            }
+        };
+        let loaded = block_on(s.load());
+        let after = s.into_flash();
+        if after.ecc_error().is_none() {
+            return (loaded, after, resets);
+        }
+        // The NMI: the failing double word is in the store (the store is all this flash),
+        // so the handler erases the store's pages, then resets.
+        let mut erased = after.reboot();
+        let end = (erased.bytes.len()) as u32;
+        if block_on(erased.erase(0, end)).is_err() || resets > 0 {
+            // An erase that fails (or a second error after one) would loop on the chip.
+            return (loaded, erased, resets + 1);
+        }
+        resets += 1;
+        flash = erased.reboot();
+    }
+}
+
 /// The firmware's calibration store over the whole simulated flash.
 pub fn store(flash: SimFlash) -> Result<CalibrationStore<SimFlash>, String> {
     let end = (STORE_PAGES * PAGE_BYTES) as u32;
@@ -258,6 +360,44 @@ mod tests {
             block_on(f.write(3, &[0; 8])),
             Err(SimFlashError::NotAligned)
         );
+    }
+
+    #[test]
+    fn with_ecc_poison_a_torn_word_reads_as_a_double_ecc_error_until_erased() {
+        let mut f = SimFlash::with_ecc_poison(2);
+        block_on(f.write(0, &[0x11; 8])).unwrap();
+        f.cut_power_at(1);
+        assert_eq!(
+            block_on(f.write(8, &[0; 16])),
+            Err(SimFlashError::PowerLost)
+        );
+        let mut f = f.reboot();
+        let mut buf = [0u8; 8];
+        block_on(f.read(0, &mut buf)).unwrap();
+        assert_eq!(buf, [0x11; 8]);
+        // The second double word tore; one byte of it is enough to raise the error.
+        let mut one = [0u8; 1];
+        assert_eq!(
+            block_on(f.read(20, &mut one)),
+            Err(SimFlashError::EccDouble(16))
+        );
+        assert_eq!(f.ecc_error(), Some(16));
+        // A torn erase poisons the half of the page it did not reach.
+        f.cut_power_at(0);
+        assert!(block_on(f.erase(PAGE_BYTES as u32, 2 * PAGE_BYTES as u32)).is_err());
+        let mut f = f.reboot();
+        assert_eq!(f.poisoned_words(), 1 + PAGE_BYTES / WORD_BYTES / 2);
+        block_on(f.erase(0, 2 * PAGE_BYTES as u32)).unwrap();
+        assert_eq!(f.poisoned_words(), 0);
+        block_on(f.read(16, &mut buf)).unwrap();
+        assert_eq!(buf, [0xFF; 8]);
+        // Without the mode a torn word reads as its half-programmed bytes.
+        let mut plain = SimFlash::new(1);
+        plain.cut_power_at(0);
+        let _ = block_on(plain.write(0, &[0; 8]));
+        let mut plain = plain.reboot();
+        block_on(plain.read(0, &mut buf)).unwrap();
+        assert_eq!(buf, [0, 0, 0, 0, 0xFF, 0xFF, 0xFF, 0xFF]);
     }
 
     #[test]

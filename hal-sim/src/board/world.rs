@@ -2,11 +2,26 @@
 //! port-trait implementations the firmware's task bodies run against.
 //!
 //! Time advances only in [`World::advance`], one control period at a time, so a run is
-//! deterministic: the same seed gives the same samples bit for bit. As on the board, the
-//! burst is sampled at the start of a period and the duties the control task writes act
-//! during the next period (one period of transport delay). What the sensors make of the plant
-//! (errors, noise, lag, quantisation) is [`crate::board::sensors`], after the laws of
-//! [`crate::plant::sensing`].
+//! deterministic: the same seed gives the same samples bit for bit. What the sensors make of
+//! the plant (errors, noise, lag, quantisation) is [`crate::board::sensors`], after the laws
+//! of [`crate::plant::sensing`].
+//!
+//! # When the duties act (the board's timers, RM0440 §29.3)
+//! The burst is sampled at the PWM counter peak that starts period k (TIM1's OC4REF, one
+//! timer clock before it). The control task computes its duties from that burst and writes
+//! them to TIM1/TIM8 CCR1..3, whose preload is on (CCMRx.OCxPE = 1): a written value goes to
+//! the preload register, and the compare uses it only from the next update event, when the
+//! preload registers are transferred to the shadow ones. With the repetition counter at 1
+//! (written after the counter starts, so the update falls on the overflow) the update
+//! events are the peaks only. The duties written in period k therefore drive the bridge over
+//! period k + 1, from peak k + 1 to peak k + 2 — one whole period after the sampling, the
+//! high-side pulse centred on the trough 1.5 periods after it. [`World::duties`] is the
+//! preload the task writes, [`World::duties_in_force`] the shadow the bridge applies;
+//! [`World::advance`] runs the plant over a period with the shadow, then makes the update
+//! event (shadow ← preload). MOE (enable/disable) and the DAC are not preloaded: they act
+//! at once, as on the chip. A compare register holds a whole number of timer steps
+//! ([`fpc::units::PWM_COMPARE_STEPS`] a period), so a written duty is rounded to one
+//! ([`Duty::as_switched`]) as the board's conversion does.
 
 use std::cell::RefCell;
 use std::future::poll_fn;
@@ -20,7 +35,7 @@ use fpc::ports::{
     PressureCodes, PressureInput, PwmOutput, QuadratureInput, SinCosCodes, Sleep, TorqueOutput,
     Watchdog,
 };
-use fpc::units::{DacCode, PerSection, PhaseDuties, Section, Ticks, CONTROL_PERIOD_US};
+use fpc::units::{DacCode, Duty, PerSection, PhaseDuties, Section, Ticks, CONTROL_PERIOD_US};
 
 pub use crate::board::sensors::Sensors;
 use crate::board::sensors::{adc, EncoderModel};
@@ -40,8 +55,11 @@ pub struct World {
     cycle: u64,
     start_us: u32,
     burst: Burst,
-    /// Duties latched by the control task.
+    /// Duties the control task wrote: the timers' preload registers (CCR1..3).
     pub duties: PerSection<PhaseDuties>,
+    /// Duties the bridges apply this period: the shadow registers, loaded from
+    /// [`World::duties`] at each update event (the end of every [`World::advance`]).
+    pub duties_in_force: PerSection<PhaseDuties>,
     /// Motor outputs enabled.
     pub enabled: bool,
     /// While enabled, which sections' bridges switch (a section out of service is off).
@@ -89,6 +107,7 @@ impl World {
             start_us,
             burst: Burst::default(),
             duties: PerSection::default(),
+            duties_in_force: PerSection::default(),
             enabled: false,
             sections_on: PerSection {
                 master: true,
@@ -146,21 +165,33 @@ impl World {
         Ticks(self.start_us.wrapping_add(self.time_us() as u32))
     }
 
-    /// Advances one control period: the plant runs with the latched outputs, then the next
-    /// burst is sampled.
+    /// Advances one control period: the plant runs with the outputs in force, then the
+    /// update event at the counter peak puts the written duties in force for the next
+    /// period, and the next burst is sampled (see the module header).
     pub fn advance(&mut self) {
         let drive = self.drive();
         self.plant
             .advance(&drive, f64::from(CONTROL_PERIOD_US) * 1e-6);
+        self.duties_in_force = self.duties;
         self.cycle += 1;
         self.sample();
     }
 
-    /// What the latched outputs apply to the plant during the next period: each section's
-    /// duties while its outputs are on, and the servo torque the DAC code commands.
+    /// Outputs as after a reset of the MCU (or with no supply): bridges off, the timers'
+    /// compare registers (preload and shadow) at their reset value, servo command zero.
+    pub fn outputs_reset(&mut self) {
+        self.enabled = false;
+        self.duties = PerSection::default();
+        self.duties_in_force = PerSection::default();
+        self.servo_code = DacCode::MID;
+    }
+
+    /// What the outputs apply to the plant during the next period: each section's duties
+    /// in force while its outputs are on, and the servo torque the DAC code commands.
     pub fn drive(&self) -> Drive {
-        let on =
-            |s: Section| (self.enabled && *self.sections_on.get(s)).then(|| *self.duties.get(s));
+        let on = |s: Section| {
+            (self.enabled && *self.sections_on.get(s)).then(|| *self.duties_in_force.get(s))
+        };
         Drive {
             duties: PerSection {
                 master: on(Section::Master),
@@ -340,7 +371,8 @@ impl CurrentInput for SimPeripherals {
 
 impl PwmOutput for SimPeripherals {
     fn write(&mut self, section: Section, duties: PhaseDuties) {
-        *self.world.borrow_mut().duties.get_mut(section) = duties;
+        // The compare registers hold whole timer steps (the board rounds each duty to one).
+        *self.world.borrow_mut().duties.get_mut(section) = duties.map(Duty::as_switched);
     }
     fn disable(&mut self) {
         self.world.borrow_mut().enabled = false;
@@ -509,6 +541,42 @@ mod tests {
         w.sample();
         let moved = (read(&w) - (p0 + 2e4)) / 4e5;
         assert!((moved - (1.0 - (-0.05f64).exp())).abs() < 0.01, "{moved}");
+    }
+
+    #[test]
+    fn a_duty_written_in_a_period_drives_the_next_one() {
+        let world: WorldRef = Rc::new(RefCell::new(World::from_model(
+            &MachineModel::reference(),
+            1,
+            0,
+            0.1,
+        )));
+        let mut pwm = peripherals(&world);
+        let first = [Duty(40_000), Duty(30_000), Duty(32_768)];
+        PwmOutput::write(&mut pwm, Section::Master, first);
+        pwm.enable(PerSection {
+            master: true,
+            slave: false,
+        });
+        // MOE acts at once; the compare values only from the update event.
+        let w = world.borrow().drive();
+        assert_eq!(
+            w.duties.master,
+            Some(PerSection::<PhaseDuties>::default().master)
+        );
+        assert_eq!(w.duties.slave, None);
+        world.borrow_mut().advance();
+        PwmOutput::write(&mut pwm, Section::Master, [Duty::HALF; 3]);
+        let switched = first.map(Duty::as_switched);
+        assert_eq!(world.borrow().drive().duties.master, Some(switched));
+        assert_ne!(switched, first, "rounded to the timer's steps");
+        world.borrow_mut().advance();
+        assert_eq!(
+            world.borrow().drive().duties.master,
+            Some([Duty::HALF.as_switched(); 3])
+        );
+        pwm.disable();
+        assert_eq!(world.borrow().drive().duties.master, None);
     }
 
     #[test]

@@ -311,7 +311,8 @@ fn fmt_mm(v: Option<f64>) -> String {
     v.map_or_else(|| "n/a".into(), |m| format!("{:.3} mm", m * 1e3))
 }
 
-fn plot_motion(path: &Path, log: &RunLog) -> Result<(), String> {
+/// The motion plot of a run log (position and reference).
+pub fn plot_motion(path: &Path, log: &RunLog) -> Result<(), String> {
     let t = log.column("t_s").unwrap_or_default();
     let x = log.column("x_m").unwrap_or_default();
     let r = log.column("x_ref_m").unwrap_or_default();
@@ -336,7 +337,8 @@ fn plot_motion(path: &Path, log: &RunLog) -> Result<(), String> {
 }
 
 /// `pv.svg`: the p–V diagram of both chambers from the plant's true pressures and volumes.
-fn plot_pv(path: &Path, log: &RunLog) -> Result<(), String> {
+/// The p-V plot of a run log.
+pub fn plot_pv(path: &Path, log: &RunLog) -> Result<(), String> {
     let scaled = |name: &str, k: f64| -> Vec<f64> {
         log.column(name)
             .unwrap_or_default()
@@ -368,7 +370,8 @@ fn plot_pv(path: &Path, log: &RunLog) -> Result<(), String> {
 
 /// Energy per compression cycle: what the motor sections put into the piston and what the
 /// gas received (∮p·dV); the difference is friction and the other losses.
-fn plot_energy(path: &Path, outcome: &crate::run::RunOutcome) -> Result<(), String> {
+/// The per-cycle energy plot of a run.
+pub fn plot_energy(path: &Path, outcome: &crate::run::RunOutcome) -> Result<(), String> {
     let cycles: Vec<f64> = (0..outcome.cycle_work_j.len())
         .map(|c| (c + 2) as f64)
         .collect();

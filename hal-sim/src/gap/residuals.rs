@@ -494,7 +494,6 @@ fn replay_from(
     let (mut la, mut lb) = (ch.a.pressure_pa, ch.b.pressure_pa);
     let mut pa = Vec::with_capacity(n);
     let mut pb = Vec::with_capacity(n);
-    let tau = std::f64::consts::TAU;
     // The plant steps its chambers every control period; a slower log is replayed in as
     // many sub-steps, along x and θ interpolated linearly (the chambers' port flow is stiff
     // and its step is made for 25–50 µs).
@@ -509,17 +508,15 @@ fn replay_from(
     // period: stepped once per sample of a slower log it would lag by τ − dt/2 instead of
     // τ − h/2 (25 µs less on a 10 kHz log, named as leakage at speed).
     let sensor_lag = sensor.lag(h);
-    // The angle that times the ports, from the logged one (`# theta_source`): for a servo
-    // count, its centre, and the piston carried within the spline's play (a play operator,
-    // as the plant's spline; the piston starts centred).
-    let (centre, half_play) = match data.theta_source {
-        ThetaSource::Piston => (0.0, 0.0),
-        ThetaSource::ServoEncoder => (
-            0.5 * tau / f64::from(model.servo.counts_per_rev.max(1)),
-            0.5 * model.servo.backlash_rad,
-        ),
+    // The angle that times the ports ([`Measured::ports_angle_rad`]: for a servo count, the
+    // angle estimated within its counts), and the piston carried within the spline's play
+    // (a play operator, as the plant's spline; the piston starts centred).
+    let half_play = match data.theta_source {
+        ThetaSource::Piston => 0.0,
+        ThetaSource::ServoEncoder => 0.5 * model.servo.backlash_rad,
     };
-    let mut piston = data.theta_rad.first().copied().unwrap_or(0.0) + centre;
+    let angle_rad = &data.ports_angle_rad;
+    let mut piston = angle_rad.first().copied().unwrap_or(0.0);
     for i in 0..n {
         if i > 0 {
             // Set the lines only when the logged pressures change (each set costs a powf).
@@ -540,8 +537,8 @@ fn replay_from(
                 let pos = (k as f64 - lag).max(0.0);
                 let j = pos.floor() as usize;
                 let f = pos - j as f64;
-                let a = at(&data.theta_rad, j);
-                a + f * (data.theta_rad.get(j + 1).copied().unwrap_or(a) - a)
+                let a = at(angle_rad, j);
+                a + f * (angle_rad.get(j + 1).copied().unwrap_or(a) - a)
             };
             let (t1, t2) = (theta(i - 1), theta(i));
             let mode = match data.ports_from_s {
@@ -551,7 +548,7 @@ fn replay_from(
             for k in 1..=substeps {
                 let f = k as f64 / substeps as f64;
                 let x = x1 + f * (x2 - x1);
-                let angle = t1 + f * (t2 - t1) + centre;
+                let angle = t1 + f * (t2 - t1);
                 piston = through_play(piston, angle, half_play);
                 let phase = wrap_rad(piston);
                 ch.step(x, phase, &lines, mode, h);

@@ -380,7 +380,11 @@ impl Rig {
             let (s, c) = angle.sin_cos();
             let phase = world.plant.phase_currents(section);
             let duties = self.currents.get_mut(section).step(iq, phase, (s, c), v);
+            // The published drives are not this board's timers (whose compare preload puts a
+            // written duty in force a period later, `board::world`): their duties act in the
+            // period they are written, as this model of them always had it.
             *world.duties.get_mut(section) = duties;
+            *world.duties_in_force.get_mut(section) = duties;
             let i = fpc::physics::motor::park(fpc::physics::motor::clarke(phase), s, c);
             *measured.get_mut(section) = kf * i.q;
         }

@@ -142,32 +142,6 @@ pub struct RunOutcome {
     pub injection: InjectionReport,
 }
 
-/// The controller a run's host talks to: the firmware on the simulated board (with the
-/// board's execution, for the fault scenarios) or the published rig's drives.
-enum Ctl<'a> {
-    Firmware(&'a SimShared, &'a mut Execution),
-    Published(&'a mut Rig),
-}
-
-impl Ctl<'_> {
-    fn status(&self) -> Status {
-        match self {
-            Ctl::Firmware(shared, _) => shared.status(),
-            Ctl::Published(rig) => rig.status(),
-        }
-    }
-
-    /// Sends `command` as the host would (the firmware takes it at its next cycle).
-    fn post(&mut self, command: Command, t_s: f64) {
-        match self {
-            Ctl::Firmware(shared, _) => {
-                let _ = shared.post_command(command);
-            }
-            Ctl::Published(rig) => rig.command(command, t_s),
-        }
-    }
-}
-
 /// Columns of the simulator's run log: the required ones, then optional ones.
 pub const COLUMNS: [&str; 18] = [
     REQUIRED[0],
@@ -227,6 +201,8 @@ struct Metrics {
     force_diff_n: u64,
     paper: figures::PaperFigures,
     faults: Vec<Fault>,
+    /// The homing command went out.
+    home_sent: bool,
 }
 
 /// Runs the simulation; the whole run log is kept in [`RunOutcome::log`].
@@ -249,31 +225,11 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     if let Some(test) = opts.closed_port {
         return closed::simulate(opts, test, csv);
     }
-    let model = &opts.model;
-    let speed = opts.peak_speed_mps();
-    let mut config = control_config(model);
-    if opts.calibration.is_some() {
-        // Not the model's truth: the firmware loads the stored map from its flash at boot.
-        config.allocation.cogging = fpc::physics::cogging::HarmonicMap::none();
-    }
-    // The controller's model of the machine is off by `model_error` in mass and friction.
-    let k = 1.0 + opts.model_error as f32;
-    config.moving_mass_kg *= k;
-    config.friction.coulomb_n *= k;
-    config.friction.static_n *= k;
-    config.friction.viscous_ns_per_m *= k;
-    if let Some(configure) = opts.configure {
-        configure(&mut config);
-    }
-    let mut actions = opts.schedule.clone();
-    actions.sort_by_key(|(cycle, _)| *cycle);
-    let mut actions = actions.into_iter().peekable();
-    let dead_a = f64::from(config.target_clearance_m);
-    let dead_b = f64::from(config.travel_m - config.target_clearance_m);
+    let config = run_config(opts);
     let mut injector = Injector::new(&opts.faults, &config, opts.seed);
     let heartbeat_timeout_s = config.heartbeat_timeout_s;
     let mut world = world(
-        model,
+        &opts.model,
         opts.seed,
         injector.start_us(opts.start_us),
         injector.start_position_m(opts.start_position_m),
@@ -281,52 +237,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     injector.prepare(&mut world);
     world.telemetry.decimation = opts.telemetry_decimation;
     world.plant.lines.set_pressure_ratio(opts.pressure_ratio);
-
-    let mut log = RunLog::with_columns(&COLUMNS);
-    log.meta.push(("source".into(), "fpc-sim run".into()));
-    log.meta
-        .push(("sample_rate_hz".into(), opts.log_rate_hz.to_string()));
-    log.meta.push(("model".into(), opts.model_name.clone()));
-    log.meta.push(("seed".into(), opts.seed.to_string()));
-    log.meta
-        .push(("volume_ratio".into(), volume_ratio_name(opts.volume_ratio)));
-    // The published drives report the force of the current sampled with the row's position.
-    let force_delay_s = match opts.controller {
-        Controller::Ours => FIRMWARE_FORCE_DELAY_S,
-        Controller::Published => 0.0,
-    };
-    log.meta
-        .push(("force_delay_s".into(), format!("{force_delay_s:e}")));
-    if opts.controller == Controller::Published {
-        log.meta.push(("controller".into(), "published".into()));
-        // Its velocity column is the drive's reading (`filters` compares it, Fig. 7).
-        for name in &mut log.names {
-            if name == "v_mps" {
-                *name = "v_drive_mps".into();
-            }
-        }
-    }
-
-    let mut phase = Phase::Homing;
-    let mut metrics = Metrics::default();
-    let mut cycles_done = 0u32;
-    let limit_s = opts.time_limit_s();
-    // Each stage must finish in its own time (no waiting out the whole run's limit when
-    // homing or a cycle stalls) until the first injected fault begins; after it, the
-    // injector decides when the outcome is known.
-    let first_fault_s = opts
-        .faults
-        .iter()
-        .map(|f| f.at_s)
-        .fold(f64::INFINITY, f64::min);
-    let mut stage_deadline_s = opts.homing_limit_s();
-    let mut stop_reason: Option<String> = None;
-    let mut capture = Capture::new(limit_s, csv, &log);
-    // One row every `log_stride` control cycles (`--log-rate`; checked to divide evenly).
-    let log_stride = u64::from((CONTROL_RATE_HZ / opts.log_rate_hz.max(1)).max(1));
-    // The mode of the last status seen (what the summary's `state` names).
-    let mut last_mode = Status::INIT.mode;
-    let started = Instant::now();
+    let mut driver = RunDriver::new(opts, &config, "fpc-sim run", csv);
 
     // The board's independent watchdog runs as on the MCU (only a hung task starves it).
     let execution = Execution {
@@ -351,32 +262,260 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     // and reads the channel there every control period, as a probe does (it always keeps up).
     let mut telemetry_host: Option<ControlBlock> = None;
     let mut telemetry_error: Option<String> = None;
-    let mut each_cycle = |w: &mut World, ctl: &mut Ctl<'_>| {
-        if let Ctl::Firmware(shared, exec) = ctl {
-            if opts.telemetry_decimation > 0 && telemetry_error.is_none() {
-                let block = match telemetry_host.take() {
-                    Some(b) => Ok(b),
-                    None => ControlBlock::find(&mut w.ram, &Locate::Scan(vec![SimRam::range()])),
+    let world = match opts.controller {
+        Controller::Ours => {
+            let each_cycle = |w: &mut World, shared: &SimShared, exec: &mut Execution| {
+                if opts.telemetry_decimation > 0 && telemetry_error.is_none() {
+                    let block = match telemetry_host.take() {
+                        Some(b) => Ok(b),
+                        None => {
+                            ControlBlock::find(&mut w.ram, &Locate::Scan(vec![SimRam::range()]))
+                        }
+                    };
+                    let drained = block.and_then(|b| {
+                        let World { ram, telemetry, .. } = &mut *w;
+                        drain_up(&b, ram, UP_TELEMETRY, &mut telemetry.bytes)
+                            .map_err(|e| e.to_string())?;
+                        Ok(b)
+                    });
+                    match drained {
+                        Ok(b) => telemetry_host = Some(b),
+                        Err(e) => telemetry_error = Some(e),
+                    }
+                }
+                let injected = if injector.is_empty() {
+                    None
+                } else {
+                    injector.step(w, shared, exec);
+                    Some(injector.finished(w.time_us(), heartbeat_timeout_s))
                 };
-                let drained = block.and_then(|b| {
-                    let World { ram, telemetry, .. } = &mut *w;
-                    drain_up(&b, ram, UP_TELEMETRY, &mut telemetry.bytes)
-                        .map_err(|e| e.to_string())?;
-                    Ok(b)
-                });
-                match drained {
-                    Ok(b) => telemetry_host = Some(b),
-                    Err(e) => telemetry_error = Some(e),
+                // While the MCU boots after a reset nothing reports a status.
+                let fresh = exec.booting_until_us.is_none();
+                let mut link = FirmwareLink { shared, exec };
+                driver.cycle(w, &mut link, fresh, injected)
+            };
+            simulate_board(world, config, execution, each_cycle).0
+        }
+        Controller::Published => {
+            let mut rig = Rig::new(&opts.model, &world, opts.pressure_ratio, opts.volume_ratio);
+            crate::published::simulate(world, &mut rig, |w, rig| {
+                let t_s = w.time_s();
+                driver.cycle(w, &mut PublishedLink { rig, t_s }, true, None)
+            })
+        }
+    };
+    if let Some(e) = telemetry_error {
+        return Err(format!("the telemetry host failed: {e}"));
+    }
+    driver.finish(world, injector.report().clone())
+}
+
+/// [`HostLink`] of a run on the simulated board: the firmware's shared state, and the board's
+/// execution (whose boot-time link requests follow the ports the host declares).
+struct FirmwareLink<'a> {
+    shared: &'a SimShared,
+    exec: &'a mut Execution,
+}
+
+impl HostLink for FirmwareLink<'_> {
+    fn status(&self) -> Status {
+        self.shared.status()
+    }
+    fn post_command(&mut self, command: Command) -> bool {
+        self.shared.post_command(command).is_ok()
+    }
+    fn ports_timed(&mut self) {
+        self.shared.declare_ports(Ports::Timed);
+        if let Some(first) = self.exec.at_boot.first_mut() {
+            *first = LinkRequest::DeclarePorts(Ports::Timed);
+        }
+    }
+}
+
+/// [`HostLink`] of a run with the published rig's drives (`--controller published`).
+struct PublishedLink<'a> {
+    rig: &'a mut Rig,
+    t_s: f64,
+}
+
+impl HostLink for PublishedLink<'_> {
+    fn status(&self) -> Status {
+        self.rig.status()
+    }
+    fn post_command(&mut self, command: Command) -> bool {
+        self.rig.command(command, self.t_s);
+        true
+    }
+}
+
+/// The controller configuration of a run: the model's, with the options' changes (a stored
+/// calibration replaces the model's true cogging map; `model_error`; `configure`).
+pub fn run_config(opts: &RunOptions) -> fpc::control::config::ControlConfig {
+    let mut config = control_config(&opts.model);
+    if opts.calibration.is_some() {
+        // Not the model's truth: the firmware loads the stored map from its flash at boot.
+        config.allocation.cogging = fpc::physics::cogging::HarmonicMap::none();
+    }
+    // The controller's model of the machine is off by `model_error` in mass and friction.
+    let k = 1.0 + opts.model_error as f32;
+    config.moving_mass_kg *= k;
+    config.friction.coulomb_n *= k;
+    config.friction.static_n *= k;
+    config.friction.viscous_ns_per_m *= k;
+    if let Some(configure) = opts.configure {
+        configure(&mut config);
+    }
+    config
+}
+
+/// The host's side of a board running the firmware, as [`RunDriver`] uses it: the status as
+/// the host last saw it, and the command channel.
+pub trait HostLink {
+    /// The firmware's status as last seen.
+    fn status(&self) -> Status;
+    /// Sends a command; false if the channel refused it (full).
+    fn post_command(&mut self, command: Command) -> bool;
+    /// The start-up bypass has closed: the rotation times the ports from now on (a host
+    /// that declares the ports to the firmware says so; by default nothing to do).
+    fn ports_timed(&mut self) {}
+}
+
+impl HostLink for &SimShared {
+    fn status(&self) -> Status {
+        SimShared::status(self)
+    }
+    fn post_command(&mut self, command: Command) -> bool {
+        SimShared::post_command(self, command).is_ok()
+    }
+}
+
+/// The operator of a run and its bookkeeping, one control period at a time: homes the
+/// axis, closes the bypass, starts the strokes, counts cycles, stops; collects the figures
+/// and the run log. `fpc-sim run` drives it with the host build of the firmware on the
+/// simulated board; `fpc-pil` with the release ELF in an emulated MCU.
+pub struct RunDriver<'o, 's> {
+    opts: &'o RunOptions,
+    speed: f64,
+    actions: std::iter::Peekable<std::vec::IntoIter<(u32, HostAction)>>,
+    dead_a: f64,
+    dead_b: f64,
+    log: RunLog,
+    phase: Phase,
+    metrics: Metrics,
+    cycles_done: u32,
+    limit_s: f64,
+    first_fault_s: f64,
+    stage_deadline_s: f64,
+    stop_reason: Option<String>,
+    capture: Capture<'s>,
+    log_stride: u64,
+    /// A row for every fresh status, whatever the cycle ([`RunDriver::log_each_status`]).
+    log_each_status: bool,
+    last_mode: fpc::status::ModeKind,
+    started: Instant,
+}
+
+impl<'o, 's> RunDriver<'o, 's> {
+    /// A run of `opts` with the controller `config`, its log's `source` named so, streamed to
+    /// `csv` if given.
+    pub fn new(
+        opts: &'o RunOptions,
+        config: &fpc::control::config::ControlConfig,
+        source: &str,
+        csv: Option<&'s mut dyn Write>,
+    ) -> Self {
+        let mut actions = opts.schedule.clone();
+        actions.sort_by_key(|(cycle, _)| *cycle);
+        let mut log = RunLog::with_columns(&COLUMNS);
+        log.meta.push(("source".into(), source.into()));
+        log.meta
+            .push(("sample_rate_hz".into(), opts.log_rate_hz.to_string()));
+        log.meta.push(("model".into(), opts.model_name.clone()));
+        log.meta.push(("seed".into(), opts.seed.to_string()));
+        log.meta
+            .push(("volume_ratio".into(), volume_ratio_name(opts.volume_ratio)));
+        // The published drives report the force of the current sampled with the row's position.
+        let force_delay_s = match opts.controller {
+            Controller::Ours => FIRMWARE_FORCE_DELAY_S,
+            Controller::Published => 0.0,
+        };
+        log.meta
+            .push(("force_delay_s".into(), format!("{force_delay_s:e}")));
+        if opts.controller == Controller::Published {
+            log.meta.push(("controller".into(), "published".into()));
+            // Its velocity column is the drive's reading (`filters` compares it, Fig. 7).
+            for name in &mut log.names {
+                if name == "v_mps" {
+                    *name = "v_drive_mps".into();
                 }
             }
-            if !injector.is_empty() {
-                injector.step(w, shared, exec);
-            }
         }
-        let status = ctl.status();
+        let limit_s = opts.time_limit_s();
+        let capture = Capture::new(limit_s, csv, &log);
+        RunDriver {
+            opts,
+            speed: opts.peak_speed_mps(),
+            actions: actions.into_iter().peekable(),
+            dead_a: f64::from(config.target_clearance_m),
+            dead_b: f64::from(config.travel_m - config.target_clearance_m),
+            log,
+            phase: Phase::Homing,
+            metrics: Metrics::default(),
+            cycles_done: 0,
+            limit_s,
+            // Each stage must finish in its own time (no waiting out the whole run's limit
+            // when homing or a cycle stalls) until the first injected fault begins; after
+            // it, the injector decides when the outcome is known.
+            first_fault_s: opts
+                .faults
+                .iter()
+                .map(|f| f.at_s)
+                .fold(f64::INFINITY, f64::min),
+            stage_deadline_s: opts.homing_limit_s(),
+            stop_reason: None,
+            capture,
+            // One row every `log_stride` control cycles (`--log-rate`; checked to divide
+            // evenly).
+            log_stride: u64::from((CONTROL_RATE_HZ / opts.log_rate_hz.max(1)).max(1)),
+            log_each_status: false,
+            last_mode: Status::INIT.mode,
+            started: Instant::now(),
+        }
+    }
+
+    /// Logs a row for every fresh status instead of every `log_rate_hz`-th cycle: for a
+    /// host that sees the status only in the firmware's telemetry frames (a real board's, at
+    /// the firmware's own decimation, whose frames need not fall on those cycles).
+    pub fn log_each_status(mut self) -> Self {
+        self.log_each_status = true;
+        self
+    }
+
+    /// Compression cycles completed so far.
+    pub fn cycles_done(&self) -> u32 {
+        self.cycles_done
+    }
+
+    /// One control period, after the firmware ran it and before the plant advances: looks
+    /// at the status (`fresh`: seen this period; a stale one counts for the plant's figures
+    /// only), acts, records. `injected`: the fault injector's verdict that the injected
+    /// faults' outcome is known (`None` without injected faults). Breaks when the run is over.
+    pub fn cycle(
+        &mut self,
+        w: &mut World,
+        link: &mut dyn HostLink,
+        fresh: bool,
+        injected: Option<bool>,
+    ) -> ControlFlow<()> {
+        let opts = self.opts;
+        let metrics = &mut self.metrics;
+        let status = link.status();
         let t = w.time_s();
-        if w.cycle() > 0 && w.cycle().is_multiple_of(log_stride) {
-            capture.push(&status, w);
+        if fresh
+            && w.cycle() > 0
+            && (self.log_each_status || w.cycle().is_multiple_of(self.log_stride))
+        {
+            self.capture.push(&status, w);
         }
         // `iter` walks every kind of fault: only when one is latched.
         if !status.faults.is_empty() {
@@ -387,57 +526,50 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             }
         }
         metrics.peak_speed_mps = metrics.peak_speed_mps.max(w.plant.v_mps.abs());
-        if matches!(phase, Phase::Running { .. }) {
+        if matches!(self.phase, Phase::Running { .. }) {
             if let Some(e) = discharge_opening(&w.plant, metrics.last_phase_rad) {
-                metrics.opening_errors.push((cycles_done, e));
+                metrics.opening_errors.push((self.cycles_done, e));
             }
-            let e = w.plant.x_m - f64::from(status.reference_m);
-            metrics.tracking_sq_m2 += e * e;
+            if fresh {
+                let e = w.plant.x_m - f64::from(status.reference_m);
+                metrics.tracking_sq_m2 += e * e;
+                metrics.tracking_n += 1;
+            }
             metrics.motor_work_j += (w.plant.force_n.master + w.plant.force_n.slave)
                 * w.plant.v_mps
                 * f64::from(CONTROL_PERIOD_S);
-            metrics.tracking_n += 1;
         }
         metrics.last_phase_rad = Some(w.plant.port_phase_rad());
-        if phase == Phase::Homing {
+        if self.phase == Phase::Homing && fresh {
             metrics
                 .paper
                 .before_strokes(f64::from(status.position_m), status.reference_m);
         }
         let faulted = !status.faults.is_empty();
-        let before = phase;
-        phase = match phase {
-            Phase::Homing if w.cycle() == 0 => {
-                ctl.post(Command::Home, t);
+        let before = self.phase;
+        self.phase = match self.phase {
+            // Home as soon as the link takes a command (the simulator's at once; a real
+            // board's once its RTT channels are up).
+            Phase::Homing if !self.metrics.home_sent => {
+                self.metrics.home_sent = link.post_command(Command::Home);
                 Phase::Homing
             }
             Phase::Homing if status.homed && status.mode == ModeKind::Holding => {
                 // Close the bypass: from now on the rotation times the ports.
                 w.plant.port_mode = PortMode::Timed;
-                if let Ctl::Firmware(shared, exec) = ctl {
-                    shared.declare_ports(Ports::Timed);
-                    if let Some(first) = exec.at_boot.first_mut() {
-                        *first = LinkRequest::DeclarePorts(Ports::Timed);
-                    }
-                }
-                capture.ports_timed_from(t);
+                link.ports_timed();
+                self.capture.ports_timed_from(t);
                 if opts.volume_ratio != RatioTarget::FollowMeasured {
-                    ctl.post(
-                        Command::SetVolumeRatio {
-                            target: opts.volume_ratio,
-                        },
-                        t,
-                    );
+                    let _ = link.post_command(Command::SetVolumeRatio {
+                        target: opts.volume_ratio,
+                    });
                 }
-                while let Some((_, action)) = actions.next_if(|(c, _)| *c == 0) {
-                    act(w, ctl, action, t);
+                while let Some((_, action)) = self.actions.next_if(|(c, _)| *c == 0) {
+                    act(w, link, action);
                 }
-                ctl.post(
-                    Command::Start {
-                        peak_speed_mps: speed as f32,
-                    },
-                    t,
-                );
+                let _ = link.post_command(Command::Start {
+                    peak_speed_mps: self.speed as f32,
+                });
                 Phase::Running {
                     toward_b: true,
                     ref_extreme_m: f64::from(status.reference_m),
@@ -447,20 +579,23 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                 toward_b,
                 ref_extreme_m,
             } => {
+                let metrics = &mut self.metrics;
                 let x = w.plant.x_m;
                 let c = w.plant.head_clearance_m();
                 metrics.min_clearance_m =
                     Some(metrics.min_clearance_m.map_or(c, |m: f64| m.min(c)));
-                let diff = f64::from(status.force_master_n - status.force_slave_n);
-                metrics.force_diff_sq += diff * diff;
-                metrics.force_diff_n += 1;
-                metrics.paper.stroking(
-                    t,
-                    f64::from(status.position_m - status.reference_m),
-                    f64::from(status.force_master_n),
-                    f64::from(status.force_slave_n),
-                    &w.plant,
-                );
+                if fresh {
+                    let diff = f64::from(status.force_master_n - status.force_slave_n);
+                    metrics.force_diff_sq += diff * diff;
+                    metrics.force_diff_n += 1;
+                    metrics.paper.stroking(
+                        t,
+                        f64::from(status.position_m - status.reference_m),
+                        f64::from(status.force_master_n),
+                        f64::from(status.force_slave_n),
+                        &w.plant,
+                    );
+                }
                 metrics.extreme_m = Some(match metrics.extreme_m {
                     None => x,
                     Some(e) if toward_b => e.max(x),
@@ -472,8 +607,8 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                 } else {
                     r > ref_extreme_m + 20e-6
                 };
-                if turned && status.mode == ModeKind::Running {
-                    let target = if toward_b { dead_b } else { dead_a };
+                if fresh && turned && status.mode == ModeKind::Running {
+                    let target = if toward_b { self.dead_b } else { self.dead_a };
                     let reached = metrics.extreme_m.take().unwrap_or(x);
                     metrics.dead_point_errors.push((reached - target).abs());
                     let overshoot = if toward_b {
@@ -483,9 +618,10 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                     };
                     metrics.paper.dead_point(t, overshoot);
                     if !toward_b {
-                        cycles_done += 1;
-                        while let Some((_, action)) = actions.next_if(|(c, _)| *c <= cycles_done) {
-                            act(w, ctl, action, t);
+                        self.cycles_done += 1;
+                        let done = self.cycles_done;
+                        while let Some((_, action)) = self.actions.next_if(|(c, _)| *c <= done) {
+                            act(w, link, action);
                         }
                         let c = &w.plant.chambers;
                         metrics
@@ -494,8 +630,8 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                         metrics.motor_work_at_cycle_j.push(metrics.motor_work_j);
                         metrics.paper.cycle_done();
                     }
-                    if cycles_done >= opts.cycles {
-                        ctl.post(Command::Stop, t);
+                    if self.cycles_done >= opts.cycles {
+                        let _ = link.post_command(Command::Stop);
                         Phase::Stopping
                     } else {
                         Phase::Running {
@@ -504,7 +640,9 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                         }
                     }
                 } else {
-                    let ref_extreme_m = if toward_b {
+                    let ref_extreme_m = if !fresh {
+                        ref_extreme_m
+                    } else if toward_b {
                         ref_extreme_m.max(r)
                     } else {
                         ref_extreme_m.min(r)
@@ -519,7 +657,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             other => other,
         };
         // A new stage (homing done, a cycle done, the stop begun) gets its own time.
-        let new_stage = match (before, phase) {
+        let new_stage = match (before, self.phase) {
             (
                 Phase::Homing
                 | Phase::Running {
@@ -531,31 +669,28 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
             _ => false,
         };
         if new_stage {
-            stage_deadline_s = t + opts.cycle_limit_s();
+            self.stage_deadline_s = t + opts.cycle_limit_s();
         }
-        last_mode = status.mode;
-        let outcome_known = if injector.is_empty() {
-            faulted
-        } else {
-            injector.finished(w.time_us(), heartbeat_timeout_s)
-        };
-        if phase == Phase::Done {
+        self.last_mode = status.mode;
+        let outcome_known = injected.unwrap_or(faulted);
+        if self.phase == Phase::Done {
             return ControlFlow::Break(());
         }
         if outcome_known {
             if !faulted {
-                stop_reason = Some("the injected faults' outcome was known".into());
+                self.stop_reason = Some("the injected faults' outcome was known".into());
             }
             return ControlFlow::Break(());
         }
+        let limit_s = self.limit_s;
         if t > limit_s {
-            stop_reason = Some(format!(
+            self.stop_reason = Some(format!(
                 "the time limit of {limit_s:.1} s simulated ran out"
             ));
             return ControlFlow::Break(());
         }
-        if t > stage_deadline_s && t < first_fault_s {
-            let what = match phase {
+        if t > self.stage_deadline_s && t < self.first_fault_s {
+            let what = match self.phase {
                 Phase::Homing => format!(
                     "homing did not finish within {:.1} s simulated",
                     opts.homing_limit_s()
@@ -566,124 +701,121 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
                 ),
                 _ => format!(
                     "cycle {} did not complete within {:.1} s simulated",
-                    cycles_done + 1,
+                    self.cycles_done + 1,
                     opts.cycle_limit_s()
                 ),
             };
-            stop_reason = Some(format!("no progress: {what} (mode {})", status.mode.name()));
+            self.stop_reason = Some(format!("no progress: {what} (mode {})", status.mode.name()));
             return ControlFlow::Break(());
         }
         ControlFlow::Continue(())
-    };
-    let world = match opts.controller {
-        Controller::Ours => {
-            simulate_board(world, config, execution, |w, shared, exec| {
-                each_cycle(w, &mut Ctl::Firmware(shared, exec))
-            })
-            .0
-        }
-        Controller::Published => {
-            let mut rig = Rig::new(model, &world, opts.pressure_ratio, opts.volume_ratio);
-            crate::published::simulate(world, &mut rig, |w, rig| {
-                each_cycle(w, &mut Ctl::Published(rig))
-            })
-        }
-    };
-    if let Some(e) = telemetry_error {
-        return Err(format!("the telemetry host failed: {e}"));
     }
 
-    // The loop alone: writing a streamed log is not part of it, as writing the CSV after the
-    // loop is not.
-    let wall = (started.elapsed().as_secs_f64() - capture.writing_s()).max(0.0);
-    // Making the columns is part of writing the log, as the CSV is: outside the timing.
-    capture.finish(&mut log)?;
-    let sim_time_s = world.time_s();
-    let last5 = metrics.dead_point_errors.len().saturating_sub(10);
-    let paper = std::mem::take(&mut metrics.paper).finish();
-    let summary = Summary {
-        sim_time_s,
-        wall_time_s: wall,
-        realtime_factor: if wall > 0.0 {
-            sim_time_s / wall
-        } else {
-            f64::INFINITY
-        },
-        cycles: cycles_done,
-        cycles_requested: opts.cycles,
-        stopped_early: (cycles_done < opts.cycles).then(|| {
-            let names: Vec<&str> = metrics.faults.iter().map(|f| f.name()).collect();
-            match (names.is_empty(), stop_reason) {
-                (false, _) => format!("faults latched: {}", names.join(", ")),
-                (true, Some(why)) => why,
-                (true, None) => "the run ended early".to_string(),
-            }
-        }),
-        faults_not_injected: opts
-            .faults
-            .iter()
-            .filter(|f| f.at_s > sim_time_s)
-            .map(|f| format!("{}@{}", f.kind.name(), num(f.at_s)))
-            .collect(),
-        pressure_ratio_target: opts.pressure_ratio,
-        discharge_open_pressure_error: last_max(
-            &metrics
-                .opening_errors
+    /// The figures and the log of the run that ended with `world`.
+    pub fn finish(self, world: World, injection: InjectionReport) -> Result<RunOutcome, String> {
+        let RunDriver {
+            opts,
+            mut log,
+            mut metrics,
+            cycles_done,
+            stop_reason,
+            capture,
+            last_mode,
+            started,
+            ..
+        } = self;
+        // The loop alone: writing a streamed log is not part of it, as writing the CSV after
+        // the loop is not.
+        let wall = (started.elapsed().as_secs_f64() - capture.writing_s()).max(0.0);
+        // Making the columns is part of writing the log, as the CSV is: outside the timing.
+        capture.finish(&mut log)?;
+        let sim_time_s = world.time_s();
+        let last5 = metrics.dead_point_errors.len().saturating_sub(10);
+        let paper = std::mem::take(&mut metrics.paper).finish();
+        let summary = Summary {
+            sim_time_s,
+            wall_time_s: wall,
+            realtime_factor: if wall > 0.0 {
+                sim_time_s / wall
+            } else {
+                f64::INFINITY
+            },
+            cycles: cycles_done,
+            cycles_requested: opts.cycles,
+            stopped_early: (cycles_done < opts.cycles).then(|| {
+                let names: Vec<&str> = metrics.faults.iter().map(|f| f.name()).collect();
+                match (names.is_empty(), stop_reason) {
+                    (false, _) => format!("faults latched: {}", names.join(", ")),
+                    (true, Some(why)) => why,
+                    (true, None) => "the run ended early".to_string(),
+                }
+            }),
+            faults_not_injected: opts
+                .faults
                 .iter()
-                .map(|(_, e)| *e)
-                .collect::<Vec<_>>(),
-            10,
-        ),
-        tracking_error_rms_m: (metrics.tracking_n > 0)
-            .then(|| (metrics.tracking_sq_m2 / metrics.tracking_n as f64).sqrt()),
-        indicated_work_j_per_cycle: indicated_work(&metrics.work_at_cycle_j),
-        dead_point_error_m: metrics
-            .dead_point_errors
-            .get(last5..)
-            .and_then(|e| e.iter().copied().reduce(f64::max)),
-        min_head_clearance_m: metrics.min_clearance_m,
-        peak_speed_mps: metrics.peak_speed_mps,
-        master_slave_force_diff_rms_n: (metrics.force_diff_n > 0)
-            .then(|| (metrics.force_diff_sq / metrics.force_diff_n as f64).sqrt()),
-        faults: metrics
-            .faults
-            .iter()
-            .map(|f| f.name().to_string())
-            .collect(),
-        state: last_mode.name().to_string(),
-        controller: opts.controller.name().to_string(),
-        dead_point_force_diff_n: paper.dead_point_force_diff_n,
-        force_diff_rms_fraction: paper.force_diff_rms_fraction,
-        overshoot_m: paper.overshoot_m,
-        travel_m: paper.travel_m,
-        volume_ratio_reached: paper.volume_ratio_reached,
-        pv_pressure_ratio: paper.pv_pressure_ratio,
-        line_hz: paper.line_hz,
-        line_m: paper.line_m,
-        line_floor_m: paper.line_floor_m,
-        rest_line_hz: paper.rest_line_hz,
-        rest_line_m: paper.rest_line_m,
-        rest_line_floor_m: paper.rest_line_floor_m,
-        closed_port_peak_pa: None,
-        closed_port_end_pa: None,
-    };
-    Ok(RunOutcome {
-        summary,
-        log,
-        telemetry: world.telemetry.bytes,
-        opening_errors: metrics.opening_errors,
-        cycle_work_j: metrics
-            .work_at_cycle_j
-            .windows(2)
-            .map(|w| w[1] - w[0])
-            .collect(),
-        cycle_motor_work_j: metrics
-            .motor_work_at_cycle_j
-            .windows(2)
-            .map(|w| w[1] - w[0])
-            .collect(),
-        injection: injector.report().clone(),
-    })
+                .filter(|f| f.at_s > sim_time_s)
+                .map(|f| format!("{}@{}", f.kind.name(), num(f.at_s)))
+                .collect(),
+            pressure_ratio_target: opts.pressure_ratio,
+            discharge_open_pressure_error: last_max(
+                &metrics
+                    .opening_errors
+                    .iter()
+                    .map(|(_, e)| *e)
+                    .collect::<Vec<_>>(),
+                10,
+            ),
+            tracking_error_rms_m: (metrics.tracking_n > 0)
+                .then(|| (metrics.tracking_sq_m2 / metrics.tracking_n as f64).sqrt()),
+            indicated_work_j_per_cycle: indicated_work(&metrics.work_at_cycle_j),
+            dead_point_error_m: metrics
+                .dead_point_errors
+                .get(last5..)
+                .and_then(|e| e.iter().copied().reduce(f64::max)),
+            min_head_clearance_m: metrics.min_clearance_m,
+            peak_speed_mps: metrics.peak_speed_mps,
+            master_slave_force_diff_rms_n: (metrics.force_diff_n > 0)
+                .then(|| (metrics.force_diff_sq / metrics.force_diff_n as f64).sqrt()),
+            faults: metrics
+                .faults
+                .iter()
+                .map(|f| f.name().to_string())
+                .collect(),
+            state: last_mode.name().to_string(),
+            controller: opts.controller.name().to_string(),
+            dead_point_force_diff_n: paper.dead_point_force_diff_n,
+            force_diff_rms_fraction: paper.force_diff_rms_fraction,
+            overshoot_m: paper.overshoot_m,
+            travel_m: paper.travel_m,
+            volume_ratio_reached: paper.volume_ratio_reached,
+            pv_pressure_ratio: paper.pv_pressure_ratio,
+            line_hz: paper.line_hz,
+            line_m: paper.line_m,
+            line_floor_m: paper.line_floor_m,
+            rest_line_hz: paper.rest_line_hz,
+            rest_line_m: paper.rest_line_m,
+            rest_line_floor_m: paper.rest_line_floor_m,
+            closed_port_peak_pa: None,
+            closed_port_end_pa: None,
+        };
+        Ok(RunOutcome {
+            summary,
+            log,
+            telemetry: world.telemetry.bytes,
+            opening_errors: metrics.opening_errors,
+            cycle_work_j: metrics
+                .work_at_cycle_j
+                .windows(2)
+                .map(|w| w[1] - w[0])
+                .collect(),
+            cycle_motor_work_j: metrics
+                .motor_work_at_cycle_j
+                .windows(2)
+                .map(|w| w[1] - w[0])
+                .collect(),
+            injection,
+        })
+    }
 }
 
 /// Largest of the last `n` values.
@@ -736,9 +868,11 @@ fn discharge_opening(
 }
 
 /// Carries out a scheduled host action.
-fn act(w: &mut World, ctl: &mut Ctl<'_>, action: HostAction, t_s: f64) {
+fn act(w: &mut World, link: &mut dyn HostLink, action: HostAction) {
     match action {
         HostAction::SetLinePressureRatio(pr) => w.plant.lines.set_pressure_ratio(pr),
-        HostAction::Command(c) => ctl.post(c, t_s),
+        HostAction::Command(c) => {
+            let _ = link.post_command(c);
+        }
     }
 }

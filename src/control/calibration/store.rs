@@ -83,6 +83,8 @@ impl<F: NorFlash> CalibrationStore<F> {
     }
 
     /// Stores `record` as the newest; the old one stays readable until this one is whole.
+    /// The save is read back: only a record that loads equal to `record` counts as saved
+    /// (a flash driver may report a failed program as done).
     pub async fn save(&mut self, record: &CalibrationRecord) -> Result<(), SaveError> {
         let bytes = record.encode();
         self.map
@@ -91,7 +93,11 @@ impl<F: NorFlash> CalibrationStore<F> {
             .map_err(|e| match e {
                 sequential_storage::Error::Corrupted { .. } => SaveError::Corrupted,
                 _ => SaveError::Flash,
-            })
+            })?;
+        match self.load().await {
+            Ok(stored) if stored.encode() == bytes => Ok(()),
+            _ => Err(SaveError::Verify),
+        }
     }
 
     /// Gives the flash back (the simulator's "reboot" reads it again through a new store).

@@ -1,0 +1,32 @@
+//! `fpc-pil`: processor-in-the-loop. The release firmware ELF — the binary a user flashes —
+//! runs in an emulated STM32G474 (unicorn's Cortex-M4 and the peripherals the firmware
+//! touches, modelled from RM0440), closed-loop with `hal-sim`'s plant at 20 kHz; the host
+//! side plays the operator over the RTT channels as a debug probe does.
+//!
+//! | module | what |
+//! |---|---|
+//! | [`chip`] | the emulated MCU: core, exceptions, NVIC, timers, ADC/DMA, flash, IWDG, RCC |
+//! | [`board`] | the PCB: pins to plant signals, bridges and servo to the plant |
+//! | [`elf`] | the firmware image |
+//! | [`session`] | the host attached as a probe: RTT (hal-sim's reader over the chip's memory), defmt, telemetry |
+//! | [`run`], [`faults`] | the main job's scenario and the fault scenarios |
+//! | [`save_timing`] | the control period while a save erases and programs flash |
+//! | [`log`] | the defmt log of up 0 |
+//! | [`time`] | emulated time |
+//!
+//! Licence: this package links unicorn (GPL-2.0), so it is GPL-2.0; it is its own
+//! workspace so that nothing else in the repository links it (see `pil/README.md`).
+#![warn(missing_docs)]
+
+pub mod board;
+pub mod chip;
+pub mod elf;
+pub mod faults;
+pub mod log;
+pub mod run;
+pub mod save_timing;
+pub mod session;
+pub mod time;
+
+/// Clock cycles per instruction assumed for emulated time (see `pil/README.md`).
+pub const DEFAULT_CPI: f64 = 1.5;

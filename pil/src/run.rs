@@ -1,0 +1,395 @@
+//! `fpc-pil run`: the main job's scenario on the release ELF — boot, the calibration record
+//! in the emulated flash store, home, start over the RTT command channel, N cycles at the
+//! pressure ratio's speed on the machine model — with the same operator and figures as
+//! `fpc-sim run` (`hal_sim::run::RunDriver`), and the same plant, sensors and seed driven by
+//! the host build for comparison.
+
+use std::io::Write;
+use std::time::Instant;
+
+use fpc::control::calibration::record::CalibrationRecord;
+use fpc::control::command::Command;
+use hal_sim::board::world::World;
+use hal_sim::plant::chambers::PortMode;
+use hal_sim::run::{HostLink, RunDriver, RunOptions, RunOutcome, Summary};
+use serde::Serialize;
+
+use crate::board::Board;
+use crate::chip::{ChipOptions, PeriodLoad};
+use crate::elf::Image;
+use crate::session::Session;
+
+/// The SYSCLK the instruction figures are stated at, Hz.
+pub const SYSCLK_HZ: f64 = 170e6;
+/// The control period, s.
+pub const PERIOD_S: f64 = 50e-6;
+
+/// What `fpc-pil run` prints: `fpc-sim run --json`'s summary and the PIL's own figures.
+#[derive(Clone, Debug, Serialize)]
+pub struct PilSummary {
+    /// The same summary as `fpc-sim run --json`.
+    #[serde(flatten)]
+    pub run: Summary,
+    /// Mean instructions per control period from the first exception entry to the return to
+    /// thread mode (the interrupt path: DMA end of burst, the control executor, any other
+    /// interrupt that ran in the period), over the periods from Start to the end.
+    pub instructions_per_cycle_mean: f64,
+    /// The largest of those.
+    pub instructions_per_cycle_max: u64,
+    /// Thread-mode instructions per period (supervision, telemetry, commands, storage), mean.
+    pub thread_instructions_per_cycle_mean: f64,
+    /// Clock cycles per instruction the figures below assume (`--cpi`).
+    pub cpi: f64,
+    /// The worst period's interrupt path at 170 MHz with that CPI, µs (the budget is 50).
+    pub worst_cycle_us: f64,
+    /// RMS of the difference between the piston position (the plant's) of this run and of
+    /// the host build on the same plant and seed, the same command taken by the same control
+    /// step, cycle by cycle from the strokes' start, m.
+    pub position_rms_diff_vs_host_m: Option<f64>,
+    /// Wall-clock time of the emulated run alone, s.
+    pub pil_wall_time_s: f64,
+    /// Wall-clock time of everything (commissioning, the host run, the PIL run), s.
+    pub total_wall_time_s: f64,
+    /// Resets of the emulated chip after power-on.
+    pub resets: usize,
+    /// Telemetry frames received.
+    pub telemetry_frames: u64,
+}
+
+/// A finished PIL run.
+pub struct PilOutcome {
+    /// The figures.
+    pub summary: PilSummary,
+    /// The run (log, per-cycle work) as `fpc-sim run` gives it.
+    pub outcome: RunOutcome,
+    /// The defmt log, with emulated times.
+    pub defmt: Vec<(f64, String)>,
+    /// The per-period loads from Start on.
+    pub periods: Vec<PeriodLoad>,
+}
+
+/// Options of `fpc-pil run`.
+pub struct PilOptions {
+    /// The firmware.
+    pub image: Image,
+    /// The run (model, cycles, seed, pressure ratio...).
+    pub run: RunOptions,
+    /// The emulated chip.
+    pub chip: ChipOptions,
+    /// Also run the host build for `position_rms_diff_vs_host_m`.
+    pub compare_with_host: bool,
+}
+
+/// The calibration the board's flash holds: the model commissioned by the host build's
+/// routines (`fpc-sim calibrate`), saved by the firmware's own store code.
+pub fn commissioned(run: &RunOptions) -> Result<CalibrationRecord, String> {
+    hal_sim::calibration::commission(&run.model, run.seed).map(|(r, _)| r)
+}
+
+/// Runs the scenario; the run log goes to `csv` as it is made.
+pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome, String> {
+    let started = Instant::now();
+    opts.run.validate()?;
+    let mut run_opts = opts.run.clone();
+    let record = match &run_opts.calibration {
+        Some(r) => *r,
+        None => commissioned(&run_opts)?,
+    };
+    run_opts.calibration = Some(record);
+    // The host can see the firmware's status only through telemetry: the log has a row per
+    // frame (the firmware's default decimation, 1 kHz).
+    run_opts.log_rate_hz = 1_000_000
+        / fpc::units::CONTROL_PERIOD_US
+        / u32::from(fpc::link::telemetry::DEFAULT_DECIMATION);
+
+    let flash = hal_sim::board::flash::holding(&record)?;
+    let mut world = hal_sim::run::world(
+        &run_opts.model,
+        run_opts.seed,
+        run_opts.start_us,
+        run_opts.start_position_m,
+    );
+    world
+        .plant
+        .lines
+        .set_pressure_ratio(run_opts.pressure_ratio);
+    let mut session = Session::new(opts.image.clone(), Board::new(world), opts.chip.clone())?;
+    session.chip.soc().flash.load_image(flash.image());
+    let config = hal_sim::run::run_config(&run_opts);
+    let mut driver = RunDriver::new(&run_opts, &config, "fpc-pil run", csv).log_each_status();
+    let pil_started = Instant::now();
+    let mut running_from: Option<usize> = None;
+    let mut track = Track::default();
+    loop {
+        session.step()?;
+        let fresh = session.fresh;
+        let (world, mut link) = session.link();
+        let mode = world.plant.port_mode;
+        let flow = driver.cycle(world, &mut link, fresh, None);
+        track.record(world, mode);
+        if running_from.is_none()
+            && driver.cycles_done() == 0
+            && session.status.mode == fpc::status::ModeKind::Running
+        {
+            let soc = session.chip.soc();
+            soc.recording = true;
+            running_from = Some(0);
+        }
+        if flow.is_break() {
+            break;
+        }
+    }
+    let pil_wall = pil_started.elapsed().as_secs_f64();
+    let soc = session.chip.soc();
+    let periods = std::mem::take(&mut soc.periods);
+    let resets = soc.resets.len();
+    // The ELF's control task first ran in this plant cycle (its boot from power-on); the host
+    // build starts its tasks in the same one, so that every rate the firmware divides down
+    // from its control steps (the telemetry's decimation, the 1 kHz work) has the same phase
+    // to the plant and to the commands as on the ELF.
+    let first_control_us = soc
+        .milestones
+        .iter()
+        .find(|(_, m)| *m == crate::chip::Milestone::ControlTask)
+        .map(|(t, _)| {
+            let period = u64::from(fpc::units::CONTROL_PERIOD_US);
+            (t * 1e6 / period as f64).floor() as u64 * period
+        });
+    let world = soc.board.world.clone();
+    let outcome = driver.finish(world, Default::default())?;
+    let n = periods.len().max(1) as f64;
+    let mean = periods.iter().map(|p| p.interrupt_path as f64).sum::<f64>() / n;
+    let max = periods.iter().map(|p| p.interrupt_path).max().unwrap_or(0);
+    let thread = periods.iter().map(|p| p.thread as f64).sum::<f64>() / n;
+    let rms = if opts.compare_with_host && opts.run.schedule.is_empty() {
+        let mut h = opts.run.clone();
+        h.calibration = Some(record);
+        let mut taken: Vec<_> = session
+            .sent
+            .iter()
+            .map(|c| (c.command, c.taken_after_cycle))
+            .collect();
+        // The read offset places each command's read within a period; the command task (thread
+        // mode) may still be preempted by the next control step between reading a command and
+        // posting it, which then takes it a cycle later. Of the two candidates the replay keeps
+        // the one whose trajectory matches, command by command, up to the next one.
+        for i in 0..taken.len() {
+            let Some(c0) = taken[i].1 else { continue };
+            let until = taken
+                .get(i + 1)
+                .and_then(|t| t.1)
+                .unwrap_or(track.x_m.len() as u64);
+            let mut best: Option<(f64, u64)> = None;
+            for c in [c0, c0 + 1] {
+                taken[i].1 = Some(c);
+                let host = host_replay(&h, &taken, track.bypass_closed, first_control_us)?;
+                let d = window_rms_diff(&track.x_m, &host.x_m, c0, until);
+                if best.is_none_or(|b| d < b.0) {
+                    best = Some((d, c));
+                }
+            }
+            taken[i].1 = best.map(|b| b.1);
+        }
+        let host = host_replay(&h, &taken, track.bypass_closed, first_control_us)?;
+        position_rms_diff(&track.x_m, &host.x_m, track.start_cycle)
+    } else {
+        None
+    };
+    let summary = PilSummary {
+        run: outcome.summary.clone(),
+        instructions_per_cycle_mean: mean,
+        instructions_per_cycle_max: max,
+        thread_instructions_per_cycle_mean: thread,
+        cpi: opts.chip.cpi,
+        worst_cycle_us: max as f64 * opts.chip.cpi / SYSCLK_HZ * 1e6,
+        position_rms_diff_vs_host_m: rms,
+        pil_wall_time_s: pil_wall,
+        total_wall_time_s: started.elapsed().as_secs_f64(),
+        resets,
+        telemetry_frames: session.frames,
+    };
+    Ok(PilOutcome {
+        summary,
+        outcome,
+        defmt: session.log.lines.clone(),
+        periods,
+    })
+}
+
+/// The plant as the PIL run moved it: the piston position at every cycle, and when the
+/// operator closed the bypass and the strokes began.
+#[derive(Default)]
+struct Track {
+    /// Piston position (the plant's) at each cycle from 0, m.
+    x_m: Vec<f64>,
+    /// The cycle at which the run driver closed the start-up bypass.
+    bypass_closed: Option<u64>,
+    /// The first cycle of the strokes (the bypass closed), for the comparison.
+    start_cycle: u64,
+}
+
+impl Track {
+    /// Notes cycle `w.cycle()` after the run driver looked at it (`mode`: the port mode
+    /// before it did).
+    fn record(&mut self, w: &World, mode_before: PortMode) {
+        let c = w.cycle() as usize;
+        self.x_m.resize(c, f64::NAN);
+        self.x_m.push(w.plant.x_m);
+        if self.bypass_closed.is_none() && w.plant.port_mode != mode_before {
+            self.bypass_closed = Some(w.cycle());
+            self.start_cycle = w.cycle();
+        }
+    }
+}
+
+/// The host build's run of the same scenario: the same plant, seed and calibration, the same
+/// operator ([`RunDriver`]), with each command taken by the same control step as on the ELF
+/// (`taken`: each command the PIL's operator sent, in order, and the cycle after which its
+/// control step took it) and the bypass closed at the same cycle. Otherwise the two runs
+/// would differ by when things happened — the ELF's host sees the status one telemetry frame
+/// late and its commands wait for the command task's 1 kHz poll — not by what the two
+/// builds compute. Returns the piston position at every cycle.
+fn host_replay(
+    opts: &RunOptions,
+    taken: &[(Command, Option<u64>)],
+    bypass_closed: Option<u64>,
+    first_control_us: Option<u64>,
+) -> Result<Track, String> {
+    use hal_sim::board::exec::{simulate_board, Execution, SimShared};
+    let config = hal_sim::run::run_config(opts);
+    let mut world =
+        hal_sim::run::world(&opts.model, opts.seed, opts.start_us, opts.start_position_m);
+    world.telemetry.decimation = opts.telemetry_decimation;
+    world.plant.lines.set_pressure_ratio(opts.pressure_ratio);
+    let mut driver = RunDriver::new(opts, &config, "fpc-pil host replay", None);
+    let execution = Execution {
+        watchdog_timeout_us: Some(opts.watchdog_timeout_us),
+        flash: opts
+            .calibration
+            .as_ref()
+            .map(hal_sim::board::flash::holding)
+            .transpose()?,
+        booting_until_us: first_control_us.map(|t| t + u64::from(opts.start_us)),
+        ..Execution::default()
+    };
+    let mut track = Track::default();
+    let mut replay = Replay {
+        taken,
+        posted: Vec::new(),
+        delivered: 0,
+        mismatch: None,
+    };
+    let each_cycle = |w: &mut World, shared: &SimShared, _: &mut Execution| {
+        let cycle = w.cycle();
+        replay.deliver(shared, cycle);
+        let mode = w.plant.port_mode;
+        let mut link = ReplayLink {
+            shared,
+            replay: &mut replay,
+        };
+        let flow = driver.cycle(w, &mut link, true, None);
+        // The bypass closes when it closed on the ELF's plant.
+        if w.plant.port_mode != mode && bypass_closed.is_some_and(|c| cycle < c) {
+            w.plant.port_mode = mode;
+        }
+        if bypass_closed == Some(cycle) {
+            w.plant.port_mode = PortMode::Timed;
+        }
+        replay.deliver(shared, cycle);
+        track.x_m.push(w.plant.x_m);
+        flow
+    };
+    let _ = simulate_board(world, config, execution, each_cycle);
+    if let Some(why) = replay.mismatch {
+        return Err(format!("the host build's replay of the commands: {why}"));
+    }
+    Ok(track)
+}
+
+/// The commands of a host-build run, held until the cycle the ELF took them at.
+struct Replay<'t> {
+    taken: &'t [(Command, Option<u64>)],
+    posted: Vec<Command>,
+    delivered: usize,
+    mismatch: Option<String>,
+}
+
+impl Replay<'_> {
+    /// Posts what is due at `cycle`.
+    fn deliver(&mut self, shared: &hal_sim::board::exec::SimShared, cycle: u64) {
+        while let (Some(&command), Some(&(sent, at))) = (
+            self.posted.get(self.delivered),
+            self.taken.get(self.delivered),
+        ) {
+            if command != sent {
+                self.mismatch.get_or_insert(format!(
+                    "command {} is {command:?} here, {sent:?} on the ELF",
+                    self.delivered
+                ));
+                return;
+            }
+            let Some(at) = at else { return };
+            if at > cycle {
+                return;
+            }
+            if at < cycle {
+                self.mismatch.get_or_insert(format!(
+                    "{command:?} was decided at cycle {cycle}, after the ELF took it ({at})"
+                ));
+            }
+            let _ = shared.post_command(command);
+            self.delivered += 1;
+        }
+    }
+}
+
+/// [`HostLink`] of the host replay: the status at once, commands held by [`Replay`].
+struct ReplayLink<'a, 't> {
+    shared: &'a hal_sim::board::exec::SimShared,
+    replay: &'a mut Replay<'t>,
+}
+
+impl HostLink for ReplayLink<'_, '_> {
+    fn status(&self) -> fpc::status::Status {
+        self.shared.status()
+    }
+
+    fn post_command(&mut self, command: Command) -> bool {
+        self.replay.posted.push(command);
+        true
+    }
+}
+
+/// RMS difference of two position tracks over cycles `from..until` (0 if none compare).
+fn window_rms_diff(a: &[f64], b: &[f64], from: u64, until: u64) -> f64 {
+    let (from, until) = (from as usize, until as usize);
+    let (mut sum, mut n) = (0.0, 0usize);
+    for k in from..until.min(a.len()).min(b.len()) {
+        let d = a[k] - b[k];
+        if d.is_finite() {
+            sum += d * d;
+            n += 1;
+        }
+    }
+    if n == 0 {
+        f64::INFINITY
+    } else {
+        (sum / n as f64).sqrt()
+    }
+}
+
+/// RMS difference of the piston position between the ELF's run and the host build's, over
+/// the cycles from `from` (the strokes' start) to the end of the shorter run, m; `None`
+/// with fewer than 1,000 cycles to compare.
+pub fn position_rms_diff(pil_m: &[f64], host_m: &[f64], from: u64) -> Option<f64> {
+    let from = usize::try_from(from).ok()?;
+    let pairs = pil_m.get(from..)?.iter().zip(host_m.get(from..)?);
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (a, b) in pairs {
+        if a.is_finite() && b.is_finite() {
+            sum += (a - b) * (a - b);
+            n += 1;
+        }
+    }
+    (n >= 1000).then(|| (sum / n as f64).sqrt())
+}
