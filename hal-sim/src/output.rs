@@ -87,6 +87,13 @@ impl OutDir {
                     show(input)
                 )));
             }
+            if is_special(&target) {
+                return Err(Failure::bad_input(format!(
+                    "{} is a device, pipe or socket, not a file; refusing to replace it (even \
+                     with --force)",
+                    show(&target)
+                )));
+            }
             if !force && target.symlink_metadata().is_ok() {
                 return Err(Failure::bad_input(format!(
                     "{} exists; refusing to overwrite it (add --force to replace the outputs)",
@@ -186,6 +193,12 @@ impl OutDir {
                     show(input)
                 )));
             }
+            if is_special(&target) {
+                return Err(Failure::runtime(format!(
+                    "{} is a device, pipe or socket, not a file; nothing replaced",
+                    show(&target)
+                )));
+            }
             if !self.force && target.symlink_metadata().is_ok() {
                 return Err(Failure::runtime(format!(
                     "{} exists; nothing replaced (add --force to replace the outputs)",
@@ -258,6 +271,16 @@ impl OutFile {
     }
 }
 
+/// Whether `path` is there and is neither a file, a directory nor a symbolic link: a device,
+/// a pipe or a socket. An output never replaces one — a rename over `/dev/null` by a root
+/// user with `--force` would leave a regular file in its place for every other program.
+fn is_special(path: &Path) -> bool {
+    path.symlink_metadata().is_ok_and(|m| {
+        let t = m.file_type();
+        !(t.is_file() || t.is_dir() || t.is_symlink())
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -304,6 +327,31 @@ mod tests {
         drop(o);
         assert_eq!(std::fs::read_to_string(d.join("a.txt")).unwrap(), "old a");
         assert_eq!(std::fs::read_dir(d).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn a_device_or_pipe_is_never_replaced_even_with_force() {
+        let dir = temp("special");
+        let d = dir.path();
+        let fifo = d.join("pipe");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if !made.is_ok_and(|s| s.success()) {
+            eprintln!("mkfifo is not available here; the pipe case is not checked");
+            return;
+        }
+        for force in [false, true] {
+            let e = OutFile::prepare(&fifo, force, &[]).unwrap_err();
+            assert_eq!(e.code, 2, "{}", e.message);
+            assert!(
+                e.message.contains("device, pipe or socket"),
+                "{}",
+                e.message
+            );
+        }
+        let e = OutDir::prepare(d, &["pipe"], true, &[]).unwrap_err();
+        assert_eq!(e.code, 2, "{}", e.message);
+        let t = fifo.symlink_metadata().unwrap().file_type();
+        assert!(!t.is_file(), "the pipe was replaced by a file");
     }
 
     #[test]
