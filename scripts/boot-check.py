@@ -77,6 +77,7 @@ ADC1, ADC2, ADC12 = 0x5000_0000, 0x5000_0100, 0x5000_0300
 DAC1 = 0x5000_0800
 NVIC_ISER = 0xE000_E100
 SCB_AIRCR = 0xE000_ED0C
+DWT_CYCCNT = 0xE000_1004
 SCB_CPUID = 0xE000_ED00
 DBGMCU = 0xE004_2000
 
@@ -183,6 +184,11 @@ class Model:
                     self.regs[base] = cr1 | 0x10
         if word == IWDG + 0x0C:
             value = 0
+        # DWT's cycle counter runs: each read sees 64 cycles more (a short polling loop's
+        # worth), so the fault path's 1 ms wait before its reset ends as on the chip.
+        if word == DWT_CYCCNT:
+            self.cycles = (getattr(self, "cycles", 0) + 64) & 0xFFFF_FFFF
+            value = self.cycles
         shift = (addr & 3) * 8
         return (value >> shift) & ((1 << (8 * size)) - 1)
 
