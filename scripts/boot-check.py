@@ -158,6 +158,7 @@ class Model:
         self.log = []
         self.iwdg_unlocked = False
         self.stop_reason = None
+        self.cycles = 0  # DWT_CYCCNT
 
     def get(self, addr):
         return self.regs.get(addr, 0)
@@ -187,7 +188,7 @@ class Model:
         # DWT's cycle counter runs: each read sees 64 cycles more (a short polling loop's
         # worth), so the fault path's 1 ms wait before its reset ends as on the chip.
         if word == DWT_CYCCNT:
-            self.cycles = (getattr(self, "cycles", 0) + 64) & 0xFFFF_FFFF
+            self.cycles = (self.cycles + 64) & 0xFFFF_FFFF
             value = self.cycles
         shift = (addr & 3) * 8
         return (value >> shift) & ((1 << (8 * size)) - 1)

@@ -5,6 +5,7 @@
 //! firmware's own command task and controller, and its reply comes back as text.
 
 use std::future::Future;
+use std::path::Path;
 use std::pin::Pin;
 use std::task::{Context, Poll, Waker};
 use std::time::Duration;
@@ -43,6 +44,11 @@ fn fpc_sim(args: &[&dyn AsRef<std::ffi::OsStr>]) -> (u8, String) {
     hal_sim::console::captured(|| hal_sim::cli::execute(argv))
 }
 
+/// `fpc-sim link capture --replay REC --out OUT`: the exit code and what it printed.
+fn capture(rec: &Path, out: &Path) -> (u8, String) {
+    fpc_sim(&[&"link", &"capture", &"--replay", &rec, &"--out", &out])
+}
+
 /// Telemetry bytes of a short simulated run at `decimation`.
 fn recorded_telemetry(decimation: u16) -> Vec<u8> {
     let outcome = run(&RunOptions {
@@ -75,14 +81,7 @@ fn capture_equals_decode(decimation: u16) {
     );
     let out_dir = temp(&format!("out{decimation}"));
     let out = out_dir.path().join("cap");
-    let (code, text) = fpc_sim(&[
-        &"link",
-        &"capture",
-        &"--replay",
-        &rec.path(),
-        &"--out",
-        &out,
-    ]);
+    let (code, text) = capture(rec.path(), &out);
     assert_eq!(code, 0, "{text}");
     assert!(text.contains("rejected 0"), "{text}");
     // Without the ELF (and the `probe` feature) defmt shows as hex, piece by piece.
@@ -109,7 +108,7 @@ fn capture_equals_decode(decimation: u16) {
     );
     // A capture directory is itself a recording.
     let again = out.with_file_name("again");
-    let (code, text) = fpc_sim(&[&"link", &"capture", &"--replay", &out, &"--out", &again]);
+    let (code, text) = capture(&out, &again);
     assert_eq!(code, 0, "{text}");
     assert_eq!(
         std::fs::read_to_string(again.join("run.csv")).unwrap(),
@@ -223,14 +222,7 @@ fn garbage_only_and_truncated_only_recordings_end_cleanly() {
         let rec = recording(name, &[], &up1, &[0x33, 0x00]);
         let out_dir = temp(&format!("{name}-out"));
         let out = out_dir.path().join("cap");
-        let (code, text) = fpc_sim(&[
-            &"link",
-            &"capture",
-            &"--replay",
-            &rec.path(),
-            &"--out",
-            &out,
-        ]);
+        let (code, text) = capture(rec.path(), &out);
         assert_eq!(code, 1, "{text}");
         assert!(text.contains("no telemetry frame"), "{text}");
         assert!(text.contains("the files are written"), "{text}");
