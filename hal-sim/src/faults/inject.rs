@@ -89,6 +89,70 @@ impl FaultKind {
             .map_or("?", |(_, n)| n)
     }
 
+    /// What the fault does, for `--help` and the file-format reference (`docs/formats.md`
+    /// §3): the `faults.md` row and the parameters with their defaults.
+    pub fn description(self) -> &'static str {
+        match self {
+            FaultKind::EncoderAmplitude => {
+                "#1: sin/cos amplitude scaled (`gain`, default 0.2) on one encoder or both (`encoder` = master|slave|both, default master)."
+            }
+            FaultKind::EncoderStuck => {
+                "#2: one channel (`channel` = sin|cos, default sin) frozen at mid-scale."
+            }
+            FaultKind::EncoderGlitch => {
+                "#3: one sample with a phase jump (`jump_rad`, default 2.0)."
+            }
+            FaultKind::EncoderNoiseBurst => {
+                "#4: a fraction (`fraction`, default 0.1) of samples corrupt for `duration_s` (0.02)."
+            }
+            FaultKind::PressureOpen => {
+                "#5: a chamber pressure sensor at 0 V."
+            }
+            FaultKind::PressureShort => {
+                "#5: a chamber pressure sensor at the rail."
+            }
+            FaultKind::PressureStuck => {
+                "#6: a chamber pressure reading frozen."
+            }
+            FaultKind::SectionLoss => {
+                "#7: one motor section (`section` = master|slave, default slave) produces no force."
+            }
+            FaultKind::ServoStall => {
+                "#8: the rotation blocked."
+            }
+            FaultKind::GasLoss => {
+                "#9: one chamber (`chamber` = a|b, default a) vented to ambient."
+            }
+            FaultKind::LoadStep => {
+                "#10: an external force step (`force_n`, default 3000)."
+            }
+            FaultKind::Overrun => {
+                "#11: the control step takes `cycles` (3) periods once."
+            }
+            FaultKind::TaskHang => {
+                "#12: a task (`task` = control|supervision, default control) stops forever."
+            }
+            FaultKind::CommandLoss => {
+                "#13: the host heartbeat stops."
+            }
+            FaultKind::HomingNoStop => {
+                "#14: homing with no end stop (the stop is beyond the search distance)."
+            }
+            FaultKind::HomingSpike => {
+                "#15: homing with a brief friction spike (`force_n` 300, `duration_s` 0.005) mid-travel."
+            }
+            FaultKind::CounterWrap => {
+                "#20: counters start just before their wrap (time base, quadrature)."
+            }
+            FaultKind::PowerCut => {
+                "#21: the supply is lost for `off_s` (0.1 s): the board is off (outputs low), then boots again from power-on, reading its calibration flash (`--calibration`) afresh."
+            }
+            FaultKind::BothEncoders => {
+                "#22: both encoders lost together: sin/cos amplitude scaled (`gain`, default 0.2) on the master and the slave (the same as `encoder_amplitude` with `encoder=both`)."
+            }
+        }
+    }
+
     /// Parameters this kind accepts: (name, default, lowest, highest). Text-valued
     /// parameters (`channel`, `section`, `chamber`) are encoded as 0/1.
     pub fn parameters(self) -> &'static [(&'static str, f64, f64, f64)] {
@@ -162,8 +226,8 @@ impl fmt::Display for SpecError {
 
 impl std::error::Error for SpecError {}
 
-/// Text values some parameters take, and their numeric code.
-const WORDS: [(&str, &str, f64); 11] = [
+/// Text values some parameters take, and their numeric code: (parameter, word, code).
+pub const WORDS: [(&str, &str, f64); 11] = [
     ("channel", "sin", 0.0),
     ("channel", "cos", 1.0),
     ("section", "master", 0.0),
