@@ -12,7 +12,7 @@
 //! clearance from the fault on is printed per phase; every one must keep 0.3 mm, and the
 //! sealed chamber's pressure must stay within the sensors' 10 bar.
 //!
-//! Figures measured over 96 phases while choosing the reaction (README, "Both encoders
+//! Figures measured over 96 phases while choosing the reaction (docs/firmware.md, "Both encoders
 //! lost"): STO with the rotation coasting (the reaction before) −2.2 mm (the piston reached
 //! a head in 23 of 24 phases); the short circuit alone, rotation held, −2.0 mm; the short
 //! circuit at once with the sealing turn −0.03 mm (a current that held the piston against
