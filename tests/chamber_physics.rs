@@ -245,7 +245,7 @@ fn p_v_loops_have_the_shape_of_the_papers_fig_3() {
         .collect();
     let series: Vec<hal_sim::plot::Series> = series
         .iter()
-        .map(|(label, x, y)| hal_sim::plot::Series { label, x, y })
+        .map(|(label, x, y)| hal_sim::plot::Series::new(label, x, y))
         .collect();
     let _ = hal_sim::plot::lines(&path, "Fig. 3 (simulated)", "V, 10⁻³ m³", "p, MPa", &series);
     println!("p–V loops drawn in {}", path.display());

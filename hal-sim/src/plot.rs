@@ -1,8 +1,27 @@
 //! Plots as SVG files (plotters' SVG backend: no fonts or system libraries needed).
+//!
+//! One look for every plot the tools write: the Okabe–Ito palette (told apart with the
+//! common colour-vision deficiencies), a reference or model drawn dashed over the measured
+//! solid line, the legend beside the data instead of on it, integer ticks for counts, and
+//! the same units everywhere (`docs/fpc-sim.md`, "Plots"): s, mm, m/s, N, kPa, cm³, J.
 
 use std::path::Path;
 
+use plotters::coord::Shift;
+use plotters::element::DashedPathElement;
 use plotters::prelude::*;
+
+/// How a series is drawn.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Stroke {
+    /// A solid line: what was measured or computed.
+    #[default]
+    Solid,
+    /// A dashed line: a reference, a model, a prediction drawn over the measured line.
+    Dashed,
+    /// A thin, pale line: a raw, noisy trace behind the others.
+    Faint,
+}
 
 /// One named series of (x, y) points.
 pub struct Series<'a> {
@@ -12,9 +31,72 @@ pub struct Series<'a> {
     pub x: &'a [f64],
     /// y values (same length as x).
     pub y: &'a [f64],
+    /// How it is drawn.
+    pub stroke: Stroke,
+    /// Its colour, as an index into the palette: the same quantity keeps its colour across
+    /// the panels of a figure (`None`: by its place in the panel).
+    pub colour: Option<usize>,
 }
 
-/// Draws named curves over one shared x axis as lines into an SVG at `path` (as [`lines`]).
+impl<'a> Series<'a> {
+    /// A solid series.
+    pub fn new(label: &'a str, x: &'a [f64], y: &'a [f64]) -> Self {
+        Self {
+            label,
+            x,
+            y,
+            stroke: Stroke::Solid,
+            colour: None,
+        }
+    }
+
+    /// The same series in the palette's colour `index`.
+    pub fn colour(self, index: usize) -> Self {
+        Self {
+            colour: Some(index),
+            ..self
+        }
+    }
+
+    /// The same series drawn dashed (a reference or a model).
+    pub fn dashed(self) -> Self {
+        Self {
+            stroke: Stroke::Dashed,
+            ..self
+        }
+    }
+
+    /// The same series drawn thin and pale (a raw trace).
+    pub fn faint(self) -> Self {
+        Self {
+            stroke: Stroke::Faint,
+            ..self
+        }
+    }
+}
+
+/// Axis choices beyond the data's own range.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Axes {
+    /// The y range to show (the data outside it is clipped), instead of the data's.
+    pub y_range: Option<(f64, f64)>,
+    /// x counts something (cycles, runs): ticks at whole numbers only.
+    pub integer_x: bool,
+    /// y counts something: ticks at whole numbers only.
+    pub integer_y: bool,
+}
+
+/// One chart of a figure: its y axis and its series, over the figure's shared x axis.
+pub struct Panel<'a> {
+    /// The y axis' label with its unit.
+    pub y_label: &'a str,
+    /// The series drawn.
+    pub series: Vec<Series<'a>>,
+    /// Axis choices.
+    pub axes: Axes,
+}
+
+/// Draws named curves over one shared x axis as solid lines into an SVG at `path`.
 pub fn curves(
     path: &Path,
     title: &str,
@@ -25,14 +107,12 @@ pub fn curves(
 ) -> Result<(), String> {
     let series: Vec<Series> = curves
         .iter()
-        .map(|(label, y)| Series { label, x, y })
+        .map(|(label, y)| Series::new(label, x, y))
         .collect();
     lines(path, title, x_label, y_label, &series)
 }
 
-const COLORS: [RGBColor; 6] = [BLUE, RED, GREEN, MAGENTA, CYAN, BLACK];
-
-/// Draws `series` as lines into an SVG at `path`.
+/// Draws `series` into an SVG at `path`, axes fitted to the data.
 pub fn lines(
     path: &Path,
     title: &str,
@@ -40,56 +120,209 @@ pub fn lines(
     y_label: &str,
     series: &[Series<'_>],
 ) -> Result<(), String> {
-    let bounds = |pick_x: bool| {
-        let vals = series
+    lines_with(path, title, x_label, y_label, series, Axes::default())
+}
+
+/// Draws `series` into an SVG at `path` with the axis choices `axes`.
+pub fn lines_with(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series<'_>],
+    axes: Axes,
+) -> Result<(), String> {
+    let panel = Panel {
+        y_label,
+        series: series
             .iter()
-            .flat_map(|s| if pick_x { s.x } else { s.y }.iter().copied())
-            .filter(|v| v.is_finite());
-        let (lo, hi) = vals.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            .map(|s| Series {
+                label: s.label,
+                x: s.x,
+                y: s.y,
+                stroke: s.stroke,
+                colour: s.colour,
+            })
+            .collect(),
+        axes,
+    };
+    panels(path, title, x_label, &[panel])
+}
+
+/// Okabe & Ito's palette (blue, vermillion, bluish green, reddish purple, orange, sky blue,
+/// black): distinct in print and for the common colour-vision deficiencies.
+const PALETTE: [RGBColor; 7] = [
+    RGBColor(0, 114, 178),
+    RGBColor(213, 94, 0),
+    RGBColor(0, 158, 115),
+    RGBColor(204, 121, 167),
+    RGBColor(230, 159, 0),
+    RGBColor(86, 180, 233),
+    RGBColor(0, 0, 0),
+];
+
+/// At most this many points per series: enough for the eye, small files.
+const MAX_POINTS: usize = 4000;
+
+/// Width of the legend column beside each panel, px.
+fn legend_width(panels: &[Panel<'_>]) -> u32 {
+    let longest = panels
+        .iter()
+        .flat_map(|p| p.series.iter().map(|s| s.label.chars().count()))
+        .max()
+        .unwrap_or(0);
+    (56 + 8 * longest as u32).clamp(120, 320)
+}
+
+/// The range of the finite values `pick` yields, padded (by half a unit on a count axis).
+fn range(values: impl Iterator<Item = f64>, integer: bool) -> (f64, f64) {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
             (a.min(v), b.max(v))
         });
-        if lo.is_finite() && hi > lo {
-            let pad = 0.05 * (hi - lo);
-            (lo - pad, hi + pad)
-        } else if lo.is_finite() {
-            (lo - 1.0, lo + 1.0)
-        } else {
-            (0.0, 1.0)
-        }
+    if !lo.is_finite() {
+        return (0.0, 1.0);
+    }
+    if integer {
+        return (lo.floor() - 0.5, hi.ceil() + 0.5);
+    }
+    if hi > lo {
+        let pad = 0.05 * (hi - lo);
+        (lo - pad, hi + pad)
+    } else {
+        (lo - 1.0, lo + 1.0)
+    }
+}
+
+/// Tick labels: whole numbers only on a count axis, else as many decimals as an axis of
+/// `span` needs (every label of an axis with the same number of them).
+fn tick(integer: bool, span: f64) -> impl Fn(&f64) -> String {
+    let decimals = if span > 0.0 && span.is_finite() {
+        (1.0 - span.log10().floor()).clamp(0.0, 9.0) as usize
+    } else {
+        0
     };
-    let (x0, x1) = bounds(true);
-    let (y0, y1) = bounds(false);
-    let root = SVGBackend::new(path, (900, 600)).into_drawing_area();
+    move |v: &f64| {
+        if !integer {
+            format!("{v:.decimals$}")
+        } else if (v - v.round()).abs() < 1e-9 {
+            format!("{:.0}", v)
+        } else {
+            String::new()
+        }
+    }
+}
+
+/// Draws `panels` stacked over one shared x axis into an SVG at `path`, each with its legend
+/// on its right.
+pub fn panels(path: &Path, title: &str, x_label: &str, panels: &[Panel<'_>]) -> Result<(), String> {
+    let height = 100 + if panels.len() > 1 { 400 } else { 500 } * panels.len().max(1) as u32;
+    let legend = legend_width(panels);
+    let root = SVGBackend::new(path, (900 + legend, height)).into_drawing_area();
     let draw = || -> Result<(), Box<dyn std::error::Error + '_>> {
         root.fill(&WHITE)?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 22))
-            .margin(12)
-            .x_label_area_size(45)
-            .y_label_area_size(70)
-            .build_cartesian_2d(x0..x1, y0..y1)?;
-        chart
-            .configure_mesh()
-            .x_desc(x_label)
-            .y_desc(y_label)
-            .draw()?;
-        for (i, s) in series.iter().enumerate() {
-            let color = COLORS[i % COLORS.len()];
-            // At most ~4000 points per series: enough for the eye, small files.
-            let stride = (s.x.len() / 4000).max(1);
-            let points = s.x.iter().copied().zip(s.y.iter().copied()).step_by(stride);
+        let root = root.titled(title, ("sans-serif", 22))?;
+        let rows = root.split_evenly((panels.len().max(1), 1));
+        let integer_x = panels.iter().any(|p| p.axes.integer_x);
+        let (x0, x1) = range(
+            panels
+                .iter()
+                .flat_map(|p| p.series.iter().flat_map(|s| s.x.iter().copied())),
+            integer_x,
+        );
+        for (row, panel) in rows.iter().zip(panels) {
+            let (chart_area, legend_area) = row.split_horizontally(row.dim_in_pixel().0 - legend);
+            let (y0, y1) = panel.axes.y_range.unwrap_or_else(|| {
+                range(
+                    panel.series.iter().flat_map(|s| s.y.iter().copied()),
+                    panel.axes.integer_y,
+                )
+            });
+            let mut chart = ChartBuilder::on(&chart_area)
+                .margin(12)
+                .x_label_area_size(45)
+                .y_label_area_size(75)
+                .build_cartesian_2d(x0..x1, y0..y1)?;
+            let x_ticks = if integer_x {
+                ((x1 - x0) as usize + 1).clamp(2, 12)
+            } else {
+                10
+            };
+            let y_ticks = if panel.axes.integer_y {
+                ((y1 - y0) as usize + 1).clamp(2, 12)
+            } else {
+                10
+            };
             chart
-                .draw_series(LineSeries::new(points, color))?
-                .label(s.label)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color));
+                .configure_mesh()
+                .x_desc(x_label)
+                .y_desc(panel.y_label)
+                .x_labels(x_ticks)
+                .y_labels(y_ticks)
+                .x_label_formatter(&tick(integer_x, x1 - x0))
+                .y_label_formatter(&tick(panel.axes.integer_y, y1 - y0))
+                .light_line_style(WHITE.mix(0.0))
+                .draw()?;
+            for (i, s) in panel.series.iter().enumerate() {
+                let color = PALETTE[s.colour.unwrap_or(i) % PALETTE.len()];
+                let stride = (s.x.len() / MAX_POINTS).max(1);
+                let points: Vec<(f64, f64)> =
+                    s.x.iter()
+                        .copied()
+                        .zip(s.y.iter().copied())
+                        .step_by(stride)
+                        .map(|(x, y)| (x, y.clamp(y0, y1)))
+                        .collect();
+                match s.stroke {
+                    Stroke::Solid => {
+                        chart.draw_series(LineSeries::new(points, color.stroke_width(2)))?;
+                    }
+                    Stroke::Dashed => {
+                        chart.draw_series(DashedLineSeries::new(
+                            points,
+                            8,
+                            5,
+                            color.stroke_width(2),
+                        ))?;
+                    }
+                    Stroke::Faint => {
+                        chart.draw_series(LineSeries::new(points, color.mix(0.45)))?;
+                    }
+                }
+            }
+            draw_legend(&legend_area, &panel.series)?;
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()?;
         root.present()?;
         Ok(())
     };
     draw().map_err(|e| format!("cannot draw {}: {e}", path.display()))
+}
+
+/// The legend of one panel, in its own column: a sample of each series' stroke and its label.
+fn draw_legend<'b>(
+    area: &DrawingArea<SVGBackend<'b>, Shift>,
+    series: &[Series<'_>],
+) -> Result<(), Box<dyn std::error::Error + 'b>> {
+    for (i, s) in series.iter().enumerate() {
+        let color = PALETTE[s.colour.unwrap_or(i) % PALETTE.len()];
+        let y = 30 + 22 * i as i32;
+        let sample = vec![(4, y), (34, y)];
+        match s.stroke {
+            Stroke::Solid => area.draw(&PathElement::new(sample, color.stroke_width(2)))?,
+            Stroke::Dashed => area.draw(&DashedPathElement::new(
+                sample,
+                8,
+                5,
+                color.stroke_width(2),
+            ))?,
+            Stroke::Faint => area.draw(&PathElement::new(sample, color.mix(0.45)))?,
+        }
+        area.draw(&Text::new(
+            s.label.to_string(),
+            (40, y - 7),
+            ("sans-serif", 14).into_font().color(&BLACK),
+        ))?;
+    }
+    Ok(())
 }

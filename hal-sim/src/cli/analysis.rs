@@ -251,13 +251,9 @@ pub fn interior(len: usize, dt: f64) -> std::ops::Range<usize> {
     }
 }
 
-/// The samples of `v` in `range`, N → kN (empty where the range is out of the data).
-pub fn kilonewtons(v: &[f64], range: std::ops::Range<usize>) -> Vec<f64> {
-    v.get(range)
-        .unwrap_or_default()
-        .iter()
-        .map(|f| f * 1e-3)
-        .collect()
+/// The samples of `v` in `range` (empty where the range is out of the data).
+pub fn in_window(v: &[f64], range: std::ops::Range<usize>) -> Vec<f64> {
+    v.get(range).unwrap_or_default().to_vec()
 }
 
 /// The first steps of the force plots (`forces`, `energy`): the log and the model read, the

@@ -6,7 +6,7 @@
 use clap::Args;
 
 use crate::balance::{stroke_energy, work};
-use crate::cli::analysis::{kilonewtons, read_force_balance, LogToolArgs, Steps, ZeroPhaseArgs};
+use crate::cli::analysis::{in_window, read_force_balance, LogToolArgs, Steps, ZeroPhaseArgs};
 use crate::console::Num;
 use crate::failure::{CmdResult, Failure};
 use crate::outln;
@@ -46,22 +46,25 @@ pub fn main(args: EnergyArgs) -> CmdResult {
     };
     let e = stroke_energy(&fb, &r, model.piston.mass_kg);
     steps.next("plotting");
-    let x = fb.x_m.get(r.clone()).unwrap_or_default();
-    let kn = |f: &[f64]| kilonewtons(f, r.clone());
+    let x: Vec<f64> = in_window(&fb.x_m, r.clone())
+        .iter()
+        .map(|x| x * 1e3)
+        .collect();
+    let n = |f: &[f64]| in_window(f, r.clone());
     let forces = [
-        ("motor force", kn(&fb.motor_n)),
-        ("inertia m·a", kn(&fb.inertia_filtered_n)),
-        ("gas force", kn(&fb.gas_n)),
-        ("friction force", kn(&fb.friction_n)),
-        ("cogging force", kn(&fb.cogging_n)),
+        ("motor force", n(&fb.motor_n)),
+        ("inertia m·a", n(&fb.inertia_filtered_n)),
+        ("gas force", n(&fb.gas_n)),
+        ("friction force", n(&fb.friction_n)),
+        ("cogging force", n(&fb.cogging_n)),
     ];
     let path = out.path("energy.svg");
     curves(
         &path,
         "Forces along one stroke (Fig. 9)",
-        "x, m",
-        "force, kN",
-        x,
+        "x, mm",
+        "force, N",
+        &x,
         &forces,
     )
     .map_err(Failure::runtime)?;
@@ -84,9 +87,9 @@ pub fn main(args: EnergyArgs) -> CmdResult {
     curves(
         &work_path,
         "Work along one stroke",
-        "x, m",
+        "x, mm",
         "work, J",
-        x,
+        &x,
         &works,
     )
     .map_err(Failure::runtime)?;

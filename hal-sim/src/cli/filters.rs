@@ -177,10 +177,12 @@ pub fn main(args: FiltersArgs) -> CmdResult {
     let tw = t.get(window.clone()).unwrap_or_default();
     let series: Vec<Series> = est
         .iter()
-        .map(|e| Series {
-            label: &e.label,
-            x: tw,
-            y: e.v_mps.get(window.clone()).unwrap_or_default(),
+        .map(|e| {
+            Series::new(
+                &e.label,
+                tw,
+                e.v_mps.get(window.clone()).unwrap_or_default(),
+            )
         })
         .collect();
     let path = out.path("filters.svg");

@@ -10,13 +10,13 @@
 use clap::Args;
 
 use crate::cli::analysis::{
-    column, default_window, interior, kilonewtons, read_force_balance, time_window, LogToolArgs,
+    column, default_window, in_window, interior, read_force_balance, time_window, LogToolArgs,
     Steps, WindowArgs, ZeroPhaseArgs,
 };
 use crate::console::Num;
 use crate::failure::{CmdResult, Failure};
 use crate::outln;
-use crate::plot;
+use crate::plot::{self, Axes, Panel, Series};
 use crate::signal::{rms_difference, strokes, xcorr_lag};
 
 /// Inertia force from position vs expected (Fig. 8).
@@ -46,25 +46,44 @@ pub fn main(args: ForcesArgs) -> CmdResult {
         args.window.to_s,
         default_window(t, &strokes(&fb.x_m, &fb.v_mps), dt),
     )?;
-    let kn = |v: &[f64]| kilonewtons(v, window.clone());
+    let n = |v: &[f64]| in_window(v, window.clone());
     let tw = t.get(window.clone()).unwrap_or_default();
-    let curves = [
-        ("unfiltered from position", kn(&fb.inertia_raw_n)),
-        (
-            "filtered from position (filtfilt)",
-            kn(&fb.inertia_filtered_n),
-        ),
-        ("firmware Savitzky-Golay", kn(&fb.inertia_firmware_n)),
-        ("expected inertia force", kn(&fb.expected_inertia_n)),
-    ];
+    let (raw, filtered, firmware, expected) = (
+        n(&fb.inertia_raw_n),
+        n(&fb.inertia_filtered_n),
+        n(&fb.inertia_firmware_n),
+        n(&fb.expected_inertia_n),
+    );
+    // The upper panel shows the comparison the figure exists for, the filtered estimates against
+    // the force balance; the unfiltered trace, whose noise is far larger, has its own axis below.
     let path = out.path("forces.svg");
-    plot::curves(
+    plot::panels(
         &path,
         "Inertia force from position (Fig. 8)",
         "t, s",
-        "m·a, kN",
-        tw,
-        &curves,
+        &[
+            Panel {
+                y_label: "m·a, N",
+                series: vec![
+                    Series::new("firmware Savitzky-Golay", tw, &firmware),
+                    Series::new("filtered from position (filtfilt)", tw, &filtered),
+                    Series::new("expected inertia force", tw, &expected).dashed(),
+                ],
+                axes: Axes::default(),
+            },
+            Panel {
+                y_label: "m·a, N",
+                series: vec![
+                    Series::new("unfiltered from position", tw, &raw)
+                        .faint()
+                        .colour(3),
+                    Series::new("expected inertia force", tw, &expected)
+                        .dashed()
+                        .colour(2),
+                ],
+                axes: Axes::default(),
+            },
+        ],
     )
     .map_err(Failure::runtime)?;
     steps.finish();

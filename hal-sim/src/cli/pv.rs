@@ -87,25 +87,17 @@ pub fn plot_pv(
     let pa = column(log, "p_a_pa", "p_a_pa")?;
     let pb = column(log, "p_b_pa", "p_b_pa")?;
     let (va, vb) = volumes(x, model);
-    let litres = |v: &[f64]| v.iter().map(|v| v * 1e3).collect::<Vec<f64>>();
-    let mpa = |p: &[f64]| p.iter().map(|p| p * 1e-6).collect::<Vec<f64>>();
-    let (la, lb, ma, mb) = (litres(&va), litres(&vb), mpa(pa), mpa(pb));
+    let cm3 = |v: &[f64]| v.iter().map(|v| v * 1e6).collect::<Vec<f64>>();
+    let kpa = |p: &[f64]| p.iter().map(|p| p * 1e-3).collect::<Vec<f64>>();
+    let (la, lb, ma, mb) = (cm3(&va), cm3(&vb), kpa(pa), kpa(pb));
     lines(
         path,
         "p-V diagram of both chambers (Fig. 3)",
-        "V, L (10⁻³ m³)",
-        "p, MPa",
+        "V, cm³",
+        "p, kPa",
         &[
-            Series {
-                label: "chamber A",
-                x: &la,
-                y: &ma,
-            },
-            Series {
-                label: "chamber B",
-                x: &lb,
-                y: &mb,
-            },
+            Series::new("chamber A", &la, &ma),
+            Series::new("chamber B", &lb, &mb).dashed(),
         ],
     )
     .map_err(Failure::runtime)?;

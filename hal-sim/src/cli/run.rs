@@ -7,7 +7,7 @@ use clap::Args;
 use crate::failure::{CmdResult, Failure};
 use crate::output::{show, OutDir, OutFile};
 use crate::plant::model::MachineModel;
-use crate::plot::{lines, Series};
+use crate::plot::{lines, lines_with, panels, Axes, Panel, Series};
 use crate::run::{run_streamed, RunOptions};
 use crate::runlog::RunLog;
 use crate::{errln, outln};
@@ -311,86 +311,90 @@ fn fmt_mm(v: Option<f64>) -> String {
     v.map_or_else(|| "n/a".into(), |m| format!("{:.3} mm", m * 1e3))
 }
 
-/// The motion plot of a run log (position and reference).
+/// `motion.svg`: the piston's position and its reference (dashed) over the run, and below
+/// them the tracking error, which is too small to see as the distance between the two lines.
 pub fn plot_motion(path: &Path, log: &RunLog) -> Result<(), String> {
     let t = log.column("t_s").unwrap_or_default();
-    let x = log.column("x_m").unwrap_or_default();
-    let r = log.column("x_ref_m").unwrap_or_default();
-    lines(
+    let x = scaled(log, "x_m", 1e3);
+    let r = scaled(log, "x_ref_m", 1e3);
+    let error: Vec<f64> = x.iter().zip(&r).map(|(x, r)| (x - r) * 1e3).collect();
+    panels(
         path,
         "Piston position",
         "t, s",
-        "x, m",
         &[
-            Series {
-                label: "x (master encoder)",
-                x: t,
-                y: x,
+            Panel {
+                y_label: "x, mm",
+                series: vec![
+                    Series::new("x (master encoder)", t, &x),
+                    Series::new("x reference", t, &r).dashed(),
+                ],
+                axes: Axes::default(),
             },
-            Series {
-                label: "x reference",
-                x: t,
-                y: r,
+            Panel {
+                y_label: "x − reference, µm",
+                series: vec![Series::new("tracking error", t, &error)],
+                axes: Axes::default(),
             },
         ],
     )
 }
 
-/// `pv.svg`: the p–V diagram of both chambers from the plant's true pressures and volumes.
-/// The p-V plot of a run log.
+/// A column of the log times `k` (a unit change), empty when the log lacks it.
+fn scaled(log: &RunLog, name: &str, k: f64) -> Vec<f64> {
+    log.column(name)
+        .unwrap_or_default()
+        .iter()
+        .map(|v| v * k)
+        .collect()
+}
+
+/// `pv.svg`: the p–V diagram of both chambers from the plant's true pressures and volumes;
+/// chamber B dashed, so that A shows where the two loops lie on each other.
 pub fn plot_pv(path: &Path, log: &RunLog) -> Result<(), String> {
-    let scaled = |name: &str, k: f64| -> Vec<f64> {
-        log.column(name)
-            .unwrap_or_default()
-            .iter()
-            .map(|v| v * k)
-            .collect()
-    };
-    let (va, vb) = (scaled("vol_a_m3", 1e3), scaled("vol_b_m3", 1e3));
-    let (pa, pb) = (scaled("p_a_true_pa", 1e-6), scaled("p_b_true_pa", 1e-6));
+    let (va, vb) = (scaled(log, "vol_a_m3", 1e6), scaled(log, "vol_b_m3", 1e6));
+    let (pa, pb) = (
+        scaled(log, "p_a_true_pa", 1e-3),
+        scaled(log, "p_b_true_pa", 1e-3),
+    );
     lines(
         path,
         "p-V diagram of both chambers",
-        "V, 10⁻³ m³",
-        "p, MPa",
+        "V, cm³",
+        "p, kPa",
         &[
-            Series {
-                label: "chamber A",
-                x: &va,
-                y: &pa,
-            },
-            Series {
-                label: "chamber B",
-                x: &vb,
-                y: &pb,
-            },
+            Series::new("chamber A", &va, &pa),
+            Series::new("chamber B", &vb, &pb).dashed(),
         ],
     )
 }
 
 /// Energy per compression cycle: what the motor sections put into the piston and what the
 /// gas received (∮p·dV); the difference is friction and the other losses.
-/// The per-cycle energy plot of a run.
 pub fn plot_energy(path: &Path, outcome: &crate::run::RunOutcome) -> Result<(), String> {
     let cycles: Vec<f64> = (0..outcome.cycle_work_j.len())
         .map(|c| (c + 2) as f64)
         .collect();
-    lines(
+    lines_with(
         path,
         "Energy per compression cycle",
         "cycle",
-        "J",
+        "work, J",
         &[
-            Series {
-                label: "motor work on the piston",
-                x: &cycles,
-                y: &outcome.cycle_motor_work_j,
-            },
-            Series {
-                label: "indicated work (both chambers)",
-                x: &cycles,
-                y: &outcome.cycle_work_j,
-            },
+            Series::new(
+                "motor work on the piston",
+                &cycles,
+                &outcome.cycle_motor_work_j,
+            ),
+            Series::new(
+                "indicated work (both chambers)",
+                &cycles,
+                &outcome.cycle_work_j,
+            ),
         ],
+        Axes {
+            integer_x: true,
+            ..Axes::default()
+        },
     )
 }

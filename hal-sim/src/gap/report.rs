@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use crate::plant::model::MachineModel;
-use crate::plot::{lines, Series};
+use crate::plot::{lines, panels, Axes, Panel, Series};
 
 use super::effects::{acting_force_lag, slave_force_lag, Ctx};
 use super::residuals::{channel_raw, full_of_raw, replay_pressures, ChannelId};
@@ -44,15 +44,16 @@ impl MapBy {
         MapBy::PressureDifference,
     ];
 
-    /// Label with unit.
-    pub fn label(self) -> &'static str {
+    /// Label with the unit the plots use (`docs/fpc-sim.md`, "Plots"), and the factor from
+    /// SI to it.
+    pub fn label(self) -> (&'static str, f64) {
         match self {
-            MapBy::Position => "x, m",
-            MapBy::PolePitch => "x mod pole pitch, m",
-            MapBy::NnPitch => "x mod N-N pitch, m",
-            MapBy::Velocity => "v, m/s",
-            MapBy::Acceleration => "a, m/s^2",
-            MapBy::PressureDifference => "p_A - p_B, Pa",
+            MapBy::Position => ("x, mm", 1e3),
+            MapBy::PolePitch => ("x mod pole pitch, mm", 1e3),
+            MapBy::NnPitch => ("x mod N–N pitch, mm", 1e3),
+            MapBy::Velocity => ("v, m/s", 1.0),
+            MapBy::Acceleration => ("a, m/s²", 1.0),
+            MapBy::PressureDifference => ("p_A − p_B, kPa", 1e-3),
         }
     }
 
@@ -65,6 +66,16 @@ impl MapBy {
             MapBy::Acceleration => "a",
             MapBy::PressureDifference => "dp",
         }
+    }
+}
+
+/// The unit a channel's residual is plotted in (`docs/fpc-sim.md`, "Plots"), and the factor
+/// from SI to it: forces in N, position errors in µm, pressures in kPa.
+fn plot_unit(ch: ChannelId) -> (&'static str, f64) {
+    match ch {
+        ChannelId::Force | ChannelId::SlaveForce => ("N", 1.0),
+        ChannelId::Encoder => ("µm", 1e6),
+        ChannelId::Pressure => ("kPa", 1e-3),
     }
 }
 
@@ -326,6 +337,7 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
         };
         let fb = full_of_raw(d, &out.band, ch, &rb);
         let fa = full_of_raw(d, &out.band, ch, &ra);
+        let (res_unit, res_k) = plot_unit(ch);
         let mb = maps(&ctx, &before, ch, &fb);
         let ma = maps(&ctx, &after, ch, &fa);
         let cells: Vec<String> = mb
@@ -344,24 +356,25 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
                     .map(|(c, v)| (*c, *v))
                     .unzip()
             };
+            let (by_label, by_k) = b.by.label();
+            let scale =
+                |v: Vec<f64>, k: f64| -> Vec<f64> { v.into_iter().map(|v| v * k).collect() };
             let (xb, yb) = keep(b);
             let (xa, ya) = keep(a);
+            let (xb, yb, xa, ya) = (
+                scale(xb, by_k),
+                scale(yb, res_k),
+                scale(xa, by_k),
+                scale(ya, res_k),
+            );
             lines(
                 &dir.join(&file),
-                &format!("{} residual by {}", ch.name(), b.by.label()),
-                b.by.label(),
-                &format!("mean residual, {}", ch.unit()),
+                &format!("{} residual by {}", ch.name(), by_label),
+                by_label,
+                &format!("mean residual, {res_unit}"),
                 &[
-                    Series {
-                        label: "input model",
-                        x: &xb,
-                        y: &yb,
-                    },
-                    Series {
-                        label: "augmented model",
-                        x: &xa,
-                        y: &ya,
-                    },
+                    Series::new("input model", &xb, &yb),
+                    Series::new("augmented model", &xa, &ya).dashed(),
                 ],
             )?;
         }
@@ -369,6 +382,11 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
         let n = d.len();
         let t = &d.t_s;
         let file = format!("overlay_{}.svg", ch.name());
+        let in_unit = |v: &[f64]| -> Vec<f64> { v.iter().map(|v| v * res_k).collect() };
+        let (yb, ya) = (
+            in_unit(fb.get(..n).unwrap_or(&fb)),
+            in_unit(fa.get(..n).unwrap_or(&fa)),
+        );
         lines(
             &dir.join(&file),
             &format!(
@@ -381,18 +399,10 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
                 }
             ),
             "t, s",
-            ch.unit(),
+            &format!("residual, {res_unit}"),
             &[
-                Series {
-                    label: "input model",
-                    x: t,
-                    y: fb.get(..n).unwrap_or(&fb),
-                },
-                Series {
-                    label: "augmented model",
-                    x: t,
-                    y: fa.get(..n).unwrap_or(&fa),
-                },
+                Series::new("input model", t, &yb).faint(),
+                Series::new("augmented model", t, &ya),
             ],
         )?;
         overlays.push(format!("![{0} overlay](overlay_{0}.svg)", ch.name()));
@@ -406,41 +416,32 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
         let cyl = after.cylinder();
         let va: Vec<f64> = d.x_m.iter().map(|&x| cyl.volume_a_m3(x)).collect();
         let vb: Vec<f64> = d.x_m.iter().map(|&x| cyl.volume_b_m3(x)).collect();
-        lines(
+        let k = |v: &[f64], k: f64| -> Vec<f64> { v.iter().map(|v| v * k).collect() };
+        let (va, vb) = (k(&va, 1e6), k(&vb, 1e6));
+        let (ma, mb) = (k(&d.p_a_pa, 1e-3), k(&d.p_b_pa, 1e-3));
+        let (pa0, pa1, pb0, pb1) = (k(&pa0, 1e-3), k(&pa1, 1e-3), k(&pb0, 1e-3), k(&pb1, 1e-3));
+        panels(
             &dir.join("pv_replay.svg"),
             "p-V: measured and replayed along the measured motion",
-            "V, m^3",
-            "p, Pa",
+            "V, cm³",
             &[
-                Series {
-                    label: "A measured",
-                    x: &va,
-                    y: &d.p_a_pa,
+                Panel {
+                    y_label: "chamber A: p, kPa",
+                    series: vec![
+                        Series::new("measured", &va, &ma),
+                        Series::new("input model", &va, &pa0).dashed(),
+                        Series::new("augmented model", &va, &pa1).dashed(),
+                    ],
+                    axes: Axes::default(),
                 },
-                Series {
-                    label: "A input model",
-                    x: &va,
-                    y: &pa0,
-                },
-                Series {
-                    label: "A augmented",
-                    x: &va,
-                    y: &pa1,
-                },
-                Series {
-                    label: "B measured",
-                    x: &vb,
-                    y: &d.p_b_pa,
-                },
-                Series {
-                    label: "B input model",
-                    x: &vb,
-                    y: &pb0,
-                },
-                Series {
-                    label: "B augmented",
-                    x: &vb,
-                    y: &pb1,
+                Panel {
+                    y_label: "chamber B: p, kPa",
+                    series: vec![
+                        Series::new("measured", &vb, &mb),
+                        Series::new("input model", &vb, &pb0).dashed(),
+                        Series::new("augmented model", &vb, &pb1).dashed(),
+                    ],
+                    axes: Axes::default(),
                 },
             ],
         )?;

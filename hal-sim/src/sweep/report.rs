@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use super::Table;
-use crate::plot::{lines, Series};
+use crate::plot::{lines, lines_with, Axes, Series};
 
 /// The plot files [`plots`] writes.
 pub const PLOTS: [&str; 5] = [
@@ -145,7 +145,7 @@ pub fn plots(dir: &Path, t: &Table) -> Result<(), String> {
         let c = curves(&pr, &y, &group);
         let series: Vec<Series> = c
             .iter()
-            .map(|(label, x, y)| Series { label, x, y })
+            .map(|(label, x, y)| Series::new(label, x, y))
             .collect();
         lines(&dir.join(file), title, "pressure ratio", unit, &series)?;
     }
@@ -191,15 +191,15 @@ pub fn histogram(path: &Path, title: &str, unit: &str, values: &[f64]) -> Result
     } else {
         (Vec::new(), Vec::new())
     };
-    lines(
+    lines_with(
         path,
         title,
         unit,
         "runs",
-        &[Series {
-            label: "runs",
-            x: &x,
-            y: &y,
-        }],
+        &[Series::new("runs", &x, &y)],
+        Axes {
+            integer_y: true,
+            ..Axes::default()
+        },
     )
 }
