@@ -79,6 +79,7 @@ fn run_all(log: &Path, out: &Path) -> Vec<(&'static str, CmdResult, PathBuf)> {
             "pv",
             pv_cmd::main(pv_cmd::PvArgs {
                 io: LogToolArgs::new(log, out),
+                json: false,
             }),
             out.join("pv.svg"),
         ),
@@ -236,4 +237,34 @@ fn decode_turns_a_capture_into_a_readable_run_log_and_refuses_garbage() {
     .unwrap_err();
     assert_eq!(e.code, 2);
     assert!(e.message.contains("no telemetry frame"), "{}", e.message);
+}
+
+#[test]
+fn pv_reports_the_work_per_cycle_that_run_reports() {
+    // `run` integrates the plant's true pressures over its own volumes; `pv` has only the
+    // log: the pressure sensors' readings and the volumes from the encoder's position. Both
+    // report the work done on the gas, mean of the last five complete cycles.
+    let outcome = hal_sim::run::run(&hal_sim::run::RunOptions {
+        cycles: 7,
+        ..hal_sim::run::RunOptions::reference()
+    })
+    .unwrap();
+    let run_work = outcome.summary.indicated_work_j_per_cycle.unwrap();
+    let dir = scratch("pv_work");
+    let figures = pv_cmd::plot_pv(
+        &dir.join("pv.svg"),
+        &outcome.log,
+        &hal_sim::plant::model::MachineModel::reference(),
+    )
+    .unwrap();
+    let pv_work = figures.indicated_work_j_per_cycle.unwrap();
+    assert!(
+        run_work > 0.0,
+        "a compressor does work on its gas: {run_work} J"
+    );
+    assert!(
+        (pv_work - run_work).abs() < 0.02 * run_work,
+        "pv {pv_work:.2} J against run {run_work:.2} J per cycle"
+    );
+    assert!(figures.cycles >= 5, "{} complete cycles", figures.cycles);
 }

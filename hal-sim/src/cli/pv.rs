@@ -4,7 +4,9 @@
 //! `V_a = A_eff·(x + dead_a)`, `V_b = A_eff·(travel − x + dead_b)`.
 //!
 //! Prints each chamber's volume and pressure ranges, the pressure ratio reached and the
-//! `∮p dV` work over the log. [`plot_pv`] is also what `fpc-sim run` can call for its plot.
+//! indicated work per compression cycle, as `fpc-sim run` reports it: the work done *on the
+//! gas* (positive for a compressor), over complete cycles from one dead point A to the next
+//! (homing and the last, unfinished cycle left out), the mean of the last five.
 
 use std::path::Path;
 
@@ -18,6 +20,7 @@ use crate::outln;
 use crate::plant::model::MachineModel;
 use crate::plot::{lines, Series};
 use crate::runlog::RunLog;
+use crate::signal::strokes;
 
 /// p–V diagram of both chambers (Fig. 3).
 #[derive(Args, Debug)]
@@ -25,7 +28,28 @@ pub struct PvArgs {
     #[command(flatten)]
     #[allow(missing_docs)]
     pub io: LogToolArgs,
+    /// Print the figures as one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
 }
+
+/// What `fpc-sim pv --json` prints.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct PvFigures {
+    /// Chamber A.
+    pub chamber_a: Chamber,
+    /// Chamber B.
+    pub chamber_b: Chamber,
+    /// Complete compression cycles found (dead point A to dead point A).
+    pub cycles: usize,
+    /// Work done on the gas per cycle, both chambers, the mean of the last five complete
+    /// cycles, J (positive: work done on the gas; `fpc-sim run`'s
+    /// `indicated_work_j_per_cycle`); `null` without a complete cycle.
+    pub indicated_work_j_per_cycle: Option<f64>,
+}
+
+/// Cycles averaged, as `fpc-sim run` averages them.
+const LAST_CYCLES: usize = 5;
 
 /// Figures of one chamber.
 #[derive(Clone, Debug, Serialize, PartialEq)]
@@ -38,8 +62,9 @@ pub struct Chamber {
     pub p_min_pa: f64,
     /// Highest pressure, Pa.
     pub p_max_pa: f64,
-    /// `∫p dV` over the log, J (negative: work done on the gas).
-    pub p_dv_j: f64,
+    /// Work done on the gas in this chamber per cycle, the mean of the last five complete
+    /// cycles, J (positive: work done on the gas); `null` without a complete cycle.
+    pub work_on_gas_j_per_cycle: Option<f64>,
 }
 
 /// Both chambers' volumes, m³, one per sample.
@@ -54,7 +79,58 @@ pub fn volumes(x_m: &[f64], model: &MachineModel) -> (Vec<f64>, Vec<f64>) {
     (va, vb)
 }
 
-fn chamber(v: &[f64], p: &[f64]) -> Chamber {
+/// The sample indices where a compression cycle ends: each reversal at dead point A (the end
+/// of a stroke toward head A), found on the position alone so that any run log will do.
+pub fn cycle_ends(x_m: &[f64], dt_s: f64) -> Vec<usize> {
+    // Velocity by a central difference over ±0.5 ms: smooth enough that encoder noise makes
+    // no reversal, short against a stroke.
+    let w = ((0.5e-3 / dt_s).round() as usize).max(1);
+    let v: Vec<f64> = (0..x_m.len())
+        .map(|i| {
+            let (lo, hi) = (
+                i.saturating_sub(w),
+                (i + w).min(x_m.len().saturating_sub(1)),
+            );
+            match (x_m.get(lo), x_m.get(hi)) {
+                (Some(a), Some(b)) if hi > lo => (b - a) / ((hi - lo) as f64 * dt_s),
+                _ => 0.0,
+            }
+        })
+        .collect();
+    strokes(x_m, &v)
+        .into_iter()
+        .filter(
+            |r| match (x_m.get(r.start), x_m.get(r.end.saturating_sub(1))) {
+                (Some(a), Some(b)) => b < a,
+                _ => false,
+            },
+        )
+        .map(|r| r.end.saturating_sub(1))
+        .collect()
+}
+
+/// Work done on the gas between samples `from` and `to`, J: `−∫p dV` by the trapezoid rule.
+fn work_on_gas(v: &[f64], p: &[f64], from: usize, to: usize) -> f64 {
+    let (Some(v), Some(p)) = (v.get(from..=to), p.get(from..=to)) else {
+        return 0.0;
+    };
+    -p.windows(2)
+        .zip(v.windows(2))
+        .map(|(p, v)| 0.5 * (p[0] + p[1]) * (v[1] - v[0]))
+        .sum::<f64>()
+}
+
+/// The mean work on the gas per cycle over the last [`LAST_CYCLES`] complete cycles.
+fn per_cycle(v: &[f64], p: &[f64], ends: &[usize]) -> Option<f64> {
+    let works: Vec<f64> = ends
+        .windows(2)
+        .map(|e| work_on_gas(v, p, e[0], e[1]))
+        .collect();
+    let last = works.get(works.len().saturating_sub(LAST_CYCLES)..)?;
+    (!last.is_empty()).then(|| last.iter().sum::<f64>() / last.len() as f64)
+}
+
+fn chamber(v: &[f64], p: &[f64], ends: &[usize]) -> Chamber {
     let range = |x: &[f64]| {
         x.iter()
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
@@ -63,26 +139,17 @@ fn chamber(v: &[f64], p: &[f64]) -> Chamber {
     };
     let (v_min_m3, v_max_m3) = range(v);
     let (p_min_pa, p_max_pa) = range(p);
-    let p_dv_j = p
-        .windows(2)
-        .zip(v.windows(2))
-        .map(|(p, v)| 0.5 * (p[0] + p[1]) * (v[1] - v[0]))
-        .sum();
     Chamber {
         v_min_m3,
         v_max_m3,
         p_min_pa,
         p_max_pa,
-        p_dv_j,
+        work_on_gas_j_per_cycle: per_cycle(v, p, ends),
     }
 }
 
-/// Draws the p–V diagram of `log` into `path`; returns both chambers' figures.
-pub fn plot_pv(
-    path: &Path,
-    log: &RunLog,
-    model: &MachineModel,
-) -> Result<(Chamber, Chamber), Failure> {
+/// Draws the p–V diagram of `log` into `path`; returns its figures.
+pub fn plot_pv(path: &Path, log: &RunLog, model: &MachineModel) -> Result<PvFigures, Failure> {
     let x = column(log, "x_m", "x_m")?;
     let pa = column(log, "p_a_pa", "p_a_pa")?;
     let pb = column(log, "p_b_pa", "p_b_pa")?;
@@ -101,7 +168,18 @@ pub fn plot_pv(
         ],
     )
     .map_err(Failure::runtime)?;
-    Ok((chamber(&va, pa), chamber(&vb, pb)))
+    let ends = cycle_ends(x, log.sample_time_s().unwrap_or(1.0));
+    let (chamber_a, chamber_b) = (chamber(&va, pa, &ends), chamber(&vb, pb, &ends));
+    let indicated_work_j_per_cycle = chamber_a
+        .work_on_gas_j_per_cycle
+        .zip(chamber_b.work_on_gas_j_per_cycle)
+        .map(|(a, b)| a + b);
+    Ok(PvFigures {
+        chamber_a,
+        chamber_b,
+        cycles: ends.len().saturating_sub(1),
+        indicated_work_j_per_cycle,
+    })
 }
 
 /// Runs `fpc-sim pv`.
@@ -112,22 +190,40 @@ pub fn main(args: PvArgs) -> CmdResult {
     let model = read_model(args.io.model.as_deref())?;
     steps.next("plotting");
     let path = out.path("pv.svg");
-    let (a, b) = plot_pv(&path, &log, &model)?;
+    let figures = plot_pv(&path, &log, &model)?;
     steps.finish();
-    for (name, c) in [("A", &a), ("B", &b)] {
-        outln!(
-            "chamber {name}: V {:.4}–{:.4} L (ratio {:.2}), p {:.4}–{:.4} MPa (ratio {:.2}), ∮p dV {:.2} J",
-            Num(c.v_min_m3 * 1e3),
-            Num(c.v_max_m3 * 1e3),
-            Num(c.v_max_m3 / c.v_min_m3),
-            Num(c.p_min_pa * 1e-6),
-            Num(c.p_max_pa * 1e-6),
-            Num(c.p_max_pa / c.p_min_pa),
-            Num(c.p_dv_j)
-        )?;
-    }
     let shown = out.final_path("pv.svg");
     out.commit()?;
+    if args.json {
+        let text =
+            serde_json::to_string_pretty(&figures).map_err(|e| Failure::runtime(e.to_string()))?;
+        outln!("{text}")?;
+        return Ok(());
+    }
+    let work = |w: Option<f64>| {
+        w.map_or_else(
+            || "no complete cycle".into(),
+            |w| format!("{:.2} J", Num(w)),
+        )
+    };
+    for (name, c) in [("A", &figures.chamber_a), ("B", &figures.chamber_b)] {
+        outln!(
+            "chamber {name}: V {:.1}–{:.1} cm³ (ratio {:.2}), p {:.1}–{:.1} kPa (ratio {:.2}), work on the gas {} per cycle",
+            Num(c.v_min_m3 * 1e6),
+            Num(c.v_max_m3 * 1e6),
+            Num(c.v_max_m3 / c.v_min_m3),
+            Num(c.p_min_pa * 1e-3),
+            Num(c.p_max_pa * 1e-3),
+            Num(c.p_max_pa / c.p_min_pa),
+            work(c.work_on_gas_j_per_cycle)
+        )?;
+    }
+    outln!(
+        "indicated work per cycle, both chambers: {} (work done on the gas, mean of the last {} of {} complete cycles, as `fpc-sim run` reports it)",
+        work(figures.indicated_work_j_per_cycle),
+        figures.cycles.min(LAST_CYCLES),
+        figures.cycles
+    )?;
     outln!("wrote {}", shown.display())?;
     Ok(())
 }
