@@ -79,7 +79,6 @@ fn run_all(log: &Path, out: &Path) -> Vec<(&'static str, CmdResult, PathBuf)> {
             "pv",
             pv_cmd::main(pv_cmd::PvArgs {
                 io: LogToolArgs::new(log, out),
-                json: false,
             }),
             out.join("pv.svg"),
         ),

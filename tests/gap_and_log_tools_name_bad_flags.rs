@@ -79,9 +79,10 @@ fn filters_message(flag: &str, value: &str) -> String {
     let mut args = FiltersArgs {
         io: LogToolArgs {
             measured: log().into(),
-            out: "unused".into(),
+            out: Some("unused".into()),
             model: None,
             force: false,
+            json: false,
         },
         column: "x_m".into(),
         filter: ZeroPhaseArgs {

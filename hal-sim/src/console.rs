@@ -1,6 +1,6 @@
-//! Printing that fails like everything else: a closed pipe (`fpc-sim lag … | head -0`) or a
-//! full device (`> /dev/full`) ends the command with exit 1 and one line, instead of the
-//! panic `println!` gives (`faults.md` row 23).
+//! Printing that fails like everything else, instead of the panic `println!` gives
+//! (`faults.md` row 23): a full device (`> /dev/full`) ends the command with exit 1 and one
+//! line; a pipe its reader closed (`fpc-sim derive … | head -1`) ends it quietly, exit 0.
 //!
 //! [`outln!`](crate::outln) writes a line to stdout and [`errln!`](crate::errln) to stderr; both
 //! return `Result<(), Failure>` for `?`. [`stdout`] is a writer for bulk output. Tests that
@@ -76,7 +76,7 @@ pub fn out_line(args: std::fmt::Arguments<'_>) -> Result<(), Failure> {
     out.write_fmt(args)
         .and_then(|()| out.write_all(b"\n"))
         .and_then(|()| out.flush())
-        .map_err(|e| Failure::runtime(format!("cannot write to standard output: {e}")))
+        .map_err(|e| Failure::stdout_error(&e))
 }
 
 /// Writes one formatted line to stderr; an error is a runtime failure.

@@ -30,6 +30,31 @@ impl Failure {
             message: message.into(),
         }
     }
+
+    /// Standard output was closed by its reader (`fpc-sim derive … | head -1`): the command
+    /// stops, quietly and with exit code 0, as a Unix filter does; the reader had what it
+    /// wanted.
+    pub fn closed_pipe() -> Self {
+        Failure {
+            code: 0,
+            message: String::new(),
+        }
+    }
+
+    /// Whether this is [`Failure::closed_pipe`].
+    pub fn is_closed_pipe(&self) -> bool {
+        self.code == 0 && self.message.is_empty()
+    }
+
+    /// A failed write to standard output: quiet when its reader closed the pipe, else a
+    /// runtime failure naming the error.
+    pub fn stdout_error(e: &std::io::Error) -> Self {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            Failure::closed_pipe()
+        } else {
+            Failure::runtime(format!("cannot write to standard output: {e}"))
+        }
+    }
 }
 
 /// Result of a subcommand.

@@ -310,12 +310,9 @@ fn draw_legend<'b>(
         let sample = vec![(4, y), (34, y)];
         match s.stroke {
             Stroke::Solid => area.draw(&PathElement::new(sample, color.stroke_width(2)))?,
-            Stroke::Dashed => area.draw(&DashedPathElement::new(
-                sample,
-                8,
-                5,
-                color.stroke_width(2),
-            ))?,
+            Stroke::Dashed => {
+                area.draw(&DashedPathElement::new(sample, 8, 5, color.stroke_width(2)))?
+            }
             Stroke::Faint => area.draw(&PathElement::new(sample, color.mix(0.45)))?,
         }
         area.draw(&Text::new(

@@ -356,7 +356,7 @@ fn a_command_round_trip_prints_the_controllers_answer() {
     assert_eq!(code, 1, "{text}");
     assert_eq!(
         text.trim(),
-        "fpc-sim: refused: start --speed 2.3: not homed: home the axis first"
+        "error: refused: start --speed 2.3: not homed: home the axis first"
     );
     let (code, text) = fpc_sim(&[&"link", &"send", &"--replay", &rec.path(), &"home"]);
     assert_eq!(code, 0, "{text}");

@@ -156,9 +156,10 @@ pub struct LogToolArgs {
     /// The run log (CSV).
     #[arg(long)]
     pub measured: std::path::PathBuf,
-    /// Output directory for the plots.
-    #[arg(long, default_value = "out")]
-    pub out: std::path::PathBuf,
+    /// Output directory for the plots (default: `out/<command>`, so that no two commands
+    /// share a folder).
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
     /// Machine model: mass, piston area, friction law, encoder period, dead lengths
     /// (default: the reference machine).
     #[arg(long)]
@@ -166,6 +167,10 @@ pub struct LogToolArgs {
     /// Replace plots of an earlier analysis in the output directory (never an input).
     #[arg(long)]
     pub force: bool,
+    /// Print the figures as one JSON object on stdout (they are also written beside the
+    /// plots as `<command>.json`).
+    #[arg(long)]
+    pub json: bool,
 }
 
 impl LogToolArgs {
@@ -173,19 +178,60 @@ impl LogToolArgs {
     pub fn new(measured: &Path, out: &Path) -> Self {
         LogToolArgs {
             measured: measured.into(),
-            out: out.into(),
+            out: Some(out.into()),
             model: None,
             force: false,
+            json: false,
         }
     }
 
-    /// The output directory for the files `names`, checked before any work (see
-    /// [`OutDir::prepare`]): the log and the model are inputs it never replaces.
-    pub fn output(&self, names: &[&str]) -> Result<OutDir, Failure> {
+    /// The output directory of `command` for the files `names` (`--out`, or `out/<command>`),
+    /// checked before any work (see [`OutDir::prepare`]): the log and the model are inputs it
+    /// never replaces.
+    pub fn output(&self, command: &str, names: &[&str]) -> Result<OutDir, Failure> {
         let mut inputs = vec![self.measured.as_path()];
         inputs.extend(self.model.as_deref());
-        OutDir::prepare(&self.out, names, self.force, &inputs)
+        let dir = self.out.clone().unwrap_or_else(|| default_out(command));
+        OutDir::prepare(&dir, names, self.force, &inputs)
     }
+}
+
+/// Ends a log tool: writes its figures beside its plots as `<command>.json`, commits the
+/// output directory, and prints the figures as JSON (`--json`) or as `human` prints them,
+/// then the files written.
+pub fn finish<T: serde::Serialize>(
+    io: &LogToolArgs,
+    command: &str,
+    out: OutDir,
+    figures: &T,
+    plots: &[&str],
+    human: impl FnOnce() -> Result<(), Failure>,
+) -> Result<(), Failure> {
+    let text =
+        serde_json::to_string_pretty(figures).map_err(|e| Failure::runtime(e.to_string()))?;
+    let name = format!("{command}.json");
+    let path = out.path(&name);
+    std::fs::write(&path, format!("{text}\n"))
+        .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", path.display())))?;
+    let shown: Vec<String> = plots
+        .iter()
+        .chain(std::iter::once(&name.as_str()))
+        .map(|n| out.final_path(n).display().to_string())
+        .collect();
+    out.commit()?;
+    if io.json {
+        crate::outln!("{text}")
+    } else {
+        human()?;
+        crate::outln!("wrote {}", shown.join(", "))
+    }
+}
+
+/// Where a command writes when `--out` is not given: `out/<command>`. One rule for every
+/// command, so no two commands' files ever share a folder (`run` and `pv` both write
+/// `pv.svg`).
+pub fn default_out(command: &str) -> std::path::PathBuf {
+    std::path::Path::new("out").join(command)
 }
 
 /// The zero-phase low-pass the analyses use as their reference filter.

@@ -96,7 +96,7 @@ pub fn main(args: DeriveArgs) -> CmdResult {
         }
         out.flush()
     };
-    write().map_err(|e| Failure::runtime(format!("cannot write to stdout: {e}")))
+    write().map_err(|e| Failure::stdout_error(&e))
 }
 
 /// Reads and validates the log; the message names the file, line and column at fault.

@@ -5,8 +5,12 @@
 
 use clap::Args;
 
-use crate::balance::{stroke_energy, work};
-use crate::cli::analysis::{in_window, read_force_balance, LogToolArgs, Steps, ZeroPhaseArgs};
+use serde::Serialize;
+
+use crate::balance::{stroke_energy, work, StrokeEnergy};
+use crate::cli::analysis::{
+    finish, in_window, read_force_balance, LogToolArgs, Steps, ZeroPhaseArgs,
+};
 use crate::console::Num;
 use crate::failure::{CmdResult, Failure};
 use crate::outln;
@@ -29,7 +33,9 @@ pub struct EnergyArgs {
 
 /// Runs `fpc-sim energy`.
 pub fn main(args: EnergyArgs) -> CmdResult {
-    let out = args.io.output(&["energy.svg", "energy_work.svg"])?;
+    let out = args
+        .io
+        .output("energy", &["energy.svg", "energy_work.svg", "energy.json"])?;
     let steps = Steps::new(3, "reading");
     let (_, model, dt, fb) = read_force_balance(&args.io, &args.filter, &steps)?;
     let all = strokes(&fb.x_m, &fb.v_mps);
@@ -94,34 +100,53 @@ pub fn main(args: EnergyArgs) -> CmdResult {
     )
     .map_err(Failure::runtime)?;
     steps.finish();
-    outln!(
-        "stroke {} of {}: x {:.4} → {:.4} m, {:.4} s",
-        args.stroke.unwrap_or(all.len().saturating_sub(1)),
-        all.len(),
-        Num(e.from_m),
-        Num(e.to_m),
-        Num(r.len() as f64 * dt)
-    )?;
-    outln!(
-        "motor {:.2} J (accelerating {:.2} J, decelerating {:.2} J), gas {:.2} J, cogging {:.2} J, friction {:.2} J",
-        Num(e.motor_j),
-        Num(e.motor_accelerating_j),
-        Num(e.motor_decelerating_j),
-        Num(e.gas_j),
-        Num(e.cogging_j),
-        Num(e.friction_j)
-    )?;
-    outln!(
-        "inertia: peak kinetic energy {:.2} J, net over the stroke {:.3} J; balance {:.3} J",
-        Num(e.peak_kinetic_j),
-        Num(e.inertia_j),
-        Num(e.balance_j)
-    )?;
-    let shown = [
-        out.final_path("energy.svg"),
-        out.final_path("energy_work.svg"),
-    ];
-    out.commit()?;
-    outln!("wrote {} and {}", shown[0].display(), shown[1].display())?;
-    Ok(())
+    let figures = EnergyFigures {
+        stroke: args.stroke.unwrap_or(all.len().saturating_sub(1)),
+        strokes: all.len(),
+        duration_s: r.len() as f64 * dt,
+        energy: e,
+    };
+    let plots = ["energy.svg", "energy_work.svg"];
+    finish(&args.io, "energy", out, &figures, &plots, || {
+        let e = &figures.energy;
+        outln!(
+            "stroke {} of {}: x {:.1} → {:.1} mm, {:.4} s",
+            figures.stroke,
+            figures.strokes,
+            Num(e.from_m * 1e3),
+            Num(e.to_m * 1e3),
+            Num(figures.duration_s)
+        )?;
+        outln!(
+            "motor {:.2} J (accelerating {:.2} J, decelerating {:.2} J), gas {:.2} J, cogging {:.2} J, friction {:.2} J",
+            Num(e.motor_j),
+            Num(e.motor_accelerating_j),
+            Num(e.motor_decelerating_j),
+            Num(e.gas_j),
+            Num(e.cogging_j),
+            Num(e.friction_j)
+        )?;
+        outln!(
+            "inertia: peak kinetic energy {:.2} J, net over the stroke {:.3} J; balance {:.3} J",
+            Num(e.peak_kinetic_j),
+            Num(e.inertia_j),
+            Num(e.balance_j)
+        )
+    })
+}
+
+/// What `fpc-sim energy` reports (printed, `--json`, and `energy.json`): the works on the
+/// piston along one stroke (gas: the work the gas does on the piston, negative while
+/// compressing).
+#[derive(Debug, Serialize)]
+pub struct EnergyFigures {
+    /// Which stroke (0 = the first).
+    pub stroke: usize,
+    /// Strokes in the log.
+    pub strokes: usize,
+    /// The stroke's duration, s.
+    pub duration_s: f64,
+    /// Its works, J.
+    #[serde(flatten)]
+    pub energy: StrokeEnergy,
 }

@@ -10,9 +10,10 @@
 
 use clap::Args;
 use fpc::control::config::ControlConfig;
+use serde::Serialize;
 
 use crate::cli::analysis::{
-    column, default_window, interior, read_log, read_model, sample_time_s, time_window,
+    column, default_window, finish, interior, read_log, read_model, sample_time_s, time_window,
     LogToolArgs, Steps, WindowArgs, ZeroPhaseArgs,
 };
 use crate::console::Num;
@@ -158,7 +159,9 @@ pub fn estimates(log: &RunLog, args: &FiltersArgs) -> Result<Vec<Estimate>, Fail
 
 /// Runs `fpc-sim filters`.
 pub fn main(args: FiltersArgs) -> CmdResult {
-    let out = args.io.output(&["filters.svg"])?;
+    let out = args
+        .io
+        .output("filters", &["filters.svg", "filters.json"])?;
     let steps = Steps::new(3, "reading");
     let log = read_log(&args.io.measured)?;
     steps.next("filtering");
@@ -189,28 +192,64 @@ pub fn main(args: FiltersArgs) -> CmdResult {
     lines(&path, "Piston velocity (Fig. 7)", "t, s", "v, m/s", &series)
         .map_err(Failure::runtime)?;
     steps.finish();
-    outln!(
-        "velocity from {} at {:.0} Hz, {} samples",
-        args.column,
-        1.0 / dt,
-        log.len()
-    )?;
-    outln!(
-        "{:<52} {:>14} {:>12}",
-        "estimate",
-        "rms diff m/s",
-        "delay ms"
-    )?;
-    for e in &est {
+    let figures = FiltersFigures {
+        column: args.column.clone(),
+        sample_rate_hz: 1.0 / dt,
+        samples: log.len(),
+        estimates: est
+            .iter()
+            .map(|e| EstimateFigures {
+                label: e.label.clone(),
+                rms_diff_mps: e.rms_diff_mps,
+                delay_s: e.delay_s,
+            })
+            .collect(),
+    };
+    finish(&args.io, "filters", out, &figures, &["filters.svg"], || {
         outln!(
-            "{:<52} {:>14.5} {:>12.4}",
-            e.label,
-            Num(e.rms_diff_mps),
-            Num(e.delay_s * 1e3)
+            "velocity from {} at {:.0} Hz, {} samples",
+            figures.column,
+            figures.sample_rate_hz,
+            figures.samples
         )?;
-    }
-    let shown = out.final_path("filters.svg");
-    out.commit()?;
-    outln!("wrote {}", shown.display())?;
-    Ok(())
+        outln!(
+            "{:<52} {:>14} {:>12}",
+            "estimate",
+            "rms diff m/s",
+            "delay ms"
+        )?;
+        for e in &figures.estimates {
+            outln!(
+                "{:<52} {:>14.5} {:>12.4}",
+                e.label,
+                Num(e.rms_diff_mps),
+                Num(e.delay_s * 1e3)
+            )?;
+        }
+        Ok(())
+    })
+}
+
+/// What `fpc-sim filters` reports (printed, `--json`, and `filters.json`).
+#[derive(Debug, Serialize)]
+pub struct FiltersFigures {
+    /// The position column differentiated.
+    pub column: String,
+    /// The log's sample rate, Hz.
+    pub sample_rate_hz: f64,
+    /// Rows in the log.
+    pub samples: usize,
+    /// Each velocity estimate against the reference.
+    pub estimates: Vec<EstimateFigures>,
+}
+
+/// One velocity estimate's figures.
+#[derive(Debug, Serialize)]
+pub struct EstimateFigures {
+    /// What it is.
+    pub label: String,
+    /// RMS difference to the reference velocity, m/s.
+    pub rms_diff_mps: f64,
+    /// Its delay behind the reference, s.
+    pub delay_s: f64,
 }

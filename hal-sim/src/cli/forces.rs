@@ -8,10 +8,11 @@
 //! paper tuned its filters on.
 
 use clap::Args;
+use serde::Serialize;
 
 use crate::cli::analysis::{
-    column, default_window, in_window, interior, read_force_balance, time_window, LogToolArgs,
-    Steps, WindowArgs, ZeroPhaseArgs,
+    column, default_window, finish, in_window, interior, read_force_balance, time_window,
+    LogToolArgs, Steps, WindowArgs, ZeroPhaseArgs,
 };
 use crate::console::Num;
 use crate::failure::{CmdResult, Failure};
@@ -35,7 +36,7 @@ pub struct ForcesArgs {
 
 /// Runs `fpc-sim forces`.
 pub fn main(args: ForcesArgs) -> CmdResult {
-    let out = args.io.output(&["forces.svg"])?;
+    let out = args.io.output("forces", &["forces.svg", "forces.json"])?;
     let steps = Steps::new(3, "reading");
     let (log, model, dt, fb) = read_force_balance(&args.io, &args.filter, &steps)?;
     steps.next("plotting");
@@ -91,34 +92,76 @@ pub fn main(args: ForcesArgs) -> CmdResult {
     let max_lag = Some(((0.05 / dt).round() as usize).max(2));
     let inner = interior(log.len(), dt);
     let expected = fb.expected_inertia_n.get(inner.clone()).unwrap_or_default();
-    outln!(
-        "mass {} kg, A_eff {:.4e} m², {}; peak expected |m·a| {:.3} kN",
-        model.piston.mass_kg,
-        model.piston_area_m2(),
-        args.filter.describe(),
-        expected.iter().fold(0.0f64, |m, f| m.max(f.abs())) * 1e-3
-    )?;
-    outln!(
-        "{:<36} {:>16} {:>18}",
-        "m·a estimate",
-        "rms vs expected N",
-        "delay ms"
-    )?;
-    for (label, est) in [
+    let estimates = [
         ("unfiltered from position", &fb.inertia_raw_n),
         ("filtered from position (filtfilt)", &fb.inertia_filtered_n),
         ("firmware Savitzky-Golay", &fb.inertia_firmware_n),
-    ] {
+    ]
+    .into_iter()
+    .map(|(label, est)| {
         let est = est.get(inner.clone()).unwrap_or_default();
-        let delay = xcorr_lag(expected, est, dt, max_lag).map_or(f64::NAN, |l| l.seconds);
+        ForceEstimate {
+            label,
+            rms_vs_expected_n: rms_difference(est, expected),
+            delay_s: xcorr_lag(expected, est, dt, max_lag).map_or(f64::NAN, |l| l.seconds),
+        }
+    })
+    .collect();
+    let figures = ForcesFigures {
+        mass_kg: model.piston.mass_kg,
+        area_m2: model.piston_area_m2(),
+        filter: args.filter.describe(),
+        peak_expected_n: expected.iter().fold(0.0f64, |m, f| m.max(f.abs())),
+        estimates,
+    };
+    finish(&args.io, "forces", out, &figures, &["forces.svg"], || {
         outln!(
-            "{label:<36} {:>16.1} {:>18.4}",
-            Num(rms_difference(est, expected)),
-            Num(delay * 1e3)
+            "mass {} kg, A_eff {:.4e} m², {}; peak expected |m·a| {:.0} N",
+            figures.mass_kg,
+            figures.area_m2,
+            figures.filter,
+            figures.peak_expected_n
         )?;
-    }
-    let shown = out.final_path("forces.svg");
-    out.commit()?;
-    outln!("wrote {}", shown.display())?;
-    Ok(())
+        outln!(
+            "{:<36} {:>16} {:>18}",
+            "m·a estimate",
+            "rms vs expected N",
+            "delay ms"
+        )?;
+        for e in &figures.estimates {
+            outln!(
+                "{:<36} {:>16.1} {:>18.4}",
+                e.label,
+                Num(e.rms_vs_expected_n),
+                Num(e.delay_s * 1e3)
+            )?;
+        }
+        Ok(())
+    })
+}
+
+/// What `fpc-sim forces` reports (printed, `--json`, and `forces.json`).
+#[derive(Debug, Serialize)]
+pub struct ForcesFigures {
+    /// The model's moving mass, kg.
+    pub mass_kg: f64,
+    /// The model's effective piston area, m².
+    pub area_m2: f64,
+    /// The reference low-pass.
+    pub filter: String,
+    /// Largest |m·a| the force balance expects in the log's interior, N.
+    pub peak_expected_n: f64,
+    /// Each estimate of m·a from the position.
+    pub estimates: Vec<ForceEstimate>,
+}
+
+/// One estimate of the inertia force from the position, against the force balance.
+#[derive(Debug, Serialize)]
+pub struct ForceEstimate {
+    /// What it is.
+    pub label: &'static str,
+    /// RMS difference to the expected inertia force, N.
+    pub rms_vs_expected_n: f64,
+    /// Its delay behind the expected force (cross-correlation), s.
+    pub delay_s: f64,
 }

@@ -39,7 +39,7 @@ pub struct GapArgs {
     #[arg(long)]
     pub measured: PathBuf,
     /// Output directory: model.toml, report.md, plots, gap.json.
-    #[arg(long, default_value = "gap-out")]
+    #[arg(long, default_value = "out/gap")]
     pub out: PathBuf,
     /// Print the JSON summary on stdout.
     #[arg(long)]

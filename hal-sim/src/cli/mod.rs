@@ -15,6 +15,7 @@ pub mod forces;
 pub mod gap;
 pub mod lag;
 pub mod link;
+pub mod model;
 pub mod pv;
 pub mod run;
 pub mod sweep;
@@ -64,6 +65,8 @@ enum Cmd {
     SweepMerge(sweep::MergeArgs),
     /// Talk to the running board over RTT: capture telemetry, send commands, read defmt.
     Link(link::LinkArgs),
+    /// Print the built-in reference machine model with its comments (start your own from it).
+    Model(model::ModelArgs),
 }
 
 fn dispatch(cmd: Cmd) -> CmdResult {
@@ -81,6 +84,7 @@ fn dispatch(cmd: Cmd) -> CmdResult {
         Cmd::Sweep(args) => sweep::main(args),
         Cmd::SweepMerge(args) => sweep::merge_main(args),
         Cmd::Link(args) => link::main(args),
+        Cmd::Model(args) => model::main(args),
     }
 }
 
@@ -111,8 +115,10 @@ where
     };
     match dispatch(cli.command) {
         Ok(()) => 0,
+        Err(f) if f.is_closed_pipe() => f.code,
         Err(f) => {
-            let _ = crate::errln!("fpc-sim: {}", f.message);
+            // clap's style for its own usage errors, so every refusal reads alike.
+            let _ = crate::errln!("error: {}", f.message);
             f.code
         }
     }

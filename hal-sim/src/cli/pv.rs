@@ -13,7 +13,7 @@ use std::path::Path;
 use clap::Args;
 use serde::Serialize;
 
-use crate::cli::analysis::{column, read_log, read_model, LogToolArgs, Steps};
+use crate::cli::analysis::{column, finish, read_log, read_model, LogToolArgs, Steps};
 use crate::console::Num;
 use crate::failure::{CmdResult, Failure};
 use crate::outln;
@@ -28,9 +28,6 @@ pub struct PvArgs {
     #[command(flatten)]
     #[allow(missing_docs)]
     pub io: LogToolArgs,
-    /// Print the figures as one JSON object on stdout.
-    #[arg(long)]
-    pub json: bool,
 }
 
 /// What `fpc-sim pv --json` prints.
@@ -184,7 +181,7 @@ pub fn plot_pv(path: &Path, log: &RunLog, model: &MachineModel) -> Result<PvFigu
 
 /// Runs `fpc-sim pv`.
 pub fn main(args: PvArgs) -> CmdResult {
-    let out = args.io.output(&["pv.svg"])?;
+    let out = args.io.output("pv", &["pv.svg", "pv.json"])?;
     let steps = Steps::new(2, "reading");
     let log = read_log(&args.io.measured)?;
     let model = read_model(args.io.model.as_deref())?;
@@ -192,38 +189,30 @@ pub fn main(args: PvArgs) -> CmdResult {
     let path = out.path("pv.svg");
     let figures = plot_pv(&path, &log, &model)?;
     steps.finish();
-    let shown = out.final_path("pv.svg");
-    out.commit()?;
-    if args.json {
-        let text =
-            serde_json::to_string_pretty(&figures).map_err(|e| Failure::runtime(e.to_string()))?;
-        outln!("{text}")?;
-        return Ok(());
-    }
     let work = |w: Option<f64>| {
         w.map_or_else(
             || "no complete cycle".into(),
             |w| format!("{:.2} J", Num(w)),
         )
     };
-    for (name, c) in [("A", &figures.chamber_a), ("B", &figures.chamber_b)] {
+    finish(&args.io, "pv", out, &figures, &["pv.svg"], || {
+        for (name, c) in [("A", &figures.chamber_a), ("B", &figures.chamber_b)] {
+            outln!(
+                "chamber {name}: V {:.1}–{:.1} cm³ (ratio {:.2}), p {:.1}–{:.1} kPa (ratio {:.2}), work on the gas {} per cycle",
+                Num(c.v_min_m3 * 1e6),
+                Num(c.v_max_m3 * 1e6),
+                Num(c.v_max_m3 / c.v_min_m3),
+                Num(c.p_min_pa * 1e-3),
+                Num(c.p_max_pa * 1e-3),
+                Num(c.p_max_pa / c.p_min_pa),
+                work(c.work_on_gas_j_per_cycle)
+            )?;
+        }
         outln!(
-            "chamber {name}: V {:.1}–{:.1} cm³ (ratio {:.2}), p {:.1}–{:.1} kPa (ratio {:.2}), work on the gas {} per cycle",
-            Num(c.v_min_m3 * 1e6),
-            Num(c.v_max_m3 * 1e6),
-            Num(c.v_max_m3 / c.v_min_m3),
-            Num(c.p_min_pa * 1e-3),
-            Num(c.p_max_pa * 1e-3),
-            Num(c.p_max_pa / c.p_min_pa),
-            work(c.work_on_gas_j_per_cycle)
-        )?;
-    }
-    outln!(
-        "indicated work per cycle, both chambers: {} (work done on the gas, mean of the last {} of {} complete cycles, as `fpc-sim run` reports it)",
-        work(figures.indicated_work_j_per_cycle),
-        figures.cycles.min(LAST_CYCLES),
-        figures.cycles
-    )?;
-    outln!("wrote {}", shown.display())?;
-    Ok(())
+            "indicated work per cycle, both chambers: {} (work done on the gas, mean of the last {} of {} complete cycles, as `fpc-sim run` reports it)",
+            work(figures.indicated_work_j_per_cycle),
+            figures.cycles.min(LAST_CYCLES),
+            figures.cycles
+        )
+    })
 }

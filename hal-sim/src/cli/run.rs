@@ -8,7 +8,7 @@ use crate::failure::{CmdResult, Failure};
 use crate::output::{show, OutDir, OutFile};
 use crate::plant::model::MachineModel;
 use crate::plot::{lines, lines_with, panels, Axes, Panel, Series};
-use crate::run::{run_streamed, RunOptions};
+use crate::run::{run_streamed, run_streamed_with_progress, RunOptions};
 use crate::runlog::RunLog;
 use crate::{errln, outln};
 
@@ -27,8 +27,8 @@ pub struct RunArgs {
     /// Compression cycles to run.
     #[arg(long, default_value_t = 10)]
     pub cycles: u32,
-    /// Output directory for run.csv and the plots.
-    #[arg(long, default_value = "out")]
+    /// Output directory for run.csv, summary.json and the plots.
+    #[arg(long, default_value = "out/run")]
     pub out: PathBuf,
     /// Print the JSON summary on stdout.
     #[arg(long)]
@@ -95,7 +95,13 @@ pub struct RunArgs {
 }
 
 /// The files `run` writes into its output directory.
-pub const OUTPUTS: [&str; 4] = ["run.csv", "motion.svg", "pv.svg", "energy.svg"];
+pub const OUTPUTS: [&str; 5] = [
+    "run.csv",
+    "summary.json",
+    "motion.svg",
+    "pv.svg",
+    "energy.svg",
+];
 
 /// Runs `fpc-sim run`.
 pub fn main(args: RunArgs) -> CmdResult {
@@ -175,11 +181,23 @@ pub fn main(args: RunArgs) -> CmdResult {
     let file = std::fs::File::create(&csv)
         .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&csv))))?;
     let mut writer = std::io::BufWriter::with_capacity(1 << 20, file);
-    let outcome = run_streamed(&opts, &mut writer).map_err(Failure::runtime)?;
+    // A bar on a terminal (hidden in pipes and files): a long run is otherwise silent.
+    let bar = crate::cli::analysis::progress(u64::from(opts.cycles), "cycles");
+    let outcome = run_streamed_with_progress(&opts, &mut writer, &|done| {
+        bar.set_position(u64::from(done));
+    })
+    .map_err(Failure::runtime)?;
+    bar.finish_and_clear();
     drop(writer);
     plot_motion(out.path("motion.svg").as_path(), &outcome.log).map_err(Failure::runtime)?;
     plot_pv(out.path("pv.svg").as_path(), &outcome.log).map_err(Failure::runtime)?;
     plot_energy(out.path("energy.svg").as_path(), &outcome).map_err(Failure::runtime)?;
+    // The summary beside the files it describes, as `--json` prints it.
+    let summary_path = out.path("summary.json");
+    let summary_text = serde_json::to_string_pretty(&outcome.summary)
+        .map_err(|e| Failure::runtime(e.to_string()))?;
+    std::fs::write(&summary_path, summary_text + "\n")
+        .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&summary_path))))?;
     if let Some(t) = &telemetry {
         std::fs::write(t.path(), &outcome.telemetry).map_err(|e| {
             Failure::runtime(format!("cannot write {}: {e}", show(&t.final_path())))

@@ -207,7 +207,7 @@ struct Metrics {
 
 /// Runs the simulation; the whole run log is kept in [`RunOutcome::log`].
 pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
-    simulate(opts, None)
+    simulate(opts, None, None)
 }
 
 /// Runs the simulation writing the run-log CSV to `csv` as it goes, in chunks of
@@ -217,10 +217,24 @@ pub fn run(opts: &RunOptions) -> Result<RunOutcome, String> {
 /// evenly decimated copy of at most [`KEPT_ROWS`] rows (every row for runs that short), for
 /// plots. A write error ends nothing early but is returned at the end.
 pub fn run_streamed(opts: &RunOptions, csv: &mut dyn Write) -> Result<RunOutcome, String> {
-    simulate(opts, Some(csv))
+    simulate(opts, Some(csv), None)
 }
 
-fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome, String> {
+/// [`run_streamed`], calling `on_cycle` with the number of compression cycles done each time
+/// one completes (a progress bar).
+pub fn run_streamed_with_progress(
+    opts: &RunOptions,
+    csv: &mut dyn Write,
+    on_cycle: &dyn Fn(u32),
+) -> Result<RunOutcome, String> {
+    simulate(opts, Some(csv), Some(on_cycle))
+}
+
+fn simulate<'s>(
+    opts: &RunOptions,
+    csv: Option<&'s mut dyn Write>,
+    on_cycle: Option<&'s dyn Fn(u32)>,
+) -> Result<RunOutcome, String> {
     opts.validate()?;
     if let Some(test) = opts.closed_port {
         return closed::simulate(opts, test, csv);
@@ -238,6 +252,7 @@ fn simulate(opts: &RunOptions, csv: Option<&mut dyn Write>) -> Result<RunOutcome
     world.telemetry.decimation = opts.telemetry_decimation;
     world.plant.lines.set_pressure_ratio(opts.pressure_ratio);
     let mut driver = RunDriver::new(opts, &config, "fpc-sim run", csv);
+    driver.on_cycle = on_cycle;
 
     // The board's independent watchdog runs as on the MCU (only a hung task starves it).
     let execution = Execution {
@@ -413,6 +428,8 @@ pub struct RunDriver<'o, 's> {
     log_each_status: bool,
     last_mode: fpc::status::ModeKind,
     started: Instant,
+    /// Told the cycles done each time one completes.
+    on_cycle: Option<&'s dyn Fn(u32)>,
 }
 
 impl<'o, 's> RunDriver<'o, 's> {
@@ -480,6 +497,7 @@ impl<'o, 's> RunDriver<'o, 's> {
             log_each_status: false,
             last_mode: Status::INIT.mode,
             started: Instant::now(),
+            on_cycle: None,
         }
     }
 
@@ -620,6 +638,9 @@ impl<'o, 's> RunDriver<'o, 's> {
                     if !toward_b {
                         self.cycles_done += 1;
                         let done = self.cycles_done;
+                        if let Some(tell) = self.on_cycle {
+                            tell(done);
+                        }
                         while let Some((_, action)) = self.actions.next_if(|(c, _)| *c <= done) {
                             act(w, link, action);
                         }

@@ -223,7 +223,7 @@ struct CaptureArgs {
     #[command(flatten)]
     target: Target,
     /// Output directory: up0.bin, up1.bin, up2.bin (raw channels) and run.csv.
-    #[arg(long, value_name = "DIR", default_value = "capture")]
+    #[arg(long, value_name = "DIR", default_value = "out/capture")]
     out: PathBuf,
     /// How long to record from the board, s (Ctrl-C ends it earlier; a replay plays to
     /// its end).

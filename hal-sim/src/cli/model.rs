@@ -1,0 +1,22 @@
+//! `fpc-sim model`: the built-in reference machine as a model file, with the comment on every
+//! value saying where it comes from — the file to start a machine of your own from
+//! (`fpc-sim model > my-machine.toml`). Every key and its range: `docs/formats.md` §2.
+
+use clap::Args;
+
+use crate::failure::CmdResult;
+use crate::outln;
+use crate::plant::model::REFERENCE_TOML;
+
+/// Print the built-in reference machine model, with its comments.
+#[derive(Args, Debug)]
+pub struct ModelArgs {
+    /// The reference machine (the default and, for now, the only model built in).
+    #[arg(long)]
+    pub reference: bool,
+}
+
+/// Runs `fpc-sim model`.
+pub fn main(_args: ModelArgs) -> CmdResult {
+    outln!("{}", REFERENCE_TOML.trim_end())
+}
