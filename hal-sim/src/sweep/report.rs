@@ -112,7 +112,7 @@ pub fn plots(dir: &Path, t: &Table) -> Result<(), String> {
             "work.svg",
             "indicated_work_j_per_cycle",
             "Indicated work per cycle",
-            "J",
+            "work on the gas per cycle, J",
             1.0,
         ),
         (
@@ -133,7 +133,7 @@ pub fn plots(dir: &Path, t: &Table) -> Result<(), String> {
             "overshoot.svg",
             "overshoot_m",
             "Overshoot past the dead points (largest of the last 5 cycles)",
-            "mm",
+            "overshoot, mm",
             1e3,
         ),
     ] {
