@@ -4,22 +4,9 @@
 //! simulator `hal-sim` and the Cortex-M4 benchmark. One physical concept per module, one
 //! subsystem per folder.
 //!
-//! The tree follows the data from sensor codes to switching duties:
-//!
-//! | module | owns |
-//! |---|---|
-//! | [`units`], [`real`], [`angle`] | ticks, codes, duties, the two sections; the scalar the physics is written over; fixed-point angles |
-//! | [`ports`] | the hardware boundary as small traits |
-//! | [`status`] | the operating mode and the per-step status snapshot |
-//! | [`sensing`] | encoders, quadrature, differentiator, pressures, homing |
-//! | [`physics`] | friction, gas and chambers, cogging, motor, port timing (shared with the plant and the workflow) |
-//! | [`safety`] | faults and the per-cycle supervisor |
-//! | [`motion`] | trajectories, the stroke, the volume ratio, the rotation synchroniser |
-//! | [`drive`] | force allocation over both sections, current loops, the servo loop |
-//! | [`control`] | configuration, commands, calibration, the control step |
-//! | [`link`] | RTT framing, the command and reply codec, the telemetry frame |
-//! | [`shared`] | state shared between tasks |
-//! | [`tasks`] | the generic task bodies the firmware and the simulator both run |
+//! The tree follows the data from sensor codes to switching duties; the module map, the walk
+//! of one control cycle through it and the recipes for extending it are in
+//! `docs/architecture.md`, the one place they are written.
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]

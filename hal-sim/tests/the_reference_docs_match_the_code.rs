@@ -177,3 +177,28 @@ fn every_field_of_the_run_summary_is_documented() {
         .collect();
     assert!(missing.is_empty(), "docs/formats.md §4 lacks {missing:?}");
 }
+
+#[test]
+fn the_module_map_names_every_module() {
+    // `docs/architecture.md` is the one module map; the `lib.rs` headers point to it.
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let map = std::fs::read_to_string(root.join("docs/architecture.md"))
+        .expect("docs/architecture.md is readable");
+    let mut missing = Vec::new();
+    for lib in ["src/lib.rs", "hal-sim/src/lib.rs"] {
+        let text = std::fs::read_to_string(root.join(lib)).expect("lib.rs is readable");
+        for name in text
+            .lines()
+            .filter_map(|l| l.trim().strip_prefix("pub mod "))
+            .filter_map(|l| l.strip_suffix(';'))
+        {
+            if !map.contains(&format!("`{name}`")) && !map.contains(&format!("`{name}/`")) {
+                missing.push(format!("{lib}: {name}"));
+            }
+        }
+    }
+    assert!(
+        missing.is_empty(),
+        "docs/architecture.md's module map lacks {missing:?}"
+    );
+}
