@@ -202,3 +202,53 @@ fn the_module_map_names_every_module() {
         "docs/architecture.md's module map lacks {missing:?}"
     );
 }
+
+/// Every subcommand's `--help`, as `docs/cli.md` holds it.
+fn cli_reference() -> String {
+    use clap::CommandFactory;
+    fn walk(cmd: &mut clap::Command, path: &str, out: &mut String) {
+        let name = format!("{path} {}", cmd.get_name());
+        let name = name.trim().to_string();
+        let help = cmd.render_long_help().to_string();
+        out.push_str(&format!(
+            "## `{name}`\n\n```text\n{}\n```\n\n",
+            help.trim_end()
+        ));
+        let mut subs: Vec<clap::Command> = cmd.get_subcommands().cloned().collect();
+        for sub in &mut subs {
+            if sub.get_name() != "help" {
+                walk(sub, &name, out);
+            }
+        }
+    }
+    let mut out = String::from(
+        "# `fpc-sim` command reference\n\n\
+         Every command's `--help`, generated from the code (`cargo test -p hal-sim --test \
+         the_reference_docs_match_the_code`; `FPC_BLESS_DOCS=1` rewrites this file). What each \
+         command is for, its conventions and its outputs: [fpc-sim.md](fpc-sim.md).\n\n",
+    );
+    let mut top = hal_sim::cli::Cli::command();
+    top.build();
+    let mut subs: Vec<clap::Command> = top.get_subcommands().cloned().collect();
+    for sub in &mut subs {
+        if sub.get_name() != "help" {
+            walk(sub, "fpc-sim", &mut out);
+        }
+    }
+    out.trim_end().to_string() + "\n"
+}
+
+#[test]
+fn the_command_reference_is_every_commands_help() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../docs/cli.md");
+    let text = cli_reference();
+    if std::env::var_os("FPC_BLESS_DOCS").is_some() {
+        std::fs::write(&path, &text).expect("docs/cli.md is writable");
+    }
+    let doc = std::fs::read_to_string(&path).unwrap_or_default();
+    assert!(
+        doc == text,
+        "docs/cli.md differs from the commands' --help: \
+         FPC_BLESS_DOCS=1 cargo test -p hal-sim --test the_reference_docs_match_the_code"
+    );
+}
