@@ -9,7 +9,8 @@ anything (wall-clock figures). `fpc-sim` commands run the release build
 `docs/`, so the tour writes nothing into the checkout; other commands (`cargo fw`, `bash
 scripts/…`) run in the repository.
 
-Usage: python3 scripts/check-readme.py [README]   (exit 1 naming every line that differs)
+Usage: python3 scripts/check-readme.py [FILE...]   (default README.md; exit 1 naming every
+line that differs)
 Needs the release build: cargo build --release -p hal-sim.
 """
 
@@ -61,10 +62,35 @@ def run(command, scratch):
     return done.returncode, done.stdout.splitlines()
 
 
+def check(label, text, scratch, failures):
+    """Runs every session of one document; returns how many commands it ran."""
+    count = 0
+    for number, command, expected in sessions(text):
+        count += 1
+        where = f"{label}:{number}"
+        code, lines = run(command, scratch)
+        problem = None
+        if code != 0:
+            problem = f"`{command}` exited {code}:\n  " + "\n  ".join(lines[-10:])
+        else:
+            at = 0
+            for want in expected:
+                rx = pattern(want)
+                while at < len(lines) and not rx.match(lines[at]):
+                    at += 1
+                if at == len(lines):
+                    problem = (f"`{command}` did not print\n  {want}\n it printed:\n  "
+                               + "\n  ".join(lines[-10:]))
+                    break
+                at += 1
+        print(f"check-readme: {where}: {command}: {'DIFFERS' if problem else 'ok'}")
+        if problem:
+            failures.append(f"{where}: {problem}")
+    return count
+
+
 def main():
-    readme = sys.argv[1] if len(sys.argv) > 1 else os.path.join(ROOT, "README.md")
-    with open(readme, encoding="utf-8") as f:
-        text = f.read()
+    files = sys.argv[1:] or ["README.md"]
     binary = os.path.join(ROOT, "target", "release", "fpc-sim")
     if not os.path.exists(binary):
         sys.exit(f"check-readme: {binary} is missing (cargo build --release -p hal-sim)")
@@ -73,31 +99,18 @@ def main():
     with tempfile.TemporaryDirectory(prefix="fpc-readme-") as scratch:
         for name in ("tests", "docs"):
             os.symlink(os.path.join(ROOT, name), os.path.join(scratch, name))
-        for number, command, expected in sessions(text):
-            count += 1
-            code, lines = run(command, scratch)
-            if code != 0:
-                failures.append(f"README.md:{number}: `{command}` exited {code}:\n  "
-                                + "\n  ".join(lines[-10:]))
-                continue
-            at = 0
-            for want in expected:
-                rx = pattern(want)
-                while at < len(lines) and not rx.match(lines[at]):
-                    at += 1
-                if at == len(lines):
-                    failures.append(f"README.md:{number}: `{command}` did not print\n"
-                                    f"  {want}\n it printed:\n  " + "\n  ".join(lines[-10:]))
-                    break
-                at += 1
-            print(f"check-readme: README.md:{number}: {command}: "
-                  f"{'ok' if not failures or not failures[-1].startswith(f'README.md:{number}:') else 'DIFFERS'}")
-    if count == 0:
-        sys.exit("check-readme: no `$` command in a ```console block: nothing was checked")
+        for name in files:
+            path = name if os.path.isabs(name) else os.path.join(ROOT, name)
+            with open(path, encoding="utf-8") as f:
+                text = f.read()
+            ran = check(os.path.relpath(path, ROOT), text, scratch, failures)
+            if ran == 0:
+                failures.append(f"{name}: no `$` command in a ```console block: nothing checked")
+            count += ran
     if failures:
         print("\n".join(failures), file=sys.stderr)
         sys.exit(1)
-    print(f"check-readme: {count} commands, every printed line as the README says")
+    print(f"check-readme: {count} commands, every printed line as the documents say")
 
 
 if __name__ == "__main__":
