@@ -138,6 +138,8 @@ pub struct Judged {
     pub resolved: usize,
     /// Its change to the residual at the kept samples (for the collinearity check).
     pub change: Vec<f64>,
+    /// Effective number of independent samples of what it leaves ([`effective_n`]).
+    pub n_eff: f64,
 }
 
 impl Judged {
@@ -171,6 +173,17 @@ pub struct Selection {
 /// Judges `kind` on top of `doc`, whose residual of the effect's channel is `before`.
 pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual) -> Option<Judged> {
     let proposal = kind.propose(ctx, doc)?;
+    judge_proposal(ctx, doc, proposal, before)
+}
+
+/// Judges `proposal` applied on top of `doc`, whose residual of its channel is `before`.
+fn judge_proposal(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    proposal: Proposal,
+    before: &Residual,
+) -> Option<Judged> {
+    let kind = proposal.kind;
     let model = doc.with(&proposal.edits).model().ok()?;
     let after = residual(ctx.data, ctx.band, &model, kind.channel())?;
     let model = doc.model().ok()?;
@@ -226,6 +239,7 @@ pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual)
         resolution: res,
         resolved: change.iter().filter(|c| c.abs() > sample_res).count(),
         change,
+        n_eff: nf,
     })
 }
 
@@ -327,8 +341,9 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
             .iter()
             .filter_map(|&c| Some((c, residual(ctx.data, ctx.band, &model, c)?)))
             .collect();
+        let mut best_extra: Option<Judged> = None;
         for kind in EffectKind::ALL {
-            if added.iter().any(|a| a.proposal.kind == kind) {
+            if kind.named() && added.iter().any(|a| a.proposal.kind == kind) {
                 continue;
             }
             let Some((_, before)) = befores.iter().find(|(c, _)| *c == kind.channel()) else {
@@ -337,14 +352,27 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
             let Some(j) = cached_judge(ctx, &doc, kind, before, &mut cache) else {
                 continue;
             };
-            if j.significant() && best.as_ref().is_none_or(|b| j.delta_bic > b.delta_bic) {
-                best = Some(j.clone());
+            if j.significant() {
+                if !kind.named() {
+                    best_extra = Some(j.clone());
+                } else if best.as_ref().is_none_or(|b| j.delta_bic > b.delta_bic)
+                    && !outdone_by_basis(ctx, &doc, &j, before)
+                {
+                    best = Some(j.clone());
+                }
             }
             judged.push(j);
         }
         if step == 0 {
             first_step = judged;
         }
+        // A named effect is preferred where it explains as much (fewer numbers, a physical
+        // name): the basis wins only with significantly more evidence.
+        let best = match (best, best_extra) {
+            (Some(n), Some(e)) if e.delta_bic < n.delta_bic + MIN_DELTA_BIC => Some(n),
+            (Some(_), Some(e)) | (None, Some(e)) => Some(e),
+            (n, None) => n,
+        };
         let Some(b) = best else { break };
         let next = doc.with(&b.proposal.edits);
         steps.push((doc, next.clone()));
@@ -356,12 +384,19 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
         if added.len() > 1 {
             doc = backfit(ctx, doc, &mut added, &mut cache)?;
         }
+        if added.iter().any(|a| !a.proposal.kind.named()) {
+            doc = prune_terms(ctx, doc);
+        }
     }
     let mut warnings = Vec::new();
     for a in &added {
         for other in &first_step {
             let k = other.proposal.kind;
-            if k == a.proposal.kind || k.channel() != a.proposal.kind.channel() {
+            if k == a.proposal.kind
+                || k.channel() != a.proposal.kind.channel()
+                || !k.named()
+                || !a.proposal.kind.named()
+            {
                 continue;
             }
             let mine = first_step
@@ -402,6 +437,10 @@ fn backfit(
 ) -> Result<ModelDoc, String> {
     for a in added.iter_mut() {
         let kind = a.proposal.kind;
+        if !kind.named() {
+            // The discovered terms: refitted jointly once (never one more term here).
+            continue;
+        }
         let model = doc.model()?;
         let Some(before) = residual(ctx.data, ctx.band, &model, kind.channel()) else {
             continue;
@@ -414,7 +453,78 @@ fn backfit(
             }
         }
     }
+    if added.iter().any(|a| !a.proposal.kind.named()) {
+        if let Some(p) = super::discover::refit(ctx, &doc) {
+            let refitted = doc.with(&p.edits);
+            let rss = |d: &ModelDoc| -> Option<f64> {
+                let m = d.model().ok()?;
+                Some(residual(ctx.data, ctx.band, &m, ChannelId::Force)?.rss())
+            };
+            if let (Some(a), Some(b)) = (rss(&refitted), rss(&doc)) {
+                if a < b {
+                    doc = refitted;
+                }
+            }
+        }
+    }
     Ok(doc)
+}
+
+/// Drops discovered terms that no longer pass the significance rules with the others in
+/// place (forward selection can add a term that only stood in for one added later): each
+/// term is judged as if it were added last, onto the others refitted without it, and the
+/// least significant failing one is dropped, until every one passes.
+fn prune_terms(ctx: &Ctx<'_>, mut doc: ModelDoc) -> ModelDoc {
+    loop {
+        let Ok(model) = doc.model() else { return doc };
+        let Some(terms) = model
+            .effects
+            .extra_force
+            .as_ref()
+            .and_then(|e| e.parsed().ok())
+        else {
+            return doc;
+        };
+        let mut worst: Option<(f64, ModelDoc)> = None;
+        for (term, _) in &terms {
+            let Some((without, back)) = super::discover::without_term(ctx, &doc, *term) else {
+                continue;
+            };
+            let Some(before) = without
+                .model()
+                .ok()
+                .and_then(|m| residual(ctx.data, ctx.band, &m, ChannelId::Force))
+            else {
+                continue;
+            };
+            let Some(j) = judge_proposal(ctx, &without, back, &before) else {
+                continue;
+            };
+            if !j.significant() && worst.as_ref().is_none_or(|(d, _)| j.delta_bic < *d) {
+                worst = Some((j.delta_bic, without));
+            }
+        }
+        match worst {
+            Some((_, without)) => doc = without,
+            None => return doc,
+        }
+    }
+}
+
+/// Whether `k` parameters of the discovery basis, fitted to the same residual at the same
+/// samples, explain significantly more than the named force effect `j` of `k` parameters
+/// (`n_eff·ln(RSS_named/RSS_basis) ≥ MIN_DELTA_BIC`): then the residual has a structure of
+/// another form, which the named effect's parameters would absorb ([`super::discover`]).
+fn outdone_by_basis(ctx: &Ctx<'_>, doc: &ModelDoc, j: &Judged, before: &Residual) -> bool {
+    if j.proposal.kind.channel() != ChannelId::Force || j.proposal.k == 0 {
+        return false;
+    }
+    let Some(rss_basis) = super::discover::basis_rss(ctx, doc, &before.kept, j.proposal.k) else {
+        return false;
+    };
+    rss_basis > 0.0
+        && j.rss_after > 0.0
+        && j.n_eff * (j.rss_after / rss_basis).ln() >= MIN_DELTA_BIC
 }
 
 /// Channels that this log has, with their residuals for `doc`.

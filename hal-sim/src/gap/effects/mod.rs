@@ -99,11 +99,14 @@ pub enum EffectKind {
     HeatTransfer,
     /// Ports passing less than designed.
     PortRestriction,
+    /// Not a named effect: terms of the discovery basis ([`super::discover`]), one more
+    /// at each proposal.
+    ExtraForce,
 }
 
 impl EffectKind {
     /// Every effect of the library.
-    pub const ALL: [EffectKind; 11] = [
+    pub const ALL: [EffectKind; 12] = [
         EffectKind::MassError,
         EffectKind::CoulombFriction,
         EffectKind::ViscousFriction,
@@ -115,7 +118,13 @@ impl EffectKind {
         EffectKind::Leakage,
         EffectKind::HeatTransfer,
         EffectKind::PortRestriction,
+        EffectKind::ExtraForce,
     ];
+
+    /// Whether it is a named effect of the library (not the discovered terms).
+    pub fn named(self) -> bool {
+        self != EffectKind::ExtraForce
+    }
 
     /// The name of `formats.md` §3.
     pub fn name(self) -> &'static str {
@@ -131,6 +140,7 @@ impl EffectKind {
             EffectKind::Leakage => "leakage",
             EffectKind::HeatTransfer => "heat_transfer",
             EffectKind::PortRestriction => "port_restriction",
+            EffectKind::ExtraForce => "extra_force",
         }
     }
 
@@ -142,7 +152,8 @@ impl EffectKind {
             | EffectKind::ViscousFriction
             | EffectKind::StribeckFriction
             | EffectKind::Cogging
-            | EffectKind::ActuatorLag => ChannelId::Force,
+            | EffectKind::ActuatorLag
+            | EffectKind::ExtraForce => ChannelId::Force,
             EffectKind::SlaveLag => ChannelId::SlaveForce,
             EffectKind::EncoderPitchError => ChannelId::Encoder,
             EffectKind::Leakage | EffectKind::HeatTransfer | EffectKind::PortRestriction => {
@@ -166,6 +177,7 @@ impl EffectKind {
             EffectKind::Leakage => pressure::leakage(ctx, doc),
             EffectKind::HeatTransfer => pressure::heat_transfer(ctx, doc),
             EffectKind::PortRestriction => pressure::port_restriction(ctx, doc),
+            EffectKind::ExtraForce => super::discover::next_term(ctx, doc),
         }
     }
 }

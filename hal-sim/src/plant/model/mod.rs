@@ -32,6 +32,7 @@ pub const PAPER_SLAVE_LAG_S: f64 = 0.75e-3;
 
 #[macro_use]
 pub mod validate;
+pub mod extra_force;
 mod sections;
 
 pub use sections::*;

@@ -227,6 +227,7 @@ impl MachineModel {
             section!(m, effects.leakage),
             section!(m, effects.port_restriction),
             section!(m, effects.section_misalignment),
+            section!(m, effects.extra_force),
             section!(m, published),
         ]
     }
@@ -316,6 +317,9 @@ impl MachineModel {
             if let Some(c) = s.check {
                 c.check_at(s.path)?;
             }
+        }
+        if let Some(e) = &self.effects.extra_force {
+            e.parsed().map_err(ModelError)?;
         }
         let pu = &self.published;
         let periods = pu.cycle_s / f64::from(fpc::units::CONTROL_PERIOD_S);
