@@ -237,18 +237,26 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         data: &measured,
         band: &band,
     };
+    // What the final model holds: the named effects added, and the discovered terms if any
+    // survived the pruning.
+    let mut names: Vec<&str> = selection
+        .added
+        .iter()
+        .filter(|a| a.proposal.kind.named())
+        .map(|a| a.proposal.kind.name())
+        .collect();
+    if selection
+        .doc
+        .has_section(model_section!(effects.extra_force))
+    {
+        names.push(EffectKind::ExtraForce.name());
+    }
     let model_text = format!(
         "# Augmented by `fpc-sim gap`: {}\n{}",
-        if selection.added.is_empty() {
+        if names.is_empty() {
             "nothing significant was missing".to_string()
         } else {
-            selection
-                .added
-                .iter()
-                .map(|a| a.proposal.kind.name())
-                .collect::<Vec<_>>()
-                .join(", ")
-                + " added"
+            names.join(", ") + " added"
         },
         selection.doc.to_text().map_err(Failure::runtime)?
     );
