@@ -6,6 +6,7 @@
 //! with the slave lag within 0.05 ms and the cogging period within 2 %, and discover nothing
 //! more; where what was hidden is outside the library (d05 a spring, d06 quadratic drag) it
 //! must name no library effect and describe the force by `truth.json`'s `discovered_terms`.
+//! In d07 (sealed) two pressure effects act together: both must be named.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -73,7 +74,11 @@ fn check(log: &str) -> GapJson {
     let expected: Vec<&str> = hidden.keys().map(String::as_str).collect();
     assert_eq!(named, expected, "{log}: named against hidden");
     // What the library describes leaves nothing for the discovery basis.
-    assert!(j.discovered.is_empty(), "{log}: discovered {:?}", j.discovered);
+    assert!(
+        j.discovered.is_empty(),
+        "{log}: discovered {:?}",
+        j.discovered
+    );
     j
 }
 
@@ -137,7 +142,10 @@ fn truth_terms(log: &str) -> BTreeMap<String, f64> {
 fn check_discovered(log: &str) {
     let j = gap(log);
     let named: Vec<&str> = j.effects.iter().map(|e| e.name.as_str()).collect();
-    assert!(named.is_empty(), "{log}: named {named:?} for a force outside the library");
+    assert!(
+        named.is_empty(),
+        "{log}: named {named:?} for a force outside the library"
+    );
     let truth = truth_terms(log);
     let [found] = j.discovered.as_slice() else {
         panic!("{log}: discovered {:?}", j.discovered);
@@ -171,3 +179,13 @@ fn gap_describes_quadratic_drag_as_v_abs_v_and_does_not_call_it_viscous_friction
     check_discovered("d06");
 }
 
+#[test]
+fn gap_names_both_leakage_and_heat_transfer_in_one_sealed_log() {
+    let j = check("d07");
+    // The leak is the piston seal's alone (truth: no rod leak): the rod leak to ambient that
+    // the first fit took for the heat transfer is given back when both are fitted together.
+    assert_eq!(param(&j, "leakage", "rod_gap_m"), 0.0);
+    let ua = param(&j, "heat_transfer", "ua_w_per_k");
+    let truth = truth("d07")["heat_transfer"]["ua_w_per_k"];
+    assert!((ua / truth - 1.0).abs() <= 0.15, "{ua} W/K against {truth} W/K");
+}

@@ -43,7 +43,7 @@
 //! what the added one does), cannot be told apart by this run; when one is added, a warning
 //! says so.
 
-use super::doc::ModelDoc;
+use super::doc::{Edit, ModelDoc};
 use super::effects::{Ctx, EffectKind, Proposal};
 use super::fit::correlation;
 use super::residuals::{residual, ChannelId, Residual};
@@ -174,6 +174,53 @@ pub struct Selection {
 pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual) -> Option<Judged> {
     let proposal = kind.propose(ctx, doc)?;
     judge_proposal(ctx, doc, proposal, before)
+}
+
+/// [`judge`], the effects already added on the candidate's channel refitted with it in
+/// place (`joint`, pressure channel): the first effect fitted to a pressure residual holding
+/// two absorbs what of the second its form can — a rod leak to ambient relaxes the chamber
+/// pressures as wall heat transfer does — and the second, fitted on top of that with the
+/// first held, explains nothing. Here the candidate, the earlier effects refitted with it,
+/// and the candidate refitted once more are judged together, with the candidate's own
+/// parameters counted (the earlier ones were already counted when they were added).
+fn judge_joint(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    kind: EffectKind,
+    joint: &[EffectKind],
+    before: &Residual,
+) -> Option<Judged> {
+    let simple = judge(ctx, doc, kind, before);
+    // Fitted afresh: the candidate on the model without the channel's earlier effects, then
+    // they on top of it, then it once more.
+    let mut edits: Vec<Edit> = joint
+        .iter()
+        .filter_map(|k| k.section())
+        .map(Edit::RemoveSection)
+        .collect();
+    let base = doc.with(&edits);
+    let first = kind.propose(ctx, &base)?;
+    edits.extend(first.edits.iter().cloned());
+    let mut cur = doc.with(&edits);
+    for other in joint {
+        if let Some(p) = other.propose(ctx, &cur) {
+            cur = cur.with(&p.edits);
+            edits.extend(p.edits);
+        }
+    }
+    let last = kind.propose(ctx, &cur)?;
+    edits.extend(last.edits.iter().cloned());
+    let proposal = Proposal {
+        kind,
+        params: last.params,
+        edits,
+        k: last.k,
+    };
+    let fresh = judge_proposal(ctx, doc, proposal, before);
+    match (simple, fresh) {
+        (Some(a), Some(b)) => Some(if b.rss_after < a.rss_after { b } else { a }),
+        (a, b) => a.or(b),
+    }
 }
 
 /// Judges `proposal` applied on top of `doc`, whose residual of its channel is `before`.
@@ -309,6 +356,7 @@ fn cached_judge(
     doc: &ModelDoc,
     kind: EffectKind,
     before: &Residual,
+    joint: &[EffectKind],
     cache: &mut Cache,
 ) -> Option<Judged> {
     if let Some((_, _, j)) = cache
@@ -317,7 +365,11 @@ fn cached_judge(
     {
         return Some(j.clone());
     }
-    let j = judge(ctx, doc, kind, before)?;
+    let j = if joint.is_empty() {
+        judge(ctx, doc, kind, before)?
+    } else {
+        judge_joint(ctx, doc, kind, joint, before)?
+    };
     cache.retain(|(k, _, _)| *k != kind);
     cache.push((kind, before.kept.clone(), j.clone()));
     Some(j)
@@ -349,7 +401,18 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
             let Some((_, before)) = befores.iter().find(|(c, _)| *c == kind.channel()) else {
                 continue;
             };
-            let Some(j) = cached_judge(ctx, &doc, kind, before, &mut cache) else {
+            // Pressure candidates are judged with the pressure effects already added
+            // refitted around them ([`judge_joint`]).
+            let joint: Vec<EffectKind> = if kind.channel() == ChannelId::Pressure {
+                added
+                    .iter()
+                    .map(|a| a.proposal.kind)
+                    .filter(|k| k.channel() == ChannelId::Pressure)
+                    .collect()
+            } else {
+                Vec::new()
+            };
+            let Some(j) = cached_judge(ctx, &doc, kind, before, &joint, &mut cache) else {
                 continue;
             };
             if j.significant() {
@@ -386,6 +449,29 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
         }
         if added.iter().any(|a| !a.proposal.kind.named()) {
             doc = prune_terms(ctx, doc);
+        }
+    }
+    // Each named effect's parameters as the final model holds them: a later joint fit or
+    // back-fitting may have refitted them after they were judged.
+    for a in added.iter_mut().filter(|a| a.proposal.kind.named()) {
+        let keys: Vec<crate::plant::model::Key> = a
+            .proposal
+            .edits
+            .iter()
+            .filter_map(|e| match e {
+                Edit::Set(k, _) => Some(*k),
+                _ => None,
+            })
+            .collect();
+        for (name, value) in a.proposal.params.iter_mut() {
+            if let Some(v) = keys
+                .iter()
+                .rev()
+                .find(|k| k.name == *name)
+                .and_then(|k| doc.number(*k))
+            {
+                *value = v;
+            }
         }
     }
     let mut warnings = Vec::new();
@@ -445,7 +531,7 @@ fn backfit(
         let Some(before) = residual(ctx.data, ctx.band, &model, kind.channel()) else {
             continue;
         };
-        if let Some(j) = cached_judge(ctx, &doc, kind, &before, cache) {
+        if let Some(j) = cached_judge(ctx, &doc, kind, &before, &[], cache) {
             if j.rss_after < j.rss_before {
                 doc = doc.with(&j.proposal.edits);
                 a.proposal.params = j.proposal.params;

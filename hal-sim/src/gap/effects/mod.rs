@@ -25,7 +25,7 @@
 use std::f64::consts::TAU;
 
 use crate::plant::fastmath::sin_cos;
-use crate::plant::model::Key;
+use crate::plant::model::{model_section, Key, SectionKey};
 
 use super::data::Measured;
 use super::doc::{Edit, ModelDoc};
@@ -142,6 +142,25 @@ impl EffectKind {
             EffectKind::PortRestriction => "port_restriction",
             EffectKind::ExtraForce => "extra_force",
         }
+    }
+
+    /// The model section that holds it alone (`None`: it corrects a value of a required
+    /// section, or it is the discovered terms).
+    pub fn section(self) -> Option<SectionKey> {
+        Some(match self {
+            EffectKind::StribeckFriction => model_section!(effects.stribeck_friction),
+            EffectKind::Cogging => model_section!(effects.cogging),
+            EffectKind::ActuatorLag => model_section!(effects.actuator_lag),
+            EffectKind::SlaveLag => model_section!(effects.slave_lag),
+            EffectKind::EncoderPitchError => model_section!(effects.encoder_pitch_error),
+            EffectKind::Leakage => model_section!(effects.leakage),
+            EffectKind::HeatTransfer => model_section!(effects.heat_transfer),
+            EffectKind::PortRestriction => model_section!(effects.port_restriction),
+            EffectKind::MassError
+            | EffectKind::CoulombFriction
+            | EffectKind::ViscousFriction
+            | EffectKind::ExtraForce => return None,
+        })
     }
 
     /// The channel it shows in.
