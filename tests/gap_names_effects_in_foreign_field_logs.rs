@@ -187,5 +187,8 @@ fn gap_names_both_leakage_and_heat_transfer_in_one_sealed_log() {
     assert_eq!(param(&j, "leakage", "rod_gap_m"), 0.0);
     let ua = param(&j, "heat_transfer", "ua_w_per_k");
     let truth = truth("d07")["heat_transfer"]["ua_w_per_k"];
-    assert!((ua / truth - 1.0).abs() <= 0.15, "{ua} W/K against {truth} W/K");
+    assert!(
+        (ua / truth - 1.0).abs() <= 0.15,
+        "{ua} W/K against {truth} W/K"
+    );
 }

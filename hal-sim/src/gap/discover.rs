@@ -156,22 +156,38 @@ impl<'a> Basis<'a> {
         with(lnp.exp())
     }
 
-    /// The best fit of `present` (refitted) plus one more term or the periodic pair, on
-    /// `y`; `None` if nothing fits. Returns the fit and the number of new parameters.
+    /// The best fit of `present` (refitted) plus one more term, or one more term with the
+    /// constant, or the periodic pair, on `y`; `None` if nothing fits. Returns the fit and
+    /// the number of new parameters. A term comes with the constant because most forms are
+    /// about an origin of their own (a spring about its rest point x0): alone, `x` cannot
+    /// fit `−k·(x − x0)` over a stroke far from x = 0. Candidates of different sizes are
+    /// ranked by `n·ln(RSS₀/RSS) − k·ln n`; whether the chosen one is significant is the
+    /// selection's judgement, and a constant that brings nothing is pruned there.
     fn extend(
         &self,
         present: &[(Term, Vec<f64>)],
         y: &[f64],
         period_m: Option<f64>,
     ) -> Option<(TermFit, usize)> {
+        let n = y.len().max(2) as f64;
+        let rss0 = match Basis::fit(present, y, period_m) {
+            Some(f) => f.rss,
+            None => y.iter().map(|v| v * v).sum(),
+        };
+        let score =
+            |rss: f64, k: usize| n * (rss0 / rss.max(f64::MIN_POSITIVE)).ln() - k as f64 * n.ln();
         let mut best: Option<(TermFit, usize)> = None;
         let mut consider = |f: Option<TermFit>, k: usize| {
             if let Some(f) = f {
-                if best.as_ref().is_none_or(|(b, _)| f.rss < b.rss) {
+                if best
+                    .as_ref()
+                    .is_none_or(|(b, bk)| score(f.rss, k) > score(b.rss, *bk))
+                {
                     best = Some((f, k));
                 }
             }
         };
+        let has_one = present.iter().any(|(p, _)| *p == Term::One);
         for t in PLAIN {
             if present.iter().any(|(p, _)| *p == t) {
                 continue;
@@ -179,6 +195,10 @@ impl<'a> Basis<'a> {
             let mut cols = present.to_vec();
             cols.push((t, self.column(t, 1.0)));
             consider(Basis::fit(&cols, y, period_m), 1);
+            if !has_one && t != Term::One {
+                cols.push((Term::One, self.column(Term::One, 1.0)));
+                consider(Basis::fit(&cols, y, period_m), 2);
+            }
         }
         if !present.iter().any(|(p, _)| p.periodic()) {
             consider(self.periodic(present, y), 3);

@@ -10,7 +10,8 @@
 //!    and N–N pitches), velocity, acceleration and pressure difference; lags by FFT
 //!    cross-correlation ([`crate::signal::xcorr_lag`]).
 //! 3. **Named candidates** ([`effects`]) fitted by least squares or small 1-D/Gauss–Newton
-//!    searches ([`fit`]), **selected** forward by BIC with a practical floor ([`select`]).
+//!    searches ([`fit`]), **selected** forward by BIC with a practical floor ([`select`]);
+//!    what no named effect describes, as terms of a fixed basis ([`discover`]).
 //! 4. **Add and show**: the augmented model document ([`doc`]), the comparison re-run with
 //!    it, per-channel RMS before and after, and the report.
 //!

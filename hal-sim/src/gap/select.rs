@@ -3,6 +3,15 @@
 //! effect added so far is fitted once more with the others in place (back-fitting), and the
 //! step repeats until nothing significant is left.
 //!
+//! **Beyond the library** ([`super::discover`]): the discovery basis is one more candidate
+//! (`extra_force`), judged by the same rules. A named force effect is eligible only if as
+//! many basis parameters, fitted to the same residual, do not explain significantly more
+//! (its parameters would absorb a force of another form), and the basis wins over an
+//! eligible named effect only with [`MIN_DELTA_BIC`] more evidence (the named one is fewer
+//! numbers and a physical name). Discovered terms that stop passing the rules once later
+//! ones are in are pruned. Pressure candidates are judged with the channel's earlier effects
+//! refitted around them (`judge_joint`).
+//!
 //! **Significance.** An effect is added only if both hold:
 //! - the Bayesian information criterion improves by at least [`MIN_DELTA_BIC`]:
 //!   `ΔBIC = n_eff·ln(RSS₀/RSS₁) − k·ln n_eff` over the channel's kept samples (decimated to
@@ -402,7 +411,7 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
                 continue;
             };
             // Pressure candidates are judged with the pressure effects already added
-            // refitted around them ([`judge_joint`]).
+            // refitted around them (`judge_joint`).
             let joint: Vec<EffectKind> = if kind.channel() == ChannelId::Pressure {
                 added
                     .iter()
