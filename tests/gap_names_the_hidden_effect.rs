@@ -3,7 +3,8 @@
 //! `hal_sim::run::run`, or the prescribed closed-/open-port drive of `gap::synth` for the
 //! pressure channel), the workflow runs with the model that lacks it, and it must name the
 //! effect, fit its parameters near the truth and shrink the residual of its channel by at
-//! least 70 %.
+//! least 70 %. A force outside the library (`[effects.extra_force]`, simulated by the plant)
+//! must be named as no library effect and discovered as its basis terms.
 //!
 //! Fast cases run by default; the long Stribeck run is `#[ignore]` (CI runs
 //! `cargo test --workspace --release -- --ignored`).
@@ -117,6 +118,27 @@ fn gap_names_an_encoder_pitch_error_and_no_pressure_effect() {
 }
 
 /// The paper's closed-port campaign on the reference machine (leakage and heat transfer on).
+#[test]
+fn a_spring_the_plant_simulates_is_discovered_and_named_as_no_library_effect() {
+    // `[effects.extra_force]` in the truth: the plant (firmware in the loop) simulates a
+    // spring of 1500 N/m about x = 0.1 m that the workflow's library does not hold.
+    let truth = format!(
+        "{}\n[effects.extra_force]\nterms = {{ \"x\" = -1500.0, \"1\" = 150.0 }}\n",
+        reference()
+    );
+    let j = gap(&reference(), &closed_loop(&truth, 2.0, 3, 18));
+    show("spring", &j);
+    assert!(names(&j).is_empty(), "{:?}", names(&j));
+    let [d] = j.discovered.as_slice() else {
+        panic!("discovered {:?}", j.discovered);
+    };
+    let term = |k: &str| d.terms.get(k).copied().unwrap_or(f64::NAN);
+    assert_eq!(d.terms.len(), 2, "{:?}", d.terms);
+    assert!(near(term("x"), -1500.0, 0.03), "{:?}", d.terms);
+    assert!(near(term("1"), 150.0, 0.05), "{:?}", d.terms);
+    assert!(d.rms_after <= (1.0 - SHRINK) * d.rms_before, "{d:?}");
+}
+
 fn closed_port_log(truth: &str, seed: u64) -> hal_sim::runlog::RunLog {
     let m = MachineModel::parse(truth).unwrap();
     let (start, moves) = synth::closed_port_moves(&m, 1);

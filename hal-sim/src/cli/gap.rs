@@ -88,12 +88,15 @@ pub fn main(args: GapArgs) -> CmdResult {
     for w in &outcome.json.warnings {
         errln!("fpc-sim gap: warning: {w}")?;
     }
-    let names: Vec<String> = outcome
+    let mut names: Vec<String> = outcome
         .json
         .effects
         .iter()
         .map(|e| e.name.clone())
         .collect();
+    for d in &outcome.json.discovered {
+        names.push(format!("discovered terms ({})", d.reading));
+    }
     let shrink: Vec<String> = outcome
         .json
         .channels

@@ -3,7 +3,7 @@
 //! the edited document is what gets evaluated and written — so `DIR/model.toml` is exactly
 //! the model the "after" figures were computed with.
 
-use crate::plant::model::{Key, MachineModel, SectionKey};
+use crate::plant::model::{model_section, Key, MachineModel, SectionKey};
 
 /// One change to the model document, its keys typed ([`crate::plant::model::model_key!`]).
 #[derive(Clone, Debug, PartialEq)]
@@ -16,6 +16,14 @@ pub enum Edit {
     RemoveKey(Key),
     /// Removes a whole section.
     RemoveSection(SectionKey),
+    /// Sets `[effects.extra_force]` to these terms (by basis name) and period, replacing
+    /// what was there.
+    SetExtraForce {
+        /// Each term's name and coefficient, SI.
+        terms: Vec<(&'static str, f64)>,
+        /// Period of the periodic pair, m.
+        period_m: Option<f64>,
+    },
 }
 
 /// A model file as an editable TOML table.
@@ -91,6 +99,20 @@ impl ModelDoc {
                         }
                     }
                 }
+                Edit::SetExtraForce { terms, period_m } => {
+                    let path = model_section!(effects.extra_force).0;
+                    if let Some(t) = d.section_mut(path) {
+                        t.clear();
+                        let table: toml::Table = terms
+                            .iter()
+                            .map(|(k, v)| (k.to_string(), toml::Value::Float(*v)))
+                            .collect();
+                        t.insert("terms".into(), toml::Value::Table(table));
+                        if let Some(p) = period_m {
+                            t.insert("period_m".into(), toml::Value::Float(*p));
+                        }
+                    }
+                }
                 Edit::RemoveSection(SectionKey(path)) => {
                     let (parent, name) = match path.rsplit_once('.') {
                         Some((p, n)) => (Some(p), n),
@@ -114,7 +136,7 @@ impl ModelDoc {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::plant::model::{model_key, model_section};
+    use crate::plant::model::model_key;
 
     #[test]
     fn edits_add_replace_and_remove_effects_and_the_result_loads() {

@@ -10,7 +10,8 @@
 //!    and N–N pitches), velocity, acceleration and pressure difference; lags by FFT
 //!    cross-correlation ([`crate::signal::xcorr_lag`]).
 //! 3. **Named candidates** ([`effects`]) fitted by least squares or small 1-D/Gauss–Newton
-//!    searches ([`fit`]), **selected** forward by BIC with a practical floor ([`select`]).
+//!    searches ([`fit`]), **selected** forward by BIC with a practical floor ([`select`]);
+//!    what no named effect describes, as terms of a fixed basis ([`discover`]).
 //! 4. **Add and show**: the augmented model document ([`doc`]), the comparison re-run with
 //!    it, per-channel RMS before and after, and the report.
 //!
@@ -19,6 +20,7 @@
 pub mod align;
 pub mod band;
 pub mod data;
+pub mod discover;
 pub mod doc;
 pub mod effects;
 pub mod fit;
@@ -104,6 +106,27 @@ pub struct EffectJson {
     pub region_rms_after: Option<f64>,
 }
 
+/// A force no named effect describes, as terms of the discovery basis (`formats.md`,
+/// "Beyond the library").
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct DiscoveredJson {
+    /// The channel (`force`).
+    pub channel: String,
+    /// Coefficient of each basis term, SI, by the term's name.
+    pub terms: BTreeMap<String, f64>,
+    /// Period of the periodic pair, m, if it is in.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub period_m: Option<f64>,
+    /// What the terms are physically.
+    pub reading: String,
+    /// Channel RMS of the final model without the terms.
+    pub rms_before: f64,
+    /// Channel RMS with them.
+    pub rms_after: f64,
+    /// Share of the channel's mean square they explain.
+    pub explained: f64,
+}
+
 /// The JSON `fpc-sim gap --json` prints.
 #[derive(Clone, Debug, Serialize, PartialEq)]
 pub struct GapJson {
@@ -111,6 +134,8 @@ pub struct GapJson {
     pub channels: Vec<ChannelJson>,
     /// Effects added, most significant first (empty: nothing significant is missing).
     pub effects: Vec<EffectJson>,
+    /// Forces no named effect describes (empty when nothing is left).
+    pub discovered: Vec<DiscoveredJson>,
     /// Where the augmented model was written (empty if it was not).
     pub model_out: String,
     /// Warnings (collinear candidates, channels not formed).
@@ -213,18 +238,26 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         data: &measured,
         band: &band,
     };
+    // What the final model holds: the named effects added, and the discovered terms if any
+    // survived the pruning.
+    let mut names: Vec<&str> = selection
+        .added
+        .iter()
+        .filter(|a| a.proposal.kind.named())
+        .map(|a| a.proposal.kind.name())
+        .collect();
+    if selection
+        .doc
+        .has_section(model_section!(effects.extra_force))
+    {
+        names.push(EffectKind::ExtraForce.name());
+    }
     let model_text = format!(
         "# Augmented by `fpc-sim gap`: {}\n{}",
-        if selection.added.is_empty() {
+        if names.is_empty() {
             "nothing significant was missing".to_string()
         } else {
-            selection
-                .added
-                .iter()
-                .map(|a| a.proposal.kind.name())
-                .collect::<Vec<_>>()
-                .join(", ")
-                + " added"
+            names.join(", ") + " added"
         },
         selection.doc.to_text().map_err(Failure::runtime)?
     );
@@ -253,10 +286,12 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         });
     }
     let effects = effect_rows(&ctx, &selection).map_err(Failure::runtime)?;
+    let discovered = discovered_rows(&ctx, &selection).map_err(Failure::runtime)?;
     Ok(GapOutcome {
         json: GapJson {
             channels,
             effects,
+            discovered,
             model_out: String::new(),
             warnings,
             force_align_s: measured.force_align_s,
@@ -276,6 +311,9 @@ fn effect_rows(ctx: &Ctx<'_>, selection: &Selection) -> Result<Vec<EffectJson>, 
     let mut rows = Vec::new();
     for (a, (before, after)) in selection.added.iter().zip(&selection.steps) {
         let kind = a.proposal.kind;
+        if !kind.named() {
+            continue;
+        }
         let ch = kind.channel();
         let raw_b = channel_raw(ctx.data, &before.model()?, ch).unwrap_or_default();
         let raw_a = channel_raw(ctx.data, &after.model()?, ch).unwrap_or_default();
@@ -311,6 +349,54 @@ fn effect_rows(ctx: &Ctx<'_>, selection: &Selection) -> Result<Vec<EffectJson>, 
         });
     }
     Ok(rows)
+}
+
+/// The discovered terms of the final model, with the force channel's RMS without and with
+/// them (empty when it has none).
+fn discovered_rows(ctx: &Ctx<'_>, selection: &Selection) -> Result<Vec<DiscoveredJson>, String> {
+    let model = selection.doc.model()?;
+    let Some(extra) = &model.effects.extra_force else {
+        return Ok(Vec::new());
+    };
+    let terms = extra.parsed()?;
+    if terms.is_empty() {
+        return Ok(Vec::new());
+    }
+    let without = selection
+        .doc
+        .with(&[doc::Edit::RemoveSection(model_section!(
+            effects.extra_force
+        ))])
+        .model()?;
+    let ch = ChannelId::Force;
+    let before = full_rms(
+        ctx.data,
+        ctx.band,
+        ch,
+        &channel_raw(ctx.data, &without, ch).unwrap_or_default(),
+    );
+    let after = full_rms(
+        ctx.data,
+        ctx.band,
+        ch,
+        &channel_raw(ctx.data, &model, ch).unwrap_or_default(),
+    );
+    Ok(vec![DiscoveredJson {
+        channel: ch.name().into(),
+        terms: terms
+            .iter()
+            .map(|(t, c)| (t.name().to_string(), *c))
+            .collect(),
+        period_m: extra.period_m,
+        reading: discover::reading(&terms, extra.period_m),
+        rms_before: before,
+        rms_after: after,
+        explained: if before > 0.0 {
+            1.0 - (after / before).powi(2)
+        } else {
+            0.0
+        },
+    }])
 }
 
 /// RMS of the band-limited force residual where `0 < |v| < STRIBECK_REGION·v_s`, N.

@@ -275,6 +275,39 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
             );
         }
     }
+    let _ = writeln!(
+        md,
+        "\n## Discovered terms (a force no named effect describes, `[effects.extra_force]`)\n"
+    );
+    if out.json.discovered.is_empty() {
+        let _ = writeln!(md, "None: no force is left that the basis describes.\n");
+    } else {
+        let _ = writeln!(md, "| channel | terms (SI) | reading | RMS before | RMS after | explained |\n|---|---|---|---|---|---|");
+        for d in &out.json.discovered {
+            let mut terms: Vec<String> = d
+                .terms
+                .iter()
+                .map(|(k, v)| format!("`{k}` = {:.5}", Num(*v)))
+                .collect();
+            if let Some(p) = d.period_m {
+                terms.push(format!("period_m = {:.5}", Num(p)));
+            }
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {:.4e} | {:.4e} | {:.1} % |",
+                d.channel,
+                terms.join(", "),
+                d.reading,
+                Num(d.rms_before),
+                Num(d.rms_after),
+                Num(100.0 * d.explained)
+            );
+        }
+        let _ = writeln!(
+            md,
+            "\nThe force maps below (`map_force_*`) show the residual with and without them."
+        );
+    }
     let _ = writeln!(md, "\n## Every candidate at the first step\n");
     let _ = writeln!(md, "| candidate | channel | fitted | ΔBIC | explained (all) | explained where it acts | acts on (kept samples) | change RMS where it acts / resolution | significant |\n|---|---|---|---|---|---|---|---|---|");
     for j in &out.selection.first_step {

@@ -17,6 +17,7 @@ use fpc::physics::balance::{PistonForces, PistonState};
 
 use crate::plant::chambers::{Chambers, Lines, PortMode};
 use crate::plant::dynamics::PlantParams;
+use crate::plant::model::extra_force::ExtraState;
 use crate::plant::model::MachineModel;
 use crate::plant::servo::through_play;
 use crate::signal::delayed;
@@ -368,20 +369,67 @@ pub fn force_terms(data: &Measured, model: &MachineModel) -> Vec<PistonForces<f6
 }
 
 /// Everything the model's force terms add up to at every sample, toward +x (motor forces as
-/// they act, gas, cogging, minus friction), N.
+/// they act, gas, cogging, minus friction, and the extra force), N.
 pub fn model_force_n(data: &Measured, model: &MachineModel) -> Vec<f64> {
-    force_terms(data, model).iter().map(|f| f.net_n()).collect()
+    let extra = extra_force_n(data, model);
+    force_terms(data, model)
+        .iter()
+        .enumerate()
+        .map(|(i, f)| f.net_n() + extra.as_ref().and_then(|e| e.get(i)).unwrap_or(&0.0))
+        .collect()
 }
 
 /// The raw force-balance residual `m·Δ²x − ΣF_model`, N: the force the model does not
-/// explain ([`PistonForces::unexplained_n`]).
+/// explain ([`PistonForces::unexplained_n`]), less the model's extra force.
 pub fn force_raw(data: &Measured, model: &MachineModel) -> Vec<f64> {
     let m = model.piston.mass_kg;
+    let extra = extra_force_n(data, model);
     force_terms(data, model)
         .iter()
         .zip(&data.d2x_mps2)
-        .map(|(f, a)| f.unexplained_n(m, *a))
+        .enumerate()
+        .map(|(i, (f, a))| {
+            f.unexplained_n(m, *a) - extra.as_ref().and_then(|e| e.get(i)).unwrap_or(&0.0)
+        })
         .collect()
+}
+
+/// The states the discovery basis is evaluated at, one per row: measured x, the
+/// differentiator's velocity, the raw second difference (as the mass term of the balance),
+/// the motor forces as they act (realigned, late by the model's actuator lag), the logged
+/// pressure difference and the time from the first row.
+pub fn extra_states(data: &Measured, model: &MachineModel) -> Vec<ExtraState> {
+    let delay = model
+        .effects
+        .actuator_lag
+        .as_ref()
+        .map_or(0.0, |l| l.delay_s);
+    let acting = acting_motor_force_n(data, delay);
+    let t0 = data.t_s.first().copied().unwrap_or(0.0);
+    (0..data.len())
+        .map(|i| {
+            let g = |v: &[f64]| v.get(i).copied().unwrap_or(0.0);
+            ExtraState {
+                x_m: g(&data.x_m),
+                v_mps: g(&data.v_mps),
+                a_mps2: g(&data.d2x_mps2),
+                f_motor_n: g(&acting),
+                dp_pa: g(&data.p_a_pa) - g(&data.p_b_pa),
+                t_s: g(&data.t_s) - t0,
+            }
+        })
+        .collect()
+}
+
+/// The model's `[effects.extra_force]` at every row, N (`None`: the model has none).
+pub fn extra_force_n(data: &Measured, model: &MachineModel) -> Option<Vec<f64>> {
+    let e = model.effects.extra_force.as_ref()?;
+    Some(
+        extra_states(data, model)
+            .iter()
+            .map(|s| e.force_n(s))
+            .collect(),
+    )
 }
 
 /// The slave force the model predicts from the master's, N.

@@ -3,6 +3,15 @@
 //! effect added so far is fitted once more with the others in place (back-fitting), and the
 //! step repeats until nothing significant is left.
 //!
+//! **Beyond the library** ([`super::discover`]): the discovery basis is one more candidate
+//! (`extra_force`), judged by the same rules. A named force effect is eligible only if as
+//! many basis parameters, fitted to the same residual, do not explain significantly more
+//! (its parameters would absorb a force of another form), and the basis wins over an
+//! eligible named effect only with [`MIN_DELTA_BIC`] more evidence (the named one is fewer
+//! numbers and a physical name). Discovered terms that stop passing the rules once later
+//! ones are in are pruned. Pressure candidates are judged with the channel's earlier effects
+//! refitted around them (`judge_joint`).
+//!
 //! **Significance.** An effect is added only if both hold:
 //! - the Bayesian information criterion improves by at least [`MIN_DELTA_BIC`]:
 //!   `ΔBIC = n_eff·ln(RSS₀/RSS₁) − k·ln n_eff` over the channel's kept samples (decimated to
@@ -43,7 +52,7 @@
 //! what the added one does), cannot be told apart by this run; when one is added, a warning
 //! says so.
 
-use super::doc::ModelDoc;
+use super::doc::{Edit, ModelDoc};
 use super::effects::{Ctx, EffectKind, Proposal};
 use super::fit::correlation;
 use super::residuals::{residual, ChannelId, Residual};
@@ -138,6 +147,8 @@ pub struct Judged {
     pub resolved: usize,
     /// Its change to the residual at the kept samples (for the collinearity check).
     pub change: Vec<f64>,
+    /// Effective number of independent samples of what it leaves ([`effective_n`]).
+    pub n_eff: f64,
 }
 
 impl Judged {
@@ -171,6 +182,64 @@ pub struct Selection {
 /// Judges `kind` on top of `doc`, whose residual of the effect's channel is `before`.
 pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual) -> Option<Judged> {
     let proposal = kind.propose(ctx, doc)?;
+    judge_proposal(ctx, doc, proposal, before)
+}
+
+/// [`judge`], the effects already added on the candidate's channel refitted with it in
+/// place (`joint`, pressure channel): the first effect fitted to a pressure residual holding
+/// two absorbs what of the second its form can — a rod leak to ambient relaxes the chamber
+/// pressures as wall heat transfer does — and the second, fitted on top of that with the
+/// first held, explains nothing. Here the candidate, the earlier effects refitted with it,
+/// and the candidate refitted once more are judged together, with the candidate's own
+/// parameters counted (the earlier ones were already counted when they were added).
+fn judge_joint(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    kind: EffectKind,
+    joint: &[EffectKind],
+    before: &Residual,
+) -> Option<Judged> {
+    let simple = judge(ctx, doc, kind, before);
+    // Fitted afresh: the candidate on the model without the channel's earlier effects, then
+    // they on top of it, then it once more.
+    let mut edits: Vec<Edit> = joint
+        .iter()
+        .filter_map(|k| k.section())
+        .map(Edit::RemoveSection)
+        .collect();
+    let base = doc.with(&edits);
+    let first = kind.propose(ctx, &base)?;
+    edits.extend(first.edits.iter().cloned());
+    let mut cur = doc.with(&edits);
+    for other in joint {
+        if let Some(p) = other.propose(ctx, &cur) {
+            cur = cur.with(&p.edits);
+            edits.extend(p.edits);
+        }
+    }
+    let last = kind.propose(ctx, &cur)?;
+    edits.extend(last.edits.iter().cloned());
+    let proposal = Proposal {
+        kind,
+        params: last.params,
+        edits,
+        k: last.k,
+    };
+    let fresh = judge_proposal(ctx, doc, proposal, before);
+    match (simple, fresh) {
+        (Some(a), Some(b)) => Some(if b.rss_after < a.rss_after { b } else { a }),
+        (a, b) => a.or(b),
+    }
+}
+
+/// Judges `proposal` applied on top of `doc`, whose residual of its channel is `before`.
+fn judge_proposal(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    proposal: Proposal,
+    before: &Residual,
+) -> Option<Judged> {
+    let kind = proposal.kind;
     let model = doc.with(&proposal.edits).model().ok()?;
     let after = residual(ctx.data, ctx.band, &model, kind.channel())?;
     let model = doc.model().ok()?;
@@ -226,6 +295,7 @@ pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual)
         resolution: res,
         resolved: change.iter().filter(|c| c.abs() > sample_res).count(),
         change,
+        n_eff: nf,
     })
 }
 
@@ -295,6 +365,7 @@ fn cached_judge(
     doc: &ModelDoc,
     kind: EffectKind,
     before: &Residual,
+    joint: &[EffectKind],
     cache: &mut Cache,
 ) -> Option<Judged> {
     if let Some((_, _, j)) = cache
@@ -303,7 +374,11 @@ fn cached_judge(
     {
         return Some(j.clone());
     }
-    let j = judge(ctx, doc, kind, before)?;
+    let j = if joint.is_empty() {
+        judge(ctx, doc, kind, before)?
+    } else {
+        judge_joint(ctx, doc, kind, joint, before)?
+    };
     cache.retain(|(k, _, _)| *k != kind);
     cache.push((kind, before.kept.clone(), j.clone()));
     Some(j)
@@ -327,24 +402,49 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
             .iter()
             .filter_map(|&c| Some((c, residual(ctx.data, ctx.band, &model, c)?)))
             .collect();
+        let mut best_extra: Option<Judged> = None;
         for kind in EffectKind::ALL {
-            if added.iter().any(|a| a.proposal.kind == kind) {
+            if kind.named() && added.iter().any(|a| a.proposal.kind == kind) {
                 continue;
             }
             let Some((_, before)) = befores.iter().find(|(c, _)| *c == kind.channel()) else {
                 continue;
             };
-            let Some(j) = cached_judge(ctx, &doc, kind, before, &mut cache) else {
+            // Pressure candidates are judged with the pressure effects already added
+            // refitted around them (`judge_joint`).
+            let joint: Vec<EffectKind> = if kind.channel() == ChannelId::Pressure {
+                added
+                    .iter()
+                    .map(|a| a.proposal.kind)
+                    .filter(|k| k.channel() == ChannelId::Pressure)
+                    .collect()
+            } else {
+                Vec::new()
+            };
+            let Some(j) = cached_judge(ctx, &doc, kind, before, &joint, &mut cache) else {
                 continue;
             };
-            if j.significant() && best.as_ref().is_none_or(|b| j.delta_bic > b.delta_bic) {
-                best = Some(j.clone());
+            if j.significant() {
+                if !kind.named() {
+                    best_extra = Some(j.clone());
+                } else if best.as_ref().is_none_or(|b| j.delta_bic > b.delta_bic)
+                    && !outdone_by_basis(ctx, &doc, &j, before)
+                {
+                    best = Some(j.clone());
+                }
             }
             judged.push(j);
         }
         if step == 0 {
             first_step = judged;
         }
+        // A named effect is preferred where it explains as much (fewer numbers, a physical
+        // name): the basis wins only with significantly more evidence.
+        let best = match (best, best_extra) {
+            (Some(n), Some(e)) if e.delta_bic < n.delta_bic + MIN_DELTA_BIC => Some(n),
+            (Some(_), Some(e)) | (None, Some(e)) => Some(e),
+            (n, None) => n,
+        };
         let Some(b) = best else { break };
         let next = doc.with(&b.proposal.edits);
         steps.push((doc, next.clone()));
@@ -356,12 +456,42 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
         if added.len() > 1 {
             doc = backfit(ctx, doc, &mut added, &mut cache)?;
         }
+        if added.iter().any(|a| !a.proposal.kind.named()) {
+            doc = prune_terms(ctx, doc);
+        }
+    }
+    // Each named effect's parameters as the final model holds them: a later joint fit or
+    // back-fitting may have refitted them after they were judged.
+    for a in added.iter_mut().filter(|a| a.proposal.kind.named()) {
+        let keys: Vec<crate::plant::model::Key> = a
+            .proposal
+            .edits
+            .iter()
+            .filter_map(|e| match e {
+                Edit::Set(k, _) => Some(*k),
+                _ => None,
+            })
+            .collect();
+        for (name, value) in a.proposal.params.iter_mut() {
+            if let Some(v) = keys
+                .iter()
+                .rev()
+                .find(|k| k.name == *name)
+                .and_then(|k| doc.number(*k))
+            {
+                *value = v;
+            }
+        }
     }
     let mut warnings = Vec::new();
     for a in &added {
         for other in &first_step {
             let k = other.proposal.kind;
-            if k == a.proposal.kind || k.channel() != a.proposal.kind.channel() {
+            if k == a.proposal.kind
+                || k.channel() != a.proposal.kind.channel()
+                || !k.named()
+                || !a.proposal.kind.named()
+            {
                 continue;
             }
             let mine = first_step
@@ -402,11 +532,15 @@ fn backfit(
 ) -> Result<ModelDoc, String> {
     for a in added.iter_mut() {
         let kind = a.proposal.kind;
+        if !kind.named() {
+            // The discovered terms: refitted jointly once (never one more term here).
+            continue;
+        }
         let model = doc.model()?;
         let Some(before) = residual(ctx.data, ctx.band, &model, kind.channel()) else {
             continue;
         };
-        if let Some(j) = cached_judge(ctx, &doc, kind, &before, cache) {
+        if let Some(j) = cached_judge(ctx, &doc, kind, &before, &[], cache) {
             if j.rss_after < j.rss_before {
                 doc = doc.with(&j.proposal.edits);
                 a.proposal.params = j.proposal.params;
@@ -414,7 +548,78 @@ fn backfit(
             }
         }
     }
+    if added.iter().any(|a| !a.proposal.kind.named()) {
+        if let Some(p) = super::discover::refit(ctx, &doc) {
+            let refitted = doc.with(&p.edits);
+            let rss = |d: &ModelDoc| -> Option<f64> {
+                let m = d.model().ok()?;
+                Some(residual(ctx.data, ctx.band, &m, ChannelId::Force)?.rss())
+            };
+            if let (Some(a), Some(b)) = (rss(&refitted), rss(&doc)) {
+                if a < b {
+                    doc = refitted;
+                }
+            }
+        }
+    }
     Ok(doc)
+}
+
+/// Drops discovered terms that no longer pass the significance rules with the others in
+/// place (forward selection can add a term that only stood in for one added later): each
+/// term is judged as if it were added last, onto the others refitted without it, and the
+/// least significant failing one is dropped, until every one passes.
+fn prune_terms(ctx: &Ctx<'_>, mut doc: ModelDoc) -> ModelDoc {
+    loop {
+        let Ok(model) = doc.model() else { return doc };
+        let Some(terms) = model
+            .effects
+            .extra_force
+            .as_ref()
+            .and_then(|e| e.parsed().ok())
+        else {
+            return doc;
+        };
+        let mut worst: Option<(f64, ModelDoc)> = None;
+        for (term, _) in &terms {
+            let Some((without, back)) = super::discover::without_term(ctx, &doc, *term) else {
+                continue;
+            };
+            let Some(before) = without
+                .model()
+                .ok()
+                .and_then(|m| residual(ctx.data, ctx.band, &m, ChannelId::Force))
+            else {
+                continue;
+            };
+            let Some(j) = judge_proposal(ctx, &without, back, &before) else {
+                continue;
+            };
+            if !j.significant() && worst.as_ref().is_none_or(|(d, _)| j.delta_bic < *d) {
+                worst = Some((j.delta_bic, without));
+            }
+        }
+        match worst {
+            Some((_, without)) => doc = without,
+            None => return doc,
+        }
+    }
+}
+
+/// Whether `k` parameters of the discovery basis, fitted to the same residual at the same
+/// samples, explain significantly more than the named force effect `j` of `k` parameters
+/// (`n_eff·ln(RSS_named/RSS_basis) ≥ MIN_DELTA_BIC`): then the residual has a structure of
+/// another form, which the named effect's parameters would absorb ([`super::discover`]).
+fn outdone_by_basis(ctx: &Ctx<'_>, doc: &ModelDoc, j: &Judged, before: &Residual) -> bool {
+    if j.proposal.kind.channel() != ChannelId::Force || j.proposal.k == 0 {
+        return false;
+    }
+    let Some(rss_basis) = super::discover::basis_rss(ctx, doc, &before.kept, j.proposal.k) else {
+        return false;
+    };
+    rss_basis > 0.0
+        && j.rss_after > 0.0
+        && j.n_eff * (j.rss_after / rss_basis).ln() >= MIN_DELTA_BIC
 }
 
 /// Channels that this log has, with their residuals for `doc`.

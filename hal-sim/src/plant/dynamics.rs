@@ -31,6 +31,7 @@ use fpc::physics::motor::{clarke, AlphaBeta, Dq};
 use fpc::units::{PerSection, PhaseDuties, Section, CONTROL_PERIOD_S};
 
 use crate::plant::chambers::{ChamberParams, Chambers, Lines, PortMode};
+use crate::plant::model::extra_force::{ExtraForceEffect, ExtraState, Term};
 use crate::plant::model::MachineModel;
 use crate::plant::motor::{SectionParams, Sections};
 use crate::plant::servo::{Rotation, ServoParams};
@@ -54,6 +55,8 @@ pub struct PlantParams {
     pub sections: SectionParams,
     /// Cogging, if present.
     pub cogging: Option<CoggingParams<f64>>,
+    /// A force no named effect describes (`[effects.extra_force]`), if present.
+    pub extra_force: Option<ExtraForceEffect>,
     /// Chambers, ports, leaks, heat transfer.
     pub chambers: ChamberParams,
     /// Rotation.
@@ -89,6 +92,7 @@ impl PlantParams {
                 actuator_lag_s: model.effects.actuator_lag.as_ref().map(|l| l.delay_s),
             },
             cogging: model.cogging(),
+            extra_force: model.effects.extra_force.clone(),
             chambers: ChamberParams {
                 cylinder: model.cylinder(),
                 gas: model.gas_properties(),
@@ -150,6 +154,10 @@ pub struct Plant {
     pub friction_force_n: f64,
     /// Cogging force in the last sub-step, toward +x, N.
     pub cogging_force_n: f64,
+    /// Extra force (`[effects.extra_force]`) at the last sub-step, N.
+    pub extra_force_n: f64,
+    /// Time since the plant was made, s (the `t` of the extra force's terms).
+    pub elapsed_s: f64,
     /// The two chambers.
     pub chambers: Chambers,
     /// Suction and discharge lines (an input: set them during a run).
@@ -182,6 +190,8 @@ impl Plant {
             stop_force_n: 0.0,
             friction_force_n: 0.0,
             cogging_force_n: 0.0,
+            extra_force_n: 0.0,
+            elapsed_s: 0.0,
             chambers,
             lines,
             port_mode: PortMode::Timed,
@@ -250,18 +260,38 @@ impl Plant {
             Some(c) => cogging_force_n(c, &self.motors, self.x_m),
             None => 0.0,
         };
+        // The extra force at this sub-step's state; its term in the acceleration (`a`) acts
+        // as a change of the moving mass, `(m − c_a)·a = ΣF`, so it is implicit.
+        let motor_n = self.force_n.master + self.force_n.slave;
+        let (extra_n, mass_kg) = match &p.extra_force {
+            Some(e) => {
+                let state = ExtraState {
+                    x_m: self.x_m,
+                    v_mps: self.v_mps,
+                    a_mps2: 0.0,
+                    f_motor_n: motor_n,
+                    dp_pa: self.chambers.a.pressure_pa - self.chambers.b.pressure_pa,
+                    t_s: self.elapsed_s,
+                };
+                let c_a = e.coefficient(Term::A).unwrap_or(0.0);
+                (e.force_n(&state), p.mass_kg - c_a)
+            }
+            None => (0.0, p.mass_kg),
+        };
+        self.extra_force_n = extra_n;
+        self.elapsed_s += dt;
         let r = p.friction_radius_m;
         let tangential = self.rotation.piston_speed_rad_s * r;
         let secant = p.friction.sliding_secant(self.v_mps, tangential);
         // The balance's forces but friction, which acts implicitly through its secant.
         let forces = PistonForces {
-            motor_n: self.force_n.master + self.force_n.slave,
+            motor_n,
             gas_n: self.chambers.gas_force_n(),
             cogging_n: self.cogging_force_n,
-            external_n: stop + self.injected.external_force_n,
+            external_n: stop + self.injected.external_force_n + extra_n,
             friction_n: 0.0,
         };
-        let dt_over_m = dt / p.mass_kg;
+        let dt_over_m = dt / mass_kg;
         let v_new = implicit_velocity(self.v_mps, forces.driving_n(), secant, dt_over_m);
         self.friction_force_n = secant * v_new;
         self.a_mps2 = (v_new - self.v_mps) / dt;
@@ -394,6 +424,52 @@ impl PlantFaults {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// One sub-step from rest of a frictionless plant with the drives off: `v = dt·F/m`.
+    fn first_velocity(extra: Option<ExtraForceEffect>) -> (f64, f64) {
+        let mut model = MachineModel::reference();
+        model.friction.coulomb_n = 0.0;
+        model.friction.viscous_ns_per_m = 0.0;
+        model.friction.static_n = None;
+        model.effects.stribeck_friction = None;
+        model.effects.cogging = None;
+        model.effects.extra_force = extra;
+        let mut plant = Plant::new(PlantParams::from_model(&model), 0.1);
+        let gas_n = plant.chambers.gas_force_n();
+        let drive = Drive {
+            duties: PerSection {
+                master: None,
+                slave: None,
+            },
+            servo_torque_nm: 0.0,
+        };
+        plant.advance(&drive, CONTROL_PERIOD_S as f64);
+        (plant.v_mps, gas_n)
+    }
+
+    #[test]
+    fn the_extra_force_pushes_the_piston_and_its_a_term_changes_the_moving_mass() {
+        let m = MachineModel::reference().piston.mass_kg;
+        let dt = CONTROL_PERIOD_S as f64
+            / f64::from(MachineModel::reference().simulation.substeps_per_period);
+        let (v0, gas_n) = first_velocity(None);
+        assert!((v0 - dt * gas_n / m).abs() <= 1e-9 * v0.abs().max(1e-9));
+        // A spring of 1000 N/m about x = 0.15 m, seen at x = 0.1 m: +150 − 100 = +50 N, with
+        // 2 kg of the moving mass taken off by the `a` term.
+        let extra = ExtraForceEffect {
+            terms: [("1", 150.0), ("x", -1000.0), ("a", 2.0)]
+                .into_iter()
+                .map(|(k, v)| (k.to_string(), v))
+                .collect(),
+            period_m: None,
+        };
+        let (v1, _) = first_velocity(Some(extra));
+        let want = dt * (gas_n + 50.0) / (m - 2.0);
+        assert!(
+            (v1 - want).abs() <= 1e-9 * want.abs(),
+            "{v1} against {want}"
+        );
+    }
 
     #[test]
     fn the_cogging_from_the_motor_angle_is_the_law() {

@@ -25,7 +25,7 @@
 use std::f64::consts::TAU;
 
 use crate::plant::fastmath::sin_cos;
-use crate::plant::model::Key;
+use crate::plant::model::{model_section, Key, SectionKey};
 
 use super::data::Measured;
 use super::doc::{Edit, ModelDoc};
@@ -99,11 +99,14 @@ pub enum EffectKind {
     HeatTransfer,
     /// Ports passing less than designed.
     PortRestriction,
+    /// Not a named effect: terms of the discovery basis ([`super::discover`]), one more
+    /// at each proposal.
+    ExtraForce,
 }
 
 impl EffectKind {
     /// Every effect of the library.
-    pub const ALL: [EffectKind; 11] = [
+    pub const ALL: [EffectKind; 12] = [
         EffectKind::MassError,
         EffectKind::CoulombFriction,
         EffectKind::ViscousFriction,
@@ -115,7 +118,13 @@ impl EffectKind {
         EffectKind::Leakage,
         EffectKind::HeatTransfer,
         EffectKind::PortRestriction,
+        EffectKind::ExtraForce,
     ];
+
+    /// Whether it is a named effect of the library (not the discovered terms).
+    pub fn named(self) -> bool {
+        self != EffectKind::ExtraForce
+    }
 
     /// The name of `formats.md` §3.
     pub fn name(self) -> &'static str {
@@ -131,7 +140,27 @@ impl EffectKind {
             EffectKind::Leakage => "leakage",
             EffectKind::HeatTransfer => "heat_transfer",
             EffectKind::PortRestriction => "port_restriction",
+            EffectKind::ExtraForce => "extra_force",
         }
+    }
+
+    /// The model section that holds it alone (`None`: it corrects a value of a required
+    /// section, or it is the discovered terms).
+    pub fn section(self) -> Option<SectionKey> {
+        Some(match self {
+            EffectKind::StribeckFriction => model_section!(effects.stribeck_friction),
+            EffectKind::Cogging => model_section!(effects.cogging),
+            EffectKind::ActuatorLag => model_section!(effects.actuator_lag),
+            EffectKind::SlaveLag => model_section!(effects.slave_lag),
+            EffectKind::EncoderPitchError => model_section!(effects.encoder_pitch_error),
+            EffectKind::Leakage => model_section!(effects.leakage),
+            EffectKind::HeatTransfer => model_section!(effects.heat_transfer),
+            EffectKind::PortRestriction => model_section!(effects.port_restriction),
+            EffectKind::MassError
+            | EffectKind::CoulombFriction
+            | EffectKind::ViscousFriction
+            | EffectKind::ExtraForce => return None,
+        })
     }
 
     /// The channel it shows in.
@@ -142,7 +171,8 @@ impl EffectKind {
             | EffectKind::ViscousFriction
             | EffectKind::StribeckFriction
             | EffectKind::Cogging
-            | EffectKind::ActuatorLag => ChannelId::Force,
+            | EffectKind::ActuatorLag
+            | EffectKind::ExtraForce => ChannelId::Force,
             EffectKind::SlaveLag => ChannelId::SlaveForce,
             EffectKind::EncoderPitchError => ChannelId::Encoder,
             EffectKind::Leakage | EffectKind::HeatTransfer | EffectKind::PortRestriction => {
@@ -166,6 +196,7 @@ impl EffectKind {
             EffectKind::Leakage => pressure::leakage(ctx, doc),
             EffectKind::HeatTransfer => pressure::heat_transfer(ctx, doc),
             EffectKind::PortRestriction => pressure::port_restriction(ctx, doc),
+            EffectKind::ExtraForce => super::discover::next_term(ctx, doc),
         }
     }
 }

@@ -32,6 +32,7 @@ pub const PAPER_SLAVE_LAG_S: f64 = 0.75e-3;
 
 #[macro_use]
 pub mod validate;
+pub mod extra_force;
 mod sections;
 
 pub use sections::*;
@@ -457,6 +458,21 @@ mod tests {
         assert!(refused(&window).contains("ports.discharge_a_deg"));
         let sensor = format!("{MINIMAL}\n[sensors.encoder_slave]\nnoise_codez = 1.0\n");
         assert!(refused(&sensor).contains("noise_codez"));
+        let term = format!(
+            "{MINIMAL}\n[effects.extra_force]\nterms = {{ \"x\" = -1800.0, \"xx\" = 1.0 }}\n"
+        );
+        assert!(refused(&term).contains("\"xx\""));
+        let mass = format!("{MINIMAL}\n[effects.extra_force]\nterms = {{ \"a\" = 6.0 }}\n");
+        assert!(refused(&mass).contains("extra_force.terms.\"a\""));
+        let spring = format!(
+            "{MINIMAL}\n[effects.extra_force]\nterms = {{ \"x\" = -1800.0, \"1\" = 162.0 }}\n"
+        );
+        let m = MachineModel::parse(&spring).unwrap();
+        let e = m
+            .effects
+            .extra_force
+            .expect("the inline table of formats.md loads");
+        assert_eq!(e.terms.get("x"), Some(&-1800.0));
     }
 
     #[test]

@@ -665,6 +665,8 @@ pub struct Effects {
     pub actuator_lag: Option<DelayEffect>,
     /// Section-to-section misalignment.
     pub section_misalignment: Option<MisalignmentEffect>,
+    /// A force no named effect describes, as terms of the discovery basis.
+    pub extra_force: Option<super::extra_force::ExtraForceEffect>,
 }
 
 /// `[published]`: the published rig's drives, for `fpc-sim run --controller published`

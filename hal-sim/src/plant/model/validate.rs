@@ -227,6 +227,7 @@ impl MachineModel {
             section!(m, effects.leakage),
             section!(m, effects.port_restriction),
             section!(m, effects.section_misalignment),
+            section!(m, effects.extra_force),
             section!(m, published),
         ]
     }
@@ -315,6 +316,20 @@ impl MachineModel {
         for s in self.sections() {
             if let Some(c) = s.check {
                 c.check_at(s.path)?;
+            }
+        }
+        if let Some(e) = &self.effects.extra_force {
+            e.parsed().map_err(ModelError)?;
+            // The `a` term changes the moving mass (`(m − c_a)·a`): it must leave a mass.
+            let c_a = e.coefficient(super::extra_force::Term::A).unwrap_or(0.0);
+            if c_a >= 0.5 * self.piston.mass_kg {
+                return Err(ModelError(format!(
+                    "`effects.extra_force.terms.\"a\"` = {} kg leaves less than half of \
+                     `piston.mass_kg` = {} kg moving (below {} kg)",
+                    num(c_a),
+                    num(self.piston.mass_kg),
+                    num(0.5 * self.piston.mass_kg)
+                )));
             }
         }
         let pu = &self.published;
