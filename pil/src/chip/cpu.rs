@@ -117,6 +117,11 @@ const FP_FRAME: [RegisterARM; 16] = [
 /// CONTROL.FPCA.
 const FPCA: u64 = 4;
 
+/// xPSR's T bit (EPSR).
+const EPSR_T: u64 = 1 << 24;
+/// xPSR's IT bits (ICI/IT, EPSR): 26:25 and 15:10.
+const EPSR_IT: u32 = 0x0600_FC00;
+
 fn err(what: &'static str) -> impl Fn(unicorn_engine::uc_error) -> ChipError {
     move |e| ChipError(format!("unicorn: {what}: {e:?}"))
 }
@@ -196,6 +201,12 @@ pub fn enter(uc: &mut Unicorn<Soc>, exc: usize) -> Result<(), ChipError> {
         .map_err(err("control"))?;
     uc.reg_write(RegisterARM::IPSR, exc as u64)
         .map_err(err("ipsr"))?;
+    // ExceptionTaken clears the IT state (ITSTATE is in the stacked xPSR): without this the
+    // handler's first instructions ran under the interrupted IT block's condition (an
+    // interrupt between two translated blocks of an IT block skipped the handler's PUSH and
+    // its return popped a wrong PC).
+    uc.reg_write(RegisterARM::EPSR, EPSR_T)
+        .map_err(err("epsr"))?;
     uc.reg_write(RegisterARM::PC, u64::from(vector | 1))
         .map_err(err("pc"))?;
     let soc = uc.get_data_mut();
@@ -262,6 +273,9 @@ fn exit(uc: &mut Unicorn<Soc>, exc_return: u32) -> Result<(), ChipError> {
         .map_err(err("control"))?;
     uc.reg_write(RegisterARM::XPSR_NZCVQG, u64::from(xpsr & !(1 << 9)))
         .map_err(err("xpsr"))?;
+    // The interrupted IT block's state comes back with the xPSR (ARMv7-M B1.5.8).
+    uc.reg_write(RegisterARM::EPSR, u64::from(xpsr & EPSR_IT) | EPSR_T)
+        .map_err(err("epsr"))?;
     uc.reg_write(RegisterARM::PC, u64::from(w[6] | 1))
         .map_err(err("pc"))?;
     let soc = uc.get_data_mut();
