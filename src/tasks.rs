@@ -90,44 +90,69 @@ where
     let mut switching: Option<PerSection<bool>> = None;
     loop {
         let t = ports.cycle.next_cycle().await;
-        serve_commands(&mut step, shared);
-        let inputs = CycleInputs {
-            t,
-            encoders: ports.encoders.read(),
-            currents: PerSection {
-                master: ports.currents.read(Section::Master),
-                slave: ports.currents.read(Section::Slave),
-            },
-            quadrature: ports.quadrature.count(),
-            pressures: ports.pressures.read(),
-        };
-        let out = step.step(&inputs);
-        match out.pwm {
-            Some(duties) => {
-                // Both sections in the same cycle, from the same force command.
-                ports.pwm.write(Section::Master, duties.master);
-                ports.pwm.write(Section::Slave, duties.slave);
-                if switching != Some(out.sections) {
-                    ports.pwm.enable(out.sections);
-                    switching = Some(out.sections);
-                }
-            }
-            None => {
-                if switching.is_some() {
-                    ports.pwm.disable();
-                    switching = None;
-                }
-            }
-        }
-        ports.servo.write(out.servo);
-        if let Some(record) = step.take_calibration_to_save() {
-            shared.post_calibration(record);
-        }
-        shared.publish(*step.status());
-        shared.queue_telemetry(step.status());
-        shared.record_scope(step.status());
-        shared.check_in(task_bits::CONTROL);
+        control_cycle(&mut step, &mut ports, shared, t, &mut switching);
     }
+}
+
+/// One control cycle once its sampling burst is in (the body of [`control_run`]'s loop):
+/// take the commands, read every port, run the step, write both sections' PWM and the servo
+/// command, publish. `switching` is which sections' outputs are switching (None: all off).
+///
+/// Never inlined: the firmware runs it, with everything it inlines, from CCM SRAM (zero
+/// wait states), and `memory.x` finds it there by its symbol, `fpc::tasks::control_cycle`.
+#[inline(never)]
+pub fn control_cycle<M, T, E, C, P, Q, S, R>(
+    step: &mut ControlStep,
+    ports: &mut ControlPorts<T, E, C, P, Q, S, R>,
+    shared: &Shared<M>,
+    t: crate::units::Ticks,
+    switching: &mut Option<PerSection<bool>>,
+) where
+    M: RawMutex,
+    E: EncoderInput,
+    C: CurrentInput,
+    P: PwmOutput,
+    Q: QuadratureInput,
+    S: TorqueOutput,
+    R: PressureInput,
+{
+    serve_commands(step, shared);
+    let inputs = CycleInputs {
+        t,
+        encoders: ports.encoders.read(),
+        currents: PerSection {
+            master: ports.currents.read(Section::Master),
+            slave: ports.currents.read(Section::Slave),
+        },
+        quadrature: ports.quadrature.count(),
+        pressures: ports.pressures.read(),
+    };
+    let out = step.step(&inputs);
+    match out.pwm {
+        Some(duties) => {
+            // Both sections in the same cycle, from the same force command.
+            ports.pwm.write(Section::Master, duties.master);
+            ports.pwm.write(Section::Slave, duties.slave);
+            if *switching != Some(out.sections) {
+                ports.pwm.enable(out.sections);
+                *switching = Some(out.sections);
+            }
+        }
+        None => {
+            if switching.is_some() {
+                ports.pwm.disable();
+                *switching = None;
+            }
+        }
+    }
+    ports.servo.write(out.servo);
+    if let Some(record) = step.take_calibration_to_save() {
+        shared.post_calibration(record);
+    }
+    shared.publish(*step.status());
+    shared.queue_telemetry(step.status());
+    shared.record_scope(step.status());
+    shared.check_in(task_bits::CONTROL);
 }
 
 /// The control task's part of the command link, before each step: every pending command

@@ -122,8 +122,9 @@ pub struct Options {
     pub inject_after_start_s: f64,
     /// Pressure ratio (the peak speed follows it, as in `fpc-sim run`).
     pub pressure_ratio: f64,
-    /// Clock cycles per instruction of the emulated core ([`crate::DEFAULT_CPI`]).
-    pub cpi: f64,
+    /// `Some(cpi)`: emulated time runs at this CPI; `None`: on the counted cycles
+    /// ([`ChipOptions::cpi`]).
+    pub cpi: Option<f64>,
 }
 
 impl Default for Options {
@@ -131,7 +132,7 @@ impl Default for Options {
         Options {
             inject_after_start_s: 0.25,
             pressure_ratio: RunOptions::reference().pressure_ratio,
-            cpi: crate::DEFAULT_CPI,
+            cpi: Some(crate::DEFAULT_CPI),
         }
     }
 }

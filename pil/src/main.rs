@@ -47,9 +47,6 @@ struct SaveTimingArgs {
     /// The firmware ELF.
     #[arg(long)]
     elf: PathBuf,
-    /// Clock cycles per instruction of the core at zero wait states.
-    #[arg(long, default_value_t = fpc_pil::DEFAULT_CPI)]
-    cpi: f64,
     /// Print the figures as JSON on stdout.
     #[arg(long)]
     json: bool,
@@ -68,9 +65,13 @@ struct FaultArgs {
     /// Scenarios that stroke: the pressure ratio (the peak speed follows it).
     #[arg(long, default_value_t = 3.1)]
     pressure_ratio: f64,
-    /// Clock cycles per instruction for the emulated time.
+    /// Clock cycles per instruction of the emulated time.
     #[arg(long, default_value_t = fpc_pil::DEFAULT_CPI)]
     cpi: f64,
+    /// Run the emulated time on the cycles counted per instruction (an upper bound)
+    /// instead of `--cpi`.
+    #[arg(long)]
+    counted_time: bool,
 }
 
 #[derive(clap::Args)]
@@ -90,9 +91,18 @@ struct RunArgs {
     /// Noise seed.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Clock cycles per instruction for the emulated time and the µs figure.
+    /// Clock cycles per instruction of the emulated time (the cycle figures are counted
+    /// per instruction either way).
     #[arg(long, default_value_t = fpc_pil::DEFAULT_CPI)]
     cpi: f64,
+    /// Run the emulated time on the cycles counted per instruction (an upper bound)
+    /// instead of `--cpi`.
+    #[arg(long)]
+    counted_time: bool,
+    /// Print, on stderr, where the worst period's interrupt path spent its cycles (by
+    /// function, and whether from flash or CCM SRAM).
+    #[arg(long)]
+    profile: bool,
     /// Directory for run.csv and the plots (created; default: no files).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -129,9 +139,7 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
         ),
         None => (MachineModel::reference(), "reference".into()),
     };
-    if !(args.cpi.is_finite() && (0.5..=5.0).contains(&args.cpi)) {
-        return Err(format!("--cpi {}: must be within [0.5, 5]", args.cpi));
-    }
+    let cpi = timeline(args.cpi, args.counted_time)?;
     let run_opts = RunOptions {
         model,
         model_name,
@@ -145,10 +153,11 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
         image,
         run: run_opts,
         chip: ChipOptions {
-            cpi: args.cpi,
+            cpi,
             ..ChipOptions::default()
         },
         compare_with_host: !args.no_host,
+        profile: args.profile,
     };
     let mut file = match &args.out {
         Some(dir) => {
@@ -176,12 +185,23 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
         let path = dir.join("defmt.log");
         std::fs::write(&path, log).map_err(|e| format!("{}: {e}", path.display()))?;
     }
+    if args.profile {
+        let total: u64 = outcome.profile.iter().map(|r| r.cycles).sum();
+        eprintln!("worst period's interrupt path, {total} cycles, by function:");
+        for r in &outcome.profile {
+            eprintln!(
+                "  {:#010x} {:>6} cycles {:>5} instructions  {}",
+                r.address, r.cycles, r.instructions, r.function
+            );
+        }
+    }
     let s = &outcome.summary;
     let mm = |v: Option<f64>| v.map_or("n/a".into(), |m| format!("{:.3} mm", m * 1e3));
     eprintln!(
         "fpc-pil run: {} cycles in {:.3} s emulated ({:.1} s wall), state {}, min head clearance {}, \
-         dead-point error {}, faults [{}]; interrupt path {:.0} instructions per cycle mean, {} max \
-         ({:.1} µs at 170 MHz, CPI {}); position RMS difference to the host build {}",
+         dead-point error {}, faults [{}]; interrupt path {:.0} instructions per cycle mean, {} max, \
+         {:.0} cycles mean, {} max ({:.1} µs at 170 MHz; {:.1} % of the instructions from flash); \
+         position RMS difference to the host build {}",
         s.run.cycles,
         s.run.sim_time_s,
         s.pil_wall_time_s,
@@ -191,8 +211,10 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
         s.run.faults.join(", "),
         s.instructions_per_cycle_mean,
         s.instructions_per_cycle_max,
+        s.cycles_per_cycle_mean,
+        s.cycles_per_cycle_max,
         s.worst_cycle_us,
-        s.cpi,
+        s.flash_fetched_share * 100.0,
         s.position_rms_diff_vs_host_m
             .map_or("n/a".into(), |v| format!("{:.2} µm", v * 1e6)),
     );
@@ -203,6 +225,14 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The emulated time's CPI (`None`: the counted cycles); `--cpi` must be plausible.
+fn timeline(cpi: f64, counted: bool) -> Result<Option<f64>, String> {
+    if !(cpi.is_finite() && (0.5..=5.0).contains(&cpi)) {
+        return Err(format!("--cpi {cpi}: must be within [0.5, 5]"));
+    }
+    Ok((!counted).then_some(cpi))
 }
 
 fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
@@ -223,13 +253,11 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
     if !(args.at.is_finite() && (0.0..=10.0).contains(&args.at)) {
         return Err(format!("--at {}: must be within [0, 10] s", args.at));
     }
-    if !(args.cpi.is_finite() && (0.5..=5.0).contains(&args.cpi)) {
-        return Err(format!("--cpi {}: must be within [0.5, 5]", args.cpi));
-    }
+    let cpi = timeline(args.cpi, args.counted_time)?;
     let opts = fpc_pil::faults::Options {
         inject_after_start_s: args.at,
         pressure_ratio: args.pressure_ratio,
-        cpi: args.cpi,
+        cpi,
     };
     let r = run_with(&image, scenario, &opts)?;
     println!(
@@ -265,21 +293,17 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
 
 fn save_timing_cmd(args: SaveTimingArgs) -> Result<ExitCode, String> {
     use fpc_pil::save_timing::PathFigures;
-    if !(args.cpi.is_finite() && (0.5..=5.0).contains(&args.cpi)) {
-        return Err(format!("--cpi {}: must be within [0.5, 5]", args.cpi));
-    }
     let image = Image::read(&args.elf)?;
     let started = std::time::Instant::now();
-    let t = fpc_pil::save_timing::run(&image, args.cpi)?;
+    let t = fpc_pil::save_timing::run(&image)?;
     let mut acr = t.acr_during_operations.clone();
     acr.sort_unstable();
     acr.dedup();
     let acr: Vec<_> = acr.iter().map(|a| format!("{a:#05x}")).collect();
     println!(
-        "fpc-pil save-timing: CPI {} at zero wait states, {} wait states per flash access \
+        "fpc-pil save-timing: core cycles counted per instruction, {} wait states per flash access \
          (64-bit line, PRFTEN 0), 170 MHz, period {} µs; FLASH_ACR during the save's erase \
          and programs: {}; the save ended with \"{}\"; {:.1} s wall",
-        t.cpi,
         t.wait_states,
         t.period_us,
         acr.join(", "),

@@ -38,10 +38,23 @@ pub struct PilSummary {
     pub instructions_per_cycle_max: u64,
     /// Thread-mode instructions per period (supervision, telemetry, commands, storage), mean.
     pub thread_instructions_per_cycle_mean: f64,
-    /// Clock cycles per instruction the figures below assume (`--cpi`).
-    pub cpi: f64,
-    /// The worst period's interrupt path at 170 MHz with that CPI, µs (the budget is 50).
+    /// Mean clock cycles of the interrupt path per control period, counted per instruction
+    /// from the Cortex-M4 TRM with branch refills, exception entries and returns, and the
+    /// flash wait states of what still runs from flash (`pil/README.md`, "Cycles").
+    pub cycles_per_cycle_mean: f64,
+    /// The largest of those.
+    pub cycles_per_cycle_max: u64,
+    /// The worst period's interrupt path at 170 MHz, µs (the budget is 50).
     pub worst_cycle_us: f64,
+    /// The part of the interrupt path's instructions fetched from program flash (the rest run
+    /// from CCM SRAM), over the periods from Start on.
+    pub flash_fetched_share: f64,
+    /// Flash wait-state cycles in the worst period (instruction lines, flash data reads,
+    /// vector fetches; 4 each).
+    pub worst_cycle_flash_wait_cycles: u64,
+    /// The emulated time's clock: the CPI it ran at (`--cpi`, 1.5 by default), or `null`
+    /// when it ran on the counted cycles (`--counted-time`).
+    pub timeline_cpi: Option<f64>,
     /// RMS of the difference between the piston position (the plant's) of this run and of
     /// the host build on the same plant and seed, the same command taken by the same control
     /// step, cycle by cycle from the strokes' start, m.
@@ -66,6 +79,8 @@ pub struct PilOutcome {
     pub defmt: Vec<(f64, String)>,
     /// The per-period loads from Start on.
     pub periods: Vec<PeriodLoad>,
+    /// With [`PilOptions::profile`]: the worst period's interrupt path by function.
+    pub profile: Vec<ProfileRow>,
 }
 
 /// Options of `fpc-pil run`.
@@ -78,6 +93,55 @@ pub struct PilOptions {
     pub chip: ChipOptions,
     /// Also run the host build for `position_rms_diff_vs_host_m`.
     pub compare_with_host: bool,
+    /// Keep where the worst period's interrupt path spent its cycles
+    /// ([`PilOutcome::profile`]).
+    pub profile: bool,
+}
+
+/// One function's part of the worst period's interrupt path.
+#[derive(Clone, Debug, Serialize)]
+pub struct ProfileRow {
+    /// The function (the nearest symbol at or below the code; mangled).
+    pub function: String,
+    /// Its address (flash 0x08…, CCM SRAM 0x10…).
+    pub address: u32,
+    /// Instructions it executed in the period.
+    pub instructions: u64,
+    /// Cycles (wait states included).
+    pub cycles: u64,
+}
+
+/// The worst period's profile, by function, most cycles first.
+fn profile_rows(
+    image: &Image,
+    blocks: &std::collections::HashMap<u32, (u64, u64)>,
+) -> Vec<ProfileRow> {
+    let mut syms: Vec<(u32, &str)> = image
+        .symbols
+        .iter()
+        .filter(|(n, a)| !n.is_empty() && !n.starts_with('$') && **a != 0)
+        .map(|(n, a)| (*a & !1, n.as_str()))
+        .collect();
+    syms.sort_unstable();
+    let mut rows: std::collections::HashMap<(u32, &str), (u64, u64)> = Default::default();
+    for (&addr, &(n, c)) in blocks {
+        let i = syms.partition_point(|(a, _)| *a <= addr);
+        let key = if i == 0 { (0, "?") } else { syms[i - 1] };
+        let e = rows.entry(key).or_default();
+        e.0 += n;
+        e.1 += c;
+    }
+    let mut rows: Vec<ProfileRow> = rows
+        .into_iter()
+        .map(|((address, f), (instructions, cycles))| ProfileRow {
+            function: f.to_string(),
+            address,
+            instructions,
+            cycles,
+        })
+        .collect();
+    rows.sort_by_key(|r| std::cmp::Reverse(r.cycles));
+    rows
 }
 
 /// The calibration the board's flash holds: the model commissioned by the host build's
@@ -133,6 +197,7 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
         {
             let soc = session.chip.soc();
             soc.recording = true;
+            soc.profile = opts.profile;
             running_from = Some(0);
         }
         if flow.is_break() {
@@ -155,12 +220,21 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
             let period = u64::from(fpc::units::CONTROL_PERIOD_US);
             (t * 1e6 / period as f64).floor() as u64 * period
         });
+    let profile = profile_rows(&opts.image, &soc.profile_worst.1);
     let world = soc.board.world.clone();
     let outcome = driver.finish(world, Default::default())?;
     let n = periods.len().max(1) as f64;
     let mean = periods.iter().map(|p| p.interrupt_path as f64).sum::<f64>() / n;
     let max = periods.iter().map(|p| p.interrupt_path).max().unwrap_or(0);
     let thread = periods.iter().map(|p| p.thread as f64).sum::<f64>() / n;
+    let cycles_mean = periods.iter().map(|p| p.path_cycles as f64).sum::<f64>() / n;
+    let worst = periods
+        .iter()
+        .max_by_key(|p| p.path_cycles)
+        .copied()
+        .unwrap_or_default();
+    let path_total: u64 = periods.iter().map(|p| p.interrupt_path).sum();
+    let path_flash: u64 = periods.iter().map(|p| p.path_flash_instructions).sum();
     let rms = if opts.compare_with_host && opts.run.schedule.is_empty() {
         let mut h = opts.run.clone();
         h.calibration = Some(record);
@@ -200,8 +274,12 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
         instructions_per_cycle_mean: mean,
         instructions_per_cycle_max: max,
         thread_instructions_per_cycle_mean: thread,
-        cpi: opts.chip.cpi,
-        worst_cycle_us: max as f64 * opts.chip.cpi / SYSCLK_HZ * 1e6,
+        cycles_per_cycle_mean: cycles_mean,
+        cycles_per_cycle_max: worst.path_cycles,
+        worst_cycle_us: worst.path_cycles as f64 / SYSCLK_HZ * 1e6,
+        flash_fetched_share: path_flash as f64 / path_total.max(1) as f64,
+        worst_cycle_flash_wait_cycles: worst.path_wait_cycles,
+        timeline_cpi: opts.chip.cpi,
         position_rms_diff_vs_host_m: rms,
         pil_wall_time_s: pil_wall,
         total_wall_time_s: started.elapsed().as_secs_f64(),
@@ -213,6 +291,7 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
         outcome,
         defmt: session.log.lines.clone(),
         periods,
+        profile,
     })
 }
 

@@ -14,8 +14,8 @@
 //! Cycle model, per period (RM0440 §3.3.3–3.3.4: a flash access is a 64-bit line and takes
 //! LATENCY + 1 HCLK cycles; with LATENCY = 4 at 170 MHz, an access costs 4 cycles more than
 //! a zero-wait one; PRFTEN = 0, so a sequential fetch into the next line waits too):
-//! - `instructions × CPI` for the core itself (the CPI of zero-wait execution, as for the
-//!   `run` figure), plus 4 cycles per flash access;
+//! - the core's own cycles at zero wait states, counted per instruction (the chip's
+//!   [`crate::chip::timing`], as for the `run` figure), plus 4 cycles per flash access;
 //! - **caches on**: one access per distinct instruction line and per distinct data line of
 //!   the period (each line missed once, then held; the period's code must fit the cache for
 //!   this to hold, which is why the bound below is given too);
@@ -73,8 +73,8 @@ pub struct PathFigures {
 }
 
 impl PathFigures {
-    /// The figures of `periods` at `cpi`.
-    pub fn of<'a>(periods: impl IntoIterator<Item = &'a PeriodLoad>, cpi: f64) -> PathFigures {
+    /// The figures of `periods`.
+    pub fn of<'a>(periods: impl IntoIterator<Item = &'a PeriodLoad>) -> PathFigures {
         let mut f = PathFigures::default();
         let us = |cycles: f64| cycles / SYSCLK_HZ * 1e6;
         for p in periods {
@@ -84,7 +84,8 @@ impl PathFigures {
             f.line_entries_max = f.line_entries_max.max(p.path_line_entries);
             f.flash_reads_max = f.flash_reads_max.max(p.path_flash_reads);
             f.data_lines_max = f.data_lines_max.max(p.path_data_lines);
-            let core = p.interrupt_path as f64 * cpi;
+            // The counted cycles without the chip's own (no-cache) flash wait states.
+            let core = p.path_cycles.saturating_sub(p.path_wait_cycles) as f64;
             let vectors = f64::from(p.exceptions);
             let ws = FLASH_WAIT_STATES;
             let on = core + ws * (f64::from(p.path_lines + p.path_data_lines) + vectors);
@@ -101,8 +102,6 @@ impl PathFigures {
 /// What the save-timing scenario measured.
 #[derive(Clone, Debug, Serialize)]
 pub struct SaveTiming {
-    /// Clock cycles per instruction of the core (zero-wait execution).
-    pub cpi: f64,
     /// Flash wait states of the model.
     pub wait_states: f64,
     /// FLASH_ACR as the firmware left it while each erase or program ran.
@@ -120,15 +119,14 @@ pub struct SaveTiming {
     pub period_us: f64,
 }
 
-/// Runs the scenario on `image` at `cpi`.
-pub fn run(image: &Image, cpi: f64) -> Result<SaveTiming, String> {
+/// Runs the scenario on `image`.
+pub fn run(image: &Image) -> Result<SaveTiming, String> {
     let opts = RunOptions::reference();
     let record = crate::run::commissioned(&opts)?;
     let store = hal_sim::board::flash::holding(&record)?;
     let mut world = hal_sim::run::world(&opts.model, opts.seed, 0, 1e-3);
     world.plant.lines.set_pressure_ratio(opts.pressure_ratio);
     let chip = ChipOptions {
-        cpi,
         flash_timing: true,
         ..ChipOptions::default()
     };
@@ -190,12 +188,11 @@ pub fn run(image: &Image, cpi: f64) -> Result<SaveTiming, String> {
     let stroking = std::mem::take(&mut s.chip.soc().periods);
 
     Ok(SaveTiming {
-        cpi,
         wait_states: FLASH_WAIT_STATES,
         acr_during_operations: acr,
-        no_save: PathFigures::of(idle, cpi),
-        during_save: PathFigures::of(during, cpi),
-        stroking: PathFigures::of(&stroking, cpi),
+        no_save: PathFigures::of(idle),
+        during_save: PathFigures::of(during),
+        stroking: PathFigures::of(&stroking),
         save_outcome: outcome,
         period_us: PERIOD_US,
     })

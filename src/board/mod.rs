@@ -66,6 +66,7 @@
 //! before the watchdog starts cannot hang the board.
 
 mod adc;
+mod ccm;
 mod clocks;
 mod fault;
 mod pwm;
@@ -192,6 +193,8 @@ pub fn init() -> Board {
     let Ok(p) = clocks::start() else {
         fault::boot_fault(fault::BootCheck::BoostMode)
     };
+    // The control path's code to CCM SRAM, at 170 MHz, before anything that may run it.
+    ccm::copy_code();
     test_build::board_init();
     test_build::timing_init();
     check_bank_layout();

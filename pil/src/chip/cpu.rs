@@ -27,6 +27,7 @@ use unicorn_engine::{HookType, MemType, RegisterARM, Unicorn};
 
 use super::flash::{FLASH_BASE, FLASH_BYTES};
 use super::nvic::{self, HARD_FAULT};
+use super::timing::{self, Block};
 use super::{irqn, Chip, ChipError, Soc};
 
 /// Why an emulation slice stopped early.
@@ -36,37 +37,43 @@ pub enum Stop {
     Fault(u32, Option<u32>),
 }
 
-/// Instruction counts of translated blocks, by start address.
+/// The decoded translated blocks, by start address (with their size: a branch into the
+/// middle of a block starts another one).
 pub struct BlockCache {
-    /// Flash blocks, indexed by half-word: size << 12 | count, bit 31 = contains SEV.
-    flash: Vec<u32>,
-    other: HashMap<u32, u32>,
+    /// Flash blocks, indexed by half-word.
+    flash: Vec<Option<(u32, Block)>>,
+    other: HashMap<u32, (u32, Block)>,
 }
 
 impl BlockCache {
     /// Empty.
     pub fn new() -> Self {
         BlockCache {
-            flash: vec![0; (FLASH_BYTES / 2) as usize],
+            flash: vec![None; (FLASH_BYTES / 2) as usize],
             other: HashMap::new(),
         }
     }
 
-    fn get(&self, addr: u32, size: u32) -> Option<u32> {
+    fn get(&self, addr: u32, size: u32) -> Option<Block> {
         let e = if (FLASH_BASE..FLASH_BASE + FLASH_BYTES).contains(&addr) {
             self.flash[((addr - FLASH_BASE) / 2) as usize]
         } else {
-            *self.other.get(&addr)?
+            self.other.get(&addr).copied()
         };
-        (e != 0 && (e >> 12) & 0x7FFFF == size).then_some(e)
+        e.filter(|(s, _)| *s == size).map(|(_, b)| b)
     }
 
-    fn put(&mut self, addr: u32, e: u32) {
+    fn put(&mut self, addr: u32, size: u32, b: Block) {
         if (FLASH_BASE..FLASH_BASE + FLASH_BYTES).contains(&addr) {
-            self.flash[((addr - FLASH_BASE) / 2) as usize] = e;
+            self.flash[((addr - FLASH_BASE) / 2) as usize] = Some((size, b));
         } else {
-            self.other.insert(addr, e);
+            self.other.insert(addr, (size, b));
         }
+    }
+
+    /// Forgets the blocks outside program flash (RAM code is copied at each boot).
+    pub fn forget_ram(&mut self) {
+        self.other.clear();
     }
 }
 
@@ -74,27 +81,6 @@ impl Default for BlockCache {
     fn default() -> Self {
         BlockCache::new()
     }
-}
-
-/// Whether the Thumb half-word `hw` starts a 32-bit instruction.
-pub fn is_wide(hw: u16) -> bool {
-    matches!(hw >> 11, 0b11101..=0b11111)
-}
-
-/// Instructions in a block of Thumb code, and whether one is SEV.
-pub fn decode(bytes: &[u8]) -> (u32, bool) {
-    let mut i = 0;
-    let mut n = 0;
-    let mut sev = false;
-    while i + 1 < bytes.len() {
-        let hw = u16::from_le_bytes([bytes[i], bytes[i + 1]]);
-        n += 1;
-        if hw == 0xBF40 {
-            sev = true;
-        }
-        i += if is_wide(hw) { 4 } else { 2 };
-    }
-    (n, sev)
 }
 
 /// The registers of the basic frame, in stacking order.
@@ -130,6 +116,11 @@ const FP_FRAME: [RegisterARM; 16] = [
 
 /// CONTROL.FPCA.
 const FPCA: u64 = 4;
+
+/// xPSR's T bit (EPSR).
+const EPSR_T: u64 = 1 << 24;
+/// xPSR's IT bits (ICI/IT, EPSR): 26:25 and 15:10.
+const EPSR_IT: u32 = 0x0600_FC00;
 
 fn err(what: &'static str) -> impl Fn(unicorn_engine::uc_error) -> ChipError {
     move |e| ChipError(format!("unicorn: {what}: {e:?}"))
@@ -210,6 +201,12 @@ pub fn enter(uc: &mut Unicorn<Soc>, exc: usize) -> Result<(), ChipError> {
         .map_err(err("control"))?;
     uc.reg_write(RegisterARM::IPSR, exc as u64)
         .map_err(err("ipsr"))?;
+    // ExceptionTaken clears the IT state (ITSTATE is in the stacked xPSR): without this the
+    // handler's first instructions ran under the interrupted IT block's condition (an
+    // interrupt between two translated blocks of an IT block skipped the handler's PUSH and
+    // its return popped a wrong PC).
+    uc.reg_write(RegisterARM::EPSR, EPSR_T)
+        .map_err(err("epsr"))?;
     uc.reg_write(RegisterARM::PC, u64::from(vector | 1))
         .map_err(err("pc"))?;
     let soc = uc.get_data_mut();
@@ -222,6 +219,7 @@ pub fn enter(uc: &mut Unicorn<Soc>, exc: usize) -> Result<(), ChipError> {
         soc.path_open = true;
         soc.path_entered();
     }
+    soc.exception_entered(fpca, (FLASH_BASE..FLASH_BASE + FLASH_BYTES).contains(&vtor));
     if exc == nvic::irq(irqn::UART5) {
         soc.milestone(super::Milestone::ControlTask);
         // The control step of this plant cycle starts (it takes the commands posted so far).
@@ -275,6 +273,9 @@ fn exit(uc: &mut Unicorn<Soc>, exc_return: u32) -> Result<(), ChipError> {
         .map_err(err("control"))?;
     uc.reg_write(RegisterARM::XPSR_NZCVQG, u64::from(xpsr & !(1 << 9)))
         .map_err(err("xpsr"))?;
+    // The interrupted IT block's state comes back with the xPSR (ARMv7-M B1.5.8).
+    uc.reg_write(RegisterARM::EPSR, u64::from(xpsr & EPSR_IT) | EPSR_T)
+        .map_err(err("epsr"))?;
     uc.reg_write(RegisterARM::PC, u64::from(w[6] | 1))
         .map_err(err("pc"))?;
     let soc = uc.get_data_mut();
@@ -282,6 +283,7 @@ fn exit(uc: &mut Unicorn<Soc>, exc_return: u32) -> Result<(), ChipError> {
     soc.nvic.active[returning] = false;
     soc.ipsr = (xpsr & 0x1FF) as usize;
     soc.event = true;
+    soc.exception_returned(fp);
     if soc.ipsr == 0 {
         soc.path_open = false;
     }
@@ -315,15 +317,14 @@ fn could_preempt(soc: &Soc) -> bool {
 pub fn install_hooks(uc: &mut Unicorn<'static, Soc>) -> Result<(), ChipError> {
     uc.add_block_hook(1, 0, |uc, addr, size| {
         let addr = addr as u32;
-        let entry = match uc.get_data().blocks.get(addr, size) {
-            Some(e) => e,
+        let block = match uc.get_data().blocks.get(addr, size) {
+            Some(b) => b,
             None => {
                 let mut bytes = vec![0u8; size as usize];
                 let _ = uc.mem_read(u64::from(addr), &mut bytes);
-                let (n, sev) = decode(&bytes);
-                let e = (u32::from(sev) << 31) | (size << 12) | n.min(0xFFF);
-                uc.get_data_mut().blocks.put(addr, e);
-                e
+                let b = timing::block(&bytes);
+                uc.get_data_mut().blocks.put(addr, size, b);
+                b
             }
         };
         let soc = uc.get_data_mut();
@@ -331,8 +332,8 @@ pub fn install_hooks(uc: &mut Unicorn<'static, Soc>) -> Result<(), ChipError> {
             soc.milestone(super::Milestone::Main);
         }
         soc.fetched(addr, size);
-        soc.execute(entry & 0xFFF);
-        if entry >> 31 != 0 {
+        soc.execute(addr, size, &block);
+        if block.sev {
             soc.event = true;
         }
         let mut stop = soc.time >= soc.deadline;
@@ -534,17 +535,4 @@ fn flush_dma(chip: &mut Chip) -> Result<(), ChipError> {
             .map_err(err("dma"))?;
     }
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn thumb_blocks_are_counted_by_instruction_width() {
-        // movs r0,#1 ; ldr.w r1,[r2] ; sev ; bx lr
-        let code = [0x01, 0x20, 0xD2, 0xF8, 0x00, 0x10, 0x40, 0xBF, 0x70, 0x47];
-        assert_eq!(decode(&code), (4, true));
-        assert_eq!(decode(&code[..6]), (2, false));
-    }
 }

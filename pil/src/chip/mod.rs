@@ -12,7 +12,10 @@
 //! | RCC (clocks, reset flags, peripheral resets), PWR, DAC1, DWT, the rest | here |
 //!
 //! Time is the CPU's: each executed block advances it by its instructions times the CPI
-//! ([`ChipOptions::cpi`]) at the current SYSCLK, and the CPU is stopped at the instants
+//! ([`ChipOptions::cpi`], 1.5 by default) at the current SYSCLK, or by its clock cycles as
+//! counted per instruction from the Cortex-M4 TRM ([`timing`], with the wait states of
+//! flash and the exception entries and returns). The periods' cycle figures are counted
+//! either way. The CPU is stopped at the instants
 //! the peripherals do something (a timer boundary, the end of an ADC burst, the end of a
 //! flash operation, the watchdog's expiry). Interrupts are taken between blocks, where the
 //! NVIC's priorities, PRIMASK and BASEPRI allow.
@@ -26,6 +29,7 @@ pub mod flash;
 pub mod iwdg;
 pub mod nvic;
 pub mod timers;
+pub mod timing;
 
 use std::collections::HashMap;
 
@@ -42,8 +46,13 @@ use timers::Timer;
 
 /// RAM (SRAM1 + SRAM2, 128 KiB).
 pub const RAM: (u32, u32) = (0x2000_0000, 128 * 1024);
-/// CCM SRAM.
-const CCM: (u32, u32) = (0x1000_0000, 32 * 1024);
+/// Flash wait states at 170 MHz (FLASH_ACR.LATENCY = 4, RM0440 Table 9), paid by each
+/// flash access in the upper-bound model (no cache hit, no prefetch). The chip charges
+/// FLASH_ACR.LATENCY as programmed (0 at the 16 MHz reset clock).
+pub const FLASH_WAIT_STATES: u64 = 4;
+
+/// CCM SRAM (32 KiB; zero wait states on the I-code and D-code buses, RM0440 §2.1).
+pub const CCM: (u32, u32) = (0x1000_0000, 32 * 1024);
 /// System memory, OTP, option bytes, engineering bytes.
 const SYSMEM: (u32, u32) = (0x1FFF_0000, 0x1_0000);
 /// Peripherals (APB1, APB2, AHB1, AHB2).
@@ -88,9 +97,10 @@ const JEXTSEL_TIM1_TRGO2: u32 = 8;
 /// Options of the emulated chip.
 #[derive(Clone, Debug)]
 pub struct ChipOptions {
-    /// Clock cycles per instruction: the emulator executes instructions, this turns them into
-    /// time (the figure and its source: README of `pil/`).
-    pub cpi: f64,
+    /// `Some(cpi)`: time advances by instructions × this CPI (the default: 1.5, the typical
+    /// figure, `pil/README.md`). `None`: by the cycles counted per instruction ([`timing`]),
+    /// an upper bound. The periods' cycle figures are counted either way.
+    pub cpi: Option<f64>,
     /// LSI frequency, Hz (the IWDG's clock).
     pub lsi_hz: f64,
     /// FLASH_OPTR as programmed (DBANK is bit 22).
@@ -103,7 +113,7 @@ pub struct ChipOptions {
 impl Default for ChipOptions {
     fn default() -> Self {
         ChipOptions {
-            cpi: crate::DEFAULT_CPI,
+            cpi: Some(crate::DEFAULT_CPI),
             lsi_hz: 32_000.0,
             optr: flash::OPTR_FACTORY,
             flash_timing: false,
@@ -144,6 +154,17 @@ pub struct PeriodLoad {
     /// thread mode (the interrupt path of the period, nested and tail-chained handlers
     /// included).
     pub interrupt_path: u64,
+    /// Clock cycles of the interrupt path ([`timing`]: the instructions' cycles and branch
+    /// refills, the exception entries and returns, and the flash wait states of
+    /// [`PeriodLoad::path_wait_cycles`]).
+    pub path_cycles: u64,
+    /// The part of [`PeriodLoad::path_cycles`] that is flash wait states: 4 for each move of
+    /// the instruction fetch into another 64-bit line of program flash, for each data read of
+    /// program flash, and for each vector fetch (the upper bound: no cache, no prefetch).
+    pub path_wait_cycles: u64,
+    /// Instructions of the interrupt path fetched from program flash (the rest run from
+    /// CCM SRAM).
+    pub path_flash_instructions: u64,
     /// With [`ChipOptions::flash_timing`]: distinct 64-bit flash lines the interrupt path
     /// fetched instructions from (each a flash access unless the instruction cache holds it).
     pub path_lines: u32,
@@ -167,7 +188,22 @@ pub struct Soc {
     /// Emulated time, units of [`crate::time`].
     pub time: u64,
     frac: f64,
-    cpi: f64,
+    cpi: Option<f64>,
+    /// The last block's end address and how its last instruction may branch (its refill is
+    /// added when the next block shows whether it was taken).
+    branch: Option<(u32, timing::Flow)>,
+    /// An exception return whose cycles are due: 12, or 6 if an entry tail-chains to it.
+    return_due: Option<u32>,
+    /// The 64-bit flash line the instruction fetch is in (for the wait states).
+    fetch_line: u32,
+    /// Per-block counts of the period's interrupt path (with [`Soc::profile`]).
+    profile_now: HashMap<u32, (u64, u64)>,
+    /// Record, per block address, the instructions and cycles of each period's interrupt
+    /// path, and keep those of the period with the most cycles.
+    pub profile: bool,
+    /// The profile of the period with the most cycles so far: (its cycles, block address →
+    /// (instructions, cycles)).
+    pub profile_worst: (u64, HashMap<u32, (u64, u64)>),
     /// Time units per SYSCLK cycle now.
     units_per_cycle: f64,
     /// SYSCLK, Hz.
@@ -310,6 +346,12 @@ impl Soc {
             time: 0,
             frac: 0.0,
             cpi: options.cpi,
+            branch: None,
+            return_due: None,
+            fetch_line: u32::MAX,
+            profile_now: HashMap::new(),
+            profile: false,
+            profile_worst: (0, HashMap::new()),
             units_per_cycle: units_per_cycle(16_000_000),
             sysclk_hz: 16_000_000,
             instructions: 0,
@@ -399,7 +441,12 @@ impl Soc {
     /// With [`ChipOptions::flash_timing`]: the interrupt path read `size` bytes of program
     /// flash at `addr` as data.
     fn flash_read(&mut self, addr: u32, size: u32) {
+        let ws = self.flash_latency();
         if self.path_open {
+            self.period.path_wait_cycles += ws;
+        }
+        self.account(ws, false);
+        if self.flash_timing && self.path_open {
             self.period.path_flash_reads += 1;
             self.path_data_lines.insert(addr & !7);
             self.path_data_lines
@@ -407,21 +454,128 @@ impl Soc {
         }
     }
 
-    /// Advances time by `n` instructions.
-    fn execute(&mut self, n: u32) {
+    /// Advances time by the block of code at `addr` (`size` bytes) that is about to run.
+    fn execute(&mut self, addr: u32, size: u32, b: &timing::Block) {
+        let n = b.instructions;
         self.instructions += u64::from(n);
+        let mut cycles = u64::from(b.cycles);
+        if let Some(c) = self.return_due.take() {
+            self.account(u64::from(c), true);
+        }
+        // The refill of the last block's branch, if it was taken.
+        if let Some((end, flow)) = self.branch.take() {
+            let taken = match flow {
+                timing::Flow::Next => false,
+                timing::Flow::Branch => true,
+                timing::Flow::Conditional => addr != end,
+            };
+            if taken {
+                cycles += u64::from(timing::BRANCH_REFILL);
+            }
+        }
+        self.branch = Some((addr.wrapping_add(size), b.flow));
+        // Wait states: each move of the fetch into another 64-bit line of program flash.
+        let mut wait = 0;
+        let in_flash = (FLASH_BASE..STORE_BASE).contains(&addr);
+        if in_flash && size > 0 {
+            let mut line = addr & !7;
+            while line < addr + size {
+                if line != self.fetch_line {
+                    wait += self.flash_latency();
+                    self.fetch_line = line;
+                }
+                line += 8;
+            }
+        } else {
+            self.fetch_line = u32::MAX;
+        }
+        cycles += wait;
         if self.ipsr != 0 {
             self.period.handler += u64::from(n);
             if self.path_open {
                 self.period.interrupt_path += u64::from(n);
+                self.period.path_cycles += cycles;
+                self.period.path_wait_cycles += wait;
+                if in_flash {
+                    self.period.path_flash_instructions += u64::from(n);
+                }
+                if self.profile {
+                    let e = self.profile_now.entry(addr).or_default();
+                    e.0 += u64::from(n);
+                    e.1 += cycles;
+                }
             }
         } else {
             self.period.thread += u64::from(n);
         }
-        self.frac += f64::from(n) * self.cpi * self.units_per_cycle;
+        let cycles_f = match self.cpi {
+            Some(cpi) => f64::from(n) * cpi,
+            None => cycles as f64,
+        };
+        self.advance(cycles_f);
+    }
+
+    /// FLASH_ACR.LATENCY: the wait states of a flash access now.
+    fn flash_latency(&self) -> u64 {
+        u64::from(self.flash.acr & 0xF)
+    }
+
+    /// Advances time by `cycles` clock cycles.
+    fn advance(&mut self, cycles: f64) {
+        self.frac += cycles * self.units_per_cycle;
         let whole = self.frac.floor();
         self.frac -= whole;
         self.time += whole as u64;
+    }
+
+    /// Cycles spent outside the instructions (exception entry and return, wait states of a
+    /// data read): counted in the interrupt path if `path` (or if one is open), and in time
+    /// unless time runs at a fixed CPI.
+    fn account(&mut self, cycles: u64, path: bool) {
+        if path || self.path_open {
+            self.period.path_cycles += cycles;
+        }
+        if self.cpi.is_none() {
+            self.advance(cycles as f64);
+        }
+    }
+
+    /// An exception was entered: 12 cycles (ARM DDI 0439B §3.3.1: entry latency with
+    /// zero-wait memory), 6 if it tail-chains to a return, plus 17 if the frame is the
+    /// extended one (S0–S15 and FPSCR: the lazily stacked FP state, counted as stacked), plus
+    /// the vector fetch's wait states when the table is in flash.
+    pub(crate) fn exception_entered(&mut self, extended: bool, vector_in_flash: bool) {
+        let mut cycles = match self.return_due.take() {
+            Some(_) => 6,
+            None => 12,
+        };
+        if extended {
+            cycles += 17;
+        }
+        if vector_in_flash {
+            let ws = self.flash_latency();
+            cycles += ws;
+            if self.path_open {
+                self.period.path_wait_cycles += ws;
+            }
+        }
+        // An interrupt taken between a branch and its target: the refill is paid.
+        if let Some((_, timing::Flow::Branch | timing::Flow::Conditional)) = self.branch.take() {
+            cycles += u64::from(timing::BRANCH_REFILL);
+        }
+        self.fetch_line = u32::MAX;
+        self.account(cycles, true);
+    }
+
+    /// An exception returned: its 12 cycles (plus 17 to unstack an extended frame) are due,
+    /// 6 instead if another exception tail-chains (counted at that entry).
+    pub(crate) fn exception_returned(&mut self, extended: bool) {
+        self.branch = None;
+        self.fetch_line = u32::MAX;
+        if extended {
+            self.account(17, true);
+        }
+        self.return_due = Some(12);
     }
 
     /// Peripheral registers to their values after a system reset (RAM and flash contents
@@ -431,6 +585,10 @@ impl Soc {
         self.sysclk_hz = 16_000_000;
         self.nvic = Nvic::default();
         self.ipsr = 0;
+        self.branch = None;
+        self.return_due = None;
+        self.fetch_line = u32::MAX;
+        self.blocks.forget_ram();
         self.event = false;
         self.sleeping = false;
         self.stop = None;
@@ -702,7 +860,14 @@ impl Soc {
             self.period.path_lines = self.path_lines.len() as u32;
             self.period.path_data_lines = self.path_data_lines.len() as u32;
             self.periods.push(self.period);
+            if self.profile && self.period.path_cycles > self.profile_worst.0 {
+                self.profile_worst = (
+                    self.period.path_cycles,
+                    std::mem::take(&mut self.profile_now),
+                );
+            }
         }
+        self.profile_now.clear();
         self.path_lines.clear();
         self.path_data_lines.clear();
         self.period = PeriodLoad::default();
@@ -1258,7 +1423,7 @@ impl Chip {
             .map_err(uc_err("spin"))?;
         uc.get_data_mut().spin_address = spin;
         uc.get_data_mut().main_address = image.symbol("main").unwrap_or(0) & !1;
-        if options.flash_timing {
+        {
             uc.add_mem_hook(
                 unicorn_engine::HookType::MEM_READ,
                 u64::from(FLASH_BASE),
@@ -1387,6 +1552,11 @@ impl Chip {
         self.uc
             .mem_write(u64::from(RAM.0), &junk)
             .map_err(uc_err("ram"))?;
+        // CCM SRAM too; as UDF instructions, so that code run from it before the firmware
+        // copies its image there faults at once.
+        self.uc
+            .mem_write(u64::from(CCM.0), &vec![0xDE; CCM.1 as usize])
+            .map_err(uc_err("ccm"))?;
         let soc = self.uc.get_data_mut();
         soc.powered = true;
         soc.csr_flags = 0;

@@ -1,0 +1,52 @@
+//! The 20 kHz interrupt path's code in CCM SRAM: `memory.x` links it there (`.ccmram`, its
+//! image stored in flash after the vector table), and [`copy_code`] copies the image over.
+//!
+//! From flash, the path waits 4 cycles at 170 MHz for every 64-bit line the instruction
+//! cache (1 KiB) does not hold, and the path's code is larger than that cache: its timing
+//! would depend on the cache's hit rate. From CCM SRAM the core fetches with zero wait
+//! states on the I-code bus (RM0440 §2.1, §3.3.3), so the path's cycles are what the
+//! instructions take (`fpc-pil run` counts them; `docs/bring-up.md` says how to confirm
+//! them on the board with DWT CYCCNT).
+//!
+//! The copy runs at the start of [`super::init`], as soon as the clock is at 170 MHz
+//! (≈ 30 µs for 28 KiB; at the 16 MHz reset clock, in cortex-m-rt's `__pre_init`, it took
+//! over 1 ms more of the boot, which the boot's 3 ms budget has no room for). Nothing in
+//! `.ccmram` can run before: its functions are the control path's, called only by the
+//! control task and the DMA and control-executor interrupts, which `init` starts later
+//! (`memory.x` keeps memcpy and the time base's handler, which run earlier, in flash).
+
+// `fpc_copy_ccm_code`: copies `.ccmram`'s image (`__siccmram`, in flash) to `__sccmram` ..
+// `__eccmram` (CCM SRAM), 16 bytes per LDM/STM pair. In assembly so that no call of a
+// function that is itself in the image can appear in it.
+core::arch::global_asm!(
+    ".section .text.fpc_copy_ccm_code,\"ax\"",
+    ".global fpc_copy_ccm_code",
+    ".type fpc_copy_ccm_code,%function",
+    ".thumb_func",
+    "fpc_copy_ccm_code:",
+    "    push {{r4, r5, r6, lr}}",
+    "    ldr r0, =__sccmram",
+    "    ldr r1, =__eccmram",
+    "    ldr r2, =__siccmram",
+    "0:  cmp r0, r1",
+    "    bhs 1f",
+    "    ldmia r2!, {{r3, r4, r5, r6}}",
+    "    stmia r0!, {{r3, r4, r5, r6}}",
+    "    b 0b",
+    "1:  pop {{r4, r5, r6, pc}}",
+    "    .ltorg",
+);
+
+extern "C" {
+    fn fpc_copy_ccm_code();
+}
+
+/// Copies the CCM SRAM code's image from flash to CCM SRAM. Called once by
+/// [`super::init`] before anything in it can run.
+pub fn copy_code() {
+    // SAFETY: `memory.x` aligns `.ccmram`'s start and end to 16 bytes in CCM SRAM, and its
+    // image in flash is word aligned (LDM/STM need 4); the routine saves what it uses of the
+    // callee-saved registers. Nothing in `.ccmram` has run yet (see the module header) and
+    // nothing else writes CCM SRAM.
+    unsafe { fpc_copy_ccm_code() }
+}
