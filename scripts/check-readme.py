@@ -96,17 +96,19 @@ def main():
         sys.exit(f"check-readme: {binary} is missing (cargo build --release -p hal-sim)")
     failures = []
     count = 0
-    with tempfile.TemporaryDirectory(prefix="fpc-readme-") as scratch:
-        for name in ("tests", "docs"):
-            os.symlink(os.path.join(ROOT, name), os.path.join(scratch, name))
-        for name in files:
-            path = name if os.path.isabs(name) else os.path.join(ROOT, name)
-            with open(path, encoding="utf-8") as f:
-                text = f.read()
+    for name in files:
+        path = name if os.path.isabs(name) else os.path.join(ROOT, name)
+        with open(path, encoding="utf-8") as f:
+            text = f.read()
+        # Each document's sessions in a scratch directory of their own, as a reader would
+        # run them: two documents may write the same output folder.
+        with tempfile.TemporaryDirectory(prefix="fpc-readme-") as scratch:
+            for linked in ("tests", "docs"):
+                os.symlink(os.path.join(ROOT, linked), os.path.join(scratch, linked))
             ran = check(os.path.relpath(path, ROOT), text, scratch, failures)
-            if ran == 0:
-                failures.append(f"{name}: no `$` command in a ```console block: nothing checked")
-            count += ran
+        if ran == 0:
+            failures.append(f"{name}: no `$` command in a ```console block: nothing checked")
+        count += ran
     if failures:
         print("\n".join(failures), file=sys.stderr)
         sys.exit(1)
