@@ -26,23 +26,30 @@ pub enum Edit {
     },
 }
 
-/// A model file as an editable TOML table.
-#[derive(Clone, Debug, PartialEq)]
+/// A model file as an editable TOML document: what the user wrote — comments, order,
+/// formatting — is kept, and only the keys an edit touches change (`toml_edit`).
+#[derive(Clone, Debug)]
 pub struct ModelDoc {
-    table: toml::Table,
+    doc: toml_edit::DocumentMut,
+}
+
+impl PartialEq for ModelDoc {
+    fn eq(&self, other: &Self) -> bool {
+        self.doc.to_string() == other.doc.to_string()
+    }
 }
 
 impl ModelDoc {
     /// Parses model text (already validated as a model by the caller).
     pub fn parse(text: &str) -> Result<Self, String> {
-        text.parse::<toml::Table>()
-            .map(|table| ModelDoc { table })
+        text.parse::<toml_edit::DocumentMut>()
+            .map(|doc| ModelDoc { doc })
             .map_err(|e| e.message().to_string())
     }
 
     /// The TOML text.
     pub fn to_text(&self) -> Result<String, String> {
-        toml::to_string(&self.table).map_err(|e| e.to_string())
+        Ok(self.doc.to_string())
     }
 
     /// The validated model this document describes.
@@ -52,7 +59,7 @@ impl ModelDoc {
 
     /// The number at `key`, if present.
     pub fn number(&self, key: Key) -> Option<f64> {
-        let v = self.section(key.section)?.get(key.name)?;
+        let v = self.section(key.section)?.get(key.name)?.as_value()?;
         v.as_float().or_else(|| v.as_integer().map(|i| i as f64))
     }
 
@@ -61,20 +68,43 @@ impl ModelDoc {
         self.section(section.0).is_some()
     }
 
-    fn section(&self, path: &str) -> Option<&toml::Table> {
-        path.split('.')
-            .try_fold(&self.table, |t, part| t.get(part)?.as_table())
+    fn section(&self, path: &str) -> Option<&dyn toml_edit::TableLike> {
+        let mut t: &dyn toml_edit::TableLike = self.doc.as_table();
+        for part in path.split('.') {
+            t = t.get(part)?.as_table_like()?;
+        }
+        Some(t)
     }
 
-    fn section_mut(&mut self, path: &str) -> Option<&mut toml::Table> {
-        let mut t = &mut self.table;
-        for part in path.split('.') {
-            let entry = t
-                .entry(part.to_string())
-                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    /// The section at `path`, created (its parents implicit: no `[effects]` header of their
+    /// own) if missing.
+    fn section_mut(&mut self, path: &str) -> Option<&mut toml_edit::Table> {
+        let mut t = self.doc.as_table_mut();
+        let mut parts = path.split('.').peekable();
+        while let Some(part) = parts.next() {
+            let last = parts.peek().is_none();
+            let entry = t.entry(part).or_insert_with(|| {
+                let mut new = toml_edit::Table::new();
+                new.set_implicit(!last);
+                toml_edit::Item::Table(new)
+            });
             t = entry.as_table_mut()?;
         }
         Some(t)
+    }
+
+    /// Sets `name` in `table` to `value`, keeping the comment and spacing around an old value.
+    fn set(table: &mut toml_edit::Table, name: &str, value: toml_edit::Value) {
+        match table.get_mut(name).and_then(|i| i.as_value_mut()) {
+            Some(old) => {
+                let decor = old.decor().clone();
+                *old = value;
+                *old.decor_mut() = decor;
+            }
+            None => {
+                table.insert(name, toml_edit::Item::Value(value));
+            }
+        }
     }
 
     /// This document with `edits` applied.
@@ -84,12 +114,12 @@ impl ModelDoc {
             match e {
                 Edit::Set(k, v) => {
                     if let Some(t) = d.section_mut(k.section) {
-                        t.insert(k.name.to_string(), toml::Value::Float(*v));
+                        Self::set(t, k.name, toml_edit::Value::from(*v));
                     }
                 }
                 Edit::SetBool(k, v) => {
                     if let Some(t) = d.section_mut(k.section) {
-                        t.insert(k.name.to_string(), toml::Value::Boolean(*v));
+                        Self::set(t, k.name, toml_edit::Value::from(*v));
                     }
                 }
                 Edit::RemoveKey(k) => {
@@ -103,13 +133,14 @@ impl ModelDoc {
                     let path = model_section!(effects.extra_force).0;
                     if let Some(t) = d.section_mut(path) {
                         t.clear();
-                        let table: toml::Table = terms
-                            .iter()
-                            .map(|(k, v)| (k.to_string(), toml::Value::Float(*v)))
-                            .collect();
-                        t.insert("terms".into(), toml::Value::Table(table));
+                        // Inline, as `docs/formats.md` writes it: `terms = { "x" = -1800.0 }`.
+                        let mut table = toml_edit::InlineTable::new();
+                        for (k, v) in terms {
+                            table.insert(*k, toml_edit::Value::from(*v));
+                        }
+                        t.insert("terms", toml_edit::value(table));
                         if let Some(p) = period_m {
-                            t.insert("period_m".into(), toml::Value::Float(*p));
+                            t.insert("period_m", toml_edit::value(*p));
                         }
                     }
                 }
@@ -121,7 +152,7 @@ impl ModelDoc {
                     let t = match parent {
                         Some(p) if d.section(p).is_some() => d.section_mut(p),
                         Some(_) => None,
-                        None => Some(&mut d.table),
+                        None => Some(d.doc.as_table_mut()),
                     };
                     if let Some(t) = t {
                         t.remove(name);
@@ -159,5 +190,48 @@ mod tests {
         // A bad value is refused by the model's own validation, naming the key.
         let bad = doc.with(&[Edit::Set(model_key!(piston / mass_kg), -1.0)]);
         assert!(bad.model().unwrap_err().contains("piston.mass_kg"));
+    }
+
+    #[test]
+    fn an_edited_model_differs_from_its_input_only_where_it_was_edited() {
+        // The reference file: comments on every value, sections in the machine's order.
+        let input = crate::plant::model::REFERENCE_TOML;
+        let doc = ModelDoc::parse(input).unwrap();
+        let out = doc
+            .with(&[
+                Edit::Set(model_key!(piston / mass_kg), 13.5),
+                Edit::Set(model_key!(effects.slave_lag / delay_s), 7.5e-4),
+                Edit::SetExtraForce {
+                    terms: vec![("x", -1800.0), ("1", 162.0)],
+                    period_m: None,
+                },
+            ])
+            .to_text()
+            .unwrap();
+        let (old, new): (Vec<&str>, Vec<&str>) = (input.lines().collect(), out.lines().collect());
+        // Every line of the input is still there, in order, but the mass's own line, which
+        // keeps its comment.
+        let changed: Vec<&&str> = old.iter().filter(|l| !new.contains(l)).collect();
+        assert_eq!(changed.len(), 1, "{changed:?}");
+        assert!(changed[0].starts_with("mass_kg = 12.0"), "{changed:?}");
+        let mass = new.iter().find(|l| l.starts_with("mass_kg")).unwrap();
+        assert!(mass.starts_with("mass_kg = 13.5") && mass.contains("# A (8–25 plausible)"));
+        let mut rest = new.iter();
+        for line in old.iter().filter(|l| !l.starts_with("mass_kg")) {
+            assert!(
+                rest.any(|l| l == line),
+                "the input's line {line:?} is not kept in its place"
+            );
+        }
+        // What was added: the new sections, at the end; the terms inline as formats.md has them.
+        let added: Vec<&&str> = new.iter().filter(|l| !old.contains(l)).collect();
+        assert!(added.contains(&&"[effects.slave_lag]"), "{added:?}");
+        assert!(
+            added.iter().any(|l| l.starts_with("terms = {")),
+            "{added:?}"
+        );
+        assert!(added.len() <= 7, "{added:?}");
+        let m = ModelDoc::parse(&out).unwrap().model().unwrap();
+        assert_eq!(m.piston.mass_kg, 13.5);
     }
 }
