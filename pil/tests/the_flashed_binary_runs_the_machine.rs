@@ -340,11 +340,12 @@ fn the_control_period_during_a_save_fits_50_us_even_without_a_cache() {
             f.worst_us_uncached
         );
     }
-    // The calibration's heaviest period copies the record with memcpy, from CCM SRAM.
+    // The calibration's heaviest period copies the record with memcpy, from CCM SRAM (the
+    // long-branch veneers to it that flash code calls through are in flash: 3 instructions).
     let memcpy = t
         .calibration_profile
         .iter()
-        .filter(|r| r.function.contains("memcpy"))
+        .filter(|r| r.function.contains("memcpy") && !r.function.contains("Thunk"))
         .collect::<Vec<_>>();
     assert!(!memcpy.is_empty(), "{:#?}", t.calibration_profile);
     for r in memcpy {
