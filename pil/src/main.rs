@@ -47,6 +47,10 @@ struct SaveTimingArgs {
     /// The firmware ELF.
     #[arg(long)]
     elf: PathBuf,
+    /// Print, on stderr, where the calibration phase's heaviest period spent its cycles (by
+    /// function, and whether from flash or CCM SRAM).
+    #[arg(long)]
+    profile: bool,
     /// Print the figures as JSON on stdout.
     #[arg(long)]
     json: bool,
@@ -186,14 +190,7 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
         std::fs::write(&path, log).map_err(|e| format!("{}: {e}", path.display()))?;
     }
     if args.profile {
-        let total: u64 = outcome.profile.iter().map(|r| r.cycles).sum();
-        eprintln!("worst period's interrupt path, {total} cycles, by function:");
-        for r in &outcome.profile {
-            eprintln!(
-                "  {:#010x} {:>6} cycles {:>5} instructions  {}",
-                r.address, r.cycles, r.instructions, r.function
-            );
-        }
+        print_profile("worst period's interrupt path", &outcome.profile);
     }
     let s = &outcome.summary;
     let mm = |v: Option<f64>| v.map_or("n/a".into(), |m| format!("{:.3} mm", m * 1e3));
@@ -339,6 +336,12 @@ fn save_timing_cmd(args: SaveTimingArgs) -> Result<ExitCode, String> {
         t.stroking.worst_us_dcache_off,
         t.stroking.worst_us_uncached
     );
+    if args.profile {
+        print_profile(
+            "the calibration phase's heaviest interrupt path",
+            &t.calibration_profile,
+        );
+    }
     if args.json {
         println!(
             "{}",
@@ -346,4 +349,16 @@ fn save_timing_cmd(args: SaveTimingArgs) -> Result<ExitCode, String> {
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Prints a period's profile on stderr (`--profile`).
+fn print_profile(what: &str, rows: &[fpc_pil::run::ProfileRow]) {
+    let total: u64 = rows.iter().map(|r| r.cycles).sum();
+    eprintln!("{what}, {total} cycles, by function:");
+    for r in rows {
+        eprintln!(
+            "  {:#010x} {:>6} cycles {:>5} instructions  {}",
+            r.address, r.cycles, r.instructions, r.function
+        );
+    }
 }

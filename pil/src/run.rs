@@ -112,7 +112,7 @@ pub struct ProfileRow {
 }
 
 /// The worst period's profile, by function, most cycles first.
-fn profile_rows(
+pub(crate) fn profile_rows(
     image: &Image,
     blocks: &std::collections::HashMap<u32, (u64, u64)>,
 ) -> Vec<ProfileRow> {
@@ -122,7 +122,10 @@ fn profile_rows(
         .filter(|(n, a)| !n.is_empty() && !n.starts_with('$') && **a != 0)
         .map(|(n, a)| (*a & !1, n.as_str()))
         .collect();
-    syms.sort_unstable();
+    // A function sharing its address with a linker marker of a region's start or end
+    // (`__sccmram`, `__eccmram_early`) is named by the function: markers sort first.
+    let marker = |n: &str| n.starts_with("__s") || n.starts_with("__e");
+    syms.sort_unstable_by_key(|&(a, n)| (a, !marker(n), n));
     let mut rows: std::collections::HashMap<(u32, &str), (u64, u64)> = Default::default();
     for (&addr, &(n, c)) in blocks {
         let i = syms.partition_point(|(a, _)| *a <= addr);

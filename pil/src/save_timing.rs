@@ -36,7 +36,7 @@ use serde::Serialize;
 use crate::board::Board;
 use crate::chip::{ChipOptions, PeriodLoad};
 use crate::elf::Image;
-use crate::run::SYSCLK_HZ;
+use crate::run::{profile_rows, ProfileRow, SYSCLK_HZ};
 use crate::session::Session;
 
 /// Flash wait states the firmware programs at 170 MHz (FLASH_ACR.LATENCY = 4, RM0440
@@ -115,6 +115,9 @@ pub struct SaveTiming {
     pub stroking: PathFigures,
     /// The defmt line the save ended with.
     pub save_outcome: String,
+    /// Where the interrupt path spent its cycles in the calibration phase's period with the
+    /// most counted cycles (no cache: the chip's own count), by function, most cycles first.
+    pub calibration_profile: Vec<ProfileRow>,
     /// The control period, µs.
     pub period_us: f64,
 }
@@ -140,6 +143,7 @@ pub fn run(image: &Image) -> Result<SaveTiming, String> {
     };
     until(&mut s, 0.01)?;
     s.chip.soc().recording = true;
+    s.chip.soc().profile = true;
     s.chip.soc().flash.acr_during_ops.clear();
     s.send(Command::Calibrate {
         routine: Routine::CurrentSense,
@@ -158,6 +162,8 @@ pub fn run(image: &Image) -> Result<SaveTiming, String> {
     until(&mut s, t)?;
     let soc = s.chip.soc();
     soc.recording = false;
+    soc.profile = false;
+    let calibration_profile = profile_rows(image, &soc.profile_worst.1);
     let periods = std::mem::take(&mut soc.periods);
     let acr = soc.flash.acr_during_ops.clone();
     let (during, idle): (Vec<_>, Vec<_>) =
@@ -194,6 +200,7 @@ pub fn run(image: &Image) -> Result<SaveTiming, String> {
         during_save: PathFigures::of(during),
         stroking: PathFigures::of(&stroking),
         save_outcome: outcome,
+        calibration_profile,
         period_us: PERIOD_US,
     })
 }

@@ -308,7 +308,10 @@ fn a_single_bank_flash_is_refused_at_boot() {
 /// Item 7: the control period while a calibration save runs. embassy's flash driver turns the
 /// data cache off for each erase and program (the emulated FLASH_ACR shows it); the periods
 /// that overlap them are timed at 4 wait states with no cache at all (every line the path
-/// enters and every flash data read waits), and must still fit the 50 µs period.
+/// enters and every flash data read waits), and must still fit the 50 µs period — as must
+/// the idle and calibrating periods around the save (among them the one in which the routine
+/// ends and its record is handed over: ≈ 1,500 instructions of memcpy, which is why memcpy
+/// runs from CCM SRAM) and the strokes.
 #[test]
 fn the_control_period_during_a_save_fits_50_us_even_without_a_cache() {
     let t = fpc_pil::save_timing::run(&image()).unwrap();
@@ -326,11 +329,28 @@ fn the_control_period_during_a_save_fits_50_us_even_without_a_cache() {
     }
     // The path reads constants from flash: the data cache's state matters to it.
     assert!(t.during_save.flash_reads_max > 0);
-    assert!(
-        t.during_save.worst_us_uncached < t.period_us,
-        "{:.1} µs",
-        t.during_save.worst_us_uncached
-    );
+    for (name, f) in [
+        ("during the save", &t.during_save),
+        ("idle and calibrating", &t.no_save),
+        ("stroking", &t.stroking),
+    ] {
+        assert!(
+            f.worst_us_uncached <= t.period_us,
+            "{name}: {:.1} µs with no cache",
+            f.worst_us_uncached
+        );
+    }
+    // The calibration's heaviest period copies the record with memcpy, from CCM SRAM (the
+    // long-branch veneers to it that flash code calls through are in flash: 3 instructions).
+    let memcpy = t
+        .calibration_profile
+        .iter()
+        .filter(|r| r.function.contains("memcpy") && !r.function.contains("Thunk"))
+        .collect::<Vec<_>>();
+    assert!(!memcpy.is_empty(), "{:#?}", t.calibration_profile);
+    for r in memcpy {
+        assert_eq!(r.address >> 28, 1, "{} runs from flash", r.function);
+    }
 }
 
 /// Item 8: a defmt frame is never torn when the channel fills part-way through it. The host
