@@ -21,12 +21,14 @@
 //! The least squares are nalgebra's ([`super::fit::lstsq`]) on columns scaled to unit RMS
 //! (x in metres, t in seconds and f_motor in kilonewtons differ by orders of magnitude).
 
+use rayon::prelude::*;
+
 use crate::plant::model::extra_force::{ExtraState, Term};
 use crate::plant::model::{model_section, MachineModel};
 
 use super::doc::{Edit, ModelDoc};
 use super::effects::{kept_span, Ctx, EffectKind, Proposal};
-use super::fit::{lstsq, minimise_1d};
+use super::fit::{lstsq, minimise_1d_par};
 use super::residuals::{extra_states, force_raw, ChannelId};
 
 /// Shortest period of the periodic pair searched, m.
@@ -85,7 +87,7 @@ impl<'a> Basis<'a> {
             span_m: kept_span(&xk),
             plain: Vec::new(),
         };
-        b.plain = PLAIN.iter().map(|&t| (t, b.filtered(t, 1.0))).collect();
+        b.plain = PLAIN.par_iter().map(|&t| (t, b.filtered(t, 1.0))).collect();
         b
     }
 
@@ -150,7 +152,7 @@ impl<'a> Basis<'a> {
             cols.push((Term::Cos, self.column(Term::Cos, p)));
             Basis::fit(&cols, y, Some(p))
         };
-        let (lnp, _) = minimise_1d(MIN_PERIOD_M.ln(), hi.ln(), PERIOD_GRID, 12, |lnp| {
+        let (lnp, _) = minimise_1d_par(MIN_PERIOD_M.ln(), hi.ln(), PERIOD_GRID, 12, |lnp| {
             with(lnp.exp()).map(|f| f.rss)
         })?;
         with(lnp.exp())

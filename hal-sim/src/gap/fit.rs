@@ -3,6 +3,7 @@
 //! a damped Gauss–Newton step for the two leak coefficients.
 
 use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
 
 /// Least squares `y ≈ Σ θⱼ·colⱼ`: the coefficients and the residual sum of squares. `None`
 /// when the columns are empty, of unequal length or singular, or when the design matrix,
@@ -82,12 +83,48 @@ pub fn minimise_1d(
     iters: usize,
     mut f: impl FnMut(f64) -> Option<f64>,
 ) -> Option<(f64, f64)> {
+    minimise_batched(lo, hi, grid, iters, |xs| xs.iter().map(|&x| f(x)).collect())
+}
+
+/// [`minimise_1d`] with the independent evaluations (the grid, the golden section's first
+/// pair, the bracket ends) spread over the cores; the same points are evaluated and scanned
+/// in the same order, so the result does not depend on the number of threads.
+pub fn minimise_1d_par(
+    lo: f64,
+    hi: f64,
+    grid: usize,
+    iters: usize,
+    f: impl Fn(f64) -> Option<f64> + Sync,
+) -> Option<(f64, f64)> {
+    minimise_batched(lo, hi, grid, iters, |xs| {
+        if xs.len() == 1 {
+            xs.iter().map(|&x| f(x)).collect()
+        } else {
+            xs.par_iter().map(|&x| f(x)).collect()
+        }
+    })
+}
+
+/// The search of [`minimise_1d`], `batch` evaluating `f` at several points at once (in
+/// their order).
+fn minimise_batched(
+    lo: f64,
+    hi: f64,
+    grid: usize,
+    iters: usize,
+    mut batch: impl FnMut(&[f64]) -> Vec<Option<f64>>,
+) -> Option<(f64, f64)> {
     let grid = grid.max(3);
     let step = (hi - lo) / (grid - 1) as f64;
-    let mut eval = |x: f64| f(x).filter(|v| v.is_finite()).unwrap_or(f64::INFINITY);
+    let finite = |v: Option<f64>| v.filter(|v| v.is_finite()).unwrap_or(f64::INFINITY);
+    let mut evals = |xs: &[f64]| -> Vec<f64> {
+        let mut out: Vec<f64> = batch(xs).into_iter().map(finite).collect();
+        out.resize(xs.len(), f64::INFINITY);
+        out
+    };
+    let points: Vec<f64> = (0..grid).map(|i| lo + step * i as f64).collect();
     let (mut best_i, mut best) = (0usize, f64::INFINITY);
-    for i in 0..grid {
-        let v = eval(lo + step * i as f64);
+    for (i, v) in evals(&points).into_iter().enumerate() {
         if v < best {
             best = v;
             best_i = i;
@@ -102,20 +139,20 @@ pub fn minimise_1d(
     let r = 0.5 * (5f64.sqrt() - 1.0);
     let mut c = b - r * (b - a);
     let mut d = a + r * (b - a);
-    let (mut fc, mut fd) = (eval(c), eval(d));
+    let (mut fc, mut fd) = pair(&mut evals, c, d);
     for _ in 0..iters {
         if fc < fd {
             b = d;
             d = c;
             fd = fc;
             c = b - r * (b - a);
-            fc = eval(c);
+            fc = one(&mut evals, c);
         } else {
             a = c;
             c = d;
             fc = fd;
             d = a + r * (b - a);
-            fd = eval(d);
+            fd = one(&mut evals, d);
         }
     }
     for (x, v) in [(c, fc), (d, fd)] {
@@ -126,7 +163,7 @@ pub fn minimise_1d(
     }
     // One parabolic step through the two inner points and the better bracket end: golden
     // section narrows slowly, a smooth minimum is nearly a parabola.
-    let (fa, fb) = (eval(a), eval(b));
+    let (fa, fb) = pair(&mut evals, a, b);
     let (x0, f0, x1, f1, x2, f2) = if fc < fd {
         (a, fa, c, fc, d, fd)
     } else {
@@ -137,7 +174,7 @@ pub fn minimise_1d(
         let num = (x1 - x0).powi(2) * (f1 - f2) - (x1 - x2).powi(2) * (f1 - f0);
         let xv = x1 - 0.5 * num / den;
         if xv.is_finite() && xv > x0.min(x2) && xv < x0.max(x2) {
-            let fv = eval(xv);
+            let fv = one(&mut evals, xv);
             if fv < best {
                 best = fv;
                 best_x = xv;
@@ -145,6 +182,18 @@ pub fn minimise_1d(
         }
     }
     Some((best_x, best))
+}
+
+/// `evals` at one point.
+fn one(evals: &mut impl FnMut(&[f64]) -> Vec<f64>, x: f64) -> f64 {
+    evals(&[x]).first().copied().unwrap_or(f64::INFINITY)
+}
+
+/// `evals` at two points, together.
+fn pair(evals: &mut impl FnMut(&[f64]) -> Vec<f64>, a: f64, b: f64) -> (f64, f64) {
+    let v = evals(&[a, b]);
+    let at = |i: usize| v.get(i).copied().unwrap_or(f64::INFINITY);
+    (at(0), at(1))
 }
 
 /// Damped Gauss–Newton on non-negative parameters `u` minimising ‖r(u)‖², with forward
@@ -224,6 +273,32 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_parallel_minimiser_evaluates_the_same_points_in_the_same_order() {
+        // A bumpy function with several cells of near-equal depth and holes (`None`): the
+        // parallel search must land on exactly the same point, bit for bit, on any number
+        // of threads.
+        let f = |x: f64| {
+            if (x * 7.0).fract() < 0.1 {
+                None
+            } else {
+                Some((3.0 * x).sin() * (x - 4.2).powi(2) + 0.1 * (17.0 * x).cos())
+            }
+        };
+        let serial = minimise_1d(0.0, 10.0, 37, 20, f).unwrap();
+        let parallel = minimise_1d_par(0.0, 10.0, 37, 20, f).unwrap();
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| minimise_1d_par(0.0, 10.0, 37, 20, f).unwrap());
+        assert_eq!(serial.0.to_bits(), parallel.0.to_bits());
+        assert_eq!(serial.1.to_bits(), parallel.1.to_bits());
+        assert_eq!(serial.0.to_bits(), one.0.to_bits());
+        // A function that is nowhere defined has no minimum on either path.
+        assert!(minimise_1d_par(0.0, 1.0, 5, 4, |_| None).is_none());
+    }
 
     #[test]
     fn least_squares_recovers_a_line_and_the_minimiser_a_parabola() {

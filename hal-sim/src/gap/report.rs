@@ -3,6 +3,7 @@
 //! SVG plots (residual maps, before/after overlays, the p–V replay).
 
 use crate::console::Num;
+use rayon::prelude::*;
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -364,15 +365,27 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
     let _ = writeln!(md, "Share of each channel's residual variance explained by its mean along each variable (before → after).\n");
     let _ = writeln!(md, "| channel | x | x mod pole | x mod N–N | v | a | p_A − p_B |\n|---|---|---|---|---|---|---|");
     let mut overlays = Vec::new();
-    for ch in ChannelId::ALL {
-        let (Some(rb), Some(ra)) = (channel_raw(d, &before, ch), channel_raw(d, &after, ch)) else {
-            continue;
-        };
-        let fb = full_of_raw(d, &out.band, ch, &rb);
-        let fa = full_of_raw(d, &out.band, ch, &ra);
+    // Each channel's replays, filtering and maps are independent: computed on every core,
+    // then written in the channels' order.
+    let computed: Vec<_> = ChannelId::ALL
+        .par_iter()
+        .filter_map(|&ch| {
+            let (rb, ra) = rayon::join(
+                || channel_raw(d, &before, ch),
+                || channel_raw(d, &after, ch),
+            );
+            let (rb, ra) = (rb?, ra?);
+            let fb = full_of_raw(d, &out.band, ch, &rb);
+            let fa = full_of_raw(d, &out.band, ch, &ra);
+            let (mb, ma) = rayon::join(
+                || maps(&ctx, &before, ch, &fb),
+                || maps(&ctx, &after, ch, &fa),
+            );
+            Some((ch, fb, fa, mb, ma))
+        })
+        .collect();
+    for (ch, fb, fa, mb, ma) in computed {
         let (res_unit, res_k) = plot_unit(ch);
-        let mb = maps(&ctx, &before, ch, &fb);
-        let ma = maps(&ctx, &after, ch, &fa);
         let cells: Vec<String> = mb
             .iter()
             .zip(&ma)
@@ -443,9 +456,10 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
     for o in &overlays {
         let _ = writeln!(md, "\n{o}");
     }
-    if let (Some((pa0, pb0)), Some((pa1, pb1))) =
-        (replay_pressures(d, &before), replay_pressures(d, &after))
-    {
+    if let (Some((pa0, pb0)), Some((pa1, pb1))) = rayon::join(
+        || replay_pressures(d, &before),
+        || replay_pressures(d, &after),
+    ) {
         let cyl = after.cylinder();
         let va: Vec<f64> = d.x_m.iter().map(|&x| cyl.volume_a_m3(x)).collect();
         let vb: Vec<f64> = d.x_m.iter().map(|&x| cyl.volume_b_m3(x)).collect();

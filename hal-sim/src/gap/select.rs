@@ -52,6 +52,8 @@
 //! what the added one does), cannot be told apart by this run; when one is added, a warning
 //! says so.
 
+use rayon::prelude::*;
+
 use super::doc::{Edit, ModelDoc};
 use super::effects::{Ctx, EffectKind, Proposal};
 use super::fit::correlation;
@@ -359,6 +361,35 @@ pub fn robust_peak(change: &[f64]) -> f64 {
 /// Judgements by candidate, with the channel residual they were made on.
 type Cache = Vec<(EffectKind, Vec<f64>, Judged)>;
 
+/// The cached judgement of `kind`, if its channel's residual is still `before`.
+fn cached(cache: &Cache, kind: EffectKind, before: &Residual) -> Option<Judged> {
+    cache
+        .iter()
+        .find(|(k, kept, _)| *k == kind && *kept == before.kept)
+        .map(|(_, _, j)| j.clone())
+}
+
+/// [`judge`], or [`judge_joint`] with the pressure effects `joint`, without the cache.
+fn uncached_judge(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    kind: EffectKind,
+    before: &Residual,
+    joint: &[EffectKind],
+) -> Option<Judged> {
+    if joint.is_empty() {
+        judge(ctx, doc, kind, before)
+    } else {
+        judge_joint(ctx, doc, kind, joint, before)
+    }
+}
+
+/// Keeps `j` as the judgement of `kind` on the residual `before`.
+fn remember(cache: &mut Cache, kind: EffectKind, before: &Residual, j: &Judged) {
+    cache.retain(|(k, _, _)| *k != kind);
+    cache.push((kind, before.kept.clone(), j.clone()));
+}
+
 /// [`judge`], reusing the last judgement of `kind` if its channel's residual is unchanged.
 fn cached_judge(
     ctx: &Ctx<'_>,
@@ -368,19 +399,11 @@ fn cached_judge(
     joint: &[EffectKind],
     cache: &mut Cache,
 ) -> Option<Judged> {
-    if let Some((_, _, j)) = cache
-        .iter()
-        .find(|(k, kept, _)| *k == kind && *kept == before.kept)
-    {
-        return Some(j.clone());
+    if let Some(j) = cached(cache, kind, before) {
+        return Some(j);
     }
-    let j = if joint.is_empty() {
-        judge(ctx, doc, kind, before)?
-    } else {
-        judge_joint(ctx, doc, kind, joint, before)?
-    };
-    cache.retain(|(k, _, _)| *k != kind);
-    cache.push((kind, before.kept.clone(), j.clone()));
+    let j = uncached_judge(ctx, doc, kind, before, joint)?;
+    remember(cache, kind, before, &j);
     Some(j)
 }
 
@@ -403,6 +426,9 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
             .filter_map(|&c| Some((c, residual(ctx.data, ctx.band, &model, c)?)))
             .collect();
         let mut best_extra: Option<Judged> = None;
+        // The candidates are independent given `doc`: judged on every core (the cached
+        // ones reused), then taken in the library's order, as one thread would.
+        let mut jobs: Vec<(EffectKind, &Residual, Vec<EffectKind>)> = Vec::new();
         for kind in EffectKind::ALL {
             if kind.named() && added.iter().any(|a| a.proposal.kind == kind) {
                 continue;
@@ -421,9 +447,23 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
             } else {
                 Vec::new()
             };
-            let Some(j) = cached_judge(ctx, &doc, kind, before, &joint, &mut cache) else {
-                continue;
-            };
+            jobs.push((kind, before, joint));
+        }
+        let results: Vec<(Option<Judged>, bool)> = jobs
+            .par_iter()
+            .map(
+                |(kind, before, joint)| match cached(&cache, *kind, before) {
+                    Some(j) => (Some(j), true),
+                    None => (uncached_judge(ctx, &doc, *kind, before, joint), false),
+                },
+            )
+            .collect();
+        for ((kind, before, _), (j, hit)) in jobs.iter().zip(results) {
+            let kind = *kind;
+            let Some(j) = j else { continue };
+            if !hit {
+                remember(&mut cache, kind, before, &j);
+            }
             if j.significant() {
                 if !kind.named() {
                     best_extra = Some(j.clone());

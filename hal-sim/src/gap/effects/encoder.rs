@@ -4,7 +4,7 @@
 use crate::plant::model::{model_key, model_section};
 
 use super::super::doc::{Edit, ModelDoc};
-use super::super::fit::{lstsq, minimise_1d};
+use super::super::fit::{lstsq, minimise_1d_par};
 use super::super::residuals::{channel_raw, kept_of_raw, ChannelId};
 use super::{harmonics, kept_span, Ctx, EffectKind, Proposal};
 
@@ -68,7 +68,7 @@ pub(super) fn pitch_error(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
         cols.extend(hs.into_iter().map(filt));
         lstsq(&cols, &y)
     };
-    let (f, _) = minimise_1d(f0 - df, f0 + df, 5, 16, |f| fitf(f).map(|r| r.1))?;
+    let (f, _) = minimise_1d_par(f0 - df, f0 + df, 5, 16, |f| fitf(f).map(|r| r.1))?;
     let (th, _) = fitf(f)?;
     let g = |i: usize| th.get(i).copied().unwrap_or(0.0);
     let (scale, a1, b1, a2, b2) = (g(0), g(1), g(2), g(3), g(4));

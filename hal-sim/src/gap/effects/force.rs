@@ -8,7 +8,7 @@ use crate::plant::model::{model_key, model_section};
 use crate::signal::xcorr_lag;
 
 use super::super::doc::{Edit, ModelDoc};
-use super::super::fit::{lstsq, minimise_1d};
+use super::super::fit::{lstsq, minimise_1d_par};
 use super::super::residuals::{
     acting_motor_force_n, force_raw, force_terms, tangential_mps, ChannelId,
 };
@@ -142,7 +142,7 @@ pub(super) fn stribeck(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let (lo, hi) = (STRIBECK_RANGE_MPS.0.ln(), STRIBECK_RANGE_MPS.1.ln());
     let mut best: Option<(f64, f64, f64)> = None; // (rss, log v_s, ζ)
     for zeta in [0.5, 1.0, 2.0] {
-        if let Some((lv, rss)) = minimise_1d(lo, hi, 13, 14, |lv| fit(lv, zeta).map(|f| f.1)) {
+        if let Some((lv, rss)) = minimise_1d_par(lo, hi, 13, 14, |lv| fit(lv, zeta).map(|f| f.1)) {
             if best.is_none_or(|b| rss < b.0) {
                 best = Some((rss, lv, zeta));
             }
@@ -218,7 +218,7 @@ pub(super) fn cogging(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
             .collect();
         lstsq(&cols, &y)
     };
-    let (f, _) = minimise_1d(f0 - df, f0 + df, 5, 16, |f| fitf(f).map(|r| r.1))?;
+    let (f, _) = minimise_1d_par(f0 - df, f0 + df, 5, 16, |f| fitf(f).map(|r| r.1))?;
     let (th, _) = fitf(f)?;
     let (a, b) = (th.first().copied()?, th.get(1).copied()?);
     let (amp, phase, period) = (a.hypot(b), b.atan2(a), 1.0 / f);
@@ -278,7 +278,7 @@ pub(super) fn actuator_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     // A grid of about one step per sample (the cross-correlation's peak is too flat on smooth
     // strokes to pick the lag alone), then golden section.
     let grid = ((MAX_ACTUATOR_LAG_S / d.dt_s).round() as usize + 1).clamp(11, 201);
-    let (delay, _) = minimise_1d(0.0, MAX_ACTUATOR_LAG_S, grid, 16, rss)?;
+    let (delay, _) = minimise_1d_par(0.0, MAX_ACTUATOR_LAG_S, grid, 16, rss)?;
     Some(Proposal::setting(
         EffectKind::ActuatorLag,
         &[(model_key!(effects.actuator_lag / delay_s), delay)],

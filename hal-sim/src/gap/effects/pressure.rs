@@ -6,7 +6,7 @@ use crate::plant::model::{model_key, model_section};
 
 use super::super::data::{Measured, PortsMeta};
 use super::super::doc::{Edit, ModelDoc};
-use super::super::fit::{gauss_newton_nonneg, minimise_1d};
+use super::super::fit::{gauss_newton_nonneg, minimise_1d_par};
 use super::super::residuals::{channel_raw, kept_of_raw, Band, ChannelId};
 use super::{Ctx, EffectKind, Proposal};
 
@@ -119,7 +119,7 @@ pub(super) fn heat_transfer(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
         }
         e
     };
-    let (lua, _) = minimise_1d(0.01f64.ln(), 500f64.ln(), 6, 8, |l| {
+    let (lua, _) = minimise_1d_par(0.01f64.ln(), 500f64.ln(), 6, 8, |l| {
         pressure_kept(ctx, &base.with(&edits(l.exp()))).map(|r| super::super::fit::sumsq(&r))
     })?;
     let ua = lua.exp();
@@ -146,7 +146,7 @@ pub(super) fn port_restriction(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal
             1,
         )
     };
-    let (ls, _) = minimise_1d(0.05f64.ln(), 10f64.ln(), 6, 8, |l| {
+    let (ls, _) = minimise_1d_par(0.05f64.ln(), 10f64.ln(), 6, 8, |l| {
         pressure_kept(ctx, &base.with(&effect(l.exp()).edits)).map(|r| super::super::fit::sumsq(&r))
     })?;
     Some(effect(ls.exp()))

@@ -6,7 +6,7 @@ use crate::signal::{delayed, xcorr_lag};
 
 use super::super::data::Measured;
 use super::super::doc::{Edit, ModelDoc};
-use super::super::fit::minimise_1d;
+use super::super::fit::minimise_1d_par;
 use super::super::residuals::ChannelId;
 use super::{Ctx, EffectKind, Proposal, MAX_LAG_S};
 
@@ -37,7 +37,7 @@ pub(super) fn slave_lag(ctx: &Ctx<'_>, _doc: &ModelDoc) -> Option<Proposal> {
         (lag.seconds - 2.0 * d.dt_s).max(0.0),
         lag.seconds + 2.0 * d.dt_s,
     );
-    let (delay, _) = minimise_1d(lo, hi, 9, 14, rss)?;
+    let (delay, _) = minimise_1d_par(lo, hi, 9, 14, rss)?;
     let mut p = Proposal::setting(
         EffectKind::SlaveLag,
         &[(model_key!(effects.slave_lag / delay_s), delay)],
