@@ -5,7 +5,7 @@
 //! units with the unit in the name (`force_n`, `pressure_pa`); conversions happen once, at
 //! the edge, in the module that owns the sensor.
 
-/// Control-loop period of the linear axis, s (20 kHz, `machine.md`).
+/// Control-loop period of the linear axis, s (20 kHz, `docs/machine.md`).
 pub const CONTROL_PERIOD_S: f32 = 50e-6;
 /// Control-loop period in microsecond ticks.
 pub const CONTROL_PERIOD_US: u32 = 50;

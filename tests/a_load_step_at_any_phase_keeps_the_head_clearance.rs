@@ -1,4 +1,4 @@
-//! A sudden external load of ±3 kN (`faults.md` #10, `--fault load_step`) leaves at least
+//! A sudden external load of ±3 kN (`docs/faults.md` #10, `--fault load_step`) leaves at least
 //! 0.6 mm between the piston and either head, whatever the phase of the stroke cycle it
 //! strikes at (issue #15, "margin under load").
 //!

@@ -1,7 +1,7 @@
 //! The log-analysis subcommands of `fpc-sim` (`lag`, `filters`, `forces`, `energy`, `pv`,
 //! `decode`): each runs on a log from `fpc-sim run` and on a run log written by hand
 //! (`tests/data/hand_stroke.csv`), writes its plot, and refuses a bad log with exit code 2
-//! naming the line and column (`faults.md` #18).
+//! naming the line and column (`docs/faults.md` #18).
 
 use std::path::{Path, PathBuf};
 

@@ -1,7 +1,7 @@
 //! A new calibration saved over an old one, with the power cut at every step of the save
 //! (each double-word program and each page erase, torn half-way), then a reboot that reads
 //! the flash again: the machine comes back with exactly the old calibration or exactly the
-//! new one — never a mix, never none (faults.md #21). And a board whose flash holds nothing,
+//! new one — never a mix, never none (docs/faults.md #21). And a board whose flash holds nothing,
 //! or a damaged record, boots refusing `Start` with the fault named.
 //!
 //! The store is the firmware's own (`fpc::control::calibration::store`) over the simulated

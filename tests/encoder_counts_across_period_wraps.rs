@@ -1,4 +1,4 @@
-//! Period counting (`faults.md` scenario 20): no jump at any period boundary — 10⁵ and more
+//! Period counting (`docs/faults.md` scenario 20): no jump at any period boundary — 10⁵ and more
 //! boundary crossings, both ways, at random speeds and phases — and none where the position
 //! counter itself wraps (after 2048 periods), through the decoder and the differentiator.
 

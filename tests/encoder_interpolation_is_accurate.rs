@@ -10,7 +10,7 @@ use fpc::sensing::encoder::{
 use support::sensing::{distorted_encoder, encoder_codes, Rng};
 
 const PERIOD_M: f64 = 0.024;
-/// The encoder's own noise (`machine.md`: σ ≈ 1 µm after interpolation) in codes RMS per
+/// The encoder's own noise (`docs/machine.md`: σ ≈ 1 µm after interpolation) in codes RMS per
 /// channel: 1 µm·2π/λ·A.
 const NOISE_1UM_CODES: f64 = 1e-6 * std::f64::consts::TAU / PERIOD_M * 1600.0;
 

@@ -1,4 +1,4 @@
-//! The encoder signal faults of `faults.md`, scenarios 1–4, at the decoder: what is rejected,
+//! The encoder signal faults of `docs/faults.md`, scenarios 1–4, at the decoder: what is rejected,
 //! what latches the `encoder_signal` fault, and how fast. Plus the bad-input property: any
 //! sequence of 16-bit codes decodes without panic and without an impossible position step.
 

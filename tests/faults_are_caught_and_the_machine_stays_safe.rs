@@ -1,4 +1,4 @@
-//! The scenarios of `faults.md` #1–21, each with its pass criterion. The machine faults (#1–15,
+//! The scenarios of `docs/faults.md` #1–21, each with its pass criterion. The machine faults (#1–15,
 //! #20, #21) are injected with the very `--fault NAME@T[:k=v,…]` specifications `fpc-sim run`
 //! takes, into the closed-loop run (the firmware's own tasks on the simulated board); each
 //! prints its detection time and the smallest head clearance from the fault on. The bad-input
@@ -392,7 +392,7 @@ fn s10_a_load_step_the_loop_cannot_cancel_trips_the_following_error_within_its_f
 #[test]
 fn s10_with_the_observer_a_3_kn_load_step_is_cancelled_and_the_strokes_go_on() {
     // The configuration: the observer estimates the load within ~0.5 ms and the loop pushes
-    // against it, so the error never reaches the following-error limit (`faults.md` #10:
+    // against it, so the error never reaches the following-error limit (`docs/faults.md` #10:
     // a fault only "if the error stays above its limit") and the strokes go on under the
     // load. Every phase: tests/a_load_step_at_any_phase_keeps_the_head_clearance.rs.
     let limit_m = f64::from(ControlConfig::reference().supervisor.following_error_m);

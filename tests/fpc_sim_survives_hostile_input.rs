@@ -1,4 +1,4 @@
-//! `fpc-sim` under hostile input (`faults.md` row 23): every subcommand driven in-process
+//! `fpc-sim` under hostile input (`docs/faults.md` row 23): every subcommand driven in-process
 //! with generated hostile logs, models, captures and flags. Each case must end with exit
 //! 0, 1 or 2 — never a panic, an abort or a hang — within a wall-time bound, leave its inputs
 //! and any earlier outputs untouched (no `--force`), and leave nothing behind when it fails.

@@ -124,7 +124,7 @@ fn gap_names_the_cogging_of_another_plant_at_20_khz_within_2_percent() {
 }
 
 /// `truth.json`'s `discovered_terms` of `log`: the force the model lacks as coefficients of
-/// the basis of `formats.md` ("Beyond the library").
+/// the basis of `docs/formats.md` ("Beyond the library").
 fn truth_terms(log: &str) -> BTreeMap<String, f64> {
     let text = std::fs::read_to_string(dir().join("truth.json")).expect("truth.json");
     let v: serde_json::Value = serde_json::from_str(&text).expect("truth.json parses");

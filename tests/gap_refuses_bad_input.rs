@@ -1,4 +1,4 @@
-//! `fpc-sim gap` refuses what it cannot use (`faults.md` #17–18): exit 2, one line naming
+//! `fpc-sim gap` refuses what it cannot use (`docs/faults.md` #17–18): exit 2, one line naming
 //! the key or the line and column, and nothing written.
 
 use std::path::{Path, PathBuf};

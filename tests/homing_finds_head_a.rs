@@ -2,7 +2,7 @@
 //! head A within ±0.05 mm, ignores a friction spike that holds the current above the
 //! detection level for 5 ms, fails at the maximum search distance when there is no stop —
 //! with the current never above the homing limit — and no motion command is accepted before
-//! homing (`faults.md` scenarios 14–16).
+//! homing (`docs/faults.md` scenarios 14–16).
 
 use std::ops::ControlFlow;
 

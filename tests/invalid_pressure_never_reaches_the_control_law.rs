@@ -1,4 +1,4 @@
-//! Invalid pressure samples never reach the control law (`faults.md` scenario 5): on the
+//! Invalid pressure samples never reach the control law (`docs/faults.md` scenario 5): on the
 //! simulated machine in mid-move, the control step given any pair of chamber codes with an
 //! open or shorted one — the whole u16 range — commands exactly what it commands with no gas
 //! force at all; and an open sensor latches `pressure_sensor` within 3 samples.

@@ -1,4 +1,4 @@
-//! Losing both encoders at full speed (`faults.md` #22, issue #15): with nothing telling
+//! Losing both encoders at full speed (`docs/faults.md` #22, issue #15): with nothing telling
 //! where the piston is, the firmware brakes it without position — outputs off while the
 //! winding currents decay into the bus (0.7 ms), then the windings short-circuited (the
 //! back-EMF drives braking currents through their resistance) and the rotation, whose own

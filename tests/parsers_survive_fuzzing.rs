@@ -1,4 +1,4 @@
-//! Every parser of outside input refuses garbage cleanly and never panics (`faults.md` #17–19,
+//! Every parser of outside input refuses garbage cleanly and never panics (`docs/faults.md` #17–19,
 //! the no-panic policy): a bounded, seeded random fuzzer that runs in CI. Each input is a
 //! valid document mangled by byte flips, insertions of the format's own tokens and of
 //! special numbers, deletions, duplications, truncation and line swaps — or plain random
@@ -150,7 +150,7 @@ fn run_log() -> String {
     s
 }
 
-/// The minimal model file of `formats.md` §2.
+/// The minimal model file of `docs/formats.md` §2.
 const MINIMAL_MODEL: &str = "[piston]\nmass_kg = 12.0\nbore_m = 0.090\nrod_m = 0.020\n\
 travel_m = 0.205\ndead_length_a_m = 0.0005\ndead_length_b_m = 0.0005\n\n[friction]\n\
 coulomb_n = 40.0\nviscous_ns_per_m = 25.0\n\n[gas]\ngamma = 1.4\n\

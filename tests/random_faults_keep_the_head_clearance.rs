@@ -1,5 +1,5 @@
 //! The head clearance holds whatever fault strikes, whenever it strikes: a seeded sweep of
-//! randomised fault scenarios (`faults.md`), instants across the whole stroke cycle (so every
+//! randomised fault scenarios (`docs/faults.md`), instants across the whole stroke cycle (so every
 //! phase: accelerating, at full speed, braking into a dead point, at rest there), pressure
 //! ratios 3.1–5.1 (2.3–4.1 m/s) and a plant mass ±10 % off the controller's model. Every run
 //! goes through `fpc-sim run`'s own runner with a `--fault` specification, and must keep

@@ -1,4 +1,4 @@
-//! `fpc-sim run` logs carry the metadata the pressure replay needs (`formats.md` §1 keys,
+//! `fpc-sim run` logs carry the metadata the pressure replay needs (`docs/formats.md` §1 keys,
 //! extended compatibly): `# ports = open` from `# ports_from_s` (when the start-up bypass
 //! closed; before it both chambers breathe to the suction line) and `# theta_source =
 //! servo_encoder` (the logged angle is the servo's count; the piston follows through the

@@ -1,4 +1,4 @@
-//! Faults of the drive (`faults.md`), on the simulated machine:
+//! Faults of the drive (`docs/faults.md`), on the simulated machine:
 //! - a **current-sense offset** is seen with the outputs off (the phase currents' mean is not
 //!   zero once the calibrated offsets are taken off); the outputs are not switched on
 //!   (homing and the routines that drive are refused with the reason) until the current-sense

@@ -1,5 +1,5 @@
 //! Printing that fails like everything else, instead of the panic `println!` gives
-//! (`faults.md` row 23): a full device (`> /dev/full`) ends the command with exit 1 and one
+//! (`docs/faults.md` row 23): a full device (`> /dev/full`) ends the command with exit 1 and one
 //! line; a pipe its reader closed (`fpc-sim derive … | head -1`) ends it quietly, exit 0.
 //!
 //! [`outln!`](crate::outln) writes a line to stdout and [`errln!`](crate::errln) to stderr; both

@@ -1,7 +1,7 @@
 //! The failure every fallible entry point of `fpc-sim` returns: the exit code and the one
 //! line to print.
 //!
-//! Exit codes (`formats.md` §3): 0 success, 1 runtime failure, 2 bad usage or bad input, with
+//! Exit codes (`docs/formats.md` §3): 0 success, 1 runtime failure, 2 bad usage or bad input, with
 //! one clear line on stderr naming the file, line or flag at fault. The subcommands and the
 //! gap workflow share it.
 

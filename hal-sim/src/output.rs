@@ -2,7 +2,7 @@
 //! cannot be written, already exists without `--force`, or is one of the command's own
 //! inputs), written into a staging directory beside its final place, and moved into place
 //! only once the whole set is complete. A failure part-way leaves the earlier files as they
-//! were and no partial new ones (`faults.md` row 23).
+//! were and no partial new ones (`docs/faults.md` row 23).
 //!
 //! `--force` replaces existing outputs of the same names; it never replaces an input, and it
 //! leaves every other file in the directory alone.

@@ -1,4 +1,4 @@
-//! The run log (`formats.md` §1): the CSV the rig logs and the simulator writes.
+//! The run log (`docs/formats.md` §1): the CSV the rig logs and the simulator writes.
 //!
 //! Writing is plain formatted text (deterministic: the same values give the same bytes).
 //! Reading validates everything the contract names and refuses with the line and column at
@@ -419,7 +419,7 @@ pub const MAX_VALUES: usize = 200_000_000;
 pub const SAMPLE_TIME_RANGE_S: (f64, f64) = (1e-7, 0.1);
 
 /// The values a column can physically hold, by its name (the required columns and the
-/// optional ones of `formats.md` by unit; any other column within ±1e15, so that squares and
+/// optional ones of `docs/formats.md` by unit; any other column within ±1e15, so that squares and
 /// sums of a whole log stay finite).
 pub fn physical_range(column: &str) -> (f64, f64) {
     match column {

@@ -1,7 +1,7 @@
 //! `fpc-sim run --fault NAME@T[:k=v,…]`: a fault specification with an unknown name or a
 //! malformed part exits 2 with one line naming it, and writes nothing; a valid one runs, and
 //! the run log's `fault` column records the code of the first latched fault. A refused model
-//! file writes nothing either (`faults.md` #17).
+//! file writes nothing either (`docs/faults.md` #17).
 
 use std::path::PathBuf;
 use std::process::Command;

@@ -1,4 +1,4 @@
-//! Memory of the long jobs (`faults.md` row 23, issue #18): `run --cycles 1000` streams its
+//! Memory of the long jobs (`docs/faults.md` row 23, issue #18): `run --cycles 1000` streams its
 //! log, so its peak resident set does not grow with the run; `gap` on a 10⁶-row log stays
 //! below a stated bound. A benchmark that prints the peak RSS of the real binary (polled
 //! from `/proc/<pid>/status` `VmHWM`, the kernel's high-water mark) and asserts the bounds.

@@ -1,10 +1,10 @@
-//! `fpc-sim run --model FILE`: the minimal model file of `formats.md` §2 runs; an unknown
+//! `fpc-sim run --model FILE`: the minimal model file of `docs/formats.md` §2 runs; an unknown
 //! key, a missing required key or a non-physical value is refused with exit code 2 and one
 //! line on stderr naming the key.
 
 use std::process::Command;
 
-/// The minimal file of `formats.md` §2.
+/// The minimal file of `docs/formats.md` §2.
 const MINIMAL: &str = include_str!("data/minimal_model.toml");
 
 /// A scratch directory, removed with the run's files when the guard drops.

@@ -1,5 +1,5 @@
 //! Every numeric key of the model file has a physical range (`plant::model::validate::RANGES`)
-//! and the model is checked as a whole (`faults.md` row 23): a value outside its range, or
+//! and the model is checked as a whole (`docs/faults.md` row 23): a value outside its range, or
 //! values that make no machine together, are refused naming the key — never a panic, an
 //! abort (a 1e6 s lag allocated 160 GB) or a hang (a 1e50 m travel ran forever).
 

@@ -1,4 +1,4 @@
-//! `fpc-sim run`'s options (`faults.md` row 23): a pressure ratio, speed, cycle count or fault
+//! `fpc-sim run`'s options (`docs/faults.md` row 23): a pressure ratio, speed, cycle count or fault
 //! the machine cannot run is refused before any work (exit 2, naming the flag and the range),
 //! and a run that stalls or stops early ends soon and says why.
 

@@ -33,7 +33,7 @@ enum Cmd {
     /// The main job's scenario on the ELF: boot with the calibration in flash, home, start
     /// over RTT, N cycles; the same JSON as `fpc-sim run --json` and the PIL's figures.
     Run(RunArgs),
-    /// A fault scenario on the ELF (faults.md): boot-window, hung-control, fault-path,
+    /// A fault scenario on the ELF (docs/faults.md): boot-window, hung-control, fault-path,
     /// torn-save, save-error, single-bank; prints the resets, the log and the faults.
     Fault(FaultArgs),
     /// The control period while a calibration save erases and programs flash (data cache

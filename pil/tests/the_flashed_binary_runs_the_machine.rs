@@ -1,6 +1,6 @@
 //! The release firmware ELF (the binary a user flashes) in the emulated STM32G474 on the
 //! reference machine: the main job's scenario meets its figures, and each fault of
-//! issue #28 ends as `faults.md` says. The tests of items 1, 2, 4, 5 and 6 fail on the
+//! issue #28 ends as `docs/faults.md` says. The tests of items 1, 2, 4, 5 and 6 fail on the
 //! firmware before #28 (its ELF, run through the same scenarios, shows the defect each
 //! names).
 //!
@@ -137,7 +137,7 @@ fn fault_path_logged_and_braked(r: &Report) {
 /// A hung control task or a fault while stroking, at phases spread over a stroke cycle
 /// (≈ 0.33 s at 2.3 m/s) and at both ends of the pressure-ratio range: the outputs hold or
 /// go off, the chip resets (watchdog or fault path), boots, and brakes; the piston never
-/// comes nearer a head than 0.3 mm (`faults.md`). Printed: the clearance from the injection
+/// comes nearer a head than 0.3 mm (`docs/faults.md`). Printed: the clearance from the injection
 /// on, the reset, and the boot's milestones.
 #[test]
 fn a_hang_or_a_fault_at_any_phase_of_a_stroke_keeps_the_head_clearance() {

@@ -105,7 +105,7 @@ pub struct ControlConfig {
 }
 
 impl ControlConfig {
-    /// The reference machine of `machine.md`.
+    /// The reference machine of `docs/machine.md`.
     pub fn reference() -> Self {
         let motor = MotorParams::<f32>::reference();
         ControlConfig {

@@ -44,7 +44,7 @@ pub const CONTROL_PERIOD_US: u32 = PERIOD_US;
 /// How many control periods the section forces of a frame lag its position: each section's
 /// force is computed from the current measured in the previous cycle (`control/step/
 /// sense.rs`), the position from this cycle's encoder. A run log declares it as
-/// `# force_delay_s` (`formats.md` §1).
+/// `# force_delay_s` (`docs/formats.md` §1).
 pub const FORCE_DELAY_PERIODS: u32 = 1;
 
 /// What `theta_rad` measures, as a run log declares it (`# theta_source`): the servo's
@@ -66,7 +66,7 @@ const HEADER_BYTES: usize = 14;
 /// Number of channels a frame can carry.
 pub const CHANNEL_COUNT: usize = 10;
 
-/// The channels, by bit number: their names in a run log (`formats.md` §1).
+/// The channels, by bit number: their names in a run log (`docs/formats.md` §1).
 pub const CHANNELS: [&str; CHANNEL_COUNT] = [
     "x_m",
     "x_slave_m",
@@ -105,7 +105,7 @@ pub struct ChannelSet(pub u16);
 impl ChannelSet {
     /// Every channel.
     pub const ALL: ChannelSet = ChannelSet((1 << CHANNEL_COUNT) - 1);
-    /// The seven a run log requires (`formats.md` §1), what `gap` reads.
+    /// The seven a run log requires (`docs/formats.md` §1), what `gap` reads.
     pub const GAP: ChannelSet = ChannelSet(0x7F);
 
     /// Whether the set is one a frame can carry: not empty, no bit beyond the channels.

@@ -2,7 +2,7 @@
 //!
 //! `m·ẍ = F_motor + (p_A − p_B)·A_eff + F_cog(x) + F_ext − F_fr(ẋ, ω·r)`
 //!
-//! (`machine.md`; every force toward +x except friction, which opposes the motion). The
+//! (`docs/machine.md`; every force toward +x except friction, which opposes the motion). The
 //! simulator's plant integrates it, the model-gap workflow and `fpc-sim forces`/`energy`
 //! evaluate it along a log (the force the model does not explain), the synthetic runs invert
 //! it (the motor force a prescribed motion needs), and the firmware's disturbance observers

@@ -9,7 +9,7 @@
 
 use crate::real::Real;
 
-/// Friction parameters, SI. Reference values from `machine.md` (assumed, **A**).
+/// Friction parameters, SI. Reference values from `docs/machine.md` (assumed, **A**).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FrictionParams<T> {
     /// Coulomb (sliding) level F_c, N, ≥ 0.

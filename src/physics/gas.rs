@@ -1,5 +1,5 @@
 //! The gas in the two working chambers: volumes, gas force, the energy equation, port and
-//! leak flow, heat transfer (`machine.md`, "Equations").
+//! leak flow, heat transfer (`docs/machine.md`, "Equations").
 //!
 //! One set of laws for the firmware (`f32`: gas-force feed-forward, the isentropic
 //! discharge-opening volume of the volume-ratio control), the simulator's plant (`f64`) and
@@ -16,7 +16,7 @@
 
 use crate::real::Real;
 
-/// Pressure ratio p_dn/p_up above which the nozzle law is linear in the ratio (`machine.md`).
+/// Pressure ratio p_dn/p_up above which the nozzle law is linear in the ratio (`docs/machine.md`).
 pub const LINEAR_PRESSURE_RATIO: f32 = 0.995;
 
 /// Shortest gas column a chamber volume is floored at, m (1 µm of bore): keeps `V > 0` even
@@ -35,7 +35,7 @@ pub struct GasProperties<T> {
 }
 
 impl<T: Real> GasProperties<T> {
-    /// Air: γ 1.4, R 287 J/(kg·K), μ 1.8e-5 Pa·s (`machine.md`).
+    /// Air: γ 1.4, R 287 J/(kg·K), μ 1.8e-5 Pa·s (`docs/machine.md`).
     pub fn air() -> Self {
         GasProperties {
             gamma: T::of(1.4),
@@ -80,7 +80,7 @@ impl<T: Real> GasProperties<T> {
         pressure_pa * volume_m3 / (self.gamma - T::ONE)
     }
 
-    /// The chamber energy equation of `machine.md`: dp/dt, Pa/s.
+    /// The chamber energy equation of `docs/machine.md`: dp/dt, Pa/s.
     ///
     /// `inflow_kg_k_per_s` is Σ ṁ_in·T_up over the inflows (kg·K/s), `outflow_kg_per_s` is
     /// Σ ṁ_out (≥ 0, leaving at the chamber temperature `temperature_k`), `heat_w` is the heat
@@ -164,7 +164,7 @@ impl<T: Real> Cylinder<T> {
     }
 
     /// The reference machine: bore 90 mm, rod 20 mm, travel 0.205 m, 0.5 mm dead length each
-    /// side (**A**, `machine.md`).
+    /// side (**A**, `docs/machine.md`).
     pub fn reference() -> Self {
         Self::from_bore(
             T::of(0.090),
@@ -427,7 +427,7 @@ pub struct AnnulusLeak<T> {
 }
 
 impl<T: Real> AnnulusLeak<T> {
-    /// The reference piston seal: D 90 mm, h 25 µm, L_seal 50 mm (**A**, `machine.md`).
+    /// The reference piston seal: D 90 mm, h 25 µm, L_seal 50 mm (**A**, `docs/machine.md`).
     pub fn reference_piston() -> Self {
         AnnulusLeak {
             diameter_m: T::of(0.090),

@@ -87,7 +87,7 @@ impl Fault {
         Fault::ALL.iter().copied().find(|f| *f as u8 == code)
     }
 
-    /// The reaction this fault asks for (`faults.md`: SS1 while the position is still
+    /// The reaction this fault asks for (`docs/faults.md`: SS1 while the position is still
     /// trustworthy, STO when it is not, and the drive's own reactions built on them).
     ///
     /// For the encoder faults this is the reaction when no encoder can be trusted; the
@@ -132,11 +132,11 @@ pub enum Reaction {
     DropSection,
     /// No position left (both encoders lost): STO while the winding currents decay, then
     /// the windings short-circuited and the rotation turned to seal the chamber ahead, whose
-    /// gas takes the piston's energy (`faults.md` #22).
+    /// gas takes the piston's energy (`docs/faults.md` #22).
     BrakeWithoutPosition,
     /// After a watchdog reset: the outputs off until the velocity estimate is valid, then a
     /// controlled stop in the encoders' own frame, the outputs off once holding needs no
-    /// force; where the heads are is unknown until homing (`faults.md` #12).
+    /// force; where the heads are is unknown until homing (`docs/faults.md` #12).
     BrakeAfterReset,
 }
 
@@ -238,7 +238,7 @@ mod tests {
 
     #[test]
     fn the_reaction_is_a_controlled_stop_exactly_where_the_position_is_trusted() {
-        // `faults.md`: SS1 while the position is still trustworthy, STO when it is not. The
+        // `docs/faults.md`: SS1 while the position is still trustworthy, STO when it is not. The
         // faults that take it away are the encoders' and a configuration that cannot be
         // believed; every other fault stops the piston under control.
         for f in Fault::ALL {

@@ -9,7 +9,7 @@
 //! clamp) are [`LimitFlags`], not faults. The rotation check only applies while compressing:
 //! then the ports need the rotation; in a stop it only holds.
 //!
-//! The braking envelope (`faults.md`): at every instant
+//! The braking envelope (`docs/faults.md`): at every instant
 //! `|v| ≤ √(2·a_brake·(d − d_min))`, with `d` the distance to the head the piston moves
 //! toward, `d_min` = 0.3 mm and `a_brake` what one section alone can do against the worst gas
 //! force, so that either section can still stop the piston.

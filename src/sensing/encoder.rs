@@ -22,7 +22,7 @@
 //!    next consistent pair of samples.
 //!    A sample with a channel at either ADC rail is out of window too (a clipped ×1.5 signal
 //!    can look in-window near the axes). Rejected samples feed an error-rate filter
-//!    (`faults.md`, VESC style): +64 per bad sample, −1 per good one, fault above 80. So two
+//!    (`docs/faults.md`, VESC style): +64 per bad sample, −1 per good one, fault above 80. So two
 //!    bad samples in a row latch the fault (scenario 1: amplitude ×0.2 or ×1.5, ≤ 2 cycles),
 //!    two within 48 samples (2.4 ms) too (scenario 4, a burst of 10 % corrupt samples: at its
 //!    second corrupt sample, typically), one isolated glitch never does (scenario 3).
@@ -57,7 +57,7 @@ pub const NOMINAL_AMPLITUDE_CODES: f32 = 1600.0;
 /// ADC codes per millivolt of encoder signal: 1 Vpp = 2 × 1600 codes peak to peak.
 pub const CODES_PER_MV: f32 = 2.0 * NOMINAL_AMPLITUDE_CODES / 1000.0;
 
-/// Amplitude window of the signal monitor, fraction of nominal (`faults.md`, VESC).
+/// Amplitude window of the signal monitor, fraction of nominal (`docs/faults.md`, VESC).
 pub const AMPLITUDE_WINDOW: (f32, f32) = (0.7, 1.3);
 
 /// Calibration of one sin/cos encoder, in ADC codes (from a slow traverse).

@@ -13,7 +13,7 @@
 //! stroke each way the pressure of a working chamber must move (compression alone changes it
 //! by bars). A reading that stays within a few codes while the piston has travelled a
 //! half-stroke in *both* directions is flagged: within two strokes of the sensor freezing,
-//! wherever in the cycle it froze (`faults.md` scenario 6). Noise keeps a live sensor out of
+//! wherever in the cycle it froze (`docs/faults.md` scenario 6). Noise keeps a live sensor out of
 //! the band even where the physics holds the pressure flat (ports open, no compression).
 
 use crate::units::AdcCode;

@@ -3,7 +3,7 @@
 //! The model-gap workflow must work on logs from machines and simulators it has never seen,
 //! so this module shares no code and no convention with the project's own plant. It uses
 //! only `std`, `rand` and `rand_chacha`; the physics laws are those of the machine digest
-//! (`machine.md`), implemented here afresh, in a deliberately different style:
+//! (`docs/machine.md`), implemented here afresh, in a deliberately different style:
 //!
 //! - **Plant**: a rigid piston, `m·ẍ = F_master + F_slave + (p_A − p_B)·A_eff − F_fr(ẋ) −
 //!   F_cog(x)`, integrated with classical fourth-order Runge–Kutta on sub-steps of at most
@@ -32,7 +32,7 @@
 //! - **Nominal machine** drawn around the reference machine: mass 8–14 kg, bore 85–92 mm,
 //!   rod 18–24 mm, Coulomb 30–50 N, viscous 15–35 N·s/m; travel 0.205 m, dead lengths
 //!   0.5 mm, pole pitch 12 mm, encoder period 24 mm. The nominal model file
-//!   ([`Generated::model_toml`]) holds only the keys `formats.md` §2 requires.
+//!   ([`Generated::model_toml`]) holds only the keys `docs/formats.md` §2 requires.
 //!
 //! # Hidden effects and their detection floors
 //! Each hidden effect is drawn at a random magnitude at or above a floor chosen so that it
@@ -101,7 +101,7 @@ const SECTION_LIMIT_N: f64 = 5_000.0;
 /// Largest acceleration of a holds-and-moves move, m/s² (the sine strokes reach ~100).
 const MAX_MOVE_ACCEL_MPS2: f64 = 150.0;
 
-/// An effect the nominal model lacks, by the names of `formats.md` §3.
+/// An effect the nominal model lacks, by the names of `docs/formats.md` §3.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Effect {
     /// True moving mass differs from the nominal one.
@@ -580,9 +580,9 @@ impl Truth {
 /// One generated case: the log, the nominal model and the truth.
 #[derive(Clone, Debug)]
 pub struct Generated {
-    /// The run log (`formats.md` §1) as text.
+    /// The run log (`docs/formats.md` §1) as text.
     pub csv: String,
-    /// The nominal model file (`formats.md` §2, required keys only).
+    /// The nominal model file (`docs/formats.md` §2, required keys only).
     pub model_toml: String,
     /// What the model lacks.
     pub truth: Truth,
@@ -1255,7 +1255,7 @@ pub fn generate(case: &Case) -> Generated {
     }
 }
 
-/// The nominal model file: the keys `formats.md` §2 requires, nothing else.
+/// The nominal model file: the keys `docs/formats.md` §2 requires, nothing else.
 pub fn model_toml(m: &Machine) -> String {
     format!(
         "# nominal machine model of a foreign test plant (SI units)\n\

@@ -6,7 +6,7 @@
 //! run at the log rate, its force command held until the next sample), its own chamber
 //! model (mass and temperature per chamber, energy equation), its own logger (the command as
 //! it is issued, on time, fixed decimals, seeded noise: 1 µm, 3 N, 0.4 kPa). What it shares
-//! with the workflow is only the physics the contract names (`machine.md`, `formats.md`).
+//! with the workflow is only the physics the contract names (`docs/machine.md`, `docs/formats.md`).
 //!
 //! Chambers are either *vented* (the rotation at rest, both chambers breathing to ambient
 //! through an orifice: their pressures differ by a flow loss ∝ v·|v|; the log has no `ports`
@@ -105,7 +105,7 @@ pub enum Hidden {
 }
 
 impl Hidden {
-    /// The workflow's name for it (`formats.md` §3).
+    /// The workflow's name for it (`docs/formats.md` §3).
     pub fn name(&self) -> &'static str {
         match self {
             Hidden::Mass { .. } => "mass_error",
@@ -126,7 +126,7 @@ impl Hidden {
         }
     }
 
-    /// For a force outside the library, the terms of the discovery basis (`formats.md`,
+    /// For a force outside the library, the terms of the discovery basis (`docs/formats.md`,
     /// "Beyond the library") it is, in SI; `None` for a library effect.
     pub fn discovered_terms(&self) -> Option<BTreeMap<&'static str, f64>> {
         let terms: Vec<(&'static str, f64)> = match *self {
@@ -198,7 +198,7 @@ impl Nominal {
         PI / 4.0 * (self.bore_m * self.bore_m - self.rod_m * self.rod_m)
     }
 
-    /// The model file a user would hold (`formats.md` §2, required keys only).
+    /// The model file a user would hold (`docs/formats.md` §2, required keys only).
     pub fn model_toml(&self) -> String {
         format!(
             "# nominal machine of the independent test plant\n\
@@ -387,7 +387,7 @@ pub fn draw_case(seed: u64, effects: &[&str]) -> Case {
 /// A generated log.
 #[derive(Clone, Debug)]
 pub struct Generated {
-    /// The run log, `formats.md` §1.
+    /// The run log, `docs/formats.md` §1.
     pub csv: String,
     /// The nominal model file.
     pub model_toml: String,

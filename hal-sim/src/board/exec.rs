@@ -8,7 +8,7 @@
 //! world by one control period, repeat. No threads, no wall clock, no sleeps.
 //!
 //! [`simulate_board`] adds what the board does beyond running the tasks, for the fault
-//! scenarios of `faults.md`: a control step that overruns (the task is not polled for some
+//! scenarios of `docs/faults.md`: a control step that overruns (the task is not polled for some
 //! periods, the outputs hold), a task that hangs, and the independent watchdog, which resets
 //! the MCU when the supervision task stops feeding it: outputs off, the boot's
 //! [`BOOT_US`] with nothing running, then the shared RAM and every task started afresh with

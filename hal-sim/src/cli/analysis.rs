@@ -1,5 +1,5 @@
 //! What the log-analysis subcommands (`decode`, `lag`, `filters`, `forces`, `energy`, `pv`)
-//! share: reading the run log and the model with the exit codes of `formats.md` (and the
+//! share: reading the run log and the model with the exit codes of `docs/formats.md` (and the
 //! force balance along it, [`crate::balance`], for `forces` and `energy`), looking up
 //! columns, the output directory, and progress bars.
 
@@ -15,7 +15,7 @@ use crate::plant::model::MachineModel;
 use crate::runlog::RunLog;
 
 /// Reads and validates a run log; a bad log is bad input (exit 2) naming file, line and
-/// column (`faults.md` #18).
+/// column (`docs/faults.md` #18).
 pub fn read_log(path: &Path) -> Result<RunLog, Failure> {
     RunLog::read(path).map_err(|e| Failure::bad_input(format!("{}: {e}", path.display())))
 }

@@ -26,7 +26,7 @@ use crate::runlog::RunLog;
 /// Velocity and acceleration of the logged position by the firmware's differentiator.
 #[derive(Args, Debug)]
 pub struct DeriveArgs {
-    /// Run log (CSV, `formats.md` §1).
+    /// Run log (CSV, `docs/formats.md` §1).
     #[arg(long)]
     pub measured: PathBuf,
     /// Window length N (odd, 3..=41; default: the firmware's).

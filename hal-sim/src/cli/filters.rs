@@ -72,7 +72,7 @@ pub struct Estimate {
 /// milliseconds; a second is already several strokes.
 pub const MAX_DRIVE_DELAY_MS: f64 = 1000.0;
 
-/// The position column `name` of `log`: its unit, by the log's naming (`formats.md` §1),
+/// The position column `name` of `log`: its unit, by the log's naming (`docs/formats.md` §1),
 /// is metres (`…_m`), so its derivative is a velocity.
 fn position_column<'a>(log: &'a RunLog, name: &str) -> Result<&'a [f64], Failure> {
     let x = column(log, name, "--column")?;

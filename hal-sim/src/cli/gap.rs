@@ -1,7 +1,7 @@
-//! `fpc-sim gap` (`formats.md` §3): compares a model with a measured run, names the missing
+//! `fpc-sim gap` (`docs/formats.md` §3): compares a model with a measured run, names the missing
 //! effect(s), fits them, writes the augmented model and a report, and with `--json` prints
 //! the summary. Everything is checked before anything is written: a bad model file or log is
-//! exit 2 with one line naming the key, or the line and column (`faults.md` #17–18).
+//! exit 2 with one line naming the key, or the line and column (`docs/faults.md` #17–18).
 
 use std::path::PathBuf;
 
@@ -16,7 +16,7 @@ use crate::{errln, outln};
 
 /// What the measured log must be, and how one comes from the board.
 const GAP_HELP: &str = "\
-The measured run: a run log (formats.md §1) sampled uniformly at 2000 Hz to 1 MHz (gap's
+The measured run: a run log (docs/formats.md §1) sampled uniformly at 2000 Hz to 1 MHz (gap's
 differentiator spans 2 ms and needs 5 samples in it), at least 4 differentiator windows long.
 Its metadata are read as they are: `ports` (open, closed; absent: the pressures are not
 compared) and `ports_from_s`, `theta_source`, `force_delay_s` (absent: the forces'

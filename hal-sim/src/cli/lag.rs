@@ -1,4 +1,4 @@
-//! `fpc-sim lag` (`formats.md` §3): how far one logged signal lags another, by FFT
+//! `fpc-sim lag` (`docs/formats.md` §3): how far one logged signal lags another, by FFT
 //! cross-correlation with sub-sample refinement — the paper's Fig. 4 method, which found the
 //! slave drive's force 0.75 ms behind the master's.
 //!

@@ -48,7 +48,7 @@ pub struct RunArgs {
     /// default), `all`, or names joined by commas.
     #[arg(long, value_name = "SET", default_value = "gap")]
     pub telemetry_channels: String,
-    /// Inject a fault: `NAME@T[:k=v,…]` (`faults.md`; repeat for several). An unknown name or
+    /// Inject a fault: `NAME@T[:k=v,…]` (`docs/faults.md`; repeat for several). An unknown name or
     /// a malformed specification exits 2 naming it.
     #[arg(long = "fault", value_name = "SPEC")]
     pub faults: Vec<String>,

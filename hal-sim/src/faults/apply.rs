@@ -1,4 +1,4 @@
-//! The fault scenarios of `faults.md` applied to a running simulation, and what they did.
+//! The fault scenarios of `docs/faults.md` applied to a running simulation, and what they did.
 //!
 //! A parsed [`FaultSpec`] acts where the fault would act on the rig:
 //!

@@ -1,4 +1,4 @@
-//! Fault injection: the `--fault NAME@T[:k=v,…]` specifications of `faults.md`.
+//! Fault injection: the `--fault NAME@T[:k=v,…]` specifications of `docs/faults.md`.
 //!
 //! A specification names a scenario, the simulated time it starts at and optional
 //! parameters. Parsing is strict: an unknown name, a malformed time, an unknown parameter or
@@ -10,7 +10,7 @@ use std::fmt;
 
 use crate::failure::{clip, num};
 
-/// The injectable scenarios (`faults.md` #1–15, #20 and #22; #16–19 are bad input, tested
+/// The injectable scenarios (`docs/faults.md` #1–15, #20 and #22; #16–19 are bad input, tested
 /// through the command, model and log readers).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum FaultKind {
@@ -90,7 +90,7 @@ impl FaultKind {
     }
 
     /// What the fault does, for `--help` and the file-format reference (`docs/formats.md`
-    /// §3): the `faults.md` row and the parameters with their defaults.
+    /// §3): the `docs/faults.md` row and the parameters with their defaults.
     pub fn description(self) -> &'static str {
         match self {
             FaultKind::EncoderAmplitude => {

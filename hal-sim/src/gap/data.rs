@@ -105,7 +105,7 @@ pub enum PortsMeta {
 /// What the log's `theta_rad` measures (`# theta_source = …`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ThetaSource {
-    /// `piston` (or no key): the piston's own angle, which times the ports (`formats.md` §1).
+    /// `piston` (or no key): the piston's own angle, which times the ports (`docs/formats.md` §1).
     Piston,
     /// `servo_encoder`: the servo's quadrature count times its resolution (the count's
     /// lower edge), as our firmware reports it. The piston, which times the ports, follows

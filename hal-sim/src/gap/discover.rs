@@ -1,4 +1,4 @@
-//! Beyond the library (`formats.md`, "Beyond the library — discovered terms"): the force the
+//! Beyond the library (`docs/formats.md`, "Beyond the library — discovered terms"): the force the
 //! model lacks, when no named effect describes it, as a sparse sum over a fixed basis
 //! ([`Term`]) — `1`, `x`, `x^2`, `v`, `v|v|`, `sgn(v)`, `a`, `f_motor`, `p_a-p_b`, `t`,
 //! `t*sgn(v)` and `sin, cos(2πx/p)` with `p` fitted.

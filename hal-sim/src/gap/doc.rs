@@ -223,7 +223,7 @@ mod tests {
                 "the input's line {line:?} is not kept in its place"
             );
         }
-        // What was added: the new sections, at the end; the terms inline as formats.md has them.
+        // What was added: the new sections, at the end; the terms inline as docs/formats.md has them.
         let added: Vec<&&str> = new.iter().filter(|l| !old.contains(l)).collect();
         assert!(added.contains(&&"[effects.slave_lag]"), "{added:?}");
         assert!(

@@ -1,4 +1,4 @@
-//! The model-gap workflow (`fpc-sim gap`, `formats.md` §3): find where the model and a
+//! The model-gap workflow (`fpc-sim gap`, `docs/formats.md` §3): find where the model and a
 //! measured run disagree, name the missing effect, fit it, add it to the model and show the
 //! gap shrink.
 //!
@@ -69,7 +69,7 @@ impl Default for GapOptions {
     }
 }
 
-/// A channel's RMS before and after (`formats.md` §3).
+/// A channel's RMS before and after (`docs/formats.md` §3).
 #[derive(Clone, Debug, Serialize, PartialEq)]
 pub struct ChannelJson {
     /// Channel name.
@@ -82,7 +82,7 @@ pub struct ChannelJson {
     pub rms_after: f64,
 }
 
-/// An effect added (`formats.md` §3).
+/// An effect added (`docs/formats.md` §3).
 #[derive(Clone, Debug, Serialize, PartialEq)]
 pub struct EffectJson {
     /// Effect name.
@@ -107,7 +107,7 @@ pub struct EffectJson {
     pub region_rms_after: Option<f64>,
 }
 
-/// A force no named effect describes, as terms of the discovery basis (`formats.md`,
+/// A force no named effect describes, as terms of the discovery basis (`docs/formats.md`,
 /// "Beyond the library").
 #[derive(Clone, Debug, Serialize, PartialEq)]
 pub struct DiscoveredJson {

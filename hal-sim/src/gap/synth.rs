@@ -22,7 +22,7 @@ use crate::runlog::{RunLog, REQUIRED};
 /// Sample time of the synthetic runs, s (the simulator's 20 kHz).
 pub const SAMPLE_TIME_S: f64 = 50e-6;
 
-/// Encoder noise after interpolation, m RMS (`machine.md`: σ ≈ 1 µm).
+/// Encoder noise after interpolation, m RMS (`docs/machine.md`: σ ≈ 1 µm).
 pub const ENCODER_NOISE_M: f64 = 1e-6;
 
 /// Noise of a reported section force, N RMS.

@@ -1,7 +1,7 @@
 //! The physical plant: the piston (one moving mass between two heads), the two motor
 //! sections, the rotation, and the gas in both chambers, configured by the machine model.
 //!
-//! `m·ẍ = F_master + F_slave + (p_A − p_B)·A_eff + F_cog(x) − F_fr + F_stop` (`machine.md`;
+//! `m·ẍ = F_master + F_slave + (p_A − p_B)·A_eff + F_cog(x) − F_fr + F_stop` (`docs/machine.md`;
 //! the balance is the library's, [`fpc::physics::balance`]). State is `f64`; every law is
 //! the library's own, evaluated in `f64`. The plant advances in fixed sub-steps inside each
 //! 50 µs control period with the PWM duties held, as the averaged inverter applies them:

@@ -41,7 +41,7 @@ use profile::{RotationProgramme, Setpoint, Stroke};
 /// Speed of the slow moves (to dead point A before the strokes), m/s.
 pub const CREEP_MPS: f64 = 0.05;
 
-/// Bandwidth of the rotation servo's position loop, Hz (`machine.md`: ≈ 30 Hz).
+/// Bandwidth of the rotation servo's position loop, Hz (`docs/machine.md`: ≈ 30 Hz).
 pub const SERVO_BANDWIDTH_HZ: f64 = 30.0;
 
 /// What the programme is doing.

@@ -123,7 +123,7 @@ impl<'s> Capture<'s> {
         self.ports_from_s.get_or_insert(t_s);
     }
 
-    /// The log's metadata on what times the ports (`formats.md` §1): once the bypass has
+    /// The log's metadata on what times the ports (`docs/formats.md` §1): once the bypass has
     /// closed, `ports = open` from `ports_from_s`, and `theta_rad` is the servo encoder's
     /// count (the piston follows through the spline's play, which the model states). A run
     /// that never got there says nothing, and its pressures are not replayed.

@@ -44,7 +44,7 @@ pub mod text;
 use capture::Capture;
 pub use options::*;
 
-/// The JSON summary of a run (`formats.md` §3). `None` is printed as `null`: a figure that
+/// The JSON summary of a run (`docs/formats.md` §3). `None` is printed as `null`: a figure that
 /// this simulation cannot yet produce is never invented.
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct Summary {

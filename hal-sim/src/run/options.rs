@@ -151,7 +151,7 @@ pub struct RunOptions {
     pub configure: Option<fn(&mut ControlConfig)>,
     /// What the host does during the run, by completed compression cycle.
     pub schedule: Vec<(u32, HostAction)>,
-    /// Faults injected during the run (`--fault`; `faults.md` scenarios). With faults the
+    /// Faults injected during the run (`--fault`; `docs/faults.md` scenarios). With faults the
     /// run does not end at the first latched fault: it runs on until each fault's outcome
     /// (the stop, the piston at rest, homing's end) is known.
     pub faults: Vec<FaultSpec>,

@@ -2,7 +2,7 @@
 //! results, slices (`--shard I/N`) that other machines run and [`merge`] joins.
 //!
 //! The table (`results.csv`) holds one row per run: its index, the axes' values and every
-//! field of `run`'s JSON summary (`formats.md` §3) except the two wall-clock ones, which
+//! field of `run`'s JSON summary (`docs/formats.md` §3) except the two wall-clock ones, which
 //! differ from machine to machine; so a plan's table is the same bytes however it was
 //! sharded, and the merged slices equal the unsharded table byte for byte. Rows are in run
 //! order whatever order the threads finished in.
@@ -55,7 +55,7 @@ impl Shard {
     }
 }
 
-/// The summary fields of a row, after the axes (`formats.md` §3 less the wall clock, and
+/// The summary fields of a row, after the axes (`docs/formats.md` §3 less the wall clock, and
 /// `controller`, which a plan gives as an axis), and `error` (a run that could not be
 /// simulated).
 pub const FIELDS: [&str; 28] = [

@@ -187,7 +187,7 @@ impl ControlStep {
         None
     }
 
-    /// Both encoders lost (issue #15, `faults.md` #22): nothing tells where the piston is,
+    /// Both encoders lost (issue #15, `docs/faults.md` #22): nothing tells where the piston is,
     /// so nothing can commutate a braking force. The reaction, chosen by simulation over the
     /// whole stroke cycle (`tests/losing_both_encoders_brakes_without_position.rs`):
     ///

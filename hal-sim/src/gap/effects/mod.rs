@@ -1,4 +1,4 @@
-//! The library of named candidate effects (`formats.md` §3, `machine.md` "Signatures of
+//! The library of named candidate effects (`docs/formats.md` §3, `docs/machine.md` "Signatures of
 //! missing effects"): for each, the channel it shows in, how it is fitted from the residual,
 //! and the model edits that add it — one module per channel ([`force`], [`slave_force`],
 //! [`encoder`], [`pressure`]), each edit a typed key of the model
@@ -126,7 +126,7 @@ impl EffectKind {
         self != EffectKind::ExtraForce
     }
 
-    /// The name of `formats.md` §3.
+    /// The name of `docs/formats.md` §3.
     pub fn name(self) -> &'static str {
         match self {
             EffectKind::MassError => "mass_error",

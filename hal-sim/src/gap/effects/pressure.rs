@@ -56,7 +56,7 @@ fn pressure_kept(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Vec<f64>> {
     Some(kept_of_raw(ctx.data, ctx.band, ChannelId::Pressure, &raw))
 }
 
-/// Default seal lengths of a leakage effect the model did not have, m (`machine.md`).
+/// Default seal lengths of a leakage effect the model did not have, m (`docs/machine.md`).
 const PISTON_SEAL_LENGTH_M: f64 = 0.05;
 const ROD_SEAL_LENGTH_M: f64 = 0.03;
 

@@ -1,5 +1,5 @@
 //! `[effects.extra_force]`: a force on the piston along +x that no named effect describes,
-//! written as coefficients of a fixed basis (`formats.md`, "Beyond the library"). The model
+//! written as coefficients of a fixed basis (`docs/formats.md`, "Beyond the library"). The model
 //! gap workflow discovers it; the plant and the workflow's force replay both evaluate it
 //! through [`ExtraForceEffect::force_n`], so a discovered force is simulated exactly as it
 //! was fitted.
@@ -43,7 +43,7 @@ pub enum Term {
 }
 
 impl Term {
-    /// Every term, in the order of `formats.md`.
+    /// Every term, in the order of `docs/formats.md`.
     pub const ALL: [Term; 13] = [
         Term::One,
         Term::X,

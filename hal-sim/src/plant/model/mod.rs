@@ -1,8 +1,8 @@
-//! The machine-model file (`formats.md` §2): TOML, SI units, the unit in every key.
+//! The machine-model file (`docs/formats.md` §2): TOML, SI units, the unit in every key.
 //!
 //! The five required sections (`[piston] [friction] [gas] [motor] [encoder]`) load into
 //! [`MachineModel`]. The project's own sections (`[ports] [lines] [servo] [sensors] [limits]
-//! [simulation]`) and every optional key default to the reference machine (`machine.md`),
+//! [simulation]`) and every optional key default to the reference machine (`docs/machine.md`),
 //! key by key. Effects (`[effects.*]`) are what the model-gap workflow adds: an effect whose
 //! section is absent is absent from the physics. The reference machine itself is embedded
 //! (`reference.toml`, every key commented with its origin), so `fpc-sim run` needs no file.
@@ -27,7 +27,7 @@ pub const REFERENCE_TOML: &str = include_str!("reference.toml");
 /// Delay of the published rig's slave drive behind its master, s (**P**: 0.75 ms, paper
 /// Fig. 4): what `[effects.slave_lag] delay_s` is set to to simulate that rig. It is not a
 /// default: `slave_follows_master = true` alone means the slave is commanded with the
-/// master's force (`formats.md` §2), on time.
+/// master's force (`docs/formats.md` §2), on time.
 pub const PAPER_SLAVE_LAG_S: f64 = 0.75e-3;
 
 #[macro_use]
@@ -419,7 +419,7 @@ pub(crate) fn describe_toml(e: &toml::de::Error, text: &str) -> String {
 mod tests {
     use super::*;
 
-    /// The minimal file of `formats.md` §2.
+    /// The minimal file of `docs/formats.md` §2.
     pub const MINIMAL: &str = include_str!("../../../tests/data/minimal_model.toml");
 
     #[test]
@@ -471,7 +471,7 @@ mod tests {
         let e = m
             .effects
             .extra_force
-            .expect("the inline table of formats.md loads");
+            .expect("the inline table of docs/formats.md loads");
         assert_eq!(e.terms.get("x"), Some(&-1800.0));
     }
 

@@ -251,7 +251,7 @@ pub static RANGES: LazyLock<Vec<(String, f64, f64, &'static str)>> = LazyLock::n
 /// amplitude plus its offset must fit.
 pub const ADC_HALF_RANGE_CODES: f64 = 2047.0;
 
-/// Full scale of the pressure sensors, Pa (0–10 bar absolute, `machine.md`): the discharge
+/// Full scale of the pressure sensors, Pa (0–10 bar absolute, `docs/machine.md`): the discharge
 /// line (suction × pressure ratio) must be readable.
 pub const PRESSURE_FULL_SCALE_PA: f64 = 1.0e6;
 
