@@ -27,7 +27,7 @@ use crate::plant::model::extra_force::{ExtraState, Term};
 use crate::plant::model::{model_section, MachineModel};
 
 use super::doc::{Edit, ModelDoc};
-use super::effects::{kept_span, Ctx, EffectKind, Proposal};
+use super::effects::{kept_span, kept_x, Ctx, EffectKind, Proposal};
 use super::fit::{lstsq, minimise_1d_par};
 use super::residuals::{extra_states, force_raw, ChannelId};
 
@@ -37,20 +37,10 @@ pub const MIN_PERIOD_M: f64 = 2e-3;
 /// Grid points of the period search (log-spaced), before the golden section.
 pub const PERIOD_GRID: usize = 48;
 
-/// The non-periodic terms.
-const PLAIN: [Term; 11] = [
-    Term::One,
-    Term::X,
-    Term::X2,
-    Term::V,
-    Term::VAbsV,
-    Term::SgnV,
-    Term::A,
-    Term::FMotor,
-    Term::DeltaP,
-    Term::T,
-    Term::TSgnV,
-];
+/// The non-periodic terms, in the order of [`Term::ALL`].
+fn plain_terms() -> impl Iterator<Item = Term> {
+    Term::ALL.into_iter().filter(|t| !t.periodic())
+}
 
 /// A set of terms fitted to a residual.
 #[derive(Clone, Debug, PartialEq)]
@@ -75,19 +65,18 @@ struct Basis<'a> {
 impl<'a> Basis<'a> {
     fn new(ctx: &'a Ctx<'a>, model: &MachineModel) -> Self {
         let states = extra_states(ctx.data, model);
-        let xk: Vec<f64> = ctx
-            .band
-            .idx_force
-            .iter()
-            .filter_map(|&i| ctx.data.x_m.get(i).copied())
-            .collect();
+        let xk = kept_x(ctx);
         let mut b = Basis {
             ctx,
             states,
             span_m: kept_span(&xk),
             plain: Vec::new(),
         };
-        b.plain = PLAIN.par_iter().map(|&t| (t, b.filtered(t, 1.0))).collect();
+        b.plain = plain_terms()
+            .collect::<Vec<_>>()
+            .par_iter()
+            .map(|&t| (t, b.filtered(t, 1.0)))
+            .collect();
         b
     }
 
@@ -190,7 +179,7 @@ impl<'a> Basis<'a> {
             }
         };
         let has_one = present.iter().any(|(p, _)| *p == Term::One);
-        for t in PLAIN {
+        for t in plain_terms() {
             if present.iter().any(|(p, _)| *p == t) {
                 continue;
             }
@@ -331,7 +320,7 @@ pub fn basis_rss(ctx: &Ctx<'_>, doc: &ModelDoc, y: &[f64], k: usize) -> Option<f
     let mut best_rss: Option<f64> = None;
     while used < k {
         let mut best: Option<(TermFit, usize)> = None;
-        for t in PLAIN {
+        for t in plain_terms() {
             if present.contains(&t) || cols.iter().any(|(p, _)| *p == t) {
                 continue;
             }

@@ -307,6 +307,15 @@ pub fn shifted(x: &[f64], samples: f64) -> Vec<f64> {
         .collect()
 }
 
+/// The model's actuator lag, s (0 without `[effects.actuator_lag]`).
+fn actuator_delay_s(model: &MachineModel) -> f64 {
+    model
+        .effects
+        .actuator_lag
+        .as_ref()
+        .map_or(0.0, |l| l.delay_s)
+}
+
 /// The motor forces as they act on the piston at each row, N: the reported forces
 /// realigned by the log's convention (`data.force_align_s`) and late by the model's
 /// actuator lag `delay_s`.
@@ -332,12 +341,7 @@ pub fn tangential_mps(data: &Measured, model: &MachineModel) -> Vec<f64> {
 /// friction along the sliding velocity `(ẋ, ω·r)`.
 pub fn force_terms(data: &Measured, model: &MachineModel) -> Vec<PistonForces<f64>> {
     let n = data.len();
-    let delay = model
-        .effects
-        .actuator_lag
-        .as_ref()
-        .map_or(0.0, |l| l.delay_s);
-    let acting = acting_motor_force_n(data, delay);
+    let acting = acting_motor_force_n(data, actuator_delay_s(model));
     let laws = model.piston_laws();
     let tang = tangential_mps(data, model);
     // The gas force acts with the chambers' true pressures: the readings less the model's
@@ -399,12 +403,7 @@ pub fn force_raw(data: &Measured, model: &MachineModel) -> Vec<f64> {
 /// the motor forces as they act (realigned, late by the model's actuator lag), the logged
 /// pressure difference and the time from the first row.
 pub fn extra_states(data: &Measured, model: &MachineModel) -> Vec<ExtraState> {
-    let delay = model
-        .effects
-        .actuator_lag
-        .as_ref()
-        .map_or(0.0, |l| l.delay_s);
-    let acting = acting_motor_force_n(data, delay);
+    let acting = acting_motor_force_n(data, actuator_delay_s(model));
     let t0 = data.t_s.first().copied().unwrap_or(0.0);
     (0..data.len())
         .map(|i| {

@@ -12,7 +12,7 @@ use super::super::fit::{lstsq, minimise_1d_par};
 use super::super::residuals::{
     acting_motor_force_n, force_raw, force_terms, tangential_mps, ChannelId,
 };
-use super::{harmonics, kept_span, Ctx, EffectKind, Proposal, MAX_LAG_S};
+use super::{harmonics, kept_span, kept_x, Ctx, EffectKind, Proposal, MAX_LAG_S};
 
 /// The force residual of `doc` at the kept samples.
 fn force_kept(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Vec<f64>> {
@@ -194,12 +194,7 @@ pub(super) fn cogging(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let base = doc.with(&[Edit::RemoveSection(model_section!(effects.cogging))]);
     let pole = base.number(model_key!(motor / pole_pitch_m))?;
     let y = force_kept(ctx, &base)?;
-    let xk: Vec<f64> = ctx
-        .band
-        .idx_force
-        .iter()
-        .filter_map(|&i| ctx.data.x_m.get(i).copied())
-        .collect();
+    let xk = kept_x(ctx);
     let (f_lo, f_hi) = (1.0 / (2.5 * pole), 1.0 / (0.4 * pole));
     let df = 1.0 / (8.0 * kept_span(&xk));
     let steps = ((f_hi - f_lo) / df).ceil().min(4000.0) as usize;

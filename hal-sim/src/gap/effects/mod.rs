@@ -217,6 +217,15 @@ pub(super) fn harmonics(x: &[f64], f: f64, second: bool) -> Vec<Vec<f64>> {
 }
 
 /// The span of x over a channel's kept samples, m.
+/// The measured position at the force channel's kept samples, m.
+pub(super) fn kept_x(ctx: &Ctx<'_>) -> Vec<f64> {
+    ctx.band
+        .idx_force
+        .iter()
+        .filter_map(|&i| ctx.data.x_m.get(i).copied())
+        .collect()
+}
+
 pub(super) fn kept_span(x: &[f64]) -> f64 {
     let (lo, hi) = x
         .iter()
