@@ -24,6 +24,7 @@ pub enum Stroke {
 }
 
 /// One named series of (x, y) points.
+#[derive(Clone, Copy)]
 pub struct Series<'a> {
     /// Legend label.
     pub label: &'a str,
@@ -134,16 +135,7 @@ pub fn lines_with(
 ) -> Result<(), String> {
     let panel = Panel {
         y_label,
-        series: series
-            .iter()
-            .map(|s| Series {
-                label: s.label,
-                x: s.x,
-                y: s.y,
-                stroke: s.stroke,
-                colour: s.colour,
-            })
-            .collect(),
+        series: series.to_vec(),
         axes,
     };
     panels(path, title, x_label, &[panel])
