@@ -2,6 +2,7 @@
 //! faulted, calibrating — and the setpoint each mode plans per cycle. What a fault's
 //! reaction does beyond starting a controlled stop is in `safe_state.rs`.
 
+use super::safe_state::RestTurn;
 use super::sense::Sensed;
 use super::ControlStep;
 use crate::control::calibration::Calibration;
@@ -176,7 +177,8 @@ impl ControlStep {
                     dt,
                 ) / self.config.moving_mass_kg;
                 if v_next == 0.0 {
-                    if then == AfterStop::Off && !self.hold_released(dt) {
+                    if then == AfterStop::Off && !(self.turn_to_rest(dt) && self.hold_released(dt))
+                    {
                         return Some((sp, limit));
                     }
                     self.mode = match then {
@@ -214,6 +216,7 @@ impl ControlStep {
         self.safe.hold_quiet_s = 0.0;
         self.safe.hold_motor_ns = 0.0;
         self.safe.hold_gas_ns = 0.0;
+        self.safe.rest = RestTurn::Unplanned;
         let setpoint = match &self.mode {
             // Already stopping: keep the ramp, take the stronger reaction.
             Mode::Stopping { setpoint, then: t } => {
