@@ -50,6 +50,13 @@ fn options(pressure_ratio: f64, rotation: Rotation) -> RunOptions {
 /// fault-free run (the first cycle starts from the park position).
 fn cycle(pressure_ratio: f64, rotation: Rotation) -> (f64, f64) {
     let out = run(&options(pressure_ratio, rotation)).expect("fault-free run");
+    if rotation == Rotation::Expander {
+        assert!(
+            out.cycle_work_j.iter().skip(1).all(|w| *w < 0.0),
+            "as an expander the gas does the work: {:?}",
+            out.cycle_work_j
+        );
+    }
     let t = out.log.column("t_s").expect("t_s");
     let v = out.log.column("v_mps").expect("v_mps");
     // Dead points A: the velocity turns from toward A (−) to toward B (+) at speed.

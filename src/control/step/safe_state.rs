@@ -10,7 +10,6 @@ use super::actuate::RotaryAxis;
 use super::modes::{turn_phase, AfterStop, Mode};
 use super::{ControlStep, CycleInputs};
 use crate::control::config::ControlConfig;
-use crate::drive::foc::CurrentSense;
 use crate::motion::trajectory::Setpoint;
 use crate::physics::port_timing::{PortGeometry, PortWindow};
 use crate::real::{clamp_f32, max_f32, min_f32, sqrt_f32};
@@ -100,8 +99,6 @@ pub(super) struct SafeState {
     pub nominal_capability: PerSection<f32>,
     /// SS1's rest turn before the outputs go off ([`ControlStep::turn_to_rest`]).
     pub rest: RestTurn,
-    /// After a watchdog reset: the windings are shorted while the velocity is awaited.
-    pub reset_shorted: bool,
 }
 
 /// SS1's turn of the rotation, the piston held at rest, to the phase the outputs go off at
@@ -130,7 +127,6 @@ impl SafeState {
             brake: FaultedBrake::None,
             nominal_capability: config.allocation.capability,
             rest: RestTurn::Unplanned,
-            reset_shorted: false,
         }
     }
 }
@@ -186,29 +182,13 @@ impl ControlStep {
     /// for a valid velocity, then [`ControlStep::brake_after_reset`] starts the controlled
     /// stop (see [`ControlStep::boot`]).
     pub(super) fn await_velocity_then_brake(&mut self) {
-        self.safe.reset_shorted = false;
-        self.safe.brake = FaultedBrake::AfterReset(self.reset_wait_cycles());
-    }
-
-    /// The cycles a brake after a watchdog reset waits for a valid velocity: the
-    /// differentiator's window and 5.
-    fn reset_wait_cycles(&self) -> u16 {
-        self.config.sg_window.saturating_add(5) as u16
-    }
-
-    /// The cycles of outputs off the winding currents need to decay into the bus before the
-    /// windings may be shorted: `L·I_max/V_bus` (0.7 ms on the reference machine), and one.
-    fn current_decay_cycles(&self) -> u16 {
-        let m = &self.config.motor;
-        let decay_s = m.inductance_h * m.current_limit_a / m.bus_voltage_v;
-        clamp_f32(decay_s / self.config.sample_time_s + 1.0, 1.0, 1000.0) as u16
+        self.safe.brake = FaultedBrake::AfterReset(self.config.sg_window.saturating_add(5) as u16);
     }
 
     /// The outputs with no setpoint (not calibrating): off — the current loops reset and
-    /// the phase currents watched for an offset — except, once the currents have decayed,
-    /// with both encoders lost and after a watchdog reset until the velocity is known: the
-    /// windings short-circuited (equal duties, zero voltage on every phase;
-    /// [`ControlStep::brake_without_position`]).
+    /// the phase currents watched for an offset — except with both encoders lost once the
+    /// currents have decayed: the windings short-circuited (equal duties, zero voltage on
+    /// every phase; [`ControlStep::brake_without_position`]).
     #[cold]
     #[inline(never)]
     pub(super) fn outputs_off(&mut self, inputs: &CycleInputs) -> Option<PerSection<PhaseDuties>> {
@@ -218,28 +198,8 @@ impl ControlStep {
         self.estimator.load_n = 0.0;
         self.shares = PerSection::default();
         self.status.force_command_n = 0.0;
-        match self.safe.brake {
-            FaultedBrake::Blind(0) => return Some(PerSection::default()),
-            // After a watchdog reset, once the currents have decayed (measured below 5 % of
-            // the limit on every phase, or after the decay time) and until the velocity is
-            // known: the short circuit damps the piston meanwhile (it can only brake).
-            FaultedBrake::AfterReset(left) => {
-                let limit_a = 0.05 * self.config.motor.current_limit_a;
-                let small = |sense: &CurrentSense, codes| {
-                    let [a, b, c] = sense.amps(codes);
-                    a.abs() < limit_a && b.abs() < limit_a && c.abs() < limit_a
-                };
-                let sense = &self.config.current_sense;
-                if self.safe.reset_shorted
-                    || self.reset_wait_cycles().saturating_sub(left) >= self.current_decay_cycles()
-                    || (small(&sense.master, &inputs.currents.master)
-                        && small(&sense.slave, &inputs.currents.slave))
-                {
-                    self.safe.reset_shorted = true;
-                    return Some(PerSection::default());
-                }
-            }
-            _ => {}
+        if self.safe.brake == FaultedBrake::Blind(0) {
+            return Some(PerSection::default());
         }
         self.calibration.sense_monitor.observe(&inputs.currents);
         None
@@ -341,7 +301,10 @@ impl ControlStep {
                 };
             }
         }
-        self.safe.brake = FaultedBrake::Blind(self.current_decay_cycles());
+        let m = &self.config.motor;
+        let decay_s = m.inductance_h * m.current_limit_a / m.bus_voltage_v;
+        let cycles = clamp_f32(decay_s / self.config.sample_time_s + 1.0, 1.0, 1000.0) as u16;
+        self.safe.brake = FaultedBrake::Blind(cycles);
         // The phase to turn to once the windings are shorted (SS1's hold timer is free
         // while faulted).
         let turn = best.map_or(0.0, |(_, turn)| turn);
