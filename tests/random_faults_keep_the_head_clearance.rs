@@ -16,11 +16,16 @@
 //! tests, named after it. The full sweep (10,000 runs per mode) is `#[ignore]`: CI runs a
 //! slice of each with the slow suites (`FPC_FAULT_RUNS=N`; the full sweep is
 //! `cargo test --profile slow-tests --test random_faults_keep_the_head_clearance -- --ignored
-//! --nocapture`, ≈ 5 min per mode on two cores). A 24-run slice of each runs by default.
+//! --nocapture`, ≈ 10 min per mode on two cores). A 24-run slice of each runs by default.
 //! Each prints the distribution of the minimum clearance (overall and per fault kind: min,
 //! 1 %, median), the five worst runs with what reproduces them, and writes its histogram
 //! (`clearance.svg`). The runs go through the studies' own runner
 //! (`hal_sim::sweep::run_each`, as `fpc-sim sweep`).
+//!
+//! Status (issue #33): as a compressor 0 of 10,000 below 0.3 mm (≥ 0.417 mm). As an expander
+//! 35 of 10,000 (task hangs 29, both encoders lost 6; −0.25 mm at worst), every other kind
+//! ≥ 0.487 mm: the full expander sweep fails, so CI skips it (`.ci/run`) while its 24-run
+//! slice runs by default. Why, and what is missing: `docs/firmware.md`, "The fault sweep".
 
 use std::sync::OnceLock;
 
@@ -322,13 +327,13 @@ fn full(rotation: Rotation, name: &str) {
 }
 
 #[test]
-#[ignore = "slow: 10,000 closed-loop runs (≈ 5 min in release on two cores; FPC_FAULT_RUNS=N for another count)"]
+#[ignore = "slow: 10,000 closed-loop runs (≈ 10 min in release on two cores; FPC_FAULT_RUNS=N for another count)"]
 fn ten_thousand_random_faults_keep_the_head_clearance_as_a_compressor() {
     full(Rotation::Compressor, "full-compressor");
 }
 
 #[test]
-#[ignore = "slow: 10,000 closed-loop runs (≈ 5 min in release on two cores; FPC_FAULT_RUNS=N for another count)"]
+#[ignore = "slow: 10,000 closed-loop runs (≈ 10 min in release on two cores; FPC_FAULT_RUNS=N for another count)"]
 fn ten_thousand_random_faults_keep_the_head_clearance_as_an_expander() {
     full(Rotation::Expander, "full-expander");
 }
