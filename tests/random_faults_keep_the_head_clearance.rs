@@ -11,19 +11,21 @@
 //! happens at rest and is tested at every step of a save in
 //! `calibration_survives_a_power_cut.rs`.
 //!
-//! The full sweep (10,000 runs) is `#[ignore]`: CI runs it with the slow suites
-//! (`cargo test --workspace --profile slow-tests -- --ignored`, ≈ 5 min on two cores). A
-//! 24-run slice runs by default. Both print the distribution of the minimum clearance, the
-//! five worst runs with what reproduces them, and write its histogram (`clearance.svg`). The
-//! runs go through the studies' own runner (`hal_sim::sweep::run_each`, as `fpc-sim sweep`).
+//! Every case runs in both modes: as a compressor (rotation forward) and as an expander
+//! (rotation reversed from the first stroke, `docs/faults.md` #25). Each mode has its own
+//! tests, named after it. The full sweep (10,000 runs per mode) is `#[ignore]`: CI runs a
+//! slice of each with the slow suites (`FPC_FAULT_RUNS=N`; the full sweep is
+//! `cargo test --profile slow-tests --test random_faults_keep_the_head_clearance -- --ignored
+//! --nocapture`, ≈ 10 min per mode on two cores). A 24-run slice of each runs by default.
+//! Each prints the distribution of the minimum clearance (overall and per fault kind: min,
+//! 1 %, median), the five worst runs with what reproduces them, and writes its histogram
+//! (`clearance.svg`). The runs go through the studies' own runner
+//! (`hal_sim::sweep::run_each`, as `fpc-sim sweep`).
 //!
-//! `FPC_FAULT_ROTATION=expander` runs every case with the machine as an expander (rotation
-//! reversed from the first stroke). Not in CI, because it fails: an open finding. Of
-//! 1,500 runs, 10 end below 0.3 mm (−0.10 mm at worst). They come from section losses,
-//! pressure-sensor faults and both encoders lost, at PR 3.7–5.1. One is traced: after
-//! SS1's hold the outputs go off at a phase where chamber A is sealed at 1.08 bar and B is
-//! open to suction. The piston drifts 6 mm into head B at 0.1 m/s. The fault reactions
-//! were designed on the compressor.
+//! Status (issue #33): as a compressor 0 of 10,000 below 0.3 mm (≥ 0.417 mm). As an expander
+//! 35 of 10,000 (task hangs 29, both encoders lost 6; −0.25 mm at worst), every other kind
+//! ≥ 0.487 mm: the full expander sweep fails, so CI skips it (`.ci/run`) while its 24-run
+//! slice runs by default. Why, and what is missing: `docs/firmware.md`, "The fault sweep".
 
 use std::sync::OnceLock;
 
@@ -141,7 +143,7 @@ struct Outcome {
     fault: Option<String>,
 }
 
-fn run_case(c: &Case) -> Outcome {
+fn run_case(c: &Case, rotation: Rotation) -> Outcome {
     let spec: FaultSpec = parse(&c.spec).expect("valid spec");
     let mut o = RunOptions::reference();
     o.pressure_ratio = c.pressure_ratio;
@@ -149,7 +151,7 @@ fn run_case(c: &Case) -> Outcome {
     o.seed = c.seed;
     o.start_position_m = START_M;
     o.faults = vec![spec];
-    if expander() {
+    if rotation == Rotation::Expander {
         o.schedule = vec![(
             0,
             HostAction::Command(Command::SetRotation {
@@ -175,10 +177,11 @@ fn run_case(c: &Case) -> Outcome {
 
 /// Runs cases `0..n` over the cores with the studies' own runner (`fpc-sim sweep`'s): the
 /// result does not depend on the split.
-fn sweep(n: u64) -> Vec<Outcome> {
+fn sweep(n: u64, rotation: Rotation) -> Vec<Outcome> {
     let _ = running_start_s();
     let cases: Vec<Case> = (0..n).map(case).collect();
-    hal_sim::sweep::run_each(&cases, run_case, &|_| {})
+    let run_one = |c: &Case| run_case(c, rotation);
+    hal_sim::sweep::run_each(&cases, run_one, &|_| {})
 }
 
 /// The distribution of the minimum clearance, the five worst runs with what reproduces them,
@@ -228,19 +231,24 @@ fn distribution(outcomes: &[Outcome], name: &str) {
     println!("histogram: {}", svg.display());
 }
 
-fn report_and_check(outcomes: &[Outcome]) {
-    let mut by_kind: std::collections::BTreeMap<&str, (usize, f64, usize)> = Default::default();
+fn report_and_check(outcomes: &[Outcome], rotation: Rotation) {
+    let mut by_kind: std::collections::BTreeMap<&str, (Vec<f64>, usize)> = Default::default();
     for o in outcomes {
         let kind = o.case.spec.split('@').next().unwrap_or("?");
-        let e = by_kind.entry(kind).or_insert((0, f64::INFINITY, 0));
-        e.0 += 1;
-        e.1 = e.1.min(o.min_clearance_m);
-        e.2 += usize::from(o.fault.is_some());
+        let e = by_kind.entry(kind).or_default();
+        e.0.push(o.min_clearance_m * 1e3);
+        e.1 += usize::from(o.fault.is_some());
     }
-    for (kind, (n, min, detected)) in &by_kind {
+    println!("as {rotation:?}, min head clearance per fault kind, mm:");
+    for (kind, (c, detected)) in &mut by_kind {
+        c.sort_by(f64::total_cmp);
+        let q = |p: f64| c[((c.len() - 1) as f64 * p).round() as usize];
         println!(
-            "{kind:>20}: {n:4} runs, min head clearance {:.3} mm, a fault latched in {detected}",
-            min * 1e3
+            "{kind:>20}: {:5} runs, min {:.3}, 1 % {:.3}, median {:.3}; a fault latched in {detected}",
+            c.len(),
+            q(0.0),
+            q(0.01),
+            q(0.5)
         );
     }
     let worst = outcomes
@@ -248,7 +256,7 @@ fn report_and_check(outcomes: &[Outcome]) {
         .min_by(|a, b| a.min_clearance_m.total_cmp(&b.min_clearance_m))
         .expect("runs");
     println!(
-        "{} runs: min head clearance {:.3} mm ({} at PR {}, mass ×{:.3}, seed {})",
+        "{} runs as {rotation:?}: min head clearance {:.3} mm ({} at PR {}, mass ×{:.3}, seed {})",
         outcomes.len(),
         worst.min_clearance_m * 1e3,
         worst.case.spec,
@@ -284,19 +292,24 @@ fn report_and_check(outcomes: &[Outcome]) {
     );
 }
 
+/// The default slice in `rotation`'s mode.
+fn slice(rotation: Rotation, name: &str) {
+    let outcomes = sweep(24, rotation);
+    distribution(&outcomes, name);
+    report_and_check(&outcomes, rotation);
+}
+
 #[test]
-fn a_slice_of_random_faults_keeps_the_head_clearance() {
-    let outcomes = sweep(24);
-    distribution(&outcomes, "slice");
-    report_and_check(&outcomes);
+fn a_slice_of_random_faults_keeps_the_head_clearance_as_a_compressor() {
+    slice(Rotation::Compressor, "slice-compressor");
 }
 
-/// Whether the cases run the machine as an expander (`FPC_FAULT_ROTATION=expander`).
-fn expander() -> bool {
-    std::env::var("FPC_FAULT_ROTATION").is_ok_and(|r| r.trim() == "expander")
+#[test]
+fn a_slice_of_random_faults_keeps_the_head_clearance_as_an_expander() {
+    slice(Rotation::Expander, "slice-expander");
 }
 
-/// Runs of the full sweep: `FPC_FAULT_RUNS` or 10,000.
+/// Runs of the full sweep, per mode: `FPC_FAULT_RUNS` or 10,000.
 fn full_runs() -> u64 {
     std::env::var("FPC_FAULT_RUNS")
         .ok()
@@ -304,12 +317,23 @@ fn full_runs() -> u64 {
         .unwrap_or(10_000)
 }
 
-#[test]
-#[ignore = "slow: 10,000 closed-loop runs (≈ 5 min in release on two cores; FPC_FAULT_RUNS=N for another count)"]
-fn ten_thousand_random_faults_keep_the_head_clearance() {
+/// The full sweep in `rotation`'s mode.
+fn full(rotation: Rotation, name: &str) {
     let n = full_runs();
-    let outcomes = sweep(n);
+    let outcomes = sweep(n, rotation);
     assert_eq!(outcomes.len() as u64, n);
-    distribution(&outcomes, "full");
-    report_and_check(&outcomes);
+    distribution(&outcomes, name);
+    report_and_check(&outcomes, rotation);
+}
+
+#[test]
+#[ignore = "slow: 10,000 closed-loop runs (≈ 10 min in release on two cores; FPC_FAULT_RUNS=N for another count)"]
+fn ten_thousand_random_faults_keep_the_head_clearance_as_a_compressor() {
+    full(Rotation::Compressor, "full-compressor");
+}
+
+#[test]
+#[ignore = "slow: 10,000 closed-loop runs (≈ 10 min in release on two cores; FPC_FAULT_RUNS=N for another count)"]
+fn ten_thousand_random_faults_keep_the_head_clearance_as_an_expander() {
+    full(Rotation::Expander, "full-expander");
 }

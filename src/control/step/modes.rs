@@ -2,6 +2,7 @@
 //! faulted, calibrating — and the setpoint each mode plans per cycle. What a fault's
 //! reaction does beyond starting a controlled stop is in `safe_state.rs`.
 
+use super::safe_state::RestTurn;
 use super::sense::Sensed;
 use super::ControlStep;
 use crate::control::calibration::Calibration;
@@ -176,7 +177,8 @@ impl ControlStep {
                     dt,
                 ) / self.config.moving_mass_kg;
                 if v_next == 0.0 {
-                    if then == AfterStop::Off && !self.hold_released(dt) {
+                    if then == AfterStop::Off && !(self.turn_to_rest(dt) && self.hold_released(dt))
+                    {
                         return Some((sp, limit));
                     }
                     self.mode = match then {
@@ -214,6 +216,7 @@ impl ControlStep {
         self.safe.hold_quiet_s = 0.0;
         self.safe.hold_motor_ns = 0.0;
         self.safe.hold_gas_ns = 0.0;
+        self.safe.rest = RestTurn::Unplanned;
         let setpoint = match &self.mode {
             // Already stopping: keep the ramp, take the stronger reaction.
             Mode::Stopping { setpoint, then: t } => {
@@ -274,13 +277,31 @@ impl ControlStep {
     /// braking envelope's `a_brake`, or more when the piston is closer to the head it moves
     /// toward than that needs (a disturbance pushed it past the envelope, which is what
     /// tripped): enough to stop 1 mm short of the minimum clearance with 25 % in hand, up to
-    /// `a_brake` per healthy section (`a_brake` is what one section alone guarantees). Without
-    /// the zero (after a watchdog reset) the heads' distance is unknown: the most there is.
+    /// the most the sections in service guarantee. Without the zero (after a watchdog reset)
+    /// the heads' distance is unknown: that most.
+    ///
+    /// The most: `a_brake` per healthy section (what one section alone guarantees), or, when
+    /// larger, the healthy sections' peak force less the largest push the gas can give
+    /// toward the head — one chamber on the discharge line, the other at suction, by the
+    /// last line pressures — over the moving mass (PR 5.1: 10 kN − 2.5 kN, 625 m/s²; one
+    /// section 210 m/s²). As a compressor the chamber ahead is a gas spring that helps; as
+    /// an expander it exhausts near the dead point and the sections brake the piston alone,
+    /// on the envelope's edge: a section lost there, or a control task hung there for the
+    /// watchdog's 5 ms, leaves the piston past what `a_brake` stops (issue #33).
     pub(super) fn stop_deceleration(&self, position_m: f32, velocity_mps: f32) -> f32 {
         let c = &self.config.supervisor;
         let cap = self.config.allocation.capability;
         let sections = clamp_f32(cap.master, 0.0, 1.0) + clamp_f32(cap.slave, 0.0, 1.0);
-        let a_max = c.brake_deceleration_mps2 * max_f32(sections, 1.0);
+        let mut a_max = c.brake_deceleration_mps2 * max_f32(sections, 1.0);
+        let [_, _, suction, discharge] = self.sensing.pressures.last_pa;
+        // (Arguments in this order: a NaN pressure gives a NaN push.)
+        let gas_n = max_f32(0.0, discharge - suction) * self.config.cylinder.area_m2;
+        let a_force = (self.config.allocation.section_limit_n * sections - gas_n)
+            / self.config.moving_mass_kg;
+        // (NaN — no line pressure yet — keeps `a_brake` per section.)
+        if a_force > a_max {
+            a_max = a_force;
+        }
         if self.sensing.zero_raw_m.is_none() {
             return a_max;
         }

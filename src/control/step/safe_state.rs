@@ -97,6 +97,23 @@ pub(super) struct SafeState {
     pub brake: FaultedBrake,
     /// Each section's capability as configured (restored when faults are cleared).
     pub nominal_capability: PerSection<f32>,
+    /// SS1's rest turn before the outputs go off ([`ControlStep::turn_to_rest`]).
+    pub rest: RestTurn,
+}
+
+/// SS1's turn of the rotation, the piston held at rest, to the phase the outputs go off at
+/// ([`ControlStep::turn_to_rest`]); phases in rad, [0, 2π).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) enum RestTurn {
+    /// Not planned yet (a stop is in progress).
+    Unplanned,
+    /// The shorter way to `via`, inside the near chamber's intake window, then forward to
+    /// `target`.
+    Via { via: f32, target: f32 },
+    /// Forward to `target`, across the near chamber's intake closing.
+    Final { target: f32 },
+    /// At the target (or no turn possible): the hold may end.
+    Done,
 }
 
 impl SafeState {
@@ -109,6 +126,7 @@ impl SafeState {
             sealing_turn_rad: 0.0,
             brake: FaultedBrake::None,
             nominal_capability: config.allocation.capability,
+            rest: RestTurn::Unplanned,
         }
     }
 }
@@ -323,6 +341,80 @@ impl ControlStep {
         }
     }
 
+    /// SS1's rest turn (issue #33): before the outputs go off, the rotation — the piston
+    /// held at rest by the sections — turns to the phase where the chamber between the
+    /// piston and the nearer head has just been vented to its intake and sealed, and the
+    /// other chamber is open to its intake. Returns whether the rotation is there (the hold
+    /// may end).
+    ///
+    /// Why: with the outputs off nothing but the gas holds the piston. A chamber open to a
+    /// line pushes with a constant pressure; a sealed one is a gas spring, stiff in
+    /// proportion to 1/(its gas column). Left with the *far* chamber sealed above the near
+    /// one's line (a 100 mm column at 1.08 bar against suction: 50 N), the piston drifts
+    /// until the far chamber has expanded to the line's pressure — 6 mm, into the head
+    /// (the expander's failures before this turn). Left with the near chamber sealed at a
+    /// line's discharge pressure, its gas throws the piston across the stroke. Sealed at
+    /// the suction pressure with the far chamber at suction too, no pressure difference
+    /// pushes the piston either way, and a push toward the near head compresses a column
+    /// of a few millimetres: it stops within a fraction of one.
+    ///
+    /// The phases come from the port geometry alone: the target is one and a half ramps past
+    /// the near chamber's intake closing (the far chamber's intake open there on the
+    /// reference geometry: 189° near head A, 9° near head B), reached going forward across
+    /// that closing from inside the intake window, so the chamber is vented on the way.
+    /// From anywhere else the rotation first turns the shorter way to one and a half ramps
+    /// before the closing. The rotation is at rest after the stop in either mode (the stop
+    /// freezes its reference), so the direction it ran in does not change the turn.
+    /// Crossing the far chamber's discharge window on the way puts the line's pressure
+    /// difference on the piston (2.5 kN at PR 5.1): one section alone holds 5 kN.
+    ///
+    /// No turn without the heads' distance (after a watchdog reset, not homed) or with the
+    /// rotation itself faulted: the hold then ends on the force criterion alone.
+    #[cold]
+    #[inline(never)]
+    pub(super) fn turn_to_rest(&mut self, dt: f32) -> bool {
+        if self.sensing.zero_raw_m.is_none() || self.faults.contains(Fault::RotationSync) {
+            self.safe.rest = RestTurn::Done;
+        }
+        let phase = turn_phase(self.rotary.reference_rad);
+        if self.safe.rest == RestTurn::Unplanned {
+            let g = &self.config.port_geometry;
+            let margin = 1.5 * g.ramp_rad;
+            let near_a = self.status.position_m < 0.5 * self.config.supervisor.travel_m;
+            let intake = if near_a { &g.intake_a } else { &g.intake_b };
+            let via = turn_phase(intake.close_rad - margin);
+            let target = turn_phase(intake.close_rad + margin);
+            // Already inside the intake's open part, before the via point: straight on.
+            let from = intake.open_rad + g.ramp_rad;
+            self.safe.rest = if turn_phase(phase - from) <= turn_phase(via - from) {
+                RestTurn::Final { target }
+            } else {
+                RestTurn::Via { via, target }
+            };
+        }
+        let step = VENT_SPEED_RAD_S * dt;
+        match self.safe.rest {
+            RestTurn::Via { via, target } => {
+                let d = turn_phase(via - phase + PI) - PI;
+                self.rotary.reference_rad += clamp_f32(d, -step, step);
+                if d.abs() <= step {
+                    self.safe.rest = RestTurn::Final { target };
+                }
+                false
+            }
+            RestTurn::Final { target } => {
+                // Forward only (the chamber is vented on the way to its intake's closing).
+                let left = turn_phase(target - phase);
+                self.rotary.reference_rad += min_f32(left, step);
+                if left <= step {
+                    self.safe.rest = RestTurn::Done;
+                }
+                false
+            }
+            RestTurn::Unplanned | RestTurn::Done => true,
+        }
+    }
+
     /// After a watchdog reset: counts the cycles until the velocity estimate is valid, then
     /// starts the controlled stop (see [`ControlStep::boot`]).
     #[cold]
@@ -345,6 +437,7 @@ impl ControlStep {
         self.safe.hold_quiet_s = 0.0;
         self.safe.hold_motor_ns = 0.0;
         self.safe.hold_gas_ns = 0.0;
+        self.safe.rest = RestTurn::Unplanned;
         self.safe.stop_decel_mps2 = self.stop_deceleration(self.status.position_m, 0.0);
         self.estimator.stop_n = 0.0;
         self.mode = Mode::Stopping {
