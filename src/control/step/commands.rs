@@ -174,6 +174,7 @@ impl ControlStep {
                 if self.sensing.encoders.master.cause_present()
                     || self.sensing.encoders.slave.cause_present()
                     || self.sensing.pressures.bad_cycles > 0
+                    || !self.supply_good
                 {
                     return Err(Refusal::CausePersists);
                 }
