@@ -11,8 +11,10 @@
 //! runs below the logic supply's dropout the board is off until the mains returns.
 //!
 //! `power_cut@T` at 48 instants over one stroke cycle at 4.1 m/s (PR 5.1) and of the
-//! 3.1 cycle at the same speed, as a compressor and as an expander: every run must latch
-//! `supply_loss` as its first fault after the cut and keep 0.3 mm from the heads. The default
+//! 3.1 cycle at the same speed, as a compressor and as an expander: every run must keep
+//! 0.3 mm from the heads and latch `supply_loss` as its first fault after the cut — unless
+//! the link never fell to the power-good threshold: as an expander the machine feeds the
+//! link (the chopper takes the surplus), so the strokes go on under full control. The default
 //! suite runs 12 phases of each; the slow suite all 48 (`--ignored`), and the table of the
 //! smallest link capacitance that keeps 0.3 mm against speed (`docs/firmware.md`).
 
@@ -109,6 +111,9 @@ struct Cut {
     detection_ms: f64,
     energy_left_j: f64,
     lowest_v: f64,
+    /// The link never fell to the power-good threshold: the machine fed it (as an
+    /// expander), so nothing was lost and nothing braked.
+    ridden_through: bool,
     peak_v: f64,
     chopped_j: f64,
 }
@@ -144,13 +149,16 @@ fn cuts(p: &Point, phases: usize) -> Vec<Cut> {
         |at| {
             let mut o = p.options();
             o.faults = vec![parse(&format!("power_cut@{at:.5}")).unwrap()];
+            let power_good_v = o.model.supply.power_good_voltage_v;
             let out = run(&o).expect("run");
             let r = &out.injection;
             let link = r.link.expect("the mains went");
+            let first_fault = r.first_fault_after_onset().map(|(_, f)| f);
             Cut {
                 at_s: *at,
                 clearance_m: r.min_clearance_m.expect("a clearance"),
-                first_fault: r.first_fault_after_onset().map(|(_, f)| f),
+                first_fault,
+                ridden_through: first_fault.is_none() && link.lowest_v >= power_good_v,
                 detection_ms: r.detection_s().unwrap_or(f64::NAN) * 1e3,
                 energy_left_j: link.energy_left_j,
                 lowest_v: link.lowest_v,
@@ -192,12 +200,19 @@ fn every_phase(points: &[Point], phases: usize) -> f64 {
             worst.clearance_m * 1e3,
             worst.at_s
         );
+        let ridden = cuts.iter().filter(|c| c.ridden_through).count();
+        if ridden > 0 {
+            println!(
+                "{label}: {ridden} of {phases} cuts ridden through (the machine fed the link)"
+            );
+        }
         for c in &cuts {
-            assert_eq!(
-                c.first_fault,
-                Some(Fault::SupplyLoss),
-                "{label}: power_cut@{:.5}",
-                c.at_s
+            // Braked, or nothing to brake: the link never fell (an expander feeds it).
+            assert!(
+                c.first_fault == Some(Fault::SupplyLoss) || c.ridden_through,
+                "{label}: power_cut@{:.5}: {:?}",
+                c.at_s,
+                c.first_fault
             );
             assert!(
                 c.clearance_m >= MIN_CLEARANCE_M,
@@ -275,10 +290,6 @@ fn the_smallest_link_capacitance_that_keeps_the_clearance_against_speed() {
                     capacitance_f: Some(c),
                 };
                 for cut in cuts(&p, phases) {
-                    if cut.first_fault != Some(Fault::SupplyLoss) {
-                        // Never detected within the outage: the link kept the machine going.
-                        continue;
-                    }
                     least = least.min(cut.clearance_m);
                 }
             }
