@@ -120,15 +120,14 @@ struct Cut {
 
 /// `power_cut` at `phases` instants evenly over one stroke cycle at `p`, over the cores.
 fn cuts(p: &Point, phases: usize) -> Vec<Cut> {
-    static CYCLES: OnceLock<std::sync::Mutex<Vec<(String, (f64, f64))>>> = OnceLock::new();
-    let key = format!(
-        "{}",
-        Point {
-            capacitance_f: None,
-            ..*p
-        }
-        .label()
-    );
+    /// The stroke cycle of each machine state, found once (the link does not change it).
+    type Known = std::sync::Mutex<Vec<(String, (f64, f64))>>;
+    static CYCLES: OnceLock<Known> = OnceLock::new();
+    let key = Point {
+        capacitance_f: None,
+        ..*p
+    }
+    .label();
     let cache = CYCLES.get_or_init(Default::default);
     let known = cache
         .lock()
