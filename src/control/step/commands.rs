@@ -258,6 +258,26 @@ mod tests {
     }
 
     #[test]
+    fn a_supply_loss_latches_once_and_is_cleared_only_once_the_supply_is_back() {
+        let mut step = ControlStep::new(ControlConfig::reference()).unwrap();
+        step.supply(true);
+        assert!(step.faults.is_empty());
+        step.supply(false);
+        step.supply(false);
+        assert!(step.faults.contains(Fault::SupplyLoss));
+        assert_eq!(step.faults.iter().count(), 1);
+        // Not homed: the brake's short circuit, the outputs' own (the faulted state).
+        assert!(matches!(step.mode, Mode::Faulted));
+        assert_eq!(
+            step.command(Command::ClearFaults),
+            Err(Refusal::CausePersists)
+        );
+        step.supply(true);
+        assert_eq!(step.command(Command::ClearFaults), Ok(()));
+        assert!(step.faults.is_empty());
+    }
+
+    #[test]
     fn set_parameter_validates_and_changes_only_what_it_names() {
         let mut step = ControlStep::new(ControlConfig::reference()).unwrap();
         let before = step.config().clone();
