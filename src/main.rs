@@ -73,9 +73,21 @@ mod firmware {
 
     /// The 1 kHz supervision task (thread mode): the only one that feeds the watchdog.
     #[embassy_executor::task]
-    async fn supervision(sleep: BoardSleep, clock: BoardClock, watchdog: BoardWatchdog) {
-        let never: Infallible =
-            fpc::tasks::supervision_run(sleep, clock, watchdog, board::DefmtEvents, &SHARED).await;
+    async fn supervision(
+        sleep: BoardSleep,
+        clock: BoardClock,
+        watchdog: BoardWatchdog,
+        power_good: board::PowerGood,
+    ) {
+        let never: Infallible = fpc::tasks::supervision_run(
+            sleep,
+            clock,
+            watchdog,
+            board::DefmtEvents,
+            power_good,
+            &SHARED,
+        )
+        .await;
         match never {}
     }
 
@@ -152,7 +164,8 @@ mod firmware {
         spawner.spawn(defmt::unwrap!(supervision(
             board.sleep,
             board.clock,
-            board.watchdog
+            board.watchdog,
+            board.power_good
         )));
         spawner.spawn(defmt::unwrap!(telemetry(telemetry_sink)));
         spawner.spawn(defmt::unwrap!(commands(

@@ -109,6 +109,14 @@ pub trait PressureInput {
     fn read(&mut self) -> PressureCodes;
 }
 
+/// The drive board's power-good input: an undervoltage comparator on the power stage says
+/// whether the DC link is above its threshold (`docs/firmware.md`, "A supply loss in
+/// motion"). Read by the 1 kHz supervision task, never by the 20 kHz path.
+pub trait SupplyMonitor {
+    /// Whether the link is above the power-good threshold now.
+    fn power_good(&mut self) -> bool;
+}
+
 /// All ports of the 20 kHz control task, bundled so the task takes one argument.
 pub struct ControlPorts<T, E, C, P, Q, S, R> {
     /// Cycle trigger (end of the sampling burst).

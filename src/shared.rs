@@ -58,6 +58,9 @@ pub struct Shared<M: RawMutex> {
     scope: Mutex<M, RefCell<Scope>>,
     /// The scope is armed or recording: the control task's one test while it is not.
     scope_active: AtomicBool,
+    /// The supply is lost (power-good low at the supervision task's last look). Zero is
+    /// "good", so a fresh boot starts with the supply good until the first look.
+    supply_lost: AtomicBool,
     /// The newest calibration record not yet saved (a newer one replaces it). A channel, not
     /// a `Signal`: an empty channel is all zeros, so `Shared` stays in `.bss` (a `Signal`
     /// moved all 2.2 KiB of it to `.data`, whose initial image costs as much flash).
@@ -93,6 +96,7 @@ impl<M: RawMutex> Shared<M> {
             ports: AtomicU8::new(Ports::Timed.code()),
             scope: Mutex::new(RefCell::new(Scope::new())),
             scope_active: AtomicBool::new(false),
+            supply_lost: AtomicBool::new(false),
             calibration: Channel::new(),
             current_calibration: Channel::new(),
             calibration_to_load: Channel::new(),
@@ -130,6 +134,18 @@ impl<M: RawMutex> Shared<M> {
     /// The latest status.
     pub fn status(&self) -> Status {
         self.status.lock(|s| s.get())
+    }
+
+    /// The supervision task reports what the power-good input reads.
+    pub fn report_supply(&self, good: bool) {
+        self.supply_lost.store(!good, Ordering::Relaxed);
+    }
+
+    /// Whether the supply was lost at the supervision task's last look (one load in the
+    /// control task's cycle).
+    #[inline]
+    pub fn supply_good(&self) -> bool {
+        !self.supply_lost.load(Ordering::Relaxed)
     }
 
     /// A task reports that it ran.

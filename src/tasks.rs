@@ -24,7 +24,7 @@ use crate::link::scope::{
 use crate::link::telemetry::WIRE_BYTES;
 use crate::ports::{
     ByteSource, Clock, ControlPorts, CurrentInput, CycleTrigger, EncoderInput, EventLog, FrameSink,
-    PressureInput, PwmOutput, QuadratureInput, Sleep, TorqueOutput, Watchdog,
+    PressureInput, PwmOutput, QuadratureInput, Sleep, SupplyMonitor, TorqueOutput, Watchdog,
 };
 use crate::safety::faults::ResetCause;
 use crate::shared::{task_bits, Shared};
@@ -117,6 +117,8 @@ pub fn control_cycle<M, T, E, C, P, Q, S, R>(
     R: PressureInput,
 {
     serve_commands(step, shared);
+    // The supervision task's last look at the power-good input (one load and a branch).
+    step.supply(shared.supply_good());
     let inputs = CycleInputs {
         t,
         encoders: ports.encoders.read(),
@@ -170,14 +172,17 @@ pub fn serve_commands<M: RawMutex>(step: &mut ControlStep, shared: &Shared<M>) {
 }
 
 /// The supervision task (thread mode, 1 kHz): feeds the independent watchdog only when
-/// every task has checked in since the last feed, so a hung task resets the board; and
-/// reports what an operator must know — a fault latched, a limit that became active, a mode
-/// change — to `log` (the 20 kHz path never logs).
-pub async fn supervision_run<M, L, K, W, G>(
+/// every task has checked in since the last feed, so a hung task resets the board; reads the
+/// power-good input for the control task (a supply loss is found within a period, which
+/// the DC link outlasts by far: `docs/firmware.md`); and reports what an operator must know
+/// — a fault latched, a limit that became active, a mode change — to `log` (the 20 kHz
+/// path never logs).
+pub async fn supervision_run<M, L, K, W, G, U>(
     mut sleep: L,
     clock: K,
     mut watchdog: W,
     mut log: G,
+    mut supply: U,
     shared: &Shared<M>,
 ) -> Infallible
 where
@@ -186,6 +191,7 @@ where
     K: Clock,
     W: Watchdog,
     G: EventLog,
+    U: SupplyMonitor,
 {
     let mut next = clock.now();
     let mut seen = shared.status();
@@ -195,6 +201,7 @@ where
         if shared.take_checkins(task_bits::ALL) {
             watchdog.feed();
         }
+        shared.report_supply(supply.power_good());
         let now = shared.status();
         for fault in now.faults.iter().filter(|f| !seen.faults.contains(*f)) {
             log.fault_latched(fault);

@@ -1010,9 +1010,17 @@ fn s21_after_a_power_cut_the_board_boots_from_its_stored_calibration_and_stays_s
     ] {
         let mut o = options(20, vec![parse(&spec).unwrap()]);
         o.calibration = Some(record);
+        // A link too small to ride through the outage (20 µF: the logic supply drops out
+        // within 75 ms at rest), so the board is off and boots again; the braking on the
+        // link's energy (`docs/faults.md` #24) is `tests/a_supply_loss_at_full_speed_is_braked.rs`.
+        o.model.supply.link_capacitance_f = 20e-6;
         let out = run(&o).expect("run");
         let r = &out.injection;
         report(21, &spec, r);
+        assert!(
+            r.link.is_some_and(|l| l.logic_dropped),
+            "{spec}: the board went off"
+        );
         // Power back 0.1 s after the onset; from 1 ms after it on, no section pushes.
         let back_s = r.first_onset_us().unwrap() as f64 * 1e-6 + 0.1 + 1e-3;
         let t = out.log.column("t_s").unwrap();

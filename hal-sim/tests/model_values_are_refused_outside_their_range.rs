@@ -253,6 +253,18 @@ fn values_that_make_no_machine_together_are_refused() {
             "substeps_per_period = -1",
             "substeps_per_period",
         ),
+        // The link's thresholds out of order: power good above the nominal voltage, the
+        // chopper below it.
+        (
+            "power_good_voltage_v = 500.0",
+            "power_good_voltage_v = 600.0",
+            "supply.power_good_voltage_v",
+        ),
+        (
+            "chopper_voltage_v = 750.0",
+            "chopper_voltage_v = 550.0",
+            "supply.chopper_voltage_v",
+        ),
     ];
     for (from, to, want) in cases {
         assert!(REFERENCE.contains(from), "{from}");

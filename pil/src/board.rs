@@ -19,7 +19,7 @@
 //! TIM1 CH1–3 drive section 1's bridge, TIM8 CH1–3 section 2's: a phase's average voltage
 //! over a period is its compare value over ARR (centre-aligned PWM mode 1), and a bridge
 //! whose MOE is 0 is off. DAC1 OUT1 is the servo's torque command. TIM4 counts the servo
-//! encoder.
+//! encoder. PB5 (GPIOB_IDR bit 5) reads the DC link's power-good comparator.
 
 use fpc::units::{DacCode, Duty, PerSection, PhaseDuties};
 use hal_sim::board::world::World;
@@ -100,6 +100,12 @@ impl Board {
             _ => return 0,
         };
         c.0
+    }
+
+    /// What the DC link's power-good comparator drives onto PB5: high while the link is
+    /// above its threshold (always, unless a scenario cuts the plant's mains).
+    pub fn power_good(&self) -> bool {
+        self.world.plant.supply.power_good()
     }
 
     /// The servo encoder's count (TIM4 CNT).

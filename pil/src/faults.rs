@@ -12,6 +12,7 @@
 //! | [`Scenario::TornSave`] | the supply cut during a calibration save, the torn double word ECC-poisoned |
 //! | [`Scenario::SaveError`] | the flash controller ends a save's program with PROGERR |
 //! | [`Scenario::SingleBank`] | option bytes with DBANK = 0 |
+//! | [`Scenario::SupplyLoss`] | the mains stops while stroking: the board runs on the plant's DC link, PB5 (power good) falls with it |
 
 use fpc::control::calibration::Routine;
 use fpc::control::command::Command;
@@ -44,11 +45,14 @@ pub enum Scenario {
     SaveError,
     /// Item 6: DBANK = 0.
     SingleBank,
+    /// A supply loss while stroking (`docs/faults.md` #24): the firmware reads PB5 low and
+    /// brakes on the DC link's energy.
+    SupplyLoss,
 }
 
 impl Scenario {
     /// Every scenario.
-    pub const ALL: [Scenario; 7] = [
+    pub const ALL: [Scenario; 8] = [
         Scenario::BootWindow,
         Scenario::HungControl,
         Scenario::FaultPath,
@@ -56,6 +60,7 @@ impl Scenario {
         Scenario::TornSave,
         Scenario::SaveError,
         Scenario::SingleBank,
+        Scenario::SupplyLoss,
     ];
 
     /// Its name on the command line.
@@ -68,6 +73,7 @@ impl Scenario {
             Scenario::TornSave => "torn-save",
             Scenario::SaveError => "save-error",
             Scenario::SingleBank => "single-bank",
+            Scenario::SupplyLoss => "supply-loss",
         }
     }
 }
@@ -191,7 +197,10 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
             }
         }
         Scenario::SingleBank => until(&mut s, &mut min_clearance, 0.1)?,
-        Scenario::HungControl | Scenario::FaultPath | Scenario::PanicOnStop => {
+        Scenario::HungControl
+        | Scenario::FaultPath
+        | Scenario::PanicOnStop
+        | Scenario::SupplyLoss => {
             // Home, close the bypass, start the strokes, and inject at full speed.
             let _ = MachineModel::reference;
             while !s.send(Command::Home) {
@@ -215,6 +224,7 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
             match scenario {
                 Scenario::HungControl => s.chip.soc().hang_pending = true,
                 Scenario::FaultPath => s.chip.soc().bus_fault_pending = true,
+                Scenario::SupplyLoss => s.chip.soc().board.world.plant.supply.cut(),
                 _ => {
                     s.send(Command::Stop);
                 }

@@ -228,6 +228,32 @@ fn a_hung_control_task_is_reset_by_the_watchdog_and_braked() {
     boots_within_the_simulators_boot_time(&r);
 }
 
+/// The mains stops while the ELF strokes at full speed: the board runs on the plant's DC
+/// link, whose power-good comparator drives PB5; the supervision task reads it low, the
+/// control task latches `supply_loss` and brakes (short circuit and sealing turn) with no
+/// reset, keeping 0.3 mm from the heads (`docs/faults.md` #24).
+#[test]
+fn a_supply_loss_while_stroking_is_read_from_pb5_and_braked() {
+    let r = scenario(Scenario::SupplyLoss);
+    assert!(r.injected_at_s.is_some(), "not injected");
+    assert!(
+        r.faults.iter().any(|f| f == "supply_loss"),
+        "{:?}",
+        r.faults
+    );
+    assert!(!r.lines("fault latched: supply_loss").is_empty());
+    assert!(r.resets.is_empty(), "{:?}", r.resets);
+    println!(
+        "supply loss: min head clearance from the cut {:.3} mm",
+        r.min_clearance_after_m * 1e3
+    );
+    assert!(
+        r.min_clearance_after_m >= 0.3e-3,
+        "{:.3} mm",
+        r.min_clearance_after_m * 1e3
+    );
+}
+
 /// The ELF's boot, from a reset to its control task's first run, takes no longer than the
 /// host simulator's model of it (`hal_sim::board::exec::BOOT_US`), which delays the brake
 /// after a watchdog reset by that much: a simulator that rebooted faster would claim a brake

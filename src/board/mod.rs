@@ -27,6 +27,7 @@
 //! | pressure suction / discharge | PC0 / PC2 | ADC1 / ADC2 | IN6 / IN8, regular rank 4 |
 //! | servo encoder A / B | PB6 / PB7 | TIM4 | CH1 / CH2 (AF2), internal pull-ups, encoder mode 3, filter fDTS/16 N = 8 |
 //! | servo torque command | PA4 | DAC1 | OUT1, buffered, mid-scale = 0 (written before enable) |
+//! | DC-link power good | PB5 | GPIO | input, pull-down (low = supply lost), read at 1 kHz ([`supply`]) |
 //! | debug, defmt over RTT | PA13 / PA14 | SWD | SWDIO / SWCLK |
 //!
 //! The currents use the fast channels (IN1–IN5); PA2 carrying one of them costs the Nucleo's
@@ -72,6 +73,7 @@ mod fault;
 mod pwm;
 pub mod rtt;
 mod servo;
+mod supply;
 mod test_build;
 mod time;
 mod watchdog;
@@ -89,6 +91,7 @@ pub use adc::{CurrentAdc, EncoderAdc, PressureAdc, SampleTrigger};
 pub use fault::take_kept_cause;
 pub use pwm::MotorPwm;
 pub use servo::{ServoEncoder, ServoTorque};
+pub use supply::PowerGood;
 pub use time::{BoardClock, BoardSleep};
 pub use watchdog::BoardWatchdog;
 
@@ -140,6 +143,8 @@ pub struct Board {
     /// The calibration store (`None` if its range does not fit the flash's pages, which
     /// the boot then treats as an unreadable calibration).
     pub calibration: Option<BoardCalibrationStore>,
+    /// The DC link's power-good input, for the supervision task.
+    pub power_good: PowerGood,
 }
 
 /// Operator events as defmt logs, at the levels the project uses everywhere: error = a fault
@@ -212,6 +217,7 @@ pub fn init() -> Board {
         },
     ));
     let servo_torque = ServoTorque::new(p.DAC1, p.PA4);
+    let power_good = PowerGood::new(p.PB5);
 
     use adc::{adc1_channel as adc1, adc2_channel as adc2};
     let master = adc::Sequence {
@@ -285,6 +291,7 @@ pub fn init() -> Board {
         sleep: BoardSleep,
         watchdog,
         calibration,
+        power_good,
     }
 }
 

@@ -41,11 +41,14 @@ pub enum Fault {
     HomingFailed = 13,
     /// The stored configuration is invalid: reload a valid parameter set.
     ConfigInvalid = 14,
+    /// The drive's supply was lost (the DC link fell below the power-good threshold): the
+    /// piston was braked on the link's energy; check the mains, its fuses and contactor.
+    SupplyLoss = 15,
 }
 
 impl Fault {
     /// Every fault, in number order.
-    pub const ALL: [Fault; 14] = [
+    pub const ALL: [Fault; 15] = [
         Fault::EncoderSignal,
         Fault::EncoderMismatch,
         Fault::PressureSensor,
@@ -60,6 +63,7 @@ impl Fault {
         Fault::WatchdogReset,
         Fault::HomingFailed,
         Fault::ConfigInvalid,
+        Fault::SupplyLoss,
     ];
 
     /// Stable snake_case name (run logs, JSON, command line).
@@ -79,6 +83,7 @@ impl Fault {
             Fault::WatchdogReset => "watchdog_reset",
             Fault::HomingFailed => "homing_failed",
             Fault::ConfigInvalid => "config_invalid",
+            Fault::SupplyLoss => "supply_loss",
         }
     }
 
@@ -110,6 +115,9 @@ impl Fault {
             | Fault::RotationSync
             | Fault::Deadline
             | Fault::HomingFailed => Reaction::Ss1,
+            // The brake that needs the least of the link's energy (`docs/faults.md` #24):
+            // an SS1 stop held against a sealed chamber runs the link flat in 80 ms.
+            Fault::SupplyLoss => Reaction::BrakeWithoutPosition,
         }
     }
 }
@@ -130,9 +138,10 @@ pub enum Reaction {
     /// The section with the larger phase current taken out of the allocation, then SS1 on
     /// the other (either section alone can stop the piston).
     DropSection,
-    /// No position left (both encoders lost): STO while the winding currents decay, then
-    /// the windings short-circuited and the rotation turned to seal the chamber ahead, whose
-    /// gas takes the piston's energy (`docs/faults.md` #22).
+    /// No position left (both encoders lost), or no supply (the DC link's energy must last
+    /// until the piston is at rest): STO while the winding currents decay, then the windings
+    /// short-circuited and the rotation turned to seal the chamber ahead, whose gas takes the
+    /// piston's energy (`docs/faults.md` #22, #24).
     BrakeWithoutPosition,
     /// After a watchdog reset: the outputs off until the velocity estimate is valid, then a
     /// controlled stop in the encoders' own frame, the outputs off once holding needs no

@@ -82,6 +82,10 @@ pub struct Execution {
     /// The supply is off until this time, µs: no task runs, the outputs are low; then the
     /// board boots from power-on.
     pub power_off_until_us: Option<u64>,
+    /// The mains is off until this time, µs: the board runs on the DC link
+    /// ([`crate::plant::supply`]) until its logic supply drops out, and is then off (as
+    /// [`Execution::power_off_until_us`]) until the mains is back, which recharges the link.
+    pub mains_off_until_us: Option<u64>,
     /// Simulated time of every boot after a power cut, µs.
     pub power_ups_us: Vec<u64>,
     /// The MCU is booting after a reset until this time, µs ([`BOOT_US`]): no task runs.
@@ -172,6 +176,7 @@ where
             clock(&world),
             watchdog(&world),
             event_log(&world),
+            peripherals(&world),
             shared
         ));
         let decimation = world.borrow().telemetry.decimation;
@@ -237,6 +242,7 @@ where
             clock(&world),
             watchdog(&world),
             event_log(&world),
+            peripherals(&world),
             &shared
         ));
         let decimation = world.borrow().telemetry.decimation;
@@ -281,6 +287,16 @@ where
             }
             if each_cycle(&mut w, &shared, &mut execution).is_break() {
                 break 'boot;
+            }
+            if let Some(back) = execution.mains_off_until_us {
+                if w.time_us() >= back {
+                    execution.mains_off_until_us = None;
+                    w.plant.supply.restore();
+                } else if !w.plant.supply.logic_powered() && execution.power_off_until_us.is_none()
+                {
+                    // The link ran down: the board is off for the rest of the outage.
+                    execution.power_off_until_us = Some(back);
+                }
             }
             if let Some(until) = execution.power_off_until_us {
                 if w.time_us() >= until {
@@ -369,6 +385,7 @@ impl<'s> LinkedBoard<'s> {
                 clock(&world),
                 watchdog(&world),
                 event_log(&world),
+                peripherals(&world),
                 shared,
             )),
             Box::pin(telemetry_run(telemetry_sink(&world), shared, decimation)),

@@ -32,8 +32,8 @@ use fpc::control::step::CycleInputs;
 use fpc::drive::servo::torque_of_code;
 use fpc::ports::{
     Clock, CurrentInput, CycleTrigger, EncoderCodes, EncoderInput, PhaseCurrentCodes,
-    PressureCodes, PressureInput, PwmOutput, QuadratureInput, SinCosCodes, Sleep, TorqueOutput,
-    Watchdog,
+    PressureCodes, PressureInput, PwmOutput, QuadratureInput, SinCosCodes, Sleep, SupplyMonitor,
+    TorqueOutput, Watchdog,
 };
 use fpc::units::{DacCode, Duty, PerSection, PhaseDuties, Section, Ticks, CONTROL_PERIOD_US};
 
@@ -355,6 +355,13 @@ impl Sleep for SimClock {
 /// The simulated board's peripherals: one handle implementing every sampling/output port.
 pub struct SimPeripherals {
     world: WorldRef,
+}
+
+/// The power-good comparator on the DC link (`[supply] power_good_voltage_v`).
+impl SupplyMonitor for SimPeripherals {
+    fn power_good(&mut self) -> bool {
+        self.world.borrow().plant.supply.power_good()
+    }
 }
 
 impl EncoderInput for SimPeripherals {

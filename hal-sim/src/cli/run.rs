@@ -250,6 +250,21 @@ pub fn main(args: RunArgs) -> CmdResult {
             fmt_mm(r.min_clearance_m),
             r.resets_us.len()
         )?;
+        if let Some(l) = &r.link {
+            errln!(
+                "fpc-sim run: DC link over the mains outage: {:.1} J left, {:.0}–{:.0} V, \
+                 chopper {:.1} J, logic supply {}",
+                l.energy_left_j,
+                l.lowest_v,
+                l.peak_v,
+                l.chopped_j,
+                if l.logic_dropped {
+                    "dropped out"
+                } else {
+                    "kept"
+                }
+            )?;
+        }
     }
     if args.json {
         let text = serde_json::to_string_pretty(s).map_err(|e| Failure::runtime(e.to_string()))?;

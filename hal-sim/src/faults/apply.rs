@@ -69,6 +69,24 @@ pub struct InjectionReport {
     pub final_mode: Option<ModeKind>,
     /// True piston position at the end, m.
     pub final_x_m: f64,
+    /// The DC link over a mains outage (`power_cut`), as it stood in the outage's last
+    /// period; `None` without one.
+    pub link: Option<LinkOutcome>,
+}
+
+/// The DC link over a mains outage.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LinkOutcome {
+    /// Energy the link held at the end of the outage (or of the run), J.
+    pub energy_left_j: f64,
+    /// Its lowest voltage over the outage, V.
+    pub lowest_v: f64,
+    /// Its highest voltage over the outage, V (the chopper's threshold at most).
+    pub peak_v: f64,
+    /// Energy the brake chopper burnt, J.
+    pub chopped_j: f64,
+    /// Whether the logic supply dropped out (the board went off).
+    pub logic_dropped: bool,
 }
 
 impl InjectionReport {
@@ -328,9 +346,12 @@ impl Injector {
                     exec.supervision_hung = true;
                 }
             }
+            // The mains stops: the board runs on the DC link until its logic supply drops
+            // out, then is off until the mains is back (`simulate_board`).
             FaultKind::PowerCut => {
                 let off_us = (p("off_s") * 1e6).round() as u64;
-                exec.power_off_until_us = Some(w.time_us() + PERIOD_US + off_us);
+                w.plant.supply.cut();
+                exec.mains_off_until_us = Some(w.time_us() + PERIOD_US + off_us);
             }
             FaultKind::HomingSpike => {
                 // A friction spike against the creep toward head A: a force toward +x.
@@ -375,6 +396,16 @@ impl Injector {
         };
         r.final_mode = Some(status.mode);
         r.final_x_m = x;
+        let link = &w.plant.supply;
+        if !link.mains {
+            r.link = Some(LinkOutcome {
+                energy_left_j: link.energy_j(),
+                lowest_v: link.lowest_v,
+                peak_v: link.peak_v,
+                chopped_j: link.chopped_j,
+                logic_dropped: link.lowest_v < link.params.logic_dropout_v,
+            });
+        }
         let Some(onset) = r.first_onset_us() else {
             if self.homed_before || status.homed {
                 self.homed_before = true;

@@ -49,7 +49,8 @@ pub enum FaultKind {
     HomingSpike,
     /// #20: counters start just before their wrap (time base, quadrature).
     CounterWrap,
-    /// #21: the supply is lost for `off_s` (0.1 s): the board is off (outputs low), then
+    /// #21, #24: the mains is lost for `off_s` (0.1 s): the board runs on the DC link until
+    /// its logic supply drops out, is then off (outputs low) for the rest of the outage, then
     /// boots again from power-on, reading its calibration flash (`--calibration`) afresh.
     PowerCut,
     /// #22: both encoders lost together: sin/cos amplitude scaled (`gain`, default 0.2) on
@@ -145,7 +146,7 @@ impl FaultKind {
                 "#20: counters start just before their wrap (time base, quadrature)."
             }
             FaultKind::PowerCut => {
-                "#21: the supply is lost for `off_s` (0.1 s): the board is off (outputs low), then boots again from power-on, reading its calibration flash (`--calibration`) afresh."
+                "#21, #24: the mains is lost for `off_s` (0.1 s): the board runs on the DC link (`[supply]`) until its logic supply drops out, is then off (outputs low) for the rest of `off_s`, then boots again from power-on, reading its calibration flash (`--calibration`) afresh."
             }
             FaultKind::BothEncoders => {
                 "#22: both encoders lost together: sin/cos amplitude scaled (`gain`, default 0.2) on the master and the slave (the same as `encoder_amplitude` with `encoder=both`)."

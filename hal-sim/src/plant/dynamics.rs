@@ -35,6 +35,7 @@ use crate::plant::model::extra_force::{ExtraForceEffect, ExtraState, Term};
 use crate::plant::model::MachineModel;
 use crate::plant::motor::{SectionParams, Sections};
 use crate::plant::servo::{Rotation, ServoParams};
+use crate::plant::supply::{Link, SupplyParams};
 
 /// Parameters of the plant, SI.
 #[derive(Clone, Debug, PartialEq)]
@@ -67,6 +68,8 @@ pub struct PlantParams {
     pub suction_temperature_k: f64,
     /// Sub-steps per control period.
     pub substeps: u32,
+    /// The drive board's supply (DC link, chopper, logic supply).
+    pub supply: SupplyParams,
 }
 
 impl PlantParams {
@@ -111,6 +114,7 @@ impl PlantParams {
             lines: (model.lines.suction_pa, model.lines.pressure_ratio),
             suction_temperature_k: model.gas.temperature_k,
             substeps: model.simulation.substeps_per_period,
+            supply: SupplyParams::from_model(model),
         }
     }
 
@@ -166,6 +170,8 @@ pub struct Plant {
     pub port_mode: PortMode,
     /// Faults injected into the machine (`fpc-sim run --fault`; none by default).
     pub injected: PlantFaults,
+    /// The drive board's DC link (held at its nominal voltage while the mains is present).
+    pub supply: Link,
     /// Stator-frame voltages of the period being simulated (`None`: that bridge is off).
     voltages: PerSection<Option<AlphaBeta<f64>>>,
 }
@@ -196,6 +202,7 @@ impl Plant {
             lines,
             port_mode: PortMode::Timed,
             injected: Default::default(),
+            supply: Link::new(params.supply),
             voltages: PerSection::default(),
             params,
         }
@@ -226,9 +233,10 @@ impl Plant {
         let n = self.params.substeps.max(1);
         let dt = period_s / f64::from(n);
         // The duties are held over the period: their stator-frame voltages once (none for a
-        // section whose bridge is off).
+        // section whose bridge is off), on the link's voltage at the start of the period.
+        let scale = self.supply.bus_scale();
         let ab = |s: Section| {
-            let bus = self.params.sections.motor.get(s).bus_voltage_v;
+            let bus = self.params.sections.motor.get(s).bus_voltage_v * scale;
             drive
                 .duties
                 .get(s)
@@ -246,6 +254,13 @@ impl Plant {
 
     fn substep(&mut self, servo_torque_nm: f64, dt: f64) {
         let voltages = self.voltages;
+        if !self.supply.mains {
+            // What the bridges deliver over this sub-step (the currents at its start, as the
+            // explicit current step uses them) and the servo's shaft power, from the link.
+            let sections_w = self.bridge_power_w();
+            let servo_w = self.rotation.torque_nm * self.rotation.servo_speed_rad_s;
+            self.supply.discharge(sections_w, servo_w, dt);
+        }
         self.motors.step(&voltages, self.v_mps, dt);
         if self.injected.any_section_dead() {
             self.injected.kill_sections(&mut self.motors);
@@ -312,6 +327,23 @@ impl Plant {
         if self.injected.any_vented() {
             self.injected.vent(&mut self.chambers);
         }
+    }
+
+    /// Electrical power the two bridges deliver to the sections now, W (negative: the
+    /// sections regenerate): `3/2·(v_α·i_α + v_β·i_β)` with the period's voltages.
+    pub fn bridge_power_w(&self) -> f64 {
+        Section::ALL
+            .into_iter()
+            .map(|s| match self.voltages.get(s) {
+                Some(v) => {
+                    let (sin, cos) = self.motors.angle(s);
+                    let vdq = fpc::physics::motor::park(*v, sin, cos);
+                    let i = self.motors.current.get(s);
+                    1.5 * (vdq.d * i.d + vdq.q * i.q)
+                }
+                None => 0.0,
+            })
+            .sum()
     }
 
     /// Moves the piston along a prescribed path (kinematic drive, for physics checks): the

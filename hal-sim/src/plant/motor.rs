@@ -154,6 +154,12 @@ impl Sections {
         };
     }
 
+    /// (sin, cos) of `section`'s electrical angle at the position last set.
+    #[inline]
+    pub fn angle(&self, section: Section) -> (f64, f64) {
+        *self.angle.get(section)
+    }
+
     /// sin/cos of the master section's electrical angle `2π·x/period`, if the last
     /// [`Sections::set_position`] was for `x_m` (the plant reuses it for the cogging).
     #[inline]

@@ -120,6 +120,14 @@ pub struct Summary {
     pub closed_port_peak_pa: Option<f64>,
     /// Closed-port run: chamber B's pressure at the end of the hold, Pa.
     pub closed_port_end_pa: Option<f64>,
+    /// A `power_cut` run: the energy the DC link held at the end of the mains outage (or of
+    /// the run), J; `null` without one.
+    pub link_energy_left_j: Option<f64>,
+    /// A `power_cut` run: the DC link's highest voltage over the outage (regeneration, at
+    /// most the chopper's threshold), V.
+    pub link_peak_v: Option<f64>,
+    /// A `power_cut` run: the DC link's lowest voltage over the outage, V.
+    pub link_lowest_v: Option<f64>,
 }
 
 /// A finished run: the summary and the run log.
@@ -818,6 +826,9 @@ impl<'o, 's> RunDriver<'o, 's> {
             rest_line_floor_m: paper.rest_line_floor_m,
             closed_port_peak_pa: None,
             closed_port_end_pa: None,
+            link_energy_left_j: injection.link.map(|l| l.energy_left_j),
+            link_peak_v: injection.link.map(|l| l.peak_v),
+            link_lowest_v: injection.link.map(|l| l.lowest_v),
         };
         Ok(RunOutcome {
             summary,

@@ -992,6 +992,9 @@ impl Soc {
             a if (base::IWDG..base::IWDG + 0x400).contains(&a) => {
                 self.iwdg.read(off(base::IWDG), now)
             }
+            // GPIOB_IDR: PB5 is the DC link's power-good input (the board's comparator on
+            // the plant's link: high while the mains holds it); the other pins read low.
+            GPIOB_IDR => u32::from(self.board.power_good()) << 5,
             a if (base::FLASH..base::FLASH + 0x400).contains(&a) => {
                 self.flash.read_reg(off(base::FLASH))
             }
@@ -1263,6 +1266,9 @@ impl Soc {
         }
     }
 }
+
+/// GPIOB's input data register.
+const GPIOB_IDR: u32 = 0x4800_0410;
 
 /// RCC_CSR reset flags.
 const RCC_CSR_BORRSTF: u32 = 1 << 27;

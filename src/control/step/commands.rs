@@ -174,6 +174,7 @@ impl ControlStep {
                 if self.sensing.encoders.master.cause_present()
                     || self.sensing.encoders.slave.cause_present()
                     || self.sensing.pressures.bad_cycles > 0
+                    || !self.supply_good
                 {
                     return Err(Refusal::CausePersists);
                 }
@@ -254,6 +255,26 @@ mod tests {
             assert_eq!(step.command(Command::Home), Ok(()));
             assert_eq!(step.take_calibration_to_save(), None);
         }
+    }
+
+    #[test]
+    fn a_supply_loss_latches_once_and_is_cleared_only_once_the_supply_is_back() {
+        let mut step = ControlStep::new(ControlConfig::reference()).unwrap();
+        step.supply(true);
+        assert!(step.faults.is_empty());
+        step.supply(false);
+        step.supply(false);
+        assert!(step.faults.contains(Fault::SupplyLoss));
+        assert_eq!(step.faults.iter().count(), 1);
+        // Not homed: the brake's short circuit, the outputs' own (the faulted state).
+        assert!(matches!(step.mode, Mode::Faulted));
+        assert_eq!(
+            step.command(Command::ClearFaults),
+            Err(Refusal::CausePersists)
+        );
+        step.supply(true);
+        assert_eq!(step.command(Command::ClearFaults), Ok(()));
+        assert!(step.faults.is_empty());
     }
 
     #[test]

@@ -119,6 +119,8 @@ pub struct ControlStep {
     sensing: Sensing,
     currents: PerSection<CurrentController>,
     calibration: CalibrationState,
+    /// The power-good input as the supervision task last read it.
+    supply_good: bool,
 }
 
 impl ControlStep {
@@ -206,8 +208,31 @@ impl ControlStep {
             rotary: RotaryAxis::new(&config),
             status: Status::INIT,
             calibration: CalibrationState::new(),
+            supply_good: true,
             config,
         })
+    }
+
+    /// What the power-good input reads (the supervision task's last look, before each
+    /// step): the supply lost latches [`Fault::SupplyLoss`], whose brake runs on the DC
+    /// link's energy ([`Reaction::BrakeWithoutPosition`](crate::safety::faults::Reaction):
+    /// the short-circuited windings take the braking current, the link feeds only the
+    /// gate drivers, the MCU and the servo's sealing turn). The fault cannot be cleared while
+    /// the supply stays lost.
+    #[inline]
+    pub fn supply(&mut self, good: bool) {
+        if !good && self.supply_good {
+            self.supply_lost();
+        }
+        self.supply_good = good;
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn supply_lost(&mut self) {
+        if !self.faults.contains(Fault::SupplyLoss) {
+            self.latch(Fault::SupplyLoss);
+        }
     }
 
     /// Applies the cause of the last reset: after a watchdog reset the machine starts in

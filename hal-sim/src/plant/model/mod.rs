@@ -60,6 +60,9 @@ pub struct MachineModel {
     /// Rotation servo.
     #[serde(default)]
     pub servo: Servo,
+    /// The drive board's supply: DC link, brake chopper, logic supply.
+    #[serde(default)]
+    pub supply: Supply,
     /// Sensor models.
     #[serde(default)]
     pub sensors: SensorsSection,

@@ -311,6 +311,53 @@ impl Default for Servo {
     }
 }
 
+/// `[supply]`: the drive board's supply — the DC link both motor sections and the servo
+/// drive share, and the logic supply taken from it. The link's nominal voltage is
+/// `motor.bus_voltage_v` (the mains rectifier holds it there while the mains is present).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct Supply {
+    /// DC-link capacitance, F.
+    pub link_capacitance_f: f64,
+    /// The brake chopper's threshold, V: regenerated power that would lift the link above it
+    /// is burnt in the chopper's resistor (the link's voltage limit).
+    pub chopper_voltage_v: f64,
+    /// The power-good comparator's threshold, V: below it the board's undervoltage input
+    /// (active-high power good) goes low.
+    pub power_good_voltage_v: f64,
+    /// The logic supply's lowest input, V: below it the MCU, the gate drivers and the
+    /// sensors are off (outputs low).
+    pub logic_dropout_voltage_v: f64,
+    /// What the logic draws from the link, W: MCU, gate drivers, sensors, the servo drive's
+    /// own electronics.
+    pub logic_power_w: f64,
+    /// The servo drive's efficiency: its shaft power drawn from the link divided by it
+    /// (what the servo brakes is burnt in its drive, none goes back).
+    pub servo_efficiency: f64,
+}
+
+checks!(Supply {
+    link_capacitance_f: Positive, 1e-6, 1.0, "F";
+    chopper_voltage_v: Positive, 1.0, 2000.0, "V";
+    power_good_voltage_v: Positive, 1.0, 2000.0, "V";
+    logic_dropout_voltage_v: Positive, 1.0, 2000.0, "V";
+    logic_power_w: NonNegative, 0.0, 10_000.0, "W";
+    servo_efficiency: Positive, 0.05, 1.0, "";
+});
+
+impl Default for Supply {
+    fn default() -> Self {
+        Supply {
+            link_capacitance_f: 2.0e-3,
+            chopper_voltage_v: 750.0,
+            power_good_voltage_v: 500.0,
+            logic_dropout_voltage_v: 150.0,
+            logic_power_w: 40.0,
+            servo_efficiency: 0.85,
+        }
+    }
+}
+
 /// `[sensors.encoder_master]`, `[sensors.encoder_slave]`: one sin/cos encoder at the ADC.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]

@@ -212,6 +212,7 @@ impl MachineModel {
             section!(m, ports),
             section!(m, lines),
             section!(m, servo),
+            section!(m, supply),
             section!(m, sensors.encoder_master),
             section!(m, sensors.encoder_slave),
             section!(m, sensors.current),
@@ -392,6 +393,22 @@ impl MachineModel {
                 num(2.0 * reserved)
             ));
         }
+        let su = &self.supply;
+        let bus_v = self.motor.bus_voltage_v;
+        if !(su.logic_dropout_voltage_v < su.power_good_voltage_v
+            && su.power_good_voltage_v < bus_v
+            && bus_v < su.chopper_voltage_v)
+        {
+            return fail(format!(
+                "`supply.logic_dropout_voltage_v` = {} V < `supply.power_good_voltage_v` = {} V \
+                 < `motor.bus_voltage_v` = {} V < `supply.chopper_voltage_v` = {} V does not \
+                 hold: the link's thresholds must be in that order",
+                num(su.logic_dropout_voltage_v),
+                num(su.power_good_voltage_v),
+                num(bus_v),
+                num(su.chopper_voltage_v)
+            ));
+        }
         if self.encoder.period_m > p.travel_m {
             return fail(format!(
                 "`encoder.period_m` = {} m is longer than `piston.travel_m` = {} m",
@@ -547,4 +564,6 @@ pub const CONSISTENCY_RULES: &[&str] = &[
     "each encoder's amplitude × (1 + max(0, gain_mismatch)) + its largest offset ≤ 2047 codes",
     "`lines.suction_pa` × `lines.pressure_ratio` ≤ 1e6 Pa (the pressure sensors' full scale)",
     "`gas.gamma` > 1",
+    "`supply.logic_dropout_voltage_v` < `supply.power_good_voltage_v` < `motor.bus_voltage_v` \
+     < `supply.chopper_voltage_v`",
 ];
