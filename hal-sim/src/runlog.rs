@@ -484,6 +484,12 @@ impl TimeCheck {
 /// removed (`""` inside quotes is one quote); `#` outside quotes starts a comment.
 fn split_fields(line: &str, fields: &mut Vec<String>) -> Result<(), String> {
     fields.clear();
+    if !line.contains('"') {
+        // The common line: no quotes, so the fields are the commas' pieces up to a comment.
+        let body = line.split('#').next().unwrap_or_default();
+        fields.extend(body.split(',').map(str::to_string));
+        return Ok(());
+    }
     let mut field = String::new();
     let mut quoted = false;
     let mut chars = line.chars().peekable();

@@ -190,19 +190,16 @@ fn sample_rate(sample_time_s: f64) -> f64 {
     1.0 / sample_time_s
 }
 
-/// `x` at the fractional index `t` by cubic (Catmull–Rom) interpolation; `None` outside.
-fn cubic_at(x: &[f64], t: f64) -> Option<f64> {
-    let i = t.floor();
-    let f = t - i;
-    let i = i as isize;
-    let g = |k: isize| usize::try_from(k).ok().and_then(|k| x.get(k)).copied();
-    let (p0, p1, p2, p3) = (g(i - 1)?, g(i)?, g(i + 1)?, g(i + 2)?);
-    Some(
-        p1 + 0.5
-            * f
-            * (p2 - p0
-                + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3 + f * (3.0 * (p1 - p2) + p3 - p0))),
-    )
+/// The Catmull–Rom weights of the samples `x[i−1], x[i], x[i+1], x[i+2]` for the value at
+/// `i + f`, `0 ≤ f < 1` (the cubic through them with the centred slopes).
+fn catmull_rom_weights(f: f64) -> [f64; 4] {
+    let (f2, f3) = (f * f, f * f * f);
+    [
+        0.5 * (-f + 2.0 * f2 - f3),
+        1.0 + 0.5 * (-5.0 * f2 + 3.0 * f3),
+        0.5 * (f + 4.0 * f2 - 3.0 * f3),
+        0.5 * (f3 - f2),
+    ]
 }
 
 /// The sub-sample lag near the integer peak `k0`: the `d` within ±1.5 samples of it that
@@ -219,11 +216,20 @@ fn refine_lag(a: &[f64], b: &[f64], k0: f64) -> Option<f64> {
     let margin = k0.abs().ceil() as usize + 4;
     let range = margin..n.checked_sub(margin).filter(|hi| *hi > margin + 8)?;
     let rho = |d: f64| -> f64 {
+        // `a` at `i − d` for every `i`: one whole shift and one fraction, so one set of
+        // interpolation weights for the whole sum.
+        let whole = (-d).floor();
+        let w = catmull_rom_weights(-d - whole);
+        let whole = whole as isize;
         let (mut sa, mut sb, mut saa, mut sbb, mut sab, mut m) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
         for i in range.clone() {
-            let (Some(x), Some(&y)) = (cubic_at(a, i as f64 - d), b.get(i)) else {
+            let at = usize::try_from(i as isize + whole - 1).ok();
+            let (Some(&[p0, p1, p2, p3]), Some(&y)) = (at.and_then(|k| a.get(k..k + 4)), b.get(i))
+            else {
                 continue;
             };
+            let [w0, w1, w2, w3] = w;
+            let x = w0 * p0 + w1 * p1 + w2 * p2 + w3 * p3;
             sa += x;
             sb += y;
             saa += x * x;

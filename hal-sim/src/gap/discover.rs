@@ -23,6 +23,7 @@
 
 use rayon::prelude::*;
 
+use crate::plant::fastmath::sin_cos;
 use crate::plant::model::extra_force::{ExtraState, Term};
 use crate::plant::model::{model_section, MachineModel};
 
@@ -98,6 +99,20 @@ impl<'a> Basis<'a> {
         self.ctx.band.kept(self.ctx.data, ChannelId::Force, &raw)
     }
 
+    /// The band-filtered sin and cos columns of period `period_m`: both from one angle per
+    /// row (the values of [`Term::Sin`] and [`Term::Cos`] to within 10⁻¹⁴, by the plant's
+    /// fast sine — the period search evaluates them at every row some sixty times), the two
+    /// filters side by side.
+    fn periodic_pair(&self, period_m: f64) -> (Vec<f64>, Vec<f64>) {
+        let (sin, cos): (Vec<f64>, Vec<f64>) = self
+            .states
+            .iter()
+            .map(|s| sin_cos(std::f64::consts::TAU * s.x_m / period_m))
+            .unzip();
+        let filter = |raw: &[f64]| self.ctx.band.kept(self.ctx.data, ChannelId::Force, raw);
+        rayon::join(|| filter(&sin), || filter(&cos))
+    }
+
     /// Least squares of `y` on `terms` (their columns given), the columns scaled to unit
     /// RMS; coefficients back in SI.
     fn fit(cols: &[(Term, Vec<f64>)], y: &[f64], period_m: Option<f64>) -> Option<TermFit> {
@@ -137,8 +152,9 @@ impl<'a> Basis<'a> {
         }
         let with = |p: f64| -> Option<TermFit> {
             let mut cols = fixed.to_vec();
-            cols.push((Term::Sin, self.column(Term::Sin, p)));
-            cols.push((Term::Cos, self.column(Term::Cos, p)));
+            let (sin, cos) = self.periodic_pair(p);
+            cols.push((Term::Sin, sin));
+            cols.push((Term::Cos, cos));
             Basis::fit(&cols, y, Some(p))
         };
         let (lnp, _) = minimise_1d_par(MIN_PERIOD_M.ln(), hi.ln(), PERIOD_GRID, 12, |lnp| {
