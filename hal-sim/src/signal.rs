@@ -88,22 +88,39 @@ pub fn xcorr_lag(
         x.iter().map(|v| v - mean).collect::<Vec<f64>>()
     };
     let (a, b) = (centred(a), centred(b));
-    let nfft = (2 * n).next_power_of_two();
+    let default_window = (DEFAULT_MAX_LAG_S / sample_time_s).round();
+    let default_window = if default_window.is_finite() && default_window >= 1.0 {
+        default_window as usize
+    } else {
+        1
+    };
+    let max_lag = max_lag_samples.unwrap_or(default_window).min(n - 2);
+    // Zero padding to n + the largest lag looked at (the window and the two samples of the
+    // flatness check) keeps the circular correlation linear at every lag used.
+    let nfft = (n + max_lag + 3).next_power_of_two();
     let mut planner = FftPlanner::<f64>::new();
     let forward = planner.plan_fft_forward(nfft);
     let inverse = planner.plan_fft_inverse(nfft);
-    let spectrum = |x: &[f64]| {
-        let mut buf: Vec<Complex<f64>> = x
-            .iter()
-            .map(|&v| Complex::new(v, 0.0))
-            .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
-            .take(nfft)
-            .collect();
-        forward.process(&mut buf);
-        buf
-    };
-    let (fa, fb) = (spectrum(&a), spectrum(&b));
-    let mut r: Vec<Complex<f64>> = fa.iter().zip(&fb).map(|(x, y)| x.conj() * y).collect();
+    // Both real signals in one complex transform, z = a + i·b, separated by the symmetry
+    // of real spectra: A[k] = (Z[k] + Z*[−k])/2, B[k] = (Z[k] − Z*[−k])/2i; then the
+    // cross-spectrum A*·B and one inverse transform give Σ a[i]·b[i+k] at every lag.
+    let mut z: Vec<Complex<f64>> = a
+        .iter()
+        .zip(&b)
+        .map(|(&x, &y)| Complex::new(x, y))
+        .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
+        .take(nfft)
+        .collect();
+    forward.process(&mut z);
+    let mut r: Vec<Complex<f64>> = (0..nfft)
+        .map(|k| {
+            let zk = z.get(k).copied().unwrap_or_default();
+            let zm = z.get((nfft - k) % nfft).copied().unwrap_or_default().conj();
+            let fa = (zk + zm) * 0.5;
+            let fb = (zk - zm) * Complex::new(0.0, -0.5);
+            fa.conj() * fb
+        })
+        .collect();
     inverse.process(&mut r);
     // Prefix sums of x and x² (index i: sum of the first i samples).
     let prefix = |x: &[f64]| {
@@ -137,13 +154,7 @@ pub fn xcorr_lag(
         let var = (saa - sa * sa / mf) * (sbb - sb * sb / mf);
         (var > 0.0).then(|| (sab - sa * sb / mf) / var.sqrt())
     };
-    let default_window = (DEFAULT_MAX_LAG_S / sample_time_s).round();
-    let default_window = if default_window.is_finite() && default_window >= 1.0 {
-        default_window as usize
-    } else {
-        1
-    };
-    let max_lag = max_lag_samples.unwrap_or(default_window).min(n - 2) as isize;
+    let max_lag = max_lag as isize;
     let (k, peak) = (-max_lag..=max_lag)
         .filter_map(|k| Some((k, rho(k)?)))
         .fold(None::<(isize, f64)>, |best, (k, v)| match best {

@@ -100,6 +100,52 @@ pub fn convolve(a: &[f64], b: &[f64]) -> Vec<f64> {
     out
 }
 
+/// Band-filtered columns kept for reuse, by a key of the caller's (for instance the bits of a
+/// period): the searches of the workflow evaluate the same grid points again at every
+/// selection step. Shared between threads; a clone starts empty. Holds at most
+/// [`ColumnCache::CAPACITY`] entries (beyond, new columns are computed and not kept).
+#[derive(Default)]
+pub struct ColumnCache {
+    entries: std::sync::Mutex<std::collections::HashMap<u64, std::sync::Arc<Vec<Vec<f64>>>>>,
+}
+
+impl ColumnCache {
+    /// Most entries kept.
+    pub const CAPACITY: usize = 1024;
+
+    /// The columns under `key`, computed by `make` (outside the lock) if not kept yet.
+    pub fn get_or_make(
+        &self,
+        key: u64,
+        make: impl FnOnce() -> Vec<Vec<f64>>,
+    ) -> std::sync::Arc<Vec<Vec<f64>>> {
+        let kept = self.entries.lock().ok().and_then(|m| m.get(&key).cloned());
+        if let Some(c) = kept {
+            return c;
+        }
+        let made = std::sync::Arc::new(make());
+        if let Ok(mut m) = self.entries.lock() {
+            if m.len() < Self::CAPACITY {
+                m.entry(key).or_insert_with(|| made.clone());
+            }
+        }
+        made
+    }
+}
+
+impl Clone for ColumnCache {
+    fn clone(&self) -> Self {
+        ColumnCache::default()
+    }
+}
+
+impl std::fmt::Debug for ColumnCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let n = self.entries.lock().map_or(0, |m| m.len());
+        write!(f, "ColumnCache({n} entries)")
+    }
+}
+
 /// Signals shorter than this are filtered directly (the FFT's set-up would dominate).
 const FFT_MIN_SAMPLES: usize = 16_384;
 /// Kernels shorter than this are applied directly (a direct sum is then as fast).

@@ -22,7 +22,7 @@ use crate::plant::model::MachineModel;
 use crate::plant::servo::through_play;
 use crate::signal::delayed;
 
-use super::band::{force_kernel, lowpass, sg_weights, Kernel};
+use super::band::{force_kernel, lowpass, sg_weights, ColumnCache, Kernel};
 use super::data::{Measured, PortsMeta, ThetaSource};
 
 /// The channels compared.
@@ -106,6 +106,8 @@ pub struct Band {
     pub idx_encoder: Vec<usize>,
     /// Kept samples of the slave-force and pressure channels.
     pub idx_inner: Vec<usize>,
+    /// Columns of this band's searches, kept for the next selection step.
+    pub columns: ColumnCache,
 }
 
 /// `mask` eroded by `half` samples on each side: 1 only where every sample within `half`
@@ -162,6 +164,7 @@ impl Band {
             stride,
             mask_force,
             mask_inner,
+            columns: ColumnCache::default(),
         })
     }
 
