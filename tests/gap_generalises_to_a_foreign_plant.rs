@@ -39,8 +39,8 @@ use hal_sim::runlog::RunLog;
 use std::collections::BTreeMap;
 use std::time::Instant;
 use support::gap::{
-    classify_form, name_effects, par_map, score, score_forms, Acceptance, BenchCase, FormCase,
-    FormOutcome, ParamError, ParamRule,
+    classify_form, form_cases, name_effects, par_map, score, score_forms, Acceptance, BenchCase,
+    FormCase, FormOutcome, ParamError, ParamRule,
 };
 
 // ---------------------------------------------------------------------------------------
@@ -646,6 +646,8 @@ fn a_spring_a_bias_drag_a_motor_constant_and_drifting_friction_reach_the_log() {
     // workflow): the same case with and without it differs in the logged motor forces.
     for form in FORMS {
         let case = draw_form_case(3, form).expect("a form");
+        assert_eq!(case.form.map(|f| f.name()), Some(form));
+        assert!(case.hidden.is_empty() && case.kind == CaseKind::Null);
         let with = generate(&case);
         let without = generate(&foreign_plant::Case {
             form: None,
@@ -670,9 +672,9 @@ fn gap_describes_forces_outside_its_library_on_the_foreign_plant_slice() {
 }
 
 #[test]
-#[ignore = "slow: 100 cases of forces outside the library"]
+#[ignore = "slow: 100 cases of forces outside the library (FPC_FORM_CASES per form, 20)"]
 fn gap_describes_forces_outside_its_library_on_the_foreign_plant_in_100_cases() {
-    let problems = score_forms_here(20);
+    let problems = score_forms_here(form_cases());
     assert!(problems.is_empty(), "{problems:#?}");
 }
 

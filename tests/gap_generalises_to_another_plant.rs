@@ -30,8 +30,8 @@ use std::time::Instant;
 
 use independent_plant::{draw_case, generate, Case, Hidden, EFFECTS, FORMS};
 use support::gap::{
-    classify_form, name_effects, par_map, score, score_forms, Acceptance, BenchCase, FormCase,
-    FormOutcome, ParamError, ParamRule,
+    classify_form, form_cases, name_effects, par_map, score, score_forms, Acceptance, BenchCase,
+    FormCase, FormOutcome, ParamError, ParamRule,
 };
 
 /// The acceptance of issue #13: recall ≥ 95 %, false alarms on ≤ 1 % of null logs, wrong
@@ -290,8 +290,8 @@ fn gap_describes_forces_outside_its_library_in_a_slice_of_cases() {
 }
 
 #[test]
-#[ignore = "slow: 100 cases of forces outside the library"]
+#[ignore = "slow: 100 cases of forces outside the library (FPC_FORM_CASES per form, 20)"]
 fn gap_describes_forces_outside_its_library_in_100_cases() {
-    let problems = score_forms_here(20);
+    let problems = score_forms_here(form_cases());
     assert!(problems.is_empty(), "{problems:#?}");
 }

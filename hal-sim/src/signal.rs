@@ -12,7 +12,24 @@ use std::ops::Range;
 use fpc::sensing::differentiator::{SavitzkyGolay, SgConfig};
 use fpc::sensing::encoder::{EncoderConfig, PositionCounts};
 use rustfft::num_complex::Complex;
-use rustfft::FftPlanner;
+use rustfft::{Fft, FftPlanner};
+use std::sync::{Arc, Mutex, OnceLock};
+
+/// The forward and inverse FFTs of length `n`, planned once per process: planning a long
+/// transform computes its twiddle factors (as long as a transform itself), and the workflow
+/// asks for the same lengths many times.
+pub fn fft_pair(n: usize) -> (Arc<dyn Fft<f64>>, Arc<dyn Fft<f64>>) {
+    static PLANNER: OnceLock<Mutex<FftPlanner<f64>>> = OnceLock::new();
+    let planner = PLANNER.get_or_init(|| Mutex::new(FftPlanner::new()));
+    match planner.lock() {
+        Ok(mut p) => (p.plan_fft_forward(n), p.plan_fft_inverse(n)),
+        // A panic elsewhere while planning: plan anew rather than fail.
+        Err(_) => {
+            let mut p = FftPlanner::new();
+            (p.plan_fft_forward(n), p.plan_fft_inverse(n))
+        }
+    }
+}
 
 /// The default search window of [`xcorr_lag`], s: the delays measured here (drive, current
 /// loop, filter and logging delays) are milliseconds, never a stroke (a stroke lasts 50 ms or
@@ -98,9 +115,7 @@ pub fn xcorr_lag(
     // Zero padding to n + the largest lag looked at (the window and the two samples of the
     // flatness check) keeps the circular correlation linear at every lag used.
     let nfft = (n + max_lag + 3).next_power_of_two();
-    let mut planner = FftPlanner::<f64>::new();
-    let forward = planner.plan_fft_forward(nfft);
-    let inverse = planner.plan_fft_inverse(nfft);
+    let (forward, inverse) = fft_pair(nfft);
     // Both real signals in one complex transform, z = a + i·b, separated by the symmetry
     // of real spectra: A[k] = (Z[k] + Z*[−k])/2, B[k] = (Z[k] − Z*[−k])/2i; then the
     // cross-spectrum A*·B and one inverse transform give Σ a[i]·b[i+k] at every lag.

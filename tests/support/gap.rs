@@ -72,10 +72,28 @@ pub fn cogging_truth() -> String {
 
 /// A closed-loop run of the firmware on the plant of `truth`.
 pub fn closed_loop(truth: &str, speed_mps: f64, cycles: u32, seed: u64) -> RunLog {
+    compressing(
+        truth,
+        RunOptions::reference().pressure_ratio,
+        speed_mps,
+        cycles,
+        seed,
+    )
+}
+
+/// [`closed_loop`] at the pressure ratio `pressure_ratio`.
+pub fn compressing(
+    truth: &str,
+    pressure_ratio: f64,
+    speed_mps: f64,
+    cycles: u32,
+    seed: u64,
+) -> RunLog {
     let model = MachineModel::parse(truth).expect("truth model loads");
     let opts = RunOptions {
         model,
         model_name: "truth".into(),
+        pressure_ratio,
         speed_mps: Some(speed_mps),
         cycles,
         seed,
@@ -454,6 +472,15 @@ pub struct FormCase {
     pub outcome: FormOutcome,
     /// Seed, log and what was found.
     pub detail: String,
+}
+
+/// Cases per form of the slow benchmarks of forms: `FPC_FORM_CASES` (CI runs a slice),
+/// else 20 (100 cases per plant).
+pub fn form_cases() -> u64 {
+    std::env::var("FPC_FORM_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(20)
 }
 
 /// Whether the discovered `found` terms are exactly `want`'s, each within 15 % (the constant

@@ -100,23 +100,31 @@ pub fn convolve(a: &[f64], b: &[f64]) -> Vec<f64> {
     out
 }
 
-/// Band-filtered columns kept for reuse, by a key of the caller's (for instance the bits of a
-/// period): the searches of the workflow evaluate the same grid points again at every
-/// selection step. Shared between threads; a clone starts empty. Holds at most
-/// [`ColumnCache::CAPACITY`] entries (beyond, new columns are computed and not kept).
-#[derive(Default)]
-pub struct ColumnCache {
-    entries: std::sync::Mutex<std::collections::HashMap<u64, std::sync::Arc<Vec<Vec<f64>>>>>,
+/// Computed columns kept for reuse, by a key of the caller's (the bits of a period, the
+/// model values a replay reads): the searches of the workflow evaluate the same grid points,
+/// and replay the same chambers, again at every selection step. Shared between threads; a
+/// clone starts empty. Holds at most [`ColumnCache::CAPACITY`] entries (beyond, new columns
+/// are computed and not kept).
+pub struct ColumnCache<K = u64> {
+    entries: std::sync::Mutex<std::collections::HashMap<K, std::sync::Arc<Vec<Vec<f64>>>>>,
 }
 
-impl ColumnCache {
+impl<K> Default for ColumnCache<K> {
+    fn default() -> Self {
+        ColumnCache {
+            entries: std::sync::Mutex::new(std::collections::HashMap::new()),
+        }
+    }
+}
+
+impl<K: Eq + std::hash::Hash> ColumnCache<K> {
     /// Most entries kept.
     pub const CAPACITY: usize = 1024;
 
     /// The columns under `key`, computed by `make` (outside the lock) if not kept yet.
     pub fn get_or_make(
         &self,
-        key: u64,
+        key: K,
         make: impl FnOnce() -> Vec<Vec<f64>>,
     ) -> std::sync::Arc<Vec<Vec<f64>>> {
         let kept = self.entries.lock().ok().and_then(|m| m.get(&key).cloned());
@@ -133,13 +141,13 @@ impl ColumnCache {
     }
 }
 
-impl Clone for ColumnCache {
+impl<K> Clone for ColumnCache<K> {
     fn clone(&self) -> Self {
         ColumnCache::default()
     }
 }
 
-impl std::fmt::Debug for ColumnCache {
+impl<K> std::fmt::Debug for ColumnCache<K> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let n = self.entries.lock().map_or(0, |m| m.len());
         write!(f, "ColumnCache({n} entries)")
@@ -237,15 +245,11 @@ impl Kernel {
     /// at a cost that does not grow with the kernel's length.
     fn apply_fft(&self, x: &[f64]) -> Vec<f64> {
         use rayon::prelude::*;
-        use rustfft::{num_complex::Complex, FftPlanner};
+        use rustfft::num_complex::Complex;
         let (n, taps, h) = (x.len(), self.taps.len(), self.half());
         let size = (8 * taps).next_power_of_two().max(4096);
         let step = size - (taps - 1);
-        let mut planner = FftPlanner::<f64>::new();
-        let (forward, inverse) = (
-            planner.plan_fft_forward(size),
-            planner.plan_fft_inverse(size),
-        );
+        let (forward, inverse) = crate::signal::fft_pair(size);
         // The correlation `y[i] = Σⱼ taps[j]·x[i + j − h]` is the convolution with the
         // reversed taps, read `h` samples on: `y[i] = (rev ∗ x)[i + h]`.
         let mut kernel: Vec<Complex<f64>> = self
