@@ -28,10 +28,11 @@ mod support;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use hal_sim::gap::{analyse, GapOptions};
-use hal_sim::runlog::RunLog;
 use independent_plant::{draw_case, generate, Case, Hidden, EFFECTS, FORMS};
-use support::gap::{name_effects, par_map, score, Acceptance, BenchCase, ParamError, ParamRule};
+use support::gap::{
+    classify_form, form_cases, name_effects, par_map, score, score_forms, Acceptance, BenchCase,
+    FormCase, FormOutcome, ParamError, ParamRule,
+};
 
 /// The acceptance of issue #13: recall ≥ 95 %, false alarms on ≤ 1 % of null logs, wrong
 /// extras on ≤ 2 % of logs, and every named parameter within its tolerance.
@@ -253,131 +254,44 @@ fn write_one_case() {
     println!("{case:?}\nwrote {}", dir.display());
 }
 
-/// How the workflow met a force outside its library.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Outcome {
-    /// No library effect named, the form's terms found within tolerance.
-    Described,
-    /// A library effect was named for it.
-    NamedAsLibrary,
-    /// Neither: nothing found, wrong terms, or coefficients off.
-    Missed,
-}
-
-/// Whether the discovered `found` terms are exactly `want`'s, each within 15 % (the constant
-/// within 15 % or 10 N).
-fn terms_match(found: &BTreeMap<String, f64>, want: &BTreeMap<&str, f64>) -> bool {
-    found.len() == want.len()
-        && want.iter().all(|(k, w)| {
-            let tol = if *k == "1" {
-                (0.15 * w.abs()).max(10.0)
-            } else {
-                0.15 * w.abs()
-            };
-            found.get(*k).is_some_and(|g| (g - w).abs() <= tol)
-        })
-}
-
 /// The case of `seed` hiding the out-of-library `form`, analysed and classified.
-fn run_form_case(seed: u64, form: &str) -> (String, Outcome, String) {
+fn run_form_case(seed: u64, form: &str) -> FormCase {
     let case = draw_case(seed, &[form]);
     let Some(want) = case.hidden.first().and_then(Hidden::discovered_terms) else {
-        return (form.into(), Outcome::Missed, "not a form".into());
+        return FormCase {
+            form: form.into(),
+            outcome: FormOutcome::Missed,
+            detail: "not a form".into(),
+        };
     };
     let g = generate(&case);
-    let json = RunLog::parse(&g.csv)
-        .map_err(|e| e.to_string())
-        .and_then(|log| {
-            analyse(&g.model_toml, &log, &GapOptions::default()).map_err(|f| f.message)
-        });
     let label = format!(
         "seed {seed} {form} ({} Hz, {:?}, {:?}) truth {want:?}",
         case.rate_hz, case.trajectory, case.chambers
     );
-    let Ok(out) = json else {
-        return (
-            form.into(),
-            Outcome::Missed,
-            format!("{label}: analysis failed"),
-        );
-    };
-    let j = out.json;
-    let named: Vec<&str> = j.effects.iter().map(|e| e.name.as_str()).collect();
-    let found: BTreeMap<String, f64> = j
-        .discovered
-        .first()
-        .map(|d| d.terms.clone())
-        .unwrap_or_default();
-    let outcome = if !named.is_empty() {
-        Outcome::NamedAsLibrary
-    } else if terms_match(&found, &want) {
-        Outcome::Described
-    } else {
-        Outcome::Missed
-    };
-    (
-        form.into(),
-        outcome,
-        format!("{label}: named {named:?}, discovered {found:?}"),
-    )
+    classify_form(form, &g.csv, &g.model_toml, &want, &label)
 }
 
-/// Runs `per_form` cases of each form, prints the per-form table and the cases that went
-/// wrong, and returns what misses the acceptance (≥ 90 % described, ≤ 2 % named).
-fn score_forms(per_form: u64) -> Vec<String> {
+/// Runs `per_form` cases of each form and returns what misses the acceptance.
+fn score_forms_here(per_form: u64) -> Vec<String> {
     let plan: Vec<(u64, &str)> = FORMS
         .iter()
         .enumerate()
         .flat_map(|(i, f)| (0..per_form).map(move |k| (7000 + 100 * i as u64 + k, *f)))
         .collect();
     let results = par_map(plan.len(), |i| run_form_case(plan[i].0, plan[i].1));
-    println!("\nforces outside the library: {} cases", results.len());
-    println!(
-        "{:<22} {:>6} {:>10} {:>8} {:>7}",
-        "form", "cases", "described", "named", "missed"
-    );
-    let mut problems = Vec::new();
-    for form in FORMS {
-        let of: Vec<_> = results.iter().filter(|r| r.0 == form).collect();
-        let count = |o: Outcome| of.iter().filter(|r| r.1 == o).count();
-        let n = of.len().max(1) as f64;
-        let (d, w, m) = (
-            count(Outcome::Described),
-            count(Outcome::NamedAsLibrary),
-            count(Outcome::Missed),
-        );
-        println!(
-            "{form:<22} {:>6} {:>9.1}% {:>7.1}% {:>6.1}%",
-            of.len(),
-            100.0 * d as f64 / n,
-            100.0 * w as f64 / n,
-            100.0 * m as f64 / n
-        );
-        if (d as f64) < 0.9 * n {
-            problems.push(format!("{form}: described in {d} of {}", of.len()));
-        }
-        if (w as f64) > 0.02 * n {
-            problems.push(format!(
-                "{form}: named as a library effect in {w} of {}",
-                of.len()
-            ));
-        }
-    }
-    for r in results.iter().filter(|r| r.1 != Outcome::Described) {
-        println!("  {:?}: {}", r.1, r.2);
-    }
-    problems
+    score_forms("independent plant", &FORMS, &results)
 }
 
 #[test]
 fn gap_describes_forces_outside_its_library_in_a_slice_of_cases() {
-    let problems = score_forms(2);
+    let problems = score_forms_here(2);
     assert!(problems.is_empty(), "{problems:#?}");
 }
 
 #[test]
-#[ignore = "slow: 100 cases of forces outside the library"]
+#[ignore = "slow: 100 cases of forces outside the library (FPC_FORM_CASES per form, 20)"]
 fn gap_describes_forces_outside_its_library_in_100_cases() {
-    let problems = score_forms(20);
+    let problems = score_forms_here(form_cases());
     assert!(problems.is_empty(), "{problems:#?}");
 }

@@ -206,3 +206,16 @@ fn gap_names_stribeck_friction_where_it_lives() {
         "low-speed RMS {before} → {after}"
     );
 }
+
+#[test]
+#[ignore = "slow: two strokes at 0.3 m/s"]
+fn gap_names_a_leak_on_a_slow_high_ratio_run() {
+    // Slow strokes at a high ratio hold the chambers shut and far apart in pressure for
+    // long: the leak's own ground, named with a wide margin and its gap within 10 %.
+    let model = without_section(&reference(), "effects.leakage");
+    let j = gap(&model, &compressing(&reference(), 4.5, 0.3, 2, 42));
+    show("leakage, PR 4.5, 0.3 m/s", &j);
+    assert_eq!(names(&j), ["leakage"]);
+    assert!(near(param(&j, "leakage", "gap_m"), 25e-6, 0.1));
+    assert!(shrink(&j, "pressure") >= SHRINK);
+}

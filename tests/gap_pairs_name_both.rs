@@ -61,3 +61,26 @@ fn gap_names_both_of_three_more_pairs() {
     assert!((param(&j, "leakage", "gap_m") - 25e-6).abs() < 0.1 * 25e-6);
     assert!((param(&j, "heat_transfer", "ua_w_per_k") - 5.0).abs() < 0.1 * 5.0);
 }
+
+#[test]
+#[ignore = "slow: two compression runs with the ports timed by the rotation"]
+fn gap_names_a_port_restriction_and_a_leak_on_timed_ports() {
+    // Both act on the pressure channel while the ports are timed: the restriction while a
+    // port is open, the leak while both are shut. Fast at a low ratio, slow at a high one.
+    let truth = format!(
+        "{}\n[effects.port_restriction]\narea_scale = 0.4\n",
+        reference()
+    );
+    let model = without_section(&reference(), "effects.leakage");
+    for (pressure_ratio, speed, seed) in [(3.1, 2.3, 40), (4.5, 0.6, 41)] {
+        let j = gap(&model, &compressing(&truth, pressure_ratio, speed, 3, seed));
+        show(
+            &format!("port_restriction + leakage, PR {pressure_ratio}, {speed} m/s"),
+            &j,
+        );
+        assert_eq!(sorted(names(&j)), ["leakage", "port_restriction"]);
+        assert!((param(&j, "port_restriction", "area_scale") - 0.4).abs() < 0.05 * 0.4);
+        assert!((param(&j, "leakage", "gap_m") - 25e-6).abs() < 0.1 * 25e-6);
+        assert!(shrink(&j, "pressure") >= 0.9);
+    }
+}

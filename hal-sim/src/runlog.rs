@@ -214,13 +214,14 @@ impl RunLog {
         let mut time = TimeCheck::default();
         let mut time_col: Option<usize> = None;
         let mut fields: Vec<String> = Vec::new();
-        loop {
+        let mut rows = RowBatch::default();
+        let outcome = loop {
             let line_no = lines.line_no + 1;
             let raw = match lines.next_line() {
                 Ok(Some(raw)) => raw,
-                Ok(None) => break,
+                Ok(None) => break Ok(()),
                 Err(LineError::TooLong) => {
-                    return Err(err(
+                    break Err(err(
                         line_no,
                         None,
                         format!("longer than {MAX_LINE_BYTES} bytes: not a run log"),
@@ -232,19 +233,22 @@ impl RunLog {
                     } else {
                         format!("cannot read on ({e})")
                     };
-                    return Err(err(line_no, None, what));
+                    break Err(err(line_no, None, what));
                 }
             };
-            let mut line = std::str::from_utf8(raw).map_err(|e| {
-                err(
-                    line_no,
-                    None,
-                    format!(
-                        "not UTF-8 text (invalid byte at column {})",
-                        e.valid_up_to() + 1
-                    ),
-                )
-            })?;
+            let mut line = match std::str::from_utf8(raw) {
+                Ok(line) => line,
+                Err(e) => {
+                    break Err(err(
+                        line_no,
+                        None,
+                        format!(
+                            "not UTF-8 text (invalid byte at column {})",
+                            e.valid_up_to() + 1
+                        ),
+                    ))
+                }
+            };
             if line_no == 1 {
                 line = line.strip_prefix('\u{feff}').unwrap_or(line);
             }
@@ -276,94 +280,49 @@ impl RunLog {
                 }
                 continue;
             }
+            if let Some((_, names)) = &header {
+                // A data row: parsed with the rows around it, on every core.
+                rows.push(line_no, line);
+                if rows.lines.len() >= RowBatch::ROWS {
+                    rows.flush(names, &mut columns, &ranges, &mut time, time_col)?;
+                }
+                continue;
+            }
             split_fields(line, &mut fields).map_err(|m| err(line_no, None, m))?;
             if fields.len() == 1 && fields.first().is_some_and(|f| f.trim().is_empty()) {
                 continue; // a blank line, or one that is all comment
             }
-            match &header {
-                None => {
-                    let names: Vec<String> = fields.iter().map(|f| f.trim().to_string()).collect();
-                    for (i, name) in names.iter().enumerate() {
-                        if let Some(j) = names.iter().skip(i + 1).position(|n| n == name) {
-                            return Err(err(
-                                line_no,
-                                Some(&echo(name)),
-                                format!("column given twice (fields {} and {})", i + 1, i + j + 2),
-                            ));
-                        }
-                    }
-                    for req in REQUIRED {
-                        if !names.iter().any(|n| n == req) {
-                            return Err(err(
-                                line_no,
-                                Some(req),
-                                format!(
-                                    "required column is missing (the header has: {})",
-                                    echo(&names.join(","))
-                                ),
-                            ));
-                        }
-                    }
-                    columns = vec![Vec::new(); names.len()];
-                    ranges = names.iter().map(|n| physical_range(n)).collect();
-                    time_col = names.iter().position(|n| n == "t_s");
-                    header = Some((line_no, names));
-                }
-                Some((_, names)) => {
-                    if fields.len() != names.len() {
-                        return Err(err(
-                            line_no,
-                            None,
-                            format!("expected {} fields, found {}", names.len(), fields.len()),
-                        ));
-                    }
-                    if columns.first().map_or(0, Vec::len) * names.len() >= MAX_VALUES {
-                        return Err(err(
-                            line_no,
-                            None,
-                            format!(
-                                "more than {MAX_VALUES} values: too large to analyse at once \
-                                 (cut the log into parts)"
-                            ),
-                        ));
-                    }
-                    for (((field, name), col), &(lo, hi)) in fields
-                        .iter()
-                        .zip(names)
-                        .zip(columns.iter_mut())
-                        .zip(&ranges)
-                    {
-                        let text = field.trim();
-                        let v: f64 = text.parse().map_err(|_| {
-                            err(
-                                line_no,
-                                Some(name),
-                                format!("`{}` is not a number", echo(text)),
-                            )
-                        })?;
-                        if !v.is_finite() {
-                            return Err(err(
-                                line_no,
-                                Some(name),
-                                format!("`{}` is not finite", echo(text)),
-                            ));
-                        }
-                        if !(lo..=hi).contains(&v) {
-                            return Err(err(
-                                line_no,
-                                Some(name),
-                                format!("{v:e} is outside the physical range {lo:e}..={hi:e}"),
-                            ));
-                        }
-                        col.push(v);
-                    }
-                    // The time after the whole row read: a bad value names its own column.
-                    if let Some(&t) = time_col.and_then(|i| columns.get(i)).and_then(|c| c.last()) {
-                        time.next(t).map_err(|m| err(line_no, Some("t_s"), m))?;
-                    }
+            let names: Vec<String> = fields.iter().map(|f| f.trim().to_string()).collect();
+            for (i, name) in names.iter().enumerate() {
+                if let Some(j) = names.iter().skip(i + 1).position(|n| n == name) {
+                    return Err(err(
+                        line_no,
+                        Some(&echo(name)),
+                        format!("column given twice (fields {} and {})", i + 1, i + j + 2),
+                    ));
                 }
             }
+            for req in REQUIRED {
+                if !names.iter().any(|n| n == req) {
+                    return Err(err(
+                        line_no,
+                        Some(req),
+                        format!(
+                            "required column is missing (the header has: {})",
+                            echo(&names.join(","))
+                        ),
+                    ));
+                }
+            }
+            columns = vec![Vec::new(); names.len()];
+            ranges = names.iter().map(|n| physical_range(n)).collect();
+            time_col = names.iter().position(|n| n == "t_s");
+            header = Some((line_no, names));
+        };
+        if let Some((_, names)) = &header {
+            rows.flush(names, &mut columns, &ranges, &mut time, time_col)?;
         }
+        outcome?;
         let Some((_, names)) = header else {
             return Err(err(0, None, "no header line".into()));
         };
@@ -480,10 +439,148 @@ impl TimeCheck {
     }
 }
 
+/// Data rows read but not parsed yet: their text, one after the other, and each row's line
+/// number and span. Parsing (splitting, number conversion, range checks) is most of the cost
+/// of reading a long log and is independent from row to row, so a batch is parsed on every
+/// core; what depends on the order (the time check, the value count, which error comes
+/// first) is then done row by row, so the result and the first error named are those of
+/// reading the rows one at a time.
+#[derive(Default)]
+struct RowBatch {
+    text: String,
+    lines: Vec<(usize, std::ops::Range<usize>)>,
+}
+
+/// A data row parsed: blank (skipped), or its values (or the first bad one, which is named
+/// only after the value count is checked, as one-at-a-time reading does).
+enum ParsedRow {
+    Blank,
+    Values(Result<Vec<f64>, LogError>),
+}
+
+impl RowBatch {
+    /// Rows per batch.
+    const ROWS: usize = 16_384;
+
+    fn push(&mut self, line_no: usize, line: &str) {
+        let start = self.text.len();
+        self.text.push_str(line);
+        self.lines.push((line_no, start..self.text.len()));
+    }
+
+    /// Parses the batch's rows and appends them to `columns` in order; the first refusal
+    /// in file order is returned. Empties the batch.
+    fn flush(
+        &mut self,
+        names: &[String],
+        columns: &mut [Vec<f64>],
+        ranges: &[(f64, f64)],
+        time: &mut TimeCheck,
+        time_col: Option<usize>,
+    ) -> Result<(), LogError> {
+        use rayon::prelude::*;
+        let parsed: Vec<Result<ParsedRow, LogError>> = self
+            .lines
+            .par_iter()
+            .map(|(line_no, span)| {
+                parse_row(
+                    self.text.get(span.clone()).unwrap_or_default(),
+                    *line_no,
+                    names,
+                    ranges,
+                )
+            })
+            .collect();
+        for ((line_no, _), row) in self.lines.iter().zip(parsed) {
+            let values = match row? {
+                ParsedRow::Blank => continue,
+                ParsedRow::Values(v) => v,
+            };
+            if columns.first().map_or(0, Vec::len) * names.len() >= MAX_VALUES {
+                return Err(LogError {
+                    line: *line_no,
+                    column: None,
+                    message: format!(
+                        "more than {MAX_VALUES} values: too large to analyse at once \
+                         (cut the log into parts)"
+                    ),
+                });
+            }
+            for (col, v) in columns.iter_mut().zip(values?) {
+                col.push(v);
+            }
+            // The time after the whole row read: a bad value names its own column.
+            if let Some(&t) = time_col.and_then(|i| columns.get(i)).and_then(|c| c.last()) {
+                time.next(t).map_err(|message| LogError {
+                    line: *line_no,
+                    column: Some("t_s".into()),
+                    message,
+                })?;
+            }
+        }
+        self.text.clear();
+        self.lines.clear();
+        Ok(())
+    }
+}
+
+/// One data row's fields as numbers, checked against the columns' physical ranges.
+fn parse_row(
+    line: &str,
+    line_no: usize,
+    names: &[String],
+    ranges: &[(f64, f64)],
+) -> Result<ParsedRow, LogError> {
+    let err = |column: Option<&str>, message: String| LogError {
+        line: line_no,
+        column: column.map(str::to_string),
+        message,
+    };
+    let mut fields = Vec::with_capacity(names.len());
+    split_fields(line, &mut fields).map_err(|m| err(None, m))?;
+    if fields.len() == 1 && fields.first().is_some_and(|f| f.trim().is_empty()) {
+        return Ok(ParsedRow::Blank); // a blank line, or one that is all comment
+    }
+    if fields.len() != names.len() {
+        return Err(err(
+            None,
+            format!("expected {} fields, found {}", names.len(), fields.len()),
+        ));
+    }
+    let values = fields
+        .iter()
+        .zip(names)
+        .zip(ranges)
+        .map(|((field, name), &(lo, hi))| {
+            let text = field.trim();
+            let v: f64 = text
+                .parse()
+                .map_err(|_| err(Some(name), format!("`{}` is not a number", echo(text))))?;
+            if !v.is_finite() {
+                return Err(err(Some(name), format!("`{}` is not finite", echo(text))));
+            }
+            if !(lo..=hi).contains(&v) {
+                return Err(err(
+                    Some(name),
+                    format!("{v:e} is outside the physical range {lo:e}..={hi:e}"),
+                ));
+            }
+            Ok(v)
+        })
+        .collect();
+    Ok(ParsedRow::Values(values))
+}
+
 /// Splits a CSV line into `fields`: commas outside double quotes separate; quotes are
 /// removed (`""` inside quotes is one quote); `#` outside quotes starts a comment.
 fn split_fields(line: &str, fields: &mut Vec<String>) -> Result<(), String> {
     fields.clear();
+    if !line.contains('"') {
+        // The common line: no quotes, so the fields are the commas' pieces up to a comment.
+        let body = line.split('#').next().unwrap_or_default();
+        fields.extend(body.split(',').map(str::to_string));
+        return Ok(());
+    }
     let mut field = String::new();
     let mut quoted = false;
     let mut chars = line.chars().peekable();

@@ -12,7 +12,24 @@ use std::ops::Range;
 use fpc::sensing::differentiator::{SavitzkyGolay, SgConfig};
 use fpc::sensing::encoder::{EncoderConfig, PositionCounts};
 use rustfft::num_complex::Complex;
-use rustfft::FftPlanner;
+use rustfft::{Fft, FftPlanner};
+use std::sync::{Arc, Mutex, OnceLock};
+
+/// The forward and inverse FFTs of length `n`, planned once per process: planning a long
+/// transform computes its twiddle factors (as long as a transform itself), and the workflow
+/// asks for the same lengths many times.
+pub fn fft_pair(n: usize) -> (Arc<dyn Fft<f64>>, Arc<dyn Fft<f64>>) {
+    static PLANNER: OnceLock<Mutex<FftPlanner<f64>>> = OnceLock::new();
+    let planner = PLANNER.get_or_init(|| Mutex::new(FftPlanner::new()));
+    match planner.lock() {
+        Ok(mut p) => (p.plan_fft_forward(n), p.plan_fft_inverse(n)),
+        // A panic elsewhere while planning: plan anew rather than fail.
+        Err(_) => {
+            let mut p = FftPlanner::new();
+            (p.plan_fft_forward(n), p.plan_fft_inverse(n))
+        }
+    }
+}
 
 /// The default search window of [`xcorr_lag`], s: the delays measured here (drive, current
 /// loop, filter and logging delays) are milliseconds, never a stroke (a stroke lasts 50 ms or
@@ -88,22 +105,37 @@ pub fn xcorr_lag(
         x.iter().map(|v| v - mean).collect::<Vec<f64>>()
     };
     let (a, b) = (centred(a), centred(b));
-    let nfft = (2 * n).next_power_of_two();
-    let mut planner = FftPlanner::<f64>::new();
-    let forward = planner.plan_fft_forward(nfft);
-    let inverse = planner.plan_fft_inverse(nfft);
-    let spectrum = |x: &[f64]| {
-        let mut buf: Vec<Complex<f64>> = x
-            .iter()
-            .map(|&v| Complex::new(v, 0.0))
-            .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
-            .take(nfft)
-            .collect();
-        forward.process(&mut buf);
-        buf
+    let default_window = (DEFAULT_MAX_LAG_S / sample_time_s).round();
+    let default_window = if default_window.is_finite() && default_window >= 1.0 {
+        default_window as usize
+    } else {
+        1
     };
-    let (fa, fb) = (spectrum(&a), spectrum(&b));
-    let mut r: Vec<Complex<f64>> = fa.iter().zip(&fb).map(|(x, y)| x.conj() * y).collect();
+    let max_lag = max_lag_samples.unwrap_or(default_window).min(n - 2);
+    // Zero padding to n + the largest lag looked at (the window and the two samples of the
+    // flatness check) keeps the circular correlation linear at every lag used.
+    let nfft = (n + max_lag + 3).next_power_of_two();
+    let (forward, inverse) = fft_pair(nfft);
+    // Both real signals in one complex transform, z = a + i·b, separated by the symmetry
+    // of real spectra: A[k] = (Z[k] + Z*[−k])/2, B[k] = (Z[k] − Z*[−k])/2i; then the
+    // cross-spectrum A*·B and one inverse transform give Σ a[i]·b[i+k] at every lag.
+    let mut z: Vec<Complex<f64>> = a
+        .iter()
+        .zip(&b)
+        .map(|(&x, &y)| Complex::new(x, y))
+        .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
+        .take(nfft)
+        .collect();
+    forward.process(&mut z);
+    let mut r: Vec<Complex<f64>> = (0..nfft)
+        .map(|k| {
+            let zk = z.get(k).copied().unwrap_or_default();
+            let zm = z.get((nfft - k) % nfft).copied().unwrap_or_default().conj();
+            let fa = (zk + zm) * 0.5;
+            let fb = (zk - zm) * Complex::new(0.0, -0.5);
+            fa.conj() * fb
+        })
+        .collect();
     inverse.process(&mut r);
     // Prefix sums of x and x² (index i: sum of the first i samples).
     let prefix = |x: &[f64]| {
@@ -137,13 +169,7 @@ pub fn xcorr_lag(
         let var = (saa - sa * sa / mf) * (sbb - sb * sb / mf);
         (var > 0.0).then(|| (sab - sa * sb / mf) / var.sqrt())
     };
-    let default_window = (DEFAULT_MAX_LAG_S / sample_time_s).round();
-    let default_window = if default_window.is_finite() && default_window >= 1.0 {
-        default_window as usize
-    } else {
-        1
-    };
-    let max_lag = max_lag_samples.unwrap_or(default_window).min(n - 2) as isize;
+    let max_lag = max_lag as isize;
     let (k, peak) = (-max_lag..=max_lag)
         .filter_map(|k| Some((k, rho(k)?)))
         .fold(None::<(isize, f64)>, |best, (k, v)| match best {
@@ -190,19 +216,16 @@ fn sample_rate(sample_time_s: f64) -> f64 {
     1.0 / sample_time_s
 }
 
-/// `x` at the fractional index `t` by cubic (Catmull–Rom) interpolation; `None` outside.
-fn cubic_at(x: &[f64], t: f64) -> Option<f64> {
-    let i = t.floor();
-    let f = t - i;
-    let i = i as isize;
-    let g = |k: isize| usize::try_from(k).ok().and_then(|k| x.get(k)).copied();
-    let (p0, p1, p2, p3) = (g(i - 1)?, g(i)?, g(i + 1)?, g(i + 2)?);
-    Some(
-        p1 + 0.5
-            * f
-            * (p2 - p0
-                + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3 + f * (3.0 * (p1 - p2) + p3 - p0))),
-    )
+/// The Catmull–Rom weights of the samples `x[i−1], x[i], x[i+1], x[i+2]` for the value at
+/// `i + f`, `0 ≤ f < 1` (the cubic through them with the centred slopes).
+fn catmull_rom_weights(f: f64) -> [f64; 4] {
+    let (f2, f3) = (f * f, f * f * f);
+    [
+        0.5 * (-f + 2.0 * f2 - f3),
+        1.0 + 0.5 * (-5.0 * f2 + 3.0 * f3),
+        0.5 * (f + 4.0 * f2 - 3.0 * f3),
+        0.5 * (f3 - f2),
+    ]
 }
 
 /// The sub-sample lag near the integer peak `k0`: the `d` within ±1.5 samples of it that
@@ -219,11 +242,20 @@ fn refine_lag(a: &[f64], b: &[f64], k0: f64) -> Option<f64> {
     let margin = k0.abs().ceil() as usize + 4;
     let range = margin..n.checked_sub(margin).filter(|hi| *hi > margin + 8)?;
     let rho = |d: f64| -> f64 {
+        // `a` at `i − d` for every `i`: one whole shift and one fraction, so one set of
+        // interpolation weights for the whole sum.
+        let whole = (-d).floor();
+        let w = catmull_rom_weights(-d - whole);
+        let whole = whole as isize;
         let (mut sa, mut sb, mut saa, mut sbb, mut sab, mut m) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
         for i in range.clone() {
-            let (Some(x), Some(&y)) = (cubic_at(a, i as f64 - d), b.get(i)) else {
+            let at = usize::try_from(i as isize + whole - 1).ok();
+            let (Some(&[p0, p1, p2, p3]), Some(&y)) = (at.and_then(|k| a.get(k..k + 4)), b.get(i))
+            else {
                 continue;
             };
+            let [w0, w1, w2, w3] = w;
+            let x = w0 * p0 + w1 * p1 + w2 * p2 + w3 * p3;
             sa += x;
             sb += y;
             saa += x * x;

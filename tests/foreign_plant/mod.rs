@@ -334,6 +334,112 @@ impl CaseKind {
     }
 }
 
+/// A force outside the workflow's library (issue #30): what a rig adds that no named effect
+/// describes. The workflow should say what it is in the terms of its discovery basis
+/// (`docs/formats.md`, "Beyond the library"): [`Form::discovered_terms`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Form {
+    /// A cable carrier's spring, `F = −k·(x − x_rest)`.
+    Spring {
+        /// k, N/m
+        stiffness_n_per_m: f64,
+        /// Where it is relaxed, m.
+        rest_m: f64,
+    },
+    /// A constant push toward +x (a tilted axis), N.
+    Bias {
+        /// N
+        force_n: f64,
+    },
+    /// Air drag, `F = −c·v·|v|`.
+    QuadraticDrag {
+        /// c, N·s²/m²
+        coefficient: f64,
+    },
+    /// The drives push `(1 + error)` times the force they command and report.
+    ForceConstant {
+        /// Relative error of the motor constant, 1.
+        error: f64,
+    },
+    /// Coulomb friction rising by `rate_n_per_s` every second of the log (seals warming).
+    DriftingFriction {
+        /// N/s
+        rate_n_per_s: f64,
+    },
+}
+
+/// The forms outside the library, by name, in a fixed order.
+pub const FORMS: [&str; 5] = [
+    "spring",
+    "bias",
+    "quadratic_drag",
+    "force_constant_error",
+    "drifting_friction",
+];
+
+impl Form {
+    /// Its name in [`FORMS`].
+    pub fn name(&self) -> &'static str {
+        match self {
+            Form::Spring { .. } => "spring",
+            Form::Bias { .. } => "bias",
+            Form::QuadraticDrag { .. } => "quadratic_drag",
+            Form::ForceConstant { .. } => "force_constant_error",
+            Form::DriftingFriction { .. } => "drifting_friction",
+        }
+    }
+
+    /// The terms of the discovery basis this force is, on the piston along +x, SI.
+    pub fn discovered_terms(&self) -> std::collections::BTreeMap<&'static str, f64> {
+        let terms: Vec<(&'static str, f64)> = match *self {
+            Form::Spring {
+                stiffness_n_per_m,
+                rest_m,
+            } => vec![("x", -stiffness_n_per_m), ("1", stiffness_n_per_m * rest_m)],
+            Form::Bias { force_n } => vec![("1", force_n)],
+            Form::QuadraticDrag { coefficient } => vec![("v|v|", -coefficient)],
+            Form::ForceConstant { error } => vec![("f_motor", error)],
+            // The level rises as rate·t and acts against the motion (this plant smooths
+            // sgn(v) over 1 mm/s, far below the strokes' speeds).
+            Form::DriftingFriction { rate_n_per_s } => vec![("t*sgn(v)", -rate_n_per_s)],
+        };
+        terms.into_iter().collect()
+    }
+
+    /// Whether it shows only on brisk strokes: drag lives at speed, and where the force is
+    /// mostly friction (holds and creeping moves) a motor-constant error reads as a mass and
+    /// a Coulomb error to within the noise.
+    fn needs_speed(name: &str) -> bool {
+        matches!(name, "quadratic_drag" | "force_constant_error")
+    }
+
+    /// Draws the form `name` at a magnitude a rig shows (well above the 3 N of force noise):
+    /// springs of 0.8–3 kN/m relaxed within 3 cm of mid travel, 30–120 N of bias either way,
+    /// 5–20 N·s²/m² of drag, a motor constant 4–12 % off either way, friction rising
+    /// 3–12 N/s. `None` for an unknown name.
+    fn draw(rng: &mut ChaCha8Rng, name: &str) -> Option<Form> {
+        Some(match name {
+            "spring" => Form::Spring {
+                stiffness_n_per_m: uniform(rng, 800.0, 3000.0),
+                rest_m: 0.5 * TRAVEL_M + uniform(rng, -0.03, 0.03),
+            },
+            "bias" => Form::Bias {
+                force_n: sign(rng) * uniform(rng, 30.0, 120.0),
+            },
+            "quadratic_drag" => Form::QuadraticDrag {
+                coefficient: uniform(rng, 5.0, 20.0),
+            },
+            "force_constant_error" => Form::ForceConstant {
+                error: sign(rng) * uniform(rng, 0.04, 0.12),
+            },
+            "drifting_friction" => Form::DriftingFriction {
+                rate_n_per_s: uniform(rng, 3.0, 12.0),
+            },
+            _ => return None,
+        })
+    }
+}
+
 /// The nominal machine (what the user's model file says).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Machine {
@@ -548,6 +654,8 @@ pub struct Case {
     pub nominal: Machine,
     /// The hidden effects.
     pub hidden: Vec<Hidden>,
+    /// A force outside the library, if the case hides one (then `kind` is `Null`).
+    pub form: Option<Form>,
     /// Position-loop bandwidth, Hz.
     pub loop_hz: f64,
     /// Position-loop damping ratio.
@@ -810,6 +918,18 @@ fn segments_duration(segments: &[Segment], start: f64) -> f64 {
 
 /// Draws one case: the machine, its hidden effects, the chambers, the trajectory and rate.
 pub fn draw_case(seed: u64, kind: CaseKind) -> Case {
+    draw(seed, kind, None)
+}
+
+/// Draws one case that hides the force outside the library named `form` (one of
+/// [`FORMS`]) and no library effect; `None` for an unknown name.
+pub fn draw_form_case(seed: u64, form: &str) -> Option<Case> {
+    FORMS
+        .contains(&form)
+        .then(|| draw(seed, CaseKind::Null, Some(form)))
+}
+
+fn draw(seed: u64, kind: CaseKind, form: Option<&str>) -> Case {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let effects = kind.effects();
     // Rounded as a user would write them: the model file then says exactly what the
@@ -843,6 +963,8 @@ pub fn draw_case(seed: u64, kind: CaseKind) -> Case {
     };
     let shape = if effects.iter().any(|e| e.needs_holds()) {
         Shape::HoldsAndMoves
+    } else if form.is_some_and(Form::needs_speed) {
+        [Shape::Sine, Shape::Trapezoid][rng.random_range(0..2usize)]
     } else {
         [Shape::Sine, Shape::Trapezoid, Shape::HoldsAndMoves][rng.random_range(0..3usize)]
     };
@@ -872,6 +994,11 @@ pub fn draw_case(seed: u64, kind: CaseKind) -> Case {
             *static_n += coulomb_shift.unwrap_or(0.0);
         }
     }
+    let loop_hz = uniform(&mut rng, 25.0, 40.0);
+    let loop_damping = uniform(&mut rng, 0.6, 0.8);
+    let velocity_filter_hz = uniform(&mut rng, 250.0, 400.0);
+    // Drawn last, so that the library's cases are the same with or without forms.
+    let form = form.and_then(|name| Form::draw(&mut rng, name));
     Case {
         seed,
         kind,
@@ -880,9 +1007,10 @@ pub fn draw_case(seed: u64, kind: CaseKind) -> Case {
         chambers,
         nominal,
         hidden,
-        loop_hz: uniform(&mut rng, 25.0, 40.0),
-        loop_damping: uniform(&mut rng, 0.6, 0.8),
-        velocity_filter_hz: uniform(&mut rng, 250.0, 400.0),
+        form,
+        loop_hz,
+        loop_damping,
+        velocity_filter_hz,
     }
 }
 
@@ -905,6 +1033,12 @@ struct Physics {
     ua_w_per_k: f64,
     wall_k: f64,
     vent_k: Option<f64>,
+    /// Spring of a form, (k, x_rest).
+    spring: Option<(f64, f64)>,
+    /// Constant push of a form, N.
+    bias_n: f64,
+    /// Drag coefficient of a form, N·s²/m².
+    drag: f64,
 }
 
 impl Physics {
@@ -929,7 +1063,20 @@ impl Physics {
                 Chambers::Vented { loss_pa_s2_per_m2 } => Some(loss_pa_s2_per_m2),
                 Chambers::Sealed { .. } => None,
             },
+            spring: None,
+            bias_n: 0.0,
+            drag: 0.0,
         };
+        match case.form {
+            Some(Form::Spring {
+                stiffness_n_per_m,
+                rest_m,
+            }) => p.spring = Some((stiffness_n_per_m, rest_m)),
+            Some(Form::Bias { force_n }) => p.bias_n = force_n,
+            Some(Form::QuadraticDrag { coefficient }) => p.drag = coefficient,
+            // Applied where the drives act and where time passes (`generate`).
+            Some(Form::ForceConstant { .. } | Form::DriftingFriction { .. }) | None => {}
+        }
         let mut stribeck_static = None;
         for h in &case.hidden {
             match *h {
@@ -998,6 +1145,12 @@ impl Physics {
         }
     }
 
+    /// The force of a spring, bias or drag form, toward +x.
+    fn extra(&self, x: f64, v: f64) -> f64 {
+        let spring = self.spring.map_or(0.0, |(k, rest)| -k * (x - rest));
+        spring + self.bias_n - self.drag * v * v.abs()
+    }
+
     fn vented_pressures(k: f64, v: f64) -> (f64, f64) {
         let loss = k * v * v.abs();
         (AMBIENT_PA - loss, AMBIENT_PA + loss)
@@ -1010,7 +1163,8 @@ impl Physics {
             Some(k) => Physics::vented_pressures(k, v),
             None => (s[2], s[3]),
         };
-        let accel = (motor_n + (pa - pb) * self.area_m2 - self.friction(v) - self.cogging(x))
+        let accel = (motor_n + (pa - pb) * self.area_m2 - self.friction(v) - self.cogging(x)
+            + self.extra(x, v))
             / self.mass_kg;
         if self.vent_k.is_some() {
             return [v, accel, 0.0, 0.0, 0.0, 0.0];
@@ -1121,8 +1275,16 @@ fn earlier(cmds: &[f64], k: usize, back: usize) -> f64 {
 /// Runs the case and writes its log, its nominal model and its truth.
 pub fn generate(case: &Case) -> Generated {
     let mut rng = ChaCha8Rng::seed_from_u64(case.seed ^ 0x5eed_1095_u64.rotate_left(32));
-    let phys = Physics::new(case);
+    let mut phys = Physics::new(case);
     let period = 1.0 / case.rate_hz;
+    // A motor-constant error scales what acts, not what is commanded and logged; drifting
+    // friction raises the Coulomb level sample by sample.
+    let (motor_gain, drift) = match case.form {
+        Some(Form::ForceConstant { error }) => (1.0 + error, 0.0),
+        Some(Form::DriftingFriction { rate_n_per_s }) => (1.0, rate_n_per_s),
+        _ => (1.0, 0.0),
+    };
+    let coulomb_at_start = phys.coulomb_n;
     let timed = case.trajectory.resolve();
     let total_s = timed.iter().map(|s| s.dur).sum::<f64>();
     let rows = (total_s * case.rate_hz).floor() as usize;
@@ -1181,6 +1343,7 @@ pub fn generate(case: &Case) -> Generated {
     let quantise = |v: f64, step: f64| (v / step).round() * step;
     for k in 0..rows {
         let t = k as f64 * period;
+        phys.coulomb_n = coulomb_at_start + drift * t;
         // Sensors.
         let x = s[0];
         let x_meas = quantise(x + POSITION_NOISE_M * gauss(&mut rng), 1e-6);
@@ -1241,7 +1404,7 @@ pub fn generate(case: &Case) -> Generated {
                 earlier(&section_cmd, k, back)
             };
             let motor = acting(master_shift) + acting(slave_act_shift);
-            phys.advance(&mut s, motor, b - a);
+            phys.advance(&mut s, motor_gain * motor, b - a);
         }
     }
 

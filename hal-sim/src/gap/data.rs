@@ -183,6 +183,11 @@ pub struct Measured {
     /// Stretches of motion between standstills (runs of `moving`): an encoder may be zeroed
     /// again at a standstill (homing), so each stretch has its own encoder offset.
     pub segments: Vec<std::ops::Range<usize>>,
+    /// The chambers' replays of this log, by the model values they read
+    /// ([`super::residuals::replay_pressures`]): the columns above are never changed after
+    /// they are made (only the force alignment is, which no replay reads), and a clone starts
+    /// with none.
+    pub replays: super::band::ColumnCache<String>,
 }
 
 impl Measured {
@@ -416,6 +421,7 @@ impl Measured {
             moving,
             inner,
             segments,
+            replays: Default::default(),
         })
     }
 
@@ -508,6 +514,7 @@ impl Measured {
             moving,
             inner,
             segments,
+            replays: Default::default(),
         }
     }
 

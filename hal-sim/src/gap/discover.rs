@@ -23,6 +23,7 @@
 
 use rayon::prelude::*;
 
+use crate::plant::fastmath::sin_cos;
 use crate::plant::model::extra_force::{ExtraState, Term};
 use crate::plant::model::{model_section, MachineModel};
 
@@ -82,9 +83,14 @@ impl<'a> Basis<'a> {
 
     /// The band-filtered column of `term` at the force channel's kept samples.
     fn column(&self, term: Term, period_m: f64) -> Vec<f64> {
-        match self.plain.iter().find(|(t, _)| *t == term) {
-            Some((_, c)) => c.clone(),
-            None => self.filtered(term, period_m),
+        if let Some((_, c)) = self.plain.iter().find(|(t, _)| *t == term) {
+            return c.clone();
+        }
+        let pair = self.periodic_pair(period_m);
+        match (term, pair.as_slice()) {
+            (Term::Sin, [sin, _]) => sin.clone(),
+            (Term::Cos, [_, cos]) => cos.clone(),
+            _ => self.filtered(term, period_m),
         }
     }
 
@@ -96,6 +102,24 @@ impl<'a> Basis<'a> {
             .map(|s| term.value(s, period_m))
             .collect();
         self.ctx.band.kept(self.ctx.data, ChannelId::Force, &raw)
+    }
+
+    /// The band-filtered sin and cos columns of period `period_m`: both from one angle per
+    /// row (the values of [`Term::Sin`] and [`Term::Cos`] to within 10⁻¹⁴, by the plant's
+    /// fast sine), the two filters side by side. They depend on x and the band alone, and the
+    /// period search visits the same grid at every selection step: the band keeps them.
+    fn periodic_pair(&self, period_m: f64) -> std::sync::Arc<Vec<Vec<f64>>> {
+        let band = self.ctx.band;
+        band.columns.get_or_make(period_m.to_bits(), || {
+            let (sin, cos): (Vec<f64>, Vec<f64>) = self
+                .states
+                .iter()
+                .map(|s| sin_cos(std::f64::consts::TAU * s.x_m / period_m))
+                .unzip();
+            let filter = |raw: &[f64]| band.kept(self.ctx.data, ChannelId::Force, raw);
+            let (s, c) = rayon::join(|| filter(&sin), || filter(&cos));
+            vec![s, c]
+        })
     }
 
     /// Least squares of `y` on `terms` (their columns given), the columns scaled to unit
@@ -137,8 +161,13 @@ impl<'a> Basis<'a> {
         }
         let with = |p: f64| -> Option<TermFit> {
             let mut cols = fixed.to_vec();
-            cols.push((Term::Sin, self.column(Term::Sin, p)));
-            cols.push((Term::Cos, self.column(Term::Cos, p)));
+            let pair = self.periodic_pair(p);
+            let (sin, cos) = match pair.as_slice() {
+                [sin, cos] => (sin.clone(), cos.clone()),
+                _ => return None,
+            };
+            cols.push((Term::Sin, sin));
+            cols.push((Term::Cos, cos));
             Basis::fit(&cols, y, Some(p))
         };
         let (lnp, _) = minimise_1d_par(MIN_PERIOD_M.ln(), hi.ln(), PERIOD_GRID, 12, |lnp| {

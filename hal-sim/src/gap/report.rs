@@ -334,7 +334,20 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
     }
     let _ = writeln!(md, "\n## Lags (FFT cross-correlation)\n");
     let _ = writeln!(md, "| what | lag, ms | correlation |\n|---|---|---|");
-    if let Some(l) = slave_force_lag(d) {
+    // The three cross-correlations are independent: computed side by side.
+    let docs = [
+        ("input model", &out.input),
+        ("augmented model", &out.selection.doc),
+    ];
+    let (slave, acting) = rayon::join(
+        || slave_force_lag(d),
+        || {
+            docs.par_iter()
+                .map(|(label, doc)| (*label, acting_force_lag(&ctx, doc)))
+                .collect::<Vec<_>>()
+        },
+    );
+    if let Some(l) = slave {
         let _ = writeln!(
             md,
             "| slave force behind master force | {:.4} | {:.3} |",
@@ -342,11 +355,8 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
             Num(l.correlation)
         );
     }
-    for (label, doc) in [
-        ("input model", &out.input),
-        ("augmented model", &out.selection.doc),
-    ] {
-        if let Some(l) = acting_force_lag(&ctx, doc) {
+    for (label, lag) in acting {
+        if let Some(l) = lag {
             let _ = writeln!(
                 md,
                 "| acting force behind reported force ({label}) | {:.4} | {:.3} |",

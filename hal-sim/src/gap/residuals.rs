@@ -22,7 +22,7 @@ use crate::plant::model::MachineModel;
 use crate::plant::servo::through_play;
 use crate::signal::delayed;
 
-use super::band::{force_kernel, lowpass, sg_weights, Kernel};
+use super::band::{force_kernel, lowpass, sg_weights, ColumnCache, Kernel};
 use super::data::{Measured, PortsMeta, ThetaSource};
 
 /// The channels compared.
@@ -106,6 +106,8 @@ pub struct Band {
     pub idx_encoder: Vec<usize>,
     /// Kept samples of the slave-force and pressure channels.
     pub idx_inner: Vec<usize>,
+    /// Columns of this band's searches, kept for the next selection step.
+    pub columns: ColumnCache,
 }
 
 /// `mask` eroded by `half` samples on each side: 1 only where every sample within `half`
@@ -162,6 +164,7 @@ impl Band {
             stride,
             mask_force,
             mask_inner,
+            columns: ColumnCache::default(),
         })
     }
 
@@ -188,31 +191,27 @@ impl Band {
         let n = raw.len();
         let h = self.plain.half();
         let interior = |i: usize| self.force_interior.get(i).is_some_and(|&w| w > 0.0);
-        // Samples the edge low-passes reach (a difference array of their windows).
-        let mut reach = vec![0i64; n + 1];
-        for &i in idx.iter().filter(|&&i| !interior(i)) {
-            if let Some(a) = reach.get_mut(i.saturating_sub(h)) {
-                *a += 1;
-            }
-            if let Some(b) = reach.get_mut((i + h + 1).min(n)) {
-                *b -= 1;
-            }
-        }
-        let mut acc = vec![0.0; n];
-        let mut open = 0i64;
-        for (k, (a, r)) in acc.iter_mut().zip(&reach).enumerate() {
-            open += r;
-            if open > 0 && self.mask_force.get(k).is_some_and(|&m| m > 0.0) {
-                *a = self.accel.at(raw, k);
-            }
-        }
+        // Near an edge, the acceleration-filtered term (masked) on the span of samples the
+        // low-passes of the edge samples reach, `seg` = samples `lo..lo + seg.len()`: kept
+        // samples come in order, so a span grows until the next window no longer touches it.
+        // Outside the span the term counts as zero, as the low-pass counts outside the log.
+        let mut seg: Vec<f64> = Vec::new();
+        let mut lo = 0usize;
         idx.iter()
             .map(|&i| {
                 if interior(i) {
-                    self.force.at(raw, i)
-                } else {
-                    self.plain.at(&acc, i)
+                    return self.force.at(raw, i);
                 }
+                let (from, to) = (i.saturating_sub(h), (i + h + 1).min(n));
+                if from < lo || from > lo + seg.len() {
+                    seg.clear();
+                    lo = from;
+                }
+                for k in lo + seg.len()..to {
+                    let judged = self.mask_force.get(k).is_some_and(|&m| m > 0.0);
+                    seg.push(if judged { self.accel.at(raw, k) } else { 0.0 });
+                }
+                self.plain.at(&seg, i - lo)
             })
             .collect()
     }
@@ -229,22 +228,26 @@ impl Band {
     /// The same at every sample (zero where the channel is not judged).
     pub fn full(&self, _data: &Measured, ch: ChannelId, raw: &[f64]) -> Vec<f64> {
         let (k, mask, _) = self.route(ch);
+        let judged = |i: usize| mask.get(i).is_some_and(|&w| w > 0.0);
+        let filtered = k.apply(raw);
+        let mut out: Vec<f64> = (0..mask.len())
+            .map(|i| match filtered.get(i) {
+                Some(&v) if judged(i) => v,
+                _ => 0.0,
+            })
+            .collect();
         if ch == ChannelId::Force {
-            let judged: Vec<usize> = (0..mask.len())
-                .filter(|&i| mask.get(i).is_some_and(|&w| w > 0.0))
+            // Near a standstill the force terms pass the two stages with the mask between.
+            let edges: Vec<usize> = (0..mask.len())
+                .filter(|&i| judged(i) && self.force_interior.get(i).is_none_or(|&w| w <= 0.0))
                 .collect();
-            let mut out = vec![0.0; mask.len()];
-            for (i, v) in judged.iter().zip(self.force_terms(raw, &judged)) {
+            for (i, v) in edges.iter().zip(self.force_terms(raw, &edges)) {
                 if let Some(o) = out.get_mut(*i) {
                     *o = v;
                 }
             }
-            return out;
         }
-        mask.iter()
-            .enumerate()
-            .map(|(i, w)| if *w > 0.0 { k.at(raw, i) } else { 0.0 })
-            .collect()
+        out
     }
 
     /// Where the channel is judged.
@@ -288,17 +291,25 @@ pub fn shifted(x: &[f64], samples: f64) -> Vec<f64> {
         (Some(&f), Some(&l)) => (f, l),
         _ => return Vec::new(),
     };
+    if !samples.is_finite() {
+        return vec![f64::NAN; n];
+    }
+    // `x` at `i − samples` = `x` at `j + f` with one whole shift `j − i` and one fraction
+    // `f` for every sample.
+    let whole = (-samples).floor();
+    let f = -samples - whole;
+    let whole = whole as isize;
+    let last_index = n as isize - 1;
     (0..n)
         .map(|i| {
-            let t = i as f64 - samples;
-            if t <= 0.0 {
+            let j = i as isize + whole;
+            if j < 0 {
                 return first;
             }
-            if t >= (n - 1) as f64 {
+            if j >= last_index {
                 return last;
             }
-            let k = t.floor() as usize;
-            let f = t - k as f64;
+            let k = j as usize;
             match (x.get(k), x.get(k + 1)) {
                 (Some(a), Some(b)) => a + f * (b - a),
                 _ => last,
@@ -474,6 +485,30 @@ pub const MAX_REPLAY_SUBSTEPS: usize = 16;
 /// least-squares scale against the measured pressures corrects the start, and the chambers
 /// are replayed once more from there. Open or timed ports forget the start within a cycle.
 pub fn replay_pressures(data: &Measured, model: &MachineModel) -> Option<(Vec<f64>, Vec<f64>)> {
+    if data.ports == PortsMeta::Unknown {
+        return None;
+    }
+    // Everything of the model a replay reads: the same values, the same replay (a force
+    // effect added by a selection step leaves the chambers as they were).
+    let key = format!(
+        "{:?}|{:?}|{:?}|{:?}|{:?}",
+        PlantParams::from_model(model).chambers,
+        model.gas,
+        model.sensors.pressure,
+        model.lines,
+        model.servo.backlash_rad
+    );
+    let kept = data.replays.get_or_make(key, || {
+        replay_pressures_anew(data, model).map_or_else(Vec::new, |(a, b)| vec![a, b])
+    });
+    match kept.as_slice() {
+        [a, b] => Some((a.clone(), b.clone())),
+        _ => None,
+    }
+}
+
+/// [`replay_pressures`] computed.
+fn replay_pressures_anew(data: &Measured, model: &MachineModel) -> Option<(Vec<f64>, Vec<f64>)> {
     let mode = match data.ports {
         PortsMeta::Closed => PortMode::Closed,
         PortsMeta::Open => PortMode::Timed,

@@ -421,8 +421,9 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
         let model = doc.model()?;
         let mut best: Option<Judged> = None;
         let mut judged = Vec::new();
+        // Each channel's residual on its own core (the pressure replay is the long one).
         let befores: Vec<(ChannelId, Residual)> = ChannelId::ALL
-            .iter()
+            .par_iter()
             .filter_map(|&c| Some((c, residual(ctx.data, ctx.band, &model, c)?)))
             .collect();
         let mut best_extra: Option<Judged> = None;
@@ -666,7 +667,7 @@ fn outdone_by_basis(ctx: &Ctx<'_>, doc: &ModelDoc, j: &Judged, before: &Residual
 pub fn channels(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Vec<Residual>, String> {
     let model = doc.model()?;
     Ok(ChannelId::ALL
-        .iter()
+        .par_iter()
         .filter_map(|&c| residual(ctx.data, ctx.band, &model, c))
         .collect())
 }
