@@ -20,7 +20,8 @@
 //! Each prints the distribution of the minimum clearance (overall and per fault kind: min,
 //! 1 %, median), the five worst runs with what reproduces them, and writes its histogram
 //! (`clearance.svg`). The runs go through the studies' own runner
-//! (`hal_sim::sweep::run_each`, as `fpc-sim sweep`).
+//! (`hal_sim::sweep::run_each`, as `fpc-sim sweep`). `FPC_FAULT_SEEDS=361,951` runs only
+//! the named cases of the full sweep (the seeds its reports print), to reproduce a run.
 //!
 //! Status (issue #33): as a compressor 0 of 10,000 below 0.3 mm (≥ 0.417 mm). As an expander
 //! 35 of 10,000 (task hangs 29, both encoders lost 6; −0.25 mm at worst), every other kind
