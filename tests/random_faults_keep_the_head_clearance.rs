@@ -20,7 +20,8 @@
 //! Each prints the distribution of the minimum clearance (overall and per fault kind: min,
 //! 1 %, median), the five worst runs with what reproduces them, and writes its histogram
 //! (`clearance.svg`). The runs go through the studies' own runner
-//! (`hal_sim::sweep::run_each`, as `fpc-sim sweep`).
+//! (`hal_sim::sweep::run_each`, as `fpc-sim sweep`). `FPC_FAULT_SEEDS=361,951` runs only
+//! the named cases of the full sweep (the seeds its reports print), to reproduce a run.
 //!
 //! Status (issue #33): as a compressor 0 of 10,000 below 0.3 mm (≥ 0.417 mm). As an expander
 //! 35 of 10,000 (task hangs 29, both encoders lost 6; −0.25 mm at worst), every other kind
@@ -178,8 +179,13 @@ fn run_case(c: &Case, rotation: Rotation) -> Outcome {
 /// Runs cases `0..n` over the cores with the studies' own runner (`fpc-sim sweep`'s): the
 /// result does not depend on the split.
 fn sweep(n: u64, rotation: Rotation) -> Vec<Outcome> {
+    sweep_of((0..n).collect(), rotation)
+}
+
+/// The cases of these indices, over the cores (as [`sweep`]).
+fn sweep_of(indices: Vec<u64>, rotation: Rotation) -> Vec<Outcome> {
     let _ = running_start_s();
-    let cases: Vec<Case> = (0..n).map(case).collect();
+    let cases: Vec<Case> = indices.into_iter().map(case).collect();
     let run_one = |c: &Case| run_case(c, rotation);
     hal_sim::sweep::run_each(&cases, run_one, &|_| {})
 }
@@ -317,8 +323,29 @@ fn full_runs() -> u64 {
         .unwrap_or(10_000)
 }
 
-/// The full sweep in `rotation`'s mode.
+/// The cases named by `FPC_FAULT_SEEDS` (indices, comma-separated, as the reports print
+/// them), to reproduce a run of the full sweep without the rest; `None` if unset.
+fn named_seeds() -> Option<Vec<u64>> {
+    let v = std::env::var("FPC_FAULT_SEEDS").ok()?;
+    let seeds: Vec<u64> = v
+        .split(',')
+        .map(|s| {
+            s.trim()
+                .parse()
+                .unwrap_or_else(|_| panic!("FPC_FAULT_SEEDS: {s:?} is not a case index"))
+        })
+        .collect();
+    Some(seeds)
+}
+
+/// The full sweep in `rotation`'s mode (or the cases `FPC_FAULT_SEEDS` names).
 fn full(rotation: Rotation, name: &str) {
+    if let Some(seeds) = named_seeds() {
+        let outcomes = sweep_of(seeds, rotation);
+        distribution(&outcomes, name);
+        report_and_check(&outcomes, rotation);
+        return;
+    }
     let n = full_runs();
     let outcomes = sweep(n, rotation);
     assert_eq!(outcomes.len() as u64, n);
