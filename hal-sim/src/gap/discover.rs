@@ -254,6 +254,18 @@ fn present_terms(doc: &ModelDoc) -> (Vec<Term>, Option<f64>) {
     }
 }
 
+/// The terms `proposal` (an extra-force proposal) adds to those `doc` already has; the
+/// constant is left out (a form's origin, as a spring's rest point, comes with it).
+pub fn added_terms(doc: &ModelDoc, proposal: &Proposal) -> Vec<Term> {
+    let (present, _) = present_terms(doc);
+    proposal
+        .params
+        .iter()
+        .filter_map(|(name, _)| Term::parse(name))
+        .filter(|t| *t != Term::One && !present.contains(t))
+        .collect()
+}
+
 /// The proposal setting the extra force to `fit`, `k` new parameters.
 fn proposal(fit: &TermFit, k: usize) -> Proposal {
     let mut params: Vec<(&'static str, f64)> =
@@ -340,10 +352,20 @@ pub fn without_term(ctx: &Ctx<'_>, doc: &ModelDoc, term: Term) -> Option<(ModelD
 /// The smallest RSS `k` new basis parameters leave on the kept residual `y` of `doc`'s
 /// model (greedy: the best term, then the best next one, …; the periodic pair counts 3),
 /// for the competition with a named effect of `k` parameters (module header).
-pub fn basis_rss(ctx: &Ctx<'_>, doc: &ModelDoc, y: &[f64], k: usize) -> Option<f64> {
+/// The terms of `own_form` (the named effect's own form in the basis, [`EffectKind::basis_form`])
+/// are left out: a named law and the plain term of its own form differ only in the law's
+/// details (a regularised sign against a bare one), which is not another form.
+pub fn basis_rss(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    y: &[f64],
+    k: usize,
+    own_form: &[Term],
+) -> Option<f64> {
     let model = doc.model().ok()?;
     let basis = Basis::new(ctx, &model);
-    let (present, _) = present_terms(doc);
+    let (mut present, _) = present_terms(doc);
+    present.extend_from_slice(own_form);
     let mut cols: Vec<(Term, Vec<f64>)> = Vec::new();
     let mut used = 0usize;
     let mut best_rss: Option<f64> = None;

@@ -476,16 +476,39 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
             }
             judged.push(j);
         }
+        // A named effect is preferred where it explains as much (fewer numbers, a physical
+        // name): the basis wins only with significantly more evidence, and never when all it
+        // adds is a significant named effect's own form (then it has found that effect, and
+        // the difference is the law's detail, such as a regularised sign).
+        let own_form_of = |e: &Judged| -> Option<Judged> {
+            let added = super::discover::added_terms(&doc, &e.proposal);
+            if added.is_empty() {
+                return None;
+            }
+            judged
+                .iter()
+                .filter(|n| n.proposal.kind.named() && n.significant())
+                .filter(|n| {
+                    let form = n.proposal.kind.basis_form();
+                    added.iter().all(|t| form.contains(t))
+                })
+                .max_by(|a, b| a.delta_bic.total_cmp(&b.delta_bic))
+                .filter(|n| {
+                    befores
+                        .iter()
+                        .find(|(c, _)| *c == n.proposal.kind.channel())
+                        .is_some_and(|(_, before)| !outdone_by_basis(ctx, &doc, n, before))
+                })
+                .cloned()
+        };
+        let best = match (best, best_extra) {
+            (Some(n), Some(e)) if e.delta_bic < n.delta_bic + MIN_DELTA_BIC => Some(n),
+            (_, Some(e)) => own_form_of(&e).or(Some(e)),
+            (n, None) => n,
+        };
         if step == 0 {
             first_step = judged;
         }
-        // A named effect is preferred where it explains as much (fewer numbers, a physical
-        // name): the basis wins only with significantly more evidence.
-        let best = match (best, best_extra) {
-            (Some(n), Some(e)) if e.delta_bic < n.delta_bic + MIN_DELTA_BIC => Some(n),
-            (Some(_), Some(e)) | (None, Some(e)) => Some(e),
-            (n, None) => n,
-        };
         let Some(b) = best else { break };
         let next = doc.with(&b.proposal.edits);
         steps.push((doc, next.clone()));
@@ -655,7 +678,9 @@ fn outdone_by_basis(ctx: &Ctx<'_>, doc: &ModelDoc, j: &Judged, before: &Residual
     if j.proposal.kind.channel() != ChannelId::Force || j.proposal.k == 0 {
         return false;
     }
-    let Some(rss_basis) = super::discover::basis_rss(ctx, doc, &before.kept, j.proposal.k) else {
+    let own = j.proposal.kind.basis_form();
+    let Some(rss_basis) = super::discover::basis_rss(ctx, doc, &before.kept, j.proposal.k, own)
+    else {
         return false;
     };
     rss_basis > 0.0

@@ -126,6 +126,21 @@ impl EffectKind {
         self != EffectKind::ExtraForce
     }
 
+    /// The named force effect's own form among the discovery basis's terms: the plain
+    /// term(s) its law is a detailed version of (Coulomb friction is a regularised `sgn(v)`,
+    /// viscous friction `v`, a mass error `a`, cogging the periodic pair). Where the basis
+    /// finds only this form, it has found this effect, and the named effect is preferred.
+    pub fn basis_form(self) -> &'static [crate::plant::model::extra_force::Term] {
+        use crate::plant::model::extra_force::Term;
+        match self {
+            EffectKind::CoulombFriction => &[Term::SgnV],
+            EffectKind::ViscousFriction => &[Term::V],
+            EffectKind::MassError => &[Term::A],
+            EffectKind::Cogging => &[Term::Sin, Term::Cos],
+            _ => &[],
+        }
+    }
+
     /// The name of `docs/formats.md` §3.
     pub fn name(self) -> &'static str {
         match self {
