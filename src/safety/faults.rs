@@ -249,13 +249,23 @@ mod tests {
     fn the_reaction_is_a_controlled_stop_exactly_where_the_position_is_trusted() {
         // `docs/faults.md`: SS1 while the position is still trustworthy, STO when it is not. The
         // faults that take it away are the encoders' and a configuration that cannot be
-        // believed; every other fault stops the piston under control.
+        // believed; every other fault stops the piston under control but one: a supply loss
+        // is braked without the position too, because SS1's hold against a sealed chamber
+        // would run the DC link flat (docs/firmware.md, "A supply loss in motion").
         for f in Fault::ALL {
-            let untrusted = matches!(
+            let without_position = matches!(
                 f,
-                Fault::EncoderSignal | Fault::EncoderMismatch | Fault::ConfigInvalid
+                Fault::EncoderSignal
+                    | Fault::EncoderMismatch
+                    | Fault::ConfigInvalid
+                    | Fault::SupplyLoss
             );
-            assert_eq!(f.reaction().position_trusted(), !untrusted, "{}", f.name());
+            assert_eq!(
+                f.reaction().position_trusted(),
+                !without_position,
+                "{}",
+                f.name()
+            );
         }
         assert_eq!(Fault::Overcurrent.reaction(), Reaction::DropSection);
         assert_eq!(
