@@ -352,23 +352,14 @@ pub fn without_term(ctx: &Ctx<'_>, doc: &ModelDoc, term: Term) -> Option<(ModelD
 /// The smallest RSS `k` new basis parameters leave on the kept residual `y` of `doc`'s
 /// model (greedy: the best term, then the best next one, …; the periodic pair counts 3),
 /// for the competition with a named effect of `k` parameters (module header).
-/// The terms of `own_form` (the named effect's own form in the basis, [`EffectKind::basis_form`])
-/// are left out: a named law and the plain term of its own form differ only in the law's
-/// details (a regularised sign against a bare one), which is not another form.
-pub fn basis_rss(
-    ctx: &Ctx<'_>,
-    doc: &ModelDoc,
-    y: &[f64],
-    k: usize,
-    own_form: &[Term],
-) -> Option<f64> {
+/// Returns the RSS and the terms that reach it.
+pub fn basis_rss(ctx: &Ctx<'_>, doc: &ModelDoc, y: &[f64], k: usize) -> Option<(f64, Vec<Term>)> {
     let model = doc.model().ok()?;
     let basis = Basis::new(ctx, &model);
-    let (mut present, _) = present_terms(doc);
-    present.extend_from_slice(own_form);
+    let (present, _) = present_terms(doc);
     let mut cols: Vec<(Term, Vec<f64>)> = Vec::new();
     let mut used = 0usize;
-    let mut best_rss: Option<f64> = None;
+    let mut best_rss: Option<(f64, Vec<Term>)> = None;
     while used < k {
         let mut best: Option<(TermFit, usize)> = None;
         for t in plain_terms() {
@@ -394,7 +385,7 @@ pub fn basis_rss(
         }
         let Some((f, n)) = best else { break };
         used += n;
-        best_rss = Some(f.rss);
+        best_rss = Some((f.rss, f.terms.iter().map(|(t, _)| *t).collect()));
         let period = f.period_m.unwrap_or(1.0);
         cols = f
             .terms

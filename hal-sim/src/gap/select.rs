@@ -58,6 +58,7 @@ use super::doc::{Edit, ModelDoc};
 use super::effects::{Ctx, EffectKind, Proposal};
 use super::fit::correlation;
 use super::residuals::{residual, ChannelId, Residual};
+use crate::plant::model::extra_force::Term;
 
 /// Smallest BIC improvement that adds an effect ("very strong" evidence on Kass and
 /// Raftery's scale).
@@ -678,11 +679,17 @@ fn outdone_by_basis(ctx: &Ctx<'_>, doc: &ModelDoc, j: &Judged, before: &Residual
     if j.proposal.kind.channel() != ChannelId::Force || j.proposal.k == 0 {
         return false;
     }
-    let own = j.proposal.kind.basis_form();
-    let Some(rss_basis) = super::discover::basis_rss(ctx, doc, &before.kept, j.proposal.k, own)
+    let Some((rss_basis, terms)) = super::discover::basis_rss(ctx, doc, &before.kept, j.proposal.k)
     else {
         return false;
     };
+    // The basis terms that do better are the effect's own form (with a constant at most):
+    // the same form, fitted with a plainer law (a bare sign against a regularised one), not
+    // another form its parameters would absorb.
+    let own = j.proposal.kind.basis_form();
+    if terms.iter().all(|t| *t == Term::One || own.contains(t)) {
+        return false;
+    }
     rss_basis > 0.0
         && j.rss_after > 0.0
         && j.n_eff * (j.rss_after / rss_basis).ln() >= MIN_DELTA_BIC
