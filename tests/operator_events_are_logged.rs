@@ -20,6 +20,7 @@ fn mode_changes_and_a_latched_fault_are_reported_once_each() {
     config.supervisor.following_error_m = 1e-6;
     let mut moved = false;
     let mut fault_at = None;
+    let mut faulted_at: Option<f64> = None;
     let end = simulate(world(&model, 5, 0, 0.005), config, |w, shared| {
         let status = shared.status();
         if w.cycle() == 0 {
@@ -35,9 +36,17 @@ fn mode_changes_and_a_latched_fault_are_reported_once_each() {
         if !status.faults.is_empty() && fault_at.is_none() {
             fault_at = Some(w.time_s());
         }
-        // Until SS1 has ended (the stop, then 50 ms of holding with no force before the
-        // outputs go off) and the 1 kHz task has seen it.
-        if fault_at.is_some_and(|t| w.time_s() > t + 0.2) || w.time_s() > 3.0 {
+        // Until SS1 has ended (the stop, the turn to the rest phase, then 50 ms of holding
+        // with no force before the outputs go off) and the 1 kHz task has seen it: 20 ms
+        // after the outputs went off, or 1 s after the fault at most.
+        let ended = status.mode == ModeKind::Faulted;
+        if ended && faulted_at.is_none() {
+            faulted_at = Some(w.time_s());
+        }
+        if faulted_at.is_some_and(|t| w.time_s() > t + 0.02)
+            || fault_at.is_some_and(|t| w.time_s() > t + 1.0)
+            || w.time_s() > 3.0
+        {
             ControlFlow::Break(())
         } else {
             ControlFlow::Continue(())
