@@ -155,14 +155,23 @@ fn bad_flags_exit_2_with_one_line_and_write_nothing() {
 fn a_stalled_homing_ends_soon_saying_so_and_the_lowest_ratio_runs_at_top_speed() {
     let scratch = dir("stall");
     let d = scratch.path();
-    // A 1 V bus cannot drive the piston to its stop: homing never ends. With 10 000 cycles
-    // asked, the whole run's limit is hours of simulated time; homing's own limit ends it.
+    // A 1.2 V bus cannot drive the piston to its stop: homing never ends. With 10 000
+    // cycles asked, the whole run's limit is hours of simulated time; homing's own limit
+    // ends it. (The supply's thresholds follow the bus down, in the order the model
+    // requires.)
     let model = d.join("weak.toml");
-    let text = hal_sim::plant::model::REFERENCE_TOML.replacen(
-        "bus_voltage_v = 560.0",
-        "bus_voltage_v = 1.0",
-        1,
-    );
+    let text = hal_sim::plant::model::REFERENCE_TOML
+        .replacen("bus_voltage_v = 560.0", "bus_voltage_v = 1.2", 1)
+        .replacen(
+            "power_good_voltage_v = 500.0",
+            "power_good_voltage_v = 1.1",
+            1,
+        )
+        .replacen(
+            "logic_dropout_voltage_v = 150.0",
+            "logic_dropout_voltage_v = 1.0",
+            1,
+        );
     std::fs::write(&model, text).unwrap();
     let started = std::time::Instant::now();
     let (code, err, out) = fpc_sim(
