@@ -212,3 +212,55 @@ pub struct Figures {
     /// See [`super::Summary::rest_line_floor_m`].
     pub rest_line_floor_m: Option<f64>,
 }
+
+// The run summary's own figures (the work per cycle, the last clearances, the discharge
+// opening's pressure error), computed as the run goes.
+
+/// Largest of the last `n` values.
+pub(super) fn last_max(values: &[f64], n: usize) -> Option<f64> {
+    values
+        .get(values.len().saturating_sub(n)..)
+        .and_then(|v| v.iter().copied().reduce(f64::max))
+}
+
+/// Mean work per cycle over the last 5 cycles, from cumulative work at each cycle end, J.
+pub(super) fn indicated_work(cumulative_j: &[f64]) -> Option<f64> {
+    let n = cumulative_j.len();
+    let k = 5.min(n.saturating_sub(1));
+    if k == 0 {
+        return None;
+    }
+    let last = cumulative_j.get(n - 1)?;
+    let first = cumulative_j.get(n - 1 - k)?;
+    Some((last - first) / k as f64)
+}
+
+/// If a discharge port's half-open angle was crossed since `last_phase_rad` (forward
+/// rotation: compressor), the relative pressure error of that chamber against the discharge
+/// line at that instant: what a well-timed volume ratio makes zero.
+pub(super) fn discharge_opening(
+    plant: &crate::plant::dynamics::Plant,
+    last_phase_rad: Option<f64>,
+) -> Option<f64> {
+    use fpc::physics::port_timing::Port;
+    let last = last_phase_rad?;
+    let now = plant.port_phase_rad();
+    let ports = &plant.chambers.params.ports;
+    let advance = fpc::angle::wrap_rad(now - last);
+    // Reverse rotation (expander: the discharge port is the admission) or standstill: no
+    // discharge opening to judge.
+    if advance == 0.0 || advance >= std::f64::consts::PI {
+        return None;
+    }
+    for (port, chamber) in [
+        (Port::DischargeA, &plant.chambers.a),
+        (Port::DischargeB, &plant.chambers.b),
+    ] {
+        let to_edge = fpc::angle::wrap_rad(ports.half_open_rad(port) - last);
+        if to_edge > 0.0 && to_edge <= advance {
+            let pd = plant.lines.discharge_pa;
+            return Some((chamber.pressure_pa - pd).abs() / pd);
+        }
+    }
+    None
+}

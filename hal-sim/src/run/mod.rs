@@ -13,7 +13,6 @@ use std::io::Write;
 use std::ops::ControlFlow;
 use std::time::Instant;
 
-use fpc::angle::wrap_rad;
 use fpc::control::command::Command;
 use fpc::link::channels::UP_TELEMETRY;
 use fpc::link::settings::LinkRequest;
@@ -37,6 +36,7 @@ use crate::runlog::{RunLog, REQUIRED};
 mod capture;
 pub mod closed;
 mod figures;
+use figures::{discharge_opening, indicated_work, last_max};
 mod options;
 pub mod spectrum;
 pub mod text;
@@ -848,55 +848,6 @@ impl<'o, 's> RunDriver<'o, 's> {
             injection,
         })
     }
-}
-
-/// Largest of the last `n` values.
-fn last_max(values: &[f64], n: usize) -> Option<f64> {
-    values
-        .get(values.len().saturating_sub(n)..)
-        .and_then(|v| v.iter().copied().reduce(f64::max))
-}
-
-/// Mean work per cycle over the last 5 cycles, from cumulative work at each cycle end, J.
-fn indicated_work(cumulative_j: &[f64]) -> Option<f64> {
-    let n = cumulative_j.len();
-    let k = 5.min(n.saturating_sub(1));
-    if k == 0 {
-        return None;
-    }
-    let last = cumulative_j.get(n - 1)?;
-    let first = cumulative_j.get(n - 1 - k)?;
-    Some((last - first) / k as f64)
-}
-
-/// If a discharge port's half-open angle was crossed since `last_phase_rad` (forward
-/// rotation: compressor), the relative pressure error of that chamber against the discharge
-/// line at that instant: what a well-timed volume ratio makes zero.
-fn discharge_opening(
-    plant: &crate::plant::dynamics::Plant,
-    last_phase_rad: Option<f64>,
-) -> Option<f64> {
-    use fpc::physics::port_timing::Port;
-    let last = last_phase_rad?;
-    let now = plant.port_phase_rad();
-    let ports = &plant.chambers.params.ports;
-    let advance = wrap_rad(now - last);
-    // Reverse rotation (expander: the discharge port is the admission) or standstill: no
-    // discharge opening to judge.
-    if advance == 0.0 || advance >= std::f64::consts::PI {
-        return None;
-    }
-    for (port, chamber) in [
-        (Port::DischargeA, &plant.chambers.a),
-        (Port::DischargeB, &plant.chambers.b),
-    ] {
-        let to_edge = wrap_rad(ports.half_open_rad(port) - last);
-        if to_edge > 0.0 && to_edge <= advance {
-            let pd = plant.lines.discharge_pa;
-            return Some((chamber.pressure_pa - pd).abs() / pd);
-        }
-    }
-    None
 }
 
 /// Carries out a scheduled host action.
