@@ -2,7 +2,7 @@
 //! faulted, calibrating — and the setpoint each mode plans per cycle. What a fault's
 //! reaction does beyond starting a controlled stop is in `safe_state.rs`.
 
-use super::safe_state::{RestTurn, RESET_DAMPING_PER_S};
+use super::safe_state::RestTurn;
 use super::sense::Sensed;
 use super::ControlStep;
 use crate::control::calibration::Calibration;
@@ -176,12 +176,6 @@ impl ControlStep {
                     measured_force_n,
                     dt,
                 ) / self.config.moving_mass_kg;
-                if self.sensing.zero_raw_m.is_none() {
-                    // The brake after a watchdog reset (the heads unknown): more damping than
-                    // the position loop's (`RESET_DAMPING_PER_S`).
-                    sp.acceleration_mps2 -=
-                        RESET_DAMPING_PER_S * (self.status.velocity_mps - sp.velocity_mps);
-                }
                 if v_next == 0.0 {
                     if then == AfterStop::Off && !(self.turn_to_rest(dt) && self.hold_released(dt))
                     {

@@ -86,15 +86,6 @@ fn time_in_window(
 /// ≤ 26 mm/s; the controlled stop's loop takes over from there.
 pub const RESET_FIT_SAMPLES: usize = 6;
 
-/// Damping the brake after a watchdog reset adds through its feed-forward, per second
-/// (acceleration per unit of velocity error; × the 12 kg model: 19 kN·s/m, four times the
-/// position loop's). Its stop starts from the outputs off, and the sections' force rises at
-/// the windings' slew (≈ 9 kN/ms in the simulator): from a slow piston (0.2 m/s) the stop's
-/// reference is over within 0.3 ms, before the force has risen, and the 40 Hz position loop
-/// alone let the piston run on 0.25 mm (traced: `task_hang@1.02514:task=control`, PR 3.7,
-/// seed 6165 of the fault sweep, as an expander).
-pub const RESET_DAMPING_PER_S: f32 = 1600.0;
-
 /// The state of the stops and the reactions: the controlled stop's deceleration, SS1's hold
 /// window, the blind brake's sealing turn, what the faulted state still does, and each
 /// section's capability as configured.
