@@ -245,8 +245,9 @@ impl SavitzkyGolay {
 
     /// Refills the window with the straight line fitted (least squares) to its newest
     /// `samples` positions, and returns the line's derivatives at the newest sample
-    /// (velocity = its slope; acceleration 0 but for the line's rounding to whole counts). For an estimate before the window has filled
-    /// after a start (after a reset, the brake cannot wait for N samples): from this call on
+    /// (velocity = its slope; acceleration 0 but for the line's rounding to whole counts).
+    /// For an estimate before the window has filled after a start (after a reset, the brake
+    /// cannot wait for N samples): from this call on
     /// the window holds the line, and each real sample pushed replaces one of the line's,
     /// so the estimate goes over to the full window's without a jump. The price is noise:
     /// a line through m samples of noise σ_x has a slope noise
