@@ -10,7 +10,9 @@
 //! eligible named effect only with [`MIN_DELTA_BIC`] more evidence (the named one is fewer
 //! numbers and a physical name). Discovered terms that stop passing the rules once later
 //! ones are in are pruned. Pressure candidates are judged with the channel's earlier effects
-//! refitted around them (`judge_joint`).
+//! refitted around them (`judge_joint`). Once the steps end, each discovered term is judged
+//! again against the named force effects (`reconsider_terms`): a term that took a step from
+//! a named effect it only resembled gives it back.
 //!
 //! **Significance.** An effect is added only if both hold:
 //! - the Bayesian information criterion improves by at least [`MIN_DELTA_BIC`]:
