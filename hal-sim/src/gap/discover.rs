@@ -237,7 +237,7 @@ fn residual_without_extra(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<(Vec<f64>, Ma
 }
 
 /// The terms present in `doc`'s extra force, with the period.
-fn present_terms(doc: &ModelDoc) -> (Vec<Term>, Option<f64>) {
+pub fn present_terms(doc: &ModelDoc) -> (Vec<Term>, Option<f64>) {
     let Ok(model) = doc.model() else {
         return (Vec::new(), None);
     };
