@@ -179,6 +179,9 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
     let mut measured =
         Measured::from_log(log, model.encoder.period_m).map_err(Failure::bad_input)?;
     measured.check_against(&model).map_err(Failure::bad_input)?;
+    if let Some(judged) = residuals::ports_resolved(&measured, &model) {
+        measured.pressure_judged = judged;
+    }
     let nyquist = 0.5 * measured.sample_rate_hz();
     if opts.band_hz >= nyquist {
         return Err(Failure::bad_input(format!(

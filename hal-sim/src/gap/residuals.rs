@@ -23,7 +23,9 @@ use crate::plant::servo::through_play;
 use crate::signal::delayed;
 
 use super::band::{force_kernel, lowpass, sg_weights, ColumnCache, Kernel};
-use super::data::{Measured, PortsMeta, ThetaSource};
+use super::data::{
+    count_quantum, count_spans_rows, Measured, PortsMeta, ThetaSource, PORTS_ANGLE_SPAN_S,
+};
 
 /// The channels compared.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -98,13 +100,15 @@ pub struct Band {
     /// Where the encoder and slave-force channels are judged (while moving, like the force
     /// channel).
     pub mask_encoder: Vec<f64>,
-    /// Where the pressure channel is judged.
+    /// Where the pressure channel is judged: away from the log's ends and where its replay
+    /// does not hinge on a port angle the log does not resolve
+    /// ([`Measured::pressure_judged`]).
     pub mask_inner: Vec<f64>,
     /// Kept samples of the force channel.
     pub idx_force: Vec<usize>,
     /// Kept samples of the encoder channel.
     pub idx_encoder: Vec<usize>,
-    /// Kept samples of the slave-force and pressure channels.
+    /// Kept samples of the pressure channel.
     pub idx_inner: Vec<usize>,
     /// Columns of this band's searches, kept for the next selection step.
     pub columns: ColumnCache,
@@ -143,7 +147,13 @@ impl Band {
         // still reaches a standstill, the force terms are masked between the two stages.
         let mask_force = erode(&data.moving, accel.half());
         let force_interior = erode(&mask_force, plain.half());
-        let mask_inner = erode(&data.inner, plain.half());
+        let judged: Vec<f64> = data
+            .inner
+            .iter()
+            .zip(data.pressure_judged.iter().chain(std::iter::repeat(&1.0)))
+            .map(|(a, b)| a.min(*b))
+            .collect();
+        let mask_inner = erode(&judged, plain.half());
         let mask_encoder = erode(&data.moving, plain.half());
         let pick = |mask: &[f64]| -> Vec<usize> {
             (0..mask.len())
@@ -177,7 +187,7 @@ impl Band {
             ChannelId::Encoder | ChannelId::SlaveForce => {
                 (&self.plain, &self.mask_encoder, &self.idx_encoder)
             }
-            _ => (&self.plain, &self.mask_inner, &self.idx_inner),
+            ChannelId::Pressure => (&self.plain, &self.mask_inner, &self.idx_inner),
         }
     }
 
@@ -499,7 +509,8 @@ pub fn replay_pressures(data: &Measured, model: &MachineModel) -> Option<(Vec<f6
         model.servo.backlash_rad
     );
     let kept = data.replays.get_or_make(key, || {
-        replay_pressures_anew(data, model).map_or_else(Vec::new, |(a, b)| vec![a, b])
+        replay_pressures_anew(data, model, &data.ports_angle_rad)
+            .map_or_else(Vec::new, |(a, b)| vec![a, b])
     });
     match kept.as_slice() {
         [a, b] => Some((a.clone(), b.clone())),
@@ -507,8 +518,74 @@ pub fn replay_pressures(data: &Measured, model: &MachineModel) -> Option<(Vec<f6
     }
 }
 
-/// [`replay_pressures`] computed.
-fn replay_pressures_anew(data: &Measured, model: &MachineModel) -> Option<(Vec<f64>, Vec<f64>)> {
+/// Where the pressure channel may be judged on a log whose ports are timed by a servo's
+/// count (`# theta_source = servo_encoder`, open ports): 1 where the chambers' replay does
+/// not hinge on where the angle lies within its count, 0 where it does. `None` where every
+/// sample may be judged (the piston's own angle logged, or no timed ports).
+///
+/// Between two steps of the count the log says only that the angle is inside it; the
+/// replay draws it through the crossings ([`super::data::ports_angle`]). That is close
+/// where many crossings fall within the fit's span, but a count that lasts about as long
+/// as the span leaves the angle anywhere in it, and a servo whose own loop closes on that
+/// count does not turn evenly within it: on our runs at 0.3 m/s and PR 4.5 the servo turned
+/// slowly after each step and quickly before the next (half-way through a count lasting
+/// 3–100 ms it had covered 0.42–0.45 of it), on average 0.06–0.1 mrad (up to 0.3) behind
+/// the estimate near the dead points, where a count lasts longer than 3 ms. A chamber
+/// blowing down through its opening port follows the angle there within a few hundredths
+/// of a count: the replay emptied it early and missed the plant by about 1 kPa at every
+/// dead point, which `leakage` explained by closing the rod seals (50–69 % of the residual
+/// on two null runs of three).
+///
+/// So each sample's angle is taken as known within `±u`, half a count times the count's
+/// length over [`PORTS_ANGLE_SPAN_S`] (at most half a count), and a sample whose replay,
+/// with every angle moved by `+u` and by `−u`, changes by more than one sensor code
+/// ([`super::select::sample_resolution`]) is not judged: what it shows is the angle's
+/// position within its count, not the chambers' physics.
+pub fn ports_resolved(data: &Measured, model: &MachineModel) -> Option<Vec<f64>> {
+    if data.ports != PortsMeta::Open || data.theta_source != ThetaSource::ServoEncoder {
+        return None;
+    }
+    let quantum = count_quantum(&data.theta_rad);
+    if !quantum.is_finite() {
+        return None;
+    }
+    let span_rows = PORTS_ANGLE_SPAN_S / data.dt_s;
+    let unknown: Vec<f64> = count_spans_rows(&data.theta_rad)
+        .iter()
+        .map(|rows| 0.5 * quantum * (rows / span_rows).min(1.0))
+        .collect();
+    let moved = |sign: f64| -> Option<(Vec<f64>, Vec<f64>)> {
+        let angle: Vec<f64> = data
+            .ports_angle_rad
+            .iter()
+            .zip(&unknown)
+            .map(|(a, u)| a + sign * u)
+            .collect();
+        replay_pressures_anew(data, model, &angle)
+    };
+    let (ahead, behind) = rayon::join(|| moved(1.0), || moved(-1.0));
+    let ((a1, b1), (a0, b0)) = (ahead?, behind?);
+    let code = super::select::sample_resolution(ChannelId::Pressure, model);
+    Some(
+        (0..data.len())
+            .map(|i| {
+                let change = |hi: &[f64], lo: &[f64]| match (hi.get(i), lo.get(i)) {
+                    (Some(h), Some(l)) => 0.5 * (h - l).abs(),
+                    _ => 0.0,
+                };
+                f64::from(u8::from(change(&a1, &a0).max(change(&b1, &b0)) <= code))
+            })
+            .collect(),
+    )
+}
+
+/// [`replay_pressures`] computed, with the ports timed by `angle_rad` (one per row: the
+/// ports' angle before the spline's play, as [`Measured::ports_angle_rad`]).
+fn replay_pressures_anew(
+    data: &Measured,
+    model: &MachineModel,
+    angle_rad: &[f64],
+) -> Option<(Vec<f64>, Vec<f64>)> {
     let mode = match data.ports {
         PortsMeta::Closed => PortMode::Closed,
         PortsMeta::Open => PortMode::Timed,
@@ -528,7 +605,7 @@ fn replay_pressures_anew(data: &Measured, model: &MachineModel) -> Option<(Vec<f
         mean(&data.p_a_pa) - sensor.offset_a_pa,
         mean(&data.p_b_pa) - sensor.offset_b_pa,
     );
-    let (pa, pb) = replay_from(data, model, mode, start);
+    let (pa, pb) = replay_from(data, model, mode, start, angle_rad);
     if mode != PortMode::Closed || data.ports_from_s.is_some() {
         return Some((pa, pb));
     }
@@ -546,7 +623,13 @@ fn replay_pressures_anew(data: &Measured, model: &MachineModel) -> Option<(Vec<f
     };
     let sa = scale(&data.p_a_pa, &pa, sensor.offset_a_pa);
     let sb = scale(&data.p_b_pa, &pb, sensor.offset_b_pa);
-    Some(replay_from(data, model, mode, (start.0 * sa, start.1 * sb)))
+    Some(replay_from(
+        data,
+        model,
+        mode,
+        (start.0 * sa, start.1 * sb),
+        angle_rad,
+    ))
 }
 
 /// The chambers replayed from the starting pressures `start` (A, B), Pa, at the wall
@@ -556,6 +639,7 @@ fn replay_from(
     model: &MachineModel,
     mode: PortMode,
     start: (f64, f64),
+    angle_rad: &[f64],
 ) -> (Vec<f64>, Vec<f64>) {
     let n = data.len();
     let params = PlantParams::from_model(model).chambers;
@@ -597,7 +681,6 @@ fn replay_from(
         ThetaSource::Piston => 0.0,
         ThetaSource::ServoEncoder => 0.5 * model.servo.backlash_rad,
     };
-    let angle_rad = &data.ports_angle_rad;
     let mut piston = angle_rad.first().copied().unwrap_or(0.0);
     for i in 0..n {
         if i > 0 {
