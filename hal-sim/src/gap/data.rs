@@ -68,6 +68,13 @@ pub const POSITION_MARGIN_M: f64 = 0.01;
 /// How far a step of the time column may differ from the log's sample time, as a share.
 pub const MAX_STEP_JITTER: f64 = 0.1;
 
+/// How far the rate read from a log's time stamps may lie outside
+/// [`MIN_SAMPLE_RATE_HZ`]..=[`MAX_SAMPLE_RATE_HZ`] and still be taken as inside, as a share:
+/// the rate is (last − first stamp) / rows, and stamps rounded to their printed digits (or
+/// summed in floating point) put a log sampled at exactly 2 kHz a hair under 2000 Hz. A
+/// rounding error is far below 0.1 %; a logger set to another rate is percents away.
+pub const RATE_TOLERANCE: f64 = 1e-3;
+
 /// Largest derived value (velocity, acceleration, rate) the fits accept: their squares
 /// summed over any log stay finite.
 pub const MAX_DERIVED: f64 = 1e100;
@@ -255,7 +262,9 @@ impl Measured {
             ));
         }
         let rate = 1.0 / dt_s;
-        if !(min_rate_hz..=MAX_SAMPLE_RATE_HZ).contains(&rate) {
+        let accepted =
+            min_rate_hz * (1.0 - RATE_TOLERANCE)..=MAX_SAMPLE_RATE_HZ * (1.0 + RATE_TOLERANCE);
+        if !accepted.contains(&rate) {
             return Err(format!(
                 "column `t_s`: sample rate {rate:.6e} Hz; the workflow analyses logs sampled at \
                  {min_rate_hz} Hz to {MAX_SAMPLE_RATE_HZ:e} Hz"
@@ -767,6 +776,45 @@ mod tests {
             log.push_row(&[t, x, x, 0.0, 0.0, 0.0, 1e5, 1e5]);
         }
         log
+    }
+
+    /// A log of `rows` rows at `rate_hz` whose time stamps are printed to the 10 µs, as
+    /// `fpc-sim decode` prints a 2 kHz stream's (`0.00005`, `0.00055`, …: the control
+    /// cycle's 50 µs after the first frame, no whole number of periods).
+    fn log_at(rate_hz: f64, rows: usize) -> RunLog {
+        let mut log = RunLog::with_columns(&crate::runlog::REQUIRED);
+        for i in 0..rows {
+            let t: f64 = format!("{:.5}", 5e-5 + i as f64 / rate_hz).parse().unwrap();
+            let x = 0.1 + 0.05 * (std::f64::consts::TAU * t).sin();
+            log.push_row(&[t, x, x, 0.0, 0.0, 0.0, 1e5, 1e5]);
+        }
+        log
+    }
+
+    #[test]
+    fn a_log_sampled_at_the_slowest_rate_is_read_and_a_slower_one_is_refused() {
+        // The rate read from such stamps lies a hair either side of 2000 Hz depending on
+        // the length (4165 rows: the decoded 3-cycle run of docs/rig-to-model.md); every
+        // length is accepted.
+        let mut under = 0;
+        for rows in (2001..2400).step_by(7).chain([4165]) {
+            let log = log_at(MIN_SAMPLE_RATE_HZ, rows);
+            let t = log.column("t_s").unwrap();
+            // As `from_log` reads it.
+            let rate = 1.0 / ((t[rows - 1] - t[0]) / (rows - 1) as f64);
+            under += usize::from(rate < MIN_SAMPLE_RATE_HZ);
+            let m = Measured::from_log(&log, 1e-6);
+            assert!(m.is_ok(), "{rows} rows at 2 kHz: {:?}", m.err());
+        }
+        // The case the tolerance is for does occur among these lengths.
+        assert!(under > 0, "no length put the rate under 2000 Hz");
+        let err = Measured::from_log(&log_at(1_900.0, 2000), 1e-6).unwrap_err();
+        // (1.899991e3 Hz from stamps rounded to 10 µs.)
+        assert!(
+            err.starts_with("column `t_s`: sample rate 1.89999")
+                && err.ends_with(" Hz; the workflow analyses logs sampled at 2000 Hz to 1e6 Hz"),
+            "{err}"
+        );
     }
 
     #[test]
