@@ -191,6 +191,10 @@ pub struct Measured {
     /// replay hinges on a port angle the log does not resolve
     /// ([`super::residuals::ports_resolved`]); all 1 until the workflow sets it.
     pub pressure_judged: Vec<f64>,
+    /// How far the logged position reads beyond the chambers' own, m: what the pressure
+    /// replay subtracts from `x_m` ([`super::residuals::fit_position_offset`], fitted once
+    /// per log before the selection; 0 until the workflow sets it).
+    pub x_offset_m: f64,
     /// Stretches of motion between standstills (runs of `moving`): an encoder may be zeroed
     /// again at a standstill (homing), so each stretch has its own encoder offset.
     pub segments: Vec<std::ops::Range<usize>>,
@@ -433,6 +437,7 @@ impl Measured {
             omega_rad_s,
             moving,
             pressure_judged: vec![1.0; inner.len()],
+            x_offset_m: 0.0,
             inner,
             segments,
             replays: Default::default(),
@@ -528,6 +533,7 @@ impl Measured {
             moving,
             inner,
             pressure_judged: cut(&self.pressure_judged),
+            x_offset_m: self.x_offset_m,
             segments,
             replays: Default::default(),
         }

@@ -190,6 +190,21 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         )));
     }
     let band = Band::new(&measured, opts.band_hz).map_err(Failure::runtime)?;
+    // The logged position's zero (homing's push into head A) is a nuisance of the pressure
+    // replay: fitted once, before any effect may take it up, on the log's first
+    // `MAX_OFFSET_FIT_ROWS` (each step replays the chambers twice: on the 732k-row log the
+    // whole log would cost seconds).
+    let offset = if measured.len() > residuals::MAX_OFFSET_FIT_ROWS {
+        let head = measured.head(residuals::MAX_OFFSET_FIT_ROWS);
+        Band::new(&head, opts.band_hz)
+            .ok()
+            .and_then(|b| residuals::fit_position_offset(&head, &b, &model))
+    } else {
+        residuals::fit_position_offset(&measured, &band, &model)
+    };
+    if let Some(offset) = offset {
+        measured.x_offset_m = offset;
+    }
     let mut fitted_alignment = if measured.force_delay_s.is_none() {
         align::estimate(&measured, &band, &model)
     } else {
