@@ -628,7 +628,7 @@ pub fn fit_position_offset(data: &Measured, band: &Band, model: &MachineModel) -
             num += a * d;
             den += d * d;
         }
-        if !(den > 0.0) {
+        if den.is_nan() || den <= 0.0 {
             break;
         }
         let offset = (best.0 - num / den).clamp(-MAX_POSITION_OFFSET_M, MAX_POSITION_OFFSET_M);
