@@ -24,7 +24,14 @@ runs=${FPC_BENCH_RUNS:-1}
 check=${FPC_BENCH_THREADS_CHECK:-0}
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
-"$sim" run --speed 4.0 --cycles 187 --seed 52 --log-rate 20000 --out "$work/measured" >/dev/null 2>&1
+# The log is 137 MB: say so, with the free space, if it cannot be written.
+if ! "$sim" run --speed 4.0 --cycles 187 --seed 52 --log-rate 20000 --out "$work/measured" \
+        >"$work/run.out" 2>&1; then
+    echo "bench-gap-long: fpc-sim run could not make the 137 MB log; it printed:"
+    tail -20 "$work/run.out"
+    df -h "$work" | sed 's/^/bench-gap-long: /'
+    exit 1
+fi
 awk '/^\[/ { skip = ($0 ~ /^\[effects\.cogging\]/) } !skip' \
     hal-sim/src/plant/model/reference.toml > "$work/model.toml"
 grep -q '^\[effects\.cogging\]' hal-sim/src/plant/model/reference.toml \

@@ -19,7 +19,13 @@ fi
 runs=${FPC_BENCH_RUNS:-3}
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
-"$sim" run --speed 4.0 --cycles 45 --seed 52 --log-rate 10000 --out "$work/measured" >/dev/null 2>&1
+if ! "$sim" run --speed 4.0 --cycles 45 --seed 52 --log-rate 10000 --out "$work/measured" \
+        >"$work/run.out" 2>&1; then
+    echo "bench-gap: fpc-sim run could not make the log; it printed:"
+    tail -20 "$work/run.out"
+    df -h "$work" | sed 's/^/bench-gap: /'
+    exit 1
+fi
 # The model: the reference machine without its cogging section.
 awk '/^\[/ { skip = ($0 ~ /^\[effects\.cogging\]/) } !skip' \
     hal-sim/src/plant/model/reference.toml > "$work/model.toml"

@@ -18,6 +18,8 @@
 //! suite runs 12 phases of each; the slow suite all 48 (`--ignored`), and the table of the
 //! smallest link capacitance that keeps 0.3 mm against speed (`docs/firmware.md`).
 
+mod support;
+
 use std::sync::OnceLock;
 
 use fpc::control::command::Command;
@@ -77,29 +79,18 @@ impl Point {
     }
 }
 
-/// One stroke cycle of the fault-free run at `p`: (start, period), s — from where the
-/// velocity toward head B first exceeds 0.5 m/s in the second cycle to the same crossing in
-/// the next one.
+/// One stroke cycle of the fault-free run at `p`: (start, period), s
+/// ([`support::strokes::stroke_cycle`]).
 fn stroke_cycle(p: &Point) -> (f64, f64) {
-    let mut o = p.options();
-    o.cycles = 4;
-    let out = run(&o).expect("fault-free run");
-    assert!(out.summary.faults.is_empty(), "{:?}", out.summary.faults);
-    let t = out.log.column("t_s").unwrap();
-    let v = out.log.column("v_mps").unwrap();
-    let ups: Vec<f64> = t
-        .windows(2)
-        .zip(v.windows(2))
-        .filter(|(_, v)| v[0] <= 0.5 && v[1] > 0.5)
-        .map(|(t, _)| t[1])
-        .collect();
-    let peak = v.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let c = support::strokes::stroke_cycle(&p.options());
+    assert!(c.faults.is_empty(), "{}: {:?}", p.label(), c.faults);
     assert!(
-        peak > 0.95 * p.speed_mps,
-        "{}: peak {peak:.2} m/s",
-        p.label()
+        c.peak_mps > 0.95 * p.speed_mps,
+        "{}: peak {:.2} m/s",
+        p.label(),
+        c.peak_mps
     );
-    (ups[1], ups[2] - ups[1])
+    (c.start_s, c.period_s)
 }
 
 /// What one cut did.

@@ -29,6 +29,8 @@
 //! holds the chamber behind on its line for the least time: ≥ 0.667 mm, ≤ 5.4 bar (PR 5.1
 //! and 3.1, the plant ±10 % at 5.1); the compressor's figures are unchanged.
 
+mod support;
+
 use std::sync::OnceLock;
 
 use fpc::control::command::Command;
@@ -37,6 +39,7 @@ use fpc::safety::faults::Fault;
 use fpc::status::ModeKind;
 use hal_sim::faults::inject::parse;
 use hal_sim::run::{run, HostAction, RunOptions, RunOutcome};
+use support::strokes::{stroke_cycle, StrokeCycle};
 
 /// Pressure ratio: 4.1 m/s peak, the fastest point of Fig. 3.
 const PR: f64 = 5.1;
@@ -74,30 +77,10 @@ fn off_mass_options(
 fn cycle() -> (f64, f64) {
     static C: OnceLock<(f64, f64)> = OnceLock::new();
     *C.get_or_init(|| {
-        let (start, period, peak) = stroke_cycle(&options(4, vec![]));
-        assert!(peak > 4.0, "full speed");
-        (start, period)
+        let c = stroke_cycle(&options(4, vec![]));
+        assert!(c.peak_mps > 4.0, "full speed");
+        (c.start_s, c.period_s)
     })
-}
-
-/// [`cycle`] of a fault-free run with `o` (its faults and cycles replaced), and its peak
-/// speed, m/s.
-fn stroke_cycle(o: &RunOptions) -> (f64, f64, f64) {
-    let mut o = o.clone();
-    o.cycles = 4;
-    o.faults = vec![];
-    let out = run(&o).expect("fault-free run");
-    let t = out.log.column("t_s").unwrap();
-    let v = out.log.column("v_mps").unwrap();
-    let ups: Vec<f64> = t
-        .windows(2)
-        .zip(v.windows(2))
-        .filter(|(_, v)| v[0] <= 0.5 && v[1] > 0.5)
-        .map(|(t, _)| t[1])
-        .collect();
-    let peak = v.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    println!("fault-free: peak speed {peak:.2} m/s, strokes toward head B start at {ups:?} s");
-    (ups[1], ups[2] - ups[1], peak)
 }
 
 #[test]
@@ -229,7 +212,11 @@ fn losing_both_encoders_as_an_expander_keeps_the_head_clearance() {
 /// latch the encoder-signal fault and end faulted; every phase is printed, and the sealed
 /// chamber must stay within the pressure sensors' 10 bar.
 fn every_phase(o: &RunOptions, label: &str) -> (f64, f64) {
-    let (start, period, _) = stroke_cycle(o);
+    let StrokeCycle {
+        start_s: start,
+        period_s: period,
+        ..
+    } = stroke_cycle(o);
     let mut least = (f64::INFINITY, 0.0);
     let mut peak_pressure_bar = 0.0f64;
     for i in 0..PHASES {

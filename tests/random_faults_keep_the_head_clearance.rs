@@ -24,8 +24,8 @@
 //! the named cases of the full sweep (the seeds its reports print), to reproduce a run.
 //!
 //! Status (issue #33): as a compressor 0 of 10,000 below 0.3 mm (≥ 0.417 mm). As an expander
-//! 35 of 10,000 (task hangs 29, both encoders lost 6; −0.25 mm at worst), every other kind
-//! ≥ 0.487 mm: the full expander sweep fails, so CI skips it (`.ci/run`) while its 24-run
+//! 7 of 10,000 (both encoders lost 6, −0.25 mm at worst; one task hang, 0.17 mm), every other
+//! kind ≥ 0.487 mm: the full expander sweep fails, so CI skips it (`.ci/run`) while its 24-run
 //! slice runs by default. Why, and what is missing: `docs/firmware.md`, "The fault sweep".
 
 use std::sync::OnceLock;

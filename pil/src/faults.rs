@@ -118,7 +118,7 @@ impl Report {
 const START_POSITION_M: f64 = 1e-3;
 
 /// How long a scenario with the machine stroking goes on after the injection, s: the
-/// watchdog's 3 ms, the boot's 3 ms, the brake from full speed (≈ 10 ms), with room.
+/// watchdog's 3 ms, the boot's 1.4 ms, the brake from full speed (≈ 10 ms), with room.
 const AFTER_INJECTION_S: f64 = 0.15;
 
 /// Where and how hard a scenario with the machine stroking injects its fault.

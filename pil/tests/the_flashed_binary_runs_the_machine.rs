@@ -254,17 +254,17 @@ fn a_supply_loss_while_stroking_is_read_from_pb5_and_braked() {
     );
 }
 
-/// The ELF's boot, from a reset to its control task's first run, takes no longer than the
-/// host simulator's model of it (`hal_sim::board::exec::BOOT_US`), which delays the brake
-/// after a watchdog reset by that much: a simulator that rebooted faster would claim a brake
-/// the board cannot give.
+/// The ELF's boot, from a reset to its control task's first cycle (the step built, the first
+/// sampling burst in), takes no longer than the host simulator's model of it
+/// (`hal_sim::board::exec::BOOT_US`), which delays the brake after a watchdog reset by that
+/// much: a simulator that rebooted faster would claim a brake the board cannot give.
 fn boots_within_the_simulators_boot_time(r: &Report) {
     let mut boots = Vec::new();
     let mut reset = None;
     for &(t, m) in &r.milestones {
         match m {
             Milestone::Reset => reset = Some(t),
-            Milestone::ControlTask => {
+            Milestone::ControlCycle => {
                 if let Some(r0) = reset.take() {
                     boots.push(t - r0);
                 }

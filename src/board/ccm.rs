@@ -10,7 +10,8 @@
 //!
 //! The copy runs at the start of [`super::init`], as soon as the clock is at 170 MHz
 //! (≈ 30 µs for 28 KiB; at the 16 MHz reset clock, in cortex-m-rt's `__pre_init`, it took
-//! over 1 ms more of the boot, which the boot's 3 ms budget has no room for). Nothing in
+//! over 1 ms more of the boot, which a piston coasting after a watchdog reset waits
+//! through: `reset.rs`). Nothing in
 //! that part of `.ccmram` can run before: its functions are the control path's, called only
 //! by the control task and the DMA and control-executor interrupts, which `init` starts
 //! later (`memory.x` keeps the time base's handler, which runs earlier, in flash).
@@ -19,18 +20,19 @@
 //! routine's record takes ≈ 1,500 instructions of it in one period, 62.7 µs of that period
 //! under the no-cache bound from flash), and the boot calls it long before `init`. So
 //! `memory.x` puts it first in `.ccmram` (up to `__eccmram_early`, under 1 KiB), and
-//! `__pre_init` copies that part alone at reset (≈ 0.05 ms at 16 MHz), before cortex-m-rt
-//! initialises RAM or anything can call it; `init` copies the rest.
+//! `__pre_init` copies that part alone at reset (≈ 0.05 ms at 16 MHz; `reset.rs`), before
+//! cortex-m-rt initialises RAM or anything can call it; `init` copies the rest.
 
-// `__pre_init` (cortex-m-rt calls it first at reset, before RAM is initialised, with the
-// stack pointer set; hence assembly, saving the callee-saved registers it uses): copies
-// `__sccmram` .. `__eccmram_early` from `__siccmram`, 16 bytes per LDM/STM pair.
+// `fpc_copy_ccm_early`: copies `__sccmram` .. `__eccmram_early` from `__siccmram`, 16
+// bytes per LDM/STM pair. Called by `__pre_init` at reset (`reset.rs`), before RAM is
+// initialised, with the stack pointer set; hence assembly, saving the callee-saved
+// registers it uses.
 core::arch::global_asm!(
-    ".section .text.__pre_init,\"ax\"",
-    ".global __pre_init",
-    ".type __pre_init,%function",
+    ".section .text.fpc_copy_ccm_early,\"ax\"",
+    ".global fpc_copy_ccm_early",
+    ".type fpc_copy_ccm_early,%function",
     ".thumb_func",
-    "__pre_init:",
+    "fpc_copy_ccm_early:",
     "    push {{r4, r5}}",
     "    ldr r0, =__sccmram",
     "    ldr r1, =__eccmram_early",

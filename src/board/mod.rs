@@ -71,6 +71,7 @@ mod ccm;
 mod clocks;
 mod fault;
 mod pwm;
+mod reset;
 pub mod rtt;
 mod servo;
 mod supply;
@@ -204,6 +205,8 @@ pub fn init() -> Board {
     test_build::timing_init();
     check_bank_layout();
     freeze_on_debug_halt();
+    // Started here, settled at the end: its register update (≈ 190 µs) overlaps the rest.
+    let mut watchdog = BoardWatchdog::start(p.IWDG);
     interrupt::TIM2.set_priority(TIME_PRIORITY);
 
     let servo_encoder = ServoEncoder::new(Qei::new(
@@ -269,7 +272,7 @@ pub fn init() -> Board {
         BoardCalibrationStore::new(flash, CALIBRATION_STORE)
     };
 
-    let watchdog = BoardWatchdog::start(p.IWDG);
+    watchdog.settle();
     defmt::info!(
         "board up: {} Hz PWM, ARR {}, dead time {} ns",
         pwm::PWM_HZ,

@@ -7,7 +7,11 @@
 //! The start is embassy's `new()` + `unleash()` (0x5555, PR, RLR, 0xCCCC), then a reload once
 //! PR and RLR have reached the watchdog's clock domain (IWDG_SR = 0): RM0440 §37.3.2 starts
 //! the down-counter from 0xFFF, not from RLR, so without that reload the first window would
-//! be 4096 ticks (≈ 512 ms at /4) instead of 20 ms.
+//! be 4096 ticks (≈ 512 ms at /4) instead of 20 ms. That update takes up to 6 LSI cycles
+//! (≈ 190 µs): [`BoardWatchdog::start`] comes early in the board's bring-up and
+//! [`BoardWatchdog::settle`] waits and reloads at its end, so the wait overlaps the
+//! bring-up instead of adding to the boot (which, after a watchdog reset, a coasting piston
+//! waits through).
 
 use embassy_stm32::pac;
 use embassy_stm32::pac::iwdg::vals::Key;
@@ -38,18 +42,24 @@ pub struct BoardWatchdog {
 }
 
 impl BoardWatchdog {
-    /// Configures the IWDG for the boot window and starts it; the boot window runs from
-    /// here.
+    /// Configures the IWDG for the boot window and starts it. Its counter starts from 0xFFF
+    /// (≤ 512 ms) until [`BoardWatchdog::settle`] reloads it with the boot window.
     pub fn start(iwdg: Peri<'static, IWDG>) -> Self {
         let mut wdg = IndependentWatchdog::new(iwdg, BOOT_WATCHDOG_TIMEOUT_US);
         wdg.unleash();
-        // PVU and RVU clear within 6 LSI cycles (≈ 200 µs): the reload then loads RLR.
-        while pac::IWDG.sr().read().0 != 0 {}
-        wdg.pet();
         BoardWatchdog {
             wdg,
             running_window: false,
         }
+    }
+
+    /// Waits until PR and RLR have reached the watchdog's clock domain (PVU and RVU clear
+    /// within 6 LSI cycles, ≈ 190 µs after [`BoardWatchdog::start`]), then reloads the
+    /// counter with RLR: the boot window runs from here. Call once, at the end of the
+    /// bring-up.
+    pub fn settle(&mut self) {
+        while pac::IWDG.sr().read().0 != 0 {}
+        self.wdg.pet();
     }
 }
 

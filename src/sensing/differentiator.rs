@@ -243,6 +243,60 @@ impl SavitzkyGolay {
         self.started = false;
     }
 
+    /// Refills the window with the straight line fitted (least squares) to its newest
+    /// `samples` positions, and returns the line's derivatives at the newest sample
+    /// (velocity = its slope; acceleration 0 but for the line's rounding to whole counts).
+    /// For an estimate before the window has filled after a start (after a reset, the brake
+    /// cannot wait for N samples): from this call on
+    /// the window holds the line, and each real sample pushed replaces one of the line's,
+    /// so the estimate goes over to the full window's without a jump. The price is noise:
+    /// a line through m samples of noise σ_x has a slope noise
+    /// `σ_v = (σ_x/T)·√(12/(m(m²−1)))` (m = 6: 0.24·σ_x/T, against the full window's
+    /// [`SavitzkyGolay::new`] figure), and a bias of `a·T·(m−1)/2` under an acceleration a.
+    ///
+    /// `samples` is clamped to 2..=N; before a start this is a no-op (zero output). Costs
+    /// N−1 pushes: a cold path, once.
+    #[cold]
+    #[inline(never)]
+    pub fn restart_on_line(&mut self, samples: usize) -> Derivatives {
+        if !self.started {
+            return Derivatives::default();
+        }
+        let n = self.window;
+        let m = samples.clamp(2, n);
+        // The k-th newest slot (k = 0: the newest; `head` holds the oldest), relative to the
+        // newest, counts; the abscissa of the k-th newest is −k.
+        let newest = self.unwrapped;
+        let (mut sum_j, mut sum_d, mut sum_jj, mut sum_jd) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
+        for k in 0..m {
+            let slot = (self.head + 2 * n - 1 - k) % n;
+            let x = self.ring.get(slot & (RING - 1)).copied().unwrap_or(newest);
+            let d = i64_to_f32(x.wrapping_sub(newest));
+            let j = -(k as f32);
+            sum_j += j;
+            sum_d += d;
+            sum_jj += j * j;
+            sum_jd += j * d;
+        }
+        let mf = m as f32;
+        let slope = (mf * sum_jd - sum_j * sum_d) / (mf * sum_jj - sum_j * sum_j);
+        let at_newest = (sum_d - slope * sum_j) / mf;
+        // The line in the raw count's frame (wrapping), oldest slot first.
+        let base = self.last_input;
+        let line = |i: usize| {
+            let offset = at_newest - slope * (n - 1 - i) as f32;
+            // To the nearest count (`as` truncates toward zero).
+            let half = if offset < 0.0 { -0.5 } else { 0.5 };
+            base.wrapping_add((offset + half) as i32)
+        };
+        self.start(line(0));
+        let mut out = Derivatives::default();
+        for i in 1..n {
+            out = self.push(PositionCounts::from_bits(line(i)));
+        }
+        out
+    }
+
     /// Adds the newest position and returns the derivatives at the evaluation point.
     ///
     /// The first sample after construction or [`SavitzkyGolay::reset`] fills the whole
@@ -901,6 +955,63 @@ mod tests {
             );
             assert!((f64::from(d.acceleration_mps2) - a).abs() < 0.1, "k={k}");
         }
+    }
+
+    /// A start, then `m` samples of a ramp (across the i32 wrap) with Gaussian noise: the
+    /// line's slope is the velocity within the stated noise (its spread over many draws
+    /// matches `σ_x/T·√(12/(m(m²−1)))`), and once N real samples have followed, the
+    /// estimate is the full window's on those samples alone, to the bit.
+    #[test]
+    fn a_restart_on_a_line_gives_the_slope_at_once_and_hands_over_to_the_window() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let (n, m) = (25usize, 6usize);
+        let (v, sigma_counts) = (0.5f64, 1.0f64); // m/s; 1 µm noise at 1 µm counts
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let noise = Normal::new(0.0, sigma_counts).unwrap();
+        let x0 = f64::from(i32::MAX) - 200.0;
+        let mut errors = Vec::new();
+        for trial in 0..2000 {
+            let mut sg = SavitzkyGolay::new(cfg(n, 2, 0)).unwrap();
+            let mut fresh = SavitzkyGolay::new(cfg(n, 2, 0)).unwrap();
+            let at = |i: usize, rng: &mut rand_chacha::ChaCha8Rng| {
+                let x = x0 + v * i as f64 * 50e-6 * 1e6 + noise.sample(rng);
+                bits((x.round() as i64) as i32)
+            };
+            for i in 0..m {
+                sg.push(at(i, &mut rng));
+            }
+            let d = sg.restart_on_line(m);
+            // The line rounded to whole counts (1 µm here, 23 nm on the machine's encoders)
+            // is all the acceleration the window sees: ≈ 1 m/s² rms for this window.
+            assert!(d.acceleration_mps2.abs() < 5.0, "{}", d.acceleration_mps2);
+            errors.push(f64::from(d.velocity_mps) - v);
+            if trial < 20 {
+                let mut last = d;
+                for i in m..m + n {
+                    let x = at(i, &mut rng);
+                    last = sg.push(x);
+                    fresh.push(x);
+                }
+                // The window holds only real samples now: the same estimate as a window
+                // that never held the line (its first sample filled it; n more replaced it).
+                let mut reference = Derivatives::default();
+                for i in m + n..m + 2 * n {
+                    let x = at(i, &mut rng);
+                    last = sg.push(x);
+                    reference = fresh.push(x);
+                }
+                assert_eq!(last, reference);
+            }
+        }
+        let rms = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
+        let mf = m as f64;
+        let predicted = sigma_counts * 1e-6 / 50e-6 * (12.0 / (mf * (mf * mf - 1.0))).sqrt();
+        println!("slope error rms {rms:.5} m/s, predicted {predicted:.5} m/s");
+        assert!(
+            (rms / predicted - 1.0).abs() < 0.1,
+            "rms {rms}, predicted {predicted}"
+        );
     }
 
     #[test]

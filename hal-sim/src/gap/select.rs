@@ -54,6 +54,8 @@
 
 use rayon::prelude::*;
 
+use std::cell::RefCell;
+
 use super::doc::{Edit, ModelDoc};
 use super::effects::{Ctx, EffectKind, Proposal};
 use super::fit::correlation;
@@ -428,6 +430,7 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
             .filter_map(|&c| Some((c, residual(ctx.data, ctx.band, &model, c)?)))
             .collect();
         let mut best_extra: Option<Judged> = None;
+        let fits = RefCell::new(BasisFits::new());
         // The candidates are independent given `doc`: judged on every core (the cached
         // ones reused), then taken in the library's order, as one thread would.
         let mut jobs: Vec<(EffectKind, &Residual, Vec<EffectKind>)> = Vec::new();
@@ -470,7 +473,7 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
                 if !kind.named() {
                     best_extra = Some(j.clone());
                 } else if best.as_ref().is_none_or(|b| j.delta_bic > b.delta_bic)
-                    && !outdone_by_basis(ctx, &doc, &j, before)
+                    && !outdone_by_basis(ctx, &doc, &j, before, &fits)
                 {
                     best = Some(j.clone());
                 }
@@ -498,7 +501,7 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
                     befores
                         .iter()
                         .find(|(c, _)| *c == n.proposal.kind.channel())
-                        .is_some_and(|(_, before)| !outdone_by_basis(ctx, &doc, n, before))
+                        .is_some_and(|(_, before)| !outdone_by_basis(ctx, &doc, n, before, &fits))
                 })
                 .cloned()
         };
@@ -671,16 +674,38 @@ fn prune_terms(ctx: &Ctx<'_>, mut doc: ModelDoc) -> ModelDoc {
     }
 }
 
+/// The basis fits of one selection step, by number of parameters ([`outdone_by_basis`]).
+type BasisFits = Vec<(usize, Option<(f64, Vec<Term>)>)>;
+
 /// Whether `k` parameters of the discovery basis, fitted to the same residual at the same
 /// samples, explain significantly more than the named force effect `j` of `k` parameters
 /// (`n_eff·ln(RSS_named/RSS_basis) ≥ MIN_DELTA_BIC`): then the residual has a structure of
 /// another form, which the named effect's parameters would absorb ([`super::discover`]).
-fn outdone_by_basis(ctx: &Ctx<'_>, doc: &ModelDoc, j: &Judged, before: &Residual) -> bool {
-    if j.proposal.kind.channel() != ChannelId::Force || j.proposal.k == 0 {
+///
+/// `fits` keeps the basis fits of one selection step by their number of parameters: they
+/// depend only on `doc`, the force residual and `k`, so effects of the same `k` share one.
+fn outdone_by_basis(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    j: &Judged,
+    before: &Residual,
+    fits: &RefCell<BasisFits>,
+) -> bool {
+    let k = j.proposal.k;
+    if j.proposal.kind.channel() != ChannelId::Force || k == 0 {
         return false;
     }
-    let Some((rss_basis, terms)) = super::discover::basis_rss(ctx, doc, &before.kept, j.proposal.k)
-    else {
+    let known = fits
+        .borrow()
+        .iter()
+        .find(|(n, _)| *n == k)
+        .map(|(_, f)| f.clone());
+    let fit = known.unwrap_or_else(|| {
+        let f = super::discover::basis_rss(ctx, doc, &before.kept, k);
+        fits.borrow_mut().push((k, f.clone()));
+        f
+    });
+    let Some((rss_basis, terms)) = fit else {
         return false;
     };
     // The basis terms that do better are the effect's own form (with a constant at most):

@@ -331,6 +331,9 @@ pub fn install_hooks(uc: &mut Unicorn<'static, Soc>) -> Result<(), ChipError> {
         if addr == soc.main_address {
             soc.milestone(super::Milestone::Main);
         }
+        if addr == soc.control_cycle_address && addr != 0 {
+            soc.milestone(super::Milestone::ControlCycle);
+        }
         soc.fetched(addr, size);
         soc.execute(addr, size, &block);
         if block.sev {

@@ -293,6 +293,9 @@ pub struct Soc {
     pub milestones: Vec<(f64, Milestone)>,
     /// Address of the image's `main` (for [`Milestone::Main`]).
     pub main_address: u32,
+    /// Address of the image's `fpc::tasks::control_cycle` (for [`Milestone::ControlCycle`];
+    /// 0 if the image has none).
+    pub control_cycle_address: u32,
     /// [`ChipOptions::flash_timing`].
     pub flash_timing: bool,
     /// The 64-bit flash lines of the period's interrupt path so far (instruction fetches).
@@ -320,6 +323,9 @@ pub enum Milestone {
     /// The control executor's interrupt entered for the first time (the control task's
     /// first poll).
     ControlTask,
+    /// The control task's first cycle (`fpc::tasks::control_cycle` entered): the step built,
+    /// the first sampling burst in. `hal_sim::board::exec::BOOT_US` models the time to here.
+    ControlCycle,
     /// A bridge's main output enable (TIM1 or TIM8 BDTR.MOE) set.
     OutputsOn,
 }
@@ -403,6 +409,7 @@ impl Soc {
             control_entry: None,
             milestones: vec![(0.0, Milestone::Reset)],
             main_address: 0,
+            control_cycle_address: 0,
             flash_timing: options.flash_timing,
             path_lines: std::collections::HashSet::new(),
             path_data_lines: std::collections::HashSet::new(),
@@ -1429,6 +1436,12 @@ impl Chip {
             .map_err(uc_err("spin"))?;
         uc.get_data_mut().spin_address = spin;
         uc.get_data_mut().main_address = image.symbol("main").unwrap_or(0) & !1;
+        // The function itself (legacy mangling, any hash), not a long-branch thunk to it.
+        uc.get_data_mut().control_cycle_address = image
+            .symbols
+            .iter()
+            .find(|(n, _)| n.starts_with("_ZN3fpc5tasks13control_cycle17h"))
+            .map_or(0, |(_, a)| *a & !1);
         {
             uc.add_mem_hook(
                 unicorn_engine::HookType::MEM_READ,

@@ -239,8 +239,10 @@ impl ControlStep {
     /// the fault state (outputs off, restart inhibited until the fault is cleared).
     ///
     /// The piston may still be moving (a task hung at speed, the outputs held for up to the
-    /// watchdog's timeout): once the differentiator has a full window of samples the step
-    /// brakes it in the encoders' own frame (the sin/cos angle commutates without the zero,
+    /// watchdog's timeout): once a straight line through the first
+    /// [`RESET_FIT_SAMPLES`](safe_state::RESET_FIT_SAMPLES) samples gives its velocity (the
+    /// differentiator's window is refilled with that line) the step brakes it in the
+    /// encoders' own frame (the sin/cos angle commutates without the zero,
     /// the incremental position holds it), as SS1 does, and releases the outputs once holding
     /// needs no force. Where the heads are is unknown until homing; the fault stays latched.
     pub fn boot(&mut self, cause: ResetCause) {

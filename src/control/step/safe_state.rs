@@ -77,6 +77,15 @@ fn time_in_window(
     time
 }
 
+/// Samples the first velocity after a watchdog reset is fitted to (a straight line through
+/// them, [`SavitzkyGolay::restart_on_line`](crate::sensing::differentiator::SavitzkyGolay::restart_on_line)),
+/// the outputs off meanwhile: 0.25 ms after the first sample instead of the differentiator's
+/// full window (25 samples and 5 to settle, 1.5 ms), which an expander braking into a dead
+/// point alone cannot spare (issue #33). Its noise with the encoders' σ ≈ 1 µm: ≈ 5 mm/s
+/// (0.24·σ/T), and under the gas's push with the outputs off (≤ 2.5 kN on 12 kg) a lag of
+/// ≤ 26 mm/s; the controlled stop's loop takes over from there.
+pub const RESET_FIT_SAMPLES: usize = 6;
+
 /// The state of the stops and the reactions: the controlled stop's deceleration, SS1's hold
 /// window, the blind brake's sealing turn, what the faulted state still does, and each
 /// section's capability as configured.
@@ -178,11 +187,11 @@ impl ControlStep {
         self.drop_section(if m >= s { 0 } else { 1 });
     }
 
-    /// After a watchdog reset: the outputs stay off for the cycles the differentiator needs
-    /// for a valid velocity, then [`ControlStep::brake_after_reset`] starts the controlled
+    /// After a watchdog reset: the outputs stay off for the [`RESET_FIT_SAMPLES`] the first
+    /// velocity is fitted to, then [`ControlStep::brake_after_reset`] starts the controlled
     /// stop (see [`ControlStep::boot`]).
     pub(super) fn await_velocity_then_brake(&mut self) {
-        self.safe.brake = FaultedBrake::AfterReset(self.config.sg_window.saturating_add(5) as u16);
+        self.safe.brake = FaultedBrake::AfterReset((RESET_FIT_SAMPLES - 1) as u16);
     }
 
     /// The outputs with no setpoint (not calibrating): off — the current loops reset and
@@ -434,6 +443,10 @@ impl ControlStep {
         {
             return;
         }
+        let first = self
+            .sensing
+            .differentiator
+            .restart_on_line(RESET_FIT_SAMPLES);
         self.safe.hold_quiet_s = 0.0;
         self.safe.hold_motor_ns = 0.0;
         self.safe.hold_gas_ns = 0.0;
@@ -443,7 +456,7 @@ impl ControlStep {
         self.mode = Mode::Stopping {
             setpoint: Setpoint {
                 position_m: self.status.position_m,
-                velocity_mps: self.status.velocity_mps,
+                velocity_mps: first.velocity_mps,
                 acceleration_mps2: 0.0,
             },
             then: AfterStop::Off,
