@@ -585,9 +585,26 @@ pub fn ports_resolved(data: &Measured, model: &MachineModel) -> Option<Vec<f64>>
 }
 
 /// Widest offset of the logged position from the chambers' own that
-/// [`fit_position_offset`] accepts, m: a homing push's contact and an encoder's zero are
-/// microns; tens of microns would be another machine.
+/// [`fit_position_offset`] accepts whatever the model says, m: a homing push's contact and
+/// an encoder's zero are microns; tens of microns would be another machine.
 pub const MAX_POSITION_OFFSET_M: f64 = 50e-6;
+
+/// The offsets of the logged position from the chambers' own that homing can leave, m:
+/// from 0 (a log that was not homed on head A) to the contact's give under the largest
+/// homing push — the homing force limit ([`fpc::sensing::homing::HomingConfig::reference`],
+/// 400 N: the current never exceeds it, the command stays 5 % below) on the heads' contact
+/// stiffness (`piston.stop_stiffness_n_per_m`, 5e7 N/m: 8 µm) — plus one step of the
+/// encoder's interpolation ([`super::select::resolution`], ≈ 2.4 µm: where within a step
+/// the zero was declared), and never more than [`MAX_POSITION_OFFSET_M`]. One sign: homing
+/// pushes the piston *into* head A, so the logged position reads more than the chambers'.
+/// Bounded so, the offset cannot take up a pressure effect's pattern: at ±50 µm it ran to
+/// the bound on logs with a hidden leak, port restriction or pair.
+pub fn position_offset_bounds(model: &MachineModel) -> (f64, f64) {
+    let push_n = f64::from(fpc::sensing::homing::HomingConfig::reference().force_limit_n);
+    let contact_m = push_n / model.piston.stop_stiffness_n_per_m;
+    let step_m = super::select::resolution(ChannelId::Encoder, model);
+    (0.0, (contact_m + step_m).min(MAX_POSITION_OFFSET_M))
+}
 
 /// The offset of the logged position from the chambers' own, m (the logged `x_m` reads this
 /// much more), fitted to the pressures once per log as a nuisance; `None` without `# ports`
@@ -601,7 +618,7 @@ pub const MAX_POSITION_OFFSET_M: f64 = 50e-6;
 /// a dead point, where a chamber's volume is its ~1 mm clearance, 10 µm is 1 % of the volume
 /// and hundreds of Pa at a port opening: on a null run at 2.3 m/s, PR 6 (seed 554)
 /// `port_restriction` took it up. Fitted here, before the selection, no named effect absorbs
-/// it; bounded by [`MAX_POSITION_OFFSET_M`].
+/// it; bounded by [`position_offset_bounds`].
 ///
 /// Gauss–Newton steps from the log's offset (0) on the pressure residual as the selection
 /// judges it (band-filtered, at `band`'s kept samples of both chambers), each sensitivity
@@ -612,6 +629,7 @@ pub const MAX_POSITION_OFFSET_M: f64 = 50e-6;
 /// `None`: no pressure channel, or no step lowered the residual.
 pub fn fit_position_offset(data: &Measured, band: &Band, model: &MachineModel) -> Option<f64> {
     const PROBE_M: f64 = 2e-6;
+    let (lo, hi) = position_offset_bounds(model);
     let kept_at = |offset: f64| -> Option<Vec<f64>> {
         let mut moved = data.clone();
         moved.x_offset_m = offset;
@@ -631,7 +649,10 @@ pub fn fit_position_offset(data: &Measured, band: &Band, model: &MachineModel) -
         if den.is_nan() || den <= 0.0 {
             break;
         }
-        let offset = (best.0 - num / den).clamp(-MAX_POSITION_OFFSET_M, MAX_POSITION_OFFSET_M);
+        let offset = (best.0 - num / den).clamp(lo, hi);
+        if offset == best.0 {
+            break;
+        }
         let r2 = kept_at(offset)?;
         let r = rss(&r2);
         if r >= best.1 {
@@ -882,7 +903,11 @@ pub fn full_of_raw(data: &Measured, band: &Band, ch: ChannelId, raw: &[f64]) -> 
 
 /// RMS of the band-filtered residual over every sample the channel is judged on.
 pub fn full_rms(data: &Measured, band: &Band, ch: ChannelId, raw: &[f64]) -> f64 {
-    let full = full_of_raw(data, band, ch, raw);
+    rms_of_full(data, band, ch, &full_of_raw(data, band, ch, raw))
+}
+
+/// [`full_rms`] of a residual already band-filtered at every sample ([`full_of_raw`]).
+pub fn rms_of_full(data: &Measured, band: &Band, ch: ChannelId, full: &[f64]) -> f64 {
     let mask = band.mask(data, ch);
     let (s, c) = full
         .iter()
