@@ -920,3 +920,29 @@ pub fn rms_of_full(data: &Measured, band: &Band, ch: ChannelId, full: &[f64]) ->
         (s / c as f64).sqrt()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_homing_offset_is_bounded_by_the_push_on_the_heads_contact() {
+        let mut model = MachineModel::reference();
+        let step = super::super::select::resolution(ChannelId::Encoder, &model);
+        let push = f64::from(fpc::sensing::homing::HomingConfig::reference().force_limit_n);
+        // One sign (into head A), and a few microns on the reference contact (5e7 N/m).
+        let (lo, hi) = position_offset_bounds(&model);
+        assert_eq!(lo, 0.0);
+        let contact = push / model.piston.stop_stiffness_n_per_m;
+        assert!((hi - (contact + step)).abs() < 1e-12, "{hi}");
+        assert!(
+            hi > 5e-6 && hi < 15e-6,
+            "{hi}: the reference's 8 µm contact + one step"
+        );
+        // A stiffer head gives less; a soft one never more than the outer bound.
+        model.piston.stop_stiffness_n_per_m *= 10.0;
+        assert!(position_offset_bounds(&model).1 < hi);
+        model.piston.stop_stiffness_n_per_m = 1e3;
+        assert_eq!(position_offset_bounds(&model).1, MAX_POSITION_OFFSET_M);
+    }
+}
