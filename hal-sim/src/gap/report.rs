@@ -436,8 +436,8 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
         let file = format!("overlay_{}.svg", ch.name());
         let in_unit = |v: &[f64]| -> Vec<f64> { v.iter().map(|v| v * res_k).collect() };
         let (yb, ya) = (
-            in_unit(fb.get(..n).unwrap_or(&fb)),
-            in_unit(fa.get(..n).unwrap_or(&fa)),
+            in_unit(fb.get(..n).unwrap_or(fb)),
+            in_unit(fa.get(..n).unwrap_or(fa)),
         );
         lines(
             &dir.join(&file),
