@@ -298,8 +298,11 @@ impl RunLog {
         let mut outcome = outcome;
         if let (Ok(()), Some((_, names))) = (&outcome, &header) {
             let mut stop = read_batch(&mut lines, gzipped, &mut rows);
+            // Two batches take turns (their buffers reused: no fresh memory per batch).
+            let mut next = RowBatch::default();
             loop {
-                let mut next = RowBatch::default();
+                next.text.clear();
+                next.lines.clear();
                 let mut parsed = Vec::new();
                 let mut next_stop = None;
                 if stop.is_none() {
@@ -316,7 +319,7 @@ impl RunLog {
                     outcome = end;
                     break;
                 }
-                rows = next;
+                std::mem::swap(&mut rows, &mut next);
                 stop = next_stop;
             }
         }

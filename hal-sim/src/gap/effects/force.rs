@@ -277,8 +277,10 @@ pub(super) fn actuator_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
         .map(|(a, b)| a + b)
         .collect();
     let rss = |delay: f64| -> Option<f64> {
-        let late = shifted(&motors, (delay.max(0.0) + d.force_align_s) / d.dt_s);
-        let raw: Vec<f64> = fixed.iter().zip(&late).map(|(f, m)| f - m).collect();
+        let mut raw = shifted(&motors, (delay.max(0.0) + d.force_align_s) / d.dt_s);
+        for (r, f) in raw.iter_mut().zip(&fixed) {
+            *r = f - *r;
+        }
         Some(super::super::fit::sumsq(&ctx.band.kept(
             d,
             ChannelId::Force,
