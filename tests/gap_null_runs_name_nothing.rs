@@ -164,6 +164,32 @@ fn gap_names_nothing_on_the_simulators_own_runs() {
     own_run_null(13, 4.1, 3.1, 2, false);
 }
 
+/// Slow strokes at a high ratio (0.3 m/s, PR 4.5: 27 s runs). The rotation nearly stops at
+/// each dead point and then turns one servo count every 3–20 ms, and the servo, whose loop
+/// closes on that count, turns unevenly within each count: the ports' angle there is known
+/// only within the count, and a chamber blowing down through its opening port follows it.
+/// Judged there, the replay missed the plant by about 1 kPa at every dead point and
+/// `leakage` was named on seeds 62 and 63 (rod seals' gap fitted to 0, 69 % and 50 % of the
+/// residual); those samples are no longer judged (`gap::residuals::ports_resolved`). Seed
+/// 62 first, so that CI's stride keeps it.
+#[test]
+#[ignore = "slow: three runs of 27 s at 0.3 m/s"]
+fn gap_names_nothing_on_slow_high_ratio_runs() {
+    for seed in [62, 63, 61].into_iter().step_by(stride(3)) {
+        own_run_null(seed, 0.3, 4.5, 1, false);
+    }
+}
+
+/// The point of the sweep below where the logged position's homing offset (7–10 µm into
+/// head A) showed once the angle-unresolved samples were left out: `port_restriction` was
+/// named (area 1.006) until the replay fitted that offset as a nuisance
+/// (`gap::residuals::fit_position_offset`).
+#[test]
+#[ignore = "slow: a run at 2.3 m/s, PR 6"]
+fn gap_names_nothing_where_the_homing_offset_showed() {
+    own_run_null(554, 2.3, 6.0, 2, true);
+}
+
 #[test]
 #[ignore = "slow: the simulator's own runs over speeds and pressure ratios"]
 /// The pressure channel names nothing anywhere in the envelope. Open finding: the force

@@ -187,6 +187,14 @@ pub struct Measured {
     pub moving: Vec<f64>,
     /// 1 away from the log's ends, else 0.
     pub inner: Vec<f64>,
+    /// 1 where the pressure channel may be judged (also `inner`), 0 where the chambers'
+    /// replay hinges on a port angle the log does not resolve
+    /// ([`super::residuals::ports_resolved`]); all 1 until the workflow sets it.
+    pub pressure_judged: Vec<f64>,
+    /// How far the logged position reads beyond the chambers' own, m: what the pressure
+    /// replay subtracts from `x_m` ([`super::residuals::fit_position_offset`], fitted once
+    /// per log before the selection; 0 until the workflow sets it).
+    pub x_offset_m: f64,
     /// Stretches of motion between standstills (runs of `moving`): an encoder may be zeroed
     /// again at a standstill (homing), so each stretch has its own encoder offset.
     pub segments: Vec<std::ops::Range<usize>>,
@@ -428,6 +436,8 @@ impl Measured {
             d2x_mps2,
             omega_rad_s,
             moving,
+            pressure_judged: vec![1.0; inner.len()],
+            x_offset_m: 0.0,
             inner,
             segments,
             replays: Default::default(),
@@ -522,6 +532,8 @@ impl Measured {
             dp_b_pa_per_s: cut(&self.dp_b_pa_per_s),
             moving,
             inner,
+            pressure_judged: cut(&self.pressure_judged),
+            x_offset_m: self.x_offset_m,
             segments,
             replays: Default::default(),
         }
@@ -593,30 +605,7 @@ fn rotation_window(theta_rad: &[f64], dt_s: f64, n: usize) -> usize {
 /// simulator's own runs (the modelled machine, where nothing is missing). Through the
 /// crossings it explains 2–3 % there, and the fitted law moves to the true one.
 pub fn angle_through_crossings(theta_rad: &[f64]) -> Vec<f64> {
-    // The count's quantum: the smallest step, but not a rounding flicker. A logged count is
-    // a float, and a few of its rows differ from their neighbours by an ulp of the angle
-    // (4 of 40,303 steps of a 10-cycle run, 0.0025 counts): taken as the quantum, they put
-    // every crossing half a count low. Steps below a tenth of the lower quartile's (a whole
-    // count or a few: flickers are rare) are such.
-    let mut steps: Vec<f64> = theta_rad
-        .windows(2)
-        .map(|w| (w[1] - w[0]).abs())
-        .filter(|d| *d > 0.0)
-        .collect();
-    steps.sort_by(f64::total_cmp);
-    let floor = 0.1 * steps.get(steps.len() / 4).copied().unwrap_or(0.0);
-    let quantum = steps
-        .iter()
-        .copied()
-        .find(|d| *d >= floor)
-        .unwrap_or(f64::INFINITY);
-    // (row, angle) of each crossing, the row half a sample before the one that shows it.
-    let crossings: Vec<(f64, f64)> = theta_rad
-        .windows(2)
-        .enumerate()
-        .filter(|(_, w)| (w[1] - w[0]).abs() >= 0.5 * quantum)
-        .map(|(k, w)| (k as f64 + 0.5, 0.5 * (w[0] + w[1]) + 0.5 * quantum))
-        .collect();
+    let crossings = count_crossings(theta_rad).unwrap_or_default();
     let (Some(&first), Some(&last)) = (crossings.first(), crossings.last()) else {
         return theta_rad.to_vec();
     };
@@ -634,6 +623,64 @@ pub fn angle_through_crossings(theta_rad: &[f64]) -> Vec<f64> {
                 (Some(&(t0, a0)), Some(&(t1, a1))) => a0 + (a1 - a0) * (t - t0) / (t1 - t0),
                 (None, _) => first.1,
                 (_, None) => last.1,
+            }
+        })
+        .collect()
+}
+
+/// The crossings of a counted angle's edges, as [`angle_through_crossings`] places them:
+/// (row, angle), the row half a sample before the one that shows the step; `None` if the
+/// angle never steps.
+fn count_crossings(theta_rad: &[f64]) -> Option<Vec<(f64, f64)>> {
+    let quantum = count_quantum(theta_rad);
+    let crossings: Vec<(f64, f64)> = theta_rad
+        .windows(2)
+        .enumerate()
+        .filter(|(_, w)| (w[1] - w[0]).abs() >= 0.5 * quantum)
+        .map(|(k, w)| (k as f64 + 0.5, 0.5 * (w[0] + w[1]) + 0.5 * quantum))
+        .collect();
+    (!crossings.is_empty()).then_some(crossings)
+}
+
+/// A counted angle's quantum, rad; infinite if it never steps.
+///
+/// The smallest step, but not a rounding flicker. A logged count is a float, and a few of
+/// its rows differ from their neighbours by an ulp of the angle (4 of 40,303 steps of a
+/// 10-cycle run, 0.0025 counts): taken as the quantum, they put every crossing half a count
+/// low. Steps below a tenth of the lower quartile's (a whole count or a few: flickers are
+/// rare) are such.
+pub fn count_quantum(theta_rad: &[f64]) -> f64 {
+    let mut steps: Vec<f64> = theta_rad
+        .windows(2)
+        .map(|w| (w[1] - w[0]).abs())
+        .filter(|d| *d > 0.0)
+        .collect();
+    steps.sort_by(f64::total_cmp);
+    let floor = 0.1 * steps.get(steps.len() / 4).copied().unwrap_or(0.0);
+    steps
+        .iter()
+        .copied()
+        .find(|d| *d >= floor)
+        .unwrap_or(f64::INFINITY)
+}
+
+/// How long each row's count lasts: the rows between the crossings before and after it
+/// ([`count_crossings`]); infinite before the first crossing and after the last.
+pub fn count_spans_rows(theta_rad: &[f64]) -> Vec<f64> {
+    let crossings = count_crossings(theta_rad).unwrap_or_default();
+    let mut next = 0;
+    (0..theta_rad.len())
+        .map(|i| {
+            let t = i as f64;
+            while crossings.get(next).is_some_and(|c| c.0 <= t) {
+                next += 1;
+            }
+            match (
+                next.checked_sub(1).and_then(|k| crossings.get(k)),
+                crossings.get(next),
+            ) {
+                (Some(&(t0, _)), Some(&(t1, _))) => t1 - t0,
+                _ => f64::INFINITY,
             }
         })
         .collect()
@@ -828,6 +875,27 @@ mod tests {
         for (a, b) in angle_through_crossings(&flicker).iter().zip(&through) {
             assert!((a - b).abs() < 1e-12, "{a} against {b}");
         }
+    }
+
+    #[test]
+    fn each_row_knows_how_long_its_count_lasts() {
+        // Steps shown at rows 10, 30 and 35 (crossings half a row before each).
+        let q = std::f64::consts::TAU / 4096.0;
+        let theta: Vec<f64> = (0..50)
+            .map(|i| q * [10, 30, 35].iter().filter(|&&s| i >= s).count() as f64)
+            .collect();
+        assert!((count_quantum(&theta) - q).abs() < 1e-15);
+        let spans = count_spans_rows(&theta);
+        for (i, s) in spans.iter().enumerate() {
+            let want = match i {
+                0..=9 | 35.. => f64::INFINITY,
+                10..=29 => 20.0,
+                _ => 5.0,
+            };
+            assert_eq!(*s, want, "row {i}");
+        }
+        // A piston angle that never steps: no count, no span.
+        assert!(count_spans_rows(&[0.1; 5]).iter().all(|s| s.is_infinite()));
     }
 
     #[test]

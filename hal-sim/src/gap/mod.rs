@@ -41,7 +41,7 @@ use crate::runlog::RunLog;
 use data::Measured;
 use doc::ModelDoc;
 use effects::{Ctx, EffectKind};
-use residuals::{channel_raw, full_rms, Band, ChannelId};
+use residuals::{channel_raw, full_of_raw, full_rms, rms_of_full, Band, ChannelId};
 use select::{select, Selection};
 
 /// Default upper edge of the analysis band, Hz: above the cogging frequency at 4 m/s
@@ -163,6 +163,21 @@ pub struct GapOutcome {
     pub band: Band,
     /// The selection.
     pub selection: Selection,
+    /// Each channel's residual with the input and the augmented model, band-filtered at
+    /// every sample ([`residuals::full_of_raw`]), in the channels' order.
+    pub filtered: Vec<ChannelResiduals>,
+}
+
+/// One channel's band-filtered residual at every sample, with the input and the augmented
+/// model (pressure: chamber A's samples then B's).
+#[derive(Clone, Debug)]
+pub struct ChannelResiduals {
+    /// Which channel.
+    pub channel: ChannelId,
+    /// With the input model.
+    pub before: Vec<f64>,
+    /// With the augmented model.
+    pub after: Vec<f64>,
 }
 
 /// Runs the workflow on a validated log and model text. Bad input (a model or a log the
@@ -185,6 +200,35 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
             "--band-hz {}: must be below the log's Nyquist frequency, {nyquist} Hz",
             opts.band_hz
         )));
+    }
+    // The logged position's zero (homing's push into head A) is a nuisance of the pressure
+    // replay: fitted once, before any effect may take it up, on the log's first
+    // `MAX_OFFSET_FIT_ROWS` with their own angle-resolution mask (each step replays the
+    // chambers twice: on the 732k-row log the whole log would cost seconds). The whole
+    // log's mask is then made with the offset in place: its nominal replay, made beside the
+    // moved one, is the one the selection's first step reads.
+    let fit_offset = |head: &mut Measured| -> Option<f64> {
+        if let Some(judged) = residuals::ports_resolved(head, &model) {
+            head.pressure_judged = judged;
+        }
+        Band::new(head, opts.band_hz)
+            .ok()
+            .and_then(|b| residuals::fit_position_offset(head, &b, &model))
+    };
+    let long = measured.len() > residuals::MAX_OFFSET_FIT_ROWS;
+    let offset = if long {
+        fit_offset(&mut measured.head(residuals::MAX_OFFSET_FIT_ROWS))
+    } else {
+        fit_offset(&mut measured)
+    };
+    if let Some(offset) = offset {
+        measured.x_offset_m = offset;
+    }
+    // (A short log's mask is already the whole log's where the offset stayed at 0.)
+    if long || offset.is_some() {
+        if let Some(judged) = residuals::ports_resolved(&measured, &model) {
+            measured.pressure_judged = judged;
+        }
     }
     let band = Band::new(&measured, opts.band_hz).map_err(Failure::runtime)?;
     let mut fitted_alignment = if measured.force_delay_s.is_none() {
@@ -272,7 +316,8 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         );
     }
     // The channels' replays are independent: on every core, kept in the channels' order.
-    let channels: Vec<ChannelJson> = ChannelId::ALL
+    // Their band-filtered residuals are kept for the report's maps and overlays.
+    let filtered: Vec<ChannelResiduals> = ChannelId::ALL
         .par_iter()
         .filter_map(|&ch| {
             let (b, a) = rayon::join(
@@ -280,12 +325,24 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
                 || channel_raw(&measured, &after_model, ch),
             );
             let (b, a) = (b?, a?);
-            Some(ChannelJson {
-                name: ch.name().into(),
-                unit: ch.unit().into(),
-                rms_before: full_rms(&measured, &band, ch, &b),
-                rms_after: full_rms(&measured, &band, ch, &a),
+            let (before, after) = rayon::join(
+                || full_of_raw(&measured, &band, ch, &b),
+                || full_of_raw(&measured, &band, ch, &a),
+            );
+            Some(ChannelResiduals {
+                channel: ch,
+                before,
+                after,
             })
+        })
+        .collect();
+    let channels: Vec<ChannelJson> = filtered
+        .iter()
+        .map(|c| ChannelJson {
+            name: c.channel.name().into(),
+            unit: c.channel.unit().into(),
+            rms_before: rms_of_full(&measured, &band, c.channel, &c.before),
+            rms_after: rms_of_full(&measured, &band, c.channel, &c.after),
         })
         .collect();
     let effects = effect_rows(&ctx, &selection).map_err(Failure::runtime)?;
@@ -305,6 +362,7 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         measured,
         band,
         selection,
+        filtered,
     })
 }
 

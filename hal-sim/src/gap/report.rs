@@ -11,7 +11,7 @@ use crate::plant::model::MachineModel;
 use crate::plot::{lines, panels, Axes, Panel, Series};
 
 use super::effects::{acting_force_lag, slave_force_lag, Ctx};
-use super::residuals::{channel_raw, full_of_raw, replay_pressures, ChannelId};
+use super::residuals::{replay_pressures, ChannelId};
 use super::GapOutcome;
 
 /// Bins of a residual map.
@@ -377,21 +377,17 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
     let mut overlays = Vec::new();
     // Each channel's replays, filtering and maps are independent: computed on every core,
     // then written in the channels' order.
-    let computed: Vec<_> = ChannelId::ALL
+    // (The residuals are the analysis' own, band-filtered once there.)
+    let computed: Vec<_> = out
+        .filtered
         .par_iter()
-        .filter_map(|&ch| {
-            let (rb, ra) = rayon::join(
-                || channel_raw(d, &before, ch),
-                || channel_raw(d, &after, ch),
-            );
-            let (rb, ra) = (rb?, ra?);
-            let fb = full_of_raw(d, &out.band, ch, &rb);
-            let fa = full_of_raw(d, &out.band, ch, &ra);
+        .map(|c| {
+            let (fb, fa) = (&c.before, &c.after);
             let (mb, ma) = rayon::join(
-                || maps(&ctx, &before, ch, &fb),
-                || maps(&ctx, &after, ch, &fa),
+                || maps(&ctx, &before, c.channel, fb),
+                || maps(&ctx, &after, c.channel, fa),
             );
-            Some((ch, fb, fa, mb, ma))
+            (c.channel, fb, fa, mb, ma)
         })
         .collect();
     for (ch, fb, fa, mb, ma) in computed {
@@ -440,8 +436,8 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
         let file = format!("overlay_{}.svg", ch.name());
         let in_unit = |v: &[f64]| -> Vec<f64> { v.iter().map(|v| v * res_k).collect() };
         let (yb, ya) = (
-            in_unit(fb.get(..n).unwrap_or(&fb)),
-            in_unit(fa.get(..n).unwrap_or(&fa)),
+            in_unit(fb.get(..n).unwrap_or(fb)),
+            in_unit(fa.get(..n).unwrap_or(fa)),
         );
         lines(
             &dir.join(&file),

@@ -23,7 +23,9 @@ use crate::plant::servo::through_play;
 use crate::signal::delayed;
 
 use super::band::{force_kernel, lowpass, sg_weights, ColumnCache, Kernel};
-use super::data::{Measured, PortsMeta, ThetaSource};
+use super::data::{
+    count_quantum, count_spans_rows, Measured, PortsMeta, ThetaSource, PORTS_ANGLE_SPAN_S,
+};
 
 /// The channels compared.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -98,13 +100,15 @@ pub struct Band {
     /// Where the encoder and slave-force channels are judged (while moving, like the force
     /// channel).
     pub mask_encoder: Vec<f64>,
-    /// Where the pressure channel is judged.
+    /// Where the pressure channel is judged: away from the log's ends and where its replay
+    /// does not hinge on a port angle the log does not resolve
+    /// ([`Measured::pressure_judged`]).
     pub mask_inner: Vec<f64>,
     /// Kept samples of the force channel.
     pub idx_force: Vec<usize>,
     /// Kept samples of the encoder channel.
     pub idx_encoder: Vec<usize>,
-    /// Kept samples of the slave-force and pressure channels.
+    /// Kept samples of the pressure channel.
     pub idx_inner: Vec<usize>,
     /// Columns of this band's searches, kept for the next selection step.
     pub columns: ColumnCache,
@@ -143,7 +147,13 @@ impl Band {
         // still reaches a standstill, the force terms are masked between the two stages.
         let mask_force = erode(&data.moving, accel.half());
         let force_interior = erode(&mask_force, plain.half());
-        let mask_inner = erode(&data.inner, plain.half());
+        let judged: Vec<f64> = data
+            .inner
+            .iter()
+            .zip(data.pressure_judged.iter().chain(std::iter::repeat(&1.0)))
+            .map(|(a, b)| a.min(*b))
+            .collect();
+        let mask_inner = erode(&judged, plain.half());
         let mask_encoder = erode(&data.moving, plain.half());
         let pick = |mask: &[f64]| -> Vec<usize> {
             (0..mask.len())
@@ -177,7 +187,7 @@ impl Band {
             ChannelId::Encoder | ChannelId::SlaveForce => {
                 (&self.plain, &self.mask_encoder, &self.idx_encoder)
             }
-            _ => (&self.plain, &self.mask_inner, &self.idx_inner),
+            ChannelId::Pressure => (&self.plain, &self.mask_inner, &self.idx_inner),
         }
     }
 
@@ -491,15 +501,17 @@ pub fn replay_pressures(data: &Measured, model: &MachineModel) -> Option<(Vec<f6
     // Everything of the model a replay reads: the same values, the same replay (a force
     // effect added by a selection step leaves the chambers as they were).
     let key = format!(
-        "{:?}|{:?}|{:?}|{:?}|{:?}",
+        "{:?}|{:?}|{:?}|{:?}|{:?}|{:e}",
         PlantParams::from_model(model).chambers,
         model.gas,
         model.sensors.pressure,
         model.lines,
-        model.servo.backlash_rad
+        model.servo.backlash_rad,
+        data.x_offset_m
     );
     let kept = data.replays.get_or_make(key, || {
-        replay_pressures_anew(data, model).map_or_else(Vec::new, |(a, b)| vec![a, b])
+        replay_pressures_anew(data, model, &data.ports_angle_rad)
+            .map_or_else(Vec::new, |(a, b)| vec![a, b])
     });
     match kept.as_slice() {
         [a, b] => Some((a.clone(), b.clone())),
@@ -507,8 +519,172 @@ pub fn replay_pressures(data: &Measured, model: &MachineModel) -> Option<(Vec<f6
     }
 }
 
-/// [`replay_pressures`] computed.
-fn replay_pressures_anew(data: &Measured, model: &MachineModel) -> Option<(Vec<f64>, Vec<f64>)> {
+/// Where the pressure channel may be judged on a log whose ports are timed by a servo's
+/// count (`# theta_source = servo_encoder`, open ports): 1 where the chambers' replay does
+/// not hinge on where the angle lies within its count, 0 where it does. `None` where every
+/// sample may be judged (the piston's own angle logged, or no timed ports).
+///
+/// Between two steps of the count the log says only that the angle is inside it; the
+/// replay draws it through the crossings ([`super::data::ports_angle`]). That is close
+/// where many crossings fall within the fit's span, but a count that lasts about as long
+/// as the span leaves the angle anywhere in it, and a servo whose own loop closes on that
+/// count does not turn evenly within it: on our runs at 0.3 m/s and PR 4.5 the servo turned
+/// slowly after each step and quickly before the next (half-way through a count lasting
+/// 3–100 ms it had covered 0.42–0.45 of it), on average 0.06–0.1 mrad (up to 0.3) behind
+/// the estimate near the dead points, where a count lasts longer than 3 ms. A chamber
+/// blowing down through its opening port follows the angle there within a few hundredths
+/// of a count: the replay emptied it early and missed the plant by about 1 kPa at every
+/// dead point, which `leakage` explained by closing the rod seals (50–69 % of the residual
+/// on two null runs of three).
+///
+/// So each sample's angle is taken as known within `±u`, half a count times the count's
+/// length over [`PORTS_ANGLE_SPAN_S`] (at most half a count), and a sample whose replay,
+/// with every angle moved by `u`, changes by more than one sensor code
+/// ([`super::select::sample_resolution`]) is not judged: what it shows is the angle's
+/// position within its count, not the chambers' physics. (One moved replay beside the
+/// model's own, which the selection reads anyway: on the 732k-row log two moved replays
+/// cost 2.7 s of CPU and about 1.4 s of wall time.)
+pub fn ports_resolved(data: &Measured, model: &MachineModel) -> Option<Vec<f64>> {
+    if data.ports != PortsMeta::Open || data.theta_source != ThetaSource::ServoEncoder {
+        return None;
+    }
+    let quantum = count_quantum(&data.theta_rad);
+    if !quantum.is_finite() {
+        return None;
+    }
+    let span_rows = PORTS_ANGLE_SPAN_S / data.dt_s;
+    let unknown: Vec<f64> = count_spans_rows(&data.theta_rad)
+        .iter()
+        .map(|rows| 0.5 * quantum * (rows / span_rows).min(1.0))
+        .collect();
+    let moved = || -> Option<(Vec<f64>, Vec<f64>)> {
+        let angle: Vec<f64> = data
+            .ports_angle_rad
+            .iter()
+            .zip(&unknown)
+            .map(|(a, u)| a + u)
+            .collect();
+        replay_pressures_anew(data, model, &angle)
+    };
+    // The model's own replay is kept with the log (the selection's first step reads it):
+    // made here beside the moved one, it costs no extra time.
+    let (nominal, ahead) = rayon::join(|| replay_pressures(data, model), moved);
+    let ((a0, b0), (a1, b1)) = (nominal?, ahead?);
+    let code = super::select::sample_resolution(ChannelId::Pressure, model);
+    Some(
+        (0..data.len())
+            .map(|i| {
+                let change = |hi: &[f64], lo: &[f64]| match (hi.get(i), lo.get(i)) {
+                    (Some(h), Some(l)) => (h - l).abs(),
+                    _ => 0.0,
+                };
+                f64::from(u8::from(change(&a1, &a0).max(change(&b1, &b0)) <= code))
+            })
+            .collect(),
+    )
+}
+
+/// Widest offset of the logged position from the chambers' own that
+/// [`fit_position_offset`] accepts whatever the model says, m: a homing push's contact and
+/// an encoder's zero are microns; tens of microns would be another machine.
+pub const MAX_POSITION_OFFSET_M: f64 = 50e-6;
+
+/// The offsets of the logged position from the chambers' own that homing can leave, m:
+/// from 0 (a log that was not homed on head A) to the contact's give under the largest
+/// homing push — the homing force limit ([`fpc::sensing::homing::HomingConfig::reference`],
+/// 400 N: the current never exceeds it, the command stays 5 % below) on the heads' contact
+/// stiffness (`piston.stop_stiffness_n_per_m`, 5e7 N/m: 8 µm) — plus one step of the
+/// encoder's interpolation ([`super::select::resolution`], ≈ 2.4 µm: where within a step
+/// the zero was declared), and never more than [`MAX_POSITION_OFFSET_M`]. One sign: homing
+/// pushes the piston *into* head A, so the logged position reads more than the chambers'.
+/// Bounded so, the offset cannot take up a pressure effect's pattern: at ±50 µm it ran to
+/// the bound on logs with a hidden leak, port restriction or pair.
+pub fn position_offset_bounds(model: &MachineModel) -> (f64, f64) {
+    let push_n = f64::from(fpc::sensing::homing::HomingConfig::reference().force_limit_n);
+    let contact_m = push_n / model.piston.stop_stiffness_n_per_m;
+    let step_m = super::select::resolution(ChannelId::Encoder, model);
+    (0.0, (contact_m + step_m).min(MAX_POSITION_OFFSET_M))
+}
+
+/// The offset of the logged position from the chambers' own, m (the logged `x_m` reads this
+/// much more), fitted to the pressures once per log as a nuisance; `None` without `# ports`
+/// or with nothing to judge.
+///
+/// Why: the zero of `x_m` is where homing declared the piston on head A, pushed into the
+/// head's contact by the homing force. In our plant that push is 250–380 N (the detection
+/// level to the command limit, `fpc::sensing::homing::HomingConfig::reference`) on a
+/// 5e7 N/m contact: the zero lies 5–8 µm inside head A, and every logged position reads that
+/// much more than the plant's (7–10 µm measured on our runs). A rig's homing is the same. Near
+/// a dead point, where a chamber's volume is its ~1 mm clearance, 10 µm is 1 % of the volume
+/// and hundreds of Pa at a port opening: on a null run at 2.3 m/s, PR 6 (seed 554)
+/// `port_restriction` took it up. Fitted here, before the selection, no named effect absorbs
+/// it; bounded by [`position_offset_bounds`].
+///
+/// Gauss–Newton steps from the log's offset (0) on the pressure residual as the selection
+/// judges it (band-filtered, at `band`'s kept samples of both chambers), each sensitivity
+/// from one replay moved by 2 µm; a step is kept only while it lowers the residual, at most
+/// [`MAX_OFFSET_STEPS`] (two replays each). On the raw residual, which the sensor's
+/// rounding dominates, the steps stopped at 3.9–4.9 µm on seed 554 and `port_restriction`
+/// was still named; on the band-filtered one they reach 7.35 µm and nothing is.
+/// `None`: no pressure channel, or no step lowered the residual.
+pub fn fit_position_offset(data: &Measured, band: &Band, model: &MachineModel) -> Option<f64> {
+    const PROBE_M: f64 = 2e-6;
+    let (lo, hi) = position_offset_bounds(model);
+    let kept_at = |offset: f64| -> Option<Vec<f64>> {
+        let mut moved = data.clone();
+        moved.x_offset_m = offset;
+        residual(&moved, band, model, ChannelId::Pressure).map(|r| r.kept)
+    };
+    let rss = |r: &[f64]| r.iter().map(|v| v * v).sum::<f64>();
+    let mut r0 = kept_at(data.x_offset_m)?;
+    let mut best = (data.x_offset_m, rss(&r0));
+    for _ in 0..MAX_OFFSET_STEPS {
+        let r1 = kept_at(best.0 + PROBE_M)?;
+        let (mut num, mut den) = (0.0, 0.0);
+        for (a, b) in r0.iter().zip(&r1) {
+            let d = (b - a) / PROBE_M;
+            num += a * d;
+            den += d * d;
+        }
+        if den.is_nan() || den <= 0.0 {
+            break;
+        }
+        let offset = (best.0 - num / den).clamp(lo, hi);
+        if offset == best.0 {
+            break;
+        }
+        let r2 = kept_at(offset)?;
+        let r = rss(&r2);
+        if r >= best.1 {
+            break;
+        }
+        let moved = (offset - best.0).abs();
+        best = (offset, r);
+        r0 = r2;
+        if moved < 0.1e-6 {
+            break;
+        }
+    }
+    (best.0 != data.x_offset_m).then_some(best.0)
+}
+
+/// Most rows of a log [`fit_position_offset`] is fitted on (its first ones): 5 s at 20 kHz,
+/// three cycles of timed ports at 0.3 m/s. The fit replays the chambers up to
+/// 2 × [`MAX_OFFSET_STEPS`] times; the offset of a homing holds for the whole log.
+/// (The pressure searches' stretch, 1.5 s with the bypass's first 0.93 s in it, was too
+/// short: it fitted 0.66 µm on seed 554, where the whole log gives 7.35 µm.)
+pub const MAX_OFFSET_FIT_ROWS: usize = 100_000;
+
+/// Most Gauss–Newton steps of [`fit_position_offset`].
+const MAX_OFFSET_STEPS: usize = 6;
+
+/// [`replay_pressures`] computed, with the ports timed by `angle_rad` (one per row: the
+/// ports' angle before the spline's play, as [`Measured::ports_angle_rad`]).
+fn replay_pressures_anew(
+    data: &Measured,
+    model: &MachineModel,
+    angle_rad: &[f64],
+) -> Option<(Vec<f64>, Vec<f64>)> {
     let mode = match data.ports {
         PortsMeta::Closed => PortMode::Closed,
         PortsMeta::Open => PortMode::Timed,
@@ -528,7 +704,7 @@ fn replay_pressures_anew(data: &Measured, model: &MachineModel) -> Option<(Vec<f
         mean(&data.p_a_pa) - sensor.offset_a_pa,
         mean(&data.p_b_pa) - sensor.offset_b_pa,
     );
-    let (pa, pb) = replay_from(data, model, mode, start);
+    let (pa, pb) = replay_from(data, model, mode, start, angle_rad);
     if mode != PortMode::Closed || data.ports_from_s.is_some() {
         return Some((pa, pb));
     }
@@ -546,7 +722,13 @@ fn replay_pressures_anew(data: &Measured, model: &MachineModel) -> Option<(Vec<f
     };
     let sa = scale(&data.p_a_pa, &pa, sensor.offset_a_pa);
     let sb = scale(&data.p_b_pa, &pb, sensor.offset_b_pa);
-    Some(replay_from(data, model, mode, (start.0 * sa, start.1 * sb)))
+    Some(replay_from(
+        data,
+        model,
+        mode,
+        (start.0 * sa, start.1 * sb),
+        angle_rad,
+    ))
 }
 
 /// The chambers replayed from the starting pressures `start` (A, B), Pa, at the wall
@@ -556,13 +738,15 @@ fn replay_from(
     model: &MachineModel,
     mode: PortMode,
     start: (f64, f64),
+    angle_rad: &[f64],
 ) -> (Vec<f64>, Vec<f64>) {
     let n = data.len();
     let params = PlantParams::from_model(model).chambers;
     let gas = params.gas;
     let t_gas = model.gas.temperature_k;
     let sensor = &model.sensors.pressure;
-    let x0 = data.x_m.first().copied().unwrap_or(0.0);
+    let off = data.x_offset_m;
+    let x0 = data.x_m.first().copied().unwrap_or(0.0) - off;
     let (p0a, p0b) = start;
     let mut ch = Chambers::new(params, x0, p0a.max(1.0), t_gas);
     ch.b.pressure_pa = p0b.max(1.0);
@@ -597,7 +781,6 @@ fn replay_from(
         ThetaSource::Piston => 0.0,
         ThetaSource::ServoEncoder => 0.5 * model.servo.backlash_rad,
     };
-    let angle_rad = &data.ports_angle_rad;
     let mut piston = angle_rad.first().copied().unwrap_or(0.0);
     for i in 0..n {
         if i > 0 {
@@ -613,7 +796,7 @@ fn replay_from(
                 }
             }
             let at = |v: &[f64], k: usize| v.get(k).copied().unwrap_or(0.0);
-            let (x1, x2) = (at(&data.x_m, i - 1), at(&data.x_m, i));
+            let (x1, x2) = (at(&data.x_m, i - 1) - off, at(&data.x_m, i) - off);
             // The ports' phase: the logged angle `ports_delay_s` earlier (interpolated).
             let theta = |k: usize| -> f64 {
                 let pos = (k as f64 - lag).max(0.0);
@@ -720,7 +903,11 @@ pub fn full_of_raw(data: &Measured, band: &Band, ch: ChannelId, raw: &[f64]) -> 
 
 /// RMS of the band-filtered residual over every sample the channel is judged on.
 pub fn full_rms(data: &Measured, band: &Band, ch: ChannelId, raw: &[f64]) -> f64 {
-    let full = full_of_raw(data, band, ch, raw);
+    rms_of_full(data, band, ch, &full_of_raw(data, band, ch, raw))
+}
+
+/// [`full_rms`] of a residual already band-filtered at every sample ([`full_of_raw`]).
+pub fn rms_of_full(data: &Measured, band: &Band, ch: ChannelId, full: &[f64]) -> f64 {
     let mask = band.mask(data, ch);
     let (s, c) = full
         .iter()
@@ -731,5 +918,31 @@ pub fn full_rms(data: &Measured, band: &Band, ch: ChannelId, raw: &[f64]) -> f64
         0.0
     } else {
         (s / c as f64).sqrt()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_homing_offset_is_bounded_by_the_push_on_the_heads_contact() {
+        let mut model = MachineModel::reference();
+        let step = super::super::select::resolution(ChannelId::Encoder, &model);
+        let push = f64::from(fpc::sensing::homing::HomingConfig::reference().force_limit_n);
+        // One sign (into head A), and a few microns on the reference contact (5e7 N/m).
+        let (lo, hi) = position_offset_bounds(&model);
+        assert_eq!(lo, 0.0);
+        let contact = push / model.piston.stop_stiffness_n_per_m;
+        assert!((hi - (contact + step)).abs() < 1e-12, "{hi}");
+        assert!(
+            hi > 5e-6 && hi < 15e-6,
+            "{hi}: the reference's 8 µm contact + one step"
+        );
+        // A stiffer head gives less; a soft one never more than the outer bound.
+        model.piston.stop_stiffness_n_per_m *= 10.0;
+        assert!(position_offset_bounds(&model).1 < hi);
+        model.piston.stop_stiffness_n_per_m = 1e3;
+        assert_eq!(position_offset_bounds(&model).1, MAX_POSITION_OFFSET_M);
     }
 }

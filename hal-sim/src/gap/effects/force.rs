@@ -3,6 +3,7 @@
 //! and an actuator lag.
 
 use fpc::physics::friction::stribeck_shape;
+use rayon::prelude::*;
 
 use crate::plant::model::{model_key, model_section};
 use crate::signal::xcorr_lag;
@@ -10,7 +11,7 @@ use crate::signal::xcorr_lag;
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::{lstsq, minimise_1d_par};
 use super::super::residuals::{
-    acting_motor_force_n, force_raw, force_terms, tangential_mps, ChannelId,
+    acting_motor_force_n, force_raw, force_terms, shifted, tangential_mps, ChannelId,
 };
 use super::{harmonics, kept_span, kept_x, Ctx, EffectKind, Proposal, MAX_LAG_S};
 
@@ -177,14 +178,21 @@ fn periodogram(
     freqs: impl Iterator<Item = f64>,
     second: bool,
 ) -> Option<f64> {
+    // Every frequency on every core, then scanned in order (the first of equal ones wins,
+    // as one thread would find it).
+    let freqs: Vec<f64> = freqs.collect();
+    let scan: Vec<Option<(f64, f64)>> = freqs
+        .par_iter()
+        .map(|&f| {
+            let mut cols = base.to_vec();
+            cols.extend(harmonics(x, f, second));
+            lstsq(&cols, y).map(|(_, rss)| (f, rss))
+        })
+        .collect();
     let mut best: Option<(f64, f64)> = None;
-    for f in freqs {
-        let mut cols = base.to_vec();
-        cols.extend(harmonics(x, f, second));
-        if let Some((_, rss)) = lstsq(&cols, y) {
-            if best.is_none_or(|b| rss < b.1) {
-                best = Some((f, rss));
-            }
+    for (f, rss) in scan.into_iter().flatten() {
+        if best.is_none_or(|b| rss < b.1) {
+            best = Some((f, rss));
         }
     }
     best.map(|b| b.0)
@@ -261,9 +269,18 @@ pub(super) fn actuator_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
         .zip(&d.d2x_mps2)
         .map(|(f, a)| f.motor_needed_n(model.piston.mass_kg, *a))
         .collect();
+    // The motor forces summed once; each delay only shifts them.
+    let motors: Vec<f64> = d
+        .f_master_n
+        .iter()
+        .zip(&d.f_slave_n)
+        .map(|(a, b)| a + b)
+        .collect();
     let rss = |delay: f64| -> Option<f64> {
-        let late = acting_motor_force_n(d, delay.max(0.0));
-        let raw: Vec<f64> = fixed.iter().zip(&late).map(|(f, m)| f - m).collect();
+        let mut raw = shifted(&motors, (delay.max(0.0) + d.force_align_s) / d.dt_s);
+        for (r, f) in raw.iter_mut().zip(&fixed) {
+            *r = f - *r;
+        }
         Some(super::super::fit::sumsq(&ctx.band.kept(
             d,
             ChannelId::Force,

@@ -10,17 +10,55 @@ use super::super::fit::{gauss_newton_nonneg, minimise_1d_par};
 use super::super::residuals::{channel_raw, kept_of_raw, Band, ChannelId};
 use super::{Ctx, EffectKind, Proposal};
 
-/// Longest stretch of a log the pressure candidates' parameter searches replay, s: each
-/// search replays the chambers 15–20 times, and [`PRESSURE_SEARCH_S`] of a compressor run
-/// (several cycles) or of a closed-port campaign pins a leak gap, a UA or an area as well as
-/// the whole log. The candidate is then judged on the whole log.
+/// Stretch of a log the pressure candidates' parameter searches replay, s: each search
+/// replays the chambers 15–20 times, and [`PRESSURE_SEARCH_S`] of a compressor run (several
+/// cycles) or of a closed-port campaign pins a leak gap, a UA or an area as well as the
+/// whole log. On ports timed by the rotation it is lengthened to hold
+/// [`PRESSURE_SEARCH_CYCLES`] cycles after the bypass closes ([`search_s`]). The candidate
+/// is then judged on the whole log.
 pub const PRESSURE_SEARCH_S: f64 = 1.5;
 
-/// The data and band the pressure searches run on: the first [`PRESSURE_SEARCH_S`] (of a
+/// Fewest cycles of the ports timed by the rotation that the pressure searches see.
+///
+/// Why: 1.5 s is several cycles at the speeds the workflow was validated at, but at 0.3 m/s
+/// a cycle lasts 1.27 s and our runs' bypass closes at 0.93 s: the search saw less than
+/// half a compression. The piston seal's leak (A↔B) and the rod seals' (to ambient) are
+/// then nearly one direction, and where the search had only the first port opening after
+/// the bypass to tell them apart, it fitted 10.7 and 34.7 µm for 25 and 10 µm once that
+/// opening was no longer judged ([`crate::gap::residuals::ports_resolved`]): `heat_transfer`
+/// was named in its place. Over two cycles: 25.0 and 10.2 µm.
+pub const PRESSURE_SEARCH_CYCLES: f64 = 2.0;
+
+/// How long the pressure searches' stretch is on `data`, s: [`PRESSURE_SEARCH_S`], or on
+/// rotation-timed ports up to [`PRESSURE_SEARCH_CYCLES`] cycles after `# ports_from_s` (a
+/// cycle is a turn of the ports' angle, at its mean speed over the timed part of the log).
+fn search_s(data: &Measured) -> f64 {
+    if data.ports != PortsMeta::Open {
+        return PRESSURE_SEARCH_S;
+    }
+    let t_first = data.t_s.first().copied().unwrap_or(0.0);
+    let from = data.ports_from_s.unwrap_or(t_first).max(t_first);
+    let i0 = data.t_s.iter().position(|t| *t >= from).unwrap_or(0);
+    let (Some(a0), Some(a1), Some(t0), Some(t1)) = (
+        data.ports_angle_rad.get(i0),
+        data.ports_angle_rad.last(),
+        data.t_s.get(i0),
+        data.t_s.last(),
+    ) else {
+        return PRESSURE_SEARCH_S;
+    };
+    let speed = (a1 - a0).abs() / (t1 - t0);
+    if !(speed.is_finite() && speed > 0.0) {
+        return PRESSURE_SEARCH_S;
+    }
+    PRESSURE_SEARCH_S.max(from - t_first + PRESSURE_SEARCH_CYCLES * std::f64::consts::TAU / speed)
+}
+
+/// The data and band the pressure searches run on: the first [`search_s`] (of a
 /// closed-port log with `# ports_from_s`: from [`PRESSURE_SEARCH_LEAD_S`] before it) of the
 /// log, or the whole log if it is shorter (then `None`: use `ctx` itself).
 fn pressure_search(ctx: &Ctx<'_>) -> Option<(Measured, Band)> {
-    let n = (PRESSURE_SEARCH_S / ctx.data.dt_s).round() as usize;
+    let n = (search_s(ctx.data) / ctx.data.dt_s).round() as usize;
     // A closed-port campaign's leak and heat transfer show only while the chambers are
     // sealed: its search begins where the sealing does (a bench log starts with the homing,
     // bypassed), less a little rest the replay starts from. An open-port log's search keeps
