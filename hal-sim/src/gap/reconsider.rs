@@ -1,0 +1,229 @@
+//! The end of selection: each discovered term judged once more against the named force
+//! effects not in the final model (`reconsider_terms`). Forward selection adds one candidate
+//! at a time, and a basis term can take a step from a named effect it only resembles; here
+//! it gives it back where the named effect explains as much (see `reconsider_terms`).
+
+use rayon::prelude::*;
+use std::cell::RefCell;
+
+use super::doc::{Edit, ModelDoc};
+use super::effects::{Ctx, EffectKind};
+use super::residuals::{residual, ChannelId};
+use super::select::{
+    effective_n, judge_proposal, outdone_by_basis, prune_terms, Judged, MAX_EFFECTS, MIN_DELTA_BIC,
+};
+use crate::plant::model::extra_force::Term;
+use crate::plant::model::model_section;
+
+/// The named force effects a discovered term can be judged against at the end of selection.
+const FORCE_NAMED: [EffectKind; 6] = [
+    EffectKind::MassError,
+    EffectKind::CoulombFriction,
+    EffectKind::ViscousFriction,
+    EffectKind::StribeckFriction,
+    EffectKind::Cogging,
+    EffectKind::ActuatorLag,
+];
+
+/// The number of parameters of `doc`'s discovered terms (with the period, if fitted).
+fn term_params(doc: &ModelDoc) -> usize {
+    let (terms, period) = super::discover::present_terms(doc);
+    terms.len() + usize::from(period.is_some())
+}
+
+/// `doc` without the named effect `kind`: its section removed, or the values it corrects
+/// set back to `input`'s (`None` if it cannot be fitted here to know its keys).
+fn without_named(
+    ctx: &Ctx<'_>,
+    input: &ModelDoc,
+    doc: &ModelDoc,
+    kind: EffectKind,
+) -> Option<ModelDoc> {
+    if let Some(section) = kind.section() {
+        return Some(doc.with(&[Edit::RemoveSection(section)]));
+    }
+    let p = kind.propose(ctx, doc)?;
+    let edits: Vec<Edit> = p
+        .edits
+        .iter()
+        .filter_map(|e| match e {
+            Edit::Set(k, _) => Some(Edit::Set(*k, input.number(*k)?)),
+            _ => None,
+        })
+        .collect();
+    Some(doc.with(&edits))
+}
+
+/// One alternative of [`reconsider_terms`]: the discovered `term` (the periodic pair
+/// together) replaced by the named force effect `kind`, everything refitted. Returns the
+/// model just without and just with `kind`, its judgement as if added last, and the force
+/// residual's RSS; `None` if `kind` then fails the selection's rules.
+fn swap_term(
+    ctx: &Ctx<'_>,
+    input: &ModelDoc,
+    doc: &ModelDoc,
+    term: Term,
+    kind: EffectKind,
+    named: &[EffectKind],
+) -> Option<(ModelDoc, ModelDoc, Option<Judged>, f64)> {
+    let (without, _) = super::discover::without_term(ctx, doc, term)?;
+    // A constant left alone was the removed term's origin (a form about a rest point).
+    let (rest, _) = super::discover::present_terms(&without);
+    let without = if rest.iter().all(|t| *t == Term::One) {
+        without.with(&[Edit::RemoveSection(model_section!(effects.extra_force))])
+    } else {
+        without
+    };
+    let force_rss = |d: &ModelDoc| -> Option<f64> {
+        Some(residual(ctx.data, ctx.band, &d.model().ok()?, ChannelId::Force)?.rss())
+    };
+    let first = kind.propose(ctx, &without)?;
+    let mut alt = without.with(&first.edits);
+    // Back-fitting, as the selection does: each named force effect once more with the
+    // others in place, then the discovered terms left.
+    for k in named.iter().copied().chain([kind]) {
+        let Some(p) = k.propose(ctx, &alt) else {
+            continue;
+        };
+        let next = alt.with(&p.edits);
+        if force_rss(&next)? < force_rss(&alt)? {
+            alt = next;
+        }
+    }
+    if let Some(p) = super::discover::refit(ctx, &alt) {
+        let next = alt.with(&p.edits);
+        if force_rss(&next)? < force_rss(&alt)? {
+            alt = next;
+        }
+    }
+    let alt = prune_terms(ctx, alt);
+    // The named effect judged as if added last, with the same competition as in selection.
+    let base = without_named(ctx, input, &alt, kind)?;
+    let before = residual(ctx.data, ctx.band, &base.model().ok()?, ChannelId::Force)?;
+    let p = kind.propose(ctx, &base)?;
+    let j = judge_proposal(ctx, &base, p, &before)?;
+    if outdone_by_basis(ctx, &base, &j, &before, &RefCell::new(Vec::new())) {
+        return None;
+    }
+    if !j.significant() {
+        // Already named, and without the term it no longer passes: it only made up for the
+        // term (a friction refitted around `f_motor`'s friction share). The alternative
+        // is the model without either.
+        return named.contains(&kind).then(|| {
+            let rss = force_rss(&base).unwrap_or(f64::INFINITY);
+            (base.clone(), base, None, rss)
+        });
+    }
+    let alt = base.with(&j.proposal.edits);
+    let rss = force_rss(&alt)?;
+    Some((base, alt, Some(j), rss))
+}
+
+/// Discovered terms judged once more against the named force effects not in the final
+/// model. Forward selection adds one candidate at a time, and a term can take a step from
+/// a named effect it only resembles there, then keep it:
+/// - `f_motor` (the motor force lower than logged) is nearly the mass's regressor where the
+///   force is mostly inertia, and it also scales the force balancing a second hidden
+///   effect, so on a log hiding a mass error and another force it explains more than the
+///   mass at the first step; the friction is then refitted to make up for its friction
+///   share, and the mass is never judged against it again;
+/// - a bare `sgn(v)` has no sign bound, while Coulomb friction fitted with another effect
+///   still missing (an actuator lag) can ask for a negative level and be dropped; once the
+///   other effect is in, nothing turns the term back into the friction.
+///
+/// So, once selection ends, each discovered term (the periodic pair as one) is replaced in
+/// turn by each named force effect not in the model, everything refitted; the named effect
+/// must pass the selection's rules as if added last (significance, and no `k` basis
+/// parameters explaining significantly more). The best such model replaces the current one
+/// unless the current one is better by [`MIN_DELTA_BIC`] (`ΔBIC` over the force channel's
+/// effective sample size, counting every parameter): the preference selection gives a
+/// named effect. Where the two forms cannot be told apart, they are not: a force-constant
+/// error scales the whole motor force — what balances inertia, friction and the gas force
+/// — while a mass error scales only the inertia; a log whose motor force is nearly all
+/// inertia (vented, little friction) cannot tell a force-constant error from a mass error,
+/// and there the mass is named.
+pub(super) fn reconsider_terms(
+    ctx: &Ctx<'_>,
+    input: &ModelDoc,
+    mut doc: ModelDoc,
+    added: &mut Vec<Judged>,
+    steps: &mut Vec<(ModelDoc, ModelDoc)>,
+) -> ModelDoc {
+    // Each swap removes a term: at most as many rounds as there are terms.
+    for _ in 0..MAX_EFFECTS {
+        let (terms, _) = super::discover::present_terms(&doc);
+        let Some(cur) = doc
+            .model()
+            .ok()
+            .and_then(|m| residual(ctx.data, ctx.band, &m, ChannelId::Force))
+        else {
+            return doc;
+        };
+        let named: Vec<EffectKind> = added.iter().map(|a| a.proposal.kind).collect();
+        let mut pairs: Vec<(Term, EffectKind)> = Vec::new();
+        for t in terms
+            .iter()
+            .copied()
+            .filter(|t| *t != Term::One && *t != Term::Cos)
+        {
+            for k in FORCE_NAMED {
+                // A named effect not in the model, or one in it whose own form the term is
+                // (folded into it: its law already holds that force).
+                if !named.contains(&k) || k.basis_form().contains(&t) {
+                    pairs.push((t, k));
+                }
+            }
+        }
+        if pairs.is_empty() {
+            return doc;
+        }
+        let nf = effective_n(&cur.kept);
+        let rss_cur = cur.rss();
+        let k_cur = term_params(&doc) as f64;
+        let best = pairs
+            .par_iter()
+            .filter_map(|&(t, k)| {
+                let (base, alt, j, rss) = swap_term(ctx, input, &doc, t, k, &named)?;
+                // The named effects in both are the same but `k`: new, refitted or dropped.
+                let k_named = match (&j, named.contains(&k)) {
+                    (Some(j), false) => j.proposal.k as f64,
+                    (Some(_), true) => 0.0,
+                    (None, _) => {
+                        -(added
+                            .iter()
+                            .find(|a| a.proposal.kind == k)
+                            .map_or(0, |a| a.proposal.k) as f64)
+                    }
+                };
+                let k_alt = term_params(&alt) as f64 + k_named;
+                let d = nf * (rss / rss_cur).ln() + (k_alt - k_cur) * nf.ln();
+                (rss > 0.0 && rss_cur > 0.0 && d < MIN_DELTA_BIC).then_some((d, k, base, alt, j))
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        let Some((_, kind, base, alt, j)) = best else {
+            return doc;
+        };
+        doc = alt;
+        if !doc.has_section(model_section!(effects.extra_force)) {
+            if let Some(i) = added.iter().position(|a| !a.proposal.kind.named()) {
+                added.remove(i);
+                steps.remove(i);
+            }
+        }
+        match (j, added.iter().position(|a| a.proposal.kind == kind)) {
+            // Folded into an effect already named: its parameters are refitted.
+            (Some(j), Some(i)) => added[i].proposal = j.proposal,
+            (Some(j), None) => {
+                steps.push((base, doc.clone()));
+                added.push(j);
+            }
+            // It only made up for the term: dropped with it.
+            (None, Some(i)) => {
+                added.remove(i);
+                steps.remove(i);
+            }
+            (None, None) => {}
+        }
+    }
+    doc
+}
