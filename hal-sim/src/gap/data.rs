@@ -609,23 +609,35 @@ pub fn angle_through_crossings(theta_rad: &[f64]) -> Vec<f64> {
     let (Some(&first), Some(&last)) = (crossings.first(), crossings.last()) else {
         return theta_rad.to_vec();
     };
-    let mut next = 0;
-    (0..theta_rad.len())
-        .map(|i| {
-            let t = i as f64;
-            while crossings.get(next).is_some_and(|c| c.0 <= t) {
-                next += 1;
-            }
-            match (
-                next.checked_sub(1).and_then(|k| crossings.get(k)),
-                crossings.get(next),
-            ) {
-                (Some(&(t0, a0)), Some(&(t1, a1))) => a0 + (a1 - a0) * (t - t0) / (t1 - t0),
-                (None, _) => first.1,
-                (_, None) => last.1,
-            }
+    around_crossings(&crossings, theta_rad.len())
+        .map(|(t, before, after)| match (before, after) {
+            (Some(&(t0, a0)), Some(&(t1, a1))) => a0 + (a1 - a0) * (t - t0) / (t1 - t0),
+            (None, _) => first.1,
+            (_, None) => last.1,
         })
         .collect()
+}
+
+/// A counted angle's crossing: (row, angle).
+type Crossing = (f64, f64);
+
+/// Each of `rows` rows with the crossings just before and after it, in order.
+fn around_crossings(
+    crossings: &[Crossing],
+    rows: usize,
+) -> impl Iterator<Item = (f64, Option<&Crossing>, Option<&Crossing>)> {
+    let mut next = 0;
+    (0..rows).map(move |i| {
+        let t = i as f64;
+        while crossings.get(next).is_some_and(|c| c.0 <= t) {
+            next += 1;
+        }
+        (
+            t,
+            next.checked_sub(1).and_then(|k| crossings.get(k)),
+            crossings.get(next),
+        )
+    })
 }
 
 /// The crossings of a counted angle's edges, as [`angle_through_crossings`] places them:
@@ -668,20 +680,10 @@ pub fn count_quantum(theta_rad: &[f64]) -> f64 {
 /// ([`count_crossings`]); infinite before the first crossing and after the last.
 pub fn count_spans_rows(theta_rad: &[f64]) -> Vec<f64> {
     let crossings = count_crossings(theta_rad).unwrap_or_default();
-    let mut next = 0;
-    (0..theta_rad.len())
-        .map(|i| {
-            let t = i as f64;
-            while crossings.get(next).is_some_and(|c| c.0 <= t) {
-                next += 1;
-            }
-            match (
-                next.checked_sub(1).and_then(|k| crossings.get(k)),
-                crossings.get(next),
-            ) {
-                (Some(&(t0, _)), Some(&(t1, _))) => t1 - t0,
-                _ => f64::INFINITY,
-            }
+    around_crossings(&crossings, theta_rad.len())
+        .map(|(_, before, after)| match (before, after) {
+            (Some(&(t0, _)), Some(&(t1, _))) => t1 - t0,
+            _ => f64::INFINITY,
         })
         .collect()
 }

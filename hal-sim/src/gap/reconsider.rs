@@ -15,15 +15,13 @@ use super::select::{
 use crate::plant::model::extra_force::Term;
 use crate::plant::model::model_section;
 
-/// The named force effects a discovered term can be judged against at the end of selection.
-const FORCE_NAMED: [EffectKind; 6] = [
-    EffectKind::MassError,
-    EffectKind::CoulombFriction,
-    EffectKind::ViscousFriction,
-    EffectKind::StribeckFriction,
-    EffectKind::Cogging,
-    EffectKind::ActuatorLag,
-];
+/// The named force effects a discovered term can be judged against at the end of selection:
+/// the library's named effects on the force channel.
+fn force_named() -> impl Iterator<Item = EffectKind> {
+    EffectKind::ALL
+        .into_iter()
+        .filter(|k| k.named() && k.channel() == ChannelId::Force)
+}
 
 /// The number of parameters of `doc`'s discovered terms (with the period, if fitted).
 fn term_params(doc: &ModelDoc) -> usize {
@@ -166,7 +164,7 @@ pub(super) fn reconsider_terms(
             .copied()
             .filter(|t| *t != Term::One && *t != Term::Cos)
         {
-            for k in FORCE_NAMED {
+            for k in force_named() {
                 // A named effect not in the model, or one in it whose own form the term is
                 // (folded into it: its law already holds that force).
                 if !named.contains(&k) || k.basis_form().contains(&t) {

@@ -341,13 +341,19 @@ fn actuator_delay_s(model: &MachineModel) -> f64 {
 /// realigned by the log's convention (`data.force_align_s`) and late by the model's
 /// actuator lag `delay_s`.
 pub fn acting_motor_force_n(data: &Measured, delay_s: f64) -> Vec<f64> {
-    let motors: Vec<f64> = data
-        .f_master_n
+    shifted(
+        &motor_sum_n(data),
+        (delay_s + data.force_align_s) / data.dt_s,
+    )
+}
+
+/// Both sections' reported forces summed at each row, N (as logged, not realigned).
+pub fn motor_sum_n(data: &Measured) -> Vec<f64> {
+    data.f_master_n
         .iter()
         .zip(&data.f_slave_n)
         .map(|(a, b)| a + b)
-        .collect();
-    shifted(&motors, (delay_s + data.force_align_s) / data.dt_s)
+        .collect()
 }
 
 /// The tangential sliding speed ω·r at every sample, m/s.

@@ -11,7 +11,7 @@ use crate::signal::xcorr_lag;
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::{lstsq, minimise_1d_par};
 use super::super::residuals::{
-    acting_motor_force_n, force_raw, force_terms, shifted, tangential_mps, ChannelId,
+    acting_motor_force_n, force_raw, force_terms, motor_sum_n, shifted, tangential_mps, ChannelId,
 };
 use super::{harmonics, kept_span, kept_x, Ctx, EffectKind, Proposal, MAX_LAG_S};
 
@@ -270,12 +270,7 @@ pub(super) fn actuator_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
         .map(|(f, a)| f.motor_needed_n(model.piston.mass_kg, *a))
         .collect();
     // The motor forces summed once; each delay only shifts them.
-    let motors: Vec<f64> = d
-        .f_master_n
-        .iter()
-        .zip(&d.f_slave_n)
-        .map(|(a, b)| a + b)
-        .collect();
+    let motors = motor_sum_n(d);
     let rss = |delay: f64| -> Option<f64> {
         let mut raw = shifted(&motors, (delay.max(0.0) + d.force_align_s) / d.dt_s);
         for (r, f) in raw.iter_mut().zip(&fixed) {
