@@ -24,6 +24,7 @@ pub mod discover;
 pub mod doc;
 pub mod effects;
 pub mod fit;
+mod offset;
 mod reconsider;
 pub mod report;
 pub mod residuals;
