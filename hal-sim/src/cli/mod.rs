@@ -123,3 +123,37 @@ where
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::Cli;
+    use clap::{CommandFactory, Parser};
+
+    /// clap's own checks of the whole command tree: no two arguments of a command (global
+    /// ones included) share a name or a flag, every default parses.
+    #[test]
+    fn the_command_line_is_well_formed() {
+        Cli::command().debug_assert();
+    }
+
+    /// The link's target options may follow the subcommand, and `send start` keeps its own
+    /// `--speed`.
+    #[test]
+    fn link_options_follow_a_subcommand() {
+        let cli = Cli::try_parse_from([
+            "fpc-sim", "link", "send", "start", "--speed", "2.3", "--replay", "rec",
+        ]);
+        assert!(cli.is_ok(), "{:?}", cli.err());
+        let cli = Cli::try_parse_from([
+            "fpc-sim",
+            "link",
+            "scope",
+            "arm",
+            "--trigger",
+            "strokes:4",
+            "--replay",
+            "rec",
+        ]);
+        assert!(cli.is_ok(), "{:?}", cli.err());
+    }
+}

@@ -174,29 +174,31 @@ Examples:
 Prints `accepted: start --speed 2.3`, or `refused: start --speed 2.3: not homed: home the
 axis first` (exit 1). The controller checks every value against its limits.";
 
-/// Where the channels come from.
+/// Where the channels come from. All but `--speed` (which `send start` has as its own) are
+/// global: they may follow a subcommand (`fpc-sim link send home --replay rig-run`) as well as
+/// precede it.
 #[derive(Args, Debug)]
 struct Target {
     /// Play recorded channels (DIR/up0.bin, DIR/up1.bin, DIR/up2.bin, e.g. an earlier
     /// capture) instead of attaching to the board.
-    #[arg(long, value_name = "DIR")]
+    #[arg(long, value_name = "DIR", global = true)]
     replay: Option<PathBuf>,
     /// The chip to attach to (probe-rs name).
-    #[arg(long, default_value = CHIP)]
+    #[arg(long, default_value = CHIP, global = true)]
     chip: String,
     /// The firmware ELF that runs on the board: locates the RTT block and decodes defmt.
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, value_name = "FILE", global = true)]
     elf: Option<PathBuf>,
     /// Which probe: VID:PID or VID:PID:SERIAL (hex ids, as `probe-rs list` prints them);
     /// by default the only one connected.
-    #[arg(long, value_name = "VID:PID[:SN]", value_parser = probe_selector)]
+    #[arg(long, value_name = "VID:PID[:SN]", value_parser = probe_selector, global = true)]
     probe: Option<String>,
     /// SWD clock, kHz (by default the probe's).
     #[arg(long, value_name = "KHZ", value_parser = clap::value_parser!(u32).range(1..=100_000))]
     speed: Option<u32>,
     /// Hold the chip in reset while connecting (when it does not answer otherwise); this
     /// restarts the firmware.
-    #[arg(long)]
+    #[arg(long, global = true)]
     connect_under_reset: bool,
 }
 
