@@ -6,8 +6,16 @@ Every ```console block of README.md is a session: a line `$ CMD` is run, the lin
 may come between them (cargo's progress, for instance). In an expected line `…` stands for
 anything (wall-clock figures). `fpc-sim` commands run the release build
 (`target/release/fpc-sim`) in a scratch directory that sees the repository's `tests/` and
-`docs/`, so the tour writes nothing into the checkout; other commands (`cargo fw`, `bash
-scripts/…`) run in the repository.
+`docs/` (and `hal-sim/` for its reference model, `target/` for the firmware's ELF), so the tour writes nothing into the checkout;
+other commands (`cargo fw`, `bash scripts/…`) run in the repository.
+
+A document that shows a bench session declares the recording its `fpc-sim link` commands are
+played back from, in a comment line of its own:
+
+    <!-- check-readme: link --replay docs/examples/bench-session -->
+
+Each `fpc-sim link …` command of that document then runs with `--replay DIR` appended (the
+printed `earlier answer: …` lines are other lines, allowed between the expected ones).
 
 Usage: python3 scripts/check-readme.py [FILE...]   (default README.md; exit 1 naming every
 line that differs)
@@ -45,13 +53,21 @@ def sessions(text):
             current[2].append(line)
 
 
+def link_replay(text):
+    """The recording a document's `fpc-sim link` commands are played back from, if declared."""
+    found = re.search(r"^<!-- check-readme: link --replay (\S+) -->$", text, re.MULTILINE)
+    return found.group(1) if found else None
+
+
 def pattern(expected):
     parts = [re.escape(p) for p in expected.split("…")]
     return re.compile("^" + ".*?".join(parts) + "$")
 
 
-def run(command, scratch):
-    words = shlex.split(command)
+def run(command, scratch, replay=None):
+    words = shlex.split(command, comments=True)
+    if replay and words[:2] == ["fpc-sim", "link"]:
+        words += ["--replay", replay]
     if words[0] == "fpc-sim":
         words[0] = os.path.join(ROOT, "target", "release", "fpc-sim")
         cwd = scratch
@@ -65,10 +81,11 @@ def run(command, scratch):
 def check(label, text, scratch, failures):
     """Runs every session of one document; returns how many commands it ran."""
     count = 0
+    replay = link_replay(text)
     for number, command, expected in sessions(text):
         count += 1
         where = f"{label}:{number}"
-        code, lines = run(command, scratch)
+        code, lines = run(command, scratch, replay)
         problem = None
         if code != 0:
             problem = f"`{command}` exited {code}:\n  " + "\n  ".join(lines[-10:])
@@ -103,7 +120,7 @@ def main():
         # Each document's sessions in a scratch directory of their own, as a reader would
         # run them: two documents may write the same output folder.
         with tempfile.TemporaryDirectory(prefix="fpc-readme-") as scratch:
-            for linked in ("tests", "docs"):
+            for linked in ("tests", "docs", "target", "hal-sim"):
                 os.symlink(os.path.join(ROOT, linked), os.path.join(scratch, linked))
             ran = check(os.path.relpath(path, ROOT), text, scratch, failures)
         if ran == 0:
