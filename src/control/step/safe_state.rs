@@ -15,7 +15,7 @@ use crate::physics::port_timing::{PortGeometry, PortWindow};
 use crate::real::{clamp_f32, max_f32, min_f32, sqrt_f32};
 use crate::safety::faults::Fault;
 use crate::units::{PerSection, PhaseDuties};
-use core::f32::consts::{PI, TAU};
+use core::f32::consts::{FRAC_PI_2, PI, TAU};
 
 /// How fast the rotation turns to the venting phase before a park, rad/s (half a turn, the
 /// farthest, in 0.5 s).
@@ -334,13 +334,18 @@ impl ControlStep {
             FaultedBrake::Blind(left) => {
                 self.safe.brake = FaultedBrake::Blind(left.saturating_sub(1));
                 if left <= 1 && !self.safe.hold_quiet_s.is_nan() {
-                    // The shorter way to the target from where the rotation has coasted,
-                    // unless the turn decided goes the long way round.
+                    // From where the rotation has coasted, the way round decided: a turn
+                    // of about half a revolution is otherwise taken the other way once the
+                    // coast has made that way the shorter (a backward turn of 179.9°
+                    // applied forward: across the admission the turn was chosen to avoid,
+                    // −0.25 mm, issue #33). A short turn goes the shorter way, so a coast
+                    // past a target close by comes back to it.
                     let now = turn_phase(self.rotary.reference_rad);
                     let mut turn = turn_phase(self.safe.hold_quiet_s - now + PI) - PI;
-                    if self.safe.sealing_turn_rad < -PI && turn > 0.0 {
+                    let decided = self.safe.sealing_turn_rad;
+                    if decided < -FRAC_PI_2 && turn > 0.0 {
                         turn -= TAU;
-                    } else if self.safe.sealing_turn_rad > PI && turn < 0.0 {
+                    } else if decided > FRAC_PI_2 && turn < 0.0 {
                         turn += TAU;
                     }
                     self.rotary.reference_rad += turn;
