@@ -15,7 +15,7 @@ use crate::physics::port_timing::{PortGeometry, PortWindow};
 use crate::real::{clamp_f32, max_f32, min_f32, sqrt_f32};
 use crate::safety::faults::Fault;
 use crate::units::{PerSection, PhaseDuties};
-use core::f32::consts::{PI, TAU};
+use core::f32::consts::{FRAC_PI_2, PI, TAU};
 
 /// How fast the rotation turns to the venting phase before a park, rad/s (half a turn, the
 /// farthest, in 0.5 s).
@@ -246,6 +246,18 @@ impl ControlStep {
     ///    can go back through its admission, the line driving the piston into the head
     ///    (−2.2 mm, 346 bar in the chamber ahead at PR 5.1, before this rule); the turn
     ///    the way the rotation runs cuts the admission off.
+    ///
+    ///    The chamber behind still on its line at the loss (as an expander: its admission,
+    ///    the stroke just begun, the piston near the head behind) also counts the time the
+    ///    turn spends in the *sealed* chamber's own admission window: the turn the way the
+    ///    rotation runs reaches its sealed arc through that window, so it seals the line's
+    ///    gas in a long column, which after taking the piston's energy expands back to
+    ///    suction over PR^(1/γ) = 2.2–3.2 times its volume — beyond the other head (five
+    ///    runs of the expander sweep, −0.02 mm). The other way round, the chamber behind
+    ///    stays on its line a little longer and the chamber ahead is sealed from its intake
+    ///    at the suction pressure (≥ 18.5 mm there). Later in the stroke the chamber ahead
+    ///    is short when sealed, and the turn away from the admission would put the line
+    ///    behind the piston for a whole window: there only the chamber behind counts.
     #[cold]
     #[inline(never)]
     pub(super) fn brake_without_position(&mut self) {
@@ -271,7 +283,8 @@ impl ControlStep {
             (&g.intake_a, &g.discharge_a)
         };
         // The chamber behind by the last trusted velocity: a turn that holds it on the
-        // discharge line drives the piston on toward the head (see above).
+        // discharge line drives the piston on toward the head (see above); on its line now,
+        // the sealed chamber's admission counts too (see above).
         let behind = if toward_b {
             &g.discharge_a
         } else {
@@ -282,6 +295,7 @@ impl ControlStep {
         // behind chamber on the line for the least time — the rotation going at full
         // torque from its speed now (against it, it must stop first) — and of those the
         // shortest.
+        let behind_on_line = turn_phase(phase - behind.open_rad) < behind.span_rad();
         let speed = self.rotary.servo.velocity_rad_s();
         let sc = &self.config.servo;
         let accel = max_f32(sc.torque_full_scale_nm / sc.inertia_kgm2, 1.0);
@@ -303,7 +317,10 @@ impl ControlStep {
                 [span - into, TAU - into]
             };
             for turn in turns {
-                let exposed = time_in_window(phase, turn, behind, speed, accel);
+                let mut exposed = time_in_window(phase, turn, behind, speed, accel);
+                if behind_on_line && !discharging {
+                    exposed += time_in_window(phase, turn, discharge, speed, accel);
+                }
                 best = match best {
                     Some((e, b)) if (e, b.abs()) <= (exposed, turn.abs()) => Some((e, b)),
                     _ => Some((exposed, turn)),
@@ -334,13 +351,18 @@ impl ControlStep {
             FaultedBrake::Blind(left) => {
                 self.safe.brake = FaultedBrake::Blind(left.saturating_sub(1));
                 if left <= 1 && !self.safe.hold_quiet_s.is_nan() {
-                    // The shorter way to the target from where the rotation has coasted,
-                    // unless the turn decided goes the long way round.
+                    // From where the rotation has coasted, the way round decided: a turn
+                    // of about half a revolution is otherwise taken the other way once the
+                    // coast has made that way the shorter (a backward turn of 179.9°
+                    // applied forward: across the admission the turn was chosen to avoid,
+                    // −0.25 mm, issue #33). A short turn goes the shorter way, so a coast
+                    // past a target close by comes back to it.
                     let now = turn_phase(self.rotary.reference_rad);
                     let mut turn = turn_phase(self.safe.hold_quiet_s - now + PI) - PI;
-                    if self.safe.sealing_turn_rad < -PI && turn > 0.0 {
+                    let decided = self.safe.sealing_turn_rad;
+                    if decided < -FRAC_PI_2 && turn > 0.0 {
                         turn -= TAU;
-                    } else if self.safe.sealing_turn_rad > PI && turn < 0.0 {
+                    } else if decided > FRAC_PI_2 && turn < 0.0 {
                         turn += TAU;
                     }
                     self.rotary.reference_rad += turn;
