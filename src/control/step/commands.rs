@@ -167,9 +167,15 @@ impl ControlStep {
                     return Ok(());
                 }
                 // A controlled stop ends on its own (outputs off once holding the piston needs
-                // no force): switching off earlier could let the gas throw the piston.
-                if matches!(self.mode, Mode::Stopping { .. }) {
-                    return Err(Refusal::Busy);
+                // no force): switching off earlier could let the gas throw the piston. Except
+                // the hold after a watchdog reset (not homed), which does not end by itself.
+                if let Mode::Stopping { setpoint, .. } = &self.mode {
+                    let holding_after_reset = self.sensing.zero_raw_m.is_none()
+                        && setpoint.velocity_mps == 0.0
+                        && self.safe.zeroing_sign == 0.0;
+                    if !holding_after_reset {
+                        return Err(Refusal::Busy);
+                    }
                 }
                 if self.sensing.encoders.master.cause_present()
                     || self.sensing.encoders.slave.cause_present()

@@ -58,7 +58,7 @@ impl ControlStep {
         self.supervision.limits = LimitFlags::default();
         let measured_force_n = s.force_master_n + s.force_slave_n;
         let dt = self.config.sample_time_s;
-        let setpoint = self.next_setpoint(s.raw_m, s.slave_raw_m, measured_force_n, dt);
+        let setpoint = self.next_setpoint(s, measured_force_n, dt);
         self.setpoint = setpoint.map(|(sp, _)| sp);
         setpoint
     }
@@ -82,15 +82,15 @@ impl ControlStep {
         }
     }
 
-    /// Advances the mode; returns the setpoint (position frame after homing) and the force
-    /// limit, or `None` when the outputs must be off.
+    /// Advances the mode with this cycle's sensing `s`; returns the setpoint (position frame
+    /// after homing) and the force limit, or `None` when the outputs must be off.
     pub(super) fn next_setpoint(
         &mut self,
-        raw_m: f32,
-        slave_raw_m: f32,
+        s: &Sensed,
         measured_force_n: f32,
         dt: f32,
     ) -> Option<(Setpoint, f32)> {
+        let (raw_m, slave_raw_m) = (s.raw_m, s.slave_raw_m);
         let limit = self.config.force_limit_n;
         match &mut self.mode {
             // The faulted state may still brake (`safe_state.rs`); the outputs are its own.
@@ -149,6 +149,10 @@ impl ControlStep {
                     self.mode = Mode::Holding(Setpoint::at_rest(sp.position_m));
                 }
                 Some((sp, limit))
+            }
+            // After a watchdog reset, until the measured velocity is zero (`safe_state.rs`).
+            Mode::Stopping { .. } if self.safe.zeroing_sign != 0.0 => {
+                Some((self.zero_velocity(s, measured_force_n, dt), limit))
             }
             Mode::Stopping { setpoint, then } => {
                 let brake = self.safe.stop_decel_mps2;
@@ -235,6 +239,7 @@ impl ControlStep {
         };
         self.safe.stop_decel_mps2 =
             self.stop_deceleration(setpoint.position_m, setpoint.velocity_mps);
+        self.safe.zeroing_sign = 0.0;
         self.estimator.stop_n = 0.0;
         self.mode = Mode::Stopping { setpoint, then };
     }

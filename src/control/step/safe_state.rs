@@ -8,6 +8,7 @@
 
 use super::actuate::RotaryAxis;
 use super::modes::{turn_phase, AfterStop, Mode};
+use super::sense::Sensed;
 use super::{ControlStep, CycleInputs};
 use crate::control::config::ControlConfig;
 use crate::motion::trajectory::Setpoint;
@@ -86,6 +87,12 @@ fn time_in_window(
 /// ≤ 26 mm/s; the controlled stop's loop takes over from there.
 pub const RESET_FIT_SAMPLES: usize = 6;
 
+/// The first velocity after a watchdog reset above which the stop brakes at full force until
+/// the measured velocity is zero ([`ControlStep::zero_velocity`]), m/s: ten times the first
+/// velocity's noise (≈ 5 mm/s) and twice its lag under the gas's push (≤ 26 mm/s), so a
+/// piston at rest (a hang at a dead point's rest) is stopped and held as before.
+pub const RESET_ZEROING_MPS: f32 = 0.05;
+
 /// The state of the stops and the reactions: the controlled stop's deceleration, SS1's hold
 /// window, the blind brake's sealing turn, what the faulted state still does, and each
 /// section's capability as configured.
@@ -108,6 +115,9 @@ pub(super) struct SafeState {
     pub nominal_capability: PerSection<f32>,
     /// SS1's rest turn before the outputs go off ([`ControlStep::turn_to_rest`]).
     pub rest: RestTurn,
+    /// After a watchdog reset, the direction (±1) of the measured velocity the stop brakes
+    /// at full force until it is zero ([`ControlStep::zero_velocity`]); 0 otherwise.
+    pub zeroing_sign: f32,
 }
 
 /// SS1's turn of the rotation, the piston held at rest, to the phase the outputs go off at
@@ -136,6 +146,7 @@ impl SafeState {
             brake: FaultedBrake::None,
             nominal_capability: config.allocation.capability,
             rest: RestTurn::Unplanned,
+            zeroing_sign: 0.0,
         }
     }
 }
@@ -377,12 +388,21 @@ impl ControlStep {
     /// Crossing the far chamber's discharge window on the way puts the line's pressure
     /// difference on the piston (2.5 kN at PR 5.1): one section alone holds 5 kN.
     ///
-    /// No turn without the heads' distance (after a watchdog reset, not homed) or with the
-    /// rotation itself faulted: the hold then ends on the force criterion alone.
+    /// No turn with the rotation itself faulted: the hold then ends on the force criterion
+    /// alone. After a watchdog reset (not homed: SS1 needs the zero) neither the heads'
+    /// distance nor the rotation's phase is known, so no turn can be chosen and nothing
+    /// says the gas will leave the piston still once the outputs are off: the hold
+    /// continues (never `true`) until the faults are cleared. Released on the force
+    /// criterion, a piston stopped 0.3 mm from head B as an expander (seed 6165, PR 3.7)
+    /// crept into it at 0.5 mm/s, its far chamber's pressure rising 6 kPa above the near
+    /// one's.
     #[cold]
     #[inline(never)]
     pub(super) fn turn_to_rest(&mut self, dt: f32) -> bool {
-        if self.sensing.zero_raw_m.is_none() || self.faults.contains(Fault::RotationSync) {
+        if self.sensing.zero_raw_m.is_none() {
+            return false;
+        }
+        if self.faults.contains(Fault::RotationSync) {
             self.safe.rest = RestTurn::Done;
         }
         let phase = turn_phase(self.rotary.reference_rad);
@@ -452,6 +472,16 @@ impl ControlStep {
         self.safe.hold_gas_ns = 0.0;
         self.safe.rest = RestTurn::Unplanned;
         self.safe.stop_decel_mps2 = self.stop_deceleration(self.status.position_m, 0.0);
+        // (NaN: not above the threshold, the planned stop.)
+        self.safe.zeroing_sign = if first.velocity_mps.abs() > RESET_ZEROING_MPS {
+            if first.velocity_mps > 0.0 {
+                1.0
+            } else {
+                -1.0
+            }
+        } else {
+            0.0
+        };
         self.estimator.stop_n = 0.0;
         self.mode = Mode::Stopping {
             setpoint: Setpoint {
@@ -461,6 +491,75 @@ impl ControlStep {
             },
             then: AfterStop::Off,
         };
+    }
+
+    /// A cycle of the stop after a watchdog reset while the piston still moves
+    /// ([`SafeState::zeroing_sign`]): full force against the measured velocity until it is
+    /// about to be zero, then the hold where the piston is; returns the cycle's setpoint.
+    ///
+    /// Why (issue #33): after the reset the sections' force rises from zero at the windings'
+    /// slew (`V_dc/√3 / L · K_f`, ≈ 215 N per cycle per section), while a stop planned on
+    /// the full deceleration is over within a few cycles: at a dead point as an expander
+    /// (seed 6165, 0.21 m/s, 0.3 mm from the head) the planned reference had ended at
+    /// 2.7 kN with the piston still at full speed, and the hold that followed (a 40 Hz
+    /// position loop, ≈ 0.6 kN at 0.12 m/s) let it creep a further 0.12 mm. Here the
+    /// setpoint follows the measured position and velocity (no feedback to fight) with the
+    /// stop's full deceleration as feed-forward, so the force keeps rising until the piston
+    /// has stopped.
+    ///
+    /// When it ends: the force, once no longer commanded, falls at the same slew, and
+    /// meanwhile still brakes: each section's `Fᵢ` takes `Fᵢ²/(2·slew)` of momentum more.
+    /// The phase ends once the measured velocity is down to what that takes (the sections'
+    /// shares by their capability); a non-finite velocity ends it too. The velocity estimate
+    /// lags the braking (its window was refilled with the first velocity's line), so the
+    /// phase ends late and the piston is thrown back at up to its approach speed, away from
+    /// the head it approached. The hold target is the measured position there, near where
+    /// the piston came to rest (not where a plan ended, behind it), and the hold continues
+    /// ([`ControlStep::turn_to_rest`]).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn zero_velocity(&mut self, s: &Sensed, measured_force_n: f32, dt: f32) -> Setpoint {
+        let c = &self.config;
+        let sign = self.safe.zeroing_sign;
+        let v = s.derivatives.velocity_mps;
+        let (cm, cs) = (
+            clamp_f32(c.allocation.capability.master, 0.0, 1.0),
+            clamp_f32(c.allocation.capability.slave, 0.0, 1.0),
+        );
+        let total = cm + cs;
+        // Σ Fᵢ² = F² · Σcᵢ²/(Σcᵢ)² with the force split by capability.
+        let spread = if total > 0.0 {
+            (cm * cm + cs * cs) / (total * total)
+        } else {
+            1.0
+        };
+        let m = &c.motor;
+        let slew_n_per_s = m.voltage_limit_v() / m.inductance_h * m.force_constant_n_per_a;
+        let braking_n = max_f32(-sign * measured_force_n, 0.0);
+        let still_lost_mps =
+            braking_n * braking_n * spread / (2.0 * slew_n_per_s * c.moving_mass_kg);
+        let mut sp = Setpoint {
+            position_m: s.position_m,
+            velocity_mps: v,
+            acceleration_mps2: -sign * self.safe.stop_decel_mps2,
+        };
+        // (NaN: ends.)
+        if !(sign * v > still_lost_mps) {
+            self.safe.zeroing_sign = 0.0;
+            sp = Setpoint::at_rest(s.position_m);
+        }
+        if let Mode::Stopping { setpoint, .. } = &mut self.mode {
+            *setpoint = sp;
+        }
+        // The stop's disturbance observer runs on, as in the planned stop.
+        sp.acceleration_mps2 -= self.estimator.observe_stop(
+            &self.config,
+            &self.status,
+            self.sensing.pressures.usable(),
+            measured_force_n,
+            dt,
+        ) / self.config.moving_mass_kg;
+        sp
     }
 }
 
