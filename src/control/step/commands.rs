@@ -172,7 +172,7 @@ impl ControlStep {
                 if let Mode::Stopping { setpoint, .. } = &self.mode {
                     let holding_after_reset = self.sensing.zero_raw_m.is_none()
                         && setpoint.velocity_mps == 0.0
-                        && self.safe.zeroing_sign == 0.0;
+                        && !matches!(self.safe.brake, FaultedBrake::Zeroing(_));
                     if !holding_after_reset {
                         return Err(Refusal::Busy);
                     }
@@ -247,10 +247,10 @@ mod tests {
             },
             then: AfterStop::Off,
         };
-        step.safe.zeroing_sign = 1.0;
+        step.safe.brake = FaultedBrake::Zeroing(1);
         assert_eq!(step.command(Command::ClearFaults), Err(Refusal::Busy));
         // Held at rest, not homed: the hold does not end by itself, the clear ends it.
-        step.safe.zeroing_sign = 0.0;
+        step.safe.brake = FaultedBrake::None;
         step.mode = Mode::Stopping {
             setpoint: Setpoint::at_rest(0.01),
             then: AfterStop::Off,

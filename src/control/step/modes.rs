@@ -2,7 +2,7 @@
 //! faulted, calibrating — and the setpoint each mode plans per cycle. What a fault's
 //! reaction does beyond starting a controlled stop is in `safe_state.rs`.
 
-use super::safe_state::RestTurn;
+use super::safe_state::{FaultedBrake, RestTurn};
 use super::sense::Sensed;
 use super::ControlStep;
 use crate::control::calibration::Calibration;
@@ -150,10 +150,6 @@ impl ControlStep {
                 }
                 Some((sp, limit))
             }
-            // After a watchdog reset, until the measured velocity is zero (`safe_state.rs`).
-            Mode::Stopping { .. } if self.safe.zeroing_sign != 0.0 => {
-                Some((self.zero_velocity(s, measured_force_n, dt), limit))
-            }
             Mode::Stopping { setpoint, then } => {
                 let brake = self.safe.stop_decel_mps2;
                 let v = setpoint.velocity_mps;
@@ -168,18 +164,11 @@ impl ControlStep {
                 setpoint.position_m += 0.5 * (v + v_next) * dt;
                 setpoint.velocity_mps = v_next;
                 setpoint.acceleration_mps2 = a;
-                let mut sp = *setpoint;
+                let planned = *setpoint;
                 let then = *then;
-                // The force the model does not know (an external load, the gas of a chamber
-                // whose sensor failed) is estimated and cancelled through the feed-forward:
-                // the position loop alone would yield 4 mm to 3 kN, near a head too much.
-                sp.acceleration_mps2 -= self.estimator.observe_stop(
-                    &self.config,
-                    &self.status,
-                    self.sensing.pressures.usable(),
-                    measured_force_n,
-                    dt,
-                ) / self.config.moving_mass_kg;
+                // With the stop's observer; after a watchdog reset braking on the measured
+                // velocity instead of the plan (`safe_state.rs`).
+                let sp = self.stop_setpoint(planned, s, measured_force_n, dt);
                 if v_next == 0.0 {
                     if then == AfterStop::Off && !(self.turn_to_rest(dt) && self.hold_released(dt))
                     {
@@ -239,7 +228,9 @@ impl ControlStep {
         };
         self.safe.stop_decel_mps2 =
             self.stop_deceleration(setpoint.position_m, setpoint.velocity_mps);
-        self.safe.zeroing_sign = 0.0;
+        if matches!(self.safe.brake, FaultedBrake::Zeroing(_)) {
+            self.safe.brake = FaultedBrake::None;
+        }
         self.estimator.stop_n = 0.0;
         self.mode = Mode::Stopping { setpoint, then };
     }
