@@ -464,6 +464,9 @@ fn s12_a_hung_task_resets_the_board_into_the_fault_state() {
             .position(|&t| t > (reset + 50) as f64 * 1e-6)
             .unwrap();
         assert_eq!(code[after], f64::from(Fault::WatchdogReset as u8), "{spec}");
+        // Neither the heads nor the rotation's phase known: the boot's hold does not end by
+        // itself (`docs/firmware.md`, "After a watchdog reset").
+        assert_eq!(r.final_mode, Some(ModeKind::Stopping), "{spec}");
         if spec != "task_hang@{b}" {
             continue;
         }

@@ -23,10 +23,11 @@
 //! (`hal_sim::sweep::run_each`, as `fpc-sim sweep`). `FPC_FAULT_SEEDS=361,951` runs only
 //! the named cases of the full sweep (the seeds its reports print), to reproduce a run.
 //!
-//! Status (issue #33): as a compressor 0 of 10,000 below 0.3 mm (≥ 0.417 mm). As an expander
-//! 1 of 10,000 (a task hang, 0.17 mm; both encoders lost ≥ 0.658 mm), every other kind
-//! ≥ 0.487 mm: the full expander sweep fails, so CI runs its first 1,000 (`.ci/run`), and
-//! its 24-run slice by default. Why, and what is missing: `docs/firmware.md`, "The fault sweep".
+//! Status (issue #33): 0 of 10,000 below 0.3 mm in each mode — as a compressor ≥ 0.417 mm,
+//! as an expander ≥ 0.324 mm (a task hang at a dead point, seed 6165; both encoders lost
+//! ≥ 0.658 mm, every other kind ≥ 0.487 mm). CI runs the first 1,000 of each (`.ci/run`),
+//! the default suite a 24-run slice of each. Figures and causes: `docs/firmware.md`, "The
+//! fault sweep".
 
 use std::sync::OnceLock;
 

@@ -167,9 +167,15 @@ impl ControlStep {
                     return Ok(());
                 }
                 // A controlled stop ends on its own (outputs off once holding the piston needs
-                // no force): switching off earlier could let the gas throw the piston.
-                if matches!(self.mode, Mode::Stopping { .. }) {
-                    return Err(Refusal::Busy);
+                // no force): switching off earlier could let the gas throw the piston. Except
+                // the hold after a watchdog reset (not homed), which does not end by itself.
+                if let Mode::Stopping { setpoint, .. } = &self.mode {
+                    let holding_after_reset = self.sensing.zero_raw_m.is_none()
+                        && setpoint.velocity_mps == 0.0
+                        && !matches!(self.safe.brake, FaultedBrake::Zeroing(_));
+                    if !holding_after_reset {
+                        return Err(Refusal::Busy);
+                    }
                 }
                 if self.sensing.encoders.master.cause_present()
                     || self.sensing.encoders.slave.cause_present()
@@ -224,6 +230,43 @@ mod tests {
     use super::*;
     use crate::control::calibration::store::LoadError;
     use crate::control::config::ControlConfig;
+    use crate::motion::trajectory::Setpoint;
+    use crate::safety::faults::ResetCause;
+
+    #[test]
+    fn the_hold_after_a_watchdog_reset_ends_on_clear_faults_not_the_braking_before_it() {
+        let mut step = ControlStep::new(ControlConfig::reference()).unwrap();
+        step.supply(true);
+        step.boot(ResetCause::Watchdog);
+        // Braking the measured velocity to zero: busy.
+        step.mode = Mode::Stopping {
+            setpoint: Setpoint {
+                position_m: 0.01,
+                velocity_mps: 0.2,
+                acceleration_mps2: -625.0,
+            },
+            then: AfterStop::Off,
+        };
+        step.safe.brake = FaultedBrake::Zeroing(1);
+        assert_eq!(step.command(Command::ClearFaults), Err(Refusal::Busy));
+        // Held at rest, not homed: the hold does not end by itself, the clear ends it.
+        step.safe.brake = FaultedBrake::None;
+        step.mode = Mode::Stopping {
+            setpoint: Setpoint::at_rest(0.01),
+            then: AfterStop::Off,
+        };
+        assert_eq!(step.command(Command::ClearFaults), Ok(()));
+        assert!(matches!(step.mode, Mode::Idle));
+        assert!(step.faults.is_empty());
+        // SS1's hold (homed) ends on its own force criterion: busy.
+        step.sensing.zero_raw_m = Some(0.0);
+        step.latch(Fault::Overspeed);
+        step.mode = Mode::Stopping {
+            setpoint: Setpoint::at_rest(0.01),
+            then: AfterStop::Off,
+        };
+        assert_eq!(step.command(Command::ClearFaults), Err(Refusal::Busy));
+    }
 
     #[test]
     fn without_a_stored_calibration_start_is_refused_but_home_and_calibrate_are_not() {

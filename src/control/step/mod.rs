@@ -243,8 +243,11 @@ impl ControlStep {
     /// [`RESET_FIT_SAMPLES`](safe_state::RESET_FIT_SAMPLES) samples gives its velocity (the
     /// differentiator's window is refilled with that line) the step brakes it in the
     /// encoders' own frame (the sin/cos angle commutates without the zero,
-    /// the incremental position holds it), as SS1 does, and releases the outputs once holding
-    /// needs no force. Where the heads are is unknown until homing; the fault stays latched.
+    /// the incremental position holds it): at full force until the measured velocity is
+    /// zero, then held there. The hold does not end by itself (with neither the heads'
+    /// distance nor the rotation's phase known, nothing says the gas will leave the piston
+    /// still once the outputs are off): `ClearFaults` ends it, outputs off. Where the heads
+    /// are is unknown until homing; the fault stays latched.
     pub fn boot(&mut self, cause: ResetCause) {
         if cause == ResetCause::Watchdog {
             // Its reaction waits for the velocity, then brakes (`Reaction::BrakeAfterReset`).

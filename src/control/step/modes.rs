@@ -2,7 +2,7 @@
 //! faulted, calibrating — and the setpoint each mode plans per cycle. What a fault's
 //! reaction does beyond starting a controlled stop is in `safe_state.rs`.
 
-use super::safe_state::RestTurn;
+use super::safe_state::{FaultedBrake, RestTurn};
 use super::sense::Sensed;
 use super::ControlStep;
 use crate::control::calibration::Calibration;
@@ -58,7 +58,7 @@ impl ControlStep {
         self.supervision.limits = LimitFlags::default();
         let measured_force_n = s.force_master_n + s.force_slave_n;
         let dt = self.config.sample_time_s;
-        let setpoint = self.next_setpoint(s.raw_m, s.slave_raw_m, measured_force_n, dt);
+        let setpoint = self.next_setpoint(s, measured_force_n, dt);
         self.setpoint = setpoint.map(|(sp, _)| sp);
         setpoint
     }
@@ -82,15 +82,15 @@ impl ControlStep {
         }
     }
 
-    /// Advances the mode; returns the setpoint (position frame after homing) and the force
-    /// limit, or `None` when the outputs must be off.
+    /// Advances the mode with this cycle's sensing `s`; returns the setpoint (position frame
+    /// after homing) and the force limit, or `None` when the outputs must be off.
     pub(super) fn next_setpoint(
         &mut self,
-        raw_m: f32,
-        slave_raw_m: f32,
+        s: &Sensed,
         measured_force_n: f32,
         dt: f32,
     ) -> Option<(Setpoint, f32)> {
+        let (raw_m, slave_raw_m) = (s.raw_m, s.slave_raw_m);
         let limit = self.config.force_limit_n;
         match &mut self.mode {
             // The faulted state may still brake (`safe_state.rs`); the outputs are its own.
@@ -164,18 +164,11 @@ impl ControlStep {
                 setpoint.position_m += 0.5 * (v + v_next) * dt;
                 setpoint.velocity_mps = v_next;
                 setpoint.acceleration_mps2 = a;
-                let mut sp = *setpoint;
+                let planned = *setpoint;
                 let then = *then;
-                // The force the model does not know (an external load, the gas of a chamber
-                // whose sensor failed) is estimated and cancelled through the feed-forward:
-                // the position loop alone would yield 4 mm to 3 kN, near a head too much.
-                sp.acceleration_mps2 -= self.estimator.observe_stop(
-                    &self.config,
-                    &self.status,
-                    self.sensing.pressures.usable(),
-                    measured_force_n,
-                    dt,
-                ) / self.config.moving_mass_kg;
+                // With the stop's observer; after a watchdog reset braking on the measured
+                // velocity instead of the plan (`safe_state.rs`).
+                let sp = self.stop_setpoint(planned, s, measured_force_n, dt);
                 if v_next == 0.0 {
                     if then == AfterStop::Off && !(self.turn_to_rest(dt) && self.hold_released(dt))
                     {
@@ -235,6 +228,9 @@ impl ControlStep {
         };
         self.safe.stop_decel_mps2 =
             self.stop_deceleration(setpoint.position_m, setpoint.velocity_mps);
+        if matches!(self.safe.brake, FaultedBrake::Zeroing(_)) {
+            self.safe.brake = FaultedBrake::None;
+        }
         self.estimator.stop_n = 0.0;
         self.mode = Mode::Stopping { setpoint, then };
     }

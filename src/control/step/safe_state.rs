@@ -8,6 +8,7 @@
 
 use super::actuate::RotaryAxis;
 use super::modes::{turn_phase, AfterStop, Mode};
+use super::sense::Sensed;
 use super::{ControlStep, CycleInputs};
 use crate::control::config::ControlConfig;
 use crate::motion::trajectory::Setpoint;
@@ -86,6 +87,12 @@ fn time_in_window(
 /// ≤ 26 mm/s; the controlled stop's loop takes over from there.
 pub const RESET_FIT_SAMPLES: usize = 6;
 
+/// The first velocity after a watchdog reset above which the stop brakes at full force until
+/// the measured velocity is zero ([`ControlStep::stop_setpoint`]), m/s: ten times the first
+/// velocity's noise (≈ 5 mm/s) and twice its lag under the gas's push (≤ 26 mm/s), so a
+/// piston at rest (a hang at a dead point's rest) is stopped and held as before.
+pub const RESET_ZEROING_MPS: f32 = 0.05;
+
 /// The state of the stops and the reactions: the controlled stop's deceleration, SS1's hold
 /// window, the blind brake's sealing turn, what the faulted state still does, and each
 /// section's capability as configured.
@@ -151,6 +158,10 @@ pub(super) enum FaultedBrake {
     /// Both encoders lost: cycles of outputs off left before the windings are
     /// short-circuited (0: shorted; [`ControlStep::brake_without_position`]).
     Blind(u16),
+    /// After a watchdog reset, the stop braking at full force against the measured velocity
+    /// until it is zero (its direction, +1 or −1; [`ControlStep::stop_setpoint`]): the
+    /// continuation of the brake after the reset.
+    Zeroing(i16),
 }
 
 impl ControlStep {
@@ -346,7 +357,7 @@ impl ControlStep {
     #[inline(never)]
     pub(super) fn faulted_cycle(&mut self) {
         match self.safe.brake {
-            FaultedBrake::None => {}
+            FaultedBrake::None | FaultedBrake::Zeroing(_) => {}
             FaultedBrake::AfterReset(_) => self.brake_after_reset(),
             FaultedBrake::Blind(left) => {
                 self.safe.brake = FaultedBrake::Blind(left.saturating_sub(1));
@@ -399,12 +410,21 @@ impl ControlStep {
     /// Crossing the far chamber's discharge window on the way puts the line's pressure
     /// difference on the piston (2.5 kN at PR 5.1): one section alone holds 5 kN.
     ///
-    /// No turn without the heads' distance (after a watchdog reset, not homed) or with the
-    /// rotation itself faulted: the hold then ends on the force criterion alone.
+    /// No turn with the rotation itself faulted: the hold then ends on the force criterion
+    /// alone. After a watchdog reset (not homed: SS1 needs the zero) neither the heads'
+    /// distance nor the rotation's phase is known, so no turn can be chosen and nothing
+    /// says the gas will leave the piston still once the outputs are off: the hold
+    /// continues (never `true`) until the faults are cleared. Released on the force
+    /// criterion, a piston stopped 0.3 mm from head B as an expander (seed 6165, PR 3.7)
+    /// crept into it at 0.5 mm/s, its far chamber's pressure rising 6 kPa above the near
+    /// one's.
     #[cold]
     #[inline(never)]
     pub(super) fn turn_to_rest(&mut self, dt: f32) -> bool {
-        if self.sensing.zero_raw_m.is_none() || self.faults.contains(Fault::RotationSync) {
+        if self.sensing.zero_raw_m.is_none() {
+            return false;
+        }
+        if self.faults.contains(Fault::RotationSync) {
             self.safe.rest = RestTurn::Done;
         }
         let phase = turn_phase(self.rotary.reference_rad);
@@ -474,6 +494,10 @@ impl ControlStep {
         self.safe.hold_gas_ns = 0.0;
         self.safe.rest = RestTurn::Unplanned;
         self.safe.stop_decel_mps2 = self.stop_deceleration(self.status.position_m, 0.0);
+        // (NaN: not above the threshold, the planned stop.)
+        if first.velocity_mps.abs() > RESET_ZEROING_MPS {
+            self.safe.brake = FaultedBrake::Zeroing(if first.velocity_mps > 0.0 { 1 } else { -1 });
+        }
         self.estimator.stop_n = 0.0;
         self.mode = Mode::Stopping {
             setpoint: Setpoint {
@@ -483,6 +507,95 @@ impl ControlStep {
             },
             then: AfterStop::Off,
         };
+    }
+
+    /// The setpoint of a controlled stop's cycle: `planned` (the stop's plan, advanced this
+    /// cycle) with the force the model does not know cancelled through the feed-forward (an
+    /// external load, the gas of a chamber whose sensor failed: the position loop alone
+    /// would yield 4 mm to 3 kN, near a head too much; [`observe_stop`](super::estimate::Estimator::observe_stop)) — or,
+    /// after a watchdog reset while the piston still moves ([`FaultedBrake::Zeroing`]), full
+    /// force against the measured velocity until it is about to be zero, then the hold
+    /// where the piston is. Out of line, in place of the observer's own call: a guarded arm
+    /// in the mode machine cost the running step 10 instructions.
+    ///
+    /// Why (issue #33): after the reset the sections' force rises from zero at the windings'
+    /// slew (`V_dc/√3 / L · K_f`, ≈ 215 N per cycle per section), while a stop planned on
+    /// the full deceleration is over within a few cycles: at a dead point as an expander
+    /// (seed 6165, 0.21 m/s, 0.4 mm from the head) the planned reference had ended at
+    /// 1.3 kN per section with the piston still at full speed, and the hold that followed
+    /// (a 40 Hz position loop, ≈ 0.6 kN at 0.12 m/s) let it creep a further 0.12 mm. Here
+    /// the setpoint follows the measured position and velocity (no feedback to fight) with
+    /// the stop's full deceleration as feed-forward, so the force keeps rising until the
+    /// piston has stopped.
+    ///
+    /// When it ends: the force, once no longer commanded, falls at the same slew, and
+    /// meanwhile still brakes: each section's `Fᵢ` takes `Fᵢ²/(2·slew)` of momentum more.
+    /// The phase ends once the measured velocity is down to what that takes (the sections'
+    /// shares by their capability); a non-finite velocity ends it too. The velocity estimate
+    /// lags the braking (its window was refilled with the first velocity's line), so the
+    /// phase ends late and the piston springs back at up to its approach speed, away from
+    /// the head it approached. The hold target is the measured position there, near where
+    /// the piston came to rest (not where a plan ended, behind it), and the hold continues
+    /// ([`ControlStep::turn_to_rest`]).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn stop_setpoint(
+        &mut self,
+        planned: Setpoint,
+        s: &Sensed,
+        measured_force_n: f32,
+        dt: f32,
+    ) -> Setpoint {
+        let mut sp = match self.safe.brake {
+            FaultedBrake::Zeroing(sign) => self.zero_velocity(f32::from(sign), s, measured_force_n),
+            _ => planned,
+        };
+        sp.acceleration_mps2 -= self.estimator.observe_stop(
+            &self.config,
+            &self.status,
+            self.sensing.pressures.usable(),
+            measured_force_n,
+            dt,
+        ) / self.config.moving_mass_kg;
+        sp
+    }
+
+    /// A cycle of [`FaultedBrake::Zeroing`] against the measured velocity of direction
+    /// `sign` ([`ControlStep::stop_setpoint`]): the setpoint, also left as the stop's state.
+    fn zero_velocity(&mut self, sign: f32, s: &Sensed, measured_force_n: f32) -> Setpoint {
+        let c = &self.config;
+        let v = s.derivatives.velocity_mps;
+        let (cm, cs) = (
+            clamp_f32(c.allocation.capability.master, 0.0, 1.0),
+            clamp_f32(c.allocation.capability.slave, 0.0, 1.0),
+        );
+        let total = cm + cs;
+        // Σ Fᵢ² = F² · Σcᵢ²/(Σcᵢ)² with the force split by capability.
+        let spread = if total > 0.0 {
+            (cm * cm + cs * cs) / (total * total)
+        } else {
+            1.0
+        };
+        let m = &c.motor;
+        let slew_n_per_s = m.voltage_limit_v() / m.inductance_h * m.force_constant_n_per_a;
+        let braking_n = max_f32(-sign * measured_force_n, 0.0);
+        let still_lost_mps =
+            braking_n * braking_n * spread / (2.0 * slew_n_per_s * c.moving_mass_kg);
+        let mut sp = Setpoint {
+            position_m: s.position_m,
+            velocity_mps: v,
+            acceleration_mps2: -sign * self.safe.stop_decel_mps2,
+        };
+        // (A NaN velocity: not moving, ends.)
+        let moving = sign * v > still_lost_mps;
+        if !moving {
+            self.safe.brake = FaultedBrake::None;
+            sp = Setpoint::at_rest(s.position_m);
+        }
+        if let Mode::Stopping { setpoint, .. } = &mut self.mode {
+            *setpoint = sp;
+        }
+        sp
     }
 }
 
