@@ -39,8 +39,8 @@ use hal_sim::runlog::RunLog;
 use std::collections::BTreeMap;
 use std::time::Instant;
 use support::gap::{
-    classify_form, form_cases, name_effects, par_map, score, score_forms, Acceptance, BenchCase,
-    FormCase, FormOutcome, ParamError, ParamRule,
+    classify_form, form_cases, form_seed_runs, name_effects, par_map, score, score_forms,
+    Acceptance, BenchCase, FormCase, FormOutcome, ParamError, ParamRule,
 };
 
 // ---------------------------------------------------------------------------------------
@@ -635,6 +635,7 @@ fn score_forms_here(per_form: u64) -> Vec<String> {
         .iter()
         .enumerate()
         .flat_map(|(i, f)| (0..per_form).map(move |k| (17_000 + 100 * i as u64 + k, *f)))
+        .filter(|(seed, _)| form_seed_runs(*seed))
         .collect();
     let results = par_map(plan.len(), |i| run_form_case(plan[i].0, plan[i].1));
     score_forms("foreign plant", &FORMS, &results)

@@ -77,9 +77,12 @@ fn swap_term(
     };
     let first = kind.propose(ctx, &without)?;
     let mut alt = without.with(&first.edits);
-    // Back-fitting, as the selection does: each named force effect once more with the
-    // others in place, then the discovered terms left.
-    for k in named.iter().copied().chain([kind]) {
+    // Back-fitting, as the selection does: each named effect once more with the others in
+    // place, then the discovered terms left refitted — never one more term (`named` holds
+    // `extra_force` too, whose proposal adds one): a term fitted here would be a free
+    // parameter the model with `term` never had, and `f_motor` would lose to its own
+    // decomposition (module header).
+    for k in named.iter().copied().filter(|k| k.named()).chain([kind]) {
         let Some(p) = k.propose(ctx, &alt) else {
             continue;
         };
@@ -135,9 +138,18 @@ fn swap_term(
 /// parameters explaining significantly more). The best such model replaces the current one
 /// unless the current one is better by [`MIN_DELTA_BIC`] (`ΔBIC` over the force channel's
 /// effective sample size, counting every parameter): the preference selection gives a
-/// named effect. Where the two forms cannot be told apart, they are not: a force-constant
-/// error scales the whole motor force — what balances inertia, friction and the gas force
-/// — while a mass error scales only the inertia; a log whose motor force is nearly all
+/// named effect.
+///
+/// The alternative's back-fitting refits the named effects and the terms left, and never
+/// fits a new term: a term fitted there is a number the model with the term never had to
+/// earn. On a vented log a force-constant error's `f_motor` is inertia plus friction, and
+/// the mass with a free `v` term beside it (or the viscous friction with a free `a`) is its
+/// decomposition in two free numbers where `f_motor` is one; the second number fitted the
+/// plant's own small mismatch (3 % of the residual's sum of squares, which the best basis
+/// term beside `f_motor` explains 0.07 % of), and the mass was named for a force-constant
+/// error. Where the two forms cannot be told apart, they are not: a force-constant error
+/// scales the whole motor force — what balances inertia, friction and the gas force —
+/// while a mass error scales only the inertia; a log whose motor force is nearly all
 /// inertia (vented, little friction) cannot tell a force-constant error from a mass error,
 /// and there the mass is named.
 pub(super) fn reconsider_terms(
