@@ -13,10 +13,10 @@
 //!
 //! Every case runs in both modes: as a compressor (rotation forward) and as an expander
 //! (rotation reversed from the first stroke, `docs/faults.md` #25). Each mode has its own
-//! tests, named after it. The full sweep (10,000 runs per mode) is `#[ignore]`: CI runs a
-//! slice of each with the slow suites (`FPC_FAULT_RUNS=N`; the full sweep is
-//! `cargo test --profile slow-tests --test random_faults_keep_the_head_clearance -- --ignored
-//! --nocapture`, ≈ 10 min per mode on two cores). A 24-run slice of each runs by default.
+//! tests, named after it. The full sweep (10,000 runs per mode) is `#[ignore]`: CI runs it
+//! with the slow suites (`cargo test --profile slow-tests --test
+//! random_faults_keep_the_head_clearance -- --ignored --nocapture`, 4–7 min per mode on two
+//! cores; `FPC_FAULT_RUNS=N` for another count). A 24-run slice of each runs by default.
 //! Each prints the distribution of the minimum clearance (overall and per fault kind: min,
 //! 1 %, median), the five worst runs with what reproduces them, and writes its histogram
 //! (`clearance.svg`). The runs go through the studies' own runner
@@ -25,7 +25,7 @@
 //!
 //! Status (issue #33): 0 of 10,000 below 0.3 mm in each mode — as a compressor ≥ 0.417 mm,
 //! as an expander ≥ 0.324 mm (a task hang at a dead point, seed 6165; both encoders lost
-//! ≥ 0.658 mm, every other kind ≥ 0.487 mm). CI runs the first 1,000 of each (`.ci/run`),
+//! ≥ 0.658 mm, every other kind ≥ 0.487 mm). CI runs the whole 10,000 of each (`.ci/run`),
 //! the default suite a 24-run slice of each. Figures and causes: `docs/firmware.md`, "The
 //! fault sweep".
 
@@ -355,13 +355,13 @@ fn full(rotation: Rotation, name: &str) {
 }
 
 #[test]
-#[ignore = "slow: 10,000 closed-loop runs (≈ 10 min in release on two cores; FPC_FAULT_RUNS=N for another count)"]
+#[ignore = "slow: 10,000 closed-loop runs (4–7 min in release on two cores; FPC_FAULT_RUNS=N for another count)"]
 fn ten_thousand_random_faults_keep_the_head_clearance_as_a_compressor() {
     full(Rotation::Compressor, "full-compressor");
 }
 
 #[test]
-#[ignore = "slow: 10,000 closed-loop runs (≈ 10 min in release on two cores; FPC_FAULT_RUNS=N for another count)"]
+#[ignore = "slow: 10,000 closed-loop runs (4–7 min in release on two cores; FPC_FAULT_RUNS=N for another count)"]
 fn ten_thousand_random_faults_keep_the_head_clearance_as_an_expander() {
     full(Rotation::Expander, "full-expander");
 }
