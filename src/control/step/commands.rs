@@ -192,7 +192,7 @@ impl ControlStep {
                 }
                 self.config.allocation.capability = self.safe.nominal_capability;
                 self.sensing.lost_encoder = None;
-                if matches!(self.safe.brake, FaultedBrake::Blind(_)) {
+                if matches!(self.safe.brake, FaultedBrake::Blind { .. }) {
                     self.safe.brake = FaultedBrake::None;
                 }
                 self.sensing.pressures.trusted = true;

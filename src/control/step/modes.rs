@@ -31,13 +31,6 @@ pub(super) enum AfterStop {
     Park,
 }
 
-/// `angle_rad` brought into [0, 2π): the one wrap, [`crate::angle::wrap_rad`] (out of line:
-/// the stop and vent paths that call it are cold, and a dozen inlined copies cost flash).
-#[inline(never)]
-pub(super) fn turn_phase(angle_rad: f32) -> f32 {
-    crate::angle::wrap_rad(angle_rad)
-}
-
 /// What the position loop is doing.
 #[derive(Clone, Debug)]
 pub(super) enum Mode {

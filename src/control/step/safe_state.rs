@@ -7,16 +7,17 @@
 //! the controlled stop these reactions start.
 
 use super::actuate::RotaryAxis;
-use super::modes::{turn_phase, AfterStop, Mode};
+use super::modes::{AfterStop, Mode};
 use super::sense::Sensed;
 use super::{ControlStep, CycleInputs};
+use crate::angle::{wrap_rad_cold, wrap_signed_rad_cold};
 use crate::control::config::ControlConfig;
 use crate::motion::trajectory::Setpoint;
-use crate::physics::port_timing::{PortGeometry, PortWindow};
-use crate::real::{clamp_f32, max_f32, min_f32, sqrt_f32};
+use crate::physics::port_timing::PortGeometry;
+use crate::real::{clamp_f32, max_f32, min_f32};
 use crate::safety::faults::Fault;
 use crate::units::{PerSection, PhaseDuties};
-use core::f32::consts::{FRAC_PI_2, PI, TAU};
+use core::f32::consts::{FRAC_PI_2, TAU};
 
 /// How fast the rotation turns to the venting phase before a park, rad/s (half a turn, the
 /// farthest, in 0.5 s).
@@ -26,57 +27,6 @@ pub const VENT_SPEED_RAD_S: f32 = core::f32::consts::TAU;
 /// half a turn at [`VENT_SPEED_RAD_S`] and 0.25 s for the servo to settle there. The park
 /// move's clock starts this far below zero (its path is at rest there).
 pub const VENT_TIME_S: f32 = 0.75;
-
-/// How long the rotation spends in `window` on a turn by `turn_rad` from `phase_rad`, s,
-/// driven toward the target at `accel_rad_s2` from its speed `speed_rad_s` (signed, positive
-/// forward). Against its speed it first coasts to a stop, deeper into a window it is in, and
-/// comes back: that time counts too. 0 for no turn.
-fn time_in_window(
-    phase_rad: f32,
-    turn_rad: f32,
-    window: &PortWindow<f32>,
-    speed_rad_s: f32,
-    accel_rad_s2: f32,
-) -> f32 {
-    if turn_rad == 0.0 {
-        return 0.0;
-    }
-    let length = turn_rad.abs();
-    // Speed along the turn, and the time to have come `s` along it (the later root: against
-    // the speed the rotation passes its start again on the way).
-    let v0 = if turn_rad > 0.0 {
-        speed_rad_s
-    } else {
-        -speed_rad_s
-    };
-    let reach = |s: f32| (sqrt_f32(v0 * v0 + 2.0 * accel_rad_s2 * s) - v0) / accel_rad_s2;
-    // The window in the turn's own coordinate: where it begins ahead on the path, and how
-    // far into it the path begins.
-    let (edge_ahead, edge_behind) = if turn_rad > 0.0 {
-        (window.open_rad, window.close_rad)
-    } else {
-        (window.close_rad, window.open_rad)
-    };
-    let width = window.span_rad();
-    let forward = |a: f32, b: f32| {
-        if turn_rad > 0.0 {
-            turn_phase(b - a)
-        } else {
-            turn_phase(a - b)
-        }
-    };
-    let ahead = forward(phase_rad, edge_ahead);
-    let mut time = 0.0;
-    if ahead < length && ahead > 0.0 {
-        time += reach(min_f32(ahead + width, length)) - reach(ahead);
-    }
-    // Inside the window at the start: until the path leaves it.
-    let left = forward(phase_rad, edge_behind);
-    if forward(edge_ahead, phase_rad) < width && left > 0.0 {
-        time += reach(min_f32(left, length));
-    }
-    time
-}
 
 /// Samples the first velocity after a watchdog reset is fitted to (a straight line through
 /// them, [`SavitzkyGolay::restart_on_line`](crate::sensing::differentiator::SavitzkyGolay::restart_on_line)),
@@ -105,9 +55,6 @@ pub(super) struct SafeState {
     pub hold_quiet_s: f32,
     pub hold_motor_ns: f32,
     pub hold_gas_ns: f32,
-    /// Both encoders lost: the rotation's sealing turn as decided, rad, signed (which way
-    /// round it goes).
-    pub sealing_turn_rad: f32,
     /// What the faulted state still does with the outputs: brake after a watchdog reset, or
     /// brake without position after both encoders were lost.
     pub brake: FaultedBrake,
@@ -139,7 +86,6 @@ impl SafeState {
             hold_quiet_s: 0.0,
             hold_motor_ns: 0.0,
             hold_gas_ns: 0.0,
-            sealing_turn_rad: 0.0,
             brake: FaultedBrake::None,
             nominal_capability: config.allocation.capability,
             rest: RestTurn::Unplanned,
@@ -147,17 +93,30 @@ impl SafeState {
     }
 }
 
+/// The blind brake's turn of the rotation to seal a chamber: the phase to turn to, rad in
+/// [0, 2π), and the turn as decided from where the rotation was, rad (signed: which way
+/// round).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct SealingTurn {
+    pub phase_rad: f32,
+    pub turn_rad: f32,
+}
+
 /// What the faulted state still does with the outputs (they are off otherwise).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) enum FaultedBrake {
     /// Nothing.
     None,
     /// After a watchdog reset: cycles until the velocity estimate is valid, then a controlled
     /// stop in the encoders' own frame ([`ControlStep::boot`]).
     AfterReset(u16),
-    /// Both encoders lost: cycles of outputs off left before the windings are
-    /// short-circuited (0: shorted; [`ControlStep::brake_without_position`]).
-    Blind(u16),
+    /// Both encoders lost ([`ControlStep::brake_without_position`]): cycles of outputs off
+    /// left before the windings are short-circuited (0: shorted), and the rotation's sealing
+    /// turn until it is sent on it.
+    Blind {
+        cycles: u16,
+        seal: Option<SealingTurn>,
+    },
     /// After a watchdog reset, the stop braking at full force against the measured velocity
     /// until it is zero (its direction, +1 or −1; [`ControlStep::stop_setpoint`]): the
     /// continuation of the brake after the reset.
@@ -218,7 +177,7 @@ impl ControlStep {
         self.estimator.load_n = 0.0;
         self.shares = PerSection::default();
         self.status.force_command_n = 0.0;
-        if self.safe.brake == FaultedBrake::Blind(0) {
+        if matches!(self.safe.brake, FaultedBrake::Blind { cycles: 0, .. }) {
             return Some(PerSection::default());
         }
         self.calibration.sense_monitor.observe(&inputs.currents);
@@ -272,12 +231,11 @@ impl ControlStep {
     #[cold]
     #[inline(never)]
     pub(super) fn brake_without_position(&mut self) {
-        if matches!(self.safe.brake, FaultedBrake::Blind(_)) {
+        if matches!(self.safe.brake, FaultedBrake::Blind { .. }) {
             return;
         }
         let g = &self.config.port_geometry;
-        let ramp = g.ramp_rad;
-        let phase = turn_phase(self.rotary.reference_rad);
+        let phase = wrap_rad_cold(self.rotary.reference_rad);
         let toward_b = self.status.velocity_mps >= 0.0;
         // The chamber ahead already discharging: the line turns the piston before its dead
         // point; the chamber to seal is the other one, ahead after the turn (see above).
@@ -286,8 +244,7 @@ impl ControlStep {
         } else {
             &g.discharge_a
         };
-        let discharging =
-            turn_phase(phase - ahead.open_rad) < turn_phase(ahead.close_rad - ahead.open_rad);
+        let discharging = ahead.contains(phase);
         let (intake, discharge) = if toward_b != discharging {
             (&g.intake_b, &g.discharge_b)
         } else {
@@ -301,36 +258,27 @@ impl ControlStep {
         } else {
             &g.discharge_b
         };
-        // The two arcs between the chamber's windows, each inset by a ramp at both ends:
-        // of the turns to either end of either (0 inside one), the one that holds the
-        // behind chamber on the line for the least time — the rotation going at full
+        // Of the turns to either end of either sealed arc (0 inside one), the one that holds
+        // the behind chamber on the line for the least time — the rotation going at full
         // torque from its speed now (against it, it must stop first) — and of those the
         // shortest.
-        let behind_on_line = turn_phase(phase - behind.open_rad) < behind.span_rad();
+        let behind_on_line = behind.contains(phase);
         let speed = self.rotary.servo.velocity_rad_s();
         let sc = &self.config.servo;
         let accel = max_f32(sc.torque_full_scale_nm / sc.inertia_kgm2, 1.0);
         let mut best: Option<(f32, f32)> = None;
-        for (from, to) in [
-            (intake.close_rad, discharge.open_rad),
-            (discharge.close_rad, intake.open_rad),
-        ] {
-            if turn_phase(to - from) <= 2.0 * ramp {
-                continue;
-            }
-            let start = from + ramp;
-            let span = turn_phase(to - ramp - start);
-            let into = turn_phase(phase - start);
+        for arc in g.sealed_arcs(intake, discharge).into_iter().flatten() {
+            let into = arc.past_start(phase);
             // Inside the arc: no turn; outside: back to its far end or on to its near one.
-            let turns = if into <= span {
+            let turns = if into <= arc.span_rad {
                 [0.0, 0.0]
             } else {
-                [span - into, TAU - into]
+                [arc.span_rad - into, TAU - into]
             };
             for turn in turns {
-                let mut exposed = time_in_window(phase, turn, behind, speed, accel);
+                let mut exposed = behind.time_in_turn(phase, turn, speed, accel);
                 if behind_on_line && !discharging {
-                    exposed += time_in_window(phase, turn, discharge, speed, accel);
+                    exposed += discharge.time_in_turn(phase, turn, speed, accel);
                 }
                 best = match best {
                     Some((e, b)) if (e, b.abs()) <= (exposed, turn.abs()) => Some((e, b)),
@@ -341,12 +289,15 @@ impl ControlStep {
         let m = &self.config.motor;
         let decay_s = m.inductance_h * m.current_limit_a / m.bus_voltage_v;
         let cycles = clamp_f32(decay_s / self.config.sample_time_s + 1.0, 1.0, 1000.0) as u16;
-        self.safe.brake = FaultedBrake::Blind(cycles);
-        // The phase to turn to once the windings are shorted (SS1's hold timer is free
-        // while faulted).
+        // The phase to turn to once the windings are shorted.
         let turn = best.map_or(0.0, |(_, turn)| turn);
-        self.safe.hold_quiet_s = turn_phase(phase + turn);
-        self.safe.sealing_turn_rad = turn;
+        self.safe.brake = FaultedBrake::Blind {
+            cycles,
+            seal: Some(SealingTurn {
+                phase_rad: wrap_rad_cold(phase + turn),
+                turn_rad: turn,
+            }),
+        };
     }
 
     /// A cycle of the faulted state: nothing while no brake runs ([`FaultedBrake::None`]);
@@ -359,26 +310,29 @@ impl ControlStep {
         match self.safe.brake {
             FaultedBrake::None | FaultedBrake::Zeroing(_) => {}
             FaultedBrake::AfterReset(_) => self.brake_after_reset(),
-            FaultedBrake::Blind(left) => {
-                self.safe.brake = FaultedBrake::Blind(left.saturating_sub(1));
-                if left <= 1 && !self.safe.hold_quiet_s.is_nan() {
+            FaultedBrake::Blind { cycles, seal } => {
+                let mut seal = seal;
+                if let Some(decided) = seal.filter(|_| cycles <= 1) {
+                    seal = None;
                     // From where the rotation has coasted, the way round decided: a turn
                     // of about half a revolution is otherwise taken the other way once the
                     // coast has made that way the shorter (a backward turn of 179.9°
-                    // applied forward: across the admission the turn was chosen to avoid,
-                    // −0.25 mm, issue #33). A short turn goes the shorter way, so a coast
-                    // past a target close by comes back to it.
-                    let now = turn_phase(self.rotary.reference_rad);
-                    let mut turn = turn_phase(self.safe.hold_quiet_s - now + PI) - PI;
-                    let decided = self.safe.sealing_turn_rad;
-                    if decided < -FRAC_PI_2 && turn > 0.0 {
+                    // applied forward: across the admission the turn was chosen to avoid).
+                    // A short turn goes the shorter way, so a coast past a target close by
+                    // comes back to it.
+                    let now = wrap_rad_cold(self.rotary.reference_rad);
+                    let mut turn = wrap_signed_rad_cold(decided.phase_rad - now);
+                    if decided.turn_rad < -FRAC_PI_2 && turn > 0.0 {
                         turn -= TAU;
-                    } else if decided > FRAC_PI_2 && turn < 0.0 {
+                    } else if decided.turn_rad > FRAC_PI_2 && turn < 0.0 {
                         turn += TAU;
                     }
                     self.rotary.reference_rad += turn;
-                    self.safe.hold_quiet_s = f32::NAN;
                 }
+                self.safe.brake = FaultedBrake::Blind {
+                    cycles: cycles.saturating_sub(1),
+                    seal,
+                };
             }
         }
     }
@@ -427,17 +381,17 @@ impl ControlStep {
         if self.faults.contains(Fault::RotationSync) {
             self.safe.rest = RestTurn::Done;
         }
-        let phase = turn_phase(self.rotary.reference_rad);
+        let phase = wrap_rad_cold(self.rotary.reference_rad);
         if self.safe.rest == RestTurn::Unplanned {
             let g = &self.config.port_geometry;
             let margin = 1.5 * g.ramp_rad;
             let near_a = self.status.position_m < 0.5 * self.config.supervisor.travel_m;
             let intake = if near_a { &g.intake_a } else { &g.intake_b };
-            let via = turn_phase(intake.close_rad - margin);
-            let target = turn_phase(intake.close_rad + margin);
+            let via = wrap_rad_cold(intake.close_rad - margin);
+            let target = wrap_rad_cold(intake.close_rad + margin);
             // Already inside the intake's open part, before the via point: straight on.
             let from = intake.open_rad + g.ramp_rad;
-            self.safe.rest = if turn_phase(phase - from) <= turn_phase(via - from) {
+            self.safe.rest = if wrap_rad_cold(phase - from) <= wrap_rad_cold(via - from) {
                 RestTurn::Final { target }
             } else {
                 RestTurn::Via { via, target }
@@ -446,7 +400,7 @@ impl ControlStep {
         let step = VENT_SPEED_RAD_S * dt;
         match self.safe.rest {
             RestTurn::Via { via, target } => {
-                let d = turn_phase(via - phase + PI) - PI;
+                let d = wrap_signed_rad_cold(via - phase);
                 self.rotary.reference_rad += clamp_f32(d, -step, step);
                 if d.abs() <= step {
                     self.safe.rest = RestTurn::Final { target };
@@ -455,7 +409,7 @@ impl ControlStep {
             }
             RestTurn::Final { target } => {
                 // Forward only (the chamber is vented on the way to its intake's closing).
-                let left = turn_phase(target - phase);
+                let left = wrap_rad_cold(target - phase);
                 self.rotary.reference_rad += min_f32(left, step);
                 if left <= step {
                     self.safe.rest = RestTurn::Done;
@@ -606,13 +560,13 @@ impl RotaryAxis {
     /// ([`crate::physics::port_timing::PortGeometry::venting_phases_rad`]), as a turn of the
     /// rotation from the current reference, rad in [−π, π); `None` for a geometry without one.
     fn vent_turn_rad(&self, geometry: &PortGeometry<f32>) -> Option<f32> {
-        let phase = turn_phase(self.reference_rad);
+        let phase = wrap_rad_cold(self.reference_rad);
         geometry
             .venting_phases_rad()
             .iter()
             .flatten()
             // The shorter way round.
-            .map(|v| turn_phase(*v - phase + PI) - PI)
+            .map(|v| wrap_signed_rad_cold(*v - phase))
             .fold(None, |best: Option<f32>, d| match best {
                 Some(b) if b.abs() <= d.abs() => Some(b),
                 _ => Some(d),
@@ -640,66 +594,6 @@ impl RotaryAxis {
         if let Some(d) = self.vent_turn_rad(geometry) {
             let step = VENT_SPEED_RAD_S * dt;
             self.reference_rad += clamp_f32(d, -step, step);
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The same time found by stepping the motion through time: the angle at full
-    /// acceleration toward the turn from the speed now, and whether it is in the window,
-    /// tested directly at each step of 1 µs until the turn is done.
-    fn stepped(phase: f32, turn: f32, w: &PortWindow<f32>, speed: f32, accel: f32) -> f32 {
-        let (phase, turn, speed, accel) = (
-            f64::from(phase),
-            f64::from(turn),
-            f64::from(speed),
-            f64::from(accel),
-        );
-        let (open, close) = (f64::from(w.open_rad), f64::from(w.close_rad));
-        let tau = std::f64::consts::TAU;
-        let dir = turn.signum();
-        let dt = 1e-6;
-        let (mut angle, mut v, mut inside_s) = (0.0f64, speed * dir, 0.0);
-        while angle < turn.abs() {
-            let at = (phase + dir * angle).rem_euclid(tau);
-            if (at - open).rem_euclid(tau) < (close - open).rem_euclid(tau) {
-                inside_s += dt;
-            }
-            v += accel * dt;
-            angle += v * dt;
-        }
-        inside_s as f32
-    }
-
-    #[test]
-    fn the_time_in_a_window_is_the_stepped_motions() {
-        let g = PortGeometry::<f32>::reference();
-        let accel = 2500.0;
-        // Each way, with and against the speed, from inside the window, before it and past
-        // it; the coast before turning round stays well inside the region it starts in.
-        let deg = |d: f32| d.to_radians();
-        let cases = [
-            (deg(327.7), deg(38.3), -34.0),
-            (deg(327.7), deg(-225.7), -34.0),
-            (deg(250.0), deg(116.0), -34.0),
-            (deg(250.0), deg(-148.0), -34.0),
-            (deg(250.0), deg(116.0), 34.0),
-            (deg(100.0), deg(250.0), 20.0),
-            (deg(20.0), deg(-120.0), 0.0),
-            (deg(20.0), 0.0, 34.0),
-        ];
-        for (phase, turn, speed) in cases {
-            let w = &g.discharge_a;
-            let formula = time_in_window(phase, turn, w, speed, accel);
-            let reference = stepped(phase, turn, w, speed, accel);
-            println!("φ {phase:.3} turn {turn:+.3} ω {speed:+.0}: {formula:.6} s (stepped {reference:.6} s)");
-            assert!(
-                (formula - reference).abs() < 2e-5,
-                "φ {phase} turn {turn} ω {speed}: {formula} s, stepped {reference} s"
-            );
         }
     }
 }
