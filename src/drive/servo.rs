@@ -31,14 +31,13 @@ impl ServoConfig {
     /// Reference servo tuned for ≈ 30 Hz (ω = 190 rad/s, damping 0.8).
     pub const fn reference() -> Self {
         ServoConfig {
-            counts_per_rev: 4096,
-            inertia_kgm2: 2e-3,
+            counts_per_rev: crate::reference::servo::COUNTS_PER_REV,
+            inertia_kgm2: crate::reference::servo::INERTIA_KGM2 as f32,
             kp_nm_per_rad: 72.0,
             kd_nms_per_rad: 0.6,
-            // The reference machine's drive (its model, `reference.toml`: 20 N·m, enough
-            // for the piston's sliding friction at 4 m/s). With 5 N·m here the flashed
-            // firmware commanded 4× the torque it meant, its loop gain 4× the simulator's.
-            torque_full_scale_nm: 20.0,
+            // The reference machine's drive (20 N·m, enough for the piston's sliding
+            // friction at 4 m/s).
+            torque_full_scale_nm: crate::reference::servo::TORQUE_FULL_SCALE_NM as f32,
             velocity_filter_s: 5e-4,
             sample_time_s: 50e-6,
         }

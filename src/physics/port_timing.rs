@@ -235,15 +235,19 @@ impl<T: Real> PortGeometry<T> {
     /// discharge-opening volume of PR ≈ 4 (V/V₀ ≈ 0.37); the synchroniser moves the crossing
     /// to the position each pressure ratio needs.
     pub fn reference() -> Self {
+        use crate::reference::ports;
+        let w = |[open, close]: [f64; 2]| {
+            PortWindow::from_degrees(T::of(open as f32), T::of(close as f32))
+        };
         PortGeometry {
-            intake_a: PortWindow::from_degrees(T::ZERO, T::of(180.0)),
-            discharge_a: PortWindow::from_degrees(T::of(288.0), T::of(360.0)),
-            intake_b: PortWindow::from_degrees(T::of(180.0), T::of(360.0)),
-            discharge_b: PortWindow::from_degrees(T::of(108.0), T::of(180.0)),
-            ramp_rad: T::of(6.0) * T::PI / T::of(180.0),
-            intake_area_m2: T::of(5e-4),
-            discharge_area_m2: T::of(5e-4),
-            discharge_coefficient: T::of(0.8),
+            intake_a: w(ports::INTAKE_A_DEG),
+            discharge_a: w(ports::DISCHARGE_A_DEG),
+            intake_b: w(ports::INTAKE_B_DEG),
+            discharge_b: w(ports::DISCHARGE_B_DEG),
+            ramp_rad: T::of(ports::RAMP_DEG as f32) * T::PI / T::of(180.0),
+            intake_area_m2: T::of(ports::INTAKE_AREA_M2 as f32),
+            discharge_area_m2: T::of(ports::DISCHARGE_AREA_M2 as f32),
+            discharge_coefficient: T::of(ports::DISCHARGE_COEFFICIENT as f32),
         }
     }
 

@@ -11,6 +11,7 @@
 //! a non-physical value (zero or negative where a positive quantity is meant, a port window
 //! outside one turn, …).
 
+use fpc::control::config::Machine;
 use fpc::physics::balance::PistonLaws;
 use fpc::physics::cogging::CoggingParams;
 use fpc::physics::friction::FrictionParams;
@@ -228,6 +229,53 @@ impl MachineModel {
         // The sign regularisation must stay well below the Stribeck velocity.
         f.sign_velocity_mps = f.sign_velocity_mps.min(0.05 * f.stribeck_velocity_mps);
         f
+    }
+
+    /// The machine as the controller is told it ([`fpc::control::config::Machine`]): the
+    /// values of this model the firmware's configuration follows
+    /// (`fpc::control::config::ControlConfig::for_machine`), rounded to `f32`; the friction's
+    /// sign regularisation stays the firmware's own.
+    pub fn machine(&self) -> Machine {
+        let p = &self.piston;
+        let f = self.friction();
+        let m = self.motor_sections().master;
+        let clearance = self.limits.target_head_clearance_m;
+        Machine {
+            moving_mass_kg: p.mass_kg as f32,
+            travel_m: p.travel_m as f32,
+            cylinder: Cylinder::from_bore(
+                p.bore_m as f32,
+                p.rod_m as f32,
+                p.travel_m as f32,
+                p.dead_length_a_m as f32,
+                p.dead_length_b_m as f32,
+            ),
+            friction: FrictionParams {
+                coulomb_n: f.coulomb_n as f32,
+                static_n: f.static_n as f32,
+                viscous_ns_per_m: f.viscous_ns_per_m as f32,
+                stribeck_velocity_mps: f.stribeck_velocity_mps as f32,
+                stribeck_exponent: f.stribeck_exponent as f32,
+                ..FrictionParams::<f32>::reference()
+            },
+            encoder_period_m: self.encoder.period_m as f32,
+            motor: MotorParams {
+                force_constant_n_per_a: m.force_constant_n_per_a as f32,
+                resistance_ohm: m.resistance_ohm as f32,
+                inductance_h: m.inductance_h as f32,
+                electrical_period_m: (2.0 * self.motor.pole_pitch_m) as f32,
+                bus_voltage_v: m.bus_voltage_v as f32,
+                current_limit_a: m.current_limit_a as f32,
+            },
+            servo_inertia_kgm2: self.servo.inertia_kgm2 as f32,
+            servo_torque_full_scale_nm: self.servo.torque_full_scale_nm as f32,
+            servo_counts_per_rev: self.servo.counts_per_rev,
+            target_clearance_m: clearance as f32,
+            // The dead points at the target clearance from each head of this model's travel.
+            dead_points_m: (clearance as f32, (p.travel_m - clearance) as f32),
+            force_limit_n: self.limits.force_limit_n as f32,
+            max_speed_mps: self.limits.max_speed_mps as f32,
+        }
     }
 
     /// The port geometry (`[effects.port_restriction]` not included: see
