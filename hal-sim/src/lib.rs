@@ -19,6 +19,7 @@ pub mod failure;
 pub mod faults;
 pub mod gap;
 pub mod link;
+pub mod logmeta;
 pub mod output;
 pub mod plant;
 pub mod plot;

@@ -6,6 +6,7 @@
 //! `run` module). The bytes are exactly what the board would send, so `fpc-sim decode` reads
 //! both alike.
 
+use crate::logmeta::{LogMeta, PortsDeclared, ThetaSource};
 use crate::runlog::RunLog;
 use fpc::link::frame::LinkStats;
 use fpc::link::telemetry::{
@@ -293,25 +294,16 @@ fn decode_frames(
     let channels = kept.first().map_or(ChannelSet::ALL, |f| f.channels);
 
     let mut log = RunLog::with_columns(&decoded_columns(channels));
-    log.meta.push(("source".into(), "fpc-sim decode".into()));
-    if tick_step > 0 {
-        let rate = 1e6 / f64::from(tick_step);
-        log.meta.push(("sample_rate_hz".into(), format!("{rate}")));
-    }
-    log.meta
-        .push(("telemetry_decimation".into(), decimation.to_string()));
-    log.meta
-        .push(("telemetry_layout".into(), LAYOUT.to_string()));
-    // The firmware's own conventions, fixed by the layout (fpc::link::telemetry).
-    log.meta.push((
-        "force_delay_s".into(),
-        format!(
-            "{:e}",
-            f64::from(FORCE_DELAY_PERIODS * CONTROL_PERIOD_US) / 1e6
-        ),
-    ));
-    log.meta
-        .push(("theta_source".into(), THETA_SOURCE.to_string()));
+    let mut meta = LogMeta {
+        source: Some("fpc-sim decode".into()),
+        sample_rate_hz: (tick_step > 0).then(|| 1e6 / f64::from(tick_step)),
+        telemetry_decimation: Some(u32::from(decimation)),
+        telemetry_layout: Some(u32::from(LAYOUT)),
+        // The firmware's own conventions, fixed by the layout (fpc::link::telemetry).
+        force_delay_s: Some(f64::from(FORCE_DELAY_PERIODS * CONTROL_PERIOD_US) / 1e6),
+        theta_source: ThetaSource::from_name(THETA_SOURCE),
+        ..LogMeta::default()
+    };
     // Unwrap the µs time base (it wraps every 71.6 min) from the first kept frame on.
     let mut t_us = kept.first().map_or(0, |f| u64::from(f.t.0));
     let mut prev = kept.first().map(|f| f.t);
@@ -339,19 +331,16 @@ fn decode_frames(
         log.push_row(&row);
     }
     if let Some((ports, from_s)) = ports_from {
-        log.meta.push((
-            "ports".into(),
-            if ports == Ports::Sealed {
-                "closed"
-            } else {
-                "open"
-            }
-            .into(),
-        ));
+        meta.ports = Some(if ports == Ports::Sealed {
+            PortsDeclared::Closed
+        } else {
+            PortsDeclared::Open
+        });
         if kept.first().is_some_and(|f| f.ports == Ports::Bypassed) {
-            log.meta.push(("ports_from_s".into(), format!("{from_s}")));
+            meta.ports_from_s = Some(from_s);
         }
     }
+    meta.write(&mut log);
     Ok(Decoded {
         log,
         stats,

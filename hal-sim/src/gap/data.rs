@@ -2,6 +2,8 @@
 //! and acceleration (centred Savitzky–Golay), the rotation speed, and the masks that say
 //! which samples each channel may be judged on.
 
+pub use crate::logmeta::ThetaSource;
+use crate::logmeta::{LogMeta, PortsDeclared};
 use crate::runlog::RunLog;
 use crate::signal::{firmware_derivatives, SgSettings};
 
@@ -51,7 +53,7 @@ pub const ALIGN_WINDOW_SAMPLES: f64 = 1.5;
 pub const UNDECLARED_ALIGN_SAMPLES: f64 = 0.5;
 
 /// Longest `# force_delay_s` accepted, s (a logging convention is samples, not strokes).
-pub const MAX_FORCE_DELAY_S: f64 = 10e-3;
+pub use crate::logmeta::MAX_FORCE_DELAY_S;
 
 /// Slowest sample rate the workflow analyses, Hz: its differentiator spans 2 ms and needs
 /// at least 5 samples there; a coarser log cannot resolve a stroke's acceleration.
@@ -107,19 +109,6 @@ pub enum PortsMeta {
     Open,
     /// No `ports` metadata: no pressure channel.
     Unknown,
-}
-
-/// What the log's `theta_rad` measures (`# theta_source = …`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ThetaSource {
-    /// `piston` (or no key): the piston's own angle, which times the ports (`docs/formats.md` §1).
-    Piston,
-    /// `servo_encoder`: the servo's quadrature count times its resolution (the count's
-    /// lower edge), as our firmware reports it. The piston, which times the ports, follows
-    /// through the spline's play: the replay takes the count's centre and carries the
-    /// piston along by the flank the servo pushes on (`[servo] counts_per_rev` and
-    /// `backlash_rad` of the model).
-    ServoEncoder,
 }
 
 /// The measured run, with what the workflow derives from it.
@@ -274,64 +263,16 @@ impl Measured {
                  {min_rate_hz} Hz to {MAX_SAMPLE_RATE_HZ:e} Hz"
             ));
         }
-        let ports = match log.meta("ports").map(str::trim) {
-            Some("closed") => PortsMeta::Closed,
-            Some("open") => PortsMeta::Open,
+        let meta = LogMeta::read(log)?;
+        let ports = match meta.ports {
+            Some(PortsDeclared::Closed) => PortsMeta::Closed,
+            Some(PortsDeclared::Open) => PortsMeta::Open,
             None => PortsMeta::Unknown,
-            Some(other) => {
-                return Err(format!(
-                    "metadata `# ports = {other}`: must be `open` or `closed`"
-                ))
-            }
         };
-        let force_delay_s = match log.meta("force_delay_s").map(str::trim) {
-            None => None,
-            Some(v) => match v.parse::<f64>() {
-                Ok(d) if d.is_finite() && d.abs() <= MAX_FORCE_DELAY_S => Some(d),
-                _ => {
-                    return Err(format!(
-                        "metadata `# force_delay_s = {}`: must be a number of seconds within \
-                         ±{MAX_FORCE_DELAY_S}",
-                        v.chars().take(40).collect::<String>()
-                    ))
-                }
-            },
-        };
-        let ports_delay_s = match log.meta("ports_delay_s").map(str::trim) {
-            None => 0.0,
-            Some(v) => match v.parse::<f64>() {
-                Ok(d) if d.is_finite() && (0.0..=MAX_FORCE_DELAY_S).contains(&d) => d,
-                _ => {
-                    return Err(format!(
-                        "metadata `# ports_delay_s = {}`: must be a number of seconds within \
-                         0..={MAX_FORCE_DELAY_S}",
-                        v.chars().take(40).collect::<String>()
-                    ))
-                }
-            },
-        };
-        let theta_source = match log.meta("theta_source").map(str::trim) {
-            None | Some("piston") => ThetaSource::Piston,
-            Some("servo_encoder") => ThetaSource::ServoEncoder,
-            Some(other) => {
-                return Err(format!(
-                    "metadata `# theta_source = {}`: must be `piston` or `servo_encoder`",
-                    other.chars().take(40).collect::<String>()
-                ))
-            }
-        };
-        let ports_from_s = match log.meta("ports_from_s").map(str::trim) {
-            None => None,
-            Some(v) => match v.parse::<f64>() {
-                Ok(t) if t.is_finite() => Some(t),
-                _ => {
-                    return Err(format!(
-                        "metadata `# ports_from_s = {}`: must be a time in seconds",
-                        v.chars().take(40).collect::<String>()
-                    ))
-                }
-            },
-        };
+        let force_delay_s = meta.force_delay_s;
+        let ports_delay_s = meta.ports_delay_s.unwrap_or(0.0);
+        let theta_source = meta.theta_source.unwrap_or(ThetaSource::Piston);
+        let ports_from_s = meta.ports_from_s;
         let force_align_s = force_delay_s.map_or(UNDECLARED_ALIGN_SAMPLES * dt_s, |d| -d);
         let x_m = col("x_m")?;
         let theta_rad = col("theta_rad")?;
