@@ -82,7 +82,7 @@ pub struct MachineModel {
 }
 
 /// A key of the model file, `section.name` (the section a dotted path such as
-/// `effects.cogging`): made by [`model_key!`] from the model's own fields, so that a
+/// `effects.cogging`): made by [`model_key!`](validate::model_key) from the model's own fields, so that a
 /// renamed field fails to compile where its key is used.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Key {
@@ -92,41 +92,12 @@ pub struct Key {
     pub name: &'static str,
 }
 
-/// A section of the model file, its dotted path: made by [`model_section!`] from the
+/// A section of the model file, its dotted path: made by [`model_section!`](validate::model_section) from the
 /// model's own fields.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SectionKey(pub &'static str);
 
-/// The typed key of the model's field at `section.path / field`: `model_key!(effects.cogging
-/// / amplitude_n)` is `effects.cogging.amplitude_n`, checked at compile time against
-/// [`MachineModel`]'s fields (through an optional section too).
-macro_rules! model_key {
-    ($($part:ident).+ / $field:ident) => {{
-        #[allow(dead_code)]
-        fn exists(m: &$crate::plant::model::MachineModel) {
-            use $crate::plant::model::validate::SectionSlot;
-            let _ = m.$($part).+.section().map(|s| &s.$field);
-        }
-        $crate::plant::model::Key {
-            section: stringify!($($part).+),
-            name: stringify!($field),
-        }
-    }};
-}
-pub(crate) use model_key;
-
-/// The typed path of the model's section at `section.path`, checked at compile time.
-macro_rules! model_section {
-    ($($part:ident).+) => {{
-        #[allow(dead_code)]
-        fn exists(m: &$crate::plant::model::MachineModel) {
-            use $crate::plant::model::validate::SectionSlot;
-            let _ = m.$($part).+.section();
-        }
-        $crate::plant::model::SectionKey(stringify!($($part).+))
-    }};
-}
-pub(crate) use model_section;
+pub(crate) use validate::{model_key, model_section};
 
 /// The largest model file read, bytes (the reference file is about 6 KB).
 pub const MAX_MODEL_BYTES: u64 = 1 << 20;

@@ -127,6 +127,37 @@ impl<T: Checked> SectionSlot for Option<T> {
     }
 }
 
+/// The typed key of the model's field at `section.path / field`: `model_key!(effects.cogging
+/// / amplitude_n)` is `effects.cogging.amplitude_n`, checked at compile time against
+/// [`MachineModel`]'s fields (through an optional section too).
+macro_rules! model_key {
+    ($($part:ident).+ / $field:ident) => {{
+        #[allow(dead_code)]
+        fn exists(m: &$crate::plant::model::MachineModel) {
+            use $crate::plant::model::validate::SectionSlot;
+            let _ = m.$($part).+.section().map(|s| &s.$field);
+        }
+        $crate::plant::model::Key {
+            section: stringify!($($part).+),
+            name: stringify!($field),
+        }
+    }};
+}
+pub(crate) use model_key;
+
+/// The typed path of the model's section at `section.path`, checked at compile time.
+macro_rules! model_section {
+    ($($part:ident).+) => {{
+        #[allow(dead_code)]
+        fn exists(m: &$crate::plant::model::MachineModel) {
+            use $crate::plant::model::validate::SectionSlot;
+            let _ = m.$($part).+.section();
+        }
+        $crate::plant::model::SectionKey(stringify!($($part).+))
+    }};
+}
+pub(crate) use model_section;
+
 /// A section's rules and ranges next to its struct: `checks!(Type { key: rule, lo, hi,
 /// "unit"; … })`. The keys are the struct's fields (a renamed field fails to compile).
 macro_rules! checks {
@@ -322,7 +353,7 @@ impl MachineModel {
         if let Some(e) = &self.effects.extra_force {
             e.parsed().map_err(ModelError)?;
             // The `a` term changes the moving mass (`(m − c_a)·a`): it must leave a mass.
-            let c_a = e.coefficient(super::extra_force::Term::A).unwrap_or(0.0);
+            let c_a = e.mass_term_kg().unwrap_or(0.0);
             if c_a >= 0.5 * self.piston.mass_kg {
                 return Err(ModelError(format!(
                     "`effects.extra_force.terms.\"a\"` = {} kg leaves less than half of \
