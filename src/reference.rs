@@ -23,9 +23,9 @@ pub mod effects {
     /// `[effects.leakage]`.
     pub mod leakage {
         /// `effects.leakage.gap_m`.
-        pub const GAP_M: f64 = 0.000025;
+        pub const GAP_M: f64 = 2.5e-5;
         /// `effects.leakage.rod_gap_m`.
-        pub const ROD_GAP_M: f64 = 0.00001;
+        pub const ROD_GAP_M: f64 = 1e-5;
         /// `effects.leakage.rod_seal_length_m`.
         pub const ROD_SEAL_LENGTH_M: f64 = 0.03;
         /// `effects.leakage.seal_length_m`.
@@ -61,7 +61,7 @@ pub mod gas {
     /// `gas.temperature_k`.
     pub const TEMPERATURE_K: f64 = 293.15;
     /// `gas.viscosity_pa_s`.
-    pub const VISCOSITY_PA_S: f64 = 0.000018;
+    pub const VISCOSITY_PA_S: f64 = 1.8e-5;
 }
 /// `[limits]`.
 pub mod limits {
