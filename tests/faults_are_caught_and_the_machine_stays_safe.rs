@@ -505,7 +505,9 @@ fn s12_a_hang_at_any_phase_of_a_stroke_keeps_the_clearance() {
     // A hung control task holds its last duties until the watchdog resets the board, and
     // whether the piston then stays clear is physics: with the board's 3 ms watchdog the
     // reset comes in time at every phase tried and the boot brakes the piston; with the
-    // 20 ms the board first had it does not (printed, to show why the timeout is short).
+    // 20 ms the board first had it does not: the negative control, which shows that these
+    // phases hold the duties long enough to matter (a hang that let the piston coast
+    // harmlessly would pass the first arm for any watchdog).
     let i = instants();
     let mut worst = [f64::INFINITY; 2];
     for k in 0..12 {
@@ -525,6 +527,11 @@ fn s12_a_hang_at_any_phase_of_a_stroke_keeps_the_clearance() {
         worst[1] * 1e3
     );
     assert!(worst[0] >= MIN_CLEARANCE_M);
+    assert!(
+        worst[1] < MIN_CLEARANCE_M,
+        "with a 20 ms watchdog the hang kept {:.3} mm: the phases test nothing",
+        worst[1] * 1e3
+    );
 }
 
 #[test]
