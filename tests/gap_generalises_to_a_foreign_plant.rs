@@ -679,22 +679,37 @@ fn gap_describes_forces_outside_its_library_on_the_foreign_plant_in_100_cases() 
     assert!(problems.is_empty(), "{problems:#?}");
 }
 
-/// Writes one case of the benchmark for `fpc-sim gap`: `FOREIGN_CASE=<index>`.
+/// Writes one case of the benchmark for `fpc-sim gap`: `FOREIGN_CASE=<index>`, to a
+/// directory of its own that is kept (without it, the first case, checked and removed).
 #[test]
 #[ignore = "a tool: writes one case to a temporary directory"]
 fn replay() {
-    let Ok(index) = std::env::var("FOREIGN_CASE") else {
-        println!("set FOREIGN_CASE=<index of the benchmark case>");
-        return;
-    };
+    let index = std::env::var("FOREIGN_CASE").unwrap_or_else(|_| "0".into());
     let index: usize = index.trim().parse().expect("FOREIGN_CASE: an index");
     let (seed, kind) = all_cases()[index];
     let case = draw_case(seed, kind);
     let g = generate(&case);
-    let dir = std::env::temp_dir().join(format!("foreign-case-{index}"));
-    std::fs::create_dir_all(&dir).unwrap();
+    // A directory of its own, kept for the user who named a case (removed after CI's run).
+    let tmp = tempfile::Builder::new()
+        .prefix(&format!("fpc-foreign-case-{index}-"))
+        .tempdir()
+        .expect("case directory");
+    let dir = tmp.path().to_path_buf();
     std::fs::write(dir.join("run.csv"), &g.csv).unwrap();
     std::fs::write(dir.join("model.toml"), &g.model_toml).unwrap();
+    // What was written is the case the benchmark scores, through the readers `fpc-sim gap`
+    // uses, and gap takes it.
+    let log = RunLog::read(&dir.join("run.csv")).expect("run.csv reads");
+    assert_eq!(Ok(&log), RunLog::parse(&g.csv).as_ref());
+    assert_eq!(log.len(), g.rows, "rows written");
+    let model = hal_sim::plant::model::MachineModel::read(&dir.join("model.toml"))
+        .expect("model.toml reads");
+    assert_eq!(
+        Ok(model),
+        hal_sim::plant::model::MachineModel::parse(&g.model_toml)
+    );
+    hal_sim::gap::analyse(&g.model_toml, &log, &hal_sim::gap::GapOptions::default())
+        .unwrap_or_else(|f| panic!("gap refuses the case: {}", f.message));
     let truth: Vec<String> = g
         .truth
         .hidden
@@ -702,6 +717,10 @@ fn replay() {
         .map(|h| format!("{} {:?}", h.effect().name(), h.params()))
         .collect();
     std::fs::write(dir.join("truth.txt"), truth.join("\n") + "\n").unwrap();
+    if std::env::var_os("FOREIGN_CASE").is_none() {
+        return;
+    }
+    let _ = tmp.keep();
     println!("case #{index} (seed {seed}, {kind:?}): {}", dir.display());
     println!(
         "run: cargo run --release -p hal-sim -- gap --model {0}/model.toml --measured {0}/run.csv --json",
