@@ -20,14 +20,13 @@ use hal_sim::runlog::{RunLog, REQUIRED};
 
 const HAND_LOG: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/hand_stroke.csv");
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
-        .join("analysis_commands")
-        .join(name);
-    // A fresh directory: the tools refuse to overwrite an earlier run's plots.
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A scratch directory of its own (tests run concurrently, from several checkouts), removed
+/// when the test ends, pass or fail.
+fn scratch(prefix: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("fpc-{prefix}-"))
+        .tempdir()
+        .expect("scratch directory")
 }
 
 fn filter() -> ZeroPhaseArgs {
@@ -118,7 +117,7 @@ fn assert_all_plot(log: &Path, out: &Path) {
 
 #[test]
 fn every_analysis_runs_on_the_hand_written_log() {
-    assert_all_plot(Path::new(HAND_LOG), &scratch("hand"));
+    assert_all_plot(Path::new(HAND_LOG), scratch("hand").path());
 }
 
 #[test]
@@ -129,6 +128,7 @@ fn every_analysis_runs_on_an_fpc_sim_run_log() {
     })
     .unwrap();
     let dir = scratch("sim");
+    let dir = dir.path();
     let csv = dir.join("run.csv");
     outcome.log.write(&csv).unwrap();
     assert_all_plot(&csv, &dir);
@@ -144,6 +144,7 @@ fn bad_logs_are_refused_with_line_and_column() {
     let broken = format!("{},abc,{}", row[0], row[2..].join(","));
     bad[19] = &broken;
     let dir = scratch("bad");
+    let dir = dir.path();
     let path = dir.join("bad.csv");
     std::fs::write(&path, bad.join("\n")).unwrap();
     for (name, result, _) in run_all(&path, &dir) {
@@ -182,6 +183,7 @@ fn planted_lag_log(sample_rate_hz: f64, delay_s: f64, path: &Path) {
 #[test]
 fn lag_finds_the_planted_slave_lag_of_0_75_ms() {
     let dir = scratch("lag");
+    let dir = dir.path();
     // At the control rate (15 samples) and at 1 kHz, where 0.75 ms is under one sample.
     for rate in [20_000.0, 1_000.0] {
         let path = dir.join(format!("planted_{rate}.csv"));
@@ -212,6 +214,7 @@ fn decode_turns_a_capture_into_a_readable_run_log_and_refuses_garbage() {
     })
     .unwrap();
     let dir = scratch("decode");
+    let dir = dir.path();
     let capture = dir.join("telemetry.bin");
     // A host that attached mid-frame and saw line noise first.
     let mut bytes = vec![0x55, 0x00, 0x13, 0x37];
@@ -255,6 +258,7 @@ fn pv_reports_the_work_per_cycle_that_run_reports() {
     .unwrap();
     let run_work = outcome.summary.indicated_work_j_per_cycle.unwrap();
     let dir = scratch("pv_work");
+    let dir = dir.path();
     let figures = pv_cmd::plot_pv(
         &dir.join("pv.svg"),
         &outcome.log,
@@ -302,6 +306,7 @@ fn on_a_simulator_run_the_analyses_report_what_the_laws_give() {
     })
     .unwrap();
     let dir = scratch("figures");
+    let dir = dir.path();
     let csv = dir.join("run.csv");
     outcome.log.write(&csv).unwrap();
     for (name, result, _) in run_all(&csv, &dir) {

@@ -1,19 +1,19 @@
 //! `fpc-sim gap` refuses what it cannot use (`docs/faults.md` #17–18): exit 2, one line naming
 //! the key or the line and column, and nothing written.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use hal_sim::cli::gap::{main, GapArgs};
 use hal_sim::plant::model::REFERENCE_TOML;
 use hal_sim::runlog::{RunLog, REQUIRED};
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
-        .join("gap_refuses_bad_input")
-        .join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A scratch directory of its own (tests run concurrently, from several checkouts), removed
+/// when the test ends, pass or fail.
+fn scratch(prefix: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("fpc-{prefix}-"))
+        .tempdir()
+        .expect("scratch directory")
 }
 
 /// A plausible little log: a slow sine stroke.
@@ -55,6 +55,7 @@ fn gap_band(dir: &Path, model: &str, log: &str, band_hz: f64) -> (u8, String, bo
 #[test]
 fn gap_refuses_bad_model_files_naming_the_key() {
     let dir = scratch("model");
+    let dir = dir.path();
     let log = log_text(None);
     for (bad, key) in [
         (
@@ -82,6 +83,7 @@ fn gap_refuses_bad_model_files_naming_the_key() {
 #[test]
 fn gap_refuses_bad_logs_naming_line_and_column() {
     let dir = scratch("log");
+    let dir = dir.path();
     let good = log_text(None);
     let lines: Vec<&str> = good.lines().collect();
     let mut text = lines.clone();
@@ -118,6 +120,7 @@ fn rescaled_time(k: f64) -> String {
 #[test]
 fn gap_refuses_values_and_rates_no_machine_logs_without_hanging() {
     let dir = scratch("implausible");
+    let dir = dir.path();
     let good = log_text(None);
     let mut far = good.lines().map(str::to_string).collect::<Vec<_>>();
     // One large finite position (it used to reach the least-squares SVD as NaN).
@@ -146,6 +149,7 @@ fn gap_refuses_values_and_rates_no_machine_logs_without_hanging() {
 #[test]
 fn gap_writes_the_augmented_model_and_the_report() {
     let dir = scratch("ok");
+    let dir = dir.path();
     let (code, msg, wrote) = gap(&dir, REFERENCE_TOML, &log_text(Some("closed")));
     assert_eq!(code, 0, "{msg}");
     assert!(wrote);

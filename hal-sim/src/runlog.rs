@@ -949,11 +949,11 @@ mod contract_tests {
         let mut bytes = ok.clone().into_bytes();
         let at = ok.find("0.0003").unwrap();
         bytes[at] = 0xff;
-        let path = std::env::temp_dir().join(format!("fpc-runlog-utf8-{}", std::process::id()));
+        let scratch = tempfile::tempdir().unwrap();
+        let path = scratch.path().join("not-utf8.csv");
         std::fs::write(&path, &bytes).unwrap();
         let e = RunLog::read(&path).unwrap_err();
         assert!(e.line > 3 && e.message.contains("UTF-8"), "{e}");
-        let _ = std::fs::remove_file(&path);
     }
 
     #[test]

@@ -254,9 +254,8 @@ fn every_model_plan_and_calibration_file_of_the_repository_loads() {
 /// naming the key, before any output is written.
 #[test]
 fn fpc_sim_run_exits_2_naming_the_key_and_writes_nothing() {
-    let d = std::env::temp_dir().join(format!("fpc_model_ranges_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
+    let scratch = tempfile::tempdir().expect("scratch directory");
+    let d = scratch.path();
     let model = d.join("model.toml");
     let out = d.join("out");
     for (n, (i, key)) in numeric_lines().into_iter().enumerate() {
@@ -275,7 +274,6 @@ fn fpc_sim_run_exits_2_naming_the_key_and_writes_nothing() {
         assert_names(err.trim(), &key, value);
         assert!(!out.exists(), "{key} = {value}: outputs written");
     }
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
@@ -468,8 +466,8 @@ fn an_endless_or_huge_model_file_is_refused_without_reading_it_all() {
         let e = MachineModel::read(zero).unwrap_err().0;
         assert!(e.contains("larger than"), "{e}");
     }
-    let d = std::env::temp_dir().join(format!("fpc_model_huge_{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
+    let scratch = tempfile::tempdir().expect("scratch directory");
+    let d = scratch.path();
     let huge = d.join("huge.toml");
     let padding = "# padding\n".repeat(200_000);
     std::fs::write(&huge, format!("{REFERENCE}\n{padding}")).unwrap();
@@ -478,5 +476,4 @@ fn an_endless_or_huge_model_file_is_refused_without_reading_it_all() {
     std::fs::write(&huge, [0xff, 0xfe, 0x00, 0x41]).unwrap();
     let e = MachineModel::read(&huge).unwrap_err().0;
     assert!(e.contains("not UTF-8"), "{e}");
-    let _ = std::fs::remove_dir_all(&d);
 }
