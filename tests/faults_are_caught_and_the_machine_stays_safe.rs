@@ -367,7 +367,7 @@ fn s09_a_vented_chamber_never_costs_the_clearance() {
     // found implausible (or the following error trips) and the machine stops under control
     // (#9: "following_error or stroke adapts"). Either way the piston keeps the 1 mm the
     // strokes aim at, less 0.1 mm (0.984 and 0.986 mm measured), not only the 0.3 mm limit.
-    let target_m = f64::from(ControlConfig::reference().target_clearance_m);
+    let target_m = f64::from(control_config(&MachineModel::reference()).target_clearance_m);
     for spec in ["gas_loss@{b}", "gas_loss@{a}:chamber=b"] {
         let r = inject(spec).injection;
         report(9, spec, &r);
