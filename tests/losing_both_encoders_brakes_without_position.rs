@@ -94,6 +94,7 @@ fn losing_both_encoders_at_full_speed_keeps_the_head_clearance_at_every_phase() 
     let mut worst = (f64::INFINITY, 0.0);
     let mut peak_pressure_bar = 0.0f64;
     let mut least_bound = f64::INFINITY;
+    let mut sealed_phases = 0;
     for i in 0..PHASES {
         // From just before the stroke toward B starts, through the whole cycle.
         let at = start - 2e-3 + period * i as f64 / PHASES as f64;
@@ -134,6 +135,7 @@ fn losing_both_encoders_at_full_speed_keeps_the_head_clearance_at_every_phase() 
                 bound_m * 1e3
             );
             least_bound = least_bound.min(bound_m);
+            sealed_phases += 1;
         }
         assert_eq!(fault, Fault::EncoderSignal, "{spec}");
         assert!(r.samples_to_fault().unwrap() <= 2, "{spec}");
@@ -152,9 +154,15 @@ fn losing_both_encoders_at_full_speed_keeps_the_head_clearance_at_every_phase() 
         worst.1
     );
     println!(
-        "the gas spring alone, from the chamber ahead sealed on: ≥ {:.3} mm at every phase \
-         where it seals before the closest approach",
+        "the gas spring alone, from the chamber ahead sealed on: ≥ {:.3} mm at each of the \
+         {sealed_phases} phases where it seals before the closest approach",
         least_bound * 1e3
+    );
+    // The bound is worked out where the brake seals the chamber ahead: two thirds of the
+    // phases (32 of 48 measured), else it says little.
+    assert!(
+        sealed_phases >= 24,
+        "the chamber ahead sealed at {sealed_phases} phases"
     );
     assert!(worst.0 >= MIN_CLEARANCE_M, "{:.3} mm", worst.0 * 1e3);
     // Where the chamber ahead seals, the clearance holds by energy alone: it rests on the
