@@ -43,8 +43,13 @@ fn window() -> WindowArgs {
     }
 }
 
-/// Runs every plotting analysis on `log` into `out`; returns each result with its plot.
-fn run_all(log: &Path, out: &Path) -> Vec<(&'static str, CmdResult, PathBuf)> {
+/// Runs every plotting analysis on `log` into `out` (`energy` on `stroke`, or by default the
+/// last whole one); returns each result with its plot.
+fn run_all(
+    log: &Path,
+    out: &Path,
+    stroke: Option<usize>,
+) -> Vec<(&'static str, CmdResult, PathBuf)> {
     let sg = fpc::control::config::ControlConfig::reference();
     vec![
         (
@@ -74,7 +79,7 @@ fn run_all(log: &Path, out: &Path) -> Vec<(&'static str, CmdResult, PathBuf)> {
             "energy",
             energy_cmd::main(energy_cmd::EnergyArgs {
                 io: LogToolArgs::new(log, out),
-                stroke: None,
+                stroke,
                 filter: filter(),
             }),
             out.join("energy.svg"),
@@ -101,8 +106,8 @@ fn run_all(log: &Path, out: &Path) -> Vec<(&'static str, CmdResult, PathBuf)> {
     ]
 }
 
-fn assert_all_plot(log: &Path, out: &Path) {
-    for (name, result, plot) in run_all(log, out) {
+fn assert_all_plot(log: &Path, out: &Path, stroke: Option<usize>) {
+    for (name, result, plot) in run_all(log, out, stroke) {
         assert_eq!(result, Ok(()), "{name} on {}", log.display());
         if plot != PathBuf::new() {
             let svg = std::fs::read_to_string(&plot).unwrap();
@@ -117,7 +122,23 @@ fn assert_all_plot(log: &Path, out: &Path) {
 
 #[test]
 fn every_analysis_runs_on_the_hand_written_log() {
-    assert_all_plot(Path::new(HAND_LOG), scratch("hand").path());
+    // One cycle: both its strokes touch the log's ends, so `energy` refuses to pick one by
+    // itself (naming `--stroke`) and plots the one it is told.
+    let dir = scratch("hand");
+    let dir = dir.path();
+    let e = energy_cmd::main(energy_cmd::EnergyArgs {
+        io: LogToolArgs::new(Path::new(HAND_LOG), dir),
+        stroke: None,
+        filter: filter(),
+    })
+    .unwrap_err();
+    assert_eq!(e.code, 2);
+    assert!(
+        e.message.contains("no whole stroke") && e.message.contains("--stroke"),
+        "{}",
+        e.message
+    );
+    assert_all_plot(Path::new(HAND_LOG), dir, Some(1));
 }
 
 #[test]
@@ -131,7 +152,7 @@ fn every_analysis_runs_on_an_fpc_sim_run_log() {
     let dir = dir.path();
     let csv = dir.join("run.csv");
     outcome.log.write(&csv).unwrap();
-    assert_all_plot(&csv, &dir);
+    assert_all_plot(&csv, &dir, None);
 }
 
 #[test]
@@ -147,7 +168,7 @@ fn bad_logs_are_refused_with_line_and_column() {
     let dir = dir.path();
     let path = dir.join("bad.csv");
     std::fs::write(&path, bad.join("\n")).unwrap();
-    for (name, result, _) in run_all(&path, &dir) {
+    for (name, result, _) in run_all(&path, &dir, None) {
         let failure = result.expect_err(name);
         assert_eq!(failure.code, 2, "{name}: {failure:?}");
         assert!(
@@ -227,6 +248,7 @@ fn decode_turns_a_capture_into_a_readable_run_log_and_refuses_garbage() {
         force: false,
         accept_loss: false,
         recording: None,
+        json: false,
     })
     .unwrap();
     let log = RunLog::read(&out).unwrap();
@@ -240,6 +262,7 @@ fn decode_turns_a_capture_into_a_readable_run_log_and_refuses_garbage() {
         force: true,
         accept_loss: false,
         recording: None,
+        json: false,
     })
     .unwrap_err();
     assert_eq!(e.code, 2);

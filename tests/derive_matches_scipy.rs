@@ -86,6 +86,9 @@ fn bad_input_is_refused_with_exit_2_naming_where() {
         window,
         order: None,
         lag: None,
+        out: None,
+        json: false,
+        force: false,
     };
     let e = main(args(bad.clone(), None)).unwrap_err();
     assert_eq!(e.code, 2);

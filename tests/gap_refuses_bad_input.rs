@@ -39,7 +39,7 @@ fn gap_band(dir: &Path, model: &str, log: &str, band_hz: f64) -> (u8, String, bo
     std::fs::write(&m, model).unwrap();
     std::fs::write(&l, log).unwrap();
     let r = main(GapArgs {
-        model: m,
+        model: Some(m),
         measured: l,
         out: out.clone(),
         json: false,
