@@ -50,7 +50,8 @@
 //! | thread mode | — | supervision (watchdog), telemetry, commands, calibration storage |
 //!
 //! # Flash
-//! The program lives in bank 1; the last four 2 KiB pages of bank 2 (0x0807_E000 to
+//! The program lives in bank 1 (`memory.x`'s FLASH is bank 1, so an image that would reach
+//! bank 2 does not link); the last four 2 KiB pages of bank 2 (0x0807_E000 to
 //! 0x0808_0000, cut from `memory.x`) hold the calibration store ([`CALIBRATION_STORE`]). In
 //! dual-bank mode the banks read while the other is written, so a page erase (≈ 22 ms) in
 //! bank 2 never stalls the control code. The async driver waits for the FLASH interrupt
