@@ -111,7 +111,9 @@ RESET_VALUES = {
     PWR + 0x08: 0x0000_8000,  # CR3
     PWR + 0x80: 0x0000_0100,  # CR5: R1MODE = 1 (range-1 normal mode)
     FLASH_R + 0x00: 0x0000_0600,
-    FLASH_R + 0x20: 0xFFEF_F8AA,  # OPTR as shipped: DBANK = 1 (the boot checks it)
+    # OPTR as bring-up step 0 leaves it: the factory's (DBANK = 1) with BOR_LEV = 2 (the boot
+    # checks both).
+    FLASH_R + 0x20: 0xFFEF_FAAA,
     GPIOA + 0x00: 0xABFF_FFFF,
     GPIOB + 0x00: 0xFFFF_FEBF,
     ADC1 + 0x08: 0x2000_0000,  # CR: DEEPPWD

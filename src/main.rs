@@ -113,6 +113,16 @@ mod firmware {
         match never {}
     }
 
+    /// Logs the stack's high-water mark at boot and whenever it grows by 256 bytes (thread
+    /// mode, once a second: a scan of the painted stack, ≈ 0.1 ms).
+    #[embassy_executor::task]
+    async fn stack_watch() {
+        loop {
+            board::stack::log_growth();
+            embassy_time::Timer::after_secs(1).await;
+        }
+    }
+
     /// Reads the calibration from flash (memory-mapped reads, well inside the watchdog's
     /// boot window) and starts the storage task with the store.
     async fn load_calibration(
@@ -174,6 +184,7 @@ mod firmware {
             BoardSleep,
             BoardClock
         )));
+        spawner.spawn(defmt::unwrap!(stack_watch()));
         defmt::info!("running: control, supervision, telemetry and command tasks");
     }
 }
