@@ -4,6 +4,13 @@
 
 use super::*;
 
+/// COMP1_CSR (COMP2..7 follow, 4 bytes apart).
+const COMP_CSR: u32 = 0x4001_0200;
+/// SYSCFG_CFGR2.
+const SYSCFG_CFGR2: u32 = 0x4001_001C;
+/// DAC3 (DAC4 follows at + 0x400).
+const DAC3: u32 = 0x5000_1000;
+
 /// GPIOB's input data register.
 const GPIOB_IDR: u32 = 0x4800_0410;
 
@@ -38,8 +45,12 @@ impl Soc {
             a if (base::FLASH..base::FLASH + 0x400).contains(&a) => {
                 self.flash.read_reg(off(base::FLASH))
             }
-            a if (base::ADC1..base::ADC1 + 0x100).contains(&a) => self.adc1.r(off(base::ADC1)),
-            a if (base::ADC2..base::ADC2 + 0x100).contains(&a) => self.adc2.r(off(base::ADC2)),
+            a if (base::ADC1..base::ADC1 + 0x100).contains(&a) => {
+                self.adc1.read(off(base::ADC1), now)
+            }
+            a if (base::ADC2..base::ADC2 + 0x100).contains(&a) => {
+                self.adc2.read(off(base::ADC2), now)
+            }
             a if a == base::ADC12 + 0x08 => self.adc_ccr,
             a if a == base::ADC12 + 0x0C => {
                 (self.adc1.r(adc::reg::DR) & 0xFFFF) | (self.adc2.r(adc::reg::DR) & 0xFFFF) << 16
@@ -55,6 +66,13 @@ impl Soc {
                 0x3C => self.dac_mcr,
                 _ => 0,
             },
+            a if (COMP_CSR..COMP_CSR + 28).contains(&a) => {
+                self.comps.read_csr(((a - COMP_CSR) / 4) as usize)
+            }
+            SYSCFG_CFGR2 => self.comps.cfgr2,
+            a if (DAC3..DAC3 + 0x800).contains(&a) => self
+                .comps
+                .read_dac(((a - DAC3) / 0x400) as usize, (a - DAC3) % 0x400),
             a if a == base::RCC + 0x94 => {
                 let csr = self.reg(a) & 0x00FF_FFFF;
                 csr | self.csr_flags
@@ -102,15 +120,19 @@ impl Soc {
             }
             a if (base::FLASH..base::FLASH + 0x400).contains(&a) => {
                 self.flash.write_reg(off(base::FLASH), value, now);
+                if std::mem::take(&mut self.flash.bus_error) {
+                    // A precise data bus error (BFARVALID, PRECISERR), escalated to HardFault.
+                    self.stop = Some(super::cpu::Stop::Fault((1 << 9) | (1 << 15), Some(addr)));
+                }
                 self.note_flash_state();
             }
             a if (base::ADC1..base::ADC1 + 0x100).contains(&a) => {
-                self.adc1.write(off(base::ADC1), value)
+                self.adc_write(1, off(base::ADC1), value)
             }
             a if (base::ADC2..base::ADC2 + 0x100).contains(&a) => {
-                self.adc2.write(off(base::ADC2), value)
+                self.adc_write(2, off(base::ADC2), value)
             }
-            a if a == base::ADC12 + 0x08 => self.adc_ccr = value,
+            a if a == base::ADC12 + 0x08 => self.adc_ccr_write(value),
             a if (base::DMA1..base::DMA1 + 0x400).contains(&a) => {
                 self.dma.write(off(base::DMA1), value)
             }
@@ -124,6 +146,14 @@ impl Soc {
                 _ => {}
             },
             a if (base::RCC..base::RCC + 0x400).contains(&a) => self.rcc_write(a, value),
+            a if (COMP_CSR..COMP_CSR + 28).contains(&a) => {
+                self.comps.write_csr(((a - COMP_CSR) / 4) as usize, value)
+            }
+            SYSCFG_CFGR2 => self.comps.write_cfgr2(value),
+            a if (DAC3..DAC3 + 0x800).contains(&a) => {
+                self.comps
+                    .write_dac(((a - DAC3) / 0x400) as usize, (a - DAC3) % 0x400, value)
+            }
             a => {
                 self.regs.insert(a, value);
             }

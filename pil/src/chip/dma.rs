@@ -95,6 +95,29 @@ impl Dma {
         Some((at, complete))
     }
 
+    /// A peripheral's request on channel `c`, `value` what its peripheral register (CPAR)
+    /// reads: the memory write it makes — address, bytes (MSIZE) and the data read at PSIZE
+    /// (zero-extended, or truncated to MSIZE; RM0440 §12, "Programmable data width") — or
+    /// `None` if the channel is off, or set to read memory (DIR = 1: nothing lands in memory).
+    pub fn peripheral_to_memory(&mut self, c: usize, value: u32) -> Option<(u32, u32, u32)> {
+        let ccr = self.ch[c][0];
+        let (at, _) = self.transfer(c)?;
+        if ccr & (1 << 4) != 0 {
+            return None;
+        }
+        let width = |code: u32| 8 * (1u32 << code.min(2));
+        let read = match width(ccr >> 8 & 3) {
+            32 => value,
+            w => value & ((1 << w) - 1),
+        };
+        let msize = width(ccr >> 10 & 3) / 8;
+        let data = match msize {
+            4 => read,
+            m => read & ((1 << (8 * m)) - 1),
+        };
+        Some((at, msize, data))
+    }
+
     /// The interrupt line of channel `c`: a flag enabled in CCR (TCIE 1, HTIE 2, TEIE 3).
     pub fn irq(&self, c: usize) -> bool {
         let ccr = self.ch[c][0];
@@ -130,5 +153,31 @@ mod tests {
         assert!(d.irq(0));
         d.write(0x04, 1);
         assert!(!d.irq(0));
+    }
+
+    /// RM0440 §12 (DMA_CCRx: DIR, PSIZE, MSIZE; "Programmable data width, alignment and
+    /// endianness"): the channel reads PSIZE bits of its peripheral register and writes them
+    /// zero-extended at MSIZE; with DIR = 1 it reads memory, so nothing lands there.
+    #[test]
+    fn the_data_width_and_direction_come_from_the_channel() {
+        let mut d = Dma::default();
+        d.write(0x0C, 4);
+        d.write(0x14, 0x2000_0100);
+        // EN, MINC, PSIZE 32, MSIZE 32.
+        d.write(0x08, 1 | (1 << 7) | (2 << 8) | (2 << 10));
+        assert_eq!(
+            d.peripheral_to_memory(0, 0x0ABC_0123),
+            Some((0x2000_0100, 4, 0x0ABC_0123))
+        );
+        // PSIZE 16: the high half (ADC2's code in ADC12_CDR) is lost.
+        d.write(0x08, 0);
+        d.write(0x08, 1 | (1 << 7) | (1 << 8) | (2 << 10));
+        assert_eq!(
+            d.peripheral_to_memory(0, 0x0ABC_0123),
+            Some((0x2000_0104, 4, 0x0123))
+        );
+        d.write(0x08, 0);
+        d.write(0x08, 1 | (1 << 4) | (1 << 7) | (2 << 8) | (2 << 10));
+        assert_eq!(d.peripheral_to_memory(0, 0x0ABC_0123), None);
     }
 }

@@ -62,7 +62,15 @@ impl Chip {
             Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize| {
                 let soc = uc.get_data_mut();
                 soc.store_reads += 1;
-                let v = soc.flash.read_array(STORE_BASE + off as u32, size);
+                let at = STORE_BASE + off as u32;
+                if let Some(end) = soc.flash.stall_until(at) {
+                    // The read waits for the operation in its bank, then reads what it left.
+                    soc.stall_until = Some(end);
+                    let v = soc.flash.read_after_op(at, size);
+                    let _ = uc.emu_stop();
+                    return u64::from(v);
+                }
+                let v = soc.flash.read_array(at, size);
                 if soc.flash.nmi {
                     soc.update_irqs();
                     let _ = uc.emu_stop();
@@ -82,10 +90,16 @@ impl Chip {
             }),
         )
         .map_err(uc_err("map store"))?;
-        for (b, size) in [RAM, CCM, SYSMEM] {
+        for (b, size) in [RAM, CCM] {
             uc.mem_map(u64::from(b), u64::from(size), Prot::ALL)
                 .map_err(uc_err("map ram"))?;
         }
+        uc.mem_map(
+            u64::from(SYSMEM.0),
+            u64::from(SYSMEM.1),
+            Prot::READ | Prot::EXEC,
+        )
+        .map_err(uc_err("map system memory"))?;
         // The flash size register (RM0440 §47.2): 512 KiB.
         uc.mem_write(0x1FFF_75E0, &512u16.to_le_bytes())
             .map_err(uc_err("flash size"))?;
@@ -284,6 +298,8 @@ impl Chip {
             .map_err(uc_err("ccm"))?;
         let soc = self.uc.get_data_mut();
         soc.powered = true;
+        // The cut that tore a flash step is over: the next program is a program.
+        soc.flash.power_cut = false;
         soc.csr_flags = 0;
         self.reset(ResetKind::PowerOn)
     }

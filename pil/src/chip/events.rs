@@ -159,18 +159,14 @@ impl Soc {
     }
 
     pub(super) fn step_plant(&mut self) {
-        let moe = |t: &Timer| t.regs[(timers::reg::BDTR / 4) as usize] & (1 << 15) != 0;
         let dac = if self.dac_cr & 1 != 0 && self.powered {
             self.dac_dhr & 0xFFF
         } else {
             2048
         };
-        let on = if self.powered {
-            [moe(&self.tim1), moe(&self.tim8)]
-        } else {
-            [false, false]
-        };
-        self.board.step(on, dac as u16);
+        let bridges = self.bridges();
+        self.board.step(bridges, dac as u16);
+        self.check_breaks();
         if self.recording {
             self.period.path_lines = self.path_lines.len() as u32;
             self.period.path_data_lines = self.path_data_lines.len() as u32;

@@ -7,6 +7,8 @@
 //! | NVIC and SCB | [`nvic`] |
 //! | SCB's other registers, DWT, DBGMCU (the private peripheral bus) | [`ppb`] |
 //! | TIM1, TIM8, TIM2, TIM4 | [`timers`] |
+//! | TIM1/TIM8's output stage, break and lock | [`output_stage`] |
+//! | COMP1–7, their threshold DACs (DAC3, DAC4), SYSCFG_CFGR2 | [`comp`] |
 //! | ADC1/ADC2 dual mode | [`adc`] |
 //! | DMA1 and DMAMUX | [`dma`] |
 //! | flash interface, option bytes, ECC, the calibration store | [`flash`] |
@@ -31,6 +33,7 @@
 
 pub mod adc;
 mod bus;
+pub mod comp;
 pub mod cpu;
 pub mod dma;
 mod emulator;
@@ -39,6 +42,7 @@ pub mod flash;
 pub mod iwdg;
 mod load;
 pub mod nvic;
+pub mod output_stage;
 mod ppb;
 mod rcc;
 pub mod timers;
@@ -71,8 +75,10 @@ pub const FLASH_WAIT_STATES: u64 = 4;
 
 /// CCM SRAM (32 KiB; zero wait states on the I-code and D-code buses, RM0440 §2.1).
 pub const CCM: (u32, u32) = (0x1000_0000, 32 * 1024);
-/// System memory, OTP, option bytes, engineering bytes.
-const SYSMEM: (u32, u32) = (0x1FFF_0000, 0x1_0000);
+/// System memory (the bootloader), OTP, option bytes, engineering bytes: read only (RM0440
+/// memory map, 0x1FFF_0000–0x1FFF_7FFF). Nothing is mapped from there to SRAM1's start, so a
+/// stack that overflows below 0x2000_0000 meets a bus error.
+const SYSMEM: (u32, u32) = (0x1FFF_0000, 0x8000);
 /// Peripherals (APB1, APB2, AHB1, AHB2).
 const PERIPH: (u32, u32) = (0x4000_0000, 0x2000_0000);
 /// Private peripheral bus (NVIC, SCB, SysTick, DWT, DBGMCU).
@@ -129,7 +135,7 @@ impl Default for ChipOptions {
         ChipOptions {
             cpi: Some(crate::DEFAULT_CPI),
             lsi_hz: 32_000.0,
-            optr: flash::OPTR_FACTORY,
+            optr: flash::OPTR_BRINGUP,
             flash_timing: false,
         }
     }
@@ -204,6 +210,10 @@ pub struct Soc {
     dma: Dma,
     /// The flash interface and the calibration store's array.
     pub flash: Flash,
+    /// The comparators, their DACs and SYSCFG_CFGR2.
+    pub comps: comp::Comparators,
+    /// Every break the advanced timers took from their break inputs.
+    pub breaks: Vec<BreakRecord>,
     /// The IWDG.
     pub iwdg: Iwdg,
     dac_dhr: u32,
@@ -239,6 +249,14 @@ pub struct Soc {
     pub recording: bool,
     /// An interrupt path is open (handler mode entered from thread mode).
     path_open: bool,
+    /// The core is in lockup (a fault while entering HardFault, or in it): it executes
+    /// nothing until a reset (ARMv7-M B1.5.15).
+    pub locked_up: bool,
+    /// When the core locked up, s.
+    pub lockups: Vec<f64>,
+    /// The core is stalled on a flash access until this instant (a read of a bank being
+    /// programmed or erased): no instruction runs, the peripherals go on.
+    pub stall_until: Option<u64>,
     /// Stop the control executor for good at its next entry (a hung control task).
     pub hang_pending: bool,
     /// Raise a bus fault (HardFault) at the control executor's next entry.
@@ -278,6 +296,21 @@ pub struct Soc {
     last_line: u32,
 }
 
+/// A break an advanced timer took from its break input (the hardware switching a bridge
+/// off), and what the core did meanwhile.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BreakRecord {
+    /// 0: TIM1 (section 1), 1: TIM8 (section 2).
+    pub timer: usize,
+    /// When the break input's source crossed (the plant step that carried the current), s.
+    pub crossed_at_s: f64,
+    /// When the outputs were in their safe state: the comparator's propagation and the break
+    /// filter later, s.
+    pub safe_at_s: f64,
+    /// Instructions the core executed between the crossing and the safe state.
+    pub instructions_between: u64,
+}
+
 /// A step of a boot the chip notices (the first time after each reset).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Milestone {
@@ -303,6 +336,11 @@ pub enum Milestone {
 }
 
 impl Soc {
+    /// DMA1 channel `c`'s memory address (CMAR): where the firmware asked its transfers to go.
+    pub fn dma_memory_address(&self, c: usize) -> u32 {
+        self.dma.ch.get(c).map_or(0, |ch| ch[3])
+    }
+
     /// Notes `m` if it is the first since the last reset.
     pub(crate) fn milestone(&mut self, m: Milestone) {
         let since_reset = self
@@ -350,6 +388,8 @@ impl Soc {
             adc_ccr: 0,
             dma: Dma::default(),
             flash,
+            comps: comp::Comparators::default(),
+            breaks: Vec::new(),
             iwdg: Iwdg::new(options.lsi_hz),
             dac_dhr: 0,
             dac_cr: 0,
@@ -369,6 +409,9 @@ impl Soc {
             periods: Vec::new(),
             recording: false,
             path_open: false,
+            stall_until: None,
+            locked_up: false,
+            lockups: Vec::new(),
             hang_pending: false,
             bus_fault_pending: false,
             adc_dead: false,

@@ -53,6 +53,7 @@ impl Soc {
         self.adc_ccr = 0;
         self.dma = Dma::default();
         self.flash.reset();
+        self.comps = super::comp::Comparators::default();
         self.iwdg = Iwdg::new(self.iwdg.lsi_hz);
         self.dac_dhr = 0;
         self.dac_cr = 0;
@@ -63,6 +64,8 @@ impl Soc {
         self.reset_pending = None;
         self.path_open = false;
         self.hang_pending = false;
+        self.stall_until = None;
+        self.locked_up = false;
         self.bus_fault_pending = false;
         self.board.dma_writes.clear();
         self.watch_word = None;
@@ -82,6 +85,29 @@ impl Soc {
         } else {
             [2.0, 4.0, 8.0, 16.0, 64.0, 128.0, 256.0, 512.0][(hpre - 8) as usize]
         }
+    }
+
+    /// The PLL's "P" output period, time units, if enabled (RCC_PLLCFGR: PLLPEN, PLLPDIV or
+    /// PLLP).
+    pub(super) fn pll_p_period(&self) -> Option<f64> {
+        let pll = self.reg(base::RCC + 0x0C);
+        if pll & (1 << 16) == 0 {
+            return None;
+        }
+        let input = match pll & 3 {
+            3 => 24_000_000u64,
+            _ => 16_000_000,
+        };
+        let m = u64::from((pll >> 4) & 0xF) + 1;
+        let n = u64::from((pll >> 8) & 0x7F);
+        let pdiv = u64::from(pll >> 27);
+        let p = match pdiv {
+            0 if pll & (1 << 17) != 0 => 17,
+            0 => 7,
+            d => d,
+        };
+        let hz = (input / m * n / p).max(1);
+        Some(crate::time::units_per_cycle(hz))
     }
 
     pub(super) fn reg(&self, addr: u32) -> u32 {
