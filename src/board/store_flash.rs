@@ -9,6 +9,9 @@
 //!   flag latched meanwhile into that operation's error. So a failed erase or copy-forward
 //!   inside the storage crate fails the save, as a failed record write did already (the
 //!   save's read-back).
+//! - [`CheckedFlash`]'s reads yield to the other thread-mode tasks: a save into a full
+//!   store scans its items for several milliseconds of CPU, longer than the watchdog's 3 ms
+//!   window that the supervision task (the same executor) must feed within.
 //! - [`zero_double_word`] and [`erase_calibration_store`]: register-level, for the NMI
 //!   handler (interrupts masked, no driver, no await).
 
@@ -85,6 +88,11 @@ impl ReadNorFlash for CheckedFlash {
     const READ_SIZE: usize = <Flash<'static, Async> as ReadNorFlash>::READ_SIZE;
 
     async fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Error> {
+        // A read is memory-mapped and never waits, so a save's scan of a full store (its
+        // items checked for newer copies before a page is erased: > 3 ms of thread-mode CPU
+        // in the emulator) would keep the supervision task, and its watchdog feed, from
+        // running. Each read lets the other thread-mode tasks run first.
+        embassy_futures::yield_now().await;
         self.inner.read(offset, bytes).await
     }
 
