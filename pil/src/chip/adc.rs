@@ -399,6 +399,9 @@ mod tests {
 
     const CLK: Option<f64> = Some(32.0);
 
+    /// When [`ready_adc`]'s ADC is ready.
+    const READY_AT: u64 = VREG_STARTUP + (CALIBRATION_CYCLES * 32.0) as u64;
+
     /// An ADC out of deep power-down with its regulator up, calibrated and enabled.
     fn ready_adc() -> Adc {
         let mut a = Adc::new();
@@ -419,11 +422,11 @@ mod tests {
         a.write(
             reg::JSQR,
             2 | (8 << 2) | (1 << 7) | (1 << 9) | (2 << 15) | (3 << 21),
-            0,
+            READY_AT,
             CLK,
         );
-        a.write(reg::SMPR1, 1 << 3, 0, CLK);
-        a.write(reg::CR, ADVREGEN | ADEN | JADSTART, 0, CLK);
+        a.write(reg::SMPR1, 1 << 3, READY_AT, CLK);
+        a.write(reg::CR, ADVREGEN | ADEN | JADSTART, READY_AT, CLK);
         assert!(a.injected_armed(8));
         assert!(!a.injected_armed(9));
         assert_eq!(a.injected_channels(), vec![1, 2, 3]);
@@ -436,14 +439,14 @@ mod tests {
     #[test]
     fn jsqr_is_not_written_while_an_injected_conversion_is_started() {
         let mut a = ready_adc();
-        a.write(reg::JSQR, 1 << 9, 0, CLK);
-        a.write(reg::CR, ADVREGEN | ADEN | JADSTART, 0, CLK);
-        a.write(reg::JSQR, 5 << 9, 0, CLK);
+        a.write(reg::JSQR, 1 << 9, READY_AT, CLK);
+        a.write(reg::CR, ADVREGEN | ADEN | JADSTART, READY_AT, CLK);
+        a.write(reg::JSQR, 5 << 9, READY_AT, CLK);
         assert_eq!(a.r(reg::JSQR), 1 << 9);
-        a.write(reg::SMPR1, 7, 0, CLK);
+        a.write(reg::SMPR1, 7, READY_AT, CLK);
         assert_eq!(a.r(reg::SMPR1), 0);
-        a.write(reg::CR, ADVREGEN | ADEN | JADSTP, 0, CLK);
-        a.write(reg::JSQR, 5 << 9, 0, CLK);
+        a.write(reg::CR, ADVREGEN | ADEN | JADSTP, READY_AT, CLK);
+        a.write(reg::JSQR, 5 << 9, READY_AT, CLK);
         assert_eq!(a.r(reg::JSQR), 5 << 9);
     }
 

@@ -64,8 +64,11 @@ impl Iwdg {
         if self.pr_lands.is_some_and(|t| now >= t) {
             // A prescaler change re-times the count from here.
             if let Some((v, at)) = self.counting {
-                let ticks = ((now - at) as f64 / self.units_per_tick(self.pr_active)) as u32;
-                self.counting = Some((v.saturating_sub(ticks), now));
+                // The whole ticks counted so far; the tick under way goes on from its start.
+                let per_tick = self.units_per_tick(self.pr_active);
+                let ticks = ((now - at) as f64 / per_tick) as u32;
+                let tick_start = at + (f64::from(ticks) * per_tick) as u64;
+                self.counting = Some((v.saturating_sub(ticks), tick_start));
             }
             self.pr_active = self.pr;
             self.pr_lands = None;
