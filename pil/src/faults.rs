@@ -214,9 +214,12 @@ struct Run {
 impl Run {
     /// One PWM period, the clearance noted.
     fn step(&mut self) -> Result<(), String> {
+        // The period in which a break comes ends with its crossing (the comparators see the
+        // plant step's currents): only the periods that start after it count.
+        let broken_before = !self.s.chip.soc_ref().breaks.is_empty();
         self.s.step()?;
         let soc = self.s.chip.soc_ref();
-        if let Some(b) = soc.breaks.first() {
+        if let Some(b) = soc.breaks.first().filter(|_| broken_before) {
             let on = soc.board.world.sections_on;
             if [on.master, on.slave][b.timer] {
                 self.switched_after_break += 1;

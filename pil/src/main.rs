@@ -34,7 +34,9 @@ enum Cmd {
     /// over RTT, N cycles; the same JSON as `fpc-sim run --json` and the PIL's figures.
     Run(RunArgs),
     /// A fault scenario on the ELF (docs/faults.md): boot-window, hung-control, fault-path,
-    /// torn-save, save-error, single-bank; prints the resets, the log and the faults.
+    /// panic-on-stop, torn-save, torn-save-stale-flag, torn-save-in-motion, save-error,
+    /// erase-error, single-bank, factory-brown-out, supply-loss, overcurrent; prints the
+    /// resets, the log and the faults.
     Fault(FaultArgs),
     /// The control period while a calibration save erases and programs flash (data cache
     /// off): the interrupt path's flash lines and flash data reads per period, turned into
