@@ -240,10 +240,12 @@ pub fn init() -> Board {
         injected: [adc2(p.PA6), adc2(p.PA7), adc2(p.PC4)],
         regular: [adc2(p.PC5), adc2(p.PB2), adc2(p.PC1), adc2(p.PC2)],
     };
+    // The over-current comparators, well before the timers' break inputs listen to them:
+    // the ADCs' start-up below is the DACs' and comparators' start-up time (no wait of their
+    // own in the boot, which delays the brake after a watchdog reset).
+    trip::start_comparators(p.PB0, p.PB11, p.PB13);
     let sampler = adc::start(p.ADC1, p.ADC2, p.DMA1_CH1, &master, &slave);
 
-    // The over-current comparators before the timers' break inputs listen to them.
-    trip::start_comparators(p.PB0, p.PB11, p.PB13);
     supply::start_pvd();
     trip::lock_system_breaks();
     // Timers first (outputs forced low), then the pins handed to them.
@@ -285,9 +287,6 @@ pub fn init() -> Board {
         BoardCalibrationStore::new(store_flash::CheckedFlash::new(flash), CALIBRATION_STORE)
     };
 
-    // The free stack painted (≈ 0.2 ms for 68 KiB at 170 MHz) while the watchdog's register
-    // update still runs: the wait below absorbs most of it.
-    stack::paint();
     watchdog.settle();
     defmt::info!(
         "board up: {} Hz PWM, ARR {}, dead time {} ns",

@@ -7,9 +7,9 @@
 //! into a break of both bridges (`trip.rs`) until the watchdog resets. Without it the stack
 //! grew from the top of SRAM down into `.uninit` and `.bss` without a fault.
 //!
-//! **Measured**: [`paint`] fills the free stack with [`PAINT`] at boot; [`high_water`] finds
-//! the lowest word that no longer holds it. `fpc-pil` reads the same from the emulated RAM,
-//! as a probe would.
+//! **Measured**: [`paint`] fills the free stack with [`PAINT`] at boot, once the tasks run;
+//! [`high_water`] finds the lowest word that no longer holds it. `fpc-pil` reads the same
+//! from the emulated RAM, as a probe would.
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
@@ -88,16 +88,17 @@ pub fn size() -> u32 {
 }
 
 /// Paints the free stack, from SRAM's start to a little below the stack pointer now. Call
-/// once at boot, with interrupts not yet running (nothing else uses the stack below).
+/// once, from thread mode (a task of the thread-mode executor) at boot.
 pub fn paint() {
     let sp = cortex_m::register::msp::read();
     let to = sp.saturating_sub(MARGIN) & !31;
     let from = bottom();
     if to > from && sp <= top() {
-        // SAFETY: [from, sp − MARGIN) is the stack's unused part (below the stack pointer,
-        // above the statics or SRAM's start: `bottom`), owned by no frame; interrupts are not
-        // yet enabled, so nothing pushes below the stack pointer meanwhile. The routine saves
-        // the callee-saved registers it uses.
+        // SAFETY: [from, sp − MARGIN) is the stack's unused part (below the thread-mode
+        // stack pointer, above the statics or SRAM's start: `bottom`), owned by no frame. An
+        // exception taken meanwhile pushes its frames below that stack pointer, and the
+        // routine runs again only once every such handler has returned: a word it stores is
+        // never one a live frame holds. The routine saves the callee-saved registers it uses.
         unsafe { fpc_paint_stack(from, to) }
     }
 }

@@ -123,7 +123,9 @@ pub fn af1(section: Section) -> u32 {
 
 /// The second traces' pins (W1, U2, W2) to analog mode, the thresholds out on DAC3/DAC4's
 /// internal channels, the six comparators on and locked. Call before the timers' break
-/// inputs are enabled (`pwm.rs`), with the bridges' outputs off.
+/// inputs are enabled (`pwm.rs`), with the bridges' outputs off, and at least the DACs' and
+/// comparators' start-up (a few µs) before: `init` starts them ahead of the ADCs, whose
+/// regulators' start-ups (20 µs each, blocking) give it.
 pub fn start_comparators(w1: Peri<'static, PB0>, u2: Peri<'static, PB11>, w2: Peri<'static, PB13>) {
     for mut pin in [Flex::new(w1), Flex::new(u2), Flex::new(w2)] {
         pin.set_as_analog();
@@ -149,8 +151,6 @@ pub fn start_comparators(w1: Peri<'static, PB0>, u2: Peri<'static, PB11>, w2: Pe
             .csr()
             .write_value(pac::comp::regs::Csr(value | csr::LOCK));
     }
-    // The DACs' and comparators' start-up (a few µs) before any break input listens.
-    cortex_m::asm::delay(super::clocks::SYSCLK_HZ / 100_000);
 }
 
 /// The core's lock-up, an SRAM parity error and the PVD on every advanced timer's break
