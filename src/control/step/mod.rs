@@ -121,6 +121,9 @@ pub struct ControlStep {
     calibration: CalibrationState,
     /// The power-good input as the supervision task last read it.
     supply_good: bool,
+    /// Sections whose bridge the hardware over-current trip switched off (their timer's
+    /// break input), until `ClearFaults` re-arms it ([`ControlStep::hardware_trip`]).
+    tripped: PerSection<bool>,
 }
 
 impl ControlStep {
@@ -209,6 +212,7 @@ impl ControlStep {
             status: Status::INIT,
             calibration: CalibrationState::new(),
             supply_good: true,
+            tripped: PerSection::default(),
             config,
         })
     }
@@ -225,6 +229,45 @@ impl ControlStep {
             self.supply_lost();
         }
         self.supply_good = good;
+    }
+
+    /// Whether a hardware over-current trip is latched (the control cycle then calls
+    /// [`ControlStep::hardware_trip`] each cycle; one load and a branch otherwise).
+    #[inline]
+    pub fn trip_latched(&self) -> bool {
+        self.tripped.master || self.tripped.slave
+    }
+
+    /// The bridges' hardware over-current trip (`docs/firmware.md`, "The hardware
+    /// over-current trip"): `now` is which sections' timers show a break (their BIF), which
+    /// switched their outputs off in hardware. A new one latches [`Fault::Overcurrent`] and
+    /// takes that section out of the allocation (the other brakes, as after a measured
+    /// overcurrent). Returns the sections whose trip may be re-armed (their break flag
+    /// cleared) because `ClearFaults` has cleared the fault; a break input still active then
+    /// trips again at once.
+    #[cold]
+    #[inline(never)]
+    pub fn hardware_trip(&mut self, now: PerSection<bool>) -> PerSection<bool> {
+        let new = PerSection {
+            master: now.master && !self.tripped.master,
+            slave: now.slave && !self.tripped.slave,
+        };
+        if !(new.master || new.slave) {
+            if self.faults.contains(Fault::Overcurrent) {
+                return PerSection::default();
+            }
+            return core::mem::take(&mut self.tripped);
+        }
+        if new.master {
+            self.tripped.master = true;
+            self.drop_section(0);
+        }
+        if new.slave {
+            self.tripped.slave = true;
+            self.drop_section(1);
+        }
+        self.enter_safe_state(Fault::Overcurrent, true);
+        PerSection::default()
     }
 
     #[cold]
