@@ -235,6 +235,21 @@ pub(super) fn indicated_work(cumulative_j: &[f64]) -> Option<f64> {
     Some((last - first) / k as f64)
 }
 
+/// Mean electrical energies per cycle over the last 5 cycles (the cycles of
+/// [`indicated_work`]), from the plant's totals at each cycle end.
+pub(super) fn electrical_per_cycle(
+    at_cycle: &[crate::plant::bridge::ElectricalTotals],
+) -> Option<crate::plant::bridge::ElectricalTotals> {
+    let n = at_cycle.len();
+    let k = 5.min(n.saturating_sub(1));
+    if k == 0 {
+        return None;
+    }
+    let last = at_cycle.get(n - 1)?;
+    let first = at_cycle.get(n - 1 - k)?;
+    Some(last.since(first).per(k as f64))
+}
+
 /// If a discharge port's half-open angle was crossed since `last_phase_rad` (forward
 /// rotation: compressor), the relative pressure error of that chamber against the discharge
 /// line at that instant: what a well-timed volume ratio makes zero.

@@ -334,6 +334,14 @@ pub struct Supply {
     /// The servo drive's efficiency: its shaft power drawn from the link divided by it
     /// (what the servo brakes is burnt in its drive, none goes back).
     pub servo_efficiency: f64,
+    /// Knee voltage of a conducting switch or diode of a section's bridge, V (its loss
+    /// model: `plant::bridge`).
+    pub bridge_forward_voltage_v: f64,
+    /// Slope resistance of a conducting switch or diode, Ω.
+    pub bridge_on_resistance_ohm: f64,
+    /// Turn-on plus turn-off energy of a bridge leg per volt of link and ampere switched,
+    /// J/(V·A).
+    pub bridge_switching_energy_j_per_va: f64,
 }
 
 checks!(Supply {
@@ -343,6 +351,9 @@ checks!(Supply {
     logic_dropout_voltage_v: Positive, 1.0, 2000.0, "V";
     logic_power_w: NonNegative, 0.0, 10_000.0, "W";
     servo_efficiency: Positive, 0.05, 1.0, "";
+    bridge_forward_voltage_v: NonNegative, 0.0, 10.0, "V";
+    bridge_on_resistance_ohm: NonNegative, 0.0, 10.0, "Ω";
+    bridge_switching_energy_j_per_va: NonNegative, 0.0, 1e-4, "J/(V·A)";
 });
 
 impl Default for Supply {
@@ -354,6 +365,9 @@ impl Default for Supply {
             logic_dropout_voltage_v: 150.0,
             logic_power_w: 40.0,
             servo_efficiency: 0.85,
+            bridge_forward_voltage_v: 1.0,
+            bridge_on_resistance_ohm: 0.02,
+            bridge_switching_energy_j_per_va: 2.0e-7,
         }
     }
 }
