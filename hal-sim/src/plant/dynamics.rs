@@ -275,8 +275,9 @@ impl Plant {
             let servo_w = self.rotation.torque_nm * self.rotation.servo_speed_rad_s;
             self.supply.discharge(sections_w, servo_w, dt);
         }
-        self.account_electrical(dt);
+        let start = self.motors.current;
         self.motors.step(&voltages, self.v_mps, dt);
+        self.account_electrical(start, dt);
         if self.injected.any_section_dead() {
             self.injected.kill_sections(&mut self.motors);
         }
@@ -344,14 +345,14 @@ impl Plant {
         }
     }
 
-    /// Adds this sub-step's electrical energies (the currents at its start, as the explicit
-    /// current step uses them) to [`Plant::electrical`].
-    fn account_electrical(&mut self, dt: f64) {
+    /// Adds this sub-step's electrical energies to [`Plant::electrical`]: the period's
+    /// voltages, the currents from `start` to where the step took them.
+    fn account_electrical(&mut self, start: PerSection<Dq<f64>>, dt: f64) {
         let bus_v = self.params.sections.motor.master.bus_voltage_v * self.supply.bus_scale();
         let state = |s: Section| SectionState {
             motor: self.params.sections.motor.get(s),
             voltage: *self.voltages.get(s),
-            current: *self.motors.current.get(s),
+            current: (*start.get(s), *self.motors.current.get(s)),
             angle: self.motors.angle(s),
         };
         let sections = PerSection {

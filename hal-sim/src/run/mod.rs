@@ -101,6 +101,9 @@ pub struct Summary {
     /// p_max/p_min of each chamber over the last 5 cycles, mean of A and B (the PR of the
     /// paper's Fig. 3 read from its p–V loops; the target is the line ratio).
     pub pv_pressure_ratio: Option<f64>,
+    /// Largest |F_master + F_slave| (the sections' reported forces) over the last 5 cycles,
+    /// N (the paper's "sum of both forces", §4.1, and the motor force of Fig. 9).
+    pub peak_motor_force_n: Option<f64>,
     /// Frequency of the line in 340–460 Hz of the measured position error (the master
     /// encoder's position − the reference: what the rig sees of a vibration) while
     /// stroking, Hz.
@@ -116,6 +119,15 @@ pub struct Summary {
     pub rest_line_m: Option<f64>,
     /// Its noise floor, m.
     pub rest_line_floor_m: Option<f64>,
+    /// The position error's most prominent line in 100–2000 Hz while stroking, Hz (a limit
+    /// cycle wherever it settles).
+    pub wide_line_hz: Option<f64>,
+    /// Its amplitude, m.
+    pub wide_line_m: Option<f64>,
+    /// The same at rest, Hz.
+    pub rest_wide_line_hz: Option<f64>,
+    /// Its amplitude, m.
+    pub rest_wide_line_m: Option<f64>,
     /// Closed-port run (`--closed-port`): the highest pressure of chamber B, Pa.
     pub closed_port_peak_pa: Option<f64>,
     /// Closed-port run: chamber B's pressure at the end of the hold, Pa.
@@ -839,12 +851,17 @@ impl<'o, 's> RunDriver<'o, 's> {
             travel_m: paper.travel_m,
             volume_ratio_reached: paper.volume_ratio_reached,
             pv_pressure_ratio: paper.pv_pressure_ratio,
+            peak_motor_force_n: paper.peak_motor_force_n,
             line_hz: paper.line_hz,
             line_m: paper.line_m,
             line_floor_m: paper.line_floor_m,
             rest_line_hz: paper.rest_line_hz,
             rest_line_m: paper.rest_line_m,
             rest_line_floor_m: paper.rest_line_floor_m,
+            wide_line_hz: paper.wide_line_hz,
+            wide_line_m: paper.wide_line_m,
+            rest_wide_line_hz: paper.rest_wide_line_hz,
+            rest_wide_line_m: paper.rest_wide_line_m,
             closed_port_peak_pa: None,
             closed_port_end_pa: None,
             electrical_energy_j_per_cycle: electrical.map(|e| e.input_j()),
@@ -884,6 +901,7 @@ impl<'o, 's> RunDriver<'o, 's> {
 fn act(w: &mut World, link: &mut dyn HostLink, action: HostAction) {
     match action {
         HostAction::SetLinePressureRatio(pr) => w.plant.lines.set_pressure_ratio(pr),
+        HostAction::UnloadPorts => w.plant.port_mode = PortMode::Unloaded,
         HostAction::Command(c) => {
             let _ = link.post_command(c);
         }

@@ -58,7 +58,7 @@ impl Shard {
 /// The summary fields of a row, after the axes (`docs/formats.md` §3 less the wall clock, and
 /// `controller`, which a plan gives as an axis), and `error` (a run that could not be
 /// simulated).
-pub const FIELDS: [&str; 35] = [
+pub const FIELDS: [&str; 40] = [
     "sim_time_s",
     "cycles",
     "cycles_requested",
@@ -93,6 +93,11 @@ pub const FIELDS: [&str; 35] = [
     "regenerated_j_per_cycle",
     "fight_loss_j_per_cycle",
     "efficiency",
+    "peak_motor_force_n",
+    "wide_line_hz",
+    "wide_line_m",
+    "rest_wide_line_hz",
+    "rest_wide_line_m",
     "error",
 ];
 
@@ -145,6 +150,11 @@ fn summary_cells(s: &Summary) -> Vec<String> {
         opt(s.regenerated_j_per_cycle),
         opt(s.fight_loss_j_per_cycle),
         opt(s.efficiency),
+        opt(s.peak_motor_force_n),
+        opt(s.wide_line_hz),
+        opt(s.wide_line_m),
+        opt(s.rest_wide_line_hz),
+        opt(s.rest_wide_line_m),
         String::new(),
     ]
 }

@@ -760,6 +760,10 @@ pub struct Published {
     pub rest_s: f64,
     /// Current limit of each drive, A (0 = the motor's `current_limit_a`).
     pub current_limit_a: f64,
+    /// Share of each stroke spent accelerating, and again braking, at a constant rate
+    /// (0.5: the paper's accelerate-then-stop triangle; less: a cruise at the peak speed
+    /// between two steeper ramps).
+    pub profile_ramp_fraction: f64,
 }
 
 checks!(Published {
@@ -775,6 +779,7 @@ checks!(Published {
     current_bandwidth_hz: NonNegative, 10.0, 5000.0, "Hz";
     rest_s: NonNegative, 0.0, 60.0, "s";
     current_limit_a: NonNegative, 0.0, 1000.0, "A";
+    profile_ramp_fraction: Positive, 0.02, 0.5, "";
 });
 
 impl Default for Published {
@@ -792,6 +797,7 @@ impl Default for Published {
             current_bandwidth_hz: 1000.0,
             rest_s: 0.25,
             current_limit_a: 0.0,
+            profile_ramp_fraction: 0.5,
         }
     }
 }
