@@ -27,7 +27,11 @@ fn run_at(model: &MachineModel, controller: Controller, pr: f64, cycles: u32) ->
         ..RunOptions::reference()
     };
     let out = run(&opts).unwrap_or_else(|e| panic!("{controller:?} at PR {pr}: {e}"));
-    assert_eq!(out.summary.cycles, cycles, "{:?}", out.summary.stopped_early);
+    assert_eq!(
+        out.summary.cycles, cycles,
+        "{:?}",
+        out.summary.stopped_early
+    );
     out
 }
 
@@ -60,8 +64,14 @@ fn the_force_fight_is_the_slaves_lag_and_costs_little_energy_at_the_commissioned
     assert!(none < 0.05 * fight, "{none} N");
     // The fight's cost: tens of times ours, yet under 1 % of the input (measured ≈ 0.03 %).
     let cost = f(published.fight_loss_j_per_cycle);
-    assert!(cost > 10.0 * f(ours.fight_loss_j_per_cycle).max(1e-4), "{cost} J");
-    assert!(cost < 0.01 * f(published.electrical_energy_j_per_cycle), "{cost} J");
+    assert!(
+        cost > 10.0 * f(ours.fight_loss_j_per_cycle).max(1e-4),
+        "{cost} J"
+    );
+    assert!(
+        cost < 0.01 * f(published.electrical_energy_j_per_cycle),
+        "{cost} J"
+    );
 }
 
 /// The published drives tuned hard (80 kN·s/m: above the gain where the lagged loop rings,
@@ -134,7 +144,10 @@ fn the_encoders_noise_is_a_quarter_of_the_fight_at_the_slowest_point() {
         .dead_point_force_diff_n);
     println!("PR 3.1: fight {noisy:.0} N with the encoders' noise, {clean:.0} N without");
     // Measured 181 N and 135 N: the lag's part stays; the noise adds a quarter.
-    assert!(clean > 0.6 * noisy && clean < 0.9 * noisy, "{clean} of {noisy} N");
+    assert!(
+        clean > 0.6 * noisy && clean < 0.9 * noisy,
+        "{clean} of {noisy} N"
+    );
 }
 
 #[test]
@@ -155,7 +168,10 @@ fn what_the_bridges_deliver_less_the_copper_loss_is_the_motors_work_on_the_pisto
             f(s.copper_loss_j_per_cycle),
             f(s.efficiency)
         );
-        assert!((into_motion - mech).abs() < 0.01 * mech, "{into_motion} vs {mech} J");
+        assert!(
+            (into_motion - mech).abs() < 0.01 * mech,
+            "{into_motion} vs {mech} J"
+        );
         assert!(f(s.efficiency) > 0.5 && f(s.efficiency) < 1.0);
     }
 }
