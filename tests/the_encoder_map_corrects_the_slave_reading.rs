@@ -4,7 +4,8 @@
 //! The routine (`Calibrate EncoderMap`) maps the difference on slow sweeps; with the map
 //! loaded, the slave's reading differs from the master's by at most 10 % of what it did
 //! (RMS), moving either way, on strokes at three speeds well above the sweeps'. (The map is
-//! not yet part of the flash record: it is loaded here as the configuration.)
+//! not yet part of the flash record: it is loaded here as the configuration, as a
+//! commissioned machine loads its calibration at start-up, when the decoders are built.)
 
 mod support;
 
@@ -142,18 +143,25 @@ fn the_mapped_slave_reading_differs_from_the_masters_by_a_tenth_of_what_it_did()
                 100.0 * after[k].3
             );
         }
+        // The direction part is gone: the two directions' means within 10 µm of each other
+        // (measured 0.4–2.8 µm; 50 µm before).
+        let split = (after[0].0 - after[1].0).abs();
+        assert!(
+            split < 10e-6,
+            "{speed} m/s: directions {:.1} µm apart",
+            split * 1e6
+        );
     }
-    // Issue #47 asks for ≤ 10 % over all samples: NOT met — measured 13–25 %, growing with
-    // the speed. Away from the step the pattern is gone (≈ 2 µm RMS, the encoders' noise;
-    // measured 5.5–6.6 %, ≤ 10 % asserted). Within ≈ 0.2 mm of each step (the 0.25 mm band
-    // holds ≈ 1.6 % of the samples) the slave's reading is a whole step wrong: the decoder's
-    // 50 µm glitch gate extrapolates over the 0.1 mm step and re-locks a cycle or two later,
-    // while the map steps at once (docs/paper.md, "The encoder map"). The overall figure is
-    // held at what it does with 20 % headroom (0.30), so a regression shows.
+    // ≤ 10 % of the pattern left, both directions, three speeds (measured 7.1–8.2 %: what is
+    // left is the encoders' noise, ≈ 2 µm RMS). It needs the slave decoder's glitch gate
+    // widened by the map's step (`encoder_map::slave_encoder`): with the plain 50 µm gate the
+    // decoder extrapolates over the scale's 0.1 mm step and re-locks a cycle or two later,
+    // leaving those samples a whole step wrong (measured 13–25 %). Away from the step alone
+    // (beyond ±0.25 mm) 5.5–6.5 %.
     assert!(
         worst_away <= 0.10,
         "{:.1} % of the pattern left away from the step",
         100.0 * worst_away
     );
-    assert!(worst <= 0.30, "{:.1} % of the pattern left", 100.0 * worst);
+    assert!(worst <= 0.10, "{:.1} % of the pattern left", 100.0 * worst);
 }

@@ -39,6 +39,7 @@ use super::{cycles, CalibrationError, Demand, Measurements, Outcome, TURN};
 use crate::control::config::{CalibrationConfig, ControlConfig};
 use crate::motion::trajectory::Setpoint;
 use crate::real::{clamp_f32, max_f32};
+use crate::sensing::encoder::EncoderConfig;
 
 /// Bins of the master's phase within a period.
 pub const MAP_BINS: usize = 16;
@@ -89,6 +90,22 @@ impl EncoderMap {
         let half = 0.5 * (self.toward_plus_m - self.toward_minus_m);
         self.saw_m * (frac - 0.5) + mean + w * half + self.velocity_s * velocity_mps
     }
+}
+
+/// The slave decoder's configuration with `config`'s map loaded: its glitch gate widened by
+/// the map's step height. The scale's step moves the slave's reading by `|S|` within one
+/// sample, which departs from constant velocity by `|S|` on top of what the gate allows; with
+/// the gate as it is (50 µm against a 0.1 mm step) the decoder extrapolates over the step and
+/// re-locks a cycle or two later, while the map steps at once, leaving those samples a whole
+/// step wrong. Without a map: `config.encoder_slave` as it is.
+pub fn slave_encoder(config: &ControlConfig) -> EncoderConfig {
+    let mut slave = config.encoder_slave;
+    if let Some(map) = &config.encoder_map {
+        if map.period_m > 0.0 {
+            slave.glitch_gate_periods += libm::fabsf(map.saw_m) / map.period_m;
+        }
+    }
+    slave
 }
 
 /// One leg of the routine.

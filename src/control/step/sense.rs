@@ -43,7 +43,9 @@ impl Sensing {
         Sensing {
             encoders: PerSection {
                 master: SinCosDecoder::new(config.encoder_master),
-                slave: SinCosDecoder::new(config.encoder_slave),
+                slave: SinCosDecoder::new(crate::control::calibration::encoder_map::slave_encoder(
+                    config,
+                )),
             },
             differentiator,
             quadrature: QuadratureCounter::new(),
