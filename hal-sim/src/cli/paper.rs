@@ -130,6 +130,16 @@ fn print(f: &PaperFigures) -> CmdResult {
         Num(f.fig9_motor_work_j[0]),
         Num(f.fig9_motor_work_j[1])
     )?;
+    let c = &f.closed_port;
+    outln!(
+        "§4 closed ports, to {} m: closed loop ends at {:.4} m, {:.2} bar; the same force open loop ends at {:.4} m, {:.2} bar, clearance {:.2} mm",
+        c.stop_m,
+        Num(c.end_m[0]),
+        Num(c.peak_bar[0]),
+        Num(c.end_m[1]),
+        Num(c.peak_bar[1]),
+        Num(c.min_clearance_mm[1])
+    )?;
     for p in &f.points {
         outln!(
             "PR {} at {} m/s, per cycle: indicated {:.1} / {:.1} J, electrical {:.1} / {:.1} J, efficiency {:.1} / {:.1} %, fight {:.2} J (ours / published)",

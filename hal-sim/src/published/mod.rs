@@ -74,6 +74,9 @@ pub struct Rig {
     section_force_n: f64,
     /// The slave's setpoint as it arrives, N.
     slave_force_n: f64,
+    /// An open-loop replay: the master's force command of each period from the first, N
+    /// (the last held after its end), and the period it started.
+    replay: Option<(Vec<f64>, u64)>,
     dead_a_m: f64,
     dead_b_m: f64,
     stroke: Stroke,
@@ -216,6 +219,7 @@ impl Rig {
             slave_link: Delay::new((p.slave_lag_s / period_s).round() as usize),
             section_force_n: 0.0,
             slave_force_n: 0.0,
+            replay: None,
             dead_a_m,
             dead_b_m,
             stroke: Stroke {
@@ -316,6 +320,14 @@ impl Rig {
         self.status.mode = ModeKind::Moving;
     }
 
+    /// Drives the force command open loop from now on: `force_n[k]` in the `k`-th period
+    /// (the last value held after the end), the position loop out of the path, as the
+    /// paper's closed-port test replayed "the same force as a function of time" (§4).
+    pub fn replay_force(&mut self, force_n: Vec<f64>, cycle: u64) {
+        self.replay = Some((force_n, cycle));
+        self.status.mode = ModeKind::Moving;
+    }
+
     /// Whether the last move has ended.
     pub fn move_done(&self, t_s: f64) -> bool {
         t_s >= self.stroke.end_s()
@@ -379,7 +391,12 @@ impl Rig {
         let xs = self.encoders.slave.read(inputs.encoders.slave);
         let (sp, theta_ref, rate_ref) = self.programme(t);
         self.setpoint = sp;
-        if world.cycle().is_multiple_of(self.cycle_periods) {
+        if let Some((force_n, from)) = &self.replay {
+            let k = usize::try_from(world.cycle().saturating_sub(*from)).unwrap_or(usize::MAX);
+            let f = force_n.get(k).or(force_n.last()).copied().unwrap_or(0.0);
+            self.status.force_command_n = f as f32;
+            self.section_force_n = 0.5 * f;
+        } else if world.cycle().is_multiple_of(self.cycle_periods) {
             let f = self.cascade.step(x, sp.x_m, sp.v_mps);
             self.status.force_command_n = f as f32;
             self.section_force_n = 0.5 * f;

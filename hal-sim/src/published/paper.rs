@@ -66,7 +66,13 @@ pub struct PaperRuns {
     pub rig_unloaded: RunOutcome,
     /// The firmware's encoder map of the paper rig.
     pub map: EncoderMap,
+    /// The closed-port test (§4) to [`CLOSED_PORT_STOP_M`]: under the position loop, and its
+    /// force command replayed open loop.
+    pub closed_port: (RunOutcome, RunOutcome),
 }
+
+/// Where the closed-port test stops the piston, m from head A (≈ 4 bar in chamber B).
+pub const CLOSED_PORT_STOP_M: f64 = 0.17;
 
 /// Runs everything the figures need, `cycles` compression cycles a run.
 pub fn paper_runs(cycles: u32, seed: u64) -> Result<PaperRuns, String> {
@@ -118,6 +124,14 @@ pub fn paper_runs(cycles: u32, seed: u64) -> Result<PaperRuns, String> {
         )?,
         map: crate::calibration::map_encoders(&rig_model, seed)
             .map_err(|e| format!("the encoder map on the paper rig: {e}"))?,
+        closed_port: crate::run::closed::closed_and_open_loop(
+            &opts(&reference, Controller::Published, 3.1),
+            crate::run::closed::ClosedPort {
+                stop_m: CLOSED_PORT_STOP_M,
+                hold_s: 0.5,
+            },
+        )
+        .map_err(|e| format!("the closed-port test: {e}"))?,
     })
 }
 
@@ -186,6 +200,39 @@ pub struct PaperFigures {
     /// §4.3: the Savitzky–Golay window that minimises the inertia force's error against the
     /// forces, its delay (ms) and that error (N RMS); the firmware's window and its.
     pub filter_tuning: FilterTuning,
+    /// §4's closed-port test: the move under the position loop against the same force
+    /// command replayed open loop.
+    pub closed_port: ClosedPortReplay,
+}
+
+/// The closed-port test both ways.
+#[derive(Clone, Debug, Serialize)]
+pub struct ClosedPortReplay {
+    /// The stop the position loop moved to, m.
+    pub stop_m: f64,
+    /// Where the piston ended, m (closed loop, open loop).
+    pub end_m: [f64; 2],
+    /// Chamber B's highest pressure, bar (closed loop, open loop).
+    pub peak_bar: [f64; 2],
+    /// The least head clearance, mm (closed loop, open loop).
+    pub min_clearance_mm: [f64; 2],
+}
+
+/// The closed-port test's figures.
+fn closed_port(runs: &PaperRuns) -> Result<ClosedPortReplay, String> {
+    let (closed, open) = &runs.closed_port;
+    let end = |o: &RunOutcome| -> Result<f64, String> {
+        col(&o.log, "x_m")?
+            .last()
+            .copied()
+            .ok_or_else(|| "an empty closed-port log".to_string())
+    };
+    Ok(ClosedPortReplay {
+        stop_m: CLOSED_PORT_STOP_M,
+        end_m: [end(closed)?, end(open)?],
+        peak_bar: [closed, open].map(|o| 1e-5 * f(o.summary.closed_port_peak_pa)),
+        min_clearance_mm: [closed, open].map(|o| 1e3 * f(o.summary.min_head_clearance_m)),
+    })
 }
 
 /// The §4.3 tuning: Savitzky–Golay windows compared on the inertia force.
@@ -244,6 +291,7 @@ pub fn write_figures(runs: &PaperRuns, dir: &Path) -> Result<PaperFigures, Strin
         fig9_motor_peak_kn,
         fig9_motor_work_j,
         filter_tuning,
+        closed_port: closed_port(runs)?,
     })
 }
 
