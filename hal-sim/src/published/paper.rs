@@ -606,12 +606,7 @@ fn fig6(runs: &PaperRuns, path: &Path) -> Result<([f64; 3], f64, f64), String> {
         series: vec![
             Series::new("compression (PR 5.1, 4.1 m/s)", &x, &dm).colour(0),
             Series::new("no compression", &xu, &dum).colour(1),
-            Series::new(
-                "compression, the firmware's map applied (mean removed)",
-                &x,
-                &cm,
-            )
-            .colour(2),
+            Series::new("compression, the map applied (mean removed)", &x, &cm).colour(2),
             Series::new("declared discrepancy, 0.1 mm", &rx, &ry)
                 .dashed()
                 .colour(6),
