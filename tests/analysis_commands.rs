@@ -332,7 +332,7 @@ fn on_a_simulator_run_the_analyses_report_what_the_laws_give() {
     let dir = dir.path();
     let csv = dir.join("run.csv");
     outcome.log.write(&csv).unwrap();
-    for (name, result, _) in run_all(&csv, &dir) {
+    for (name, result, _) in run_all(&csv, &dir, None) {
         assert_eq!(result, Ok(()), "{name}");
     }
     let x = outcome.log.column("x_m").unwrap();
