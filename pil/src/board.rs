@@ -25,6 +25,7 @@ use fpc::units::{DacCode, Duty, PerSection, PhaseDuties};
 use hal_sim::board::world::World;
 
 /// The board and the plant.
+#[derive(Clone)]
 pub struct Board {
     /// The plant and its sensors (hal-sim).
     pub world: World,

@@ -39,6 +39,7 @@ pub enum Stop {
 
 /// The decoded translated blocks, by start address (with their size: a branch into the
 /// middle of a block starts another one).
+#[derive(Clone)]
 pub struct BlockCache {
     /// Flash blocks, indexed by half-word.
     flash: Vec<Option<(u32, Block)>>,
@@ -296,7 +297,7 @@ fn exit(uc: &mut Unicorn<Soc>, exc_return: u32) -> Result<(), ChipError> {
 /// next block's check.
 pub fn after_write(uc: &mut Unicorn<Soc>) {
     let soc = uc.get_data_mut();
-    if soc.reset_pending.is_some() || !soc.powered {
+    if soc.reset_pending.is_some() || !soc.powered || soc.debug.halted {
         let _ = uc.emu_stop();
         return;
     }
@@ -490,6 +491,13 @@ pub fn run_until_plant_step(chip: &mut Chip) -> Result<(), ChipError> {
             // that stops answering would give).
             soc.bus_fault_pending = false;
             fault(&mut chip.uc, (1 << 9) | (1 << 15), Some(0x4000_F000))?;
+            continue;
+        }
+        let soc = chip.uc.get_data_mut();
+        if soc.debug.halted {
+            // Debug state: the core executes nothing and takes no exception; time goes on
+            // to the next peripheral event (what is not frozen runs on).
+            soc.time = soc.time.max(soc.next_event());
             continue;
         }
         if let Some(exc) = takeable_now(&chip.uc) {

@@ -9,6 +9,8 @@
 //! | ADC1/ADC2 dual mode, DMA1 and DMAMUX | [`adc`] |
 //! | flash interface, option bytes, ECC, the calibration store | [`flash`] |
 //! | IWDG | [`iwdg`] |
+//! | halting debug (DHCSR, DEMCR), DBGMCU's freeze, the debug port's memory access | [`debug`] |
+//! | the gate-driver inputs from TIM1/TIM8's output stage | [`gates`] |
 //! | RCC (clocks, reset flags, peripheral resets), PWR, DAC1, DWT, the rest | here |
 //!
 //! Time is the CPU's: each executed block advances it by its instructions times the CPI
@@ -25,7 +27,9 @@
 
 pub mod adc;
 pub mod cpu;
+pub mod debug;
 pub mod flash;
+pub mod gates;
 pub mod iwdg;
 pub mod nvic;
 pub mod timers;
@@ -184,6 +188,7 @@ pub struct PeriodLoad {
 }
 
 /// Everything the chip holds besides the core's registers: the unicorn user data.
+#[derive(Clone)]
 pub struct Soc {
     /// Emulated time, units of [`crate::time`].
     pub time: u64,
@@ -234,6 +239,8 @@ pub struct Soc {
     pub flash: Flash,
     /// The IWDG.
     pub iwdg: Iwdg,
+    /// The halting-debug registers, DBGMCU and the halt state.
+    pub debug: debug::Debug,
     dac_dhr: u32,
     dac_cr: u32,
     dac_mcr: u32,
@@ -379,6 +386,7 @@ impl Soc {
             dma: Dma::default(),
             flash,
             iwdg: Iwdg::new(options.lsi_hz),
+            debug: debug::Debug::new(),
             dac_dhr: 0,
             dac_cr: 0,
             dac_mcr: 0,
@@ -857,8 +865,12 @@ impl Soc {
         } else {
             2048
         };
+        // A timer frozen by a debug halt has its outputs disabled as if MOE were 0.
         let on = if self.powered {
-            [moe(&self.tim1), moe(&self.tim8)]
+            [
+                moe(&self.tim1) && !self.debug.frozen_advanced(0),
+                moe(&self.tim8) && !self.debug.frozen_advanced(1),
+            ]
         } else {
             [false, false]
         };
@@ -1177,6 +1189,9 @@ impl Soc {
 
     /// A CPU read of the private peripheral bus.
     fn ppb_read(&mut self, addr: u32) -> u32 {
+        if let Some(v) = self.debug.read(addr, debug::Master::Core) {
+            return v;
+        }
         match addr {
             0xE000_E100..=0xE000_E4EF => self.nvic.read_word(addr - 0xE000_E100).unwrap_or(0),
             0xE000_ED00 => 0x410F_C241,
@@ -1215,6 +1230,15 @@ impl Soc {
     }
 
     fn ppb_write(&mut self, addr: u32, value: u32, mask: u32) {
+        let word = addr & !3;
+        let old = self.debug.read(word, debug::Master::Core);
+        if let Some(old) = old {
+            let merged = (old & !mask) | (value & mask);
+            if let Some(request) = self.debug.write(word, merged, debug::Master::Core) {
+                self.debug_request(request);
+            }
+            return;
+        }
         match addr & !3 {
             a @ 0xE000_E100..=0xE000_E4EF => self.nvic.write(a - 0xE000_E100, value, mask),
             0xE000_EF00 => self.nvic.write(0xE00, value, mask),
@@ -1274,6 +1298,63 @@ impl Soc {
     }
 }
 
+impl Soc {
+    /// Carries out what a debug register write asked: the core enters or leaves Debug state.
+    pub(crate) fn debug_request(&mut self, request: debug::HaltRequest) {
+        match request {
+            debug::HaltRequest::Halt => self.halt_core(),
+            debug::HaltRequest::Resume => self.resume_core(),
+            debug::HaltRequest::None => {}
+        }
+    }
+
+    /// The core enters Debug state now: the timers and the watchdog whose DBGMCU freeze bit
+    /// is set stop (RM0440 DBGMCU); TIM4's freeze is not modelled (the encoder count comes
+    /// from the plant) and is refused as an emulation error.
+    fn halt_core(&mut self) {
+        if self.debug.halted {
+            return;
+        }
+        let now = self.time;
+        self.debug.entered(now);
+        if self.debug.frozen_advanced(0) {
+            self.tim1.freeze(now);
+            // The plant steps every 50 µs while the PWM timer does not count.
+            self.plant_next = now + 50 * UNITS_PER_US;
+        }
+        if self.debug.frozen_advanced(1) {
+            self.tim8.freeze(now);
+        }
+        if self.debug.frozen_apb1(debug::apb1::TIM2) {
+            self.tim2.freeze(now);
+        }
+        if self.debug.frozen_apb1(debug::apb1::TIM4) {
+            self.error = Some("DBG_TIM4_STOP set: a frozen encoder counter is not modelled".into());
+        }
+        if self.debug.frozen_apb1(debug::apb1::IWDG) {
+            self.iwdg.pause(now);
+        }
+    }
+
+    /// The core leaves Debug state now: what was frozen goes on from where it stopped.
+    fn resume_core(&mut self) {
+        if !self.debug.halted {
+            return;
+        }
+        let now = self.time;
+        for t in [
+            &mut self.tim1,
+            &mut self.tim8,
+            &mut self.tim2,
+            &mut self.tim4,
+        ] {
+            t.thaw(now);
+        }
+        self.iwdg.resume(now);
+        self.debug.left(now);
+    }
+}
+
 /// GPIOB's input data register.
 const GPIOB_IDR: u32 = 0x4800_0410;
 
@@ -1328,7 +1409,106 @@ impl Chip {
     /// A powered chip with `image` in its flash and `board` around it, held in reset (call
     /// [`Chip::power_on`]).
     pub fn new(image: Image, board: Board, options: ChipOptions) -> Result<Chip, ChipError> {
-        let soc = Soc::new(&options, board);
+        Chip::with_soc(image, Soc::new(&options, board))
+    }
+
+    /// A second chip in the state this one is in now — core registers, RAM, CCM SRAM, every
+    /// peripheral, the plant — which then runs on by itself: a scenario forked at an instant
+    /// (the debug halts at 24 phases of one stroke cycle).
+    pub fn fork(&self) -> Result<Chip, ChipError> {
+        let mut chip = Chip::with_soc(self.image.clone(), self.uc.get_data().clone())?;
+        for (base, size) in [RAM, CCM, SYSMEM] {
+            let mut bytes = vec![0u8; size as usize];
+            self.uc
+                .mem_read(u64::from(base), &mut bytes)
+                .map_err(uc_err("fork read"))?;
+            chip.uc
+                .mem_write(u64::from(base), &bytes)
+                .map_err(uc_err("fork write"))?;
+        }
+        // Register by register: unicorn's context restore copies the whole CPU state
+        // structure, pointers to the source engine's timers included (freed twice later).
+        use RegisterARM as R;
+        let read = |r: R| self.uc.reg_read(r).map_err(uc_err("fork reg"));
+        let xpsr = read(R::XPSR)?;
+        for r in [R::CONTROL, R::MSP, R::PSP] {
+            chip.uc.reg_write(r, read(r)?).map_err(uc_err("fork reg"))?;
+        }
+        let general = [
+            R::R0,
+            R::R1,
+            R::R2,
+            R::R3,
+            R::R4,
+            R::R5,
+            R::R6,
+            R::R7,
+            R::R8,
+            R::R9,
+            R::R10,
+            R::R11,
+            R::R12,
+            R::SP,
+            R::LR,
+            R::PRIMASK,
+            R::BASEPRI,
+            R::FAULTMASK,
+            R::FPSCR,
+        ];
+        let fp = [
+            R::S0,
+            R::S1,
+            R::S2,
+            R::S3,
+            R::S4,
+            R::S5,
+            R::S6,
+            R::S7,
+            R::S8,
+            R::S9,
+            R::S10,
+            R::S11,
+            R::S12,
+            R::S13,
+            R::S14,
+            R::S15,
+            R::S16,
+            R::S17,
+            R::S18,
+            R::S19,
+            R::S20,
+            R::S21,
+            R::S22,
+            R::S23,
+            R::S24,
+            R::S25,
+            R::S26,
+            R::S27,
+            R::S28,
+            R::S29,
+            R::S30,
+            R::S31,
+        ];
+        for r in general.into_iter().chain(fp) {
+            chip.uc.reg_write(r, read(r)?).map_err(uc_err("fork reg"))?;
+        }
+        chip.uc
+            .reg_write(R::XPSR_NZCVQG, xpsr)
+            .map_err(uc_err("fork xpsr"))?;
+        chip.uc
+            .reg_write(R::IPSR, xpsr & 0x1FF)
+            .map_err(uc_err("fork ipsr"))?;
+        chip.uc
+            .reg_write(R::EPSR, (xpsr & 0x0600_FC00) | (1 << 24))
+            .map_err(uc_err("fork epsr"))?;
+        chip.uc
+            .reg_write(R::PC, read(R::PC)? | 1)
+            .map_err(uc_err("fork pc"))?;
+        Ok(chip)
+    }
+
+    /// A chip around `soc`, its flash holding `image`.
+    fn with_soc(image: Image, soc: Soc) -> Result<Chip, ChipError> {
         let mut uc = Unicorn::new_with_data(Arch::ARM, Mode::THUMB | Mode::MCLASS, soc)
             .map_err(uc_err("new"))?;
         uc.ctl_set_cpu_model(unicorn_engine::ArmCpuModel::CORTEX_M4 as i32)
@@ -1550,7 +1730,60 @@ impl Chip {
         soc.resets.push(ResetRecord { at_s, kind });
         soc.milestones.push((at_s, Milestone::Reset));
         soc.board.outputs_off();
-        self.boot()
+        // The debug domain survives a system reset: leaving Debug state, the core halts at
+        // the reset vector if a debugger armed the vector catch (and never disarmed it).
+        if kind == ResetKind::PowerOn {
+            soc.debug.power_on();
+        }
+        soc.debug.halted = false;
+        soc.debug.halted_since = None;
+        let caught = soc.debug.catches_reset();
+        self.boot()?;
+        if caught {
+            let soc = self.uc.get_data_mut();
+            soc.debug.dfsr |= 1 << 3;
+            soc.halt_core();
+        }
+        Ok(())
+    }
+
+    /// A debugger's read of the word at `addr` through the debug port's memory access port,
+    /// while the core runs: memory as the bus gives it (RAM, flash, peripherals), the debug
+    /// registers counted (`Soc::debug`).
+    pub fn dap_read(&mut self, addr: u32) -> Result<u32, ChipError> {
+        let a = addr & !3;
+        let soc = self.uc.get_data_mut();
+        if (PPB.0..PPB.0 + PPB.1).contains(&a) {
+            if let Some(v) = soc.debug.read(a, debug::Master::Dap) {
+                return Ok(v);
+            }
+            return Ok(soc.ppb_read(a));
+        }
+        if (PERIPH.0..PERIPH.0 + PERIPH.1).contains(&a) {
+            return Ok(soc.periph_read(a));
+        }
+        let mut w = [0u8; 4];
+        self.read_mem(a, &mut w)?;
+        Ok(u32::from_le_bytes(w))
+    }
+
+    /// A debugger's write of the word `value` at `addr` through the debug port's memory
+    /// access port: a write of DHCSR may halt or resume the core.
+    pub fn dap_write(&mut self, addr: u32, value: u32) -> Result<(), ChipError> {
+        let a = addr & !3;
+        let soc = self.uc.get_data_mut();
+        if (PPB.0..PPB.0 + PPB.1).contains(&a) {
+            match soc.debug.write(a, value, debug::Master::Dap) {
+                Some(request) => soc.debug_request(request),
+                None => soc.ppb_write(a, value, !0),
+            }
+            return Ok(());
+        }
+        if (PERIPH.0..PERIPH.0 + PERIPH.1).contains(&a) {
+            soc.periph_write(a, value);
+            return Ok(());
+        }
+        self.write_mem(a, &value.to_le_bytes())
     }
 
     /// Cuts the supply: the core stops, the outputs go low, the plant runs on; the
