@@ -1,15 +1,17 @@
-//! ADC1 and ADC2 with their common registers (RM0440 §21), and the DMA1 channel and
-//! DMAMUX route that carry the regular conversions into RAM (§12–13).
+//! ADC1 and ADC2 with their common registers (RM0440 §21); the DMA1 channel and DMAMUX
+//! route that carry the regular conversions into RAM are [`super::dma`].
 //!
 //! Modelled: the power-up and calibration handshakes (ADVREGEN, ADCAL self-clearing, ADEN →
 //! ADRDY, ADDIS), the injected and regular sequences (JSQR, SQR1, SMPR1/2) converted on the
 //! external trigger the master's EXTSEL/JEXTSEL select, dual mode (ADC12_CCR.DUAL: the
 //! master's trigger starts both; MDMA packs each regular pair into ADC12_CDR, ADC2 in the
 //! high half), the conversion time from the sampling times and the ADC clock, JDR1–4 and
-//! the DMA channel (circular, memory increment, NDTR, transfer-complete flag and interrupt).
+//! the hand-over of each regular pair to the DMA channel.
 //!
 //! The converted value of a channel is the board's ([`super::Analog`]): which pin the
 //! sequence names is the firmware's business, what that pin carries is the PCB's.
+
+use super::Soc;
 
 /// One ADC's registers.
 #[derive(Clone, Debug)]
@@ -68,7 +70,7 @@ impl Adc {
         self.regs.get((off / 4) as usize).copied().unwrap_or(0)
     }
 
-    fn set(&mut self, off: u32, v: u32) {
+    pub(super) fn set(&mut self, off: u32, v: u32) {
         if let Some(r) = self.regs.get_mut((off / 4) as usize) {
             *r = v;
         }
@@ -172,106 +174,114 @@ impl Default for Adc {
     }
 }
 
-/// DMA1 (channel registers 20 bytes apart from 0x08) and DMAMUX1's channel routes.
-#[derive(Clone, Debug, Default)]
-pub struct Dma {
-    /// ISR.
-    pub isr: u32,
-    /// Per channel: CCR, CNDTR, CPAR, CMAR.
-    pub ch: [[u32; 4]; 8],
-    /// NDTR reload value of each channel (what was written while disabled).
-    pub reload: [u32; 8],
-    /// DMAMUX1 CxCR (request id in bits 0..7).
-    pub mux: [u32; 16],
-}
+/// ADC12 external trigger codes of TIM1_TRGO2 (RM0440 tables 163/165).
+const EXTSEL_TIM1_TRGO2: u32 = 10;
+const JEXTSEL_TIM1_TRGO2: u32 = 8;
 
-impl Dma {
-    /// A CPU read of DMA1 at `off`.
-    pub fn read(&self, off: u32) -> u32 {
-        match off {
-            0x00 => self.isr,
-            0x08..=0xA3 => {
-                let c = ((off - 0x08) / 20) as usize;
-                let r = ((off - 0x08) % 20 / 4) as usize;
-                self.ch
-                    .get(c)
-                    .and_then(|ch| ch.get(r))
-                    .copied()
-                    .unwrap_or(0)
+impl Soc {
+    /// The ADC clock period: synchronous HCLK/1, /2, /4 (CKMODE), or the asynchronous kernel
+    /// clock (SYSCLK with ADC12SEL = system) divided by PRESC.
+    pub(super) fn adc_clock(&self) -> f64 {
+        let ckmode = (self.adc_ccr >> 16) & 3;
+        if ckmode != 0 {
+            return self.units_per_cycle * self.ahb_div() * f64::from(1u32 << (ckmode - 1));
+        }
+        const PRESC: [f64; 12] = [1., 2., 4., 6., 8., 10., 12., 16., 32., 64., 128., 256.];
+        let presc = ((self.adc_ccr >> 18) & 0xF) as usize;
+        self.units_per_cycle * PRESC.get(presc).copied().unwrap_or(256.0)
+    }
+
+    /// TIM1_TRGO2: both ADCs start their injected then regular sequences if armed.
+    pub(super) fn adc_trigger(&mut self) {
+        let dual = self.adc_ccr & 0x1F;
+        let inj = self.adc1.injected_armed(JEXTSEL_TIM1_TRGO2);
+        let reg = self.adc1.regular_armed(EXTSEL_TIM1_TRGO2);
+        if !(inj || reg) || self.burst.is_some() || self.adc_dead {
+            return;
+        }
+        let clk = self.adc_clock();
+        let time_of = |a: &Adc, chans: Vec<u32>| -> f64 {
+            chans.iter().map(|&c| a.conversion_cycles(c)).sum::<f64>() * clk
+        };
+        // In dual mode the slave converts alongside; the group ends with the slower one.
+        let slave = dual != 0;
+        let inj_t = if inj {
+            let mut t = time_of(&self.adc1, self.adc1.injected_channels());
+            if slave {
+                t = t.max(time_of(&self.adc2, self.adc2.injected_channels()));
             }
-            _ => 0,
+            t
+        } else {
+            0.0
+        };
+        let reg_t = if reg {
+            let mut t = time_of(&self.adc1, self.adc1.regular_channels());
+            if slave {
+                t = t.max(time_of(&self.adc2, self.adc2.regular_channels()));
+            }
+            t
+        } else {
+            0.0
+        };
+        let now = self.time;
+        let inj_end = if inj {
+            now + inj_t.ceil() as u64
+        } else {
+            u64::MAX
+        };
+        let reg_end = now + (inj_t + reg_t).ceil() as u64;
+        self.burst = Some((if inj { inj_end } else { u64::MAX }, reg_end));
+        if !inj {
+            self.burst = Some((u64::MAX, reg_end));
+        }
+        if !reg {
+            // Only the injected group: nothing to carry by DMA.
+            self.burst = Some((inj_end, u64::MAX));
         }
     }
 
-    /// A CPU write of DMA1 at `off`.
-    pub fn write(&mut self, off: u32, value: u32) {
-        match off {
-            0x04 => {
-                // IFCR: clearing GIFx clears all of channel x's flags.
-                for c in 0..8 {
-                    let nibble = (value >> (4 * c)) & 0xF;
-                    if nibble & 1 != 0 {
-                        self.isr &= !(0xF << (4 * c));
-                    } else {
-                        self.isr &= !(nibble << (4 * c));
-                    }
+    pub(super) fn injected_done(&mut self) {
+        let dual = self.adc_ccr & 0x1F != 0;
+        for (rank, ch) in self.adc1.injected_channels().into_iter().enumerate() {
+            let v = self.board.analog(1, ch);
+            self.adc1.set_jdr(rank, v);
+        }
+        if dual {
+            for (rank, ch) in self.adc2.injected_channels().into_iter().enumerate() {
+                let v = self.board.analog(2, ch);
+                self.adc2.set_jdr(rank, v);
+            }
+        }
+        let reg = self.burst.map(|(_, r)| r).unwrap_or(u64::MAX);
+        self.burst = if reg == u64::MAX {
+            None
+        } else {
+            Some((u64::MAX, reg))
+        };
+    }
+
+    /// The regular sequence converted: each pair to ADC12_CDR and on by DMA. Returns the
+    /// memory writes to make (address, word).
+    pub(super) fn regular_done(&mut self) {
+        self.burst = None;
+        let ch1 = self.adc1.regular_channels();
+        let ch2 = self.adc2.regular_channels();
+        let mdma = (self.adc_ccr >> 14) & 3;
+        let request = self.dma.mux[0] & 0x7F;
+        let n = ch1.len();
+        for (i, &c1) in ch1.iter().enumerate() {
+            let a = self.board.analog(1, c1);
+            let b = ch2.get(i).map(|&c| self.board.analog(2, c)).unwrap_or(0);
+            self.adc1.set_dr(a, i + 1 == n);
+            self.adc2.set_dr(b, i + 1 == n);
+            // DMAMUX request 5 is ADC1 (RM0440 table 91); MDMA packs the pair.
+            if mdma != 0 && request == 5 {
+                if let Some((at, _)) = self.dma.transfer(0) {
+                    let word = u32::from(a) | u32::from(b) << 16;
+                    self.board.dma_writes.push((at, word));
                 }
             }
-            0x08..=0xA3 => {
-                let c = ((off - 0x08) / 20) as usize;
-                let r = ((off - 0x08) % 20 / 4) as usize;
-                if c < 8 && r < 4 {
-                    if r == 1 {
-                        self.reload[c] = value & 0xFFFF;
-                    }
-                    self.ch[c][r] = value;
-                }
-            }
-            _ => {}
         }
-    }
-
-    /// Transfers one word of a peripheral request on channel `c`: where to write it in
-    /// memory, or `None` if the channel is off. Counts NDTR down, reloads it in circular
-    /// mode and sets the flags; returns the address and whether the transfer completed.
-    pub fn transfer(&mut self, c: usize) -> Option<(u32, bool)> {
-        let [ccr, ndtr, _par, mar] = self.ch[c];
-        if ccr & 1 == 0 || ndtr == 0 {
-            return None;
-        }
-        let msize = 1u32 << ((ccr >> 10) & 3);
-        let done = self.reload[c].saturating_sub(ndtr);
-        let at = if ccr & (1 << 7) != 0 {
-            mar + done * msize
-        } else {
-            mar
-        };
-        let left = ndtr - 1;
-        let complete = left == 0;
-        // Flags: GIF (0), TCIF (1), HTIF (2).
-        let mut flags = 1;
-        if complete {
-            flags |= 2;
-        }
-        if left == self.reload[c] / 2 {
-            flags |= 4;
-        }
-        self.isr |= flags << (4 * c);
-        self.ch[c][1] = if complete && ccr & (1 << 5) != 0 {
-            self.reload[c]
-        } else {
-            left
-        };
-        Some((at, complete))
-    }
-
-    /// The interrupt line of channel `c`: a flag enabled in CCR (TCIE 1, HTIE 2, TEIE 3).
-    pub fn irq(&self, c: usize) -> bool {
-        let ccr = self.ch[c][0];
-        let flags = (self.isr >> (4 * c)) & 0xF;
-        (flags & 2 != 0 && ccr & 2 != 0)
-            || (flags & 4 != 0 && ccr & 4 != 0)
-            || (flags & 8 != 0 && ccr & 8 != 0)
     }
 }
 
@@ -294,28 +304,5 @@ mod tests {
         assert_eq!(a.injected_channels(), vec![1, 2, 3]);
         assert_eq!(a.conversion_cycles(1), 19.0);
         assert_eq!(a.conversion_cycles(2), 15.0);
-    }
-
-    #[test]
-    fn a_circular_channel_completes_every_ndtr_words() {
-        let mut d = Dma::default();
-        d.write(0x0C, 4);
-        d.write(0x14, 0x2000_0100);
-        // EN, TCIE, CIRC, MINC, 32-bit.
-        d.write(0x08, 1 | 2 | (1 << 5) | (1 << 7) | (2 << 8) | (2 << 10));
-        let at: Vec<_> = (0..5).map(|_| d.transfer(0).unwrap()).collect();
-        assert_eq!(
-            at,
-            vec![
-                (0x2000_0100, false),
-                (0x2000_0104, false),
-                (0x2000_0108, false),
-                (0x2000_010C, true),
-                (0x2000_0100, false),
-            ]
-        );
-        assert!(d.irq(0));
-        d.write(0x04, 1);
-        assert!(!d.irq(0));
     }
 }
