@@ -85,10 +85,16 @@ pub fn bare_bench(session: &mut Session, seconds: f64) -> Result<BareBenchReport
             }
         }
     }
-    r.faults = session.faults.iter().map(|f| f.name().to_string()).collect();
-    r.status_line = hal_sim::link::session::status_text(
-        &fpc::link::telemetry::Frame::from_status(0, 0, &session.status),
-    );
+    r.faults = session
+        .faults
+        .iter()
+        .map(|f| f.name().to_string())
+        .collect();
+    r.status_line = hal_sim::link::session::status_text(&fpc::link::telemetry::Frame::from_status(
+        0,
+        0,
+        &session.status,
+    ));
     r.absent = session.status.absent.names().collect();
     r.waiting_lines = session
         .log
@@ -129,20 +135,25 @@ pub fn bare_bench(session: &mut Session, seconds: f64) -> Result<BareBenchReport
     let deadline = session.chip.time_s() + 3.0;
     loop {
         session.step()?;
-        let answer = session.answers_log[seen..].iter().find_map(|(_, a)| match a {
-            Answer::Reply(reply) if matches!(reply.command, Command::Calibrate { .. }) => {
-                Some(answer_text(a))
-            }
-            _ => None,
-        });
+        let answer = session.answers_log[seen..]
+            .iter()
+            .find_map(|(_, a)| match a {
+                Answer::Reply(reply) if matches!(reply.command, Command::Calibrate { .. }) => {
+                    Some(answer_text(a))
+                }
+                _ => None,
+            });
         if let Some(text) = &answer {
             r.calibrate_after = Some(text.clone());
         }
         let done = answer.is_some()
             && session.status.mode == fpc::status::ModeKind::Idle
-            && session.log.lines.iter().any(|(_, l)| l.contains("calibration saved"));
-        if done || (answer.is_some() && !answer.as_deref().unwrap_or("").starts_with("accepted"))
-        {
+            && session
+                .log
+                .lines
+                .iter()
+                .any(|(_, l)| l.contains("calibration saved"));
+        if done || (answer.is_some() && !answer.as_deref().unwrap_or("").starts_with("accepted")) {
             break;
         }
         if session.chip.time_s() > deadline {

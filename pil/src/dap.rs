@@ -54,7 +54,9 @@ impl MemAccessPort for EmulatedDap {
 
     fn write_words(&mut self, address: u32, words: &[u32]) -> io::Result<()> {
         for (i, w) in words.iter().enumerate() {
-            self.chip.dap_write(address + 4 * i as u32, *w).map_err(err)?;
+            self.chip
+                .dap_write(address + 4 * i as u32, *w)
+                .map_err(err)?;
             self.words += 1;
         }
         Ok(())
@@ -142,8 +144,11 @@ fn clear_breakpoints_halted(dap: &mut EmulatedDap, round_trip_s: f64) -> Result<
     dap.write_words(addr::FP_CTRL, &[2]).map_err(io)?;
     // run(): step() first (C_STEP with C_MASKINTS, S_HALT awaited, PC read), then C_HALT
     // cleared. The step is modelled as the core staying halted (one instruction).
-    dap.write_words(addr::DHCSR, &[DBGKEY | C_DEBUGEN | C_HALT | C_STEP | C_MASKINTS])
-        .map_err(io)?;
+    dap.write_words(
+        addr::DHCSR,
+        &[DBGKEY | C_DEBUGEN | C_HALT | C_STEP | C_MASKINTS],
+    )
+    .map_err(io)?;
     dap.read_words(addr::DHCSR, &mut w).map_err(io)?;
     round_trip(dap, round_trip_s)?;
     dap.write_words(addr::DCRSR, &[15]).map_err(io)?;

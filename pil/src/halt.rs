@@ -166,7 +166,9 @@ fn halt_once(s: &mut Session, phase: usize, halted_s: f64) -> Result<HaltCase, S
         s.step()?;
         watch(s);
     }
-    s.chip.dap_write(addr::DHCSR, DBGKEY | C_DEBUGEN).map_err(dap)?;
+    s.chip
+        .dap_write(addr::DHCSR, DBGKEY | C_DEBUGEN)
+        .map_err(dap)?;
     let end = s.chip.time_s() + AFTER_RESUME_S;
     while s.chip.time_s() < end {
         s.step()?;

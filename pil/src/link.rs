@@ -210,7 +210,9 @@ pub fn capture(image: &Image, opts: &CaptureOptions) -> Result<CaptureReport, St
         let f = step!();
         let t = chip(&mut ch).time_s();
         if let Some(f) = f.filter(|f| f.fault != 0) {
-            let name = Fault::from_code(f.fault).map_or("?", |x| x.name()).to_string();
+            let name = Fault::from_code(f.fault)
+                .map_or("?", |x| x.name())
+                .to_string();
             if !r.faults.contains(&name) {
                 r.faults.push(name);
             }

@@ -139,13 +139,7 @@ fn a_bare_board_waits_with_every_gate_off_then_runs_the_main_scenario_once_conne
     assert!(s.run.faults.is_empty(), "faults: {:?}", s.run.faults);
     assert!(s.run.min_head_clearance_m.expect("clearance") >= 0.6e-3);
     assert!(s.run.dead_point_error_m.expect("dead point") <= 0.1e-3);
-    assert!(
-        s.run
-            .discharge_open_pressure_error
-            .expect("opening")
-            .abs()
-            <= 0.02
-    );
+    assert!(s.run.discharge_open_pressure_error.expect("opening").abs() <= 0.02);
     assert!(s.worst_cycle_us <= 50.0, "{:.1} µs", s.worst_cycle_us);
 }
 
@@ -247,7 +241,12 @@ fn a_debug_halt_in_motion_at_24_phases_is_caught_on_resume_and_keeps_the_head_cl
     );
     assert_eq!(cases.len(), 72);
     for c in &cases {
-        assert!(!c.faults.is_empty(), "phase {} {} s: no stop reported", c.phase, c.halted_s);
+        assert!(
+            !c.faults.is_empty(),
+            "phase {} {} s: no stop reported",
+            c.phase,
+            c.halted_s
+        );
         assert!(c.final_speed_mps < 0.05, "phase {}: still moving", c.phase);
     }
     assert!(worst >= 0.3e-3, "{:.3} mm", worst * 1e3);

@@ -817,9 +817,11 @@ pub fn may_halt(frame: Option<&fpc::link::telemetry::Frame>) -> Result<(), Strin
              idle) or add --force",
             mode.name()
         )),
-        None => Err("no telemetry frame within 0.5 s: whether the machine moves cannot be \
+        None => Err(
+            "no telemetry frame within 0.5 s: whether the machine moves cannot be \
                      told (telemetry off?); add --force to flash anyway"
-            .into()),
+                .into(),
+        ),
     }
 }
 

@@ -398,7 +398,6 @@ impl Soc {
     }
 }
 
-
 impl Soc {
     /// Carries out what a debug register write asked: the core enters or leaves Debug state.
     pub(crate) fn debug_request(&mut self, request: debug::HaltRequest) {
@@ -455,4 +454,3 @@ impl Soc {
         self.debug.left(now);
     }
 }
-

@@ -241,8 +241,8 @@ mod tests {
     use super::*;
     use crate::control::calibration::store::LoadError;
     use crate::control::config::ControlConfig;
-    use crate::motion::trajectory::Setpoint;
     use crate::control::step::CycleInputs;
+    use crate::motion::trajectory::Setpoint;
     use crate::safety::faults::ResetCause;
 
     #[test]
@@ -410,7 +410,11 @@ mod tests {
                 peak_speed_mps: 2.0,
             },
         ] {
-            assert_eq!(step.command(command), Err(Refusal::DcLinkOff), "{command:?}");
+            assert_eq!(
+                step.command(command),
+                Err(Refusal::DcLinkOff),
+                "{command:?}"
+            );
         }
         // The link comes up: the encoders are what it waits for next.
         step.supply(true);
@@ -432,7 +436,8 @@ mod tests {
         assert!(out.pwm.is_some());
         run(&mut step, false, 400);
         assert!(
-            step.faults.contains(Fault::EncoderSignal) || step.faults.contains(Fault::PressureSensor),
+            step.faults.contains(Fault::EncoderSignal)
+                || step.faults.contains(Fault::PressureSensor),
             "{:?}",
             step.faults
         );

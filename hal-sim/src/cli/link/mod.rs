@@ -159,7 +159,9 @@ fn read(args: ReadArgs) -> CmdResult {
     use crate::link::debugport::NonHalting;
     use crate::link::memory::TargetMemory;
     if args.target.replay.is_some() {
-        return Err(Failure::bad_input("--replay: a recording has no memory to read"));
+        return Err(Failure::bad_input(
+            "--replay: a recording has no memory to read",
+        ));
     }
     let port = crate::link::probe::ProbeMemAp::open(&probe_options(&args.target))
         .map_err(Failure::runtime)?;
