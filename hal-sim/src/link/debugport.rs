@@ -87,7 +87,7 @@ impl<P: MemAccessPort> NonHalting<P> {
                 )
             })?;
         let first = (address & !3) as u32;
-        let words = ((end + 3) / 4) as usize - (address / 4) as usize;
+        let words = end.div_ceil(4) as usize - (address / 4) as usize;
         Ok((first, words))
     }
 }
@@ -115,7 +115,7 @@ impl<P: MemAccessPort> TargetMemory for NonHalting<P> {
         let (first, n) = Self::span(address, bytes.len())?;
         let skip = (address - u64::from(first)) as usize;
         let mut words = vec![0u32; n];
-        let partial = skip != 0 || (skip + bytes.len()) % 4 != 0;
+        let partial = skip != 0 || !(skip + bytes.len()).is_multiple_of(4);
         if partial {
             self.port.read_words(first, &mut words)?;
         }
