@@ -20,7 +20,7 @@ use probe_rs::architecture::arm::sequences::DefaultArmSequence;
 use probe_rs::architecture::arm::{ArmDebugInterface, FullyQualifiedApAddress};
 use probe_rs::probe::list::Lister;
 use probe_rs::probe::{DebugProbeSelector, Probe};
-use probe_rs::{MemoryInterface, Permissions, Session};
+use probe_rs::{Permissions, Session};
 
 use super::debugport::{MemAccessPort, NonHalting};
 use super::rtt::{Locate, RttChannels};
