@@ -41,8 +41,9 @@ pub struct HaltCase {
 /// Where the piston rests at power-on, m from head A (homing is then short).
 const START_POSITION_M: f64 = 1e-3;
 
-/// How long each fork runs after the resume, s: the brake from full speed and the hold.
-pub const AFTER_RESUME_S: f64 = 0.2;
+/// How long each fork runs after the resume, s: the brake from full speed and the hold (the
+/// short-circuit brake of `encoder_signal` still leaves ≈ 0.05 m/s at 0.2 s).
+pub const AFTER_RESUME_S: f64 = 0.3;
 
 /// Boots the ELF on the reference machine at `pressure_ratio`, homes, starts the strokes,
 /// runs `settle_s`, then halts at `phases` instants over one stroke cycle for each of
