@@ -768,3 +768,107 @@ mod tests {
         );
     }
 }
+
+/// Reads the channels until a telemetry frame arrives, for at most `timeout` (or until a
+/// recording ends): the latest frame, or `None`. Nothing is written to the board.
+pub fn latest_frame<C: Channels + ?Sized>(
+    channels: &mut C,
+    timeout: Duration,
+) -> io::Result<Option<fpc::link::telemetry::Frame>> {
+    let mut session = CaptureSession::new(DefmtLog::hex());
+    let (mut a, mut b, mut c) = (io::sink(), io::sink(), io::sink());
+    let started = Instant::now();
+    loop {
+        let (n, _) = session.poll(channels, &mut [&mut a, &mut b, &mut c])?;
+        if let Some(f) = session.last_frame() {
+            return Ok(Some(*f));
+        }
+        if session.ended() || started.elapsed() >= timeout {
+            return Ok(None);
+        }
+        if n == 0 {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+}
+
+/// What `fpc-sim link status` prints for a telemetry frame: the mode, the zero, the first
+/// fault and the parts the machine waits for (absent since reset, the outputs never on).
+pub fn status_text(f: &fpc::link::telemetry::Frame) -> String {
+    let fault = fpc::safety::faults::Fault::from_code(f.fault).map_or("none", |x| x.name());
+    let waiting: Vec<&str> = f.absent.names().collect();
+    format!(
+        "mode {}, {}, first fault {}; {}",
+        f.mode.name(),
+        if f.homed { "homed" } else { "not homed" },
+        fault,
+        if waiting.is_empty() {
+            "nothing absent".to_string()
+        } else {
+            format!("waiting for: {}", waiting.join(", "))
+        }
+    )
+}
+
+/// Whether the board may be halted or reset now (what flashing does), judged from its last
+/// telemetry frame: only with the outputs off and nothing moving — idle, or faulted (the
+/// fault's brake done). `None`, no frame: nobody can tell.
+pub fn may_halt(frame: Option<&fpc::link::telemetry::Frame>) -> Result<(), String> {
+    use fpc::status::ModeKind;
+    match frame.map(|f| f.mode) {
+        Some(ModeKind::Idle | ModeKind::Faulted) => Ok(()),
+        Some(mode) => Err(format!(
+            "the machine is {}: flashing halts and resets the core, which cuts the force \
+             for as long as it takes; stop it first (`fpc-sim link send stop`, wait for \
+             idle) or add --force",
+            mode.name()
+        )),
+        None => Err(
+            "no telemetry frame within 0.5 s: whether the machine moves cannot be \
+                     told (telemetry off?); add --force to flash anyway"
+                .into(),
+        ),
+    }
+}
+
+#[cfg(test)]
+mod status_tests {
+    use super::*;
+    use fpc::link::telemetry::{ChannelSet, Frame};
+    use fpc::safety::readiness::Absent;
+    use fpc::status::ModeKind;
+
+    fn frame(mode: ModeKind, absent: Absent) -> Frame {
+        let s = fpc::status::Status {
+            mode,
+            absent,
+            ..fpc::status::Status::INIT
+        };
+        Frame {
+            channels: ChannelSet::GAP,
+            ..Frame::from_status(0, 0, &s)
+        }
+    }
+
+    #[test]
+    fn the_status_names_what_the_machine_waits_for() {
+        let f = frame(ModeKind::Idle, Absent::DC_LINK.with(Absent::SLAVE_ENCODER));
+        assert_eq!(
+            status_text(&f),
+            "mode idle, not homed, first fault none; waiting for: dc_link_off, \
+             slave_encoder_absent"
+        );
+        assert!(status_text(&frame(ModeKind::Idle, Absent::NONE)).ends_with("nothing absent"));
+    }
+
+    #[test]
+    fn a_moving_machine_is_not_halted_without_force() {
+        assert!(may_halt(Some(&frame(ModeKind::Idle, Absent::NONE))).is_ok());
+        assert!(may_halt(Some(&frame(ModeKind::Faulted, Absent::NONE))).is_ok());
+        for m in [ModeKind::Running, ModeKind::Holding, ModeKind::Homing] {
+            let e = may_halt(Some(&frame(m, Absent::NONE))).unwrap_err();
+            assert!(e.contains(m.name()) && e.contains("--force"), "{e}");
+        }
+        assert!(may_halt(None).unwrap_err().contains("--force"));
+    }
+}

@@ -34,7 +34,106 @@ impl Chip {
     /// A powered chip with `image` in its flash and `board` around it, held in reset (call
     /// [`Chip::power_on`]).
     pub fn new(image: Image, board: Board, options: ChipOptions) -> Result<Chip, ChipError> {
-        let soc = Soc::new(&options, board);
+        Chip::with_soc(image, Soc::new(&options, board))
+    }
+
+    /// A second chip in the state this one is in now — core registers, RAM, CCM SRAM, every
+    /// peripheral, the plant — which then runs on by itself: a scenario forked at an instant
+    /// (the debug halts at 24 phases of one stroke cycle).
+    pub fn fork(&self) -> Result<Chip, ChipError> {
+        let mut chip = Chip::with_soc(self.image.clone(), self.uc.get_data().clone())?;
+        for (base, size) in [RAM, CCM, SYSMEM] {
+            let mut bytes = vec![0u8; size as usize];
+            self.uc
+                .mem_read(u64::from(base), &mut bytes)
+                .map_err(uc_err("fork read"))?;
+            chip.uc
+                .mem_write(u64::from(base), &bytes)
+                .map_err(uc_err("fork write"))?;
+        }
+        // Register by register: unicorn's context restore copies the whole CPU state
+        // structure, pointers to the source engine's timers included (freed twice later).
+        use RegisterARM as R;
+        let read = |r: R| self.uc.reg_read(r).map_err(uc_err("fork reg"));
+        let xpsr = read(R::XPSR)?;
+        for r in [R::CONTROL, R::MSP, R::PSP] {
+            chip.uc.reg_write(r, read(r)?).map_err(uc_err("fork reg"))?;
+        }
+        let general = [
+            R::R0,
+            R::R1,
+            R::R2,
+            R::R3,
+            R::R4,
+            R::R5,
+            R::R6,
+            R::R7,
+            R::R8,
+            R::R9,
+            R::R10,
+            R::R11,
+            R::R12,
+            R::SP,
+            R::LR,
+            R::PRIMASK,
+            R::BASEPRI,
+            R::FAULTMASK,
+            R::FPSCR,
+        ];
+        let fp = [
+            R::S0,
+            R::S1,
+            R::S2,
+            R::S3,
+            R::S4,
+            R::S5,
+            R::S6,
+            R::S7,
+            R::S8,
+            R::S9,
+            R::S10,
+            R::S11,
+            R::S12,
+            R::S13,
+            R::S14,
+            R::S15,
+            R::S16,
+            R::S17,
+            R::S18,
+            R::S19,
+            R::S20,
+            R::S21,
+            R::S22,
+            R::S23,
+            R::S24,
+            R::S25,
+            R::S26,
+            R::S27,
+            R::S28,
+            R::S29,
+            R::S30,
+            R::S31,
+        ];
+        for r in general.into_iter().chain(fp) {
+            chip.uc.reg_write(r, read(r)?).map_err(uc_err("fork reg"))?;
+        }
+        chip.uc
+            .reg_write(R::XPSR_NZCVQG, xpsr)
+            .map_err(uc_err("fork xpsr"))?;
+        chip.uc
+            .reg_write(R::IPSR, xpsr & 0x1FF)
+            .map_err(uc_err("fork ipsr"))?;
+        chip.uc
+            .reg_write(R::EPSR, (xpsr & 0x0600_FC00) | (1 << 24))
+            .map_err(uc_err("fork epsr"))?;
+        chip.uc
+            .reg_write(R::PC, read(R::PC)? | 1)
+            .map_err(uc_err("fork pc"))?;
+        Ok(chip)
+    }
+
+    /// A chip around `soc`, its flash holding `image`.
+    fn with_soc(image: Image, soc: Soc) -> Result<Chip, ChipError> {
         let mut uc = Unicorn::new_with_data(Arch::ARM, Mode::THUMB | Mode::MCLASS, soc)
             .map_err(uc_err("new"))?;
         uc.ctl_set_cpu_model(unicorn_engine::ArmCpuModel::CORTEX_M4 as i32)
@@ -270,7 +369,60 @@ impl Chip {
         soc.resets.push(ResetRecord { at_s, kind });
         soc.milestones.push((at_s, Milestone::Reset));
         soc.board.outputs_off();
-        self.boot()
+        // The debug domain survives a system reset: leaving Debug state, the core halts at
+        // the reset vector if a debugger armed the vector catch (and never disarmed it).
+        if kind == ResetKind::PowerOn {
+            soc.debug.power_on();
+        }
+        soc.debug.halted = false;
+        soc.debug.halted_since = None;
+        let caught = soc.debug.catches_reset();
+        self.boot()?;
+        if caught {
+            let soc = self.uc.get_data_mut();
+            soc.debug.dfsr |= 1 << 3;
+            soc.halt_core();
+        }
+        Ok(())
+    }
+
+    /// A debugger's read of the word at `addr` through the debug port's memory access port,
+    /// while the core runs: memory as the bus gives it (RAM, flash, peripherals), the debug
+    /// registers counted (`Soc::debug`).
+    pub fn dap_read(&mut self, addr: u32) -> Result<u32, ChipError> {
+        let a = addr & !3;
+        let soc = self.uc.get_data_mut();
+        if (PPB.0..PPB.0 + PPB.1).contains(&a) {
+            if let Some(v) = soc.debug.read(a, debug::Master::Dap) {
+                return Ok(v);
+            }
+            return Ok(soc.ppb_read(a));
+        }
+        if (PERIPH.0..PERIPH.0 + PERIPH.1).contains(&a) {
+            return Ok(soc.periph_read(a));
+        }
+        let mut w = [0u8; 4];
+        self.read_mem(a, &mut w)?;
+        Ok(u32::from_le_bytes(w))
+    }
+
+    /// A debugger's write of the word `value` at `addr` through the debug port's memory
+    /// access port: a write of DHCSR may halt or resume the core.
+    pub fn dap_write(&mut self, addr: u32, value: u32) -> Result<(), ChipError> {
+        let a = addr & !3;
+        let soc = self.uc.get_data_mut();
+        if (PPB.0..PPB.0 + PPB.1).contains(&a) {
+            match soc.debug.write(a, value, debug::Master::Dap) {
+                Some(request) => soc.debug_request(request),
+                None => soc.ppb_write(a, value, !0),
+            }
+            return Ok(());
+        }
+        if (PERIPH.0..PERIPH.0 + PERIPH.1).contains(&a) {
+            soc.periph_write(a, value);
+            return Ok(());
+        }
+        self.write_mem(a, &value.to_le_bytes())
     }
 
     /// Cuts the supply: the core stops, the outputs go low, the plant runs on; the
