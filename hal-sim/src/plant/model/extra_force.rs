@@ -20,6 +20,8 @@ pub enum Term {
     X,
     /// `x^2`, N/m².
     X2,
+    /// `x^3`: cubic in position (a hardening or softening spring), N/m³.
+    X3,
     /// `v`: linear in velocity, N·s/m.
     V,
     /// `v|v|`: quadratic drag, N·s²/m².
@@ -36,6 +38,9 @@ pub enum Term {
     T,
     /// `t*sgn(v)`: a force along the motion changing in time (drifting friction), N/s.
     TSgnV,
+    /// `x*sgn(v)`: a force along the motion changing with position (friction that varies
+    /// along the bore), N/m.
+    XSgnV,
     /// `sin(2πx/p)`, N (period `period_m`).
     Sin,
     /// `cos(2πx/p)`, N (period `period_m`).
@@ -44,10 +49,11 @@ pub enum Term {
 
 impl Term {
     /// Every term, in the order of `docs/formats.md`.
-    pub const ALL: [Term; 13] = [
+    pub const ALL: [Term; 15] = [
         Term::One,
         Term::X,
         Term::X2,
+        Term::X3,
         Term::V,
         Term::VAbsV,
         Term::SgnV,
@@ -56,6 +62,7 @@ impl Term {
         Term::DeltaP,
         Term::T,
         Term::TSgnV,
+        Term::XSgnV,
         Term::Sin,
         Term::Cos,
     ];
@@ -66,6 +73,7 @@ impl Term {
             Term::One => "1",
             Term::X => "x",
             Term::X2 => "x^2",
+            Term::X3 => "x^3",
             Term::V => "v",
             Term::VAbsV => "v|v|",
             Term::SgnV => "sgn(v)",
@@ -74,6 +82,7 @@ impl Term {
             Term::DeltaP => "p_a-p_b",
             Term::T => "t",
             Term::TSgnV => "t*sgn(v)",
+            Term::XSgnV => "x*sgn(v)",
             Term::Sin => "sin(2πx/p)",
             Term::Cos => "cos(2πx/p)",
         }
@@ -103,6 +112,7 @@ impl Term {
             Term::One => 1.0,
             Term::X => s.x_m,
             Term::X2 => s.x_m * s.x_m,
+            Term::X3 => s.x_m * s.x_m * s.x_m,
             Term::V => s.v_mps,
             Term::VAbsV => s.v_mps * s.v_mps.abs(),
             Term::SgnV => sgn,
@@ -111,6 +121,7 @@ impl Term {
             Term::DeltaP => s.dp_pa,
             Term::T => s.t_s,
             Term::TSgnV => s.t_s * sgn,
+            Term::XSgnV => s.x_m * sgn,
             Term::Sin => angle().sin(),
             Term::Cos => angle().cos(),
         }
