@@ -8,9 +8,10 @@
 # log the median of the pairs' wall-time ratios (this tree / reference; issue #45 asks for
 # ≤ 0.40) with both binaries' median wall and CPU times. Figures, not checks.
 #
-# The reference is built once in a temporary git worktree with a target directory of its
+# The reference is built once from the commit's files (git archive, so no worktree is
+# registered in the repository) in a temporary directory with a target directory of its
 # own, then only its binary is kept (target/bench-ref/fpc-sim-<commit>; the build, several
-# minutes on two cores, is skipped while that file exists) and the worktree and its target
+# minutes on two cores, is skipped while that file exists) and the sources and their target
 # directory are removed.
 #
 #   scripts/bench-gap.sh                        build both, then measure (3 pairs per log)
@@ -30,10 +31,10 @@ if [[ ! -x $ref_sim ]]; then
     started=$SECONDS
     mkdir -p target/bench-ref
     tree=$(mktemp -d)
-    git worktree add --quiet --detach "$tree/src" "$ref"
+    mkdir "$tree/src"
+    git archive "$ref" | tar -x -C "$tree/src"
     (cd "$tree/src" && CARGO_TARGET_DIR="$tree/target" cargo build --release -q -p hal-sim)
     cp "$tree/target/release/fpc-sim" "$ref_sim"
-    git worktree remove --force "$tree/src"
     rm -rf "$tree"
     echo "bench-gap: built the reference $ref in $((SECONDS - started)) s (kept as $ref_sim)"
 fi
