@@ -211,6 +211,12 @@ impl ExtraForceEffect {
     pub fn coefficient(&self, term: Term) -> Option<f64> {
         self.terms.get(term.name()).copied()
     }
+
+    /// The `a` term's coefficient, kg (0 without it): the force `c_a·a` takes that much from
+    /// the moving mass (`(m − c_a)·a`).
+    pub fn mass_taken_kg(&self) -> f64 {
+        self.coefficient(Term::A).unwrap_or(0.0)
+    }
 }
 
 #[cfg(test)]
@@ -251,5 +257,21 @@ mod tests {
         };
         // −k·(x − x0) with k = 1800 N/m, x0 = 0.09 m.
         assert!((e.force_n(&s) - (-1800.0 * (0.1 - 0.09))).abs() < 1e-9);
+    }
+
+    #[test]
+    fn an_a_term_that_leaves_less_than_half_the_mass_moving_is_refused() {
+        let mut model = super::super::MachineModel::reference();
+        let half = 0.5 * model.piston.mass_kg;
+        for (c_a, ok) in [(0.9 * half, true), (1.1 * half, false)] {
+            let e = ExtraForceEffect {
+                terms: [("a".to_string(), c_a)].into_iter().collect(),
+                period_m: None,
+            };
+            assert_eq!(e.mass_taken_kg(), c_a);
+            model.effects.extra_force = Some(e);
+            let r = model.validate();
+            assert_eq!(r.is_ok(), ok, "{c_a} kg: {r:?}");
+        }
     }
 }
