@@ -77,27 +77,7 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc, cache: &mut Cache) -> Result<Select
         let fits = RefCell::new(BasisFits::new());
         // The candidates are independent given `doc`: judged on every core (the cached
         // ones reused), then taken in the library's order, as one thread would.
-        let mut jobs: Vec<(EffectKind, &Residual, Vec<EffectKind>)> = Vec::new();
-        for kind in EffectKind::ALL {
-            if kind.named() && added.iter().any(|a| a.proposal.kind == kind) {
-                continue;
-            }
-            let Some((_, before)) = befores.iter().find(|(c, _)| *c == kind.channel()) else {
-                continue;
-            };
-            // Pressure candidates are judged with the pressure effects already added
-            // refitted around them (`judge_joint`).
-            let joint: Vec<EffectKind> = if kind.channel() == ChannelId::Pressure {
-                added
-                    .iter()
-                    .map(|a| a.proposal.kind)
-                    .filter(|k| k.channel() == ChannelId::Pressure)
-                    .collect()
-            } else {
-                Vec::new()
-            };
-            jobs.push((kind, before, joint));
-        }
+        let jobs = candidate_jobs(&added, &befores);
         let results: Vec<(Option<Judged>, bool)> = jobs
             .par_iter()
             .map(|(kind, before, joint)| match cached(cache, *kind, before) {
@@ -182,8 +162,52 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc, cache: &mut Cache) -> Result<Select
     if added.iter().filter(|a| a.proposal.kind.named()).count() > 1 {
         doc = super::reconsider::prune_named(ctx, &input, doc, &mut added, &mut steps);
     }
-    // Each named effect's parameters as the final model holds them: a later joint fit or
-    // back-fitting may have refitted them after they were judged.
+    sync_params(&doc, &mut added);
+    let mut warnings = notes;
+    warnings.extend(collinear_warnings(&added, &first_step));
+    Ok(Selection {
+        doc,
+        added,
+        steps,
+        first_step,
+        warnings,
+    })
+}
+
+/// The candidates to judge at a step: every library effect not yet added (the basis always),
+/// with its channel's residual and, for a pressure candidate, the pressure effects already
+/// added, refitted around it (`judge_joint`).
+fn candidate_jobs<'r>(
+    added: &[Judged],
+    befores: &'r [(ChannelId, Residual)],
+) -> Vec<(EffectKind, &'r Residual, Vec<EffectKind>)> {
+    let mut jobs = Vec::new();
+    for kind in EffectKind::ALL {
+        if kind.named() && added.iter().any(|a| a.proposal.kind == kind) {
+            continue;
+        }
+        let Some((_, before)) = befores.iter().find(|(c, _)| *c == kind.channel()) else {
+            continue;
+        };
+        // Pressure candidates are judged with the pressure effects already added
+        // refitted around them (`judge_joint`).
+        let joint: Vec<EffectKind> = if kind.channel() == ChannelId::Pressure {
+            added
+                .iter()
+                .map(|a| a.proposal.kind)
+                .filter(|k| k.channel() == ChannelId::Pressure)
+                .collect()
+        } else {
+            Vec::new()
+        };
+        jobs.push((kind, before, joint));
+    }
+    jobs
+}
+
+/// Each named effect's parameters as the final model `doc` holds them: a later joint fit or
+/// back-fitting may have refitted them after they were judged.
+fn sync_params(doc: &ModelDoc, added: &mut [Judged]) {
     for a in added.iter_mut().filter(|a| a.proposal.kind.named()) {
         let keys: Vec<crate::plant::model::Key> = a
             .proposal
@@ -205,9 +229,14 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc, cache: &mut Cache) -> Result<Select
             }
         }
     }
-    let mut warnings = notes;
-    for a in &added {
-        for other in &first_step {
+}
+
+/// A warning for each added named effect that another named candidate of its channel was,
+/// at the first step, collinear with and nearly as good as.
+fn collinear_warnings(added: &[Judged], first_step: &[Judged]) -> Vec<String> {
+    let mut warnings = Vec::new();
+    for a in added {
+        for other in first_step {
             let k = other.proposal.kind;
             if k == a.proposal.kind
                 || k.channel() != a.proposal.kind.channel()
@@ -235,13 +264,7 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc, cache: &mut Cache) -> Result<Select
             }
         }
     }
-    Ok(Selection {
-        doc,
-        added,
-        steps,
-        first_step,
-        warnings,
-    })
+    warnings
 }
 
 /// Discovered terms are a reading of the force only where they leave no structure in the
