@@ -30,8 +30,9 @@ use std::time::Instant;
 
 use independent_plant::{draw_case, generate, Case, Hidden, EFFECTS, FORMS};
 use support::gap::{
-    bench_cases, classify_form, form_cases, form_seed_runs, name_effects, par_map, score,
-    score_forms, Acceptance, BenchCase, FormCase, FormOutcome, ParamError, ParamRule,
+    bench_cases, classify_expect, classify_form, form_cases, form_seed_runs, name_effects, par_map,
+    score, score_forms, score_forms_at, Acceptance, BenchCase, Expect, FormCase, FormOutcome,
+    Held, ParamError, ParamRule,
 };
 
 /// The acceptance of issue #13: recall ≥ 95 %, false alarms on ≤ 1 % of null logs, wrong
@@ -316,5 +317,159 @@ fn gap_describes_forces_outside_its_library_in_a_slice_of_cases() {
 #[ignore = "slow: 100 cases of forces outside the library (FPC_FORM_CASES per form, 20)"]
 fn gap_describes_forces_outside_its_library_in_100_cases() {
     let problems = score_forms_here(form_cases());
+    assert!(problems.is_empty(), "{problems:#?}");
+}
+
+// ---------------------------------------------------------------------------------------
+// Issue #45's forms: friction growing along the bore, a hardening spring, a transducer's or a
+// drive's reading off by an offset or a gain, and three library effects at once.
+// ---------------------------------------------------------------------------------------
+
+/// The forms `gap` meets, in a fixed order (`triple`: three library effects together).
+const ISSUE45_FORMS: [&str; 4] = [
+    "position_friction",
+    "cubic_spring",
+    "pressure_offset",
+    "triple",
+];
+
+/// Every form, in the order that gives each its seeds (9000 + 100·index + case).
+const SEED_ORDER: [&str; 7] = [
+    "position_friction",
+    "cubic_spring",
+    "pressure_offset",
+    "pressure_gain",
+    "force_offset",
+    "force_gain",
+    "triple",
+];
+
+/// The forms not yet met: a transducer's gain (described as `1` + `x^3` instead), a drive's
+/// reading offset (described as the constant `1`, a bias on the piston) and its gain
+/// (described as `f_motor`, a force-constant error). Their test is kept, ignored, as the
+/// open part of the acceptance.
+const ISSUE45_OPEN_FORMS: [&str; 3] = ["pressure_gain", "force_offset", "force_gain"];
+
+/// The triples drawn in turn: effects of different signatures, as d11's.
+const TRIPLES: [[&str; 3]; 4] = [
+    ["mass_error", "coulomb_friction", "slave_lag"],
+    ["cogging", "viscous_friction", "slave_lag"],
+    ["mass_error", "cogging", "encoder_pitch_error"],
+    ["coulomb_friction", "actuator_lag", "encoder_pitch_error"],
+];
+
+/// What a right answer to `case` (of one of issue #45's forms) is.
+fn expectation(case: &Case) -> Expect {
+    let keys = |b: bool, a: &'static str, bk: &'static str| if b { bk } else { a };
+    let mut held = Vec::new();
+    for h in &case.hidden {
+        match *h {
+            Hidden::CubicSpring { .. } => {
+                return Expect::Terms(h.discovered_terms().unwrap_or_default())
+            }
+            Hidden::PositionFriction { .. } => {
+                return Expect::AlongX(&[
+                    "coulomb_friction",
+                    "stribeck_friction",
+                    "viscous_friction",
+                ])
+            }
+            Hidden::PressureOffset { b, offset_pa } => held.push(Held {
+                effect: "pressure_offset",
+                key: keys(b, "offset_a_pa", "offset_b_pa"),
+                truth: offset_pa,
+                tolerance: 0.1 * offset_pa.abs(),
+            }),
+            Hidden::PressureGain { b, gain } => held.push(Held {
+                effect: "pressure_gain",
+                key: keys(b, "gain_a", "gain_b"),
+                truth: gain,
+                tolerance: 0.1 * (gain - 1.0).abs(),
+            }),
+            Hidden::ForceOffset { slave, offset_n } => held.push(Held {
+                effect: "force_offset",
+                key: keys(slave, "offset_master_n", "offset_slave_n"),
+                truth: offset_n,
+                tolerance: 0.1 * offset_n.abs(),
+            }),
+            Hidden::ForceGain { slave, gain } => held.push(Held {
+                effect: "force_gain",
+                key: keys(slave, "gain_master", "gain_slave"),
+                truth: gain,
+                tolerance: 0.1 * (gain - 1.0).abs(),
+            }),
+            Hidden::Mass { factor } => held.push(Held {
+                effect: "mass_error",
+                key: "mass_kg",
+                truth: case.nominal.mass_kg * factor,
+                tolerance: 0.03 * case.nominal.mass_kg * factor,
+            }),
+            Hidden::SlaveLag { delay_s } | Hidden::ActuatorLag { delay_s } => held.push(Held {
+                effect: h.name(),
+                key: "delay_s",
+                truth: delay_s,
+                tolerance: 0.05e-3,
+            }),
+            Hidden::Cogging { period_m, .. } => held.push(Held {
+                effect: "cogging",
+                key: "period_m",
+                truth: period_m,
+                tolerance: 0.02 * period_m,
+            }),
+            _ => {}
+        }
+    }
+    Expect::Named(case.hidden.iter().map(Hidden::name).collect(), held)
+}
+
+/// The case of `seed` of issue #45's `form`, analysed and classified.
+fn run_issue45_case(seed: u64, form: &str) -> FormCase {
+    let effects: Vec<&str> = if form == "triple" {
+        TRIPLES[(seed as usize) % TRIPLES.len()].to_vec()
+    } else {
+        vec![form]
+    };
+    let case = draw_case(seed, &effects);
+    let g = generate(&case);
+    let label = format!(
+        "seed {seed} {form} ({} Hz, {:?}, {:?}) {:?}",
+        case.rate_hz, case.trajectory, case.chambers, case.hidden
+    );
+    classify_expect(form, &g.csv, &g.model_toml, &expectation(&case), &label)
+}
+
+/// `per_form` cases of each of issue #45's forms; what misses the acceptance (right in ≥ 95 %
+/// of each form's cases, a false name in ≤ 2 %).
+fn score_issue45_here(forms: &[&str], per_form: u64) -> Vec<String> {
+    let plan: Vec<(u64, &str)> = forms
+        .iter()
+        .flat_map(|f| {
+            let i = SEED_ORDER.iter().position(|g| g == f).unwrap_or(0) as u64;
+            (0..per_form).map(move |k| (9000 + 100 * i + k, *f))
+        })
+        .filter(|(seed, _)| form_seed_runs(*seed))
+        .collect();
+    let results = par_map(plan.len(), |i| run_issue45_case(plan[i].0, plan[i].1));
+    score_forms_at("independent plant", forms, &results, 0.95, 0.02)
+}
+
+#[test]
+fn gap_meets_friction_along_the_bore_a_cubic_spring_a_transducer_offset_and_triples_in_a_slice() {
+    let problems = score_issue45_here(&ISSUE45_FORMS, 1);
+    assert!(problems.is_empty(), "{problems:#?}");
+}
+
+#[test]
+#[ignore = "slow: 20 cases of each of the 4 forms met (FPC_FORM_CASES per form)"]
+fn gap_meets_friction_along_the_bore_a_cubic_spring_a_transducer_offset_and_triples_in_80_cases() {
+    let problems = score_issue45_here(&ISSUE45_FORMS, form_cases());
+    assert!(problems.is_empty(), "{problems:#?}");
+}
+
+#[test]
+#[ignore = "open: a transducer's gain and a drive's reading offset and gain are not yet told \
+            from the force terms they imitate"]
+fn gap_names_a_transducer_gain_and_a_drives_reading_offset_and_gain() {
+    let problems = score_issue45_here(&ISSUE45_OPEN_FORMS, 1);
     assert!(problems.is_empty(), "{problems:#?}");
 }
