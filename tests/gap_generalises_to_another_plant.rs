@@ -31,8 +31,8 @@ use std::time::Instant;
 use independent_plant::{draw_case, generate, Case, Hidden, EFFECTS, FORMS};
 use support::gap::{
     bench_cases, classify_expect, classify_form, form_cases, form_seed_runs, name_effects, par_map,
-    score, score_forms, score_forms_at, Acceptance, BenchCase, Expect, FormCase, FormOutcome,
-    Held, ParamError, ParamRule,
+    score, score_forms, score_forms_at, Acceptance, BenchCase, Expect, FormCase, FormOutcome, Held,
+    ParamError, ParamRule,
 };
 
 /// The acceptance of issue #13: recall ≥ 95 %, false alarms on ≤ 1 % of null logs, wrong
