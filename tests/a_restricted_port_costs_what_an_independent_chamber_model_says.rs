@@ -80,10 +80,10 @@ fn plant_cycle(m: &MachineModel, pr: f64, v_max: f64) -> Cycle {
 /// rotation angle `theta_rad`, with linear ramps of `ramp_deg` inside both edges.
 fn open_fraction(window: [f64; 2], ramp_deg: f64, theta_rad: f64) -> f64 {
     let deg = theta_rad.to_degrees().rem_euclid(360.0);
-    let span = match (window[1] - window[0]).rem_euclid(360.0) {
-        s if s == 0.0 => 360.0,
-        s => s,
-    };
+    // A window that closes where it opens is open the whole turn.
+    let span = Some((window[1] - window[0]).rem_euclid(360.0))
+        .filter(|s| *s != 0.0)
+        .unwrap_or(360.0);
     let into = (deg - window[0]).rem_euclid(360.0);
     if into >= span {
         return 0.0;

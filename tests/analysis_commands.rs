@@ -152,7 +152,7 @@ fn every_analysis_runs_on_an_fpc_sim_run_log() {
     let dir = dir.path();
     let csv = dir.join("run.csv");
     outcome.log.write(&csv).unwrap();
-    assert_all_plot(&csv, &dir, None);
+    assert_all_plot(&csv, dir, None);
 }
 
 #[test]
@@ -168,7 +168,7 @@ fn bad_logs_are_refused_with_line_and_column() {
     let dir = dir.path();
     let path = dir.join("bad.csv");
     std::fs::write(&path, bad.join("\n")).unwrap();
-    for (name, result, _) in run_all(&path, &dir, None) {
+    for (name, result, _) in run_all(&path, dir, None) {
         let failure = result.expect_err(name);
         assert_eq!(failure.code, 2, "{name}: {failure:?}");
         assert!(
@@ -332,7 +332,7 @@ fn on_a_simulator_run_the_analyses_report_what_the_laws_give() {
     let dir = dir.path();
     let csv = dir.join("run.csv");
     outcome.log.write(&csv).unwrap();
-    for (name, result, _) in run_all(&csv, &dir, None) {
+    for (name, result, _) in run_all(&csv, dir, None) {
         assert_eq!(result, Ok(()), "{name}");
     }
     let x = outcome.log.column("x_m").unwrap();
@@ -350,11 +350,11 @@ fn on_a_simulator_run_the_analyses_report_what_the_laws_give() {
 
     // `filters`: estimate 1 is the backward difference (Eq. 5), 2 the firmware's
     // Savitzky–Golay, 3 the drive's reading.
-    assert!(label(&dir, "filters", 1).contains("backward difference"));
-    let backward_delay = figure(&dir, "filters", "/estimates/1/delay_s");
-    let backward_noise = figure(&dir, "filters", "/estimates/1/rms_diff_mps");
-    let sg_delay = figure(&dir, "filters", "/estimates/2/delay_s");
-    let drive_delay = figure(&dir, "filters", "/estimates/3/delay_s");
+    assert!(label(dir, "filters", 1).contains("backward difference"));
+    let backward_delay = figure(dir, "filters", "/estimates/1/delay_s");
+    let backward_noise = figure(dir, "filters", "/estimates/1/rms_diff_mps");
+    let sg_delay = figure(dir, "filters", "/estimates/2/delay_s");
+    let drive_delay = figure(dir, "filters", "/estimates/3/delay_s");
     let eq6 = 2f64.sqrt() * sigma_x / dt;
     println!(
         "σx {:.3} µm; backward difference {:.4} ms late (Δt/2 = {:.4} ms), noise {backward_noise:.4} \
@@ -386,11 +386,11 @@ fn on_a_simulator_run_the_analyses_report_what_the_laws_give() {
 
     // `forces`: estimate 0 is m·a from the unfiltered position, 1 from the zero-phase
     // filtered one.
-    assert!(label(&dir, "forces", 0).contains("unfiltered"));
-    let peak = figure(&dir, "forces", "/peak_expected_n");
-    let raw_rms = figure(&dir, "forces", "/estimates/0/rms_vs_expected_n");
-    let filtered_rms = figure(&dir, "forces", "/estimates/1/rms_vs_expected_n");
-    let filtered_delay = figure(&dir, "forces", "/estimates/1/delay_s");
+    assert!(label(dir, "forces", 0).contains("unfiltered"));
+    let peak = figure(dir, "forces", "/peak_expected_n");
+    let raw_rms = figure(dir, "forces", "/estimates/0/rms_vs_expected_n");
+    let filtered_rms = figure(dir, "forces", "/estimates/1/rms_vs_expected_n");
+    let filtered_delay = figure(dir, "forces", "/estimates/1/delay_s");
     let second_difference_noise = m * 6f64.sqrt() * sigma_x / (dt * dt);
     println!(
         "forces: peak expected {peak:.0} N; unfiltered m·a {raw_rms:.0} N RMS off (m·√6·σx/Δt² = \
@@ -409,13 +409,13 @@ fn on_a_simulator_run_the_analyses_report_what_the_laws_give() {
     assert!(filtered_delay.abs() <= 2.0 * dt, "{filtered_delay} s");
 
     // `energy`: the last complete stroke, dead point to dead point.
-    let motor = figure(&dir, "energy", "/motor_j");
-    let gas = figure(&dir, "energy", "/gas_j");
-    let cogging = figure(&dir, "energy", "/cogging_j");
-    let friction = figure(&dir, "energy", "/friction_j");
-    let inertia = figure(&dir, "energy", "/inertia_j");
-    let balance = figure(&dir, "energy", "/balance_j");
-    let kinetic = figure(&dir, "energy", "/peak_kinetic_j");
+    let motor = figure(dir, "energy", "/motor_j");
+    let gas = figure(dir, "energy", "/gas_j");
+    let cogging = figure(dir, "energy", "/cogging_j");
+    let friction = figure(dir, "energy", "/friction_j");
+    let inertia = figure(dir, "energy", "/inertia_j");
+    let balance = figure(dir, "energy", "/balance_j");
+    let kinetic = figure(dir, "energy", "/peak_kinetic_j");
     println!(
         "energy: motor {motor:.2} J, gas {gas:.2} J, cogging {cogging:.3} J, friction \
          {friction:.2} J, inertia {inertia:.5} J, balance {balance:.3} J; peak kinetic {kinetic:.2} J"

@@ -116,7 +116,6 @@ fn a_recorded_session_goes_through_capture_decode_and_gap_with_no_edits() {
         fpc_sim(&["link", "ports", "sealed", "--replay", s(&rec)]),
         1
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -166,7 +165,6 @@ fn bad_requests_and_another_firmwares_capture_are_refused_naming_what_is_wrong()
         2
     );
     assert!(!out.exists());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Records a bench session on the simulated board (a 0.75 ms slave lag hidden in the plant)

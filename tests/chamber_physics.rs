@@ -132,6 +132,7 @@ fn the_energy_balance_of_a_lossless_cycle_closes() {
 /// `Q = π·Δp/(8·μ·L)·[r_o⁴ − r_i⁴ − (r_o² − r_i²)²/ln(r_o/r_i)]`, made compressible by
 /// integrating along the seal at constant temperature (`ρ·Q` constant, `p·dp` ∝ dx):
 /// `ṁ = π/(16·μ·L·R·T)·[…]·(p1² − p2²)`. Written from the textbook, not from the plant's law.
+#[allow(clippy::too_many_arguments)]
 fn annulus_flow_kg_s(
     r_i: f64,
     r_o: f64,
@@ -154,7 +155,6 @@ fn annulus_flow_kg_s(
 /// outside the rod or piston diameter), the energy equation `dp/dt = γ·R/V·(T_in·ṁ_in −
 /// T·ṁ_out)`, integrated with classical RK4. Returns the time, s, at which chamber A's gauge
 /// pressure has halved, and A's initial rate of change, Pa/s.
-#[allow(clippy::too_many_arguments)]
 fn independent_leak_down(
     model: &MachineModel,
     x_hold_m: f64,

@@ -72,7 +72,7 @@ fn gap_refuses_bad_model_files_naming_the_key() {
         ),
         (REFERENCE_TOML.replace("mass_kg = 12.0", ""), "mass_kg"),
     ] {
-        let (code, msg, wrote) = gap(&dir, &bad, &log);
+        let (code, msg, wrote) = gap(dir, &bad, &log);
         assert_eq!(code, 2, "{msg}");
         assert!(msg.contains(key), "`{msg}` should name {key}");
         assert!(!msg.contains('\n'));
@@ -101,7 +101,7 @@ fn gap_refuses_bad_logs_naming_line_and_column() {
         (short.join("\n"), "line 41"),
         (log_text(Some("ajar")), "ports"),
     ] {
-        let (code, msg, wrote) = gap(&dir, REFERENCE_TOML, &bad);
+        let (code, msg, wrote) = gap(dir, REFERENCE_TOML, &bad);
         assert_eq!(code, 2, "{msg}");
         assert!(msg.contains(want), "`{msg}` should contain {want}");
         assert!(!wrote, "nothing may be written on bad input");
@@ -138,7 +138,7 @@ fn gap_refuses_values_and_rates_no_machine_logs_without_hanging() {
         // A band above the log's Nyquist frequency (5 kHz at 10 kHz).
         (good.clone(), 6000.0, "Nyquist"),
     ] {
-        let (code, msg, wrote) = gap_band(&dir, REFERENCE_TOML, &bad, band);
+        let (code, msg, wrote) = gap_band(dir, REFERENCE_TOML, &bad, band);
         assert_eq!(code, 2, "{msg}");
         assert!(msg.contains(want), "`{msg}` should contain {want}");
         assert!(!wrote, "nothing may be written on bad input");
@@ -150,7 +150,7 @@ fn gap_refuses_values_and_rates_no_machine_logs_without_hanging() {
 fn gap_writes_the_augmented_model_and_the_report() {
     let dir = scratch("ok");
     let dir = dir.path();
-    let (code, msg, wrote) = gap(&dir, REFERENCE_TOML, &log_text(Some("closed")));
+    let (code, msg, wrote) = gap(dir, REFERENCE_TOML, &log_text(Some("closed")));
     assert_eq!(code, 0, "{msg}");
     assert!(wrote);
     let out = dir.join("out");
