@@ -194,8 +194,16 @@ fn check_run_log(log: &RunLog) -> Result<(), String> {
             w[0], w[1]
         ));
     }
+    // The data read back the same; how the first reading put the rows on the grid
+    // (`resampled`) is a report of that reading, not part of what was written.
     match RunLog::parse(&log.to_csv()) {
-        Ok(again) if again == *log => Ok(()),
+        Ok(again)
+            if again.meta == log.meta
+                && again.names == log.names
+                && again.columns == log.columns =>
+        {
+            Ok(())
+        }
         Ok(_) => Err("it reads back as another log".into()),
         Err(e) => Err(format!("what it writes is refused: {e}")),
     }
