@@ -157,13 +157,13 @@ fn toml_files(root: &std::path::Path) -> Vec<std::path::PathBuf> {
     found
 }
 
-/// Tool configuration, not the project's data: Cargo manifests, cargo's and clippy's
-/// settings.
+/// Tool configuration, not the project's data: Cargo manifests, the pinned toolchain,
+/// cargo's, clippy's, rustfmt's and cargo-deny's settings.
 fn is_tool_configuration(path: &std::path::Path) -> bool {
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
     matches!(
         name,
-        "Cargo.toml" | "clippy.toml" | "rustfmt.toml" | "deny.toml"
+        "Cargo.toml" | "rust-toolchain.toml" | "clippy.toml" | "rustfmt.toml" | "deny.toml"
     ) || path.parent().and_then(|p| p.file_name()) == Some(std::ffi::OsStr::new(".cargo"))
 }
 
