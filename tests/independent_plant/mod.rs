@@ -102,20 +102,6 @@ pub enum Hidden {
     ForceConstant { error: f64 },
     /// Outside the library: Coulomb friction rising `rate` N every second of the run.
     DriftingFriction { rate_n_per_s: f64 },
-    /// Outside the library and the basis: friction growing `slope` N per metre of distance
-    /// from `x0` (a bore worn or tapered toward its ends).
-    PositionFriction { slope_n_per_m: f64, x0_m: f64 },
-    /// Outside the library: a hardening spring `−k3·(x − x0)³`.
-    CubicSpring { k3_n_per_m3: f64, x0_m: f64 },
-    /// A chamber's pressure transducer reads `offset` Pa off (`b`: chamber B's, else A's).
-    PressureOffset { b: bool, offset_pa: f64 },
-    /// A chamber's pressure transducer reads `gain` times the pressure.
-    PressureGain { b: bool, gain: f64 },
-    /// A section's drive reports its force `offset` N off (`slave`: the slave's, else the
-    /// master's).
-    ForceOffset { slave: bool, offset_n: f64 },
-    /// A section's drive reports `gain` times the force it acts.
-    ForceGain { slave: bool, gain: f64 },
 }
 
 impl Hidden {
@@ -137,12 +123,6 @@ impl Hidden {
             Hidden::QuadraticDrag { .. } => "quadratic_drag",
             Hidden::ForceConstant { .. } => "force_constant_error",
             Hidden::DriftingFriction { .. } => "drifting_friction",
-            Hidden::PositionFriction { .. } => "position_friction",
-            Hidden::CubicSpring { .. } => "cubic_spring",
-            Hidden::PressureOffset { .. } => "pressure_offset",
-            Hidden::PressureGain { .. } => "pressure_gain",
-            Hidden::ForceOffset { .. } => "force_offset",
-            Hidden::ForceGain { .. } => "force_gain",
         }
     }
 
@@ -155,12 +135,6 @@ impl Hidden {
             Hidden::QuadraticDrag { c_ns2_per_m2 } => vec![("v|v|", -c_ns2_per_m2)],
             Hidden::ForceConstant { error } => vec![("f_motor", error)],
             Hidden::DriftingFriction { rate_n_per_s } => vec![("t*sgn(v)", -rate_n_per_s)],
-            Hidden::CubicSpring { k3_n_per_m3, x0_m } => vec![
-                ("x^3", -k3_n_per_m3),
-                ("x^2", 3.0 * k3_n_per_m3 * x0_m),
-                ("x", -3.0 * k3_n_per_m3 * x0_m * x0_m),
-                ("1", k3_n_per_m3 * x0_m.powi(3)),
-            ],
             _ => return None,
         };
         Some(terms.into_iter().collect())
@@ -264,10 +238,6 @@ pub struct Case {
 /// Stribeck).
 pub fn needs(effect: &str) -> (Option<Chambers>, Option<Trajectory>) {
     match effect {
-        // A transducer's error shows against the chambers' replay: sealed chambers.
-        "pressure_offset" | "pressure_gain" => (Some(Chambers::Sealed), None),
-        // Friction along the bore and a hardening spring need the whole stroke.
-        "position_friction" | "cubic_spring" => (Some(Chambers::Vented), None),
         "leakage" | "heat_transfer" => (Some(Chambers::Sealed), Some(Trajectory::HoldsAndMoves)),
         "stribeck_friction" => (Some(Chambers::Vented), Some(Trajectory::HoldsAndMoves)),
         _ => (None, None),
@@ -346,34 +316,6 @@ pub fn draw_effect(effect: &str, nominal: &Nominal, rng: &mut ChaCha8Rng) -> Hid
         },
         "drifting_friction" => Hidden::DriftingFriction {
             rate_n_per_s: rng.random_range(3.0..12.0),
-        },
-        // Issue #45's forms, at magnitudes a rig shows: friction growing 400–1200 N/m from a
-        // point within 3 cm of mid travel, a hardening spring of 0.4–1.5e6 N/m³ about a point
-        // within 2 cm of it, a transducer 1.5–5 kPa off or 2–6 % in gain, a drive's reading
-        // 10–30 N off or 3–10 % in gain.
-        "position_friction" => Hidden::PositionFriction {
-            slope_n_per_m: rng.random_range(400.0..1200.0),
-            x0_m: 0.5 * nominal.travel_m + rng.random_range(-0.03..0.03),
-        },
-        "cubic_spring" => Hidden::CubicSpring {
-            k3_n_per_m3: rng.random_range(4e5..1.5e6),
-            x0_m: 0.5 * nominal.travel_m + rng.random_range(-0.02..0.02),
-        },
-        "pressure_offset" => Hidden::PressureOffset {
-            b: rng.random_bool(0.5),
-            offset_pa: sign(rng) * rng.random_range(1500.0..5000.0),
-        },
-        "pressure_gain" => Hidden::PressureGain {
-            b: rng.random_bool(0.5),
-            gain: 1.0 + sign(rng) * rng.random_range(0.02..0.06),
-        },
-        "force_offset" => Hidden::ForceOffset {
-            slave: rng.random_bool(0.5),
-            offset_n: sign(rng) * rng.random_range(10.0..30.0),
-        },
-        "force_gain" => Hidden::ForceGain {
-            slave: rng.random_bool(0.5),
-            gain: 1.0 + sign(rng) * rng.random_range(0.03..0.10),
         },
         _ => Hidden::HeatTransfer {
             ua_w_per_k: rng.random_range(1.0..20.0),
@@ -469,12 +411,6 @@ struct Truth {
     drag: f64,
     motor_gain: f64,
     drift: f64,
-    position_friction: Option<(f64, f64)>,
-    cubic: Option<(f64, f64)>,
-    /// Transducers' (offset, gain) of chambers A and B.
-    transducers: [(f64, f64); 2],
-    /// Drives' readings' (offset, gain) of the master and the slave.
-    readings: [(f64, f64); 2],
 }
 
 impl Truth {
@@ -485,8 +421,6 @@ impl Truth {
             coulomb: n.coulomb_n,
             viscous: n.viscous,
             motor_gain: 1.0,
-            transducers: [(0.0, 1.0); 2],
-            readings: [(0.0, 1.0); 2],
             ..Truth::default()
         };
         for h in &case.hidden {
@@ -519,33 +453,16 @@ impl Truth {
                 Hidden::QuadraticDrag { c_ns2_per_m2 } => t.drag = c_ns2_per_m2,
                 Hidden::ForceConstant { error } => t.motor_gain = 1.0 + error,
                 Hidden::DriftingFriction { rate_n_per_s } => t.drift = rate_n_per_s,
-                Hidden::PositionFriction {
-                    slope_n_per_m,
-                    x0_m,
-                } => t.position_friction = Some((slope_n_per_m, x0_m)),
-                Hidden::CubicSpring { k3_n_per_m3, x0_m } => t.cubic = Some((k3_n_per_m3, x0_m)),
-                Hidden::PressureOffset { b, offset_pa } => {
-                    t.transducers[usize::from(b)].0 = offset_pa
-                }
-                Hidden::PressureGain { b, gain } => t.transducers[usize::from(b)].1 = gain,
-                Hidden::ForceOffset { slave, offset_n } => {
-                    t.readings[usize::from(slave)].0 = offset_n
-                }
-                Hidden::ForceGain { slave, gain } => t.readings[usize::from(slave)].1 = gain,
             }
         }
         t
     }
 
-    /// Friction against the motion at `t` s into the run, at position `x`.
-    fn friction(&self, v: f64, t: f64, x: f64) -> f64 {
+    /// Friction against the motion at `t` s into the run.
+    fn friction(&self, v: f64, t: f64) -> f64 {
         let s = (v / SIGN_SMOOTHING).tanh();
-        let along = self
-            .position_friction
-            .map_or(0.0, |(slope, x0)| slope * (x - x0).abs());
-        let mut f = (self.coulomb + self.drift * t + along) * s
-            + self.viscous * v
-            + self.drag * v * v.abs();
+        let mut f =
+            (self.coulomb + self.drift * t) * s + self.viscous * v + self.drag * v * v.abs();
         if let Some((excess, vs, z)) = self.stribeck {
             f += excess * (-(v.abs() / vs).powf(z)).exp() * s;
         }
@@ -768,13 +685,9 @@ fn derivative(s: &State, f_motor: f64, t: f64, truth: &Truth, case: &Case) -> St
     let mut d = [0.0; 6];
     d[0] = v;
     let (pa, pb) = pressures(s, case);
-    let mut f =
-        truth.motor_gain * f_motor + (pa - pb) * area - truth.friction(v, t, x) + truth.bias;
+    let mut f = truth.motor_gain * f_motor + (pa - pb) * area - truth.friction(v, t) + truth.bias;
     if let Some((k, x0)) = truth.spring {
         f -= k * (x - x0);
-    }
-    if let Some((k3, x0)) = truth.cubic {
-        f -= k3 * (x - x0).powi(3);
     }
     if let Some((a, p, ph)) = truth.cogging {
         f += a * (TAU * x / p + ph).sin();
@@ -875,11 +788,7 @@ pub fn generate(case: &Case) -> Generated {
         // Sense.
         let x_meas = s[0] + pos_noise.sample(&mut rng);
         let (pa, pb) = pressures(&s, case);
-        let [(oa, ga), (ob, gb)] = truth.transducers;
-        let (pa_m, pb_m) = (
-            ga * pa + oa + p_noise.sample(&mut rng),
-            gb * pb + ob + p_noise.sample(&mut rng),
-        );
+        let (pa_m, pb_m) = (pa + p_noise.sample(&mut rng), pb + p_noise.sample(&mut rng));
         let raw_v = if k == 0 { 0.0 } else { (x_meas - x_prev) / dt };
         v_filt = alpha * v_filt + (1.0 - alpha) * raw_v;
         x_prev = x_meas;
@@ -893,9 +802,8 @@ pub fn generate(case: &Case) -> Generated {
             - (pa_m - pb_m) * area;
         cmd.push(u.clamp(-10_000.0, 10_000.0));
         // Log: both drives report their command; the slave's is the master's, late.
-        let [(om, gm), (os, gs)] = truth.readings;
-        let master = gm * 0.5 * held(&cmd, t) + om;
-        let slave = gs * 0.5 * held(&cmd, t - truth.slave_lag) + os;
+        let master = 0.5 * held(&cmd, t);
+        let slave = 0.5 * held(&cmd, t - truth.slave_lag);
         let x_slave = match truth.pitch {
             Some((a, p, ph, scale)) => s[0] + a * (TAU * s[0] / p + ph).sin() + scale * s[0],
             None => s[0],

@@ -83,7 +83,7 @@ pub fn main(args: GapArgs) -> CmdResult {
     inputs.extend(args.model.as_deref());
     let out = OutDir::prepare(
         &args.out,
-        &["model.toml", "report.md", "report.html", "gap.json"],
+        &["model.toml", "report.md", "gap.json"],
         args.force,
         &inputs,
     )?;
@@ -158,10 +158,6 @@ pub fn main(args: GapArgs) -> CmdResult {
         model_out.display(),
         report_out.display()
     )?;
-    // What is left in words: each channel whose residual is still structured.
-    for u in outcome.json.unexplained.iter().filter(|u| u.structured) {
-        errln!("fpc-sim gap: unexplained: {}", u.description)?;
-    }
     if args.json {
         outln!("{json}")?;
     }

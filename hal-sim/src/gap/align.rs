@@ -18,10 +18,9 @@
 
 use crate::plant::model::MachineModel;
 
-use super::band::Band;
-use super::columns::force_combination;
 use super::data::{Measured, ALIGN_WINDOW_SAMPLES, UNDECLARED_ALIGN_SAMPLES};
 use super::fit::{minimise_1d, sumsq};
+use super::residuals::{force_raw, Band, ChannelId};
 
 /// What the alignment fit found.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -37,15 +36,12 @@ pub struct Alignment {
 /// Fits the alignment of `data` (which must not declare one) for `model`.
 pub fn estimate(data: &Measured, band: &Band, model: &MachineModel) -> Option<Alignment> {
     let dt = data.dt_s;
-    let combination = force_combination(data, model);
-    let now = data.force_align_s / dt;
+    let mut probe = data.clone();
     let (lo, hi) = (-ALIGN_WINDOW_SAMPLES, ALIGN_WINDOW_SAMPLES);
     let (samples, _) = minimise_1d(lo, hi, 13, 18, |s| {
-        Some(sumsq(&band.combine_motors_shifted(
-            data,
-            &combination,
-            s - now,
-        )))
+        probe.force_align_s = s * dt;
+        let raw = force_raw(&probe, model);
+        Some(sumsq(&band.kept(&probe, ChannelId::Force, &raw)))
     })?;
     let at_edge = samples <= lo + 0.05 || samples >= hi - 0.05;
     Some(Alignment {

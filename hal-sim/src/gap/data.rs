@@ -5,7 +5,7 @@
 use crate::runlog::RunLog;
 use crate::signal::{firmware_derivatives, SgSettings};
 
-use super::filter::{sg_weights, Kernel};
+use super::band::{sg_weights, Kernel};
 
 /// Length of the differentiator window, s (the firmware's 21 samples at 20 kHz is 1 ms; the
 /// offline analysis may look both ways and uses 2 ms, capped at the firmware's 41 samples).
@@ -192,7 +192,7 @@ pub struct Measured {
     /// ([`super::residuals::ports_resolved`]); all 1 until the workflow sets it.
     pub pressure_judged: Vec<f64>,
     /// How far the logged position reads beyond the chambers' own, m: what the pressure
-    /// replay subtracts from `x_m` ([`super::offset::fit_position_offset`], fitted once
+    /// replay subtracts from `x_m` ([`super::residuals::fit_position_offset`], fitted once
     /// per log before the selection; 0 until the workflow sets it).
     pub x_offset_m: f64,
     /// Stretches of motion between standstills (runs of `moving`): an encoder may be zeroed
@@ -202,7 +202,7 @@ pub struct Measured {
     /// ([`super::residuals::replay_pressures`]): the columns above are never changed after
     /// they are made (only the force alignment is, which no replay reads), and a clone starts
     /// with none.
-    pub replays: super::cache::ColumnCache<String>,
+    pub replays: super::band::ColumnCache<String>,
 }
 
 impl Measured {

@@ -21,90 +21,22 @@
 //! The least squares are nalgebra's ([`super::fit::lstsq`]) on columns scaled to unit RMS
 //! (x in metres, t in seconds and f_motor in kilonewtons differ by orders of magnitude).
 
-use std::fmt::Write as _;
+use rayon::prelude::*;
 
-use crate::plant::model::extra_force::Term;
+use crate::plant::fastmath::sin_cos;
+use crate::plant::model::extra_force::{ExtraState, Term};
 use crate::plant::model::{model_section, MachineModel};
 
-use super::columns::{force_combination, motor_shift, term_columns};
 use super::doc::{Edit, ModelDoc};
 use super::effects::{kept_span, kept_x, Ctx, EffectKind, Proposal};
 use super::fit::{lstsq, minimise_1d_par};
+use super::residuals::{extra_states, force_raw, ChannelId};
 
-/// Shortest period of the periodic pair, m.
+/// Shortest period of the periodic pair searched, m.
 pub const MIN_PERIOD_M: f64 = 2e-3;
 
-/// Harmonics and sub-harmonics of the machine's own periods the periodic pair may take: the
-/// pole pitch and the encoder's period times and over 1..=`MACHINE_HARMONICS`.
-pub const MACHINE_HARMONICS: u32 = 4;
-
-/// How far a peak of the residual's spatial periodogram must stand above the periodogram's
-/// median to be a period of its own ([`Basis::spectral_peak`]): a ripple's power over the
-/// noise's, measured on the residual before any fit at that period.
-pub const PEAK_OVER_MEDIAN: f64 = 25.0;
-
-/// Spatial-frequency steps of the periodogram per inverse span of x.
-const PERIODOGRAM_STEPS_PER_SPAN: f64 = 8.0;
-
-/// Most kept samples the periodogram reads.
-const PERIODOGRAM_SAMPLES: usize = 4096;
-
-/// The share of `y`'s sum of squares the sine and cosine of spatial frequency `f` (1/m) at
-/// positions `x` explain (least squares on the two columns).
-fn pair_power(x: &[f64], y: &[f64], f: f64) -> f64 {
-    let (mut ss, mut cc, mut sc, mut sy, mut cy) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for (xi, yi) in x.iter().zip(y) {
-        let (s, c) = crate::plant::fastmath::sin_cos(std::f64::consts::TAU * f * xi);
-        ss += s * s;
-        cc += c * c;
-        sc += s * c;
-        sy += s * yi;
-        cy += c * yi;
-    }
-    let det = ss * cc - sc * sc;
-    if det <= 0.0 {
-        return 0.0;
-    }
-    // The projection's sum of squares: [sy cy]·G⁻¹·[sy cy]ᵀ.
-    (cc * sy * sy - 2.0 * sc * sy * cy + ss * cy * cy) / det
-}
-
-/// The sets a term may enter with (each with the term first): alone; with the constant (a
-/// form about an origin of its own, as a spring about its rest point: alone, `x` cannot fit
-/// `−k·(x − x0)` over a stroke far from x = 0); a power of x with every lower power and the
-/// constant (a polynomial about an unknown point: `x^3` alone puts a hardening spring's
-/// centre at the head, where none is); and the friction varying along the bore with its own
-/// level (`x·sgn(v)` with `sgn(v)`).
-fn families(t: Term) -> Vec<&'static [Term]> {
-    match t {
-        Term::One => vec![&[Term::One]],
-        Term::X2 => vec![
-            &[Term::X2],
-            &[Term::X2, Term::One],
-            &[Term::X2, Term::X, Term::One],
-        ],
-        Term::X3 => vec![
-            &[Term::X3],
-            &[Term::X3, Term::One],
-            &[Term::X3, Term::X2, Term::X, Term::One],
-        ],
-        Term::XSgnV => vec![
-            &[Term::XSgnV],
-            &[Term::XSgnV, Term::One],
-            &[Term::XSgnV, Term::SgnV],
-        ],
-        Term::X => vec![&[Term::X], &[Term::X, Term::One]],
-        Term::V => vec![&[Term::V], &[Term::V, Term::One]],
-        Term::VAbsV => vec![&[Term::VAbsV], &[Term::VAbsV, Term::One]],
-        Term::SgnV => vec![&[Term::SgnV], &[Term::SgnV, Term::One]],
-        Term::A => vec![&[Term::A], &[Term::A, Term::One]],
-        Term::FMotor => vec![&[Term::FMotor], &[Term::FMotor, Term::One]],
-        Term::DeltaP => vec![&[Term::DeltaP], &[Term::DeltaP, Term::One]],
-        Term::T => vec![&[Term::T], &[Term::T, Term::One]],
-        Term::TSgnV => vec![&[Term::TSgnV], &[Term::TSgnV, Term::One]],
-        Term::Sin | Term::Cos => vec![],
-    }
-}
+/// Grid points of the period search (log-spaced), before the golden section.
+pub const PERIOD_GRID: usize = 48;
 
 /// The non-periodic terms, in the order of [`Term::ALL`].
 fn plain_terms() -> impl Iterator<Item = Term> {
@@ -122,76 +54,72 @@ pub struct TermFit {
     pub rss: f64,
 }
 
-/// What the basis is evaluated on: the log's columns at the force channel's kept samples
-/// (kept by the band for every later step) and the span of x there.
+/// What the basis is evaluated on: the states of every row and the kept samples' x.
 struct Basis<'a> {
     ctx: &'a Ctx<'a>,
-    /// The motor forces' shift of the model the terms are fitted on, samples (`f_motor`).
-    shift: f64,
-    /// x at the force channel's kept samples, m.
-    x_kept: Vec<f64>,
+    states: Vec<ExtraState>,
     span_m: f64,
-    /// The periods the machine itself can produce ([`machine_periods`]).
-    machine: Vec<f64>,
-}
-
-/// The periods at which the machine can produce a force periodic in x, m: the pole pitch
-/// and the encoder's period (the N–N pitch), their harmonics and sub-harmonics up to
-/// [`MACHINE_HARMONICS`], between [`MIN_PERIOD_M`] and half the span of x.
-///
-/// A periodic pair at any other period is a curve-fitting device: on a log hiding a
-/// hardening spring (d09) a free period search fitted 49 N at 56 mm beside a constant and
-/// an `x^2` term, a ripple no part of the machine makes, and a reader would have looked for
-/// it. Another period is taken only where the residual's own spectrum shows it
-/// ([`Basis::spectral_peak`]).
-pub fn machine_periods(model: &MachineModel, span_m: f64) -> Vec<f64> {
-    let mut out: Vec<f64> = Vec::new();
-    for base in [model.motor.pole_pitch_m, model.encoder.period_m] {
-        for k in 1..=MACHINE_HARMONICS {
-            for p in [base / f64::from(k), base * f64::from(k)] {
-                let known = out.iter().any(|q| (q / p - 1.0).abs() < 1e-9);
-                if !known && p >= MIN_PERIOD_M && p <= 0.5 * span_m {
-                    out.push(p);
-                }
-            }
-        }
-    }
-    out.sort_by(f64::total_cmp);
-    out
+    /// The band-filtered columns of the non-periodic terms, computed once.
+    plain: Vec<(Term, Vec<f64>)>,
 }
 
 impl<'a> Basis<'a> {
     fn new(ctx: &'a Ctx<'a>, model: &MachineModel) -> Self {
-        let x_kept = kept_x(ctx);
-        let span_m = kept_span(&x_kept);
-        Basis {
+        let states = extra_states(ctx.data, model);
+        let xk = kept_x(ctx);
+        let mut b = Basis {
             ctx,
-            shift: motor_shift(ctx.data, model),
-            machine: machine_periods(model, span_m),
-            x_kept,
-            span_m,
-        }
+            states,
+            span_m: kept_span(&xk),
+            plain: Vec::new(),
+        };
+        b.plain = plain_terms()
+            .collect::<Vec<_>>()
+            .par_iter()
+            .map(|&t| (t, b.filtered(t, 1.0)))
+            .collect();
+        b
     }
 
     /// The band-filtered column of `term` at the force channel's kept samples.
     fn column(&self, term: Term, period_m: f64) -> Vec<f64> {
-        let mut out = vec![0.0; self.ctx.band.idx_force.len()];
-        for (w, col) in term_columns(term, self.shift, period_m) {
-            let kept = self.ctx.band.force_column(self.ctx.data, col);
-            for (o, v) in out.iter_mut().zip(kept.iter()) {
-                *o += w * v;
-            }
+        if let Some((_, c)) = self.plain.iter().find(|(t, _)| *t == term) {
+            return c.clone();
         }
-        out
+        let pair = self.periodic_pair(period_m);
+        match (term, pair.as_slice()) {
+            (Term::Sin, [sin, _]) => sin.clone(),
+            (Term::Cos, [_, cos]) => cos.clone(),
+            _ => self.filtered(term, period_m),
+        }
     }
 
-    /// The band-filtered sin and cos columns of period `period_m` (kept by the band: the
-    /// period search visits the same grid at every selection step).
-    fn periodic_pair(&self, period_m: f64) -> [Vec<f64>; 2] {
-        [
-            self.column(Term::Sin, period_m),
-            self.column(Term::Cos, period_m),
-        ]
+    /// [`Self::column`], filtered anew.
+    fn filtered(&self, term: Term, period_m: f64) -> Vec<f64> {
+        let raw: Vec<f64> = self
+            .states
+            .iter()
+            .map(|s| term.value(s, period_m))
+            .collect();
+        self.ctx.band.kept(self.ctx.data, ChannelId::Force, &raw)
+    }
+
+    /// The band-filtered sin and cos columns of period `period_m`: both from one angle per
+    /// row (the values of [`Term::Sin`] and [`Term::Cos`] to within 10⁻¹⁴, by the plant's
+    /// fast sine), the two filters side by side. They depend on x and the band alone, and the
+    /// period search visits the same grid at every selection step: the band keeps them.
+    fn periodic_pair(&self, period_m: f64) -> std::sync::Arc<Vec<Vec<f64>>> {
+        let band = self.ctx.band;
+        band.columns.get_or_make(period_m.to_bits(), || {
+            let (sin, cos): (Vec<f64>, Vec<f64>) = self
+                .states
+                .iter()
+                .map(|s| sin_cos(std::f64::consts::TAU * s.x_m / period_m))
+                .unzip();
+            let filter = |raw: &[f64]| band.kept(self.ctx.data, ChannelId::Force, raw);
+            let (s, c) = rayon::join(|| filter(&sin), || filter(&cos));
+            vec![s, c]
+        })
     }
 
     /// Least squares of `y` on `terms` (their columns given), the columns scaled to unit
@@ -224,89 +152,37 @@ impl<'a> Basis<'a> {
         })
     }
 
-    /// The best period for the periodic pair on top of `fixed` columns: one the machine
-    /// can produce ([`machine_periods`]), or a peak of the residual's own spatial spectrum
-    /// ([`Self::spectral_peak`]).
+    /// The best period for the periodic pair on top of `fixed` columns: a log-spaced grid
+    /// from [`MIN_PERIOD_M`] to half the span of x, then golden section on ln p.
     fn periodic(&self, fixed: &[(Term, Vec<f64>)], y: &[f64]) -> Option<TermFit> {
+        let hi = 0.5 * self.span_m;
+        if hi <= MIN_PERIOD_M {
+            return None;
+        }
         let with = |p: f64| -> Option<TermFit> {
             let mut cols = fixed.to_vec();
-            let [sin, cos] = self.periodic_pair(p);
+            let pair = self.periodic_pair(p);
+            let (sin, cos) = match pair.as_slice() {
+                [sin, cos] => (sin.clone(), cos.clone()),
+                _ => return None,
+            };
             cols.push((Term::Sin, sin));
             cols.push((Term::Cos, cos));
             Basis::fit(&cols, y, Some(p))
         };
-        let mut periods = self.machine.clone();
-        if let Some(p) = self.spectral_peak(fixed, y) {
-            periods.push(p);
-        }
-        periods
-            .iter()
-            .filter_map(|&p| with(p))
-            .min_by(|a, b| a.rss.total_cmp(&b.rss))
+        let (lnp, _) = minimise_1d_par(MIN_PERIOD_M.ln(), hi.ln(), PERIOD_GRID, 12, |lnp| {
+            with(lnp.exp()).map(|f| f.rss)
+        })?;
+        with(lnp.exp())
     }
 
-    /// A period of its own in what `fixed` leaves of `y`: the highest local maximum of the
-    /// spatial periodogram (sin and cos of x at the kept samples, a quick unfiltered scan)
-    /// between [`MIN_PERIOD_M`] and half the span of x, inside the scanned range and at
-    /// least [`PEAK_OVER_MEDIAN`] times the periodogram's median, refined on the filtered
-    /// columns. A smooth force (a spring, a cubic) has its power at the longest periods and
-    /// no peak inside; a ripple of a part of the machine the model does not name has one.
-    fn spectral_peak(&self, fixed: &[(Term, Vec<f64>)], y: &[f64]) -> Option<f64> {
-        let left: Vec<f64> = if fixed.is_empty() {
-            y.to_vec()
-        } else {
-            let f = Basis::fit(fixed, y, None)?;
-            let mut r = y.to_vec();
-            for ((_, col), (_, c)) in fixed.iter().zip(&f.terms) {
-                for (ri, v) in r.iter_mut().zip(col) {
-                    *ri -= c * v;
-                }
-            }
-            r
-        };
-        let (f_lo, f_hi) = (2.0 / self.span_m, 1.0 / MIN_PERIOD_M);
-        let df = 1.0 / (PERIODOGRAM_STEPS_PER_SPAN * self.span_m);
-        let steps = ((f_hi - f_lo) / df).ceil().min(4000.0) as usize;
-        if steps < 3 {
-            return None;
-        }
-        // At most `PERIODOGRAM_SAMPLES` of the kept samples, evenly spread: the scan's
-        // resolution is the span's, not the count's.
-        let every = self.x_kept.len().div_ceil(PERIODOGRAM_SAMPLES).max(1);
-        let xs: Vec<f64> = self.x_kept.iter().step_by(every).copied().collect();
-        let ys: Vec<f64> = left.iter().step_by(every).copied().collect();
-        let power: Vec<f64> = (0..=steps)
-            .map(|i| pair_power(&xs, &ys, f_lo + df * i as f64))
-            .collect();
-        let mut sorted = power.clone();
-        sorted.sort_by(f64::total_cmp);
-        let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
-        let (i, peak) = power
-            .windows(3)
-            .enumerate()
-            .filter(|(_, w)| w[1] > w[0] && w[1] >= w[2])
-            .map(|(i, w)| (i + 1, w[1]))
-            .max_by(|a, b| a.1.total_cmp(&b.1))?;
-        if !(median > 0.0 && peak >= PEAK_OVER_MEDIAN * median) {
-            return None;
-        }
-        let f0 = f_lo + df * i as f64;
-        let rss = |f: f64| -> Option<f64> {
-            let mut cols = fixed.to_vec();
-            let [sin, cos] = self.periodic_pair(1.0 / f);
-            cols.push((Term::Sin, sin));
-            cols.push((Term::Cos, cos));
-            Basis::fit(&cols, y, None).map(|t| t.rss)
-        };
-        let (f, _) = minimise_1d_par(f0 - df, f0 + df, 3, 10, rss)?;
-        Some(1.0 / f)
-    }
-
-    /// The best fit of `present` (refitted) plus one more term with one of its
-    /// [`families`], or the periodic pair, on `y`; `None` if nothing fits. Returns the fit
-    /// and the number of new parameters. Candidates of different sizes are ranked by
-    /// `n·ln(RSS₀/RSS) − k·ln n`; whether the chosen one is significant is the selection's
-    /// judgement, and a term that brings nothing is pruned there.
+    /// The best fit of `present` (refitted) plus one more term, or one more term with the
+    /// constant, or the periodic pair, on `y`; `None` if nothing fits. Returns the fit and
+    /// the number of new parameters. A term comes with the constant because most forms are
+    /// about an origin of their own (a spring about its rest point x0): alone, `x` cannot
+    /// fit `−k·(x − x0)` over a stroke far from x = 0. Candidates of different sizes are
+    /// ranked by `n·ln(RSS₀/RSS) − k·ln n`; whether the chosen one is significant is the
+    /// selection's judgement, and a constant that brings nothing is pruned there.
     fn extend(
         &self,
         present: &[(Term, Vec<f64>)],
@@ -331,22 +207,17 @@ impl<'a> Basis<'a> {
                 }
             }
         };
+        let has_one = present.iter().any(|(p, _)| *p == Term::One);
         for t in plain_terms() {
             if present.iter().any(|(p, _)| *p == t) {
                 continue;
             }
-            for family in families(t) {
-                let mut cols = present.to_vec();
-                let mut k = 0;
-                for f in family {
-                    if !cols.iter().any(|(p, _)| p == f) {
-                        cols.push((*f, self.column(*f, 1.0)));
-                        k += 1;
-                    }
-                }
-                if k > 0 {
-                    consider(Basis::fit(&cols, y, period_m), k);
-                }
+            let mut cols = present.to_vec();
+            cols.push((t, self.column(t, 1.0)));
+            consider(Basis::fit(&cols, y, period_m), 1);
+            if !has_one && t != Term::One {
+                cols.push((Term::One, self.column(Term::One, 1.0)));
+                consider(Basis::fit(&cols, y, period_m), 2);
             }
         }
         if !present.iter().any(|(p, _)| p.periodic()) {
@@ -361,10 +232,8 @@ impl<'a> Basis<'a> {
 fn residual_without_extra(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<(Vec<f64>, MachineModel)> {
     let base = doc.with(&[Edit::RemoveSection(model_section!(effects.extra_force))]);
     let model = base.model().ok()?;
-    let kept = ctx
-        .band
-        .combine(ctx.data, &force_combination(ctx.data, &model));
-    Some((kept, model))
+    let raw = force_raw(ctx.data, &model);
+    Some((ctx.band.kept(ctx.data, ChannelId::Force, &raw), model))
 }
 
 /// The terms present in `doc`'s extra force, with the period.
@@ -528,53 +397,25 @@ pub fn basis_rss(ctx: &Ctx<'_>, doc: &ModelDoc, y: &[f64], k: usize) -> Option<(
 }
 
 /// A physical reading of a set of terms ("linear in x: a spring of 1800 N/m about
-/// x = 0.090 m"; "cubic in x: a hardening spring of 9.00e5 N/m³ about x = 0.095 m";
-/// "∝ f_motor: the motor force is 5.0 % lower than logged"; …).
+/// x = 0.090 m"; "∝ f_motor: the motor force is 5.0 % lower than logged"; …).
 pub fn reading(terms: &[(Term, f64)], period_m: Option<f64>) -> String {
     let c = |t: Term| terms.iter().find(|(p, _)| *p == t).map(|(_, c)| *c);
     let mut parts = Vec::new();
-    let cubic = c(Term::X3).filter(|a3| *a3 != 0.0);
-    match (cubic, c(Term::X), c(Term::One)) {
-        (Some(a3), _, _) => {
-            // a₃x³ + a₂x² + a₁x + a₀ about its inflection x₀ = −a₂/(3a₃):
-            // a₃(x − x₀)³ + b₁(x − x₀) + b₀.
-            let (a2, a1, a0) = (
-                c(Term::X2).unwrap_or(0.0),
-                c(Term::X).unwrap_or(0.0),
-                c(Term::One).unwrap_or(0.0),
-            );
-            let x0 = -a2 / (3.0 * a3);
-            let b1 = a1 - 3.0 * a3 * x0 * x0;
-            let b0 = ((a3 * x0 + a2) * x0 + a1) * x0 + a0;
-            let mut s = format!(
-                "cubic in x: a {} spring of {:.3e} N/m³ about x = {x0:.3} m",
-                if a3 < 0.0 { "hardening" } else { "softening" },
-                a3.abs()
-            );
-            if b1.abs() >= 0.5 {
-                let _ = write!(s, ", with {:.0} N/m linear about it", -b1);
-            }
-            if b0.abs() >= 0.05 {
-                let _ = write!(s, " and {b0:.1} N there");
-            }
-            parts.push(s);
-        }
-        (None, Some(kx), one) if kx != 0.0 => {
+    match (c(Term::X), c(Term::One)) {
+        (Some(kx), one) if kx != 0.0 => {
             let x0 = -one.unwrap_or(0.0) / kx;
             parts.push(format!(
                 "linear in x: a spring of {:.0} N/m about x = {:.3} m",
                 -kx, x0
             ));
         }
-        (None, _, Some(one)) => parts.push(format!("a constant force of {one:.1} N toward +x")),
+        (_, Some(one)) => parts.push(format!("a constant force of {one:.1} N toward +x")),
         _ => {}
     }
     for &(t, v) in terms {
         let s = match t {
             Term::One | Term::X | Term::Cos => continue,
-            Term::X2 | Term::X3 if cubic.is_some() => continue,
             Term::X2 => format!("quadratic in x: {v:.1} N/m²"),
-            Term::X3 => continue,
             Term::V => format!("∝ v: a viscous force of {:.2} N·s/m", -v),
             Term::VAbsV => format!("∝ v|v|: a quadratic drag of {:.2} N·s²/m²", -v),
             Term::SgnV => format!("∝ sgn(v): a friction of {:.1} N against the motion", -v),
@@ -588,11 +429,6 @@ pub fn reading(terms: &[(Term, f64)], period_m: Option<f64>) -> String {
             Term::T => format!("a force drifting {v:.2} N/s toward +x"),
             Term::TSgnV => format!(
                 "friction {} {:.2} N/s",
-                if v < 0.0 { "rising" } else { "falling" },
-                v.abs()
-            ),
-            Term::XSgnV => format!(
-                "friction {} {:.0} N/m toward +x",
                 if v < 0.0 { "rising" } else { "falling" },
                 v.abs()
             ),
@@ -623,22 +459,5 @@ mod tests {
         assert!(r.contains("rising 5.40 N/s"), "{r}");
         let r = reading(&[(Term::VAbsV, -9.0)], None);
         assert!(r.contains("9.00 N·s²/m²"), "{r}");
-        // −9e5·(x − 0.095)³ expanded (d09's truth).
-        let r = reading(
-            &[
-                (Term::X3, -900_000.0),
-                (Term::X2, 256_500.0),
-                (Term::X, -24_367.5),
-                (Term::One, 771.6375),
-            ],
-            None,
-        );
-        assert!(
-            r.contains("hardening spring of 9.000e5 N/m³ about x = 0.095 m")
-                && !r.contains("linear"),
-            "{r}"
-        );
-        let r = reading(&[(Term::XSgnV, -700.0), (Term::SgnV, -10.0)], None);
-        assert!(r.contains("friction rising 700 N/m toward +x"), "{r}");
     }
 }

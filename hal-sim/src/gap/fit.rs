@@ -199,21 +199,7 @@ fn pair(evals: &mut impl FnMut(&[f64]) -> Vec<f64>, a: f64, b: f64) -> (f64, f64
 /// Damped Gauss–Newton on non-negative parameters `u` minimising ‖r(u)‖², with forward
 /// differences of step `steps[j]`. `r` returns the residual vector (`None`: invalid point).
 pub fn gauss_newton_nonneg(
-    u: Vec<f64>,
-    steps: &[f64],
-    iters: usize,
-    r: impl FnMut(&[f64]) -> Option<Vec<f64>>,
-) -> Option<(Vec<f64>, f64)> {
-    let bounds = vec![(0.0, f64::INFINITY); u.len()];
-    gauss_newton_bounded(u, &bounds, steps, iters, r)
-}
-
-/// Damped Gauss–Newton minimising ‖r(u)‖² with each parameter held within its `bounds`
-/// (`(low, high)`), forward differences of step `steps[j]`. `r` returns the residual vector
-/// (`None`: invalid point).
-pub fn gauss_newton_bounded(
     mut u: Vec<f64>,
-    bounds: &[(f64, f64)],
     steps: &[f64],
     iters: usize,
     mut r: impl FnMut(&[f64]) -> Option<Vec<f64>>,
@@ -258,12 +244,7 @@ pub fn gauss_newton_bounded(
             let trial: Vec<f64> = u
                 .iter()
                 .zip(delta.iter())
-                .zip(
-                    bounds
-                        .iter()
-                        .chain(std::iter::repeat(&(f64::NEG_INFINITY, f64::INFINITY))),
-                )
-                .map(|((a, d), (lo, hi))| (a + d).clamp(*lo, *hi))
+                .map(|(a, d)| (a + d).max(0.0))
                 .collect();
             if let Some(rt) = r(&trial) {
                 let ct = sumsq(&rt);

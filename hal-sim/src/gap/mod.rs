@@ -19,25 +19,17 @@
 
 pub mod align;
 pub mod band;
-mod cache;
-pub mod channel;
-pub mod columns;
 pub mod data;
 pub mod discover;
 pub mod doc;
 pub mod effects;
-pub mod filter;
 pub mod fit;
-pub mod judge;
-mod noise;
 mod offset;
-pub mod page;
 mod reconsider;
 pub mod report;
 pub mod residuals;
 pub mod select;
 pub mod synth;
-pub mod unexplained;
 
 use std::collections::BTreeMap;
 
@@ -45,7 +37,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::failure::Failure;
-use crate::plant::model::{model_key, model_section, MachineModel};
+use crate::plant::model::{model_key, model_section};
 use crate::runlog::RunLog;
 
 use data::Measured;
@@ -147,9 +139,6 @@ pub struct GapJson {
     pub effects: Vec<EffectJson>,
     /// Forces no named effect describes (empty when nothing is left).
     pub discovered: Vec<DiscoveredJson>,
-    /// What each channel still holds with the augmented model: its RMS against its noise
-    /// floor, and whether it is structured ([`unexplained`]).
-    pub unexplained: Vec<unexplained::UnexplainedJson>,
     /// Where the augmented model was written (empty if it was not).
     pub model_out: String,
     /// Warnings (collinear candidates, channels not formed).
@@ -198,55 +187,6 @@ pub struct ChannelResiduals {
 pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapOutcome, Failure> {
     let input = ModelDoc::parse(model_text).map_err(Failure::bad_input)?;
     let model = input.model().map_err(Failure::bad_input)?;
-    let (mut measured, band) = prepare(log, &model, opts)?;
-    let (selection, fitted_alignment) = select_aligned(&mut measured, &band, &model, &input)?;
-    let ctx = Ctx {
-        data: &measured,
-        band: &band,
-    };
-    let mut warnings = selection.warnings.clone();
-    let model_text = augmented_text(&selection).map_err(Failure::runtime)?;
-    // Re-run the comparison with the model exactly as written.
-    let after_model = crate::plant::model::MachineModel::parse(&model_text)
-        .map_err(|e| Failure::runtime(format!("augmented model does not load: {e}")))?;
-    if measured.ports == data::PortsMeta::Unknown {
-        warnings.push(
-            "no `# ports = open|closed` metadata: the pressure channel is not compared".into(),
-        );
-    }
-    let compared = compare(&ctx, &model, &after_model);
-    let channels: Vec<ChannelJson> = compared.iter().map(|c| c.1.clone()).collect();
-    let unexplained = compared.iter().map(|c| c.2.clone()).collect();
-    let filtered = compared.into_iter().map(|c| c.0).collect();
-    let effects = effect_rows(&ctx, &selection).map_err(Failure::runtime)?;
-    let discovered = discovered_rows(&ctx, &selection).map_err(Failure::runtime)?;
-    Ok(GapOutcome {
-        json: GapJson {
-            channels,
-            effects,
-            discovered,
-            unexplained,
-            model_out: String::new(),
-            warnings,
-            force_align_s: measured.force_align_s,
-            force_align_fitted: fitted_alignment.is_some(),
-        },
-        model_text,
-        input,
-        measured,
-        band,
-        selection,
-        filtered,
-    })
-}
-
-/// The measured run as the workflow sees it, with the logged position's zero fitted, and its
-/// analysis band.
-fn prepare(
-    log: &RunLog,
-    model: &MachineModel,
-    opts: &GapOptions,
-) -> Result<(Measured, Band), Failure> {
     if !(opts.band_hz.is_finite() && opts.band_hz > 0.0) {
         return Err(Failure::bad_input(format!(
             "--band-hz {}: must be positive",
@@ -255,7 +195,7 @@ fn prepare(
     }
     let mut measured =
         Measured::from_log(log, model.encoder.period_m).map_err(Failure::bad_input)?;
-    measured.check_against(model).map_err(Failure::bad_input)?;
+    measured.check_against(&model).map_err(Failure::bad_input)?;
     let nyquist = 0.5 * measured.sample_rate_hz();
     if opts.band_hz >= nyquist {
         return Err(Failure::bad_input(format!(
@@ -270,16 +210,16 @@ fn prepare(
     // log's mask is then made with the offset in place: its nominal replay, made beside the
     // moved one, is the one the selection's first step reads.
     let fit_offset = |head: &mut Measured| -> Option<f64> {
-        if let Some(judged) = residuals::ports_resolved(head, model) {
+        if let Some(judged) = residuals::ports_resolved(head, &model) {
             head.pressure_judged = judged;
         }
         Band::new(head, opts.band_hz)
             .ok()
-            .and_then(|b| offset::fit_position_offset(head, &b, model))
+            .and_then(|b| residuals::fit_position_offset(head, &b, &model))
     };
-    let long = measured.len() > offset::MAX_OFFSET_FIT_ROWS;
+    let long = measured.len() > residuals::MAX_OFFSET_FIT_ROWS;
     let offset = if long {
-        fit_offset(&mut measured.head(offset::MAX_OFFSET_FIT_ROWS))
+        fit_offset(&mut measured.head(residuals::MAX_OFFSET_FIT_ROWS))
     } else {
         fit_offset(&mut measured)
     };
@@ -288,41 +228,25 @@ fn prepare(
     }
     // (A short log's mask is already the whole log's where the offset stayed at 0.)
     if long || offset.is_some() {
-        if let Some(judged) = residuals::ports_resolved(&measured, model) {
+        if let Some(judged) = residuals::ports_resolved(&measured, &model) {
             measured.pressure_judged = judged;
         }
     }
     let band = Band::new(&measured, opts.band_hz).map_err(Failure::runtime)?;
-    Ok((measured, band))
-}
-
-/// The selection from `input`, with the log's force alignment fitted (where the log does not
-/// declare it) and fitted again with the augmented model until it settles; the alignment
-/// found, if fitted.
-fn select_aligned(
-    measured: &mut Measured,
-    band: &Band,
-    model: &MachineModel,
-    input: &ModelDoc,
-) -> Result<(Selection, Option<align::Alignment>), Failure> {
     let mut fitted_alignment = if measured.force_delay_s.is_none() {
-        align::estimate(measured, band, model)
+        align::estimate(&measured, &band, &model)
     } else {
         None
     };
     if let Some(a) = fitted_alignment {
         measured.force_align_s = a.used_s;
     }
-    // The candidates' judgements, kept across the selections below: a refitted alignment
-    // changes only the force channel's residual.
-    let mut cache = judge::Cache::new();
     let mut selection = select(
         &Ctx {
-            data: measured,
-            band,
+            data: &measured,
+            band: &band,
         },
-        input,
-        &mut cache,
+        &input,
     )
     .map_err(Failure::runtime)?;
     // The alignment was fitted with the input model, whose missing effects bias it. Fit it
@@ -340,7 +264,7 @@ fn select_aligned(
             ))])
             .model()
             .map_err(Failure::runtime)?;
-        let Some(next) = align::estimate(measured, band, &augmented) else {
+        let Some(next) = align::estimate(&measured, &band, &augmented) else {
             break;
         };
         if (next.used_s - previous.used_s).abs() <= 0.05 * measured.dt_s {
@@ -350,20 +274,17 @@ fn select_aligned(
         fitted_alignment = Some(next);
         selection = select(
             &Ctx {
-                data: measured,
-                band,
+                data: &measured,
+                band: &band,
             },
-            input,
-            &mut cache,
+            &input,
         )
         .map_err(Failure::runtime)?;
     }
-    Ok((selection, fitted_alignment))
-}
-
-/// The augmented model's text: the selection's document under a first comment naming what
-/// was added.
-fn augmented_text(selection: &Selection) -> Result<String, String> {
+    let ctx = Ctx {
+        data: &measured,
+        band: &band,
+    };
     // What the final model holds: the named effects added, and the discovered terms if any
     // survived the pruning.
     let mut names: Vec<&str> = selection
@@ -378,65 +299,73 @@ fn augmented_text(selection: &Selection) -> Result<String, String> {
     {
         names.push(EffectKind::ExtraForce.name());
     }
-    Ok(format!(
+    let model_text = format!(
         "# Augmented by `fpc-sim gap`: {}\n{}",
         if names.is_empty() {
             "nothing significant was missing".to_string()
         } else {
             names.join(", ") + " added"
         },
-        selection.doc.to_text()?
-    ))
-}
-
-/// Each channel's band-filtered residual with the input and the augmented model (for the
-/// report's maps and overlays), its RMS before and after, and what it leaves unexplained;
-/// the channels' replays are independent: on every core, in the channels' order.
-fn compare(
-    ctx: &Ctx<'_>,
-    model: &MachineModel,
-    after_model: &MachineModel,
-) -> Vec<(ChannelResiduals, ChannelJson, unexplained::UnexplainedJson)> {
-    let (measured, band) = (ctx.data, ctx.band);
-    ChannelId::ALL
+        selection.doc.to_text().map_err(Failure::runtime)?
+    );
+    // Re-run the comparison with the model exactly as written.
+    let after_model = crate::plant::model::MachineModel::parse(&model_text)
+        .map_err(|e| Failure::runtime(format!("augmented model does not load: {e}")))?;
+    let mut warnings = selection.warnings.clone();
+    if measured.ports == data::PortsMeta::Unknown {
+        warnings.push(
+            "no `# ports = open|closed` metadata: the pressure channel is not compared".into(),
+        );
+    }
+    // The channels' replays are independent: on every core, kept in the channels' order.
+    // Their band-filtered residuals are kept for the report's maps and overlays.
+    let filtered: Vec<ChannelResiduals> = ChannelId::ALL
         .par_iter()
         .filter_map(|&ch| {
             let (b, a) = rayon::join(
-                || channel_raw(measured, model, ch),
-                || channel_raw(measured, after_model, ch),
+                || channel_raw(&measured, &model, ch),
+                || channel_raw(&measured, &after_model, ch),
             );
             let (b, a) = (b?, a?);
             let (before, after) = rayon::join(
-                || full_of_raw(measured, band, ch, &b),
-                || full_of_raw(measured, band, ch, &a),
+                || full_of_raw(&measured, &band, ch, &b),
+                || full_of_raw(&measured, &band, ch, &a),
             );
-            let json = ChannelJson {
-                name: ch.name().into(),
-                unit: ch.unit().into(),
-                rms_before: rms_of_full(measured, band, ch, &before),
-                rms_after: rms_of_full(measured, band, ch, &after),
-            };
-            let kept = residuals::kept_of_raw(measured, band, ch, &a);
-            let left = unexplained::judge_left(
-                measured,
-                band,
-                after_model,
-                ch,
-                &a,
-                &kept,
-                (json.rms_before, json.rms_after),
-            );
-            Some((
-                ChannelResiduals {
-                    channel: ch,
-                    before,
-                    after,
-                },
-                json,
-                left,
-            ))
+            Some(ChannelResiduals {
+                channel: ch,
+                before,
+                after,
+            })
         })
-        .collect()
+        .collect();
+    let channels: Vec<ChannelJson> = filtered
+        .iter()
+        .map(|c| ChannelJson {
+            name: c.channel.name().into(),
+            unit: c.channel.unit().into(),
+            rms_before: rms_of_full(&measured, &band, c.channel, &c.before),
+            rms_after: rms_of_full(&measured, &band, c.channel, &c.after),
+        })
+        .collect();
+    let effects = effect_rows(&ctx, &selection).map_err(Failure::runtime)?;
+    let discovered = discovered_rows(&ctx, &selection).map_err(Failure::runtime)?;
+    Ok(GapOutcome {
+        json: GapJson {
+            channels,
+            effects,
+            discovered,
+            model_out: String::new(),
+            warnings,
+            force_align_s: measured.force_align_s,
+            force_align_fitted: fitted_alignment.is_some(),
+        },
+        model_text,
+        input,
+        measured,
+        band,
+        selection,
+        filtered,
+    })
 }
 
 /// Each added effect's channel RMS just before and just after it was added (the models of

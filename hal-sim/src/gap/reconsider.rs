@@ -8,11 +8,10 @@ use std::cell::RefCell;
 
 use super::doc::{Edit, ModelDoc};
 use super::effects::{Ctx, EffectKind};
-use super::judge::{
-    effective_n, judge_proposal, outdone_by_basis, propose, prune_terms, Judged, MAX_EFFECTS,
-    MIN_DELTA_BIC,
-};
 use super::residuals::{residual, ChannelId};
+use super::select::{
+    effective_n, judge_proposal, outdone_by_basis, prune_terms, Judged, MAX_EFFECTS, MIN_DELTA_BIC,
+};
 use crate::plant::model::extra_force::Term;
 use crate::plant::model::model_section;
 
@@ -41,16 +40,12 @@ fn without_named(
     if let Some(section) = kind.section() {
         return Some(doc.with(&[Edit::RemoveSection(section)]));
     }
-    let p = propose(kind, ctx, doc)?;
+    let p = kind.propose(ctx, doc)?;
     let edits: Vec<Edit> = p
         .edits
         .iter()
         .filter_map(|e| match e {
-            // A key the input did not have goes back to the default it read.
-            Edit::Set(k, _) => Some(match input.number(*k) {
-                Some(v) => Edit::Set(*k, v),
-                None => Edit::RemoveKey(*k),
-            }),
+            Edit::Set(k, _) => Some(Edit::Set(*k, input.number(*k)?)),
             _ => None,
         })
         .collect();
@@ -80,7 +75,7 @@ fn swap_term(
     let force_rss = |d: &ModelDoc| -> Option<f64> {
         Some(residual(ctx.data, ctx.band, &d.model().ok()?, ChannelId::Force)?.rss())
     };
-    let first = propose(kind, ctx, &without)?;
+    let first = kind.propose(ctx, &without)?;
     let mut alt = without.with(&first.edits);
     // Back-fitting, as the selection does: each named effect once more with the others in
     // place, then the discovered terms left refitted — never one more term (`named` holds
@@ -88,7 +83,7 @@ fn swap_term(
     // parameter the model with `term` never had, and `f_motor` would lose to its own
     // decomposition (module header).
     for k in named.iter().copied().filter(|k| k.named()).chain([kind]) {
-        let Some(p) = propose(k, ctx, &alt) else {
+        let Some(p) = k.propose(ctx, &alt) else {
             continue;
         };
         let next = alt.with(&p.edits);
@@ -106,7 +101,7 @@ fn swap_term(
     // The named effect judged as if added last, with the same competition as in selection.
     let base = without_named(ctx, input, &alt, kind)?;
     let before = residual(ctx.data, ctx.band, &base.model().ok()?, ChannelId::Force)?;
-    let p = propose(kind, ctx, &base)?;
+    let p = kind.propose(ctx, &base)?;
     let j = judge_proposal(ctx, &base, p, &before)?;
     if outdone_by_basis(ctx, &base, &j, &before, &RefCell::new(Vec::new())) {
         return None;
@@ -241,44 +236,4 @@ pub(super) fn reconsider_terms(
         }
     }
     doc
-}
-
-/// Named effects judged once more as if each were added last, onto the final model without
-/// it: one that no longer passes the selection's rules is dropped (the least significant
-/// first, again until every one passes). Forward selection can name an effect while another
-/// is still missing and keep it at a value the later ones leave nearly nominal — a viscous
-/// friction refitted around a discovered term's friction share, a mass that made up for a
-/// section's force reading before the slave channel named it; the model does not need it.
-pub(super) fn prune_named(
-    ctx: &Ctx<'_>,
-    input: &ModelDoc,
-    mut doc: ModelDoc,
-    added: &mut Vec<Judged>,
-    steps: &mut Vec<(ModelDoc, ModelDoc)>,
-) -> ModelDoc {
-    loop {
-        let judged: Vec<(usize, f64, ModelDoc)> = added
-            .par_iter()
-            .enumerate()
-            .filter(|(_, a)| a.proposal.kind.named())
-            .filter_map(|(i, a)| {
-                let kind = a.proposal.kind;
-                let without = without_named(ctx, input, &doc, kind)?;
-                let before = residual(ctx.data, ctx.band, &without.model().ok()?, kind.channel())?;
-                let p = propose(kind, ctx, &without)?;
-                let j = judge_proposal(ctx, &without, p, &before)?;
-                (!j.significant()).then_some((i, j.delta_bic, without))
-            })
-            .collect();
-        let Some((i, _, without)) = judged.into_iter().min_by(|a, b| a.1.total_cmp(&b.1)) else {
-            return doc;
-        };
-        doc = without;
-        if i < added.len() {
-            added.remove(i);
-        }
-        if i < steps.len() {
-            steps.remove(i);
-        }
-    }
 }

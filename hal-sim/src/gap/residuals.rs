@@ -22,20 +22,261 @@ use crate::plant::model::MachineModel;
 use crate::plant::servo::through_play;
 use crate::signal::delayed;
 
-pub use super::band::{erode, Band};
-pub use super::channel::ChannelId;
-pub use super::columns::shifted;
+pub use super::offset::{
+    fit_position_offset, position_offset_bounds, MAX_OFFSET_FIT_ROWS, MAX_POSITION_OFFSET_M,
+};
 
-use super::columns::force_combination;
+use super::band::{force_kernel, lowpass, sg_weights, ColumnCache, Kernel};
 use super::data::{
     count_quantum, count_spans_rows, Measured, PortsMeta, ThetaSource, PORTS_ANGLE_SPAN_S,
 };
+
+/// The channels compared.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum ChannelId {
+    /// The force balance on the piston.
+    Force,
+    /// Slave-section force against the master's.
+    SlaveForce,
+    /// Slave encoder against the master encoder.
+    Encoder,
+    /// Chamber pressures against the replay.
+    Pressure,
+}
+
+impl ChannelId {
+    /// Every channel, in report order.
+    pub const ALL: [ChannelId; 4] = [
+        ChannelId::Force,
+        ChannelId::SlaveForce,
+        ChannelId::Encoder,
+        ChannelId::Pressure,
+    ];
+
+    /// Name in the JSON and the report.
+    pub fn name(self) -> &'static str {
+        match self {
+            ChannelId::Force => "force",
+            ChannelId::SlaveForce => "slave_force",
+            ChannelId::Encoder => "encoder",
+            ChannelId::Pressure => "pressure",
+        }
+    }
+
+    /// Unit of the residual.
+    pub fn unit(self) -> &'static str {
+        match self {
+            ChannelId::Force | ChannelId::SlaveForce => "N",
+            ChannelId::Encoder => "m",
+            ChannelId::Pressure => "Pa",
+        }
+    }
+}
+
+/// The analysis band and the sample sets the statistics use.
+///
+/// The plain channels are filtered unmasked and judged only where the whole low-pass lies on
+/// samples the channel may be judged on (the mask eroded by the kernel's half length). The
+/// force channel is filtered in two stages: the acceleration kernel, which turns a raw second
+/// difference (kN of noise per sample) into an acceleration only over its whole window, is
+/// applied unmasked and judged where it lies on moving samples; its output is then masked to
+/// those samples before the low-pass. A standstill never leaks into the band, yet the force
+/// channel is judged up to the edge of a stop, where breakaway and creep friction act.
+#[derive(Clone, Debug)]
+pub struct Band {
+    /// Upper edge of the band, Hz.
+    pub band_hz: f64,
+    /// Low-pass then force kernel: what the force channel's terms pass through.
+    pub force: Kernel,
+    /// The low-pass alone: what the other channels pass through.
+    pub plain: Kernel,
+    /// The force kernel alone (the differentiator's acceleration smoothing).
+    pub accel: Kernel,
+    /// Where the whole low-pass of a force term lies on judged samples (1): there the
+    /// two stages are one kernel, `force`.
+    pub force_interior: Vec<f64>,
+    /// Decimation stride: about one sample per half period at the band edge, so that the
+    /// residual noise left in the band is roughly independent from one kept sample to the
+    /// next (the statistics count these samples).
+    pub stride: usize,
+    /// Where the force channel is judged (1) or not (0).
+    pub mask_force: Vec<f64>,
+    /// Where the encoder and slave-force channels are judged (while moving, like the force
+    /// channel).
+    pub mask_encoder: Vec<f64>,
+    /// Where the pressure channel is judged: away from the log's ends and where its replay
+    /// does not hinge on a port angle the log does not resolve
+    /// ([`Measured::pressure_judged`]).
+    pub mask_inner: Vec<f64>,
+    /// Kept samples of the force channel.
+    pub idx_force: Vec<usize>,
+    /// Kept samples of the encoder channel.
+    pub idx_encoder: Vec<usize>,
+    /// Kept samples of the pressure channel.
+    pub idx_inner: Vec<usize>,
+    /// Columns of this band's searches, kept for the next selection step.
+    pub columns: ColumnCache,
+}
+
+/// `mask` eroded by `half` samples on each side: 1 only where every sample within `half`
+/// is 1.
+pub fn erode(mask: &[f64], half: usize) -> Vec<f64> {
+    let n = mask.len();
+    let mut bad = vec![0usize; n + 1];
+    for (i, w) in mask.iter().enumerate() {
+        bad[i + 1] = bad[i] + usize::from(*w <= 0.0);
+    }
+    (0..n)
+        .map(|i| {
+            let lo = i.saturating_sub(half);
+            let hi = (i + half + 1).min(n);
+            let ok = i >= half && i + half < n && bad.get(hi) == bad.get(lo);
+            f64::from(u8::from(ok))
+        })
+        .collect()
+}
+
+impl Band {
+    /// The band of `band_hz` for `data`.
+    pub fn new(data: &Measured, band_hz: f64) -> Result<Self, String> {
+        let dt = data.dt_s;
+        let h2 = sg_weights(data.sg_window, 2, 2, dt).ok_or("differentiator weights")?;
+        let g = force_kernel(&h2, dt);
+        let lp = lowpass(band_hz, data.sample_rate_hz());
+        let force = Kernel::new(super::band::convolve(&lp, &g));
+        let plain = Kernel::new(lp);
+        let accel = Kernel::new(g);
+        let stride = ((data.sample_rate_hz() / (2.0 * band_hz)).round() as usize).max(1);
+        // Judged wherever the acceleration kernel lies on moving samples; where the low-pass
+        // still reaches a standstill, the force terms are masked between the two stages.
+        let mask_force = erode(&data.moving, accel.half());
+        let force_interior = erode(&mask_force, plain.half());
+        let judged: Vec<f64> = data
+            .inner
+            .iter()
+            .zip(data.pressure_judged.iter().chain(std::iter::repeat(&1.0)))
+            .map(|(a, b)| a.min(*b))
+            .collect();
+        let mask_inner = erode(&judged, plain.half());
+        let mask_encoder = erode(&data.moving, plain.half());
+        let pick = |mask: &[f64]| -> Vec<usize> {
+            (0..mask.len())
+                .step_by(stride)
+                .filter(|&i| mask.get(i).is_some_and(|&w| w > 0.0))
+                .collect()
+        };
+        Ok(Band {
+            band_hz,
+            idx_force: pick(&mask_force),
+            idx_inner: pick(&mask_inner),
+            idx_encoder: pick(&mask_encoder),
+            mask_encoder,
+            force,
+            plain,
+            accel,
+            force_interior,
+            stride,
+            mask_force,
+            mask_inner,
+            columns: ColumnCache::default(),
+        })
+    }
+
+    /// The kernel, judging mask and kept samples of a channel.
+    fn route(&self, ch: ChannelId) -> (&Kernel, &[f64], &[usize]) {
+        match ch {
+            ChannelId::Force => (&self.force, &self.mask_force, &self.idx_force),
+            // The slave force says something of a lag only while the force changes: in a
+            // hold both sections push alike and only dilute it with noise.
+            ChannelId::Encoder | ChannelId::SlaveForce => {
+                (&self.plain, &self.mask_encoder, &self.idx_encoder)
+            }
+            ChannelId::Pressure => (&self.plain, &self.mask_inner, &self.idx_inner),
+        }
+    }
+
+    /// Force terms at samples `idx`: the acceleration kernel, zero off the judged samples,
+    /// then the low-pass. A standstill's raw terms (stiction holds any force) never leak into
+    /// the band, so the force channel is judged right up to where the differentiator window
+    /// reaches a stop, where breakaway and creep friction live. Away from stops the two
+    /// stages are the one combined kernel; near them the masked acceleration is computed
+    /// once for every sample the low-pass reaches.
+    fn force_terms(&self, raw: &[f64], idx: &[usize]) -> Vec<f64> {
+        let n = raw.len();
+        let h = self.plain.half();
+        let interior = |i: usize| self.force_interior.get(i).is_some_and(|&w| w > 0.0);
+        // Near an edge, the acceleration-filtered term (masked) on the span of samples the
+        // low-passes of the edge samples reach, `seg` = samples `lo..lo + seg.len()`: kept
+        // samples come in order, so a span grows until the next window no longer touches it.
+        // Outside the span the term counts as zero, as the low-pass counts outside the log.
+        let mut seg: Vec<f64> = Vec::new();
+        let mut lo = 0usize;
+        idx.iter()
+            .map(|&i| {
+                if interior(i) {
+                    return self.force.at(raw, i);
+                }
+                let (from, to) = (i.saturating_sub(h), (i + h + 1).min(n));
+                if from < lo || from > lo + seg.len() {
+                    seg.clear();
+                    lo = from;
+                }
+                for k in lo + seg.len()..to {
+                    let judged = self.mask_force.get(k).is_some_and(|&m| m > 0.0);
+                    seg.push(if judged { self.accel.at(raw, k) } else { 0.0 });
+                }
+                self.plain.at(&seg, i - lo)
+            })
+            .collect()
+    }
+
+    /// A raw per-sample term of channel `ch`, band-filtered, at the kept samples.
+    pub fn kept(&self, _data: &Measured, ch: ChannelId, raw: &[f64]) -> Vec<f64> {
+        let (k, _, idx) = self.route(ch);
+        if ch == ChannelId::Force {
+            return self.force_terms(raw, idx);
+        }
+        k.apply_at(raw, idx)
+    }
+
+    /// The same at every sample (zero where the channel is not judged).
+    pub fn full(&self, _data: &Measured, ch: ChannelId, raw: &[f64]) -> Vec<f64> {
+        let (k, mask, _) = self.route(ch);
+        let judged = |i: usize| mask.get(i).is_some_and(|&w| w > 0.0);
+        let filtered = k.apply(raw);
+        let mut out: Vec<f64> = (0..mask.len())
+            .map(|i| match filtered.get(i) {
+                Some(&v) if judged(i) => v,
+                _ => 0.0,
+            })
+            .collect();
+        if ch == ChannelId::Force {
+            // Near a standstill the force terms pass the two stages with the mask between.
+            let edges: Vec<usize> = (0..mask.len())
+                .filter(|&i| judged(i) && self.force_interior.get(i).is_none_or(|&w| w <= 0.0))
+                .collect();
+            for (i, v) in edges.iter().zip(self.force_terms(raw, &edges)) {
+                if let Some(o) = out.get_mut(*i) {
+                    *o = v;
+                }
+            }
+        }
+        out
+    }
+
+    /// Where the channel is judged.
+    pub fn mask<'a>(&'a self, _data: &'a Measured, ch: ChannelId) -> &'a [f64] {
+        self.route(ch).1
+    }
+}
 
 /// One channel's residual for one model.
 #[derive(Clone, Debug)]
 pub struct Residual {
     /// Which channel.
     pub channel: ChannelId,
+    /// The raw per-sample residual (for `pressure`: chamber A's samples then B's).
+    pub raw: Vec<f64>,
     /// Band-filtered at the kept samples (for `pressure`: A's then B's).
     pub kept: Vec<f64>,
 }
@@ -56,32 +297,58 @@ impl Residual {
     }
 }
 
-/// The motor forces as they act on the piston at each row, N: the reported forces read
-/// through the model's force readings (`(reported − offset)/gain` per section,
-/// `[sensors.force]`), realigned by the log's convention (`data.force_align_s`) and late by
-/// the model's actuator lag.
-pub fn acting_motor_force_n(data: &Measured, model: &MachineModel) -> Vec<f64> {
-    let shift = super::columns::motor_shift(data, model);
-    let f = &model.sensors.force;
-    if f.exact() {
-        return shifted(&motor_sum_n(data), shift);
+/// `x` shifted later by `samples` (fractional: linear interpolation; negative: earlier),
+/// holding the end values beyond the ends.
+pub fn shifted(x: &[f64], samples: f64) -> Vec<f64> {
+    let n = x.len();
+    let (first, last) = match (x.first(), x.last()) {
+        (Some(&f), Some(&l)) => (f, l),
+        _ => return Vec::new(),
+    };
+    if !samples.is_finite() {
+        return vec![f64::NAN; n];
     }
-    let (m, s) = (
-        shifted(&data.f_master_n, shift),
-        shifted(&data.f_slave_n, shift),
-    );
-    m.iter()
-        .zip(&s)
-        .map(|(m, s)| {
-            (m - f.offset_master_n) / f.gain_master + (s - f.offset_slave_n) / f.gain_slave
+    // `x` at `i − samples` = `x` at `j + f` with one whole shift `j − i` and one fraction
+    // `f` for every sample.
+    let whole = (-samples).floor();
+    let f = -samples - whole;
+    let whole = whole as isize;
+    let last_index = n as isize - 1;
+    (0..n)
+        .map(|i| {
+            let j = i as isize + whole;
+            if j < 0 {
+                return first;
+            }
+            if j >= last_index {
+                return last;
+            }
+            let k = j as usize;
+            match (x.get(k), x.get(k + 1)) {
+                (Some(a), Some(b)) => a + f * (b - a),
+                _ => last,
+            }
         })
         .collect()
 }
 
-/// The reported motor forces realigned by the log's convention only, N (what the drives
-/// say they push, at the row's time).
-pub fn reported_motor_force_n(data: &Measured) -> Vec<f64> {
-    shifted(&motor_sum_n(data), data.force_align_s / data.dt_s)
+/// The model's actuator lag, s (0 without `[effects.actuator_lag]`).
+fn actuator_delay_s(model: &MachineModel) -> f64 {
+    model
+        .effects
+        .actuator_lag
+        .as_ref()
+        .map_or(0.0, |l| l.delay_s)
+}
+
+/// The motor forces as they act on the piston at each row, N: the reported forces
+/// realigned by the log's convention (`data.force_align_s`) and late by the model's
+/// actuator lag `delay_s`.
+pub fn acting_motor_force_n(data: &Measured, delay_s: f64) -> Vec<f64> {
+    shifted(
+        &motor_sum_n(data),
+        (delay_s + data.force_align_s) / data.dt_s,
+    )
 }
 
 /// Both sections' reported forces summed at each row, N (as logged, not realigned).
@@ -105,12 +372,11 @@ pub fn tangential_mps(data: &Measured, model: &MachineModel) -> Vec<f64> {
 /// friction along the sliding velocity `(ẋ, ω·r)`.
 pub fn force_terms(data: &Measured, model: &MachineModel) -> Vec<PistonForces<f64>> {
     let n = data.len();
-    let acting = acting_motor_force_n(data, model);
+    let acting = acting_motor_force_n(data, actuator_delay_s(model));
     let laws = model.piston_laws();
     let tang = tangential_mps(data, model);
-    // The gas force acts with the chambers' true pressures: the readings through the model's
-    // sensors' offsets and gains, with their first-order lag undone
-    // (p = (p_read − offset + τ·ṗ_read)/gain).
+    // The gas force acts with the chambers' true pressures: the readings less the model's
+    // sensor offsets, with the sensors' first-order lag undone (p = p_read + τ·ṗ_read).
     // Left in, the lag reads as friction (it follows the stroke direction) or as an actuator
     // lag (it follows the force's rate).
     let sensor = &model.sensors.pressure;
@@ -124,12 +390,12 @@ pub fn force_terms(data: &Measured, model: &MachineModel) -> Vec<PistonForces<f6
                 pressure_a_pa: sensor.true_pressure_pa(
                     g(&data.p_a_pa),
                     g(&data.dp_a_pa_per_s),
-                    sensor.chamber_a(),
+                    sensor.offset_a_pa,
                 ),
                 pressure_b_pa: sensor.true_pressure_pa(
                     g(&data.p_b_pa),
                     g(&data.dp_b_pa_per_s),
-                    sensor.chamber_b(),
+                    sensor.offset_b_pa,
                 ),
                 motor_n: g(&acting),
             })
@@ -168,7 +434,7 @@ pub fn force_raw(data: &Measured, model: &MachineModel) -> Vec<f64> {
 /// the motor forces as they act (realigned, late by the model's actuator lag), the logged
 /// pressure difference and the time from the first row.
 pub fn extra_states(data: &Measured, model: &MachineModel) -> Vec<ExtraState> {
-    let acting = shifted(&motor_sum_n(data), super::columns::motor_shift(data, model));
+    let acting = acting_motor_force_n(data, actuator_delay_s(model));
     let t0 = data.t_s.first().copied().unwrap_or(0.0);
     (0..data.len())
         .map(|i| {
@@ -196,23 +462,12 @@ pub fn extra_force_n(data: &Measured, model: &MachineModel) -> Option<Vec<f64>> 
     )
 }
 
-/// The slave force the model predicts from the master's, N: the slave acts what the master
-/// acts (late by the model's slave lag), and each reports it through its reading
-/// (`[sensors.force]`): `g_s/g_m·(F_m − o_m) + o_s`.
+/// The slave force the model predicts from the master's, N.
 pub fn slave_force_prediction(data: &Measured, model: &MachineModel) -> Vec<f64> {
-    let master = match model.slave_lag_s() {
+    match model.slave_lag_s() {
         Some(d) if d > 0.0 => delayed(&data.f_master_n, d / data.dt_s),
         _ => data.f_master_n.clone(),
-    };
-    let f = &model.sensors.force;
-    if f.exact() {
-        return master;
     }
-    let ratio = f.gain_slave / f.gain_master;
-    master
-        .iter()
-        .map(|m| ratio * (m - f.offset_master_n) + f.offset_slave_n)
-        .collect()
 }
 
 /// What the model says the slave encoder reads minus the master's, m.
@@ -295,7 +550,7 @@ pub fn replay_pressures(data: &Measured, model: &MachineModel) -> Option<(Vec<f6
 /// So each sample's angle is taken as known within `±u`, half a count times the count's
 /// length over [`PORTS_ANGLE_SPAN_S`] (at most half a count), and a sample whose replay,
 /// with every angle moved by `u`, changes by more than one sensor code
-/// ([`super::channel::sample_resolution`]) is not judged: what it shows is the angle's
+/// ([`super::select::sample_resolution`]) is not judged: what it shows is the angle's
 /// position within its count, not the chambers' physics. (One moved replay beside the
 /// model's own, which the selection reads anyway: on the 732k-row log two moved replays
 /// cost 2.7 s of CPU and about 1.4 s of wall time.)
@@ -325,7 +580,7 @@ pub fn ports_resolved(data: &Measured, model: &MachineModel) -> Option<Vec<f64>>
     // made here beside the moved one, it costs no extra time.
     let (nominal, ahead) = rayon::join(|| replay_pressures(data, model), moved);
     let ((a0, b0), (a1, b1)) = (nominal?, ahead?);
-    let code = super::channel::sample_resolution(ChannelId::Pressure, model);
+    let code = super::select::sample_resolution(ChannelId::Pressure, model);
     Some(
         (0..data.len())
             .map(|i| {
@@ -361,10 +616,9 @@ fn replay_pressures_anew(
         .count()
         .max(1);
     let mean = |p: &[f64]| p.iter().take(rest).sum::<f64>() / rest as f64;
-    let (ta, tb) = (sensor.chamber_a(), sensor.chamber_b());
     let start = (
-        (mean(&data.p_a_pa) - ta.offset_pa) / ta.gain,
-        (mean(&data.p_b_pa) - tb.offset_pa) / tb.gain,
+        mean(&data.p_a_pa) - sensor.offset_a_pa,
+        mean(&data.p_b_pa) - sensor.offset_b_pa,
     );
     let (pa, pb) = replay_from(data, model, mode, start, angle_rad);
     if mode != PortMode::Closed || data.ports_from_s.is_some() {
@@ -483,8 +737,8 @@ fn replay_from(
                 sensor_lag.step(&mut lb, ch.b.pressure_pa);
             }
         }
-        pa.push(sensor.reading_pa(la, sensor.chamber_a()));
-        pb.push(sensor.reading_pa(lb, sensor.chamber_b()));
+        pa.push(sensor.reading_pa(la, sensor.offset_a_pa));
+        pb.push(sensor.reading_pa(lb, sensor.offset_b_pa));
     }
     (pa, pb)
 }
@@ -520,21 +774,20 @@ pub fn channel_raw(data: &Measured, model: &MachineModel, ch: ChannelId) -> Opti
     }
 }
 
-/// The residual of `ch` for `model`. The force channel's is assembled from the columns the
-/// band keeps for the log ([`super::columns`]), the same as filtering [`force_raw`] to
-/// rounding.
+/// The residual of `ch` for `model`.
 pub fn residual(
     data: &Measured,
     band: &Band,
     model: &MachineModel,
     ch: ChannelId,
 ) -> Option<Residual> {
-    let kept = if ch == ChannelId::Force {
-        band.combine(data, &force_combination(data, model))
-    } else {
-        kept_of_raw(data, band, ch, &channel_raw(data, model, ch)?)
-    };
-    Some(Residual { channel: ch, kept })
+    let raw = channel_raw(data, model, ch)?;
+    let kept = kept_of_raw(data, band, ch, &raw);
+    Some(Residual {
+        channel: ch,
+        raw,
+        kept,
+    })
 }
 
 /// Band-filters a raw residual (or regressor) of `ch` at the kept samples; the pressure
@@ -581,5 +834,31 @@ pub fn rms_of_full(data: &Measured, band: &Band, ch: ChannelId, full: &[f64]) ->
         0.0
     } else {
         (s / c as f64).sqrt()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_homing_offset_is_bounded_by_the_push_on_the_heads_contact() {
+        let mut model = MachineModel::reference();
+        let step = super::super::select::resolution(ChannelId::Encoder, &model);
+        let push = f64::from(fpc::sensing::homing::HomingConfig::reference().force_limit_n);
+        // One sign (into head A), and a few microns on the reference contact (5e7 N/m).
+        let (lo, hi) = position_offset_bounds(&model);
+        assert_eq!(lo, 0.0);
+        let contact = push / model.piston.stop_stiffness_n_per_m;
+        assert!((hi - (contact + step)).abs() < 1e-12, "{hi}");
+        assert!(
+            hi > 5e-6 && hi < 15e-6,
+            "{hi}: the reference's 8 µm contact + one step"
+        );
+        // A stiffer head gives less; a soft one never more than the outer bound.
+        model.piston.stop_stiffness_n_per_m *= 10.0;
+        assert!(position_offset_bounds(&model).1 < hi);
+        model.piston.stop_stiffness_n_per_m = 1e3;
+        assert_eq!(position_offset_bounds(&model).1, MAX_POSITION_OFFSET_M);
     }
 }

@@ -167,7 +167,7 @@ fn prescribed(
     let calibration = PressureCalibration::reference();
     let mut noise = Noise::new(seed);
     let lag = pressure.lag(dt);
-    let transducers = pressure.transducers();
+    let offsets = pressure.offsets_pa();
     let laws = truth.piston_laws();
     let r = truth.friction_radius_m();
     let mut cols = REQUIRED.to_vec();
@@ -221,8 +221,8 @@ fn prescribed(
                 lag.step(l, p);
                 *l
             });
-            let transducer = transducers.get(i).copied().unwrap_or(pressure.chamber_a());
-            let code = calibration.code_for(pressure.noisy_reading_pa(l, transducer, noise) as f32);
+            let offset = offsets.get(i).copied().unwrap_or(0.0);
+            let code = calibration.code_for(pressure.noisy_reading_pa(l, offset, noise) as f32);
             f64::from(calibration.convert(code).pressure_pa)
         };
         let p_a = read(0, pa, &mut noise);

@@ -2,34 +2,29 @@
 //! law's own shapes as regressors), cogging (a spatial periodogram, then the harmonic fit)
 //! and an actuator lag.
 
+use fpc::physics::friction::stribeck_shape;
 use rayon::prelude::*;
 
 use crate::plant::model::{model_key, model_section};
 use crate::signal::xcorr_lag;
 
-use super::super::columns::{force_combination, Column};
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::{lstsq, minimise_1d_par};
-use super::super::residuals::{force_terms, reported_motor_force_n, ChannelId};
+use super::super::residuals::{
+    acting_motor_force_n, force_raw, force_terms, motor_sum_n, shifted, tangential_mps, ChannelId,
+};
 use super::{harmonics, kept_span, kept_x, Ctx, EffectKind, Proposal, MAX_LAG_S};
 
 /// The force residual of `doc` at the kept samples.
 fn force_kept(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Vec<f64>> {
     let model = doc.model().ok()?;
-    Some(
-        ctx.band
-            .combine(ctx.data, &force_combination(ctx.data, &model)),
-    )
+    let raw = force_raw(ctx.data, &model);
+    Some(ctx.band.kept(ctx.data, ChannelId::Force, &raw))
 }
 
-/// Fits `y ≈ θ·w·column` for one force-channel column with weight `w`.
-fn one_coefficient(ctx: &Ctx<'_>, y: &[f64], w: f64, col: Column) -> Option<f64> {
-    let reg: Vec<f64> = ctx
-        .band
-        .force_column(ctx.data, col)
-        .iter()
-        .map(|v| w * v)
-        .collect();
+/// Fits `y ≈ θ·reg` for one force-channel regressor given raw.
+fn one_coefficient(ctx: &Ctx<'_>, y: &[f64], raw_regressor: &[f64]) -> Option<f64> {
+    let reg = ctx.band.kept(ctx.data, ChannelId::Force, raw_regressor);
     lstsq(&[reg], y).map(|(th, _)| th.first().copied().unwrap_or(0.0))
 }
 
@@ -37,7 +32,7 @@ pub(super) fn mass_error(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let model = doc.model().ok()?;
     let y = force_kept(ctx, doc)?;
     // r = (m_model − m_true)·ẍ.
-    let theta = one_coefficient(ctx, &y, 1.0, Column::Accel)?;
+    let theta = one_coefficient(ctx, &y, &ctx.data.d2x_mps2)?;
     let mass = model.piston.mass_kg - theta;
     // Outside half to twice the modelled mass it is not a mass error but something else
     // correlating with ẍ (a slow run barely accelerates).
@@ -51,15 +46,21 @@ pub(super) fn mass_error(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     })
 }
 
-/// The friction's axial direction of `doc`'s law (the law's own shape,
-/// [`fpc::physics::friction::FrictionParams::axial_direction`]) as a column, and that law.
-fn friction_direction(
-    doc: &ModelDoc,
-) -> Option<(Column, fpc::physics::friction::FrictionParams<f64>, f64)> {
+/// Per sample: the sliding speed `|u| = |(ẋ, ω·r)|` and the axial share of a unit friction
+/// force along it, the sign regularised as the law does (the law's own shape,
+/// [`fpc::physics::friction::FrictionParams::axial_direction`]).
+fn friction_direction(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<(Vec<f64>, Vec<f64>)> {
     let model = doc.model().ok()?;
     let law = model.friction();
-    let radius = model.friction_radius_m();
-    Some((Column::direction(&law, radius), law, radius))
+    let tang = tangential_mps(ctx.data, &model);
+    let (slip, dir) = ctx
+        .data
+        .v_mps
+        .iter()
+        .zip(&tang)
+        .map(|(v, t)| ((v * v + t * t).sqrt(), law.axial_direction(*v, *t)))
+        .unzip();
+    Some((slip, dir))
 }
 
 /// The edits that shift every friction level by `delta_n` (Coulomb and, where present, the
@@ -87,9 +88,10 @@ fn friction_level_edits(doc: &ModelDoc, delta_n: f64) -> Option<(f64, Vec<Edit>)
 
 pub(super) fn coulomb(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let y = force_kept(ctx, doc)?;
-    let (dir, _, _) = friction_direction(doc)?;
+    let (_, dir) = friction_direction(ctx, doc)?;
     // More friction than modelled leaves −ΔF·direction in the residual.
-    let delta = one_coefficient(ctx, &y, -1.0, dir)?;
+    let neg: Vec<f64> = dir.iter().map(|d| -d).collect();
+    let delta = one_coefficient(ctx, &y, &neg)?;
     let (coulomb, edits) = friction_level_edits(doc, delta)?;
     Some(Proposal {
         kind: EffectKind::CoulombFriction,
@@ -101,7 +103,8 @@ pub(super) fn coulomb(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
 
 pub(super) fn viscous(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let y = force_kept(ctx, doc)?;
-    let delta = one_coefficient(ctx, &y, -1.0, Column::Velocity)?;
+    let neg: Vec<f64> = ctx.data.v_mps.iter().map(|v| -v).collect();
+    let delta = one_coefficient(ctx, &y, &neg)?;
     // A viscous coefficient is not negative: a fit below zero (a machine with almost none,
     // and noise) is held at zero rather than dropped.
     let b = (doc.number(model_key!(friction / viscous_ns_per_m))? + delta).max(0.0);
@@ -122,18 +125,17 @@ pub(super) fn stribeck(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     ]);
     let coulomb = base.number(model_key!(friction / coulomb_n))?;
     let y = force_kept(ctx, &base)?;
-    let (_, law, radius) = friction_direction(&base)?;
+    let (slip, dir) = friction_direction(ctx, &base)?;
     let fit = |log_vs: f64, zeta: f64| -> Option<(f64, f64)> {
         let vs = log_vs.exp();
         // The law's Stribeck shape along the friction's direction (more dip than modelled
         // leaves −ΔF·S·d in the residual).
-        let col = Column::stribeck(&law, radius, vs, zeta);
-        let reg: Vec<f64> = ctx
-            .band
-            .force_column_once(ctx.data, col)
+        let raw: Vec<f64> = slip
             .iter()
-            .map(|v| -v)
+            .zip(&dir)
+            .map(|(s, d)| -stribeck_shape(*s, vs, zeta) * d)
             .collect();
+        let reg = ctx.band.kept(ctx.data, ChannelId::Force, &raw);
         let (th, rss) = lstsq(&[reg], &y)?;
         let dip = th.first().copied()?;
         (dip > 0.0).then_some((dip, rss))
@@ -241,7 +243,7 @@ pub fn acting_force_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<crate::signal::
     let base = doc.with(&[Edit::RemoveSection(model_section!(effects.actuator_lag))]);
     let model = base.model().ok()?;
     let d = ctx.data;
-    let motors = reported_motor_force_n(d);
+    let motors = acting_motor_force_n(d, 0.0);
     // The motor force that closes the balance with every other modelled force.
     let acting: Vec<f64> = force_terms(d, &model)
         .iter()
@@ -261,14 +263,23 @@ pub(super) fn actuator_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let base = doc.with(&[Edit::RemoveSection(model_section!(effects.actuator_lag))]);
     let model = base.model().ok()?;
     let d = ctx.data;
-    // The model's combination with its motor columns shifted by each delay on top of their
-    // own (the other columns kept once for the log).
-    let combination = force_combination(d, &model);
+    // Everything but the motor forces, once: r(d) = m·Δ²x − others − motors acting at d.
+    let fixed: Vec<f64> = force_terms(d, &model)
+        .iter()
+        .zip(&d.d2x_mps2)
+        .map(|(f, a)| f.motor_needed_n(model.piston.mass_kg, *a))
+        .collect();
+    // The motor forces summed once; each delay only shifts them.
+    let motors = motor_sum_n(d);
     let rss = |delay: f64| -> Option<f64> {
-        Some(super::super::fit::sumsq(&ctx.band.combine_motors_shifted(
+        let mut raw = shifted(&motors, (delay.max(0.0) + d.force_align_s) / d.dt_s);
+        for (r, f) in raw.iter_mut().zip(&fixed) {
+            *r = f - *r;
+        }
+        Some(super::super::fit::sumsq(&ctx.band.kept(
             d,
-            &combination,
-            delay.max(0.0) / d.dt_s,
+            ChannelId::Force,
+            &raw,
         )))
     };
     // A grid of about one step per sample (the cross-correlation's peak is too flat on smooth

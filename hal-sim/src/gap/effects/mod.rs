@@ -17,8 +17,6 @@
 //! | `leakage` | pressure | chamber replay with clearance leaks | damped Gauss–Newton on gap³ (piston and rod seals) |
 //! | `heat_transfer` | pressure | chamber replay with wall heat transfer | grid + golden section on log UA |
 //! | `port_restriction` | pressure (open ports) | chamber replay with scaled port areas | grid + golden section on log scale |
-//! | `pressure_offset`, `pressure_gain` | pressure | chamber replay read through the transducers' offsets or gains | Gauss–Newton on both chambers |
-//! | `force_offset`, `force_gain` | slave_force | the slave's reported force against the master's, off by a constant or a ratio | linear, put on the section the force balance prefers |
 //!
 //! Every fit starts from the current model with the effect itself removed (or, for the
 //! corrections of mass and friction levels, from the current value), so fitting again after
@@ -36,7 +34,6 @@ use super::residuals::{Band, ChannelId};
 mod encoder;
 mod force;
 mod pressure;
-mod sensor;
 mod slave_force;
 
 pub use force::{acting_force_lag, MAX_ACTUATOR_LAG_S};
@@ -102,14 +99,6 @@ pub enum EffectKind {
     HeatTransfer,
     /// Ports passing less than designed.
     PortRestriction,
-    /// A chamber's pressure transducer reads off by an offset.
-    PressureOffset,
-    /// A chamber's pressure transducer reads off by a gain.
-    PressureGain,
-    /// A section's drive reports its force off by an offset.
-    ForceOffset,
-    /// A section's drive reports its force off by a gain.
-    ForceGain,
     /// Not a named effect: terms of the discovery basis ([`super::discover`]), one more
     /// at each proposal.
     ExtraForce,
@@ -117,7 +106,7 @@ pub enum EffectKind {
 
 impl EffectKind {
     /// Every effect of the library.
-    pub const ALL: [EffectKind; 16] = [
+    pub const ALL: [EffectKind; 12] = [
         EffectKind::MassError,
         EffectKind::CoulombFriction,
         EffectKind::ViscousFriction,
@@ -129,10 +118,6 @@ impl EffectKind {
         EffectKind::Leakage,
         EffectKind::HeatTransfer,
         EffectKind::PortRestriction,
-        EffectKind::PressureOffset,
-        EffectKind::PressureGain,
-        EffectKind::ForceOffset,
-        EffectKind::ForceGain,
         EffectKind::ExtraForce,
     ];
 
@@ -170,10 +155,6 @@ impl EffectKind {
             EffectKind::Leakage => "leakage",
             EffectKind::HeatTransfer => "heat_transfer",
             EffectKind::PortRestriction => "port_restriction",
-            EffectKind::PressureOffset => "pressure_offset",
-            EffectKind::PressureGain => "pressure_gain",
-            EffectKind::ForceOffset => "force_offset",
-            EffectKind::ForceGain => "force_gain",
             EffectKind::ExtraForce => "extra_force",
         }
     }
@@ -193,10 +174,6 @@ impl EffectKind {
             EffectKind::MassError
             | EffectKind::CoulombFriction
             | EffectKind::ViscousFriction
-            | EffectKind::PressureOffset
-            | EffectKind::PressureGain
-            | EffectKind::ForceOffset
-            | EffectKind::ForceGain
             | EffectKind::ExtraForce => return None,
         })
     }
@@ -211,22 +188,17 @@ impl EffectKind {
             | EffectKind::Cogging
             | EffectKind::ActuatorLag
             | EffectKind::ExtraForce => ChannelId::Force,
-            EffectKind::SlaveLag | EffectKind::ForceOffset | EffectKind::ForceGain => {
-                ChannelId::SlaveForce
-            }
+            EffectKind::SlaveLag => ChannelId::SlaveForce,
             EffectKind::EncoderPitchError => ChannelId::Encoder,
-            EffectKind::Leakage
-            | EffectKind::HeatTransfer
-            | EffectKind::PortRestriction
-            | EffectKind::PressureOffset
-            | EffectKind::PressureGain => ChannelId::Pressure,
+            EffectKind::Leakage | EffectKind::HeatTransfer | EffectKind::PortRestriction => {
+                ChannelId::Pressure
+            }
         }
     }
 
-    /// Fits the named effect to the run on top of the model `doc`; `None` when it cannot be
-    /// fitted here (channel absent, no valid parameter) and for the discovered terms, whose
-    /// next term the discovery basis proposes ([`super::judge::propose`]).
-    pub fn propose_named(self, ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
+    /// Fits the effect to the run on top of the model `doc`; `None` when it cannot be fitted
+    /// here (channel absent, no valid parameter).
+    pub fn propose(self, ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
         match self {
             EffectKind::MassError => force::mass_error(ctx, doc),
             EffectKind::CoulombFriction => force::coulomb(ctx, doc),
@@ -239,11 +211,7 @@ impl EffectKind {
             EffectKind::Leakage => pressure::leakage(ctx, doc),
             EffectKind::HeatTransfer => pressure::heat_transfer(ctx, doc),
             EffectKind::PortRestriction => pressure::port_restriction(ctx, doc),
-            EffectKind::PressureOffset => sensor::pressure_offset(ctx, doc),
-            EffectKind::PressureGain => sensor::pressure_gain(ctx, doc),
-            EffectKind::ForceOffset => sensor::force_offset(ctx, doc),
-            EffectKind::ForceGain => sensor::force_gain(ctx, doc),
-            EffectKind::ExtraForce => None,
+            EffectKind::ExtraForce => super::discover::next_term(ctx, doc),
         }
     }
 }

@@ -20,8 +20,6 @@ pub enum Term {
     X,
     /// `x^2`, N/m².
     X2,
-    /// `x^3`: cubic in position (a hardening or softening spring), N/m³.
-    X3,
     /// `v`: linear in velocity, N·s/m.
     V,
     /// `v|v|`: quadratic drag, N·s²/m².
@@ -38,9 +36,6 @@ pub enum Term {
     T,
     /// `t*sgn(v)`: a force along the motion changing in time (drifting friction), N/s.
     TSgnV,
-    /// `x*sgn(v)`: a force along the motion changing with position (friction that varies
-    /// along the bore), N/m.
-    XSgnV,
     /// `sin(2πx/p)`, N (period `period_m`).
     Sin,
     /// `cos(2πx/p)`, N (period `period_m`).
@@ -49,11 +44,10 @@ pub enum Term {
 
 impl Term {
     /// Every term, in the order of `docs/formats.md`.
-    pub const ALL: [Term; 15] = [
+    pub const ALL: [Term; 13] = [
         Term::One,
         Term::X,
         Term::X2,
-        Term::X3,
         Term::V,
         Term::VAbsV,
         Term::SgnV,
@@ -62,7 +56,6 @@ impl Term {
         Term::DeltaP,
         Term::T,
         Term::TSgnV,
-        Term::XSgnV,
         Term::Sin,
         Term::Cos,
     ];
@@ -73,7 +66,6 @@ impl Term {
             Term::One => "1",
             Term::X => "x",
             Term::X2 => "x^2",
-            Term::X3 => "x^3",
             Term::V => "v",
             Term::VAbsV => "v|v|",
             Term::SgnV => "sgn(v)",
@@ -82,7 +74,6 @@ impl Term {
             Term::DeltaP => "p_a-p_b",
             Term::T => "t",
             Term::TSgnV => "t*sgn(v)",
-            Term::XSgnV => "x*sgn(v)",
             Term::Sin => "sin(2πx/p)",
             Term::Cos => "cos(2πx/p)",
         }
@@ -112,7 +103,6 @@ impl Term {
             Term::One => 1.0,
             Term::X => s.x_m,
             Term::X2 => s.x_m * s.x_m,
-            Term::X3 => s.x_m * s.x_m * s.x_m,
             Term::V => s.v_mps,
             Term::VAbsV => s.v_mps * s.v_mps.abs(),
             Term::SgnV => sgn,
@@ -121,7 +111,6 @@ impl Term {
             Term::DeltaP => s.dp_pa,
             Term::T => s.t_s,
             Term::TSgnV => s.t_s * sgn,
-            Term::XSgnV => s.x_m * sgn,
             Term::Sin => angle().sin(),
             Term::Cos => angle().cos(),
         }
@@ -211,12 +200,6 @@ impl ExtraForceEffect {
     pub fn coefficient(&self, term: Term) -> Option<f64> {
         self.terms.get(term.name()).copied()
     }
-
-    /// The `a` term's coefficient, kg (0 without it): the force `c_a·a` takes that much from
-    /// the moving mass (`(m − c_a)·a`).
-    pub fn mass_taken_kg(&self) -> f64 {
-        self.coefficient(Term::A).unwrap_or(0.0)
-    }
 }
 
 #[cfg(test)]
@@ -257,21 +240,5 @@ mod tests {
         };
         // −k·(x − x0) with k = 1800 N/m, x0 = 0.09 m.
         assert!((e.force_n(&s) - (-1800.0 * (0.1 - 0.09))).abs() < 1e-9);
-    }
-
-    #[test]
-    fn an_a_term_that_leaves_less_than_half_the_mass_moving_is_refused() {
-        let mut model = super::super::MachineModel::reference();
-        let half = 0.5 * model.piston.mass_kg;
-        for (c_a, ok) in [(0.9 * half, true), (1.1 * half, false)] {
-            let e = ExtraForceEffect {
-                terms: [("a".to_string(), c_a)].into_iter().collect(),
-                period_m: None,
-            };
-            assert_eq!(e.mass_taken_kg(), c_a);
-            model.effects.extra_force = Some(e);
-            let r = model.validate();
-            assert_eq!(r.is_ok(), ok, "{c_a} kg: {r:?}");
-        }
     }
 }

@@ -458,10 +458,6 @@ pub struct PressureSensor {
     pub offset_suction_pa: f64,
     /// Offset of the discharge-line sensor, Pa.
     pub offset_discharge_pa: f64,
-    /// Gain of the chamber-A sensor (its reading per pascal at its membrane).
-    pub gain_a: f64,
-    /// Gain of the chamber-B sensor.
-    pub gain_b: f64,
 }
 
 checks!(PressureSensor {
@@ -471,8 +467,6 @@ checks!(PressureSensor {
     offset_b_pa: Finite, -1e5, 1e5, "Pa";
     offset_suction_pa: Finite, -1e5, 1e5, "Pa";
     offset_discharge_pa: Finite, -1e5, 1e5, "Pa";
-    gain_a: Positive, 0.5, 2.0, "";
-    gain_b: Positive, 0.5, 2.0, "";
 });
 
 impl Default for PressureSensor {
@@ -484,43 +478,6 @@ impl Default for PressureSensor {
             offset_b_pa: 0.0,
             offset_suction_pa: 0.0,
             offset_discharge_pa: 0.0,
-            gain_a: 1.0,
-            gain_b: 1.0,
-        }
-    }
-}
-
-/// `[sensors.force]`: how each section's drive reports the force it acts (`reported =
-/// gain·acting + offset`): a drive's force is its current times a force constant, and a
-/// constant that is off, or a current sensor's offset, is an error of the reading, not of
-/// the force.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
-#[serde(default, deny_unknown_fields)]
-pub struct ForceSensor {
-    /// Offset of the master section's reading, N.
-    pub offset_master_n: f64,
-    /// Offset of the slave section's reading, N.
-    pub offset_slave_n: f64,
-    /// Gain of the master section's reading.
-    pub gain_master: f64,
-    /// Gain of the slave section's reading.
-    pub gain_slave: f64,
-}
-
-checks!(ForceSensor {
-    offset_master_n: Finite, -1e4, 1e4, "N";
-    offset_slave_n: Finite, -1e4, 1e4, "N";
-    gain_master: Positive, 0.5, 2.0, "";
-    gain_slave: Positive, 0.5, 2.0, "";
-});
-
-impl Default for ForceSensor {
-    fn default() -> Self {
-        ForceSensor {
-            offset_master_n: 0.0,
-            offset_slave_n: 0.0,
-            gain_master: 1.0,
-            gain_slave: 1.0,
         }
     }
 }
@@ -537,8 +494,6 @@ pub struct SensorsSection {
     pub current: CurrentSensor,
     /// Pressure sensing.
     pub pressure: PressureSensor,
-    /// The drives' force readings.
-    pub force: ForceSensor,
 }
 
 /// `[limits]`: what the controller must respect (its configuration takes them from here).

@@ -217,7 +217,6 @@ impl MachineModel {
             section!(m, sensors.encoder_slave),
             section!(m, sensors.current),
             section!(m, sensors.pressure),
-            section!(m, sensors.force),
             section!(m, limits),
             section!(m, simulation),
             section!(m, effects.cogging),
@@ -323,7 +322,7 @@ impl MachineModel {
         if let Some(e) = &self.effects.extra_force {
             e.parsed().map_err(ModelError)?;
             // The `a` term changes the moving mass (`(m − c_a)·a`): it must leave a mass.
-            let c_a = e.mass_taken_kg();
+            let c_a = e.coefficient(super::extra_force::Term::A).unwrap_or(0.0);
             if c_a >= 0.5 * self.piston.mass_kg {
                 return Err(ModelError(format!(
                     "`effects.extra_force.terms.\"a\"` = {} kg leaves less than half of \
