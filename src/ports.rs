@@ -195,7 +195,4 @@ pub trait EventLog {
     fn mode_changed(&mut self, mode: crate::status::ModeKind);
     /// A calibration record was saved to flash, or the save failed (defmt `info` / `error`).
     fn calibration_saved(&mut self, result: Result<(), SaveError>);
-    /// What the machine waits for changed: the parts absent since reset, the outputs never
-    /// on (defmt `warn` for each part still absent, `info` once none is).
-    fn readiness_changed(&mut self, absent: crate::safety::readiness::Absent);
 }

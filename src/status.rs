@@ -3,7 +3,6 @@
 //! can name them without depending on the controller.
 
 use crate::safety::faults::FaultSet;
-use crate::safety::readiness::Absent;
 use crate::safety::supervisor::LimitFlags;
 use crate::units::Ticks;
 
@@ -82,9 +81,6 @@ pub struct Status {
     pub faults: FaultSet,
     /// Limits active this cycle.
     pub limits: LimitFlags,
-    /// The parts absent since reset while the outputs have never been on (none once they
-    /// have: a loss is then a fault).
-    pub absent: Absent,
 }
 
 impl Status {
@@ -111,6 +107,5 @@ impl Status {
             voltage: false,
             envelope: false,
         },
-        absent: Absent::NONE,
     };
 }

@@ -51,7 +51,6 @@ pub struct CurrentStep {
 }
 
 /// The board and the plant.
-#[derive(Clone)]
 pub struct Board {
     /// The plant and its sensors (hal-sim).
     pub world: World,

@@ -11,8 +11,6 @@
 //! | [`session`] | the host attached as a probe: RTT (hal-sim's reader over the chip's memory), defmt, telemetry |
 //! | [`run`], [`faults`] | the main job's scenario and the fault scenarios |
 //! | [`mutants`] | the mutation tests: each deliberate mistake caught |
-//! | [`bench`] | the first day on the bench: the board booted with nothing connected |
-//! | [`dap`], [`link`], [`halt`] | the debug port as a host reaches it (and probe-rs's halting session, the witness); a capture through the host link; debug halts in motion |
 //! | [`save_timing`] | the control period while a save erases and programs flash |
 //! | [`log`] | the defmt log of up 0 |
 //! | [`stack`] | the firmware's stack use, read from RAM as a probe would |
@@ -22,14 +20,10 @@
 //! workspace so that nothing else in the repository links it (see `pil/README.md`).
 #![warn(missing_docs)]
 
-pub mod bench;
 pub mod board;
 pub mod chip;
-pub mod dap;
 pub mod elf;
 pub mod faults;
-pub mod halt;
-pub mod link;
 pub mod log;
 pub mod mutants;
 pub mod run;

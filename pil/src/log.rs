@@ -31,18 +31,6 @@ impl DefmtLog {
         })
     }
 
-    /// The same log for a forked session: its lines so far, a fresh stream decoder (a frame
-    /// half-read at the fork is lost and counted malformed at most).
-    pub fn fork(&self) -> DefmtLog {
-        DefmtLog {
-            table: self.table,
-            decoder: self.table.new_stream_decoder(),
-            lines: self.lines.clone(),
-            malformed: self.malformed,
-            seen: self.seen,
-        }
-    }
-
     /// Feeds bytes read from up 0 at emulated time `t_s`.
     pub fn push(&mut self, t_s: f64, bytes: &[u8]) {
         self.decoder.received(bytes);

@@ -179,7 +179,6 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
         },
         compare_with_host: !args.no_host,
         profile: args.profile,
-        bare_bench_s: None,
     };
     let mut file = match &args.out {
         Some(dir) => {

@@ -86,8 +86,6 @@ pub struct PilOutcome {
     pub periods: Vec<PeriodLoad>,
     /// With [`PilOptions::profile`]: the worst period's interrupt path by function.
     pub profile: Vec<ProfileRow>,
-    /// With [`PilOptions::bare_bench_s`]: what the wait with nothing connected showed.
-    pub bare_bench: Option<crate::bench::BareBenchReport>,
 }
 
 /// Options of `fpc-pil run`.
@@ -103,10 +101,6 @@ pub struct PilOptions {
     /// Keep where the worst period's interrupt path spent its cycles
     /// ([`PilOutcome::profile`]).
     pub profile: bool,
-    /// `Some(s)`: boot with nothing connected — the DC link off, the linear sensors
-    /// unplugged — and wait `s` seconds ([`crate::bench::bare_bench`]), then connect
-    /// everything, run `Calibrate current_sense` and go on with the scenario.
-    pub bare_bench_s: Option<f64>,
 }
 
 /// One function's part of the worst period's interrupt path.
@@ -191,15 +185,8 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
         .plant
         .lines
         .set_pressure_ratio(run_opts.pressure_ratio);
-    if opts.bare_bench_s.is_some() {
-        crate::bench::unplug(&mut world);
-    }
     let mut session = Session::new(opts.image.clone(), Board::new(world), opts.chip.clone())?;
     session.chip.soc().flash.load_image(flash.image());
-    let bare_bench = match opts.bare_bench_s {
-        Some(s) => Some(crate::bench::bare_bench(&mut session, s)?),
-        None => None,
-    };
     let config = hal_sim::run::run_config(&run_opts);
     let mut driver = RunDriver::new(&run_opts, &config, "fpc-pil run", csv).log_each_status();
     let pil_started = Instant::now();
@@ -316,7 +303,6 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
         defmt: session.log.lines.clone(),
         periods,
         profile,
-        bare_bench,
     })
 }
 

@@ -40,8 +40,6 @@ pub struct Session {
     pub frames: u64,
     /// Answers received on up 2: (accepted, refused).
     pub answers_seen: (u32, u32),
-    /// Every answer received on up 2, with the emulated time it was read.
-    pub answers_log: Vec<(f64, fpc::link::commands::Answer)>,
     /// Faults seen in frames or logged, in order.
     pub faults: FaultSet,
     outbox: VecDeque<u8>,
@@ -86,7 +84,6 @@ pub fn status_of(frame: &Frame, faults: FaultSet) -> Status {
         reference_m: frame.x_ref_m,
         theta_rad: frame.theta_rad,
         theta_reference_rad: frame.theta_ref_rad,
-        absent: frame.absent,
         force_master_n: frame.f_master_n,
         force_slave_n: frame.f_slave_n,
         pressure_a_pa: frame.p_a_pa,
@@ -116,7 +113,6 @@ impl Session {
             fresh: false,
             frames: 0,
             answers_seen: (0, 0),
-            answers_log: Vec::new(),
             faults: FaultSet::new(),
             outbox: VecDeque::new(),
             resets_seen: 0,
@@ -127,34 +123,6 @@ impl Session {
             read_offset: 0,
             ports: Ports::Bypassed,
             defmt_paused: false,
-        })
-    }
-
-    /// A second session in the state this one is in now (the chip forked, the host's view
-    /// copied), which then runs on by itself.
-    pub fn fork(&self) -> Result<Session, String> {
-        Ok(Session {
-            chip: self.chip.fork().map_err(|e| e.to_string())?,
-            rtt_base: self.rtt_base,
-            rtt: self.rtt.clone(),
-            log: self.log.fork(),
-            telemetry: self.telemetry.clone(),
-            answers: self.answers.clone(),
-            status: self.status,
-            fresh: self.fresh,
-            frames: self.frames,
-            answers_seen: self.answers_seen,
-            answers_log: self.answers_log.clone(),
-            faults: self.faults,
-            outbox: self.outbox.clone(),
-            resets_seen: self.resets_seen,
-            buf: Vec::new(),
-            sent: self.sent.clone(),
-            queued: self.queued,
-            consumed: self.consumed,
-            read_offset: self.read_offset,
-            ports: self.ports,
-            defmt_paused: self.defmt_paused,
         })
     }
 
@@ -238,9 +206,6 @@ impl Session {
         }
         self.read(&rtt, UP_REPLIES)?;
         for answer in self.answers.push(&self.buf) {
-            if let Ok(a) = &answer {
-                self.answers_log.push((t, *a));
-            }
             match answer {
                 Ok(fpc::link::commands::Answer::Reply(r)) if r.result.is_err() => {
                     self.answers_seen.1 += 1

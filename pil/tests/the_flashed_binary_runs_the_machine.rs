@@ -628,7 +628,6 @@ fn the_main_scenario_on_the_elf_meets_the_figures_of_the_host_build_within_50_us
         chip: ChipOptions::default(),
         compare_with_host: true,
         profile: false,
-        bare_bench_s: None,
     };
     let out = run(&opts, None).unwrap_or_else(|e| panic!("{e}"));
     let s = &out.summary;

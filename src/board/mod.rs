@@ -177,14 +177,6 @@ impl fpc::ports::EventLog for DefmtEvents {
             Err(e) => defmt::error!("calibration not saved: {}", e),
         }
     }
-    fn readiness_changed(&mut self, absent: fpc::safety::readiness::Absent) {
-        if absent.is_empty() {
-            defmt::info!("ready: DC link, encoders and pressure sensors present");
-        }
-        for part in absent.names() {
-            defmt::warn!("waiting: {=str}", part);
-        }
-    }
 }
 
 /// Reads and clears the reset flags (RCC_CSR): why the MCU started.

@@ -105,18 +105,6 @@ pub fn burst_begins() {
     #[cfg(feature = "test-timing")]
     {
         use core::sync::atomic::Ordering;
-        // A debugger's detach may have cleared DEMCR (probe-rs's default sequence writes it
-        // 0), which stops the cycle counter: put it back on, so the figures keep counting.
-        // SAFETY: DEMCR.TRCENA and DWT_CTRL.CYCCNTENA serve this test build's timing alone;
-        // setting them has no other effect on the firmware.
-        unsafe {
-            let dcb = &*cortex_m::peripheral::DCB::PTR;
-            if dcb.demcr.read() & (1 << 24) == 0 {
-                dcb.demcr.modify(|w| w | (1 << 24));
-                let dwt = &*cortex_m::peripheral::DWT::PTR;
-                dwt.ctrl.modify(|w| w | 1);
-            }
-        }
         STEP_START.store(cortex_m::peripheral::DWT::cycle_count(), Ordering::Relaxed);
         embassy_stm32::pac::GPIOA
             .bsrr()

@@ -140,15 +140,6 @@ pub enum Refusal {
     BadRecord,
     /// The scope is not armed with the host's trigger (`fire` needs `arm --trigger command`).
     NotArmed,
-    /// The DC link has been off since reset (power good low): nothing that switches the
-    /// outputs on may start (`safety::readiness`).
-    DcLinkOff,
-    /// An encoder has given no signal since reset: nothing that switches the outputs on may
-    /// start.
-    EncoderAbsent,
-    /// A pressure sensor has read open or shorted since reset: nothing that switches the
-    /// outputs on may start.
-    PressureSensorAbsent,
 }
 
 impl Refusal {
@@ -174,15 +165,6 @@ impl Refusal {
                 "not a valid calibration record (magic, version or CRC): nothing changed"
             }
             Refusal::NotArmed => "the scope is not armed with the command trigger: arm it first",
-            Refusal::DcLinkOff => {
-                "waiting for the DC link (power good low since reset): switch the bridge supply on"
-            }
-            Refusal::EncoderAbsent => {
-                "waiting for the encoders (no signal since reset): connect both linear encoders"
-            }
-            Refusal::PressureSensorAbsent => {
-                "waiting for the pressure sensors (0 V or the rail since reset): connect all four"
-            }
         }
     }
 }

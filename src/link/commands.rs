@@ -246,9 +246,6 @@ pub const fn refusal_code(refusal: Refusal) -> u8 {
         Refusal::ChunkOutOfOrder => 9,
         Refusal::BadRecord => 10,
         Refusal::NotArmed => 11,
-        Refusal::DcLinkOff => 12,
-        Refusal::EncoderAbsent => 13,
-        Refusal::PressureSensorAbsent => 14,
     }
 }
 
@@ -266,9 +263,6 @@ pub fn refusal_from_code(code: u8) -> Option<Refusal> {
         Refusal::ChunkOutOfOrder,
         Refusal::BadRecord,
         Refusal::NotArmed,
-        Refusal::DcLinkOff,
-        Refusal::EncoderAbsent,
-        Refusal::PressureSensorAbsent,
     ]
     .into_iter()
     .find(|r| refusal_code(*r) == code)

@@ -14,7 +14,7 @@
 //! | 1 | `seq`: control cycles since telemetry started (wrapping) | u16 | cycles |
 //! | 3 | `t`: sampling instant of the cycle | u32 | µs (wrapping) |
 //! | 7 | `mode` ([`mode_code`]) | u8 | |
-//! | 8 | flags: bit 0 = homed; bits 1–2 = the ports as declared ([`Ports`]); bits 3–6 = the parts absent since reset ([`Absent`]: DC link, master encoder, slave encoder, pressure sensors; 0 once the outputs have been on); bit 7 = 0 | u8 | |
+//! | 8 | flags: bit 0 = homed; bits 1–2 = the ports as declared ([`Ports`]) | u8 | |
 //! | 9 | `fault`: first latched fault's number, 0 = none | u8 | |
 //! | 10 | `dropped`: frames lost so far (saturating) | u16 | frames |
 //! | 12 | `channels`: bit i set = channel i follows ([`CHANNELS`]) | u16 | |
@@ -35,7 +35,6 @@
 
 use crate::link::frame::{encode_frame, f32_at, BufferTooSmall, Deframer, FrameError, LinkStats};
 use crate::link::frame::{max_wire_len, KIND_TELEMETRY};
-use crate::safety::readiness::Absent;
 use crate::status::{ModeKind, Status};
 use crate::units::{Ticks, CONTROL_PERIOD_US as PERIOD_US};
 
@@ -191,8 +190,6 @@ pub struct Frame {
     pub ports: Ports,
     /// Number of the first latched fault, 0 = none (`faults.rs`).
     pub fault: u8,
-    /// The parts absent since reset, the outputs never on (`safety::readiness`).
-    pub absent: Absent,
     /// Frames lost so far (queue full or sink full), saturating.
     pub dropped: u16,
     /// The channels the frame carries on the wire (the values of the others are not sent;
@@ -261,7 +258,6 @@ impl Frame {
             homed: s.homed,
             ports: Ports::Timed,
             fault: s.faults.first().map_or(0, |f| f as u8),
-            absent: s.absent,
             dropped,
             channels: ChannelSet::ALL,
             x_m: s.position_m,
@@ -310,7 +306,7 @@ impl Frame {
             t2,
             t3,
             mode_code(self.mode),
-            u8::from(self.homed) | (self.ports.code() << 1) | (self.absent.bits() << 3),
+            u8::from(self.homed) | (self.ports.code() << 1),
             self.fault,
             d0,
             d1,
@@ -358,11 +354,10 @@ impl Frame {
         if p.len() != HEADER_BYTES + 4 * channels.len() {
             return Err(FrameError::BadLength);
         }
-        if flags & 0x80 != 0 {
+        if flags & !0b111 != 0 {
             return Err(FrameError::BadValue);
         }
-        let ports = Ports::from_code((flags >> 1) & 0b11).ok_or(FrameError::BadValue)?;
-        let absent = Absent::from_bits(flags >> 3).ok_or(FrameError::BadValue)?;
+        let ports = Ports::from_code(flags >> 1).ok_or(FrameError::BadValue)?;
         let mut values = [f32::NAN; CHANNEL_COUNT];
         let mut at = HEADER_BYTES;
         for (i, v) in values.iter_mut().enumerate() {
@@ -380,7 +375,6 @@ impl Frame {
             homed: flags & 1 != 0,
             ports,
             fault,
-            absent,
             dropped: u16::from_le_bytes([d0, d1]),
             channels,
             x_m,
@@ -455,7 +449,6 @@ mod tests {
             homed: seed.is_multiple_of(2),
             ports: Ports::ALL[(seed % 3) as usize],
             fault: (seed % 15) as u8,
-            absent: Absent::from_bits((seed % 16) as u8).unwrap(),
             dropped: (seed >> 3) as u16,
             channels: ChannelSet::ALL,
             x_m: 0.1,
@@ -537,23 +530,6 @@ mod tests {
     }
 
     #[test]
-    fn the_absent_parts_ride_in_flag_bits_3_to_6_and_bit_7_is_refused() {
-        let f = Frame {
-            absent: Absent::DC_LINK.with(Absent::PRESSURE_SENSORS),
-            homed: false,
-            ports: Ports::Timed,
-            ..frame(4)
-        };
-        let p = payload(&f);
-        assert_eq!(p[8], (0b1001 << 3) | (Ports::Timed.code() << 1));
-        let back = Frame::from_payload(&p).unwrap();
-        assert_eq!(back.absent, f.absent);
-        let mut bad = p.clone();
-        bad[8] |= 0x80;
-        assert_eq!(Frame::from_payload(&bad).err(), Some(FrameError::BadValue));
-    }
-
-    #[test]
     fn every_mode_code_round_trips() {
         for c in 0..=255u8 {
             if let Some(m) = mode_from_code(c) {
@@ -567,14 +543,13 @@ mod tests {
         #[test]
         fn every_frame_round_trips_bit_for_bit(
             seq in any::<u16>(), t in any::<u32>(), mode in 0u8..7, homed in any::<bool>(),
-            ports in 0usize..3, fault in any::<u8>(), absent in 0u8..16, dropped in any::<u16>(),
+            ports in 0usize..3, fault in any::<u8>(), dropped in any::<u16>(),
             set in 1u16..1024, bits in proptest::array::uniform10(any::<u32>()),
         ) {
             let v = bits.map(f32::from_bits);
             let f = Frame {
                 seq, t: Ticks(t), mode: mode_from_code(mode).unwrap(), homed,
-                ports: Ports::ALL[ports], fault, absent: Absent::from_bits(absent).unwrap(),
-                dropped, channels: ChannelSet(set),
+                ports: Ports::ALL[ports], fault, dropped, channels: ChannelSet(set),
                 x_m: v[0], x_slave_m: v[1], theta_rad: v[2], f_master_n: v[3], f_slave_n: v[4],
                 p_a_pa: v[5], p_b_pa: v[6], x_ref_m: v[7], theta_ref_rad: v[8], v_mps: v[9],
             };

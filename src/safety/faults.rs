@@ -44,15 +44,11 @@ pub enum Fault {
     /// The drive's supply was lost (the DC link fell below the power-good threshold): the
     /// piston was braked on the link's energy; check the mains, its fuses and contactor.
     SupplyLoss = 15,
-    /// The control task missed more than 2 ms of cycles (the core was halted — a debugger —
-    /// or stalled): the position was lost and the piston braked on its measured velocity;
-    /// detach the debugger, clear the fault, home again.
-    CoreHalted = 16,
 }
 
 impl Fault {
     /// Every fault, in number order.
-    pub const ALL: [Fault; 16] = [
+    pub const ALL: [Fault; 15] = [
         Fault::EncoderSignal,
         Fault::EncoderMismatch,
         Fault::PressureSensor,
@@ -68,7 +64,6 @@ impl Fault {
         Fault::HomingFailed,
         Fault::ConfigInvalid,
         Fault::SupplyLoss,
-        Fault::CoreHalted,
     ];
 
     /// Stable snake_case name (run logs, JSON, command line).
@@ -89,7 +84,6 @@ impl Fault {
             Fault::HomingFailed => "homing_failed",
             Fault::ConfigInvalid => "config_invalid",
             Fault::SupplyLoss => "supply_loss",
-            Fault::CoreHalted => "core_halted",
         }
     }
 
@@ -111,9 +105,7 @@ impl Fault {
             Fault::EncoderSignal => Reaction::BrakeWithoutPosition,
             Fault::EncoderMismatch | Fault::ConfigInvalid => Reaction::Sto,
             Fault::Overcurrent => Reaction::DropSection,
-            // After a halt as after a reset: the encoders moved on unseen, the zero is lost,
-            // the piston may be moving; the brake needs only the encoder angle and velocity.
-            Fault::WatchdogReset | Fault::CoreHalted => Reaction::BrakeAfterReset,
+            Fault::WatchdogReset => Reaction::BrakeAfterReset,
             Fault::PressureSensor
             | Fault::PressurePlausibility
             | Fault::FollowingError

@@ -451,12 +451,6 @@ impl SinCosDecoder {
         self.error_count > self.config.error_limit / 2
     }
 
-    /// Whether a sample has ever been in the amplitude window (the signal has been seen since
-    /// the decoder was built; a flat or unplugged input never is).
-    pub fn signal_seen(&self) -> bool {
-        self.started
-    }
-
     /// Clears a latched signal fault (after the cause is gone; position must be re-homed).
     pub fn clear_fault(&mut self) {
         self.fault = false;

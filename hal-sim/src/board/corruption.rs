@@ -51,26 +51,7 @@ pub struct SensorCorruption {
     pub chambers: [PressureHold; 2],
     /// Added to the quadrature counter (wrapping): starts it just before its wrap.
     pub quadrature_offset: u16,
-    /// Both linear encoders unplugged: every sin/cos input reads flat at mid-scale (the
-    /// receivers' bias with no signal).
-    pub encoders_unplugged: bool,
-    /// The four pressure sensors unplugged: their inputs read 0 V.
-    pub pressures_unplugged: bool,
-    /// Wiring faults of the commissioning (`docs/bring-up.md` §10): a section's phases V and
-    /// W swapped between the board and the motor, an encoder read backwards.
-    pub wiring: Wiring,
     rng: BurstRng,
-}
-
-/// Wiring faults a first commissioning must find.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Wiring {
-    /// The section's motor phases V and W swapped at its terminals: the board's phase V
-    /// drives the motor's W and senses its current, and the other way round.
-    pub swapped_vw: PerSection<bool>,
-    /// The encoder's sine inverted (its head mounted the other way round, or sin+/sin−
-    /// swapped): it counts backwards.
-    pub reversed_encoder: PerSection<bool>,
 }
 
 impl SensorCorruption {
@@ -91,9 +72,6 @@ impl SensorCorruption {
             || self.burst.is_some()
             || self.chambers != [PressureHold::Live; 2]
             || self.quadrature_offset != 0
-            || self.encoders_unplugged
-            || self.pressures_unplugged
-            || self.wiring != Wiring::default()
     }
 
     /// Corrupts one burst as configured.
@@ -154,32 +132,6 @@ impl SensorCorruption {
             }
         }
         *quadrature = quadrature.wrapping_add(self.quadrature_offset);
-        for (codes, reversed) in [
-            (&mut encoders.master, self.wiring.reversed_encoder.master),
-            (&mut encoders.slave, self.wiring.reversed_encoder.slave),
-        ] {
-            if reversed {
-                *codes = map_codes(*codes, |s, c| (-s, c));
-            }
-        }
-        if self.encoders_unplugged {
-            let flat = SinCosCodes {
-                sin: AdcCode::MID,
-                cos: AdcCode::MID,
-            };
-            *encoders = EncoderCodes {
-                master: flat,
-                slave: flat,
-            };
-        }
-        if self.pressures_unplugged {
-            *pressures = PressureCodes {
-                chamber_a: AdcCode(0),
-                chamber_b: AdcCode(0),
-                suction: AdcCode(0),
-                discharge: AdcCode(0),
-            };
-        }
     }
 }
 
@@ -256,28 +208,6 @@ mod tests {
         let (mut e, mut p, mut q) = burst(2048, 3648, 2000);
         c.apply(&mut e, &mut p, &mut q);
         assert_eq!(p.chamber_a.0, 1234, "frozen at the first reading");
-    }
-
-    #[test]
-    fn unplugged_sensors_read_flat_encoders_and_0_v_pressures() {
-        let mut c = SensorCorruption::seeded(1);
-        c.encoders_unplugged = true;
-        c.pressures_unplugged = true;
-        assert!(c.active());
-        let (mut e, mut p, mut q) = burst(1000, 3648, 1234);
-        c.apply(&mut e, &mut p, &mut q);
-        assert_eq!((e.master.sin, e.slave.cos), (AdcCode::MID, AdcCode::MID));
-        assert_eq!((p.chamber_a.0, p.discharge.0), (0, 0));
-    }
-
-    #[test]
-    fn a_reversed_encoder_reads_its_sine_inverted() {
-        let mut c = SensorCorruption::seeded(1);
-        c.wiring.reversed_encoder.slave = true;
-        let (mut e, mut p, mut q) = burst(2548, 3648, 1000);
-        c.apply(&mut e, &mut p, &mut q);
-        assert_eq!((e.slave.sin.0, e.slave.cos.0), (1548, 3648));
-        assert_eq!(e.master.sin.0, 2548);
     }
 
     #[test]

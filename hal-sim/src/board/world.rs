@@ -189,17 +189,8 @@ impl World {
     /// What the outputs apply to the plant during the next period: each section's duties
     /// in force while its outputs are on, and the servo torque the DAC code commands.
     pub fn drive(&self) -> Drive {
-        let swapped = self.corruption.wiring.swapped_vw;
         let on = |s: Section| {
-            (self.enabled && *self.sections_on.get(s)).then(|| {
-                let [u, v, w] = *self.duties_in_force.get(s);
-                // Phases V and W swapped at the motor's terminals.
-                if *swapped.get(s) {
-                    [u, w, v]
-                } else {
-                    [u, v, w]
-                }
-            })
+            (self.enabled && *self.sections_on.get(s)).then(|| *self.duties_in_force.get(s))
         };
         Drive {
             duties: PerSection {
@@ -262,16 +253,10 @@ impl World {
             }
             codes
         };
-        let mut currents = PerSection {
+        let currents = PerSection {
             master: current(Section::Master),
             slave: current(Section::Slave),
         };
-        // The board's sensors on phases V and W measure the motor's W and V when swapped.
-        for section in Section::ALL {
-            if *self.corruption.wiring.swapped_vw.get(section) {
-                currents.get_mut(section).swap(1, 2);
-            }
-        }
 
         let counts =
             plant.rotation.servo_angle_rad / std::f64::consts::TAU * f64::from(s.counts_per_rev);
@@ -470,8 +455,6 @@ pub enum Event {
     ModeChanged(u64, fpc::status::ModeKind),
     /// A calibration record was saved (or the save failed).
     CalibrationSaved(u64, Result<(), fpc::control::calibration::store::SaveError>),
-    /// The parts absent since reset changed (empty: none is).
-    Waiting(u64, fpc::safety::readiness::Absent),
 }
 
 /// The simulated board's event log: it records what the board would log with defmt.
@@ -502,11 +485,6 @@ impl fpc::ports::EventLog for SimEventLog {
         let mut w = self.world.borrow_mut();
         let t = w.time_us();
         w.events.push(Event::CalibrationSaved(t, result));
-    }
-    fn readiness_changed(&mut self, absent: fpc::safety::readiness::Absent) {
-        let mut w = self.world.borrow_mut();
-        let t = w.time_us();
-        w.events.push(Event::Waiting(t, absent));
     }
 }
 

@@ -14,11 +14,8 @@
 //! board's RAM ([`crate::board::ram`]) in the tests, an emulated firmware image, or a probe.
 //! [`simprobe::SimProbe`] is a host attached that way to the simulated board, for whole bench
 //! sessions in the tests. [`Replay`] plays recorded channel contents. [`probe`] (cargo feature `probe`, off by
-//! default) reaches the board with the `probe-rs` library through the debug port's memory
-//! access port, never a halting debug session ([`debugport`]: the link reaches RAM and the
-//! peripherals only, never DHCSR or DEMCR).
+//! default) attaches to the board with the `probe-rs` library.
 
-pub mod debugport;
 pub mod defmt;
 pub mod memory;
 #[cfg(feature = "probe")]

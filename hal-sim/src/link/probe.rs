@@ -1,28 +1,21 @@
 //! The probe (cargo feature `probe`): the board's memory through a debug probe, with the
-//! `probe-rs` library, as a [`MemAccessPort`] — so the RTT transport over it is
-//! [`crate::link::rtt::RttChannels`] on [`NonHalting`], the very code the PIL's capture test
-//! runs on the emulated chip's debug port. Thin on purpose: choose and open the probe, reach
-//! the memory access port, move words; and flash a firmware image, reset, detach (`fpc-sim
-//! link flash`, which does halt: refused while the machine moves unless `--force`).
+//! `probe-rs` library, as a [`TargetMemory`] — so the RTT transport over it is
+//! [`crate::link::rtt::RttChannels`], the very code the tests run on the simulated board's
+//! RAM. Thin on purpose: choose and open the probe, attach, read and write memory; and flash
+//! a firmware image, reset, detach (`fpc-sim link flash`).
 //!
-//! No `probe_rs::Session` for the link: a session halts the core on attach and on drop
-//! (`docs/link.md`, "The link never halts the core"). The probe is attached to the
-//! unspecified target, turned into probe-rs's ARM debug interface with the default sequence
-//! (the debug port powered up; no vendor unlock, no DBGMCU write, no core attach), and only
-//! MEM-AP 0's 32-bit reads and writes of RAM are issued. `--connect-under-reset` asserts the
-//! reset line (it restarts the firmware, as asked). The control block is taken at the ELF's
-//! `_SEGGER_RTT` when an ELF is given, otherwise searched for in the G474's SRAM.
+//! Attaching does not reset or halt the target (the firmware keeps controlling the
+//! machine) unless `--connect-under-reset` asks for it. The control block is taken at the
+//! ELF's `_SEGGER_RTT` when an ELF is given, otherwise searched for in the chip's RAM.
 
 use std::io;
 use std::path::Path;
 
-use probe_rs::architecture::arm::sequences::DefaultArmSequence;
-use probe_rs::architecture::arm::{ArmDebugInterface, FullyQualifiedApAddress};
 use probe_rs::probe::list::Lister;
-use probe_rs::probe::{DebugProbeSelector, Probe};
-use probe_rs::{Permissions, Session};
+use probe_rs::probe::DebugProbeSelector;
+use probe_rs::{MemoryInterface, Permissions, Session};
 
-use super::debugport::{MemAccessPort, NonHalting};
+use super::memory::TargetMemory;
 use super::rtt::{Locate, RttChannels};
 
 /// How to reach the board.
@@ -61,8 +54,8 @@ fn chain(e: &dyn std::error::Error) -> String {
         .join(": ")
 }
 
-/// Opens the probe `opts` names, at the speed asked.
-fn open(opts: &ProbeOptions) -> Result<Probe, String> {
+/// Opens the probe `opts` names and attaches to the chip.
+fn session(opts: &ProbeOptions) -> Result<Session, String> {
     let lister = Lister::new();
     let mut probe = match &opts.probe {
         Some(text) => {
@@ -103,12 +96,6 @@ fn open(opts: &ProbeOptions) -> Result<Probe, String> {
             .set_speed(khz)
             .map_err(|e| format!("--speed {khz}: {}", chain(&e)))?;
     }
-    Ok(probe)
-}
-
-/// Opens the probe and attaches a debug session to the chip (halts the core: for flashing).
-fn session(opts: &ProbeOptions) -> Result<Session, String> {
-    let probe = open(opts)?;
     let chip = opts.chip.as_str();
     let attached = if opts.connect_under_reset {
         probe.attach_under_reset(chip, Permissions::default())
@@ -118,74 +105,39 @@ fn session(opts: &ProbeOptions) -> Result<Session, String> {
     attached.map_err(|e| format!("cannot attach to {chip} through the probe: {}", chain(&e)))
 }
 
-/// The board's memory access port 0 through the probe's ARM debug interface: word reads and
-/// writes while the core runs, no debug session.
-pub struct ProbeMemAp {
-    interface: Box<dyn ArmDebugInterface + 'static>,
-    ap: FullyQualifiedApAddress,
+/// The board's memory through an attached probe (core 0's view).
+pub struct ProbeMemory {
+    session: Session,
 }
 
-impl ProbeMemAp {
-    /// Opens the probe, connects to the debug port (no core attach, no halt).
-    pub fn open(opts: &ProbeOptions) -> Result<ProbeMemAp, String> {
-        let mut probe = open(opts)?;
-        let connected = if opts.connect_under_reset {
-            probe.attach_to_unspecified_under_reset()
-        } else {
-            probe.attach_to_unspecified()
-        };
-        connected.map_err(|e| format!("cannot connect to {}: {}", opts.chip, chain(&e)))?;
-        let interface = probe
-            .try_into_arm_debug_interface(DefaultArmSequence::create())
-            .map_err(|(_, e)| format!("{}: no ARM debug port: {}", opts.chip, chain(&e)))?;
-        Ok(ProbeMemAp {
-            interface,
-            ap: FullyQualifiedApAddress::v1_with_default_dp(0),
-        })
-    }
-}
-
-impl MemAccessPort for ProbeMemAp {
-    fn attach(&mut self) -> io::Result<()> {
-        // Connected by `open`: the memory access port is selected on first use.
-        Ok(())
+impl TargetMemory for ProbeMemory {
+    fn read(&mut self, address: u64, buf: &mut [u8]) -> io::Result<()> {
+        let mut core = self.session.core(0).map_err(other)?;
+        core.read(address, buf).map_err(|e| other(chain(&e)))
     }
 
-    fn read_words(&mut self, address: u32, words: &mut [u32]) -> io::Result<()> {
-        let mut m = self
-            .interface
-            .memory_interface(&self.ap)
-            .map_err(|e| other(chain(&e)))?;
-        m.read_32(u64::from(address), words)
+    fn write(&mut self, address: u64, bytes: &[u8]) -> io::Result<()> {
+        let mut core = self.session.core(0).map_err(other)?;
+        core.write(address, bytes).map_err(|e| other(chain(&e)))
+    }
+
+    /// One 32-bit access per word: the RTT offsets change while the firmware runs.
+    fn read_words(&mut self, address: u64, words: &mut [u32]) -> io::Result<()> {
+        let mut core = self.session.core(0).map_err(other)?;
+        core.read_32(address, words).map_err(|e| other(chain(&e)))
+    }
+
+    fn write_word(&mut self, address: u64, word: u32) -> io::Result<()> {
+        let mut core = self.session.core(0).map_err(other)?;
+        core.write_word_32(address, word)
             .map_err(|e| other(chain(&e)))
     }
-
-    fn write_words(&mut self, address: u32, words: &[u32]) -> io::Result<()> {
-        let mut m = self
-            .interface
-            .memory_interface(&self.ap)
-            .map_err(|e| other(chain(&e)))?;
-        m.write_32(u64::from(address), words)
-            .and_then(|()| m.flush())
-            .map_err(|e| other(chain(&e)))
-    }
-
-    fn detach(&mut self) -> io::Result<()> {
-        // The interface is closed (the debug port released) when dropped.
-        Ok(())
-    }
 }
 
-/// The STM32G474's SRAM1 + SRAM2, where the firmware's RTT control block is searched for
-/// without an ELF.
-const G474_RAM: std::ops::Range<u64> = 0x2000_0000..0x2002_0000;
-
-/// Attaches to the running board's RTT control block through the memory access port: at the
-/// address the ELF `elf` names, if given, else found in the chip's RAM. Never halts the core.
-pub fn attach(
-    opts: &ProbeOptions,
-    elf: Option<&Path>,
-) -> Result<RttChannels<NonHalting<ProbeMemAp>>, String> {
+/// Attaches to the running board and to its RTT control block: at the address the ELF
+/// `elf` names, if given, else found in the chip's RAM.
+pub fn attach(opts: &ProbeOptions, elf: Option<&Path>) -> Result<RttChannels<ProbeMemory>, String> {
+    let session = session(opts)?;
     let locate = match elf {
         Some(path) => {
             let bytes = std::fs::read(path)
@@ -200,10 +152,19 @@ pub fn attach(
                 }
             }
         }
-        None => Locate::Scan(vec![G474_RAM]),
+        None => Locate::Scan(
+            session
+                .target()
+                .memory_map
+                .iter()
+                .filter_map(|region| match region {
+                    probe_rs::config::MemoryRegion::Ram(r) => Some(r.range.clone()),
+                    _ => None,
+                })
+                .collect(),
+        ),
     };
-    let memory = NonHalting::attach(ProbeMemAp::open(opts)?).map_err(|e| e.to_string())?;
-    RttChannels::attach(memory, &locate)
+    RttChannels::attach(ProbeMemory { session }, &locate)
         .map_err(|e| format!("{e} (on {}: is the fpc firmware running?)", opts.chip))
 }
 

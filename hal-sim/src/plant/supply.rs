@@ -102,14 +102,6 @@ impl Link {
         self.lowest_v = self.voltage_v;
     }
 
-    /// No bridge supply at all (a bench before the bus is up): the link empty, no mains; the
-    /// power-good comparator reads low. [`Link::restore`] charges it.
-    pub fn off(&mut self) {
-        self.cut();
-        self.voltage_v = 0.0;
-        self.lowest_v = 0.0;
-    }
-
     /// The mains is back: the rectifier recharges the link to its nominal voltage.
     pub fn restore(&mut self) {
         self.mains = true;

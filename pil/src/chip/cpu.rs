@@ -39,7 +39,6 @@ pub enum Stop {
 
 /// The decoded translated blocks, by start address (with their size: a branch into the
 /// middle of a block starts another one).
-#[derive(Clone)]
 pub struct BlockCache {
     /// Flash blocks, indexed by half-word.
     flash: Vec<Option<(u32, Block)>>,
@@ -303,7 +302,7 @@ fn exit(uc: &mut Unicorn<Soc>, exc_return: u32) -> Result<(), ChipError> {
 /// next block's check.
 pub fn after_write(uc: &mut Unicorn<Soc>) {
     let soc = uc.get_data_mut();
-    if soc.reset_pending.is_some() || !soc.powered || soc.stop.is_some() || soc.debug.halted {
+    if soc.reset_pending.is_some() || !soc.powered || soc.stop.is_some() {
         let _ = uc.emu_stop();
         return;
     }
@@ -538,12 +537,6 @@ pub fn run_until_plant_step(chip: &mut Chip) -> Result<(), ChipError> {
                 continue;
             }
             soc.stall_until = None;
-        }
-        if soc.debug.halted {
-            // Debug state: the core executes nothing and takes no exception; time goes on
-            // to the next peripheral event (what is not frozen runs on).
-            soc.time = soc.time.max(soc.next_event());
-            continue;
         }
         if let Some(exc) = takeable_now(&chip.uc) {
             enter(&mut chip.uc, exc)?;

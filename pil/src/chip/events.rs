@@ -165,14 +165,7 @@ impl Soc {
         } else {
             2048
         };
-        // A timer frozen by a debug halt has its outputs disabled as if MOE were 0: with
-        // OSSI set and idle levels low (how the firmware configures them), every gate low.
-        let mut bridges = self.bridges();
-        for (i, b) in bridges.iter_mut().enumerate() {
-            if self.debug.frozen_advanced(i) {
-                *b = Bridge::Off;
-            }
-        }
+        let bridges = self.bridges();
         self.board.step(bridges, dac as u16);
         self.check_breaks();
         if self.recording {

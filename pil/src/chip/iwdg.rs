@@ -36,8 +36,6 @@ pub struct Iwdg {
     rlr_lands: Option<u64>,
     /// Counting: the counter's value at `loaded_at` (time units).
     counting: Option<(u32, u64)>,
-    /// Stopped by a debug halt (DBG_IWDG_STOP) since this time.
-    paused_at: Option<u64>,
 }
 
 impl Iwdg {
@@ -53,27 +51,6 @@ impl Iwdg {
             pr_lands: None,
             rlr_lands: None,
             counting: None,
-            paused_at: None,
-        }
-    }
-
-    /// The core halted with DBG_IWDG_STOP set: the counter stops at `now`.
-    pub fn pause(&mut self, now: u64) {
-        if self.paused_at.is_none() {
-            self.paused_at = Some(now);
-        }
-    }
-
-    /// The core resumed at `now`: the counter and any pending register update go on from
-    /// where they stopped.
-    pub fn resume(&mut self, now: u64) {
-        if let Some(at) = self.paused_at.take() {
-            let dt = now.saturating_sub(at);
-            if let Some((v, t)) = self.counting {
-                self.counting = Some((v, t + dt));
-            }
-            self.pr_lands = self.pr_lands.map(|t| t + dt);
-            self.rlr_lands = self.rlr_lands.map(|t| t + dt);
         }
     }
 
@@ -125,9 +102,6 @@ impl Iwdg {
 
     /// When the counter counts past 0 (the reset: RL + 1 ticks after a reload), if running.
     pub fn expiry(&self) -> Option<u64> {
-        if self.paused_at.is_some() {
-            return None;
-        }
         let (v, at) = self.counting?;
         // A pending prescaler write lands first; the estimate is refined when it does.
         let t = at as f64 + f64::from(v + 1) * self.units_per_tick(self.pr_active);

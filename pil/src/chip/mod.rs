@@ -13,8 +13,6 @@
 //! | DMA1 and DMAMUX | [`dma`] |
 //! | flash interface, option bytes, ECC, the calibration store | [`flash`] |
 //! | IWDG | [`iwdg`] |
-//! | halting debug (DHCSR, DEMCR), DBGMCU's freeze, the debug port's memory access | [`debug`] |
-//! | the gate-driver inputs from TIM1/TIM8's output stage | [`gates`] |
 //! | RCC (clocks, reset flags, peripheral resets), PWR | [`rcc`] |
 //! | the peripheral bus: register dispatch, DAC1, GPIOB's input | [`bus`] |
 //! | the peripherals' events and interrupt lines, the plant's step | [`events`] |
@@ -37,12 +35,10 @@ pub mod adc;
 mod bus;
 pub mod comp;
 pub mod cpu;
-pub mod debug;
 pub mod dma;
 mod emulator;
 mod events;
 pub mod flash;
-pub mod gates;
 pub mod iwdg;
 mod load;
 pub mod nvic;
@@ -166,7 +162,6 @@ pub struct ResetRecord {
 }
 
 /// Everything the chip holds besides the core's registers: the unicorn user data.
-#[derive(Clone)]
 pub struct Soc {
     /// Emulated time, units of [`crate::time`].
     pub time: u64,
@@ -221,8 +216,6 @@ pub struct Soc {
     pub breaks: Vec<BreakRecord>,
     /// The IWDG.
     pub iwdg: Iwdg,
-    /// The halting-debug registers, DBGMCU and the halt state.
-    pub debug: debug::Debug,
     dac_dhr: u32,
     dac_cr: u32,
     dac_mcr: u32,
@@ -398,7 +391,6 @@ impl Soc {
             comps: comp::Comparators::default(),
             breaks: Vec::new(),
             iwdg: Iwdg::new(options.lsi_hz),
-            debug: debug::Debug::new(),
             dac_dhr: 0,
             dac_cr: 0,
             dac_mcr: 0,
@@ -438,62 +430,5 @@ impl Soc {
             path_data_lines: std::collections::HashSet::new(),
             last_line: u32::MAX,
         }
-    }
-}
-
-impl Soc {
-    /// Carries out what a debug register write asked: the core enters or leaves Debug state.
-    pub(crate) fn debug_request(&mut self, request: debug::HaltRequest) {
-        match request {
-            debug::HaltRequest::Halt => self.halt_core(),
-            debug::HaltRequest::Resume => self.resume_core(),
-            debug::HaltRequest::None => {}
-        }
-    }
-
-    /// The core enters Debug state now: the timers and the watchdog whose DBGMCU freeze bit
-    /// is set stop (RM0440 DBGMCU); TIM4's freeze is not modelled (the encoder count comes
-    /// from the plant) and is refused as an emulation error.
-    fn halt_core(&mut self) {
-        if self.debug.halted {
-            return;
-        }
-        let now = self.time;
-        self.debug.entered(now);
-        if self.debug.frozen_advanced(0) {
-            self.tim1.freeze(now);
-            // The plant steps every 50 µs while the PWM timer does not count.
-            self.plant_next = now + 50 * UNITS_PER_US;
-        }
-        if self.debug.frozen_advanced(1) {
-            self.tim8.freeze(now);
-        }
-        if self.debug.frozen_apb1(debug::apb1::TIM2) {
-            self.tim2.freeze(now);
-        }
-        if self.debug.frozen_apb1(debug::apb1::TIM4) {
-            self.error = Some("DBG_TIM4_STOP set: a frozen encoder counter is not modelled".into());
-        }
-        if self.debug.frozen_apb1(debug::apb1::IWDG) {
-            self.iwdg.pause(now);
-        }
-    }
-
-    /// The core leaves Debug state now: what was frozen goes on from where it stopped.
-    fn resume_core(&mut self) {
-        if !self.debug.halted {
-            return;
-        }
-        let now = self.time;
-        for t in [
-            &mut self.tim1,
-            &mut self.tim8,
-            &mut self.tim2,
-            &mut self.tim4,
-        ] {
-            t.thaw(now);
-        }
-        self.iwdg.resume(now);
-        self.debug.left(now);
     }
 }

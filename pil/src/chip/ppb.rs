@@ -6,9 +6,6 @@ use super::*;
 impl Soc {
     /// A CPU read of the private peripheral bus.
     pub(super) fn ppb_read(&mut self, addr: u32) -> u32 {
-        if let Some(v) = self.debug.read(addr, debug::Master::Core) {
-            return v;
-        }
         match addr {
             0xE000_E100..=0xE000_E4EF => self.nvic.read_word(addr - 0xE000_E100).unwrap_or(0),
             0xE000_ED00 => 0x410F_C241,
@@ -47,15 +44,6 @@ impl Soc {
     }
 
     pub(super) fn ppb_write(&mut self, addr: u32, value: u32, mask: u32) {
-        let word = addr & !3;
-        let old = self.debug.read(word, debug::Master::Core);
-        if let Some(old) = old {
-            let merged = (old & !mask) | (value & mask);
-            if let Some(request) = self.debug.write(word, merged, debug::Master::Core) {
-                self.debug_request(request);
-            }
-            return;
-        }
         match addr & !3 {
             a @ 0xE000_E100..=0xE000_E4EF => self.nvic.write(a - 0xE000_E100, value, mask),
             0xE000_EF00 => self.nvic.write(0xE00, value, mask),

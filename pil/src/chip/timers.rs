@@ -77,8 +77,6 @@ pub struct Timer {
     pub width_mask: u32,
     /// The break input is active (advanced timers): MOE cannot be set.
     pub break_active: bool,
-    /// Frozen by a debug halt: the origin and tick as they were, and when it stopped.
-    frozen: Option<(u64, f64, u64)>,
 }
 
 /// What a counter boundary did.
@@ -105,7 +103,6 @@ impl Timer {
             stopped_cnt: 0,
             width_mask,
             break_active: false,
-            frozen: None,
         };
         t.regs[(reg::ARR / 4) as usize] = width_mask;
         t
@@ -144,14 +141,6 @@ impl Timer {
 
     /// Counter value at `now`.
     pub fn cnt(&self, now: u64) -> u32 {
-        if let Some((o, per_tick, at)) = self.frozen {
-            let running = Timer {
-                origin: Some((o, per_tick)),
-                frozen: None,
-                ..self.clone()
-            };
-            return running.cnt(at);
-        }
         if self.origin.is_none() {
             return self.stopped_cnt;
         }
@@ -424,22 +413,6 @@ impl Timer {
     /// Whether an interrupt is requested: a flag of SR enabled in DIER.
     pub fn irq(&self) -> bool {
         self.r(reg::SR) & self.r(reg::DIER) & 0x1FFF != 0
-    }
-
-    /// The core halted with this timer's DBG_TIMx_STOP set (RM0440 DBGMCU): the counter stops
-    /// where it is at `now`, its phase in the period kept (it resumes from there, in the
-    /// direction it was counting); CEN stays set. No boundary or match comes while frozen.
-    pub fn freeze(&mut self, now: u64) {
-        if let Some((o, per_tick)) = self.origin.take() {
-            self.frozen = Some((o, per_tick, now));
-        }
-    }
-
-    /// The core resumed at `now`: a frozen counter goes on from where it stopped.
-    pub fn thaw(&mut self, now: u64) {
-        if let Some((o, per_tick, at)) = self.frozen.take() {
-            self.origin = Some((o + now.saturating_sub(at), per_tick));
-        }
     }
 }
 

@@ -25,7 +25,6 @@ impl ControlStep {
                 if !self.faults.is_empty() {
                     return Err(Refusal::FaultActive);
                 }
-                self.check_ready()?;
                 self.check_current_sense()?;
                 if !matches!(self.mode, Mode::Idle | Mode::Holding(_)) {
                     return Err(Refusal::Busy);
@@ -68,7 +67,6 @@ impl ControlStep {
                 if !self.faults.is_empty() {
                     return Err(Refusal::FaultActive);
                 }
-                self.check_ready()?;
                 // Before the homing check: homing does not help a machine with no calibration.
                 if self.calibration.status != CalibrationStatus::Calibrated {
                     return Err(Refusal::NotCalibrated);
@@ -147,7 +145,6 @@ impl ControlStep {
                 if !self.faults.is_empty() {
                     return Err(Refusal::FaultActive);
                 }
-                self.check_ready()?;
                 if routine != Routine::CurrentSense {
                     self.check_current_sense()?;
                 }
@@ -167,9 +164,7 @@ impl ControlStep {
             }
             Command::ClearFaults => {
                 if self.faults.is_empty() {
-                    // Nothing latched; a part absent since reset is no fault to clear, and
-                    // the answer says what the machine waits for.
-                    return self.check_ready();
+                    return Ok(());
                 }
                 // A controlled stop ends on its own (outputs off once holding the piston needs
                 // no force): switching off earlier could let the gas throw the piston. Except
@@ -208,12 +203,6 @@ impl ControlStep {
         }
     }
 
-    /// Refuses what would switch the outputs on while a part has been absent since reset,
-    /// naming the first ([`crate::safety::readiness`]).
-    pub(super) fn check_ready(&self) -> Result<(), Refusal> {
-        self.readiness.refusal().map_or(Ok(()), Err)
-    }
-
     /// Refuses to switch the outputs on while the phase currents read a current with the
     /// outputs off: the current loops would drive that offset into the motor.
     pub(super) fn check_current_sense(&self) -> Result<(), Refusal> {
@@ -241,7 +230,6 @@ mod tests {
     use super::*;
     use crate::control::calibration::store::LoadError;
     use crate::control::config::ControlConfig;
-    use crate::control::step::CycleInputs;
     use crate::motion::trajectory::Setpoint;
     use crate::safety::faults::ResetCause;
 
@@ -315,8 +303,6 @@ mod tests {
     #[test]
     fn a_supply_loss_latches_once_and_is_cleared_only_once_the_supply_is_back() {
         let mut step = ControlStep::new(ControlConfig::reference()).unwrap();
-        // Lost, not absent: the outputs have been on since reset.
-        step.readiness.energise();
         step.supply(true);
         assert!(step.faults.is_empty());
         step.supply(false);
@@ -332,116 +318,6 @@ mod tests {
         step.supply(true);
         assert_eq!(step.command(Command::ClearFaults), Ok(()));
         assert!(step.faults.is_empty());
-    }
-
-    /// One burst of a bench: the encoders flat at mid-scale or turning at nominal amplitude,
-    /// the pressures at 0 V or at 1 bar.
-    fn bench_inputs(t_us: u32, sensors: bool) -> CycleInputs {
-        use crate::ports::{EncoderCodes, PressureCodes, SinCosCodes};
-        use crate::units::{AdcCode, Ticks};
-        let config = ControlConfig::reference();
-        let code = |x: f32| AdcCode(x as u16);
-        let encoder = if sensors {
-            let (s, c) = config.encoder_master.calibration.codes_at(0.3);
-            SinCosCodes {
-                sin: code(s),
-                cos: code(c),
-            }
-        } else {
-            SinCosCodes {
-                sin: AdcCode::MID,
-                cos: AdcCode::MID,
-            }
-        };
-        let p = if sensors {
-            config.pressure.code_for(1.0e5)
-        } else {
-            AdcCode(0)
-        };
-        CycleInputs {
-            t: Ticks(t_us),
-            encoders: EncoderCodes {
-                master: encoder,
-                slave: encoder,
-            },
-            currents: crate::units::PerSection {
-                master: [AdcCode::MID; 3],
-                slave: [AdcCode::MID; 3],
-            },
-            quadrature: 0,
-            pressures: PressureCodes {
-                chamber_a: p,
-                chamber_b: p,
-                suction: p,
-                discharge: p,
-            },
-        }
-    }
-
-    #[test]
-    fn a_bare_bench_waits_without_a_fault_and_says_why_until_every_part_is_there() {
-        use crate::safety::readiness::Absent;
-        let mut step = ControlStep::new(ControlConfig::reference()).unwrap();
-        step.boot(ResetCause::PowerOn);
-        let mut t = 0;
-        let mut run = |step: &mut ControlStep, sensors: bool, cycles: u32| {
-            let mut last = None;
-            for _ in 0..cycles {
-                t += 50;
-                last = Some(step.step(&bench_inputs(t, sensors)));
-            }
-            last.unwrap()
-        };
-        // PB5 low, encoders flat, pressures at 0 V, for 2 s.
-        step.supply(false);
-        let out = run(&mut step, false, 40_000);
-        assert!(step.faults.is_empty(), "{:?}", step.faults);
-        assert_eq!(out.pwm, None);
-        assert_eq!(out.servo, crate::units::DacCode::MID);
-        assert_eq!(step.status().absent, Absent::ALL);
-        assert_eq!(step.status().mode, crate::status::ModeKind::Idle);
-        for command in [
-            Command::ClearFaults,
-            Command::Home,
-            Command::Calibrate {
-                routine: Routine::CurrentSense,
-            },
-            Command::Start {
-                peak_speed_mps: 2.0,
-            },
-        ] {
-            assert_eq!(
-                step.command(command),
-                Err(Refusal::DcLinkOff),
-                "{command:?}"
-            );
-        }
-        // The link comes up: the encoders are what it waits for next.
-        step.supply(true);
-        run(&mut step, false, 10);
-        assert_eq!(
-            step.command(Command::Home),
-            Err(Refusal::EncoderAbsent),
-            "{:?}",
-            step.status().absent
-        );
-        // The sensors appear: nothing is absent, nothing was latched, Home is accepted.
-        run(&mut step, true, 400);
-        assert_eq!(step.status().absent, Absent::NONE);
-        assert!(step.faults.is_empty(), "{:?}", step.faults);
-        assert_eq!(step.command(Command::ClearFaults), Ok(()));
-        assert_eq!(step.command(Command::Home), Ok(()));
-        // Switched on, the machine has been energised: the same sensors gone now are a loss.
-        let out = run(&mut step, true, 2);
-        assert!(out.pwm.is_some());
-        run(&mut step, false, 400);
-        assert!(
-            step.faults.contains(Fault::EncoderSignal)
-                || step.faults.contains(Fault::PressureSensor),
-            "{:?}",
-            step.faults
-        );
-        assert_eq!(step.status().absent, Absent::NONE);
     }
 
     #[test]

@@ -45,7 +45,6 @@ use crate::motion::stroke::DeadPoint;
 use crate::motion::trajectory::Setpoint;
 use crate::ports::{EncoderCodes, PhaseCurrentCodes, PressureCodes};
 use crate::safety::faults::{Fault, FaultSet, ResetCause};
-use crate::safety::readiness::{Presence, Readiness};
 use crate::sensing::differentiator::{SavitzkyGolay, SgConfig};
 use crate::sensing::encoder::SinCosDecoder;
 use crate::status::Status;
@@ -125,8 +124,6 @@ pub struct ControlStep {
     /// Sections whose bridge the hardware over-current trip switched off (their timer's
     /// break input), until `ClearFaults` re-arms it ([`ControlStep::hardware_trip`]).
     tripped: PerSection<bool>,
-    /// Whether the outputs have been on since reset, and what is absent until they are.
-    readiness: Readiness,
 }
 
 impl ControlStep {
@@ -216,7 +213,6 @@ impl ControlStep {
             calibration: CalibrationState::new(),
             supply_good: true,
             tripped: PerSection::default(),
-            readiness: Readiness::new(),
             config,
         })
     }
@@ -226,8 +222,7 @@ impl ControlStep {
     /// link's energy ([`Reaction::BrakeWithoutPosition`](crate::safety::faults::Reaction):
     /// the short-circuited windings take the braking current, the link feeds only the
     /// gate drivers, the MCU and the servo's sealing turn). The fault cannot be cleared while
-    /// the supply stays lost. A link that has been off since reset, the outputs never on, is
-    /// no loss: the machine waits for it ([`crate::safety::readiness`]).
+    /// the supply stays lost.
     #[inline]
     pub fn supply(&mut self, good: bool) {
         if !good && self.supply_good {
@@ -278,9 +273,6 @@ impl ControlStep {
     #[cold]
     #[inline(never)]
     fn supply_lost(&mut self) {
-        if !self.readiness.energised() {
-            return;
-        }
         if !self.faults.contains(Fault::SupplyLoss) {
             self.latch(Fault::SupplyLoss);
         }
@@ -301,8 +293,6 @@ impl ControlStep {
     /// are is unknown until homing; the fault stays latched.
     pub fn boot(&mut self, cause: ResetCause) {
         if cause == ResetCause::Watchdog {
-            // The piston may still move: whatever reads absent now was lost, not missing.
-            self.readiness.energise();
             // Its reaction waits for the velocity, then brakes (`Reaction::BrakeAfterReset`).
             self.latch(Fault::WatchdogReset);
             self.status.faults = self.faults;
@@ -408,9 +398,6 @@ impl ControlStep {
     pub fn step(&mut self, inputs: &CycleInputs) -> CycleOutputs {
         self.check_deadline(inputs.t);
         let sensed = self.sense(inputs);
-        if !self.readiness.energised() {
-            self.watch_absent_parts(inputs);
-        }
         self.supervise(&sensed);
         let plan = self.plan(&sensed);
         let pwm = self.actuate(inputs, &sensed, plan);
@@ -432,9 +419,6 @@ impl ControlStep {
         } else {
             pwm
         };
-        if pwm.is_some() && !self.readiness.energised() {
-            self.readiness.energise();
-        }
         CycleOutputs {
             pwm,
             sections,
@@ -466,43 +450,7 @@ impl ControlStep {
             pressure_b_pa: s.pressure_b_pa,
             faults: self.faults,
             limits: self.supervision.limits,
-            absent: self.readiness.absent(),
         };
-    }
-
-    /// While the outputs have never been on: which parts read absent this cycle (the DC
-    /// link's power good, each encoder's signal, the four pressure samples). An encoder whose
-    /// signal comes back clears its decoder's fault: nothing was lost, and the position is not
-    /// homed yet anyway.
-    #[cold]
-    #[inline(never)]
-    fn watch_absent_parts(&mut self, inputs: &CycleInputs) {
-        let cal = self.config.pressure;
-        let p = &inputs.pressures;
-        let pressure_sensors = [p.chamber_a, p.chamber_b, p.suction, p.discharge]
-            .into_iter()
-            .all(|code| cal.convert(code).valid().is_some());
-        let signal = |d: &mut SinCosDecoder| {
-            let present = d.signal_seen() && !d.cause_present();
-            if present {
-                d.clear_fault();
-            }
-            present
-        };
-        let master_encoder = signal(&mut self.sensing.encoders.master);
-        let slave_encoder = signal(&mut self.sensing.encoders.slave);
-        self.readiness.observe(Presence {
-            dc_link: self.supply_good,
-            master_encoder,
-            slave_encoder,
-            pressure_sensors,
-        });
-    }
-
-    /// What the machine lacks to move and whether it has moved since reset
-    /// ([`crate::safety::readiness`]).
-    pub fn readiness(&self) -> &Readiness {
-        &self.readiness
     }
 
     /// The sections still in the allocation (a dropped one has capability 0).

@@ -205,34 +205,6 @@ impl PressureMonitor {
     }
 }
 
-/// The longest gap between two control cycles the decoders are caught up across, µs: 40
-/// periods ([`Sensing::catch_up`]'s limit). Longer, the core was halted (a debugger) or
-/// stalled, and the encoders may have moved a whole signal period unseen.
-pub const HALT_GAP_US: i32 = 40 * CONTROL_PERIOD_US as i32;
-
-impl ControlStep {
-    /// The core stopped for longer than [`HALT_GAP_US`] (a debugger halted it): the encoders
-    /// moved on unseen (at 4 m/s, 80 mm in 20 ms: three signal periods), so their decoders
-    /// and the differentiator start again as after a reset and the zero is lost; the piston
-    /// may be moving. [`Fault::CoreHalted`] latched: its brake waits for the first velocity,
-    /// then brakes on the measured velocity in the encoders' own frame (as after a watchdog
-    /// reset; `docs/firmware.md`, "A debugger halt in motion").
-    #[cold]
-    #[inline(never)]
-    pub(super) fn core_halted(&mut self) {
-        self.sensing.encoders = PerSection {
-            master: SinCosDecoder::new(self.config.encoder_master),
-            slave: SinCosDecoder::new(self.config.encoder_slave),
-        };
-        self.sensing.differentiator.reset();
-        self.sensing.zero_raw_m = None;
-        self.sensing.zero_slave_raw_m = 0.0;
-        self.sensing.lost_encoder = None;
-        self.sensing.slave_offset_counts = PositionCounts::ZERO;
-        self.latch(Fault::CoreHalted);
-    }
-}
-
 /// What the sense stage found in one cycle.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Sensed {
@@ -262,14 +234,11 @@ pub(super) struct Sensed {
 
 impl ControlStep {
     /// The deadline check: a gap of more than 1.5 periods since the last cycle means at
-    /// least one was missed (the decoders are caught up, the fault latched); a gap longer
-    /// than the catch-up bridges ([`HALT_GAP_US`]) means the core stopped (`core_halted`).
+    /// least one was missed (the decoders are caught up, the fault latched).
     pub(super) fn check_deadline(&mut self, t: Ticks) {
         if let Some(last) = self.sensing.last_t {
             let gap_us = t.since_us(last);
-            if gap_us > HALT_GAP_US {
-                self.core_halted();
-            } else if gap_us > (CONTROL_PERIOD_US * 3 / 2) as i32 {
+            if gap_us > (CONTROL_PERIOD_US * 3 / 2) as i32 {
                 self.latch(Fault::Deadline);
                 self.sensing.catch_up(gap_us, &self.config, &self.status);
             }
@@ -327,7 +296,7 @@ impl ControlStep {
         // Invalid pressure samples never reach the control law (the gas feed-forward above
         // falls back to zero); two in a row latch the fault (one glitch is tolerated).
         let chambers_valid = pa.valid().is_some() && pb.valid().is_some();
-        if self.sensing.pressures.count_invalid(chambers_valid) && self.readiness.energised() {
+        if self.sensing.pressures.count_invalid(chambers_valid) {
             self.latch(Fault::PressureSensor);
         }
         if self.running()
@@ -369,11 +338,6 @@ impl ControlStep {
         slave: &EncoderReading,
     ) -> (PositionCounts, PositionCounts) {
         let both = (master.position, slave.position);
-        // Never energised since reset: a missing signal is absent, not lost (the step
-        // reports it and refuses what would move; `safety::readiness`).
-        if !self.readiness.energised() {
-            return both;
-        }
         let failed = match (master.signal_fault, slave.signal_fault) {
             (true, true) => {
                 self.latch(Fault::EncoderSignal);

@@ -101,120 +101,8 @@ enum Action {
     #[command(after_help = SCOPE_HELP)]
     Scope(ScopeArgs),
     /// Write a firmware ELF to the board's flash, reset the core and detach, leaving the
-    /// firmware running (needs the `probe` feature). Refused while the machine moves: flashing
-    /// halts and resets the core (--force to do it anyway).
+    /// firmware running (needs the `probe` feature).
     Flash(FlashArgs),
-    /// Print what the machine is doing and what it waits for (the mode, the zero, the first
-    /// fault, the parts absent since reset), from one telemetry frame; writes nothing.
-    #[command(after_help = STATUS_HELP)]
-    Status(StatusArgs),
-    /// Read 32-bit words of the running board's memory or peripherals without halting it
-    /// (the debug registers at 0xE000_0000 and up are refused; needs the `probe` feature).
-    #[command(after_help = READ_HELP)]
-    Read(ReadArgs),
-}
-
-const READ_HELP: &str = "\
-Examples (the bring-up's register checks, docs/bring-up.md; `probe-rs read` would halt the core
-twice, on attach and on detach):
-    fpc-sim link read 0x40007080          PWR_CR5: 0x00000000 in boost mode
-    fpc-sim link read 0x40022000          FLASH_ACR
-    fpc-sim link read 0x40000824          TIM4_CNT, the servo encoder's count
-    fpc-sim link read ADDR 2              two words, e.g. STEP_CYCLES of the test-timing build";
-
-/// `fpc-sim link read`.
-#[derive(Args, Debug)]
-struct ReadArgs {
-    #[command(flatten)]
-    target: Target,
-    /// The first word's address (hex with 0x, or decimal), 4-byte aligned.
-    #[arg(value_name = "ADDR", value_parser = word_address)]
-    address: u32,
-    /// How many words.
-    #[arg(value_name = "COUNT", default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=256))]
-    count: u32,
-}
-
-/// `ADDR`: a 4-byte aligned address below 0xE000_0000, hex (0x…) or decimal.
-fn word_address(text: &str) -> Result<u32, String> {
-    let parsed = match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
-        Some(hex) => u32::from_str_radix(&hex.replace('_', ""), 16),
-        None => text.parse(),
-    };
-    let a = parsed.map_err(|_| format!("`{text}`: give an address, e.g. 0x40007080"))?;
-    if a % 4 != 0 {
-        return Err(format!("{a:#010x}: give a 4-byte aligned address"));
-    }
-    if a >= crate::link::debugport::FIRST_REFUSED {
-        return Err(format!(
-            "{a:#010x}: the core's debug and system registers (0xE000_0000 and up) are not read \
-             by the link: reading DHCSR or DEMCR is a debugger's business"
-        ));
-    }
-    Ok(a)
-}
-
-#[cfg(feature = "probe")]
-fn read(args: ReadArgs) -> CmdResult {
-    use crate::link::debugport::NonHalting;
-    use crate::link::memory::TargetMemory;
-    if args.target.replay.is_some() {
-        return Err(Failure::bad_input(
-            "--replay: a recording has no memory to read",
-        ));
-    }
-    let port = crate::link::probe::ProbeMemAp::open(&probe_options(&args.target))
-        .map_err(Failure::runtime)?;
-    let mut memory = NonHalting::attach(port).map_err(|e| Failure::runtime(e.to_string()))?;
-    let mut words = vec![0u32; args.count as usize];
-    memory
-        .read_words(u64::from(args.address), &mut words)
-        .map_err(|e| Failure::runtime(format!("read failed: {e}")))?;
-    for (i, w) in words.iter().enumerate() {
-        outln!("{:#010x}: {w:#010x}", args.address + 4 * i as u32)?;
-    }
-    Ok(())
-}
-
-#[cfg(not(feature = "probe"))]
-fn read(_args: ReadArgs) -> CmdResult {
-    Err(Failure::bad_input(
-        "this fpc-sim was built without the `probe` feature, so it cannot read a board's memory \
-         (rebuild: cargo install --path hal-sim --features probe)",
-    ))
-}
-
-const STATUS_HELP: &str = "\
-Example (a bare bench: the bridge supply off, nothing plugged in):
-    $ fpc-sim link status
-    mode idle, not homed, first fault none; waiting for: dc_link_off, master_encoder_absent, slave_encoder_absent, pressure_sensors_absent
-
-A part absent since reset, the outputs never on, is a state, not a fault: the machine waits
-(outputs off, servo at zero torque) and refuses home, start and calibrate with the reason
-until the part reads present (docs/faults.md, \"Waiting at boot\").";
-
-/// `fpc-sim link status`.
-#[derive(Args, Debug)]
-struct StatusArgs {
-    #[command(flatten)]
-    target: Target,
-    /// How long to wait for a telemetry frame, ms.
-    #[arg(long, value_name = "MS", default_value_t = 1000)]
-    timeout_ms: u64,
-}
-
-fn status(args: StatusArgs) -> CmdResult {
-    let wait = timeout(args.timeout_ms)?;
-    let mut channels = open(&args.target)?;
-    let frame = crate::link::session::latest_frame(&mut channels, wait)
-        .map_err(|e| Failure::runtime(format!("link failed: {e}")))?;
-    match frame {
-        Some(f) => outln!("{}", crate::link::session::status_text(&f)),
-        None => Err(Failure::runtime(format!(
-            "no telemetry frame within {} ms (telemetry off? fpc-sim link telemetry --rate 2000)",
-            args.timeout_ms
-        ))),
-    }
 }
 
 const CALIBRATION_HELP: &str = "\
@@ -519,9 +407,7 @@ pub fn main(args: LinkArgs) -> CmdResult {
         Action::Telemetry(a) => telemetry(a),
         Action::Ports(a) => ports(a),
         Action::Scope(a) => scope(a),
-        Action::Flash(a) => flash(&a.target, &a.image, a.force),
-        Action::Status(a) => status(a),
-        Action::Read(a) => read(a),
+        Action::Flash(a) => flash(&a.target, &a.image),
     }
 }
 

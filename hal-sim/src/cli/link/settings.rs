@@ -134,10 +134,6 @@ pub(super) struct FlashArgs {
     /// The firmware ELF (`cargo fw` builds target/thumbv7em-none-eabihf/release/fpc).
     #[arg(value_name = "ELF")]
     pub(super) image: PathBuf,
-    /// Flash even while the machine moves (flashing halts and resets the core: the force is
-    /// cut until the new firmware brakes the piston).
-    #[arg(long)]
-    pub(super) force: bool,
 }
 
 /// `fpc-sim link ports`.
@@ -279,23 +275,11 @@ pub(super) fn request(target: &Target, request: LinkRequest, timeout_ms: u64) ->
 }
 
 #[cfg(feature = "probe")]
-pub(super) fn flash(target: &Target, image: &Path, force: bool) -> CmdResult {
+pub(super) fn flash(target: &Target, image: &Path) -> CmdResult {
     if target.replay.is_some() {
         return Err(Failure::bad_input(
             "--replay: a recording cannot be flashed",
         ));
-    }
-    let opts = super::probe_options(target);
-    if !force {
-        // Looked at without halting; no RTT block found: no fpc firmware runs, nothing moves.
-        if let Ok(mut channels) = crate::link::probe::attach(&opts, None) {
-            let frame = crate::link::session::latest_frame(
-                &mut channels,
-                std::time::Duration::from_millis(500),
-            )
-            .map_err(|e| Failure::runtime(format!("link failed: {e}")))?;
-            crate::link::session::may_halt(frame.as_ref()).map_err(Failure::runtime)?;
-        }
     }
     let line = crate::link::probe::flash(&super::probe_options(target), image)
         .map_err(Failure::runtime)?;
@@ -303,7 +287,7 @@ pub(super) fn flash(target: &Target, image: &Path, force: bool) -> CmdResult {
 }
 
 #[cfg(not(feature = "probe"))]
-pub(super) fn flash(_target: &Target, _image: &Path, _force: bool) -> CmdResult {
+pub(super) fn flash(_target: &Target, _image: &Path) -> CmdResult {
     Err(Failure::bad_input(
         "this fpc-sim was built without the `probe` feature, so it cannot flash a board \
          (rebuild: cargo install --path hal-sim --features probe); or with probe-rs: \
