@@ -2,7 +2,6 @@
 //! operations, the watchdog's expiry), their interrupt lines into the NVIC, and the plant's
 //! step at the end of each PWM period.
 
-use super::output_stage::Bridge;
 use super::*;
 
 impl Soc {
