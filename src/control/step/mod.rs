@@ -313,9 +313,7 @@ impl ControlStep {
                 // The decoders copy their sin/cos correction when built.
                 self.sensing.encoders = PerSection {
                     master: SinCosDecoder::new(self.config.encoder_master),
-                    slave: SinCosDecoder::new(
-                        crate::control::calibration::encoder_map::slave_encoder(&self.config),
-                    ),
+                    slave: SinCosDecoder::new(self.config.encoder_slave),
                 };
                 self.calibration.calibrated = record.calibrated;
                 self.calibration.status = record.status();

@@ -329,7 +329,6 @@ enum RoutineArg {
     Alignment,
     Misalignment,
     Cogging,
-    EncoderMap,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -381,7 +380,6 @@ impl CommandArg {
                     RoutineArg::Alignment => Routine::Alignment,
                     RoutineArg::Misalignment => Routine::Misalignment,
                     RoutineArg::Cogging => Routine::Cogging,
-                    RoutineArg::EncoderMap => Routine::EncoderMap,
                 },
             },
             CommandArg::SetParameter { name, value } => Command::SetParameter {
