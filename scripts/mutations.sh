@@ -58,6 +58,9 @@ mutation log-ranges-dropped hal-sim/src/runlog.rs \
 mutation example-model-out-of-range docs/examples/model.toml \
     'mass_kg = 12.0 ' 'mass_kg = 1.0e4' \
     -p hal-sim --test model_values_are_refused_outside_their_range every_model
+mutation encoder-error-limit-130 src/sensing/encoder.rs \
+    'error_limit: 80,' 'error_limit: 130,' \
+    --test encoder_signal_faults_are_caught a_burst_latches_at_its_second_or_third
 mutation bad-input-exits-1 hal-sim/src/failure.rs \
     'code: 2,' 'code: 1,' \
     --test fpc_sim_survives_hostile_input every_subcommand_survives_hostile_input
