@@ -1,4 +1,4 @@
-//! Faults on the real binary (`docs/faults.md`, issue #28 C): each scenario boots the release ELF
+//! Faults on the real binary (`docs/faults.md`): each scenario boots the release ELF
 //! on the reference machine with a calibration in its flash, injects one fault in the
 //! emulated hardware, and reports what the firmware did — resets, its defmt log, what the
 //! host saw over telemetry, the head clearance.

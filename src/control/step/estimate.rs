@@ -68,7 +68,7 @@ impl Estimator {
         self.stop_n
     }
 
-    /// The running strokes' disturbance observer (issue #15): the force on the piston that
+    /// The running strokes' disturbance observer: the force on the piston that
     /// the model does not explain — an external load, the model's mass or gas-force error —
     /// N, toward +x, within ±`limit`.
     ///

@@ -283,7 +283,7 @@ impl ControlStep {
     /// section 210 m/s²). As a compressor the chamber ahead is a gas spring that helps; as
     /// an expander it exhausts near the dead point and the sections brake the piston alone,
     /// on the envelope's edge: a section lost there, or a control task hung there for the
-    /// watchdog's 5 ms, leaves the piston past what `a_brake` stops (issue #33).
+    /// watchdog's 5 ms, leaves the piston past what `a_brake` stops.
     pub(super) fn stop_deceleration(&self, position_m: f32, velocity_mps: f32) -> f32 {
         let c = &self.config.supervisor;
         let cap = self.config.allocation.capability;

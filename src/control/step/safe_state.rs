@@ -82,7 +82,7 @@ fn time_in_window(
 /// them, [`SavitzkyGolay::restart_on_line`](crate::sensing::differentiator::SavitzkyGolay::restart_on_line)),
 /// the outputs off meanwhile: 0.25 ms after the first sample instead of the differentiator's
 /// full window (25 samples and 5 to settle, 1.5 ms), which an expander braking into a dead
-/// point alone cannot spare (issue #33). Its noise with the encoders' σ ≈ 1 µm: ≈ 5 mm/s
+/// point alone cannot spare. Its noise with the encoders' σ ≈ 1 µm: ≈ 5 mm/s
 /// (0.24·σ/T), and under the gas's push with the outputs off (≤ 2.5 kN on 12 kg) a lag of
 /// ≤ 26 mm/s; the controlled stop's loop takes over from there.
 pub const RESET_FIT_SAMPLES: usize = 6;
@@ -225,7 +225,7 @@ impl ControlStep {
         None
     }
 
-    /// Both encoders lost (issue #15, `docs/faults.md` #22): nothing tells where the piston is,
+    /// Both encoders lost (`docs/faults.md` #22): nothing tells where the piston is,
     /// so nothing can commutate a braking force. The reaction, chosen by simulation over the
     /// whole stroke cycle (`tests/losing_both_encoders_brakes_without_position.rs`):
     ///
@@ -366,7 +366,7 @@ impl ControlStep {
                     // of about half a revolution is otherwise taken the other way once the
                     // coast has made that way the shorter (a backward turn of 179.9°
                     // applied forward: across the admission the turn was chosen to avoid,
-                    // −0.25 mm, issue #33). A short turn goes the shorter way, so a coast
+                    // −0.25 mm). A short turn goes the shorter way, so a coast
                     // past a target close by comes back to it.
                     let now = turn_phase(self.rotary.reference_rad);
                     let mut turn = turn_phase(self.safe.hold_quiet_s - now + PI) - PI;
@@ -383,7 +383,7 @@ impl ControlStep {
         }
     }
 
-    /// SS1's rest turn (issue #33): before the outputs go off, the rotation — the piston
+    /// SS1's rest turn: before the outputs go off, the rotation — the piston
     /// held at rest by the sections — turns to the phase where the chamber between the
     /// piston and the nearer head has just been vented to its intake and sealed, and the
     /// other chamber is open to its intake. Returns whether the rotation is there (the hold
@@ -415,9 +415,9 @@ impl ControlStep {
     /// distance nor the rotation's phase is known, so no turn can be chosen and nothing
     /// says the gas will leave the piston still once the outputs are off: the hold
     /// continues (never `true`) until the faults are cleared. Released on the force
-    /// criterion, a piston stopped 0.3 mm from head B as an expander (seed 6165, PR 3.7)
-    /// crept into it at 0.5 mm/s, its far chamber's pressure rising 6 kPa above the near
-    /// one's.
+    /// criterion, a piston stopped 0.3 mm from head B as an expander (`docs/firmware.md`, "The
+    /// fault sweep") crept into it at 0.5 mm/s, its far chamber's pressure rising 6 kPa above the
+    /// near one's.
     #[cold]
     #[inline(never)]
     pub(super) fn turn_to_rest(&mut self, dt: f32) -> bool {
@@ -518,15 +518,14 @@ impl ControlStep {
     /// where the piston is. Out of line, in place of the observer's own call: a guarded arm
     /// in the mode machine cost the running step 10 instructions.
     ///
-    /// Why (issue #33): after the reset the sections' force rises from zero at the windings'
+    /// Why: after the reset the sections' force rises from zero at the windings'
     /// slew (`V_dc/√3 / L · K_f`, ≈ 215 N per cycle per section), while a stop planned on
-    /// the full deceleration is over within a few cycles: at a dead point as an expander
-    /// (seed 6165, 0.21 m/s, 0.4 mm from the head) the planned reference had ended at
-    /// 1.3 kN per section with the piston still at full speed, and the hold that followed
-    /// (a 40 Hz position loop, ≈ 0.6 kN at 0.12 m/s) let it creep a further 0.12 mm. Here
-    /// the setpoint follows the measured position and velocity (no feedback to fight) with
-    /// the stop's full deceleration as feed-forward, so the force keeps rising until the
-    /// piston has stopped.
+    /// the full deceleration is over within a few cycles: at a dead point as an expander (0.21 m/s,
+    /// 0.4 mm from the head; `docs/firmware.md`, "The fault sweep") the planned reference had ended
+    /// at 1.3 kN per section with the piston still at full speed, and the hold that followed (a
+    /// 40 Hz position loop, ≈ 0.6 kN at 0.12 m/s) let it creep a further 0.12 mm. Here the setpoint
+    /// follows the measured position and velocity (no feedback to fight) with the stop's full
+    /// deceleration as feed-forward, so the force keeps rising until the piston has stopped.
     ///
     /// When it ends: the force, once no longer commanded, falls at the same slew, and
     /// meanwhile still brakes: each section's `Fᵢ` takes `Fᵢ²/(2·slew)` of momentum more.
