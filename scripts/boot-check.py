@@ -111,7 +111,9 @@ RESET_VALUES = {
     PWR + 0x08: 0x0000_8000,  # CR3
     PWR + 0x80: 0x0000_0100,  # CR5: R1MODE = 1 (range-1 normal mode)
     FLASH_R + 0x00: 0x0000_0600,
-    FLASH_R + 0x20: 0xFFEF_F8AA,  # OPTR as shipped: DBANK = 1 (the boot checks it)
+    # OPTR as bring-up step 0 leaves it: the factory's (DBANK = 1) with BOR_LEV = 2 (the boot
+    # checks both).
+    FLASH_R + 0x20: 0xFFEF_FAAA,
     GPIOA + 0x00: 0xABFF_FFFF,
     GPIOB + 0x00: 0xFFFF_FEBF,
     ADC1 + 0x08: 0x2000_0000,  # CR: DEEPPWD
@@ -541,8 +543,11 @@ def checks():
     c.append(check_value("TIM1 MMS2 = OC4REF (CR2.MMS2 = 7)", TIM1 + 0x04, 0x00F0_0000,
                          lambda v: field(v, 20, 4) == 7, lambda v: f"MMS2 {field(v, 20, 4)}"))
     for tim, name in ((TIM1, "TIM1"), (TIM8, "TIM8")):
-        c.append(check_value(f"{name} BDTR = 0x0C55 (DTG 85 = 500 ns, OSSI, OSSR, MOE 0)",
-                             tim + 0x44, 0xFFFF, lambda v: v == 0x0C55, lambda v: f"BDTR {v:#06x}"))
+        # docs/firmware.md, "The hardware over-current trip" and "Locks".
+        c.append(check_value(f"{name} BDTR = 0x33F55 (DTG 85 = 500 ns, LOCK 3, OSSI, OSSR, BKE, "
+                             "BKP high, BKF 3 = 47 ns, AOE 0, MOE 0, break 2 off)",
+                             tim + 0x44, 0x3FFF_FFFF, lambda v: v == 0x0003_3F55,
+                             lambda v: f"BDTR {v:#07x}"))
         c.append(check_value(f"{name} CCER = 0x555 (CH1-3 and CH1N-3N enabled)", tim + 0x20, 0x0FFF,
                              lambda v: v & 0xFFFF == 0x555, lambda v: f"CCER {v:#05x}"))
 

@@ -89,6 +89,17 @@ pub trait PwmOutput {
     /// section taken out of service (overcurrent, its encoder lost) stops switching while
     /// the other one drives.
     fn enable(&mut self, sections: PerSection<bool>);
+    /// Which sections' hardware over-current trip has switched their outputs off (latched by
+    /// the hardware until [`PwmOutput::rearm`]). A board without such a trip never reports
+    /// one.
+    fn tripped(&mut self) -> PerSection<bool> {
+        PerSection::default()
+    }
+    /// Re-arms the hardware over-current trip of the sections marked `true` (after
+    /// `ClearFaults`); a trip whose cause persists latches again at once.
+    fn rearm(&mut self, sections: PerSection<bool>) {
+        let _ = sections;
+    }
 }
 
 /// The servo's quadrature counter (hardware 16-bit, wrapping).

@@ -119,6 +119,14 @@ pub fn control_cycle<M, T, E, C, P, Q, S, R>(
     serve_commands(step, shared);
     // The supervision task's last look at the power-good input (one load and a branch).
     step.supply(shared.supply_good());
+    // The bridges' hardware over-current trip, before anything may switch them on again.
+    let tripped = ports.pwm.tripped();
+    if tripped.master || tripped.slave || step.trip_latched() {
+        let rearm = step.hardware_trip(tripped);
+        if rearm.master || rearm.slave {
+            ports.pwm.rearm(rearm);
+        }
+    }
     let inputs = CycleInputs {
         t,
         encoders: ports.encoders.read(),

@@ -17,11 +17,13 @@ fn fpc_sim(args: &[&str]) -> u8 {
     execute(std::iter::once("fpc-sim").chain(args.iter().copied()))
 }
 
-fn tmp(name: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("fpc-bench-tools-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A scratch directory of its own (tests run concurrently, from several checkouts), removed
+/// when the test ends, pass or fail.
+fn tmp(prefix: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("fpc-{prefix}-"))
+        .tempdir()
+        .expect("scratch directory")
 }
 
 fn s(p: &Path) -> &str {
@@ -40,6 +42,7 @@ fn a_recorded_session_goes_through_capture_decode_and_gap_with_no_edits() {
         },
     );
     let dir = tmp("session");
+    let dir = dir.path();
     let rec = dir.join("rec");
     std::fs::create_dir_all(&rec).unwrap();
     for (i, bytes) in c.raw.iter().enumerate() {
@@ -113,12 +116,12 @@ fn a_recorded_session_goes_through_capture_decode_and_gap_with_no_edits() {
         fpc_sim(&["link", "ports", "sealed", "--replay", s(&rec)]),
         1
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn bad_requests_and_another_firmwares_capture_are_refused_naming_what_is_wrong() {
     let dir = tmp("bad");
+    let dir = dir.path();
     let rec = dir.join("rec");
     std::fs::create_dir_all(&rec).unwrap();
     std::fs::write(rec.join("up2.bin"), [0u8; 4]).unwrap();
@@ -162,7 +165,6 @@ fn bad_requests_and_another_firmwares_capture_are_refused_naming_what_is_wrong()
         2
     );
     assert!(!out.exists());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Records a bench session on the simulated board (a 0.75 ms slave lag hidden in the plant)
@@ -173,9 +175,10 @@ fn bad_requests_and_another_firmwares_capture_are_refused_naming_what_is_wrong()
 #[ignore = "slow: records a bench session (to FPC_BENCH_DIR, if set)"]
 fn write_a_bench_session() {
     let keep = std::env::var_os("FPC_BENCH_DIR");
+    let scratch = tmp("session");
     let dir = match &keep {
         Some(d) => Path::new(d).to_path_buf(),
-        None => tmp("session"),
+        None => scratch.path().to_path_buf(),
     };
     let truth = format!("{}\n[effects.slave_lag]\ndelay_s = 0.00075\n", reference());
     let c = bench(

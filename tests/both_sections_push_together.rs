@@ -1,9 +1,10 @@
 //! Both motor sections push together: with this board commutating both from one force
 //! command per cycle, the sections' true forces (the plant's) differ by ≤ 1 % RMS of the
 //! force during 4 m/s strokes — on a machine whose misalignment and current-sense offsets
-//! were calibrated, not given. The published rig's case is reproduced for contrast: the
+//! were calibrated, not given. The published rig's case is set up for contrast: the
 //! slave's drive following the master's force setpoint 0.75 ms late
-//! (`[motor] slave_follows_master = true` with `[effects.slave_lag]` 0.75 ms) gives the paper's lag and its force difference,
+//! (`[motor] slave_follows_master = true` with `[effects.slave_lag]` 0.75 ms, planted: the
+//! lag measured back is a read-back of it) and the force difference that follows from it,
 //! largest where the force changes fastest.
 
 mod support;
@@ -108,7 +109,7 @@ fn stroke(
 }
 
 #[test]
-fn the_paper_s_following_slave_lags_and_the_forces_part_at_high_force_rates() {
+fn the_planted_slave_lag_reads_back_and_parts_the_forces_at_high_force_rates() {
     // The published rig: PR 5.1 at 4.1 m/s (Fig. 3), where the gas forces are largest.
     let mut model = MachineModel::reference();
     model.motor.slave_follows_master = true;

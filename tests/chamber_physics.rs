@@ -1,6 +1,8 @@
 //! The chambers' thermodynamics, checked against the laws they must obey: the adiabat of a
 //! closed chamber, the first law over a lossless compressor cycle, the leak-down of a held
-//! pressure, and p–V loops of the shape of the paper's Fig. 3 at its four pressure ratios.
+//! pressure against a model written here from the Hagen–Poiseuille flow through an annulus
+//! (not the plant's leak law), and p–V loops of the shape of the paper's Fig. 3 at its four
+//! pressure ratios.
 //! The plant is driven kinematically (prescribed position and rotation), so these checks do
 //! not depend on the controller.
 
@@ -124,12 +126,118 @@ fn the_energy_balance_of_a_lossless_cycle_closes() {
     }
 }
 
+/// Laminar mass flow of an ideal gas through a concentric annulus, kg/s, from side 1 at `p1`
+/// to side 2 at `p2`, Pa, at the upstream temperature `t_k`: the Hagen–Poiseuille solution
+/// for an annulus between radii `r_i` and `r_o` (White, *Viscous Fluid Flow*, Eq. 3-52),
+/// `Q = π·Δp/(8·μ·L)·[r_o⁴ − r_i⁴ − (r_o² − r_i²)²/ln(r_o/r_i)]`, made compressible by
+/// integrating along the seal at constant temperature (`ρ·Q` constant, `p·dp` ∝ dx):
+/// `ṁ = π/(16·μ·L·R·T)·[…]·(p1² − p2²)`. Written from the textbook, not from the plant's law.
+#[allow(clippy::too_many_arguments)]
+fn annulus_flow_kg_s(
+    r_i: f64,
+    r_o: f64,
+    seal_m: f64,
+    viscosity: f64,
+    gas_constant: f64,
+    p1: f64,
+    p2: f64,
+    t_k: f64,
+) -> f64 {
+    let bracket = r_o.powi(4) - r_i.powi(4) - (r_o * r_o - r_i * r_i).powi(2) / (r_o / r_i).ln();
+    std::f64::consts::PI / (16.0 * viscosity * seal_m * gas_constant * t_k)
+        * bracket
+        * (p1 * p1 - p2 * p2)
+}
+
+/// The held chambers leaking, written here apart from the plant: each chamber a fixed volume
+/// of ideal gas (mass and pressure; no heat to the walls), the piston seal between them and
+/// a rod seal from each to ambient as annuli ([`annulus_flow_kg_s`]: the seal's clearance
+/// outside the rod or piston diameter), the energy equation `dp/dt = γ·R/V·(T_in·ṁ_in −
+/// T·ṁ_out)`, integrated with classical RK4. Returns the time, s, at which chamber A's gauge
+/// pressure has halved, and A's initial rate of change, Pa/s.
+fn independent_leak_down(
+    model: &MachineModel,
+    x_hold_m: f64,
+    (p_a, t_a): (f64, f64),
+    (p_b, t_b): (f64, f64),
+) -> (f64, f64) {
+    let piston = &model.piston;
+    let gas = &model.gas;
+    let leak = model.effects.leakage.as_ref().expect("the model leaks");
+    let (r, gamma, mu) = (gas.gas_constant_j_per_kg_k, gas.gamma, gas.viscosity_pa_s);
+    let (p0, t0) = (gas.ambient_pa, 293.15);
+    // A through-rod piston: both chambers of the annulus area between bore and rod.
+    let area = std::f64::consts::PI / 4.0 * (piston.bore_m.powi(2) - piston.rod_m.powi(2));
+    let v_a = area * (x_hold_m + piston.dead_length_a_m);
+    let v_b = area * (piston.travel_m - x_hold_m + piston.dead_length_b_m);
+    let seal = |radius: f64, gap: f64, length: f64, p1: f64, t1: f64, p2: f64, t2: f64| {
+        let t_up = if p1 >= p2 { t1 } else { t2 };
+        annulus_flow_kg_s(radius, radius + gap, length, mu, r, p1, p2, t_up)
+    };
+    let rod_r = 0.5 * piston.rod_m;
+    let bore_r = 0.5 * piston.bore_m;
+    // State: (p_a, m_a, p_b, m_b); temperatures from the ideal gas law.
+    let rate = |s: [f64; 4]| -> [f64; 4] {
+        let [pa, ma, pb, mb] = s;
+        let (ta, tb) = (pa * v_a / (ma * r), pb * v_b / (mb * r));
+        let ab = seal(bore_r, leak.gap_m, leak.seal_length_m, pa, ta, pb, tb);
+        let a0 = seal(
+            rod_r,
+            leak.rod_gap_m,
+            leak.rod_seal_length_m,
+            pa,
+            ta,
+            p0,
+            t0,
+        );
+        let b0 = seal(
+            rod_r,
+            leak.rod_gap_m,
+            leak.rod_seal_length_m,
+            pb,
+            tb,
+            p0,
+            t0,
+        );
+        // Enthalpy flux of each flow at its upstream temperature, out of the chamber.
+        let out =
+            |m: f64, t_here: f64, t_there: f64| if m > 0.0 { m * t_here } else { m * t_there };
+        let (h_ab, h_a0, h_b0) = (out(ab, ta, tb), out(a0, ta, t0), out(b0, tb, t0));
+        [
+            -gamma * r / v_a * (h_ab + h_a0),
+            -(ab + a0),
+            gamma * r / v_b * (h_ab - h_b0),
+            ab - b0,
+        ]
+    };
+    let mut s = [p_a, p_a * v_a / (r * t_a), p_b, p_b * v_b / (r * t_b)];
+    let initial_rate = rate(s)[0];
+    let gauge0 = p_a - p0;
+    let h = 1e-4;
+    let mut t = 0.0;
+    while s[0] - p0 > 0.5 * gauge0 {
+        let k1 = rate(s);
+        let at = |k: [f64; 4], f: f64| std::array::from_fn(|i| s[i] + f * h * k[i]);
+        let k2 = rate(at(k1, 0.5));
+        let k3 = rate(at(k2, 0.5));
+        let k4 = rate(at(k3, 1.0));
+        let before = s[0];
+        s = std::array::from_fn(|i| s[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]));
+        t += h;
+        if s[0] - p0 <= 0.5 * gauge0 {
+            // Linear between the last two steps.
+            t -= h * (0.5 * gauge0 - (s[0] - p0)) / (before - s[0]);
+        }
+        assert!(t < 1000.0, "the independent model does not leak down");
+    }
+    (t, initial_rate)
+}
+
 #[test]
-fn a_leak_makes_a_held_pressure_decay_with_the_right_sign_and_scale() {
-    // The reference clearance leaks, and nothing else that moves the pressure.
+fn a_held_pressure_leaks_down_as_the_annulus_flow_law_predicts() {
+    // The reference clearances leak, and nothing else that moves the pressure.
     let mut model = lossless();
     model.effects.leakage = MachineModel::reference().effects.leakage;
-    let gas = model.gas_properties();
     let mut p = plant(&model, 0.2, PortMode::Closed);
     // The paper's closed-port test: accelerate, stop at a position, hold.
     let x_hold = 0.055;
@@ -139,63 +247,52 @@ fn a_leak_makes_a_held_pressure_decay_with_the_right_sign_and_scale() {
         p.advance_kinematic(0.2 + (x_hold - 0.2) * s, 0.0, DT_S);
     }
     let (a0, b0) = (p.chambers.a, p.chambers.b);
-    let leaks = model.leaks();
-    let (piston, rod) = (leaks.0.unwrap(), leaks.1.unwrap());
-    let predicted_kg_s = piston
-        .flow_between(
-            &gas,
-            a0.pressure_pa,
-            a0.temperature_k,
-            b0.pressure_pa,
-            b0.temperature_k,
-        )
-        .mass_kg_per_s
-        + rod
-            .flow_between(
-                &gas,
-                a0.pressure_pa,
-                a0.temperature_k,
-                model.gas.ambient_pa,
-                293.15,
-            )
-            .mass_kg_per_s;
-    // Adiabatic outflow: dp/dt = −γ·R·T/V·ṁ.
-    let predicted_rate =
-        -gas.gamma * gas.gas_constant_j_per_kg_k * a0.temperature_k / a0.volume_m3 * predicted_kg_s;
+    let (expected_half_s, expected_rate) = independent_leak_down(
+        &model,
+        x_hold,
+        (a0.pressure_pa, a0.temperature_k),
+        (b0.pressure_pa, b0.temperature_k),
+    );
     p.advance_kinematic(x_hold, 0.0, DT_S);
     let measured_rate = (p.chambers.a.pressure_pa - a0.pressure_pa) / DT_S;
     let gauge0 = a0.pressure_pa - model.gas.ambient_pa;
     let mut half_s = None;
     let mut last_a = p.chambers.a.pressure_pa;
     let mut last_b = p.chambers.b.pressure_pa;
-    for k in 1..=200_000 {
+    for k in 1..=400_000 {
         p.advance_kinematic(x_hold, 0.0, DT_S);
         let (pa, pb) = (p.chambers.a.pressure_pa, p.chambers.b.pressure_pa);
         assert!(pa <= last_a + 1e-9, "A must only lose pressure");
         assert!(pb >= last_b - 1e-9 || pb > pa - 1.0, "B gains from A");
         (last_a, last_b) = (pa, pb);
-        if half_s.is_none() && pa - model.gas.ambient_pa < 0.5 * gauge0 {
-            half_s = Some(k as f64 * DT_S);
+        if pa - model.gas.ambient_pa < 0.5 * gauge0 {
+            half_s = Some((k + 1) as f64 * DT_S);
             break;
         }
     }
+    let half_s = half_s.expect("the gauge pressure halves within 20 s");
     println!(
-        "held at {:.1} bar: initial decay {:.3} bar/s (laminar-annulus law: {:.3} bar/s), gauge pressure halves in {:.2} s",
+        "held at {:.1} bar: initial decay {:.3} bar/s (annulus flow law: {:.3} bar/s), gauge \
+         pressure halves in {half_s:.3} s (annulus flow law: {expected_half_s:.3} s)",
         a0.pressure_pa / 1e5,
         measured_rate / 1e5,
-        predicted_rate / 1e5,
-        half_s.unwrap_or(f64::NAN)
+        expected_rate / 1e5,
     );
     assert!(
         a0.pressure_pa > 3e5 && a0.pressure_pa < 8e5,
         "the paper's 3–7 bar"
     );
+    // The plant's narrow-gap law differs from the annulus solution by O(h/D) ≈ 1e-3, its
+    // integration by less (0.03 % and 0.01 % measured): margins 1 % on the rate and the
+    // half-life. A leak twice too strong halves the half-life.
     assert!(measured_rate < 0.0);
-    assert!((measured_rate / predicted_rate - 1.0).abs() < 0.02);
-    // Seconds, as in the paper's leak-down, not milliseconds or hours.
     assert!(
-        half_s.is_some_and(|t| (0.2..10.0).contains(&t)),
-        "{half_s:?}"
+        (measured_rate / expected_rate - 1.0).abs() < 0.01,
+        "{measured_rate} Pa/s against {expected_rate} Pa/s"
+    );
+    assert!(
+        (half_s / expected_half_s - 1.0).abs() < 0.01,
+        "{half_s} s against {expected_half_s} s"
     );
 }
 
@@ -232,7 +329,8 @@ fn p_v_loops_have_the_shape_of_the_papers_fig_3() {
         svg.push((pr, f.loop_pv));
     }
     // For the eye: the four loops as in Fig. 3.
-    let path = std::env::temp_dir().join("fpc_fig3_pv.svg");
+    // In this checkout's own scratch directory (not /tmp, which every checkout shares).
+    let path = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("fpc_fig3_pv.svg");
     let series: Vec<(String, Vec<f64>, Vec<f64>)> = svg
         .iter()
         .map(|(pr, l)| {

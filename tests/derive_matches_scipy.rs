@@ -72,8 +72,8 @@ fn derive_matches_scipy_on_every_row() {
 
 #[test]
 fn bad_input_is_refused_with_exit_2_naming_where() {
-    let dir = std::env::temp_dir().join(format!("fpc-derive-test-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
+    let scratch = tempfile::tempdir().expect("scratch directory");
+    let dir = scratch.path();
     let good = std::fs::read_to_string(data("run.csv")).expect("run.csv");
     // Text in a number on the 10th data row (file line 13: two metadata lines, the header).
     let mut lines: Vec<&str> = good.lines().collect();
@@ -86,6 +86,9 @@ fn bad_input_is_refused_with_exit_2_naming_where() {
         window,
         order: None,
         lag: None,
+        out: None,
+        json: false,
+        force: false,
     };
     let e = main(args(bad.clone(), None)).unwrap_err();
     assert_eq!(e.code, 2);
@@ -101,5 +104,4 @@ fn bad_input_is_refused_with_exit_2_naming_where() {
     assert_eq!(e.code, 2);
     assert!(e.message.contains("--window 8"), "{}", e.message);
     assert!(main(args(data("run.csv"), Some(21))).is_ok());
-    let _ = std::fs::remove_dir_all(&dir);
 }

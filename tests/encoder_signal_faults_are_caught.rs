@@ -131,7 +131,7 @@ fn a_single_phase_glitch_is_rejected_without_a_fault() {
 }
 
 #[test]
-fn a_burst_of_corrupt_samples_latches_within_20_samples() {
+fn a_burst_latches_at_its_second_or_third_corrupt_sample_and_one_in_ten_within_20() {
     // 10 % of the samples replaced by random codes, for 20 ms (400 samples), many seeds.
     let mut latency = Vec::new();
     for seed in 0..200 {
@@ -142,7 +142,8 @@ fn a_burst_of_corrupt_samples_latches_within_20_samples() {
         for k in 0..400 {
             let mut codes = encoder_codes(x, PERIOD_M, &ideal(), NOISE, &mut rng);
             // Every tenth sample on average, at random; the first of the burst is corrupt.
-            if k == 0 || rng.uniform() < 0.1 {
+            let corrupted = k == 0 || rng.uniform() < 0.1;
+            if corrupted {
                 codes = SinCosCodes {
                     sin: AdcCode((rng.next_u64() % 4096) as u16),
                     cos: AdcCode((rng.next_u64() % 4096) as u16),
@@ -150,6 +151,18 @@ fn a_burst_of_corrupt_samples_latches_within_20_samples() {
                 corrupt += 1;
             }
             if dec.update(codes).signal_fault {
+                // The fault is latched on a corrupt sample, the burst's second or third:
+                // one corrupt sample is a glitch (#3), and a random code that happens to
+                // lie on the circle may pass as one more.
+                assert!(
+                    corrupted,
+                    "seed {seed}: latched on a clean sample {}",
+                    k + 1
+                );
+                assert!(
+                    (2..=3).contains(&corrupt),
+                    "seed {seed}: latched at corrupt sample {corrupt}"
+                );
                 latched = Some((k + 1, corrupt));
                 break;
             }
@@ -166,11 +179,11 @@ fn a_burst_of_corrupt_samples_latches_within_20_samples() {
         "10 % burst over 200 seeds: latched after median {median}, worst {worst} samples; \
          ≤ 20 samples in {within_20}/200; at most {worst_corrupt} corrupt samples seen"
     );
-    // The filter trips on two bad samples within 48 (one glitch never does): a burst
-    // latches at its second corrupt sample, rarely its third; within 20 samples of its start
-    // whenever the second corrupt sample comes that soon (1 − 0.9¹⁹ = 86 % of random bursts).
+    // The filter trips on two bad samples within 48 (one glitch never does): every burst
+    // latched at its second corrupt sample, or its third (asserted per burst above); so
+    // within 20 samples of its start whenever those come that soon (1 − 0.9¹⁹ = 86 % of
+    // random bursts: the figure printed is the seeds', not a bound).
     assert!(worst_corrupt <= 3);
-    assert!(within_20 >= 160);
     // Evenly spread, every tenth sample: latched at the second corrupt one, sample 11.
     let mut rng = Rng::new(7);
     let (mut dec, mut x) = running(0.05, 2.0, &mut rng);

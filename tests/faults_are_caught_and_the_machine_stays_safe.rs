@@ -85,12 +85,32 @@ fn instants() -> &'static Instants {
             .find(|p| p.1 < 0.0 && p.0 > toward_b_s)
             .map(|p| p.0)
             .unwrap();
-        println!("full speed toward head B at {toward_b_s} s, toward head A at {toward_a_s} s");
+        println!(
+            "as {}: full speed toward head B at {toward_b_s} s, toward head A at {toward_a_s} s",
+            if as_expander() {
+                "an expander"
+            } else {
+                "a compressor"
+            }
+        );
         Instants {
             toward_b_s,
             toward_a_s,
         }
     })
+}
+
+/// Whether the scenarios run as an expander: `FPC_FAULT_ROTATION=expander` (CI runs both);
+/// any other value is refused, so that a misspelt mode cannot run the compressor twice.
+fn as_expander() -> bool {
+    match std::env::var("FPC_FAULT_ROTATION") {
+        Err(_) => false,
+        Ok(r) => match r.trim() {
+            "expander" => true,
+            "compressor" => false,
+            other => panic!("FPC_FAULT_ROTATION={other}: expander or compressor"),
+        },
+    }
 }
 
 /// The run at [`PR`]; as an expander from the first stroke with `FPC_FAULT_ROTATION=expander`
@@ -100,7 +120,7 @@ fn options(cycles: u32, faults: Vec<hal_sim::faults::inject::FaultSpec>) -> RunO
     o.pressure_ratio = PR;
     o.cycles = cycles;
     o.faults = faults;
-    if std::env::var("FPC_FAULT_ROTATION").is_ok_and(|r| r.trim() == "expander") {
+    if as_expander() {
         o.schedule = vec![(
             0,
             HostAction::Command(Command::SetRotation {
@@ -241,10 +261,12 @@ fn s03_a_single_phase_glitch_is_rejected_without_a_fault() {
 }
 
 #[test]
-fn s04_a_noise_burst_latches_the_encoder_fault() {
+fn s04_a_noise_burst_latches_the_encoder_fault_at_its_second_or_third_corrupt_sample() {
     // The error-rate filter trips at the burst's second corrupt sample (one glitch must not
-    // fault, #3): with 10 % of samples corrupt at random that is within 20 samples in ~86 %
-    // of bursts (1 − 0.9¹⁹), not always — the figure measured here is printed.
+    // fault, #3), or its third when a random code happens to pass as a reading: asserted
+    // for every run against the samples the board corrupted. With 10 % of samples corrupt at
+    // random that is within 20 samples in ~86 % of bursts (1 − 0.9¹⁹); one in ten, evenly,
+    // always (`tests/encoder_signal_faults_are_caught.rs`).
     let mut samples = Vec::new();
     for seed in 0..8u64 {
         let i = instants();
@@ -256,7 +278,14 @@ fn s04_a_noise_burst_latches_the_encoder_fault() {
         report(4, &spec, &r);
         assert_eq!(first_fault(&r), Fault::EncoderSignal, "{spec}");
         assert!(clear(&r) >= MIN_CLEARANCE_M, "{spec}");
-        samples.push(r.samples_to_fault().unwrap());
+        let n = r.samples_to_fault().unwrap();
+        let corrupted = &r.burst_corrupted;
+        println!("   corrupted samples {corrupted:?}");
+        assert!(
+            corrupted.get(1..3).is_some_and(|c| c.contains(&(n as u32))),
+            "{spec}: latched at sample {n}, not the second or third corrupt one of {corrupted:?}"
+        );
+        samples.push(n);
     }
     samples.sort_unstable();
     let within = samples.iter().filter(|&&n| n <= 20).count();
@@ -265,7 +294,6 @@ fn s04_a_noise_burst_latches_the_encoder_fault() {
         samples,
         samples.len()
     );
-    assert!(samples[samples.len() / 2] <= 20, "median within 20 samples");
 }
 
 #[test]
@@ -334,12 +362,30 @@ fn s08_a_blocked_rotation_is_caught_within_5_ms_and_the_axis_stops() {
 
 #[test]
 fn s09_a_vented_chamber_never_costs_the_clearance() {
-    // The strokes go on (the trajectory and the envelope do not rely on the gas); the
-    // chamber's flat pressure is then found implausible and the machine stops.
+    // The strokes go on (the trajectory and the envelope do not rely on the gas): the
+    // stroke adapts and keeps its own target clearance, or the chamber's flat pressure is
+    // found implausible (or the following error trips) and the machine stops under control
+    // (#9: "following_error or stroke adapts"). Either way the piston keeps the 1 mm the
+    // strokes aim at, less 0.1 mm (0.984 and 0.986 mm measured), not only the 0.3 mm limit.
+    let target_m = f64::from(control_config(&MachineModel::reference()).target_clearance_m);
     for spec in ["gas_loss@{b}", "gas_loss@{a}:chamber=b"] {
         let r = inject(spec).injection;
         report(9, spec, &r);
-        assert!(clear(&r) >= MIN_CLEARANCE_M, "{spec}");
+        match r.first_fault_after_onset() {
+            None => assert_eq!(
+                r.final_mode,
+                Some(ModeKind::Running),
+                "{spec}: no fault, so the strokes must go on"
+            ),
+            Some((_, f)) => {
+                assert!(
+                    matches!(f, Fault::PressurePlausibility | Fault::FollowingError),
+                    "{spec}: {f:?}"
+                );
+                assert!(stopped_under_control(&r), "{spec}");
+            }
+        }
+        assert!(clear(&r) >= target_m - 0.1e-3, "{spec}");
     }
 }
 
@@ -505,7 +551,9 @@ fn s12_a_hang_at_any_phase_of_a_stroke_keeps_the_clearance() {
     // A hung control task holds its last duties until the watchdog resets the board, and
     // whether the piston then stays clear is physics: with the board's 3 ms watchdog the
     // reset comes in time at every phase tried and the boot brakes the piston; with the
-    // 20 ms the board first had it does not (printed, to show why the timeout is short).
+    // 20 ms the board first had it does not: the negative control, which shows that these
+    // phases hold the duties long enough to matter (a hang that let the piston coast
+    // harmlessly would pass the first arm for any watchdog).
     let i = instants();
     let mut worst = [f64::INFINITY; 2];
     for k in 0..12 {
@@ -525,6 +573,11 @@ fn s12_a_hang_at_any_phase_of_a_stroke_keeps_the_clearance() {
         worst[1] * 1e3
     );
     assert!(worst[0] >= MIN_CLEARANCE_M);
+    assert!(
+        worst[1] < MIN_CLEARANCE_M,
+        "with a 20 ms watchdog the hang kept {:.3} mm: the phases test nothing",
+        worst[1] * 1e3
+    );
 }
 
 #[test]

@@ -5,18 +5,17 @@
 //!
 //! `cargo test --release --test gap_and_log_tools_name_bad_flags`
 
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use hal_sim::cli::execute;
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join("gap_and_log_tools_name_bad_flags")
-        .join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("scratch directory");
-    dir
+/// A scratch directory of its own (tests run concurrently, from several checkouts), removed
+/// when the test ends, pass or fail.
+fn scratch(prefix: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("fpc-{prefix}-"))
+        .tempdir()
+        .expect("scratch directory")
 }
 
 /// The test log: a hand-written 400-row stroke at 1 kHz.
@@ -27,6 +26,7 @@ fn log() -> String {
 #[test]
 fn filters_name_the_one_flag_at_fault_and_its_range() {
     let dir = scratch("filters");
+    let dir = dir.path();
     let out = dir.join("out").display().to_string();
     for (flag, value, range) in [
         ("--sg-window", "0", "3..=41"),

@@ -15,8 +15,8 @@
 //!
 //! Acceptance (issue #13): recall ≥ 95 % for every effect, false alarms on ≤ 1 % of null
 //! logs, wrong extras on ≤ 2 % of logs, cogging period within 2 %, lags within 0.05 ms, mass
-//! within 3 % — each of these for at least 95 % of the cases that name it (the share recall
-//! is held to), and none off by more than twice its tolerance. Cases outside are printed.
+//! within 3 % — every case that names it, as the other plant's benchmark is held to.
+//! Cases outside are printed.
 //! The slave lag is scored from the lags the log can carry: this logger moves the
 //! slave's force by whole samples, so the lag is known to one sample from the columns
 //! ([`distance_to_logged_lags`]).
@@ -39,8 +39,8 @@ use hal_sim::runlog::RunLog;
 use std::collections::BTreeMap;
 use std::time::Instant;
 use support::gap::{
-    classify_form, form_cases, form_seed_runs, name_effects, par_map, score, score_forms,
-    Acceptance, BenchCase, FormCase, FormOutcome, ParamError, ParamRule,
+    bench_cases, classify_form, form_cases, form_seed_runs, name_effects, par_map, score,
+    score_forms, Acceptance, BenchCase, FormCase, FormOutcome, ParamError, ParamRule,
 };
 
 // ---------------------------------------------------------------------------------------
@@ -418,12 +418,6 @@ fn generating_a_log_is_fast() {
 // The benchmark.
 // ---------------------------------------------------------------------------------------
 
-/// Share of the named cases whose parameter must lie within its tolerance, %.
-const MIN_WITHIN_PERCENT: f64 = 95.0;
-
-/// No named parameter may be further off than this many tolerances.
-const GROSS_FACTOR: f64 = 2.0;
-
 /// Pairs of effects hidden together (10 cases each in the full run).
 const PAIRS: [(Effect, Effect); 15] = [
     (Effect::Cogging, Effect::SlaveLag),
@@ -467,17 +461,13 @@ fn slice() -> Vec<usize> {
     idx
 }
 
-/// The acceptance of issue #13 for this benchmark: each parameter for at least 95 % of the
-/// cases that name it (the share recall is held to), none off by more than twice its
-/// tolerance.
+/// The acceptance of issue #13, as the other plant's benchmark holds it: every named
+/// parameter within its tolerance (not a share of them).
 const ACCEPTANCE: Acceptance = Acceptance {
     min_recall_percent: 95.0,
     max_false_alarm_percent: 1.0,
     max_wrong_extra_percent: 2.0,
-    params: ParamRule::Share {
-        within_percent: MIN_WITHIN_PERCENT,
-        gross_factor: GROSS_FACTOR,
-    },
+    params: ParamRule::Every,
 };
 
 /// Case `index` of [`all_cases`], generated, analysed and scored against its truth.
@@ -595,7 +585,8 @@ fn gap_generalises_to_a_foreign_plant_slice() {
 fn gap_generalises_to_a_foreign_plant_full() {
     let n = all_cases().len();
     assert!(n >= 500);
-    let cases = par_map(n, run_case);
+    let which = bench_cases(n);
+    let cases = par_map(which.len(), |i| run_case(which[i]));
     println!("(replay one: FOREIGN_CASE=<index> cargo test --test gap_generalises_to_a_foreign_plant replay -- --ignored --nocapture)");
     let misses = score("foreign plant", &cases, &ACCEPTANCE);
     assert!(misses.is_empty(), "acceptance missed: {misses:#?}");
@@ -679,22 +670,37 @@ fn gap_describes_forces_outside_its_library_on_the_foreign_plant_in_100_cases() 
     assert!(problems.is_empty(), "{problems:#?}");
 }
 
-/// Writes one case of the benchmark for `fpc-sim gap`: `FOREIGN_CASE=<index>`.
+/// Writes one case of the benchmark for `fpc-sim gap`: `FOREIGN_CASE=<index>`, to a
+/// directory of its own that is kept (without it, the first case, checked and removed).
 #[test]
 #[ignore = "a tool: writes one case to a temporary directory"]
 fn replay() {
-    let Ok(index) = std::env::var("FOREIGN_CASE") else {
-        println!("set FOREIGN_CASE=<index of the benchmark case>");
-        return;
-    };
+    let index = std::env::var("FOREIGN_CASE").unwrap_or_else(|_| "0".into());
     let index: usize = index.trim().parse().expect("FOREIGN_CASE: an index");
     let (seed, kind) = all_cases()[index];
     let case = draw_case(seed, kind);
     let g = generate(&case);
-    let dir = std::env::temp_dir().join(format!("foreign-case-{index}"));
-    std::fs::create_dir_all(&dir).unwrap();
+    // A directory of its own, kept for the user who named a case (removed after CI's run).
+    let tmp = tempfile::Builder::new()
+        .prefix(&format!("fpc-foreign-case-{index}-"))
+        .tempdir()
+        .expect("case directory");
+    let dir = tmp.path().to_path_buf();
     std::fs::write(dir.join("run.csv"), &g.csv).unwrap();
     std::fs::write(dir.join("model.toml"), &g.model_toml).unwrap();
+    // What was written is the case the benchmark scores, through the readers `fpc-sim gap`
+    // uses, and gap takes it.
+    let log = RunLog::read(&dir.join("run.csv")).expect("run.csv reads");
+    assert_eq!(Ok(&log), RunLog::parse(&g.csv).as_ref());
+    assert_eq!(log.len(), g.rows, "rows written");
+    let model = hal_sim::plant::model::MachineModel::read(&dir.join("model.toml"))
+        .expect("model.toml reads");
+    assert_eq!(
+        Ok(model),
+        hal_sim::plant::model::MachineModel::parse(&g.model_toml)
+    );
+    hal_sim::gap::analyse(&g.model_toml, &log, &hal_sim::gap::GapOptions::default())
+        .unwrap_or_else(|f| panic!("gap refuses the case: {}", f.message));
     let truth: Vec<String> = g
         .truth
         .hidden
@@ -702,6 +708,10 @@ fn replay() {
         .map(|h| format!("{} {:?}", h.effect().name(), h.params()))
         .collect();
     std::fs::write(dir.join("truth.txt"), truth.join("\n") + "\n").unwrap();
+    if std::env::var_os("FOREIGN_CASE").is_none() {
+        return;
+    }
+    let _ = tmp.keep();
     println!("case #{index} (seed {seed}, {kind:?}): {}", dir.display());
     println!(
         "run: cargo run --release -p hal-sim -- gap --model {0}/model.toml --measured {0}/run.csv --json",

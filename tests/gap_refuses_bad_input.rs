@@ -1,19 +1,19 @@
 //! `fpc-sim gap` refuses what it cannot use (`docs/faults.md` #17–18): exit 2, one line naming
 //! the key or the line and column, and nothing written.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use hal_sim::cli::gap::{main, GapArgs};
 use hal_sim::plant::model::REFERENCE_TOML;
 use hal_sim::runlog::{RunLog, REQUIRED};
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
-        .join("gap_refuses_bad_input")
-        .join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A scratch directory of its own (tests run concurrently, from several checkouts), removed
+/// when the test ends, pass or fail.
+fn scratch(prefix: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("fpc-{prefix}-"))
+        .tempdir()
+        .expect("scratch directory")
 }
 
 /// A plausible little log: a slow sine stroke.
@@ -39,7 +39,7 @@ fn gap_band(dir: &Path, model: &str, log: &str, band_hz: f64) -> (u8, String, bo
     std::fs::write(&m, model).unwrap();
     std::fs::write(&l, log).unwrap();
     let r = main(GapArgs {
-        model: m,
+        model: Some(m),
         measured: l,
         out: out.clone(),
         json: false,
@@ -55,6 +55,7 @@ fn gap_band(dir: &Path, model: &str, log: &str, band_hz: f64) -> (u8, String, bo
 #[test]
 fn gap_refuses_bad_model_files_naming_the_key() {
     let dir = scratch("model");
+    let dir = dir.path();
     let log = log_text(None);
     for (bad, key) in [
         (
@@ -71,7 +72,7 @@ fn gap_refuses_bad_model_files_naming_the_key() {
         ),
         (REFERENCE_TOML.replace("mass_kg = 12.0", ""), "mass_kg"),
     ] {
-        let (code, msg, wrote) = gap(&dir, &bad, &log);
+        let (code, msg, wrote) = gap(dir, &bad, &log);
         assert_eq!(code, 2, "{msg}");
         assert!(msg.contains(key), "`{msg}` should name {key}");
         assert!(!msg.contains('\n'));
@@ -82,6 +83,7 @@ fn gap_refuses_bad_model_files_naming_the_key() {
 #[test]
 fn gap_refuses_bad_logs_naming_line_and_column() {
     let dir = scratch("log");
+    let dir = dir.path();
     let good = log_text(None);
     let lines: Vec<&str> = good.lines().collect();
     let mut text = lines.clone();
@@ -99,7 +101,7 @@ fn gap_refuses_bad_logs_naming_line_and_column() {
         (short.join("\n"), "line 41"),
         (log_text(Some("ajar")), "ports"),
     ] {
-        let (code, msg, wrote) = gap(&dir, REFERENCE_TOML, &bad);
+        let (code, msg, wrote) = gap(dir, REFERENCE_TOML, &bad);
         assert_eq!(code, 2, "{msg}");
         assert!(msg.contains(want), "`{msg}` should contain {want}");
         assert!(!wrote, "nothing may be written on bad input");
@@ -118,6 +120,7 @@ fn rescaled_time(k: f64) -> String {
 #[test]
 fn gap_refuses_values_and_rates_no_machine_logs_without_hanging() {
     let dir = scratch("implausible");
+    let dir = dir.path();
     let good = log_text(None);
     let mut far = good.lines().map(str::to_string).collect::<Vec<_>>();
     // One large finite position (it used to reach the least-squares SVD as NaN).
@@ -135,7 +138,7 @@ fn gap_refuses_values_and_rates_no_machine_logs_without_hanging() {
         // A band above the log's Nyquist frequency (5 kHz at 10 kHz).
         (good.clone(), 6000.0, "Nyquist"),
     ] {
-        let (code, msg, wrote) = gap_band(&dir, REFERENCE_TOML, &bad, band);
+        let (code, msg, wrote) = gap_band(dir, REFERENCE_TOML, &bad, band);
         assert_eq!(code, 2, "{msg}");
         assert!(msg.contains(want), "`{msg}` should contain {want}");
         assert!(!wrote, "nothing may be written on bad input");
@@ -146,7 +149,8 @@ fn gap_refuses_values_and_rates_no_machine_logs_without_hanging() {
 #[test]
 fn gap_writes_the_augmented_model_and_the_report() {
     let dir = scratch("ok");
-    let (code, msg, wrote) = gap(&dir, REFERENCE_TOML, &log_text(Some("closed")));
+    let dir = dir.path();
+    let (code, msg, wrote) = gap(dir, REFERENCE_TOML, &log_text(Some("closed")));
     assert_eq!(code, 0, "{msg}");
     assert!(wrote);
     let out = dir.join("out");

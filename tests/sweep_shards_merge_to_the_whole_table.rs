@@ -3,19 +3,19 @@
 //! unsharded table byte for byte, and every row is what `fpc-sim run` reports for the same
 //! flags. A plan with a value `run` refuses is refused whole, before anything runs.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use hal_sim::cli::execute;
 use hal_sim::run::{run, RunOptions};
 use hal_sim::sweep::read_table;
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join("sweep_shards_merge_to_the_whole_table")
-        .join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("scratch directory");
-    dir
+/// A scratch directory of its own (tests run concurrently, from several checkouts), removed
+/// when the test ends, pass or fail.
+fn scratch(prefix: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("fpc-{prefix}-"))
+        .tempdir()
+        .expect("scratch directory")
 }
 
 fn fpc_sim(args: &[&str]) -> u8 {
@@ -38,6 +38,7 @@ fault = ["none", "pressure_open@0.95:chamber=b"]
 #[test]
 fn three_slices_merge_to_the_unsharded_table_byte_for_byte() {
     let dir = scratch("slices");
+    let dir = dir.path();
     let plan = dir.join("plan.toml");
     std::fs::write(&plan, PLAN).expect("plan written");
     let whole = dir.join("whole");
@@ -125,6 +126,7 @@ fn three_slices_merge_to_the_unsharded_table_byte_for_byte() {
 #[test]
 fn a_plan_with_a_run_that_run_refuses_is_refused_before_anything_runs() {
     let dir = scratch("refused");
+    let dir = dir.path();
     for (name, plan) in [
         ("ratio", "[axes]\npressure_ratio = [3.1, 9.0]\n"),
         ("mass", "[axes]\n\"model.piston.mass_kg\" = [12.0, -3.0]\n"),
@@ -173,6 +175,7 @@ fn a_plan_with_a_run_that_run_refuses_is_refused_before_anything_runs() {
 #[test]
 fn keep_logs_writes_each_runs_log_as_run_writes_it() {
     let dir = scratch("logs");
+    let dir = dir.path();
     let plan = dir.join("plan.toml");
     std::fs::write(&plan, "cycles = 1\n[axes]\nseed = { from = 5, to = 6 }\n").expect("plan");
     let out = dir.join("out");

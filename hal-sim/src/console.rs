@@ -137,9 +137,74 @@ impl std::fmt::LowerExp for Num {
     }
 }
 
+/// `value` in engineering notation with its unit: a mantissa of 1 to 999 with four
+/// significant digits (trailing zeros dropped) and an SI prefix, `998.7 µs`, `3.227 N`,
+/// `1 kHz`, `-12.5 kPa`; `n/a` when not finite. A unit written with a prefix of its own
+/// (`mm`, `kPa`) is not re-prefixed: give it in the base unit.
+pub fn eng(value: f64, unit: &str) -> String {
+    eng_digits(value, unit, 4)
+}
+
+/// [`eng`] with `digits` significant digits (1–17).
+pub fn eng_digits(value: f64, unit: &str, digits: usize) -> String {
+    const PREFIXES: [(i32, &str); 11] = [
+        (-18, "a"),
+        (-15, "f"),
+        (-12, "p"),
+        (-9, "n"),
+        (-6, "µ"),
+        (-3, "m"),
+        (0, ""),
+        (3, "k"),
+        (6, "M"),
+        (9, "G"),
+        (12, "T"),
+    ];
+    if !value.is_finite() {
+        return "n/a".to_string();
+    }
+    let space = if unit.is_empty() { "" } else { " " };
+    if value == 0.0 {
+        return format!("0{space}{unit}");
+    }
+    let digits = digits.clamp(1, 17);
+    // Rounded to its digits first: 999.96 becomes 1 k, not 1000.
+    let exp10 = value.abs().log10().floor() as i32;
+    let scale = 10f64.powi(digits as i32 - 1 - exp10);
+    let rounded = (value * scale).round() / scale;
+    let exp10 = rounded.abs().log10().floor() as i32;
+    let exp3 = (exp10.div_euclid(3) * 3).clamp(-18, 12);
+    let prefix = PREFIXES
+        .iter()
+        .find(|(e, _)| *e == exp3)
+        .map_or("", |(_, p)| *p);
+    let mantissa = rounded / 10f64.powi(exp3);
+    let decimals = (digits as i32 - 1 - (exp10 - exp3)).max(0) as usize;
+    let mut text = format!("{mantissa:.decimals$}");
+    if text.contains('.') {
+        text = text.trim_end_matches('0').trim_end_matches('.').to_string();
+    }
+    format!("{text}{space}{prefix}{unit}")
+}
+
 #[cfg(test)]
 mod tests {
-    use super::Num;
+    use super::{eng, eng_digits, Num};
+
+    #[test]
+    fn engineering_notation_has_a_prefix_and_the_digits_asked() {
+        assert_eq!(eng(0.000998693095552472, "s"), "998.7 µs");
+        assert_eq!(eng(3.227, "N"), "3.227 N");
+        assert_eq!(eng(1000.0, "Hz"), "1 kHz");
+        assert_eq!(eng(-12_500.0, "Pa"), "-12.5 kPa");
+        assert_eq!(eng(999.96, "V"), "1 kV");
+        assert_eq!(eng(3.392e-7, "m"), "339.2 nm");
+        assert_eq!(eng(0.0, "m"), "0 m");
+        assert_eq!(eng(f64::NAN, "m"), "n/a");
+        assert_eq!(eng(2.5, ""), "2.5");
+        assert_eq!(eng_digits(0.024013, "m", 3), "24 mm");
+        assert_eq!(eng_digits(1e-4, "s", 2), "100 µs");
+    }
 
     #[test]
     fn undefined_numbers_print_as_n_a() {

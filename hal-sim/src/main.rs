@@ -7,5 +7,7 @@
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
+    // Ctrl-C removes what the command staged (or lets it finish, where it says so).
+    hal_sim::interrupt::install();
     ExitCode::from(hal_sim::cli::execute(std::env::args_os()))
 }

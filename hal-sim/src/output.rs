@@ -1,15 +1,107 @@
 //! Where `fpc-sim` writes, made safe: every output is checked before any work (exit 2 when it
-//! cannot be written, already exists without `--force`, or is one of the command's own
-//! inputs), written into a staging directory beside its final place, and moved into place
+//! cannot be written, is one of the command's own inputs, or exists and is not fpc-sim's to
+//! replace), written into a staging directory beside its final place, and moved into place
 //! only once the whole set is complete. A failure part-way leaves the earlier files as they
-//! were and no partial new ones (`docs/faults.md` row 23).
+//! were and no partial new ones (`docs/faults.md` row 23); Ctrl-C removes the staging
+//! directory ([`crate::interrupt`]).
 //!
+//! **Reruns.** Every directory fpc-sim writes into keeps a manifest ([`MANIFEST`]): each file
+//! it wrote there, with the command, its size and its modification time. A file the
+//! manifest lists, unchanged since, is fpc-sim's own: a rerun replaces it without asking,
+//! says so in one line, and removes the files of the same output set that this run no longer
+//! writes (a per-channel plot of an earlier `gap`). Any other existing file of an output's
+//! name — one the user made, or fpc-sim's but edited since — is refused unless `--force`.
 //! `--force` replaces existing outputs of the same names; it never replaces an input, and it
 //! leaves every other file in the directory alone.
-
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::time::UNIX_EPOCH;
 
 use crate::failure::Failure;
+
+/// The manifest of a directory fpc-sim writes into: which files it wrote there.
+pub const MANIFEST: &str = ".fpc-sim-manifest.json";
+
+/// The command writing now, for the manifest and the rerun line (set by the tool's
+/// dispatch; `fpc-sim` when unset).
+static COMMAND: Mutex<String> = Mutex::new(String::new());
+
+/// Names the command that writes from now on (`run`, `gap`, `link capture`, …).
+pub fn set_command(name: &str) {
+    if let Ok(mut c) = COMMAND.lock() {
+        *c = name.to_string();
+    }
+}
+
+/// The command running now (`fpc-sim` when unset), for its lines on stderr.
+pub fn command() -> String {
+    match COMMAND.lock() {
+        Ok(c) if !c.is_empty() => c.clone(),
+        _ => "fpc-sim".to_string(),
+    }
+}
+
+/// One file of a manifest.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+struct Written {
+    /// The command that wrote it.
+    command: String,
+    /// The output set it belongs to: the names its command declared (a set's stale files
+    /// are removed only by a rerun of the same set).
+    set: String,
+    /// Its size, bytes, when written.
+    bytes: u64,
+    /// Its modification time when written, ns since the Unix epoch.
+    modified_ns: u64,
+}
+
+/// A directory's manifest: file name → what fpc-sim wrote there.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+struct Manifest {
+    files: BTreeMap<String, Written>,
+}
+
+/// Size and modification time of a file (`None`: not a file, or unreadable).
+fn stamp(path: &Path) -> Option<(u64, u64)> {
+    let m = path.symlink_metadata().ok()?;
+    if !m.file_type().is_file() {
+        return None;
+    }
+    let ns = m
+        .modified()
+        .ok()?
+        .duration_since(UNIX_EPOCH)
+        .ok()?
+        .as_nanos();
+    Some((m.len(), u64::try_from(ns).ok()?))
+}
+
+impl Manifest {
+    /// The manifest of `dir`; none, or one that does not parse, lists nothing (nothing there
+    /// is then fpc-sim's to replace without `--force`).
+    fn read(dir: &Path) -> Manifest {
+        std::fs::read_to_string(dir.join(MANIFEST))
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok())
+            .unwrap_or_default()
+    }
+
+    /// Whether `name` in `dir` is a file fpc-sim wrote and nobody changed since.
+    fn owns(&self, dir: &Path, name: &str) -> bool {
+        self.files.get(name).is_some_and(|w| {
+            stamp(&dir.join(name))
+                .is_some_and(|(bytes, ns)| bytes == w.bytes && ns == w.modified_ns)
+        })
+    }
+
+    fn write(&self, dir: &Path) -> std::io::Result<()> {
+        let text = serde_json::to_string_pretty(self).map_err(std::io::Error::other)?;
+        let tmp = dir.join(format!("{MANIFEST}.{}", std::process::id()));
+        std::fs::write(&tmp, text + "\n")?;
+        std::fs::rename(&tmp, dir.join(MANIFEST))
+    }
+}
 
 /// A directory of output files, staged until [`OutDir::commit`]: the names known
 /// beforehand are checked at once, any other file written is checked before it moves.
@@ -21,6 +113,11 @@ pub struct OutDir {
     force: bool,
     inputs: Vec<PathBuf>,
     committed: bool,
+    /// What fpc-sim wrote in `dir` before this set.
+    manifest: Manifest,
+    /// Whether this set is recorded in `dir`'s manifest (a single file written into a
+    /// folder fpc-sim does not keep is not: no manifest is left among the user's files).
+    record: bool,
 }
 
 /// Longest path echoed in a message, in characters (longer ones are cut with `…`).
@@ -72,6 +169,7 @@ impl OutDir {
             )));
         }
         let resolved = dir.canonicalize().unwrap_or_else(|_| dir.to_path_buf());
+        let manifest = Manifest::read(dir);
         if resolved.parent().is_none() {
             return Err(Failure::bad_input(format!(
                 "output directory {}: refusing to write into the filesystem root",
@@ -94,11 +192,8 @@ impl OutDir {
                     show(&target)
                 )));
             }
-            if !force && target.symlink_metadata().is_ok() {
-                return Err(Failure::bad_input(format!(
-                    "{} exists; refusing to overwrite it (add --force to replace the outputs)",
-                    show(&target)
-                )));
+            if !force && target.symlink_metadata().is_ok() && !manifest.owns(dir, name) {
+                return Err(Failure::bad_input(not_ours(&target)));
             }
             if target.is_dir() {
                 return Err(Failure::bad_input(format!(
@@ -139,6 +234,7 @@ impl OutDir {
         std::fs::create_dir(&staging).map_err(|e| {
             Failure::bad_input(format!("cannot write output directory {}: {e}", show(dir)))
         })?;
+        crate::interrupt::register(&staging);
         Ok(OutDir {
             dir: dir.to_path_buf(),
             staging,
@@ -146,7 +242,24 @@ impl OutDir {
             force,
             inputs: inputs.iter().map(|p| p.to_path_buf()).collect(),
             committed: false,
+            manifest,
+            record: true,
         })
+    }
+
+    /// Keeps only `names` of the declared outputs (an interrupted `run --keep-partial`
+    /// keeps its log and nothing it could not finish); files written under other names are
+    /// removed from the set.
+    pub fn keep_only(&mut self, names: &[&str]) {
+        self.names.retain(|n| names.contains(&n.as_str()));
+        if let Ok(entries) = std::fs::read_dir(&self.staging) {
+            for e in entries.flatten() {
+                let name = e.file_name();
+                if !names.iter().any(|n| std::ffi::OsStr::new(n) == name) {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
+        }
     }
 
     /// Where to write `name` now (inside the staging directory).
@@ -199,10 +312,14 @@ impl OutDir {
                     show(&target)
                 )));
             }
-            if !self.force && target.symlink_metadata().is_ok() {
+            let name = name.to_string_lossy();
+            if !self.force
+                && target.symlink_metadata().is_ok()
+                && !self.manifest.owns(&self.dir, &name)
+            {
                 return Err(Failure::runtime(format!(
-                    "{} exists; nothing replaced (add --force to replace the outputs)",
-                    show(&target)
+                    "{}; nothing replaced",
+                    not_ours(&target)
                 )));
             }
         }
@@ -212,6 +329,10 @@ impl OutDir {
                 show(&self.dir)
             ))
         })?;
+        let replaced = written
+            .iter()
+            .filter(|n| self.dir.join(n).symlink_metadata().is_ok())
+            .count();
         for name in &written {
             let (from, to) = (self.staging.join(name), self.dir.join(name));
             std::fs::rename(&from, &to)
@@ -219,14 +340,113 @@ impl OutDir {
         }
         self.committed = true;
         let _ = std::fs::remove_dir_all(&self.staging);
+        crate::interrupt::unregister(&self.staging);
+        let written: Vec<String> = written
+            .iter()
+            .map(|n| n.to_string_lossy().into_owned())
+            .collect();
+        let stale = if self.record {
+            self.record_written(&written)?
+        } else {
+            0
+        };
+        if replaced + stale > 0 {
+            crate::errln!(
+                "fpc-sim {}: replaced the earlier outputs in {} ({replaced} file{} rewritten{})",
+                command(),
+                show(&self.dir),
+                if replaced == 1 { "" } else { "s" },
+                match stale {
+                    0 => String::new(),
+                    n => format!(", {n} no longer written removed"),
+                }
+            )?;
+        }
         Ok(())
     }
+
+    /// The set's key in the manifest: its declared names.
+    fn set_key(&self) -> String {
+        let mut names = self.names.clone();
+        names.sort();
+        names.join(",")
+    }
+
+    /// Records the files just moved into place in the directory's manifest, and removes
+    /// the files an earlier run of the same set wrote that this one did not (when nobody
+    /// changed them since). Returns how many it removed.
+    fn record_written(&self, written: &[String]) -> Result<usize, Failure> {
+        // Read again: another set of this command (`run --telemetry` into the same folder)
+        // may have committed since this one was prepared.
+        let mut manifest = Manifest::read(&self.dir);
+        let (command, set) = (command(), self.set_key());
+        let mut removed = 0;
+        let stale: Vec<String> = manifest
+            .files
+            .iter()
+            .filter(|(n, w)| w.command == command && w.set == set && !written.contains(n))
+            .map(|(n, _)| n.clone())
+            .collect();
+        for name in stale {
+            if self.manifest.owns(&self.dir, &name)
+                && std::fs::remove_file(self.dir.join(&name)).is_ok()
+            {
+                removed += 1;
+            }
+            manifest.files.remove(&name);
+        }
+        for name in written {
+            if let Some((bytes, modified_ns)) = stamp(&self.dir.join(name)) {
+                manifest.files.insert(
+                    name.clone(),
+                    Written {
+                        command: command.clone(),
+                        set: set.clone(),
+                        bytes,
+                        modified_ns,
+                    },
+                );
+            }
+        }
+        manifest.write(&self.dir).map_err(|e| {
+            Failure::runtime(format!(
+                "cannot write {}: {e}",
+                show(&self.dir.join(MANIFEST))
+            ))
+        })?;
+        Ok(removed)
+    }
+}
+
+/// Checks, before any work, that `path` may be written: it does not exist, it is a file
+/// fpc-sim wrote there and nobody changed since, or `force` is given. For an output a
+/// command writes only sometimes (the run log of a capture), outside its declared set.
+pub fn check_replaceable(path: &Path, force: bool) -> Result<(), Failure> {
+    let (dir, name) = match (path.parent(), path.file_name()) {
+        (Some(d), Some(n)) => (d, n.to_string_lossy()),
+        _ => return Ok(()),
+    };
+    if force || path.symlink_metadata().is_err() || Manifest::read(dir).owns(dir, &name) {
+        Ok(())
+    } else {
+        Err(Failure::bad_input(not_ours(path)))
+    }
+}
+
+/// The refusal of an existing file that is not fpc-sim's to replace.
+fn not_ours(target: &Path) -> String {
+    format!(
+        "{} exists and is not an output fpc-sim wrote there (or it changed since); refusing \
+         to overwrite it (add --force to replace it)",
+        show(target)
+    )
 }
 
 impl Drop for OutDir {
     fn drop(&mut self) {
         // Not committed: the command failed; the partial set goes.
         let _ = std::fs::remove_dir_all(&self.staging);
+        crate::interrupt::unregister(&self.staging);
     }
 }
 
@@ -251,7 +471,11 @@ impl OutFile {
             Some(p) if !p.as_os_str().is_empty() => p,
             _ => Path::new("."),
         };
-        let inner = OutDir::prepare(dir, &[&name], force, inputs)?;
+        // A folder fpc-sim keeps (it has a manifest, or this write creates it) records the
+        // file; in any other folder the file is the user's from the moment it is written.
+        let record = !dir.exists() || dir.join(MANIFEST).is_file();
+        let mut inner = OutDir::prepare(dir, &[&name], force, inputs)?;
+        inner.record = record;
         Ok(OutFile { inner, name })
     }
 
@@ -308,7 +532,83 @@ mod tests {
         std::fs::write(o.path("a.txt"), "new").unwrap();
         o.commit().unwrap();
         assert_eq!(std::fs::read_to_string(d.join("a.txt")).unwrap(), "new");
-        assert_eq!(std::fs::read_dir(d).unwrap().count(), 1, "no staging left");
+        let left: Vec<_> = std::fs::read_dir(d)
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name())
+            .collect();
+        assert_eq!(left.len(), 2, "no staging left: {left:?}");
+        assert!(left.contains(&MANIFEST.into()), "{left:?}");
+    }
+
+    /// Writes `files` (name, text) as one committed set of `names` into `d`.
+    fn write_set(d: &Path, names: &[&str], files: &[(&str, &str)]) -> Result<(), Failure> {
+        let o = OutDir::prepare(d, names, false, &[])?;
+        for (name, text) in files {
+            std::fs::write(o.path(name), text).unwrap();
+        }
+        o.commit()
+    }
+
+    #[test]
+    fn a_rerun_replaces_fpc_sims_own_files_and_drops_what_it_no_longer_writes() {
+        let dir = temp("rerun");
+        let d = dir.path();
+        write_set(d, &["a.txt"], &[("a.txt", "1"), ("map_x.svg", "x")]).unwrap();
+        // Another set in the same folder (run's telemetry file beside its outputs).
+        write_set(d, &["t.bin"], &[("t.bin", "t")]).unwrap();
+        write_set(d, &["a.txt"], &[("a.txt", "2"), ("map_y.svg", "y")]).unwrap();
+        assert_eq!(std::fs::read_to_string(d.join("a.txt")).unwrap(), "2");
+        assert!(
+            !d.join("map_x.svg").exists(),
+            "the earlier run's own plot stays"
+        );
+        assert!(d.join("map_y.svg").exists() && d.join("t.bin").exists());
+        // A file the user made, of an output's name: refused, before and at the commit.
+        std::fs::write(d.join("notes.svg"), "mine").unwrap();
+        let e = write_set(d, &["a.txt"], &[("a.txt", "3"), ("notes.svg", "n")]).unwrap_err();
+        assert!(
+            e.message.contains("not an output fpc-sim wrote"),
+            "{}",
+            e.message
+        );
+        assert_eq!(
+            std::fs::read_to_string(d.join("notes.svg")).unwrap(),
+            "mine"
+        );
+        // fpc-sim's file edited since is the user's now.
+        std::fs::write(d.join("a.txt"), "edited by hand").unwrap();
+        let e = OutDir::prepare(d, &["a.txt"], false, &[]).unwrap_err();
+        assert_eq!(e.code, 2);
+        assert!(e.message.contains("--force"), "{}", e.message);
+        assert_eq!(
+            std::fs::read_to_string(d.join("a.txt")).unwrap(),
+            "edited by hand"
+        );
+    }
+
+    #[test]
+    fn a_single_file_in_a_folder_fpc_sim_does_not_keep_leaves_no_manifest() {
+        let dir = temp("single");
+        let d = dir.path();
+        std::fs::write(d.join("mine.txt"), "x").unwrap();
+        let f = OutFile::prepare(&d.join("dec.csv"), false, &[]).unwrap();
+        std::fs::write(f.path(), "1").unwrap();
+        f.commit().unwrap();
+        assert!(!d.join(MANIFEST).exists());
+        // So writing it again needs --force.
+        assert_eq!(
+            OutFile::prepare(&d.join("dec.csv"), false, &[])
+                .unwrap_err()
+                .code,
+            2
+        );
+        // In a folder it creates, it keeps one.
+        let f = OutFile::prepare(&d.join("new/dec.csv"), false, &[]).unwrap();
+        std::fs::write(f.path(), "1").unwrap();
+        f.commit().unwrap();
+        assert!(d.join("new").join(MANIFEST).is_file());
+        assert!(OutFile::prepare(&d.join("new/dec.csv"), false, &[]).is_ok());
     }
 
     #[test]

@@ -4,6 +4,12 @@
 //! common colour-vision deficiencies), a reference or model drawn dashed over the measured
 //! solid line, the legend beside the data instead of on it, integer ticks for counts, and
 //! the same units everywhere (`docs/fpc-sim.md`, "Plots"): s, mm, m/s, N, kPa, cm³, J.
+//!
+//! Scales tell the truth by default where a panel asks ([`Axes`]): a robust y range (the
+//! central 98 % of the samples; the few beyond drawn at the edge as triangles and counted in
+//! the legend), a floor on the y range relative to the values (a spread of 0.3 % is not
+//! drawn as a zig-zag across the panel), markers on sparse points (a sweep's runs), and the
+//! limit a quantity must keep drawn as a line.
 
 use std::path::Path;
 
@@ -85,6 +91,17 @@ pub struct Axes {
     pub integer_x: bool,
     /// y counts something: ticks at whole numbers only.
     pub integer_y: bool,
+    /// The y range from the central 98 % of the samples (1st to 99th percentile), so a
+    /// spike does not flatten the rest; samples beyond are drawn at the edge as triangles
+    /// and counted in the legend.
+    pub robust_y: bool,
+    /// The y range spans at least this share of the largest |y| (a floor relative to the
+    /// value: sweep figures that differ in their fourth digit stay flat).
+    pub min_span_of_value: Option<f64>,
+    /// Every point drawn as a marker too (sparse points: a sweep's runs).
+    pub markers: bool,
+    /// A limit drawn as a vertical line at this x, with its label.
+    pub x_limit: Option<(f64, &'static str)>,
 }
 
 /// One chart of a figure: its y axis and its series, over the figure's shared x axis.
@@ -187,6 +204,45 @@ fn range(values: impl Iterator<Item = f64>, integer: bool) -> (f64, f64) {
     }
 }
 
+/// The range of the central 98 % of the finite values (1st to 99th percentile), padded;
+/// `None` when it is the whole range anyway.
+fn robust_range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
+    let mut v: Vec<f64> = values.filter(|v| v.is_finite()).collect();
+    if v.len() < 100 {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let at = |q: f64| v.get(((v.len() - 1) as f64 * q).round() as usize).copied();
+    let (lo, hi) = (at(0.01)?, at(0.99)?);
+    let (min, max) = (v.first().copied()?, v.last().copied()?);
+    if hi <= lo {
+        return None;
+    }
+    let pad = 0.1 * (hi - lo);
+    let (lo, hi) = ((lo - pad).max(min), (hi + pad).min(max));
+    (lo > min || hi < max).then_some((lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo)))
+}
+
+/// Decimals that show `v` to four significant digits.
+fn decimals_for(v: f64) -> usize {
+    if v == 0.0 || !v.is_finite() {
+        return 0;
+    }
+    (3 - v.abs().log10().floor() as i32).clamp(0, 12) as usize
+}
+
+/// `(lo, hi)` widened about its middle to span at least `share` of the largest |value|.
+fn floored(range: (f64, f64), share: f64) -> (f64, f64) {
+    let (lo, hi) = range;
+    let biggest = lo.abs().max(hi.abs());
+    let want = share * biggest;
+    if hi - lo >= want || !want.is_finite() || want <= 0.0 {
+        return range;
+    }
+    let mid = 0.5 * (lo + hi);
+    (mid - 0.5 * want, mid + 0.5 * want)
+}
+
 /// Tick labels: whole numbers only on a count axis, else as many decimals as an axis of
 /// `span` needs (every label of an axis with the same number of them).
 fn tick(integer: bool, span: f64) -> impl Fn(&f64) -> String {
@@ -217,19 +273,29 @@ pub fn panels(path: &Path, title: &str, x_label: &str, panels: &[Panel<'_>]) -> 
         let root = root.titled(title, ("sans-serif", 22))?;
         let rows = root.split_evenly((panels.len().max(1), 1));
         let integer_x = panels.iter().any(|p| p.axes.integer_x);
+        // A limit drawn as a line is inside the x range, however far from the data.
+        let limits = panels.iter().filter_map(|p| p.axes.x_limit.map(|l| l.0));
         let (x0, x1) = range(
             panels
                 .iter()
-                .flat_map(|p| p.series.iter().flat_map(|s| s.x.iter().copied())),
+                .flat_map(|p| p.series.iter().flat_map(|s| s.x.iter().copied()))
+                .chain(limits),
             integer_x,
         );
         for (row, panel) in rows.iter().zip(panels) {
             let (chart_area, legend_area) = row.split_horizontally(row.dim_in_pixel().0 - legend);
+            let ys = || panel.series.iter().flat_map(|s| s.y.iter().copied());
             let (y0, y1) = panel.axes.y_range.unwrap_or_else(|| {
-                range(
-                    panel.series.iter().flat_map(|s| s.y.iter().copied()),
-                    panel.axes.integer_y,
-                )
+                let full = range(ys(), panel.axes.integer_y);
+                let chosen = if panel.axes.robust_y {
+                    robust_range(ys()).unwrap_or(full)
+                } else {
+                    full
+                };
+                match panel.axes.min_span_of_value {
+                    Some(share) => floored(chosen, share),
+                    None => chosen,
+                }
             });
             let mut chart = ChartBuilder::on(&chart_area)
                 .margin(12)
@@ -266,6 +332,18 @@ pub fn panels(path: &Path, title: &str, x_label: &str, panels: &[Panel<'_>]) -> 
                         .step_by(stride)
                         .map(|(x, y)| (x, y.clamp(y0, y1)))
                         .collect();
+                if panel.axes.markers {
+                    chart.draw_series(points.iter().map(|&p| Circle::new(p, 4, color.filled())))?;
+                }
+                if panel.axes.robust_y {
+                    // The samples beyond the axis, at its edge: ▲ above, ▼ below.
+                    let beyond = s.x.iter().zip(s.y).filter(|(_, y)| **y > y1 || **y < y0);
+                    chart.draw_series(beyond.step_by(stride).map(|(&x, &y)| {
+                        let up = y > y1;
+                        let (edge, dy) = if up { (y1, 1) } else { (y0, -1) };
+                        TriangleMarker::new((x, edge), 5 * dy, color.filled())
+                    }))?;
+                }
                 match s.stroke {
                     Stroke::Solid => {
                         chart.draw_series(LineSeries::new(points, color.stroke_width(2)))?;
@@ -283,7 +361,41 @@ pub fn panels(path: &Path, title: &str, x_label: &str, panels: &[Panel<'_>]) -> 
                     }
                 }
             }
+            if let Some((x, label)) = panel.axes.x_limit {
+                if (x0..=x1).contains(&x) {
+                    chart.draw_series(DashedLineSeries::new(
+                        [(x, y0), (x, y1)],
+                        6,
+                        4,
+                        BLACK.stroke_width(2),
+                    ))?;
+                    chart.draw_series(std::iter::once(Text::new(
+                        label.to_string(),
+                        (x, y1),
+                        ("sans-serif", 14).into_font().color(&BLACK),
+                    )))?;
+                }
+            }
             draw_legend(&legend_area, &panel.series)?;
+            if panel.axes.robust_y {
+                let beyond: Vec<f64> = ys().filter(|y| *y > y1 || *y < y0).collect();
+                if !beyond.is_empty() {
+                    let far = beyond
+                        .iter()
+                        .fold(0.0f64, |m, y| if y.abs() > m.abs() { *y } else { m });
+                    let y = 30 + 22 * panel.series.len() as i32 + 10;
+                    legend_area.draw(&Text::new(
+                        format!("▲▼ {} samples beyond", beyond.len()),
+                        (4, y),
+                        ("sans-serif", 13).into_font().color(&BLACK),
+                    ))?;
+                    legend_area.draw(&Text::new(
+                        format!("the axis (farthest {far:.0$})", decimals_for(far)),
+                        (4, y + 16),
+                        ("sans-serif", 13).into_font().color(&BLACK),
+                    ))?;
+                }
+            }
         }
         root.present()?;
         Ok(())

@@ -3,14 +3,16 @@
 //! in the simulated board's flash, where the firmware loads it at boot instead of being
 //! handed the model's true values. A bad file exits 2 naming the key, before any work.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
-fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("fpc_cal_cli_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch directory of its own (tests run concurrently, from several checkouts), removed
+/// when the test ends, pass or fail.
+fn dir(prefix: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("fpc-{prefix}-"))
+        .tempdir()
+        .expect("scratch directory")
 }
 
 /// Runs `fpc-sim ARGS`; returns (exit code, stderr).
@@ -42,6 +44,7 @@ fn run_with(calibration: &Path, out: &Path) -> (i32, String) {
 #[test]
 fn calibrate_writes_a_file_that_run_loads_and_bad_files_are_refused_by_key() {
     let d = dir("all");
+    let d = d.path();
     let cal = d.join("cal.toml");
     let (code, err) = fpc_sim(&["calibrate", "--out"], &[&cal]);
     println!("calibrate: exit {code}: {}", err.trim());

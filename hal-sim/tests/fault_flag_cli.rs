@@ -6,17 +6,20 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-fn dir(name: &str) -> PathBuf {
-    let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("fault_flag_cli_{name}"));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch directory of its own (tests run concurrently, from several checkouts), removed
+/// when the test ends, pass or fail.
+fn dir(prefix: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("fpc-{prefix}-"))
+        .tempdir()
+        .expect("scratch directory")
 }
 
-/// Runs `fpc-sim run` with `args` into a fresh directory; returns (exit code, stderr, out dir).
-fn fpc_sim_run(name: &str, args: &[&str]) -> (i32, String, PathBuf) {
-    let d = dir(name);
-    let out = d.join("out");
+/// Runs `fpc-sim run` with `args` into a fresh directory; returns (exit code, stderr, out
+/// dir, the scratch directory holding it).
+fn fpc_sim_run(name: &str, args: &[&str]) -> (i32, String, PathBuf, tempfile::TempDir) {
+    let scratch = dir(name);
+    let out = scratch.path().join("out");
     let o = Command::new(env!("CARGO_BIN_EXE_fpc-sim"))
         .arg("run")
         .args(args)
@@ -28,6 +31,7 @@ fn fpc_sim_run(name: &str, args: &[&str]) -> (i32, String, PathBuf) {
         o.status.code().unwrap_or(-1),
         String::from_utf8_lossy(&o.stderr).into_owned(),
         out,
+        scratch,
     )
 }
 
@@ -45,7 +49,8 @@ fn a_bad_fault_spec_exits_2_naming_it_and_writes_nothing() {
         ("task_hang@1:task=telemetry", "control|supervision"),
     ];
     for (i, (spec, says)) in cases.iter().enumerate() {
-        let (code, err, out) = fpc_sim_run(&format!("bad{i}"), &["--cycles", "1", "--fault", spec]);
+        let (code, err, out, _scratch) =
+            fpc_sim_run(&format!("bad{i}"), &["--cycles", "1", "--fault", spec]);
         println!("--fault {spec}: exit {code}: {}", err.trim());
         assert_eq!(code, 2, "{spec}: {err}");
         assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
@@ -58,7 +63,7 @@ fn a_bad_fault_spec_exits_2_naming_it_and_writes_nothing() {
 #[test]
 fn a_valid_fault_runs_and_the_log_records_its_code() {
     // Master encoder amplitude ×0.2 once compressing (≈ 0.93 s): `encoder_signal`, code 1.
-    let (code, err, out) = fpc_sim_run(
+    let (code, err, out, _scratch) = fpc_sim_run(
         "valid",
         &[
             "--cycles",
@@ -95,13 +100,15 @@ fn a_valid_fault_runs_and_the_log_records_its_code() {
 #[test]
 fn a_refused_model_file_writes_nothing() {
     let d = dir("model");
+    let d = d.path();
     let model = d.join("model.toml");
     std::fs::write(
         &model,
         hal_sim::plant::model::REFERENCE_TOML.replace("mass_kg = 12.0", "mass_kg = -12.0"),
     )
     .unwrap();
-    let (code, err, out) = fpc_sim_run("model_run", &["--model", model.to_str().unwrap()]);
+    let (code, err, out, _scratch) =
+        fpc_sim_run("model_run", &["--model", model.to_str().unwrap()]);
     println!("negative mass: exit {code}: {}", err.trim());
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("mass_kg"), "{err}");

@@ -130,30 +130,132 @@ fn every_range_is_stated_with_its_bounds_and_the_reference_lies_inside() {
     }
 }
 
-#[test]
-fn every_model_file_of_the_project_still_loads() {
-    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
-    for path in [
-        "hal-sim/tests/data/minimal_model.toml",
-        "tests/data/field-logs/d01.toml",
-        "tests/data/field-logs/d02.toml",
-        "tests/data/field-logs/d03.toml",
-        "tests/data/field-logs/d04.toml",
-    ] {
-        let p = std::path::Path::new(root).join(path);
-        if p.exists() {
-            MachineModel::read(&p).unwrap_or_else(|e| panic!("{path}: {e}"));
+/// Every TOML file of the repository under `dir` (relative to the repository's root),
+/// skipping build output and version control.
+fn toml_files(root: &std::path::Path) -> Vec<std::path::PathBuf> {
+    let mut found = Vec::new();
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(dir) = stack.pop() {
+        let entries = std::fs::read_dir(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+        for entry in entries {
+            let path = entry.expect("a directory entry").path();
+            let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+            if path.is_dir() {
+                if !matches!(name, "target" | ".git" | "node_modules") {
+                    stack.push(path);
+                }
+            } else if name.ends_with(".toml") {
+                found.push(
+                    path.strip_prefix(root)
+                        .expect("under the root")
+                        .to_path_buf(),
+                );
+            }
         }
     }
+    found.sort();
+    found
+}
+
+/// Tool configuration, not the project's data: Cargo manifests, the pinned toolchain,
+/// cargo's, clippy's, rustfmt's and cargo-deny's settings.
+fn is_tool_configuration(path: &std::path::Path) -> bool {
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+    matches!(
+        name,
+        "Cargo.toml" | "rust-toolchain.toml" | "clippy.toml" | "rustfmt.toml" | "deny.toml"
+    ) || path.parent().and_then(|p| p.file_name()) == Some(std::ffi::OsStr::new(".cargo"))
+}
+
+/// Every TOML file of the repository is found (not listed by hand) and read by the reader
+/// of its kind: machine models (`[piston]`) by the model reader, sweep plans (`[axes]`) by
+/// the plan reader (their `model = "…"` relative to the plan), calibration files
+/// (`format_version`) by the calibration reader. A file of no known kind fails the test, as
+/// does a field log without its model.
+#[test]
+fn every_model_plan_and_calibration_file_of_the_repository_loads() {
+    let root = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
+    let (mut models, mut plans, mut calibrations) = (Vec::new(), Vec::new(), Vec::new());
+    for rel in toml_files(root) {
+        if is_tool_configuration(&rel) {
+            continue;
+        }
+        let path = root.join(&rel);
+        let text =
+            std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", rel.display()));
+        let has = |line: &str| text.lines().any(|l| l.trim_start().starts_with(line));
+        if has("[piston]") {
+            MachineModel::read(&path).unwrap_or_else(|e| panic!("{}: {e}", rel.display()));
+            models.push(rel);
+        } else if has("[axes]") {
+            let dir = path.parent().expect("a directory").to_path_buf();
+            hal_sim::sweep::plan::Plan::parse(&text, |m| {
+                let p = dir.join(m);
+                std::fs::read_to_string(&p)
+                    .map(|t| (t, m.to_string()))
+                    .map_err(|e| format!("{}: {e}", p.display()))
+            })
+            .unwrap_or_else(|e| panic!("{}: {e}", rel.display()));
+            plans.push(rel);
+        } else if has("format_version") {
+            hal_sim::calibration::read(&path).unwrap_or_else(|e| panic!("{}: {e}", rel.display()));
+            calibrations.push(rel);
+        } else {
+            panic!(
+                "{}: a TOML file of no kind this test knows (a model has `[piston]`, a plan \
+                 `[axes]`, a calibration `format_version`): add its reader here",
+                rel.display()
+            );
+        }
+    }
+    println!(
+        "{} model files, {} sweep plans, {} calibration files loaded:\n{models:#?}\n{plans:#?}\n{calibrations:#?}",
+        models.len(),
+        plans.len(),
+        calibrations.len()
+    );
+    // Each field log comes with the nominal model it is analysed with.
+    let logs = root.join("tests/data/field-logs");
+    let mut field_logs = 0;
+    for entry in std::fs::read_dir(&logs).expect("the field logs") {
+        let name = entry
+            .expect("an entry")
+            .file_name()
+            .to_string_lossy()
+            .into_owned();
+        if let Some(stem) = name.strip_suffix(".csv.gz") {
+            let model = std::path::Path::new("tests/data/field-logs").join(format!("{stem}.toml"));
+            assert!(
+                models.contains(&model),
+                "{name} has no model {} that loads",
+                model.display()
+            );
+            field_logs += 1;
+        }
+    }
+    // The kinds are all there: the embedded reference, the minimal model, the docs' examples
+    // and studies, the field logs' models.
+    assert!(field_logs >= 7, "{field_logs} field logs");
+    for must in [
+        "hal-sim/src/plant/model/reference.toml",
+        "hal-sim/tests/data/minimal_model.toml",
+        "docs/examples/model.toml",
+        "docs/studies/paper-rig.toml",
+    ] {
+        assert!(
+            models.contains(&std::path::PathBuf::from(must)),
+            "{must} not found as a model"
+        );
+    }
+    assert!(!plans.is_empty() && !calibrations.is_empty());
 }
 
 /// Through the command: every numeric key at 1e300 (and NaN for a few) exits 2 with one line
 /// naming the key, before any output is written.
 #[test]
 fn fpc_sim_run_exits_2_naming_the_key_and_writes_nothing() {
-    let d = std::env::temp_dir().join(format!("fpc_model_ranges_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
+    let scratch = tempfile::tempdir().expect("scratch directory");
+    let d = scratch.path();
     let model = d.join("model.toml");
     let out = d.join("out");
     for (n, (i, key)) in numeric_lines().into_iter().enumerate() {
@@ -172,7 +274,6 @@ fn fpc_sim_run_exits_2_naming_the_key_and_writes_nothing() {
         assert_names(err.trim(), &key, value);
         assert!(!out.exists(), "{key} = {value}: outputs written");
     }
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
@@ -365,8 +466,8 @@ fn an_endless_or_huge_model_file_is_refused_without_reading_it_all() {
         let e = MachineModel::read(zero).unwrap_err().0;
         assert!(e.contains("larger than"), "{e}");
     }
-    let d = std::env::temp_dir().join(format!("fpc_model_huge_{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
+    let scratch = tempfile::tempdir().expect("scratch directory");
+    let d = scratch.path();
     let huge = d.join("huge.toml");
     let padding = "# padding\n".repeat(200_000);
     std::fs::write(&huge, format!("{REFERENCE}\n{padding}")).unwrap();
@@ -375,5 +476,4 @@ fn an_endless_or_huge_model_file_is_refused_without_reading_it_all() {
     std::fs::write(&huge, [0xff, 0xfe, 0x00, 0x41]).unwrap();
     let e = MachineModel::read(&huge).unwrap_err().0;
     assert!(e.contains("not UTF-8"), "{e}");
-    let _ = std::fs::remove_dir_all(&d);
 }

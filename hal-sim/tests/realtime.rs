@@ -19,7 +19,7 @@ use fpc::control::command::Command;
 use fpc::control::step::{ControlStep, CycleInputs};
 use fpc::safety::faults::ResetCause;
 use fpc::status::ModeKind;
-use fpc::units::{DacCode, PerSection, PhaseDuties, CONTROL_PERIOD_S, CONTROL_PERIOD_US};
+use fpc::units::{DacCode, Duty, PerSection, PhaseDuties, CONTROL_PERIOD_S, CONTROL_PERIOD_US};
 use hal_sim::board::exec::simulate;
 use hal_sim::plant::chambers::PortMode;
 use hal_sim::plant::dynamics::Drive;
@@ -191,7 +191,14 @@ fn where_the_cycle_time_goes() {
             if check {
                 let (enabled, sections, duties, servo) = now.latched;
                 let latched = enabled.then_some((duties, sections));
-                let stepped = out.pwm.map(|d| (d, out.sections));
+                // As the board latches them: each duty in whole timer steps.
+                let stepped = out.pwm.map(|d| {
+                    let switched = PerSection {
+                        master: d.master.map(Duty::as_switched),
+                        slave: d.slave.map(Duty::as_switched),
+                    };
+                    (switched, out.sections)
+                });
                 assert_eq!(stepped, latched, "cycle {}", now.inputs.t.0);
                 assert_eq!(out.servo, servo, "cycle {}", now.inputs.t.0);
             }

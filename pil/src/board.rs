@@ -11,27 +11,56 @@
 //! |---|---|---|---|
 //! | ADC1 | IN1, IN2, IN3 | PA0, PA1, PA2 | section 1 phase currents U, V, W |
 //! | ADC2 | IN3, IN4, IN5 | PA6, PA7, PC4 | section 2 phase currents U, V, W |
-//! | ADC1 / ADC2 | IN15 / IN11 | PB0 / PC5 | master encoder sin / cos |
+//! | ADC1 / ADC2 | IN4 / IN11 | PA3 / PC5 | master encoder sin / cos |
 //! | ADC1 / ADC2 | IN12 / IN12 | PB1 / PB2 | slave encoder sin / cos |
 //! | ADC1 / ADC2 | IN11 / IN7 | PB12 / PC1 | chamber A / chamber B pressure |
 //! | ADC1 / ADC2 | IN6 / IN8 | PC0 / PC2 | suction / discharge pressure |
 //!
-//! TIM1 CH1–3 drive section 1's bridge, TIM8 CH1–3 section 2's: a phase's average voltage
-//! over a period is its compare value over ARR (centre-aligned PWM mode 1), and a bridge
-//! whose MOE is 0 is off. DAC1 OUT1 is the servo's torque command. TIM4 counts the servo
+//! The over-current comparators' inputs (`src/board/trip.rs`): U1 on PA0 (COMP3), V1 on PA1
+//! (COMP1) and V2 on PA7 (COMP2), the pins the ADCs read; W1, U2 and W2 by second traces to
+//! PB0 (COMP4), PB11 (COMP6) and PB13 (COMP5). A sensor's voltage is its code over 4095 of
+//! VREF+.
+//!
+//! TIM1 CH1–3 drive section 1's bridge, TIM8 CH1–3 section 2's, as their output stages say
+//! ([`crate::chip::output_stage`]): switching, a phase's average voltage over a period is
+//! its compare value over ARR (centre-aligned PWM mode 1; the period less it for a pair
+//! inverted by its polarity bits), or off. The bridge needs at least
+//! [`MIN_DEAD_TIME_NS`] of dead time. DAC1 OUT1 is the servo's torque command. TIM4 counts the servo
 //! encoder. PB5 (GPIOB_IDR bit 5) reads the DC link's power-good comparator.
 
 use fpc::units::{DacCode, Duty, PerSection, PhaseDuties};
 use hal_sim::board::world::World;
 
+use crate::chip::output_stage::Bridge;
+
+/// The least dead time the bridge takes, ns: its switches' turn-off and the gate driver's
+/// propagation mismatch (an assumption of the board model; `docs/bring-up.md` 2.3 measures
+/// the margin). The firmware inserts 500 ns.
+pub const MIN_DEAD_TIME_NS: f64 = 300.0;
+
+/// A phase current stepped above what the machine draws (a winding short, say), as the
+/// sensor reports it from `at_s` on.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CurrentStep {
+    /// 0: section 1, 1: section 2.
+    pub section: usize,
+    /// 0, 1, 2: phase U, V, W.
+    pub phase: usize,
+    /// The sensed current, A.
+    pub amps: f64,
+}
+
 /// The board and the plant.
 pub struct Board {
     /// The plant and its sensors (hal-sim).
     pub world: World,
-    /// Words the DMA has moved, to be written to RAM before the core runs on.
-    pub dma_writes: Vec<(u32, u32)>,
+    /// What the DMA has moved, to be written to RAM before the core runs on: (address,
+    /// data, bytes).
+    pub dma_writes: Vec<(u32, u32, u32)>,
     /// The duties in force from the last update event.
     duties: PerSection<PhaseDuties>,
+    /// An injected over-current, if any.
+    pub current_step: Option<CurrentStep>,
 }
 
 impl Board {
@@ -41,6 +70,7 @@ impl Board {
             world,
             dma_writes: Vec::new(),
             duties: PerSection::default(),
+            current_step: None,
         }
     }
 
@@ -56,18 +86,30 @@ impl Board {
         }
     }
 
-    /// One PWM period of the plant with the duties in force, bridges on where `moe`, and the
-    /// servo command `dac`; then the sensors sample (the next burst).
-    pub fn step(&mut self, moe: [bool; 2], dac: u16) {
+    /// One PWM period of the plant with the duties in force, the bridges as their output
+    /// stages drive them, and the servo command `dac`; then the sensors sample (the next
+    /// burst).
+    pub fn step(&mut self, bridges: [Bridge; 2], dac: u16) {
         let w = &mut self.world;
         // The chip's own timers decide what is in force (their update events): the plant
         // applies it as it stands.
-        w.duties = self.duties;
-        w.duties_in_force = self.duties;
-        w.enabled = moe[0] || moe[1];
+        let mut duties = self.duties;
+        let on = bridges.map(|b| matches!(b, Bridge::Switching { .. }));
+        for (b, d) in bridges.iter().zip([&mut duties.master, &mut duties.slave]) {
+            if let Bridge::Switching { inverted } = b {
+                for (phase, inv) in d.iter_mut().zip(inverted) {
+                    if *inv {
+                        *phase = Duty(u16::MAX - phase.0);
+                    }
+                }
+            }
+        }
+        w.duties = duties;
+        w.duties_in_force = duties;
+        w.enabled = on[0] || on[1];
         w.sections_on = PerSection {
-            master: moe[0],
-            slave: moe[1],
+            master: on[0],
+            slave: on[1],
         };
         w.servo_code = DacCode(dac);
         w.advance();
@@ -79,17 +121,55 @@ impl Board {
         self.world.servo_code = DacCode::MID;
     }
 
+    /// The code of phase `phase` of section `section`'s current sensor now.
+    fn current_code(&self, section: usize, phase: usize) -> u16 {
+        if let Some(c) = self
+            .current_step
+            .filter(|c| (c.section, c.phase) == (section, phase))
+        {
+            return (2048.0 + c.amps / 100.0 * 2048.0).clamp(0.0, 4095.0) as u16;
+        }
+        let i = self.world.cycle_inputs();
+        let codes = if section == 0 {
+            i.currents.master
+        } else {
+            i.currents.slave
+        };
+        codes[phase].0
+    }
+
+    /// What the board puts on comparator `n`'s (0: COMP1) non-inverting input `inpsel`
+    /// (0: IO1, 1: IO2), V; None where nothing analog is wired.
+    pub fn comparator_input_v(&self, n: usize, inpsel: u32) -> Option<f64> {
+        let code = match (n + 1, inpsel) {
+            (1, 0) => self.current_code(0, 1),
+            (2, 0) => self.current_code(1, 1),
+            (3, 0) => self.current_code(0, 0),
+            (4, 0) => self.current_code(0, 2),
+            (5, 0) => self.current_code(1, 2),
+            (6, 0) => self.current_code(1, 0),
+            (1, 1) => self.analog(1, 12),
+            (2, 1) => self.analog(1, 4),
+            (3, 1) => self.analog(2, 7),
+            _ => return None,
+        };
+        Some(f64::from(code) / 4095.0 * crate::chip::comp::VREF_V)
+    }
+
     /// The code ADC `adc` (1 or 2) converts on channel `ch` (an unconnected channel reads 0).
     pub fn analog(&self, adc: u8, ch: u32) -> u16 {
+        match (adc, ch) {
+            (1, 1) => return self.current_code(0, 0),
+            (1, 2) => return self.current_code(0, 1),
+            (1, 3) => return self.current_code(0, 2),
+            (2, 3) => return self.current_code(1, 0),
+            (2, 4) => return self.current_code(1, 1),
+            (2, 5) => return self.current_code(1, 2),
+            _ => {}
+        }
         let i = self.world.cycle_inputs();
         let c = match (adc, ch) {
-            (1, 1) => i.currents.master[0],
-            (1, 2) => i.currents.master[1],
-            (1, 3) => i.currents.master[2],
-            (2, 3) => i.currents.slave[0],
-            (2, 4) => i.currents.slave[1],
-            (2, 5) => i.currents.slave[2],
-            (1, 15) => i.encoders.master.sin,
+            (1, 4) => i.encoders.master.sin,
             (2, 11) => i.encoders.master.cos,
             (1, 12) => i.encoders.slave.sin,
             (2, 12) => i.encoders.slave.cos,

@@ -1,4 +1,4 @@
-//! Faults on the real binary (`docs/faults.md`, issue #28 C): each scenario boots the release ELF
+//! Faults on the real binary (`docs/faults.md`): each scenario boots the release ELF
 //! on the reference machine with a calibration in its flash, injects one fault in the
 //! emulated hardware, and reports what the firmware did — resets, its defmt log, what the
 //! host saw over telemetry, the head clearance.
@@ -10,16 +10,23 @@
 //! | [`Scenario::FaultPath`] | a bus error (HardFault) in the control executor while stroking |
 //! | [`Scenario::PanicOnStop`] | the `Stop` command while stroking, to the `test-panic-on-stop` build (it panics) |
 //! | [`Scenario::TornSave`] | the supply cut during a calibration save, the torn double word ECC-poisoned |
+//! | [`Scenario::TornSaveStaleFlag`] | the same, with a stale PGSERR in FLASH_SR when the next boot's read meets the torn word (a stray write to the array between operations, ERRIE off) |
+//! | [`Scenario::TornSaveInMotion`] | a save started as the strokes start: one of its double words fails (ECC-poisoned, the power on), and its read-back meets it at speed |
 //! | [`Scenario::SaveError`] | the flash controller ends a save's program with PROGERR |
+//! | [`Scenario::EraseError`] | a save that must erase a page: the erase ends with OPERR |
 //! | [`Scenario::SingleBank`] | option bytes with DBANK = 0 |
+//! | [`Scenario::FactoryBrownOut`] | option bytes as shipped: BOR_LEV = 0 (≈ 1.7 V) |
 //! | [`Scenario::SupplyLoss`] | the mains stops while stroking: the board runs on the plant's DC link, PB5 (power good) falls with it |
+//! | [`Scenario::Overcurrent`] | section 1's phase U current steps to 120 A while stroking (the comparator trips at 85 A) |
 
 use fpc::control::calibration::Routine;
 use fpc::control::command::Command;
 use fpc::status::ModeKind;
 use hal_sim::plant::chambers::PortMode;
-use hal_sim::plant::model::MachineModel;
 use hal_sim::run::RunOptions;
+
+use fpc::control::calibration::record::CalibrationRecord;
+use hal_sim::board::flash::SimFlash;
 
 use crate::board::Board;
 use crate::chip::{flash, ChipOptions, ResetRecord};
@@ -41,26 +48,42 @@ pub enum Scenario {
     PanicOnStop,
     /// Item 4: a power cut during a save.
     TornSave,
+    /// A power cut during a save, and a stale error flag when the NMI repairs the torn word.
+    TornSaveStaleFlag,
+    /// A double word of a save fails while the piston strokes: the NMI at speed.
+    TornSaveInMotion,
     /// Item 5: a flash error flag during a save.
     SaveError,
+    /// A page erase inside a save fails (OPERR).
+    EraseError,
     /// Item 6: DBANK = 0.
     SingleBank,
+    /// The brown-out reset at the factory's level 0.
+    FactoryBrownOut,
     /// A supply loss while stroking (`docs/faults.md` #24): the firmware reads PB5 low and
     /// brakes on the DC link's energy.
     SupplyLoss,
+    /// A phase current above the hardware trip's threshold while stroking: the comparator
+    /// and the timer's break switch the bridge off, the firmware reports `Overcurrent`.
+    Overcurrent,
 }
 
 impl Scenario {
     /// Every scenario.
-    pub const ALL: [Scenario; 8] = [
+    pub const ALL: [Scenario; 13] = [
         Scenario::BootWindow,
         Scenario::HungControl,
         Scenario::FaultPath,
         Scenario::PanicOnStop,
         Scenario::TornSave,
+        Scenario::TornSaveStaleFlag,
+        Scenario::TornSaveInMotion,
         Scenario::SaveError,
+        Scenario::EraseError,
         Scenario::SingleBank,
+        Scenario::FactoryBrownOut,
         Scenario::SupplyLoss,
+        Scenario::Overcurrent,
     ];
 
     /// Its name on the command line.
@@ -71,9 +94,14 @@ impl Scenario {
             Scenario::FaultPath => "fault-path",
             Scenario::PanicOnStop => "panic-on-stop",
             Scenario::TornSave => "torn-save",
+            Scenario::TornSaveStaleFlag => "torn-save-stale-flag",
+            Scenario::TornSaveInMotion => "torn-save-in-motion",
             Scenario::SaveError => "save-error",
+            Scenario::EraseError => "erase-error",
             Scenario::SingleBank => "single-bank",
+            Scenario::FactoryBrownOut => "factory-brown-out",
             Scenario::SupplyLoss => "supply-loss",
+            Scenario::Overcurrent => "overcurrent",
         }
     }
 }
@@ -105,6 +133,16 @@ pub struct Report {
     pub end_s: f64,
     /// The boots' milestones.
     pub milestones: Vec<(f64, crate::chip::Milestone)>,
+    /// The calibration record the board held before the scenario (its encoded bytes).
+    pub record_before: Vec<u8>,
+    /// The calibration store's pages at the end.
+    pub store_after: Vec<u8>,
+    /// The breaks the bridges' timers took from their break inputs.
+    pub breaks: Vec<crate::chip::BreakRecord>,
+    /// Plant periods after the first break in which the tripped bridge switched again.
+    pub switched_after_break: u64,
+    /// The stack's use at the end (since the last boot's paint).
+    pub stack: Option<crate::stack::StackUse>,
 }
 
 impl Report {
@@ -148,154 +186,321 @@ pub fn run(image: &Image, scenario: Scenario) -> Result<Report, String> {
     run_with(image, scenario, &Options::default())
 }
 
+/// The smallest head clearance over a stretch of the scenario, and when.
+#[derive(Clone, Copy, Debug)]
+struct Clearance {
+    min_m: f64,
+    at_s: f64,
+}
+
+impl Clearance {
+    const NONE: Clearance = Clearance {
+        min_m: f64::INFINITY,
+        at_s: 0.0,
+    };
+}
+
+/// A scenario in progress: the session and what is measured along it.
+struct Run {
+    s: Session,
+    clearance: Clearance,
+    after_injection_m: f64,
+    injected_at: Option<f64>,
+    speed: f32,
+    /// Periods after the first break in which the bridge it tripped switched again.
+    switched_after_break: u64,
+}
+
+impl Run {
+    /// One PWM period, the clearance noted.
+    fn step(&mut self) -> Result<(), String> {
+        // The period in which a break comes ends with its crossing (the comparators see the
+        // plant step's currents): only the periods that start after it count.
+        let broken_before = !self.s.chip.soc_ref().breaks.is_empty();
+        self.s.step()?;
+        let soc = self.s.chip.soc_ref();
+        if let Some(b) = soc.breaks.first().filter(|_| broken_before) {
+            let on = soc.board.world.sections_on;
+            if [on.master, on.slave][b.timer] {
+                self.switched_after_break += 1;
+            }
+        }
+        let c = self.s.chip.soc_ref().board.world.plant.head_clearance_m();
+        if c < self.clearance.min_m {
+            self.clearance = Clearance {
+                min_m: c,
+                at_s: self.s.chip.time_s(),
+            };
+        }
+        Ok(())
+    }
+
+    /// Steps until emulated time `t`, s.
+    fn until(&mut self, t: f64) -> Result<(), String> {
+        while self.s.chip.time_s() < t {
+            self.step()?;
+        }
+        Ok(())
+    }
+
+    /// Homes the machine and closes the bypass (the ports timed by the rotation).
+    fn home(&mut self) -> Result<(), String> {
+        while !self.s.send(Command::Home) {
+            self.step()?;
+        }
+        while !(self.s.status.homed && self.s.status.mode == ModeKind::Holding) {
+            self.step()?;
+            if self.s.chip.time_s() > 30.0 {
+                return Err("homing did not end".into());
+            }
+        }
+        self.s.chip.soc().board.world.plant.port_mode = PortMode::Timed;
+        Ok(())
+    }
+
+    /// Starts the strokes; the clearance counts from here (homing touches head A on purpose).
+    fn start_strokes(&mut self) {
+        self.s.send(Command::Start {
+            peak_speed_mps: self.speed,
+        });
+        self.clearance = Clearance::NONE;
+    }
+
+    /// Marks the injection now and runs `for_s` more; the clearance after it is kept apart.
+    fn inject_and_follow(&mut self, for_s: f64) -> Result<(), String> {
+        self.injected_at = Some(self.s.chip.time_s());
+        let before = self.clearance;
+        self.clearance = Clearance::NONE;
+        let t = self.s.chip.time_s() + for_s;
+        self.until(t)?;
+        self.after_injection_m = self.clearance.min_m;
+        if before.min_m < self.clearance.min_m {
+            self.clearance = before;
+        }
+        Ok(())
+    }
+}
+
 /// Runs `scenario` on `image`.
 pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Report, String> {
-    let scenario_opts = opts;
-    let opts = RunOptions {
-        pressure_ratio: scenario_opts.pressure_ratio,
+    let run_opts = RunOptions {
+        pressure_ratio: opts.pressure_ratio,
         ..RunOptions::reference()
     };
-    opts.validate()?;
-    let record = crate::run::commissioned(&opts)?;
-    let store = hal_sim::board::flash::holding(&record)?;
+    run_opts.validate()?;
+    let record = crate::run::commissioned(&run_opts)?;
+    let store = match scenario {
+        // A store whose next save must erase a page (the save then outlasts the strokes'
+        // start by that erase's 22 ms).
+        Scenario::EraseError | Scenario::TornSaveInMotion => store_before_an_erase(&record)?,
+        _ => hal_sim::board::flash::holding(&record)?,
+    };
     // The piston rests 1 mm from head A, so that homing (which creeps to it) is short.
-    let mut world = hal_sim::run::world(&opts.model, opts.seed, 0, START_POSITION_M);
-    world.plant.lines.set_pressure_ratio(opts.pressure_ratio);
+    let mut world = hal_sim::run::world(&run_opts.model, run_opts.seed, 0, START_POSITION_M);
+    world
+        .plant
+        .lines
+        .set_pressure_ratio(run_opts.pressure_ratio);
     let mut chip = ChipOptions {
-        cpi: scenario_opts.cpi,
+        cpi: opts.cpi,
         ..ChipOptions::default()
     };
     if scenario == Scenario::SingleBank {
         chip.optr &= !flash::OPTR_DBANK;
     }
+    if scenario == Scenario::FactoryBrownOut {
+        chip.optr = flash::OPTR_FACTORY;
+    }
     let mut s = Session::new(image.clone(), Board::new(world), chip)?;
     s.chip.soc().flash.load_image(store.image());
-    let mut min_clearance = (f64::INFINITY, 0.0);
-    let mut after_injection = f64::INFINITY;
-    let mut injected_at = None;
-    let speed = opts.peak_speed_mps() as f32;
-    let step = |s: &mut Session, min: &mut (f64, f64)| -> Result<(), String> {
-        s.step()?;
-        let c = s.chip.soc_ref().board.world.plant.head_clearance_m();
-        if c < min.0 {
-            *min = (c, s.chip.time_s());
-        }
-        Ok(())
-    };
-    let until = |s: &mut Session, min: &mut (f64, f64), t: f64| -> Result<(), String> {
-        while s.chip.time_s() < t {
-            step(s, min)?;
-        }
-        Ok(())
+    let mut r = Run {
+        s,
+        clearance: Clearance::NONE,
+        after_injection_m: f64::INFINITY,
+        injected_at: None,
+        speed: run_opts.peak_speed_mps() as f32,
+        switched_after_break: 0,
     };
     match scenario {
         Scenario::BootWindow => {
-            s.chip.soc().adc_dead = true;
-            injected_at = Some(0.0);
-            while s.chip.soc_ref().resets.is_empty() && s.chip.time_s() < 0.7 {
-                step(&mut s, &mut min_clearance)?;
+            r.s.chip.soc().adc_dead = true;
+            r.injected_at = Some(0.0);
+            while r.s.chip.soc_ref().resets.is_empty() && r.s.chip.time_s() < 0.7 {
+                r.step()?;
             }
         }
-        Scenario::SingleBank => until(&mut s, &mut min_clearance, 0.1)?,
+        Scenario::SingleBank | Scenario::FactoryBrownOut => r.until(0.1)?,
         Scenario::HungControl
         | Scenario::FaultPath
         | Scenario::PanicOnStop
-        | Scenario::SupplyLoss => {
-            // Home, close the bypass, start the strokes, and inject at full speed.
-            let _ = MachineModel::reference;
-            while !s.send(Command::Home) {
-                step(&mut s, &mut min_clearance)?;
-            }
-            while !(s.status.homed && s.status.mode == ModeKind::Holding) {
-                step(&mut s, &mut min_clearance)?;
-                if s.chip.time_s() > 30.0 {
-                    return Err("homing did not end".into());
-                }
-            }
-            s.chip.soc().board.world.plant.port_mode = PortMode::Timed;
-            s.send(Command::Start {
-                peak_speed_mps: speed,
-            });
-            // Homing touches head A on purpose: the clearance counts from the strokes.
-            min_clearance = (f64::INFINITY, 0.0);
-            let t = s.chip.time_s() + scenario_opts.inject_after_start_s;
-            until(&mut s, &mut min_clearance, t)?;
-            injected_at = Some(s.chip.time_s());
-            match scenario {
-                Scenario::HungControl => s.chip.soc().hang_pending = true,
-                Scenario::FaultPath => s.chip.soc().bus_fault_pending = true,
-                Scenario::SupplyLoss => s.chip.soc().board.world.plant.supply.cut(),
-                _ => {
-                    s.send(Command::Stop);
-                }
-            }
-            let before = min_clearance;
-            min_clearance = (f64::INFINITY, 0.0);
-            let t = s.chip.time_s() + AFTER_INJECTION_S;
-            until(&mut s, &mut min_clearance, t)?;
-            after_injection = min_clearance.0;
-            if before.0 < min_clearance.0 {
-                min_clearance = before;
-            }
-        }
-        Scenario::TornSave | Scenario::SaveError => {
-            until(&mut s, &mut min_clearance, 0.01)?;
-            if scenario == Scenario::TornSave {
-                // The save appends an item: its third double word tears.
-                let steps = s.chip.soc_ref().flash.steps;
-                s.chip.soc().flash.faults.cut_power_at_step = Some(steps + 3);
-            } else {
-                // The save's fourth program step fails with PROGERR (a step whose loss the
-                // storage crate does not notice by itself).
-                let steps = s.chip.soc_ref().flash.steps;
-                s.chip.soc().flash.faults.error_on_program =
-                    flash::error_flag("progerr").map(|f| (steps + save_error_step(), f));
-            }
-            s.send(Command::Calibrate {
-                routine: Routine::CurrentSense,
-            });
-            let deadline = s.chip.time_s() + 2.0;
-            while s.chip.time_s() < deadline {
-                step(&mut s, &mut min_clearance)?;
-                if scenario == Scenario::TornSave && !s.chip.soc_ref().powered {
-                    injected_at = Some(s.chip.time_s());
-                    break;
-                }
-                if scenario == Scenario::SaveError
-                    && s.log.contains("calibration")
-                    && s.log.lines.iter().any(|(_, l)| l.contains("saved"))
-                {
-                    injected_at = Some(s.chip.time_s());
-                    break;
-                }
-            }
-            if scenario == Scenario::TornSave {
-                if injected_at.is_none() {
-                    return Err("the save never reached the armed flash step".into());
-                }
-                // 20 ms without supply, then power again: the boots that follow.
-                let t = s.chip.time_s() + 0.02;
-                until(&mut s, &mut min_clearance, t)?;
-                s.chip.power_on().map_err(|e| e.to_string())?;
-            }
-            let t = s.chip.time_s() + 1.0;
-            until(&mut s, &mut min_clearance, t)?;
-        }
+        | Scenario::SupplyLoss
+        | Scenario::Overcurrent => stroke_then_inject(&mut r, scenario, opts)?,
+        Scenario::TornSave | Scenario::TornSaveStaleFlag => torn_save(&mut r, scenario)?,
+        Scenario::TornSaveInMotion => torn_save_in_motion(&mut r)?,
+        Scenario::SaveError | Scenario::EraseError => save_error(&mut r, scenario)?,
     }
-    let soc = s.chip.soc_ref();
+    let soc = r.s.chip.soc_ref();
     Ok(Report {
         scenario,
-        injected_at_s: injected_at,
+        injected_at_s: r.injected_at,
         resets: soc.resets.clone(),
-        log: s.log.lines.clone(),
-        final_mode: (s.frames > 0).then_some(s.status.mode),
-        faults: s.faults.iter().map(|f| f.name().to_string()).collect(),
-        min_clearance_m: min_clearance.0,
-        min_clearance_at_s: min_clearance.1,
-        min_clearance_after_m: after_injection,
-        end_s: s.chip.time_s(),
+        log: r.s.log.lines.clone(),
+        final_mode: (r.s.frames > 0).then_some(r.s.status.mode),
+        faults: r.s.faults.iter().map(|f| f.name().to_string()).collect(),
+        min_clearance_m: r.clearance.min_m,
+        min_clearance_at_s: r.clearance.at_s,
+        min_clearance_after_m: r.after_injection_m,
+        end_s: r.s.chip.time_s(),
         milestones: soc.milestones.clone(),
+        record_before: record.encode().to_vec(),
+        store_after: soc.flash.store.clone(),
+        breaks: soc.breaks.clone(),
+        switched_after_break: r.switched_after_break,
+        stack: crate::stack::stack_use(&r.s.chip),
     })
+}
+
+/// Homes, starts the strokes and injects `scenario`'s fault at full speed.
+fn stroke_then_inject(r: &mut Run, scenario: Scenario, opts: &Options) -> Result<(), String> {
+    r.home()?;
+    r.start_strokes();
+    let t = r.s.chip.time_s() + opts.inject_after_start_s;
+    r.until(t)?;
+    match scenario {
+        Scenario::HungControl => r.s.chip.soc().hang_pending = true,
+        Scenario::FaultPath => r.s.chip.soc().bus_fault_pending = true,
+        Scenario::SupplyLoss => r.s.chip.soc().board.world.plant.supply.cut(),
+        Scenario::Overcurrent => {
+            r.s.chip.soc().board.current_step = Some(crate::board::CurrentStep {
+                section: 0,
+                phase: 0,
+                amps: 120.0,
+            });
+        }
+        _ => {
+            r.s.send(Command::Stop);
+        }
+    }
+    r.inject_and_follow(AFTER_INJECTION_S)
+}
+
+/// A `Calibrate current_sense` whose save the supply cuts at its third flash step, leaving a
+/// torn, ECC-poisoned double word; 20 ms later the power is back, and the boots that follow.
+/// With [`Scenario::TornSaveStaleFlag`], a stray write into the flash array (PG clear, ERRIE
+/// off between operations: no interrupt clears it) leaves PGSERR standing when the boot's
+/// read meets the torn word.
+fn torn_save(r: &mut Run, scenario: Scenario) -> Result<(), String> {
+    r.until(0.01)?;
+    let steps = r.s.chip.soc_ref().flash.steps;
+    r.s.chip.soc().flash.faults.cut_power_at_step = Some(steps + 3);
+    r.s.send(Command::Calibrate {
+        routine: Routine::CurrentSense,
+    });
+    let deadline = r.s.chip.time_s() + 2.0;
+    while r.s.chip.soc_ref().powered {
+        r.step()?;
+        if r.s.chip.time_s() > deadline {
+            return Err("the save never reached the armed flash step".into());
+        }
+    }
+    r.injected_at = Some(r.s.chip.time_s());
+    // 20 ms without supply, then power again: the boots that follow.
+    let t = r.s.chip.time_s() + 0.02;
+    r.until(t)?;
+    r.s.chip.power_on().map_err(|e| e.to_string())?;
+    if scenario == Scenario::TornSaveStaleFlag {
+        let now = r.s.chip.soc_ref().time;
+        r.s.chip
+            .soc()
+            .flash
+            .write_array(flash::STORE_BASE + 0x100, 0, 4, now);
+    }
+    let t = r.s.chip.time_s() + 1.0;
+    r.until(t)
+}
+
+/// Homes, runs `Calibrate current_sense` and starts the strokes as soon as it ends, while its
+/// save (which must erase a page first) still runs; the save's fifth double word fails
+/// (ECC-poisoned, the power on), and the save's read-back meets it with the piston moving.
+fn torn_save_in_motion(r: &mut Run) -> Result<(), String> {
+    r.home()?;
+    r.s.chip.soc().flash.faults.tear_on_program = Some(5);
+    r.s.send(Command::Calibrate {
+        routine: Routine::CurrentSense,
+    });
+    let deadline = r.s.chip.time_s() + 2.0;
+    while r.s.status.mode != ModeKind::Calibrating {
+        r.step()?;
+        if r.s.chip.time_s() > deadline {
+            return Err("the calibration never began".into());
+        }
+    }
+    while r.s.status.mode == ModeKind::Calibrating {
+        r.step()?;
+        if r.s.chip.time_s() > deadline {
+            return Err("the calibration never ended".into());
+        }
+    }
+    r.start_strokes();
+    while r.s.chip.soc_ref().flash.poisoned.is_empty() {
+        r.step()?;
+        if r.s.chip.time_s() > deadline + 1.0 {
+            return Err("the save never reached its fifth double word".into());
+        }
+    }
+    r.inject_and_follow(AFTER_INJECTION_S)
+}
+
+/// A `Calibrate current_sense` whose save meets a flash error: [`Scenario::SaveError`], its
+/// fourth program step ends with PROGERR (a step whose loss the storage crate does not notice
+/// by itself); [`Scenario::EraseError`], its page erase ends with OPERR.
+fn save_error(r: &mut Run, scenario: Scenario) -> Result<(), String> {
+    r.until(0.01)?;
+    let faults = &mut r.s.chip.soc().flash.faults;
+    if scenario == Scenario::EraseError {
+        faults.error_on_erase = Some(1);
+    } else {
+        let steps = r.s.chip.soc_ref().flash.steps;
+        r.s.chip.soc().flash.faults.error_on_program =
+            flash::error_flag("progerr").map(|f| (steps + save_error_step(), f));
+    }
+    r.s.send(Command::Calibrate {
+        routine: Routine::CurrentSense,
+    });
+    let deadline = r.s.chip.time_s() + 2.0;
+    while r.s.chip.time_s() < deadline {
+        r.step()?;
+        if r.s
+            .log
+            .lines
+            .iter()
+            .any(|(_, l)| l.contains("calibration") && l.contains("saved"))
+        {
+            r.injected_at = Some(r.s.chip.time_s());
+            break;
+        }
+    }
+    let t = r.s.chip.time_s() + 1.0;
+    r.until(t)
+}
+
+/// A store holding `record` saved as many times as leaves the next save to erase a page
+/// first (the store's pages then all hold items), by the firmware's own store on hal-sim's
+/// simulated flash.
+fn store_before_an_erase(record: &CalibrationRecord) -> Result<SimFlash, String> {
+    use hal_sim::board::flash::{block_on, store};
+    let mut flash = SimFlash::new(hal_sim::board::flash::STORE_PAGES);
+    for _ in 0..400 {
+        let mut next = store(flash.reboot())?;
+        let wear: u32 = flash.wear().iter().sum();
+        block_on(next.save(record)).map_err(|e| format!("saving to the simulated flash: {e:?}"))?;
+        let after = next.into_flash();
+        if after.wear().iter().sum::<u32>() > wear {
+            return Ok(flash);
+        }
+        flash = after;
+    }
+    Err("400 saves never erased a page".into())
 }
 
 /// Which program step of the save fails in [`Scenario::SaveError`] (counted from 1).

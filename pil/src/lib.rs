@@ -10,8 +10,10 @@
 //! | [`elf`] | the firmware image |
 //! | [`session`] | the host attached as a probe: RTT (hal-sim's reader over the chip's memory), defmt, telemetry |
 //! | [`run`], [`faults`] | the main job's scenario and the fault scenarios |
+//! | [`mutants`] | the mutation tests: each deliberate mistake caught |
 //! | [`save_timing`] | the control period while a save erases and programs flash |
 //! | [`log`] | the defmt log of up 0 |
+//! | [`stack`] | the firmware's stack use, read from RAM as a probe would |
 //! | [`time`] | emulated time |
 //!
 //! Licence: this package links unicorn (GPL-2.0), so it is GPL-2.0; it is its own
@@ -23,9 +25,11 @@ pub mod chip;
 pub mod elf;
 pub mod faults;
 pub mod log;
+pub mod mutants;
 pub mod run;
 pub mod save_timing;
 pub mod session;
+pub mod stack;
 pub mod time;
 
 /// Clock cycles per instruction of the emulated time by default (`pil/README.md`, "Cycles":

@@ -34,12 +34,28 @@ enum Cmd {
     /// over RTT, N cycles; the same JSON as `fpc-sim run --json` and the PIL's figures.
     Run(RunArgs),
     /// A fault scenario on the ELF (docs/faults.md): boot-window, hung-control, fault-path,
-    /// torn-save, save-error, single-bank; prints the resets, the log and the faults.
+    /// panic-on-stop, torn-save, torn-save-stale-flag, torn-save-in-motion, save-error,
+    /// erase-error, single-bank, factory-brown-out, supply-loss, overcurrent; prints the
+    /// resets, the log and the faults.
     Fault(FaultArgs),
     /// The control period while a calibration save erases and programs flash (data cache
     /// off): the interrupt path's flash lines and flash data reads per period, turned into
     /// cycles with 4 wait states, against the 50 µs period.
     SaveTiming(SaveTimingArgs),
+    /// The mutation tests (`scripts/fw-mutants.sh` builds the mutants): the release ELF must
+    /// pass every check, each mutant ELF in DIR (fpc-NAME) must fail its own; prints one line
+    /// per mutation, exit 1 if one is not caught.
+    Mutants(MutantsArgs),
+}
+
+#[derive(clap::Args)]
+struct MutantsArgs {
+    /// The release firmware ELF.
+    #[arg(long)]
+    elf: PathBuf,
+    /// The directory of the mutant ELFs.
+    #[arg(long)]
+    dir: PathBuf,
 }
 
 #[derive(clap::Args)]
@@ -123,6 +139,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Cmd::Run(args) => run_cmd(args),
         Cmd::Fault(args) => fault_cmd(args),
+        Cmd::Mutants(args) => mutants_cmd(args),
         Cmd::SaveTiming(args) => save_timing_cmd(args),
     };
     match result {
@@ -286,6 +303,29 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
         println!("  {t:.4} {line}");
     }
     Ok(ExitCode::SUCCESS)
+}
+
+fn mutants_cmd(args: MutantsArgs) -> Result<ExitCode, String> {
+    let image = Image::read(&args.elf)?;
+    let started = std::time::Instant::now();
+    match fpc_pil::mutants::verdicts(&image, &args.dir) {
+        Ok(lines) => {
+            for l in &lines {
+                println!("fpc-pil mutants: {l}");
+            }
+            println!(
+                "fpc-pil mutants: {} of {} caught, the release ELF passing every check ({:.0} s wall)",
+                lines.len(),
+                fpc_pil::mutants::MUTATIONS.len(),
+                started.elapsed().as_secs_f64()
+            );
+            Ok(ExitCode::SUCCESS)
+        }
+        Err(e) => {
+            eprintln!("fpc-pil mutants: {e}");
+            Ok(ExitCode::from(1))
+        }
+    }
 }
 
 fn save_timing_cmd(args: SaveTimingArgs) -> Result<ExitCode, String> {

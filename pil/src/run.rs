@@ -67,6 +67,11 @@ pub struct PilSummary {
     pub resets: usize,
     /// Telemetry frames received.
     pub telemetry_frames: u64,
+    /// The stack's size, bytes (flip-link: SRAM's start to the initial stack pointer).
+    pub stack_bytes: Option<u32>,
+    /// The deepest the stack has been since the boot painted it, bytes (read from RAM as a
+    /// probe would: the lowest word that lost the paint).
+    pub stack_high_water_bytes: Option<u32>,
 }
 
 /// A finished PIL run.
@@ -272,6 +277,7 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
     } else {
         None
     };
+    let stack = crate::stack::stack_use(&session.chip);
     let summary = PilSummary {
         run: outcome.summary.clone(),
         instructions_per_cycle_mean: mean,
@@ -288,6 +294,8 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
         total_wall_time_s: started.elapsed().as_secs_f64(),
         resets,
         telemetry_frames: session.frames,
+        stack_bytes: stack.map(|s| s.size),
+        stack_high_water_bytes: stack.map(|s| s.high_water),
     };
     Ok(PilOutcome {
         summary,

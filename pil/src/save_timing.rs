@@ -1,10 +1,10 @@
-//! The control step's period while a calibration save erases and programs flash (issue #28
-//! item 7). embassy-stm32 turns the flash data cache off around every erase and program
-//! (FLASH_ACR.DCEN = 0; the firmware runs with ACR = 0x604: 4 wait states, instruction and
-//! data cache on, prefetch off), so each read of a constant or a literal pool from program
-//! flash by the interrupt path then waits for the flash. The emulator executes instructions,
-//! not cycles: this scenario counts, per PWM period, what the interrupt path fetched and read
-//! from program flash, and turns it into cycles with the wait states stated here.
+//! The control step's period while a calibration save erases and programs flash (`fpc-pil
+//! save-timing`). embassy-stm32 turns the flash data cache off around every erase and program
+//! (FLASH_ACR.DCEN = 0; the firmware runs with ACR = 0x604: 4 wait states, instruction and data
+//! cache on, prefetch off), so each read of a constant or a literal pool from program flash by the
+//! interrupt path then waits for the flash. The emulator executes instructions, not cycles: this
+//! scenario counts, per PWM period, what the interrupt path fetched and read from program flash,
+//! and turns it into cycles with the wait states stated here.
 //!
 //! Scenario: the release ELF on the reference machine with a calibration in its store; the
 //! `CurrentSense` routine, whose result the storage task saves (an erase and a record's

@@ -210,7 +210,9 @@ pub fn start(
         }
         jsqr.set_jextsel(injected_signal);
         jsqr.set_jexten(edge);
-        adc.jsqr().write_value(jsqr);
+        if !super::mutation::is("jsqr-while-jadstart") {
+            adc.jsqr().write_value(jsqr);
+        }
 
         adc.sqr1().write(|w| {
             w.set_l(REGULAR_RANKS as u8 - 1);
@@ -233,6 +235,11 @@ pub fn start(
         w.set_jadstart(true);
         w.set_adstart(true);
     });
+    if super::mutation::is("jsqr-while-jadstart") {
+        for (adc, (_, jsqr)) in [p_adc1, p_adc2].into_iter().zip(written) {
+            adc.jsqr().write_value(jsqr);
+        }
+    }
 
     check_readback(ccr, &written);
 
@@ -308,7 +315,11 @@ fn configure_dma(dma: &Peri<'static, DMA1_CH1>) {
     ch.ndtr().write(|w| w.set_ndt(REGULAR_RANKS as u16));
     ch.cr().write(|w| {
         w.set_dir(Dir::FROM_PERIPHERAL);
-        w.set_psize(Size::BITS32);
+        w.set_psize(if super::mutation::is("dma-psize-16") {
+            Size::BITS16
+        } else {
+            Size::BITS32
+        });
         w.set_msize(Size::BITS32);
         w.set_minc(true);
         w.set_circ(true);

@@ -22,9 +22,17 @@
 //!
 //! NMI: a double ECC error on a flash read (FLASH_ECCR.ECCD), what a power cut during a
 //! program or an erase can leave. If the failing double word is in the calibration store,
-//! the store is erased (its pages only) before the reset, so the next boot finds no
-//! calibration (Start refused until calibrated) instead of reading the same word again and
-//! resetting for ever.
+//! that double word alone is programmed to zero before the reset (RM0440 allows programming
+//! all zeros over any double word, programmed or not, and writes a matching ECC): the next
+//! boot reads zeros there, which the storage crate's CRCs reject, so the item it was part of
+//! is skipped and the previous record loads — instead of reading the same word again and
+//! resetting for ever. Only if that program fails is the store erased (its pages only).
+//!
+//! Whether the next boot brakes is decided from the machine's state at the fault, not from
+//! its kind: the handlers note whether a bridge's outputs were enabled (TIM1 or TIM8
+//! BDTR.MOE) before switching them off. A flash ECC error met while the outputs were off
+//! (at boot, at a standstill) reboots without braking; one met while they were on (a save's
+//! read-back with the piston moving) brakes as after a hung task.
 //!
 //! `panic-probe` is not linked: it has no hook to run before its own logging.
 
@@ -36,6 +44,7 @@ use embassy_stm32::pac;
 use fpc::units::DacCode;
 
 use super::clocks::SYSCLK_HZ;
+use super::store_flash;
 
 /// A boot-time read-back that did not match: the board refuses to run. Stable numbers (they
 /// are logged); each line tells the operator what to do.
@@ -56,6 +65,10 @@ pub enum BootCheck {
     /// mode (2 KiB pages), and the calibration store's erases would hit other pages. Set
     /// DBANK = 1 in the option bytes (STM32CubeProgrammer, "User Configuration").
     FlashBankLayout = 5,
+    /// FLASH_OPTR.BOR_LEV is below 2 (≈ 2.2 V): with the factory's level 0 (≈ 1.7 V) the core
+    /// runs on while VDD sags far below where the flash and the analog front end are
+    /// specified. Set BOR_LEV = 2 or more in the option bytes (`docs/bring-up.md`, step 0).
+    BrownOutLevel = 6,
 }
 
 /// Safe torque off: both bridges' gates low (TIM1/TIM8 MOE = 0 with OSSI = 1 forces every
@@ -74,7 +87,7 @@ pub fn boot_fault(check: BootCheck) -> ! {
 }
 
 /// The IWDG's reload key (IWDG_KR = 0xAAAA): no effect while the watchdog is stopped.
-fn reload_watchdog() {
+pub(super) fn reload_watchdog() {
     pac::IWDG.kr().write_value(pac::iwdg::regs::Kr(0xAAAA));
 }
 
@@ -106,10 +119,20 @@ fn reset_after_log() -> ! {
 
 impl KeptCause {
     /// Whether the machine may have been moving when it happened: the next boot then brakes
-    /// as after a watchdog reset. A flash ECC error is met at boot, at a standstill.
+    /// as after a watchdog reset. A flash ECC error says so itself (the outputs' state at
+    /// the NMI); the other causes are taken as met while running (the safe side).
     pub fn while_running(&self) -> bool {
-        !matches!(self, KeptCause::FlashEcc { .. })
+        match self {
+            KeptCause::FlashEcc { outputs_on, .. } => *outputs_on,
+            _ => true,
+        }
     }
+}
+
+/// Whether either bridge's outputs are enabled now (TIM1 or TIM8 BDTR.MOE): read first thing
+/// by the fault handlers, before [`safe_outputs_off`].
+fn outputs_enabled() -> bool {
+    pac::TIM1.bdtr().read().moe() || pac::TIM8.bdtr().read().moe()
 }
 
 /// Why the previous run ended, kept across the reset (RAM is not cleared by a reset, and
@@ -128,12 +151,14 @@ pub enum KeptCause {
         /// Faulting instruction's address.
         pc: u32,
     },
-    /// A double ECC error at this flash address (the store was erased if it was in it).
+    /// A double ECC error at this flash address.
     FlashEcc {
         /// The failing double word.
         address: u32,
-        /// It was in the calibration store, which was erased.
-        store_erased: bool,
+        /// What was done to the calibration store about it.
+        repair: StoreRepair,
+        /// A bridge's outputs were enabled at the NMI (the piston may have been moving).
+        outputs_on: bool,
     },
     /// An NMI that was not a flash ECC error.
     Nmi,
@@ -142,6 +167,17 @@ pub enum KeptCause {
         /// Its IRQ number.
         irqn: i16,
     },
+}
+
+/// What the NMI handler did to the calibration store about a double ECC error.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
+pub enum StoreRepair {
+    /// The failing double word is outside the store: nothing to repair (program flash).
+    NotInStore,
+    /// The failing double word was programmed to zero: the previous record loads.
+    Zeroed,
+    /// Programming it to zero failed: the store was erased (calibration missing).
+    Erased,
 }
 
 /// The record's layout: magic, kind, two words of detail.
@@ -213,7 +249,12 @@ pub fn take_kept_cause() -> Option<KeptCause> {
         2 => Some(KeptCause::HardFault { pc: r.a }),
         3 => Some(KeptCause::FlashEcc {
             address: r.a,
-            store_erased: r.b != 0,
+            repair: match r.b & 3 {
+                1 => StoreRepair::Zeroed,
+                2 => StoreRepair::Erased,
+                _ => StoreRepair::NotInStore,
+            },
+            outputs_on: r.b & 4 != 0,
         }),
         4 => Some(KeptCause::Nmi),
         5 => Some(KeptCause::Unexpected { irqn: r.a as i16 }),
@@ -267,17 +308,18 @@ unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
     reset_after_log()
 }
 
-/// FLASH_ECCR bits (RM0440 §5.7.8).
+/// FLASH_ECCR bits (RM0440, FLASH_ECCR): ECCD, BK_ECC, ADDR_ECC.
 const ECCR_ECCD: u32 = 1 << 31;
 const ECCR_BK_ECC: u32 = 1 << 21;
 const ECCR_ADDR: u32 = 0x7_FFF8;
 
 // SAFETY: cortex-m-rt requires exception handlers that take no frame to be plain or unsafe
-// fns; this one reads and writes flash-interface registers through the PAC, erases the
-// calibration store's pages when the ECC error is in them, and resets.
+// fns; this one reads and writes flash-interface registers through the PAC, programs the
+// failing double word of the calibration store to zero (or erases the store), and resets.
 #[exception]
 unsafe fn NonMaskableInt() {
     cortex_m::interrupt::disable();
+    let outputs_on = outputs_enabled();
     safe_outputs_off();
     let eccr = pac::FLASH.eccr().read().0;
     if eccr & ECCR_ECCD == 0 {
@@ -288,56 +330,29 @@ unsafe fn NonMaskableInt() {
     let bank = if eccr & ECCR_BK_ECC != 0 { 0x4_0000 } else { 0 };
     let offset = bank + (eccr & ECCR_ADDR);
     let address = 0x0800_0000 + offset;
-    let in_store = super::CALIBRATION_STORE.contains(&offset);
     // ECCD is cleared by writing 1 (the other bits written back unchanged).
     pac::FLASH.eccr().write_value(pac::flash::regs::Eccr(eccr));
-    keep(3, address, u32::from(in_store));
-    defmt::error!(
-        "flash double ECC error at {=u32:#010x}{=str}",
-        address,
-        if in_store {
-            ": in the calibration store, erasing it (calibrate again)"
-        } else {
-            ""
-        }
-    );
-    if in_store {
-        erase_calibration_store();
-    }
-    reset_after_log()
-}
-
-/// Erases the calibration store's pages with the interrupts masked (the fault path: nothing
-/// else may run), reloading the IWDG while each erase (≈ 22 ms, longer than the boot
-/// window) runs in bank 2 and this code in bank 1.
-fn erase_calibration_store() {
-    const CR_PER: u32 = 1 << 1;
-    const CR_BKER: u32 = 1 << 11;
-    const CR_STRT: u32 = 1 << 16;
-    const CR_LOCK: u32 = 1 << 31;
-    const SR_BSY: u32 = 1 << 16;
-    let flash = pac::FLASH;
-    let wait = || {
-        while flash.sr().read().0 & SR_BSY != 0 {
-            reload_watchdog();
-        }
+    let repair = if !super::CALIBRATION_STORE.contains(&offset) {
+        StoreRepair::NotInStore
+    } else if store_flash::zero_double_word(address) {
+        StoreRepair::Zeroed
+    } else {
+        store_flash::erase_calibration_store();
+        StoreRepair::Erased
     };
-    wait();
-    if flash.cr().read().0 & CR_LOCK != 0 {
-        flash.keyr().write_value(0x4567_0123);
-        flash.keyr().write_value(0xCDEF_89AB);
-    }
-    let first = (super::CALIBRATION_STORE.start - 0x4_0000) / 2048;
-    let last = (super::CALIBRATION_STORE.end - 0x4_0000) / 2048;
-    for page in first..last {
-        // Clear the error flags (write 1), then one page erase in bank 2.
-        flash.sr().write_value(pac::flash::regs::Sr(0xC3FB));
-        flash.cr().write_value(pac::flash::regs::Cr(
-            CR_PER | CR_BKER | (page << 3) | CR_STRT,
-        ));
-        wait();
-    }
-    flash.cr().write_value(pac::flash::regs::Cr(CR_LOCK));
+    let code = match repair {
+        StoreRepair::NotInStore => 0,
+        StoreRepair::Zeroed => 1,
+        StoreRepair::Erased => 2,
+    };
+    keep(3, address, code | u32::from(outputs_on) << 2);
+    defmt::error!(
+        "flash double ECC error at {=u32:#010x}: {}, outputs {=str}",
+        address,
+        repair,
+        if outputs_on { "on" } else { "off" }
+    );
+    reset_after_log()
 }
 
 // SAFETY: cortex-m-rt requires `DefaultHandler` to be an `unsafe fn`. It runs for any

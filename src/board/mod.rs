@@ -13,7 +13,7 @@
 //! # Pins
 //! | signal | pin | peripheral | function |
 //! |---|---|---|---|
-//! | section 1 phase U high / low | PA8 / PB13 | TIM1 | CH1 / CH1N (AF6 / AF6) |
+//! | section 1 phase U high / low | PA8 / PA11 | TIM1 | CH1 / CH1N (AF6 / AF6) |
 //! | section 1 phase V high / low | PA9 / PB14 | TIM1 | CH2 / CH2N (AF6 / AF6) |
 //! | section 1 phase W high / low | PA10 / PB15 | TIM1 | CH3 / CH3N (AF6 / AF4) |
 //! | section 2 phase U high / low | PC6 / PC10 | TIM8 | CH1 / CH1N (AF4 / AF4) |
@@ -21,19 +21,20 @@
 //! | section 2 phase W high / low | PC8 / PC12 | TIM8 | CH3 / CH3N (AF4 / AF4) |
 //! | section 1 current U, V, W | PA0, PA1, PA2 | ADC1 | IN1, IN2, IN3, injected ranks 1–3 |
 //! | section 2 current U, V, W | PA6, PA7, PC4 | ADC2 | IN3, IN4, IN5, injected ranks 1–3 |
-//! | master encoder sin / cos | PB0 / PC5 | ADC1 / ADC2 | IN15 / IN11, regular rank 1 |
+//! | master encoder sin / cos | PA3 / PC5 | ADC1 / ADC2 | IN4 / IN11, regular rank 1 |
 //! | slave encoder sin / cos | PB1 / PB2 | ADC1 / ADC2 | IN12 / IN12, regular rank 2 |
 //! | pressure chamber A / B | PB12 / PC1 | ADC1 / ADC2 | IN11 / IN7, regular rank 3 |
 //! | pressure suction / discharge | PC0 / PC2 | ADC1 / ADC2 | IN6 / IN8, regular rank 4 |
 //! | servo encoder A / B | PB6 / PB7 | TIM4 | CH1 / CH2 (AF2), internal pull-ups, encoder mode 3, filter fDTS/16 N = 8 |
 //! | servo torque command | PA4 | DAC1 | OUT1, buffered, mid-scale = 0 (written before enable) |
 //! | DC-link power good | PB5 | GPIO | input, pull-down (low = supply lost), read at 1 kHz ([`supply`]) |
+//! | over-current comparators | PA0, PA1, PB0 / PB11, PA7, PB13 (U1, V1, W1 / U2, V2, W2; PB0, PB11, PB13 by second traces) | COMP3, 1, 4 / 6, 2, 5 ([`trip`]) | analog, each phase against 85 A, into TIM1/TIM8's break |
 //! | debug, defmt over RTT | PA13 / PA14 | SWD | SWDIO / SWCLK |
 //!
 //! The currents use the fast channels (IN1–IN5); PA2 carrying one of them costs the Nucleo's
-//! LPUART1 virtual COM port, so telemetry goes over RTT or USB FS (PA11/PA12, free). Also
-//! left free: PF0/PF1 (24 MHz HSE crystal), PB10 (TIM1_BKIN, AF12, for a future hardware
-//! over-current trip), PA5/PC13 (Nucleo LED/button). Phase outputs are active high; the
+//! LPUART1 virtual COM port, so telemetry goes over RTT (PA11 carries TIM1_CH1N, so USB FS
+//! is not available). Also left free: PF0/PF1 (24 MHz HSE crystal), PB10 (TIM1_BKIN, AF12,
+//! for an external trip), PA5/PC13 (Nucleo LED/button). Phase outputs are active high; the
 //! gate-driver inputs need pull-downs, since the pins float from reset until [`init`].
 //!
 //! PB8 is BOOT0: with the factory option bytes (nSWBOOT0 = 1) its level at reset chooses
@@ -50,7 +51,8 @@
 //! | thread mode | — | supervision (watchdog), telemetry, commands, calibration storage |
 //!
 //! # Flash
-//! The program lives in bank 1; the last four 2 KiB pages of bank 2 (0x0807_E000 to
+//! The program lives in bank 1 (`memory.x`'s FLASH is bank 1, so an image that would reach
+//! bank 2 does not link); the last four 2 KiB pages of bank 2 (0x0807_E000 to
 //! 0x0808_0000, cut from `memory.x`) hold the calibration store ([`CALIBRATION_STORE`]). In
 //! dual-bank mode the banks read while the other is written, so a page erase (≈ 22 ms) in
 //! bank 2 never stalls the control code. The async driver waits for the FLASH interrupt
@@ -70,13 +72,17 @@ mod adc;
 mod ccm;
 mod clocks;
 mod fault;
+mod mutation;
 mod pwm;
 mod reset;
 pub mod rtt;
 mod servo;
+pub mod stack;
+mod store_flash;
 mod supply;
 mod test_build;
 mod time;
+mod trip;
 mod watchdog;
 
 use embassy_executor::{InterruptExecutor, SendSpawner};
@@ -122,12 +128,12 @@ const FLASH_PRIORITY: Priority = Priority::P4;
 pub const CALIBRATION_STORE: core::ops::Range<u32> = 0x7_E000..0x8_0000;
 
 /// The calibration store on the MCU's flash.
-pub type BoardCalibrationStore = fpc::control::calibration::store::CalibrationStore<
-    embassy_stm32::flash::Flash<'static, embassy_stm32::flash::Async>,
->;
+pub type BoardCalibrationStore =
+    fpc::control::calibration::store::CalibrationStore<store_flash::CheckedFlash>;
 
+// The error flags are latched before embassy's handler clears them (`store_flash`).
 embassy_stm32::bind_interrupts!(struct FlashIrqs {
-    FLASH => embassy_stm32::flash::InterruptHandler;
+    FLASH => store_flash::LatchFlashErrors, embassy_stm32::flash::InterruptHandler;
 });
 
 /// The board, brought up.
@@ -195,6 +201,9 @@ pub fn take_reset_cause() -> fpc::safety::faults::ResetCause {
 /// Brings the board up: clocks, debug freeze, servo I/O, ADC burst, PWM (running, outputs
 /// off), watchdog (running). Call once, first thing.
 pub fn init() -> Board {
+    if mutation::is("stack-overflow") {
+        overflow_the_stack();
+    }
     // No output is configured yet: a failed clock check only logs and resets.
     let Ok(p) = clocks::start() else {
         fault::boot_fault(fault::BootCheck::BoostMode)
@@ -203,7 +212,7 @@ pub fn init() -> Board {
     ccm::copy_code();
     test_build::board_init();
     test_build::timing_init();
-    check_bank_layout();
+    check_option_bytes();
     freeze_on_debug_halt();
     // Started here, settled at the end: its register update (≈ 190 µs) overlaps the rest.
     let mut watchdog = BoardWatchdog::start(p.IWDG);
@@ -225,21 +234,27 @@ pub fn init() -> Board {
     use adc::{adc1_channel as adc1, adc2_channel as adc2};
     let master = adc::Sequence {
         injected: [adc1(p.PA0), adc1(p.PA1), adc1(p.PA2)],
-        regular: [adc1(p.PB0), adc1(p.PB1), adc1(p.PB12), adc1(p.PC0)],
+        regular: [adc1(p.PA3), adc1(p.PB1), adc1(p.PB12), adc1(p.PC0)],
     };
     let slave = adc::Sequence {
         injected: [adc2(p.PA6), adc2(p.PA7), adc2(p.PC4)],
         regular: [adc2(p.PC5), adc2(p.PB2), adc2(p.PC1), adc2(p.PC2)],
     };
+    // The over-current comparators, well before the timers' break inputs listen to them:
+    // the ADCs' start-up below is the DACs' and comparators' start-up time (no wait of their
+    // own in the boot, which delays the brake after a watchdog reset).
+    trip::start_comparators(p.PB0, p.PB11, p.PB13);
     let sampler = adc::start(p.ADC1, p.ADC2, p.DMA1_CH1, &master, &slave);
 
+    supply::start_pvd();
+    trip::lock_system_breaks();
     // Timers first (outputs forced low), then the pins handed to them.
     let bridges = pwm::IdleBridges::new(p.TIM1, p.TIM8);
     let push_pull = OutputType::PushPull;
     let section1 = pwm::SectionPins {
         u: (
             PwmPin::new(p.PA8, push_pull),
-            ComplementaryPwmPin::new(p.PB13, push_pull),
+            ComplementaryPwmPin::new(p.PA11, push_pull),
         ),
         v: (
             PwmPin::new(p.PA9, push_pull),
@@ -269,7 +284,7 @@ pub fn init() -> Board {
     let calibration = {
         interrupt::FLASH.set_priority(FLASH_PRIORITY);
         let flash = embassy_stm32::flash::Flash::new(p.FLASH, FlashIrqs);
-        BoardCalibrationStore::new(flash, CALIBRATION_STORE)
+        BoardCalibrationStore::new(store_flash::CheckedFlash::new(flash), CALIBRATION_STORE)
     };
 
     watchdog.settle();
@@ -298,14 +313,26 @@ pub fn init() -> Board {
     }
 }
 
-/// The flash must be in dual-bank mode (FLASH_OPTR.DBANK = 1, 2 KiB pages), as embassy's
-/// `dual-bank` feature and [`CALIBRATION_STORE`] assume; embassy's async `Flash::new` does
-/// not check it (its blocking constructor does). Otherwise a boot fault: no output has been
-/// configured yet.
-fn check_bank_layout() {
+/// The option bytes the firmware needs (`docs/bring-up.md`, step 0). Otherwise a boot
+/// fault: no output has been configured yet.
+/// - The flash in dual-bank mode (FLASH_OPTR.DBANK = 1, 2 KiB pages), as embassy's
+///   `dual-bank` feature and [`CALIBRATION_STORE`] assume; embassy's async `Flash::new` does
+///   not check it (its blocking constructor does).
+/// - The brown-out reset at level 2 or above (FLASH_OPTR.BOR_LEV ≥ 2: ≈ 2.2 V).
+fn check_option_bytes() {
     const OPTR_DBANK: u32 = 1 << 22;
-    if pac::FLASH.optr().read().0 & OPTR_DBANK == 0 {
+    const OPTR_BOR_LEV_SHIFT: u32 = 8;
+    const MIN_BOR_LEV: u32 = if mutation::is("bor-zero-accepted") {
+        0
+    } else {
+        2
+    };
+    let optr = pac::FLASH.optr().read().0;
+    if optr & OPTR_DBANK == 0 {
         fault::boot_fault(fault::BootCheck::FlashBankLayout);
+    }
+    if (optr >> OPTR_BOR_LEV_SHIFT) & 7 < MIN_BOR_LEV {
+        fault::boot_fault(fault::BootCheck::BrownOutLevel);
     }
 }
 
@@ -317,6 +344,13 @@ fn freeze_on_debug_halt() {
         w.set_tim8(true);
     });
     pac::DBGMCU.apb1lfzr().modify(|w| w.set_iwdg(true));
+}
+
+/// The `stack-overflow` mutation: a frame larger than SRAM.
+#[inline(never)]
+fn overflow_the_stack() {
+    let mut big = [0u8; 100 * 1024];
+    core::hint::black_box(&mut big);
 }
 
 /// Both bridges off: MOE = 0 on TIM1 and TIM8 (see [`pwm`] for the idle levels).

@@ -41,6 +41,7 @@ use fpc::ports::PwmOutput;
 use fpc::units::{PerSection, PhaseDuties, Section};
 
 use super::clocks::SYSCLK_HZ;
+use super::mutation;
 
 /// PWM (and control) frequency, Hz.
 pub const PWM_HZ: u32 = 20_000;
@@ -118,7 +119,7 @@ impl IdleBridges {
         embassy_stm32::rcc::enable_and_reset::<TIM1>();
         embassy_stm32::rcc::enable_and_reset::<TIM8>();
         for section in Section::ALL {
-            configure_section(timer(section));
+            configure_section(timer(section), section);
         }
         IdleBridges { tim1, tim8 }
     }
@@ -164,6 +165,9 @@ impl IdleBridges {
             }
         });
         check_started_in_phase();
+        for section in Section::ALL {
+            lock(timer(section));
+        }
 
         MotorPwm {
             _timers: (self.tim1, self.tim8),
@@ -198,16 +202,46 @@ fn check_started_in_phase() {
     }
 }
 
+/// Freezes the timer's protection until reset (RM0440, TIMx_BDTR.LOCK level 3): dead time,
+/// break, AOE, OSSI/OSSR, the idle levels (CR2.OISx/OISNx), the channels' polarities
+/// (CCER) and output modes (CCMRx.OCxM, OCxPE). The write repeats BDTR as it stands (MOE 0)
+/// with LOCK; from here only MOE and the compare values change.
+fn lock(tim: TimAdv) {
+    let bdtr = tim.bdtr().read().0 & !(1 << 15);
+    tim.bdtr()
+        .write_value(pac::timer::regs::BdtrAdv(bdtr | super::trip::bdtr::LOCK3));
+}
+
 /// Timing, idle state and channel enables of one section's timer, counter stopped.
-fn configure_section(tim: TimAdv) {
+fn configure_section(tim: TimAdv, section: Section) {
+    // The hardware over-current trip: the section's comparators on the break input
+    // (`trip.rs`; they run already, their outputs low).
+    tim.af1()
+        .write_value(pac::timer::regs::Af1Adv(super::trip::af1(section)));
     // Safe state first: with MOE = 0, OSSI = 1 and the channels enabled, every output is
-    // driven to its idle level (OIS = OISN = 0: both gates low), not left floating.
+    // driven to its idle level (OIS = OISN = 0: both gates low), not left floating. The
+    // break input armed: active high, filtered (`trip::bdtr`). Locked in `start`.
     tim.bdtr().modify(|w| {
         w.set_moe(false);
         w.set_aoe(false);
-        w.set_ossi(Ossi::IDLE_LEVEL);
+        w.set_ossi(if mutation::is("ossi-clear") {
+            Ossi::DISABLED
+        } else {
+            Ossi::IDLE_LEVEL
+        });
         w.set_ossr(Ossr::IDLE_LEVEL);
-        w.set_dtg(DEAD_TIME_DTG);
+        w.set_dtg(if mutation::is("dead-time-zero") {
+            0
+        } else {
+            DEAD_TIME_DTG
+        });
+        if !mutation::is("bke-off") {
+            w.0 |= super::trip::bdtr::BKE;
+        }
+        if !mutation::is("break-polarity-inverted") {
+            w.0 |= super::trip::bdtr::BKP;
+        }
+        w.0 |= super::trip::bdtr::BKF;
     });
     tim.cr1().modify(|w| {
         w.set_cen(false);
@@ -226,7 +260,7 @@ fn configure_section(tim: TimAdv) {
     }
     tim.cr2().modify(|w| {
         for ch in PHASES {
-            w.set_ois(ch, false);
+            w.set_ois(ch, mutation::is("ois-high") && ch == 0);
             w.set_oisn(ch, false);
         }
     });
@@ -259,6 +293,18 @@ impl PwmOutput for MotorPwm {
 
     fn disable(&mut self) {
         super::safe_pwm_off();
+    }
+
+    fn tripped(&mut self) -> PerSection<bool> {
+        super::trip::tripped(pac::TIM1, pac::TIM8)
+    }
+
+    fn rearm(&mut self, sections: PerSection<bool>) {
+        for section in Section::ALL {
+            if *sections.get(section) {
+                super::trip::rearm(timer(section));
+            }
+        }
     }
 
     fn enable(&mut self, sections: PerSection<bool>) {

@@ -47,6 +47,12 @@ impl BoardWatchdog {
     pub fn start(iwdg: Peri<'static, IWDG>) -> Self {
         let mut wdg = IndependentWatchdog::new(iwdg, BOOT_WATCHDOG_TIMEOUT_US);
         wdg.unleash();
+        if super::mutation::is("rlr-before-rvu") {
+            // The running window written at once, while the boot window's RLR is still on its
+            // way (RVU = 1).
+            pac::IWDG.kr().write(|w| w.set_key(Key::ENABLE));
+            pac::IWDG.rlr().write(|w| w.set_rl(RELOAD));
+        }
         BoardWatchdog {
             wdg,
             running_window: false,
@@ -71,8 +77,13 @@ impl Watchdog for BoardWatchdog {
         if !self.running_window {
             // Unlock and write the shorter reload; the IWDG takes it over within a few LSI
             // cycles (RVU), so at the latest the next feed reloads the counter with it.
-            pac::IWDG.kr().write(|w| w.set_key(Key::ENABLE));
-            pac::IWDG.rlr().write(|w| w.set_rl(RELOAD));
+            if super::mutation::is("iwdg-key-order-swapped") {
+                pac::IWDG.rlr().write(|w| w.set_rl(RELOAD));
+                pac::IWDG.kr().write(|w| w.set_key(Key::ENABLE));
+            } else if !super::mutation::is("rlr-before-rvu") {
+                pac::IWDG.kr().write(|w| w.set_key(Key::ENABLE));
+                pac::IWDG.rlr().write(|w| w.set_rl(RELOAD));
+            }
             self.running_window = true;
         }
         self.wdg.pet();

@@ -483,6 +483,20 @@ pub fn form_cases() -> u64 {
         .unwrap_or(20)
 }
 
+/// Which of `n` cases the full generalisation benchmarks run: every one, or with
+/// `FPC_GAP_BENCH_STRIDE=K` every K-th from K/2 on (CI's slice, other cases than the
+/// default slices').
+pub fn bench_cases(n: usize) -> Vec<usize> {
+    let stride = std::env::var("FPC_GAP_BENCH_STRIDE")
+        .ok()
+        .and_then(|v| v.trim().parse::<usize>().ok())
+        .filter(|k| *k > 1);
+    match stride {
+        Some(k) => (k / 2..n).step_by(k).collect(),
+        None => (0..n).collect(),
+    }
+}
+
 /// Whether the case of `seed` runs in the benchmarks of forms: `FPC_FORM_SEEDS` (seeds,
 /// comma-separated) keeps only those cases, to look at one that went wrong (each failed case
 /// prints its seed); unset, every case runs.

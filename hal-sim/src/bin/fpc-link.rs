@@ -13,6 +13,7 @@
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
+    hal_sim::interrupt::install();
     let args = std::env::args_os().skip(1);
     let argv = ["fpc-sim".into(), "link".into()].into_iter().chain(args);
     ExitCode::from(hal_sim::cli::execute::<_, std::ffi::OsString>(argv))

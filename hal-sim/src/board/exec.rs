@@ -52,7 +52,7 @@ pub const BOOT_WATCHDOG_TIMEOUT_US: u64 = fpc::tasks::BOOT_WATCHDOG_TIMEOUT_US a
 /// clock tree, the board's bring-up and the calibration read, the control task's start and
 /// its step built, up to its first cycle. Measured on the release ELF in the emulated
 /// STM32G474 (`fpc-pil fault hung-control`, the boot's milestones at 1.5 cycles per
-/// instruction: 1.35 ms from power-on, 1.33 ms after a watchdog reset, to `ControlCycle`),
+/// instruction: 1.38 ms from power-on, 1.36 ms after a watchdog reset, to `ControlCycle`),
 /// rounded up; `fpc-pil`'s tests check the ELF boots within it. No task runs and the
 /// outputs are off meanwhile, while the plant goes on: a simulator that booted at once
 /// would brake a moving piston that much earlier than the board can. A run's own start

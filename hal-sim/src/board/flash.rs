@@ -102,6 +102,18 @@ impl SimFlash {
         }
     }
 
+    /// A flash holding `image` (a chip's store pages, as read back by a probe), every double
+    /// word that is not all 0xFF taken as programmed.
+    pub fn from_image(image: &[u8]) -> Self {
+        let pages = image.len().div_ceil(PAGE_BYTES);
+        let mut f = SimFlash::new(pages);
+        f.bytes[..image.len()].copy_from_slice(image);
+        for (w, word) in f.bytes.chunks(WORD_BYTES).enumerate() {
+            f.written[w] = word.iter().any(|b| *b != 0xFF);
+        }
+        f
+    }
+
     /// `pages` erased pages whose torn operations leave double ECC errors (module header).
     pub fn with_ecc_poison(pages: usize) -> Self {
         SimFlash {
@@ -263,6 +275,9 @@ impl NorFlash for SimFlash {
                 self.poisoned[word] |= self.ecc_poison;
                 return Err(SimFlashError::PowerLost);
             }
+            // A whole program writes the ECC with the data: the double word reads clean again
+            // (how the NMI handler repairs a torn one, with zeros).
+            self.poisoned[word] = false;
         }
         Ok(())
     }
@@ -292,9 +307,10 @@ pub fn holding(record: &CalibrationRecord) -> Result<SimFlash, String> {
 }
 
 /// The board's boot read of its calibration store, with the firmware's NMI handler
-/// (`src/board/fault.rs`): a double ECC error in the store erases the store's pages and
-/// resets, and the next boot reads an empty store (calibration missing). Returns the load,
-/// the flash as the boots left it, and the resets the NMI made (0 or 1: never a loop).
+/// (`src/board/fault.rs`): a double ECC error in the store programs that double word to zero
+/// and resets (the store's pages are erased only if that program fails), and the next boot
+/// reads the store with the zeros, which the storage crate's CRCs skip. Returns the load, the
+/// flash as the boots left it, and the resets the NMI made (never a loop).
 pub fn boot_read(
     flash: SimFlash,
 ) -> (
@@ -321,16 +337,22 @@ pub fn boot_read(
         if after.ecc_error().is_none() {
             return (loaded, after, resets);
         }
-        // The NMI: the failing double word is in the store (the store is all this flash),
-        // so the handler erases the store's pages, then resets.
-        let mut erased = after.reboot();
-        let end = (erased.bytes.len()) as u32;
-        if block_on(erased.erase(0, end)).is_err() || resets > 0 {
-            // An erase that fails (or a second error after one) would loop on the chip.
-            return (loaded, erased, resets + 1);
+        // The NMI: the failing double word is in the store (the store is all this flash), so
+        // the handler programs it to zero, then resets; if that fails, it erases the store.
+        let at = after.ecc_error().unwrap_or(0);
+        let mut repaired = after.reboot();
+        if block_on(repaired.write(at, &[0; WORD_BYTES])).is_err() {
+            let end = (repaired.bytes.len()) as u32;
+            if block_on(repaired.erase(0, end)).is_err() {
+                return (loaded, repaired, resets + 1);
+            }
+        }
+        if resets > 4 {
+            // Each reset repairs one word; more than a save can have torn would be a loop.
+            return (loaded, repaired, resets + 1);
         }
         resets += 1;
-        flash = erased.reboot();
+        flash = repaired.reboot();
     }
 }
 

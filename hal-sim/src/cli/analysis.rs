@@ -14,10 +14,25 @@ use crate::output::OutDir;
 use crate::plant::model::MachineModel;
 use crate::runlog::RunLog;
 
-/// Reads and validates a run log; a bad log is bad input (exit 2) naming file, line and
-/// column (`docs/faults.md` #18).
+/// Reads and validates a run log with every required column; a bad log is bad input (exit
+/// 2) naming file, line and column (`docs/faults.md` #18).
 pub fn read_log(path: &Path) -> Result<RunLog, Failure> {
-    RunLog::read(path).map_err(|e| Failure::bad_input(format!("{}: {e}", path.display())))
+    read_log_needing(path, &crate::runlog::REQUIRED)
+}
+
+/// [`read_log`] for a command that reads only the columns `needs` (and `t_s`). A log the
+/// reader put on its time grid (jitter, dropped rows) is said in one line on stderr.
+pub fn read_log_needing(path: &Path, needs: &[&str]) -> Result<RunLog, Failure> {
+    let log = RunLog::read_needing(path, needs)
+        .map_err(|e| Failure::bad_input(format!("{}: {e}", path.display())))?;
+    if let Some(r) = &log.resampled {
+        crate::errln!(
+            "fpc-sim {}: {}: {r}",
+            crate::output::command(),
+            crate::output::show(path)
+        )?;
+    }
+    Ok(log)
 }
 
 /// The model at `path`, or the embedded reference machine.
@@ -131,15 +146,31 @@ pub fn time_window(
     }
 }
 
-/// The plotting window of an analysis: from 10 ms before the start of the last stroke to
-/// 90 ms into it (the acceleration, where filters differ most, as in the paper's Figs. 7
-/// and 8), or the whole log when it has no stroke.
+/// The strokes that are whole: each ends at a reversal (not at the log's end) and lies
+/// inside [`interior`] (away from the ends, where the zero-phase filter and one-sided
+/// differences start up: a stroke there shows edge effects, not the machine).
+pub fn whole_strokes(
+    strokes: &[std::ops::Range<usize>],
+    len: usize,
+    dt: f64,
+) -> Vec<std::ops::Range<usize>> {
+    let inside = interior(len, dt);
+    strokes
+        .iter()
+        .filter(|s| s.start >= inside.start && s.end <= inside.end && s.end < len)
+        .cloned()
+        .collect()
+}
+
+/// The plotting window of an analysis: from 10 ms before the start of the last whole stroke
+/// ([`whole_strokes`]) to 90 ms into it (the acceleration, where filters differ most, as
+/// in the paper's Figs. 7 and 8), or the whole log when it has none.
 pub fn default_window(
     t: &[f64],
     strokes: &[std::ops::Range<usize>],
     dt: f64,
 ) -> std::ops::Range<usize> {
-    match strokes.last() {
+    match whole_strokes(strokes, t.len(), dt).last() {
         Some(s) => {
             let before = (0.010 / dt).round() as usize;
             let after = (0.090 / dt).round() as usize;

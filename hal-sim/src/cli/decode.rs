@@ -29,8 +29,11 @@ pub struct DecodeArgs {
     #[arg(long)]
     pub capture: PathBuf,
     /// The run-log CSV to write.
-    #[arg(long, default_value = "decoded.csv")]
+    #[arg(long, default_value = "out/decode/decoded.csv")]
     pub out: PathBuf,
+    /// Print what was decoded as one JSON object (instead of the lines).
+    #[arg(long)]
+    pub json: bool,
     /// Replace an existing output file (never the capture itself).
     #[arg(long)]
     pub force: bool,
@@ -73,8 +76,36 @@ pub fn main(args: DecodeArgs) -> CmdResult {
         .write(&out.path())
         .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&args.out))))?;
     out.commit()?;
+    if args.json {
+        return outln!("{}", decoded_json(&d, &args.out)?);
+    }
     outln!("{}", counts(&d))?;
     report_written(&d, &args.out, "fpc-sim decode")
+}
+
+/// What `decode --json` prints for a telemetry capture.
+fn decoded_json(d: &Decoded, out: &Path) -> Result<String, Failure> {
+    let t = d.log.column("t_s").unwrap_or_default();
+    let span_s = match (t.first(), t.last()) {
+        (Some(a), Some(b)) => b - a,
+        _ => 0.0,
+    };
+    let json = serde_json::json!({
+        "frames_accepted": d.stats.accepted,
+        "frames_rejected": d.stats.rejected,
+        "repeated": d.duplicates,
+        "gaps": d.gaps,
+        "left_out": d.left_out,
+        "dropped_by_the_firmware": d.dropped,
+        "decimation": d.decimation,
+        "rows": d.log.len(),
+        "span_s": span_s,
+        "sample_rate_hz": d.log.meta("sample_rate_hz").and_then(|v| v.parse::<f64>().ok()),
+        "ports": d.log.meta("ports"),
+        "ports_from_s": d.log.meta("ports_from_s").and_then(|v| v.parse::<f64>().ok()),
+        "out": out.display().to_string(),
+    });
+    serde_json::to_string(&json).map_err(|e| Failure::runtime(e.to_string()))
 }
 
 /// The scope recording of a reply-channel capture, written as a run log.
@@ -113,6 +144,20 @@ fn scope(args: &DecodeArgs, out: OutFile, no_telemetry: &str) -> CmdResult {
         .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&args.out))))?;
     out.commit()?;
     let r = &rec.recording;
+    if args.json {
+        let json = serde_json::json!({
+            "scope_recording": r.id,
+            "whole_recordings": recordings.len(),
+            "trigger": trigger_text(r.trigger),
+            "samples": r.samples,
+            "pre": r.pre,
+            "sample_rate_hz": 20000,
+            "ports": r.ports.name(),
+            "clipped": rec.clipped(),
+            "out": args.out.display().to_string(),
+        });
+        return outln!("{json}");
+    }
     outln!(
         "scope recording {} of {} whole: trigger {}, {} samples at 20000 Hz ({} before the \
          trigger), ports {}{}; wrote {}",

@@ -1,7 +1,9 @@
 //! The `fpc-sim derive` subcommand: the firmware's own fixed-point Savitzky–Golay
 //! differentiator (`fpc::sensing::differentiator`), run offline over a run log's `x_m`.
 //!
-//! Prints CSV `t_s,x_m,v_mps,a_mps2` on stdout, one row per log row. Each value is the
+//! Prints CSV `t_s,x_m,v_mps,a_mps2` on stdout, one row per log row (a filter: `fpc-sim
+//! derive … | head`), or writes it to `--out FILE`; with `--json` the CSV goes to `--out`
+//! (default `out/derive/derived.csv`) and stdout gets the figures as one JSON object. Each value is the
 //! derivative *at that row's time*: the window ending `lag` rows later (so `--lag 0`, the
 //! causal end point, is exactly what the firmware has at that instant, and `--lag (N−1)/2`
 //! is scipy's `savgol_filter`). Rows without such a window — the first N−1−L and the last
@@ -21,6 +23,7 @@ use fpc::sensing::differentiator::{Derivatives, SavitzkyGolay, SgConfig};
 use fpc::sensing::encoder::PositionCounts;
 
 use crate::failure::{CmdResult, Failure};
+use crate::output::{show, OutFile};
 use crate::runlog::RunLog;
 
 /// Velocity and acceleration of the logged position by the firmware's differentiator.
@@ -39,6 +42,37 @@ pub struct DeriveArgs {
     /// centred; default: the firmware's).
     #[arg(long)]
     pub lag: Option<usize>,
+    /// Write the CSV to this file instead of stdout (with --json: default
+    /// out/derive/derived.csv).
+    #[arg(long, value_name = "FILE")]
+    pub out: Option<PathBuf>,
+    /// Print the figures (settings, rows, peak speed and acceleration) as one JSON object.
+    #[arg(long)]
+    pub json: bool,
+    /// Replace an existing --out file fpc-sim did not write (never the log itself).
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// What `derive --json` prints.
+#[derive(Debug, serde::Serialize)]
+pub struct DeriveFigures {
+    /// Window length N.
+    pub window: usize,
+    /// Polynomial order K.
+    pub order: usize,
+    /// Evaluation point, samples back from the newest.
+    pub lag: usize,
+    /// Rows derived.
+    pub rows: usize,
+    /// The log's sample time, s.
+    pub sample_time_s: f64,
+    /// Largest |velocity|, m/s.
+    pub peak_speed_mps: f64,
+    /// Largest |acceleration|, m/s².
+    pub peak_acceleration_mps2: f64,
+    /// Where the CSV went.
+    pub out: String,
 }
 
 /// Differentiator settings: window, order, evaluation point.
@@ -88,20 +122,51 @@ pub fn main(args: DeriveArgs) -> CmdResult {
     let dt = log.sample_time_s().unwrap_or(0.0);
     let d = derive(x, dt, settings)
         .map_err(|e| Failure::bad_input(format!("{}: {e}", args.measured.display())))?;
-    let mut out = std::io::BufWriter::new(crate::console::stdout());
-    let mut write = || -> std::io::Result<()> {
+    let write = |out: &mut dyn Write| -> std::io::Result<()> {
+        let mut out = std::io::BufWriter::new(out);
         writeln!(out, "t_s,x_m,v_mps,a_mps2")?;
         for (((t, x), v), a) in t.iter().zip(x).zip(&d.v_mps).zip(&d.a_mps2) {
             writeln!(out, "{t},{x},{v},{a}")?;
         }
         out.flush()
     };
-    write().map_err(|e| Failure::stdout_error(&e))
+    let file = match (&args.out, args.json) {
+        (Some(path), _) => Some(path.clone()),
+        (None, true) => Some(crate::cli::analysis::default_out("derive").join("derived.csv")),
+        (None, false) => None,
+    };
+    let Some(path) = file else {
+        return write(&mut crate::console::stdout()).map_err(|e| Failure::stdout_error(&e));
+    };
+    let out = OutFile::prepare(&path, args.force, &[args.measured.as_path()])?;
+    let mut f = std::fs::File::create(out.path())
+        .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&path))))?;
+    write(&mut f).map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&path))))?;
+    drop(f);
+    out.commit()?;
+    let peak = |v: &[f64]| v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    let figures = DeriveFigures {
+        window: settings.window,
+        order: settings.order,
+        lag: settings.lag,
+        rows: t.len(),
+        sample_time_s: dt,
+        peak_speed_mps: peak(&d.v_mps),
+        peak_acceleration_mps2: peak(&d.a_mps2),
+        out: path.display().to_string(),
+    };
+    if args.json {
+        let text = serde_json::to_string(&figures).map_err(|e| Failure::runtime(e.to_string()))?;
+        crate::outln!("{text}")
+    } else {
+        crate::outln!("wrote {} ({} rows)", path.display(), figures.rows)
+    }
 }
 
-/// Reads and validates the log; the message names the file, line and column at fault.
+/// Reads and validates the log (the time and the position are all it reads); the message
+/// names the file, line and column at fault.
 fn read(path: &Path) -> Result<RunLog, Failure> {
-    RunLog::read(path).map_err(|e| Failure::bad_input(format!("{}: {e}", path.display())))
+    crate::cli::analysis::read_log_needing(path, &["x_m"])
 }
 
 /// Checks the settings; the message names the flag at fault.

@@ -9,7 +9,7 @@ use serde::Serialize;
 
 use crate::balance::{stroke_energy, work, StrokeEnergy};
 use crate::cli::analysis::{
-    finish, in_window, read_force_balance, LogToolArgs, Steps, ZeroPhaseArgs,
+    finish, in_window, read_force_balance, whole_strokes, LogToolArgs, Steps, ZeroPhaseArgs,
 };
 use crate::console::Num;
 use crate::failure::{CmdResult, Failure};
@@ -23,7 +23,7 @@ pub struct EnergyArgs {
     #[command(flatten)]
     #[allow(missing_docs)]
     pub io: LogToolArgs,
-    /// Which stroke, counted from 0 (default: the last complete one).
+    /// Which stroke, counted from 0 (default: the last whole one, away from the log's ends).
     #[arg(long)]
     pub stroke: Option<usize>,
     #[command(flatten)]
@@ -39,16 +39,28 @@ pub fn main(args: EnergyArgs) -> CmdResult {
     let steps = Steps::new(3, "reading");
     let (_, model, dt, fb) = read_force_balance(&args.io, &args.filter, &steps)?;
     let all = strokes(&fb.x_m, &fb.v_mps);
-    let r = match args.stroke {
-        Some(i) => all.get(i).cloned().ok_or_else(|| {
-            Failure::bad_input(format!("--stroke {i}: the log has {} strokes", all.len()))
-        })?,
-        None => all.last().cloned().ok_or_else(|| {
-            Failure::bad_input(format!(
-                "{}: no stroke found (the piston must move from one reversal to the next)",
-                args.io.measured.display()
-            ))
-        })?,
+    // By default the last whole stroke: one that runs into the log's end (or starts at its
+    // beginning) shows the filter's edge, not the machine.
+    let whole = whole_strokes(&all, fb.x_m.len(), dt);
+    let (index, r) = match args.stroke {
+        Some(i) => (
+            i,
+            all.get(i).cloned().ok_or_else(|| {
+                Failure::bad_input(format!("--stroke {i}: the log has {} strokes", all.len()))
+            })?,
+        ),
+        None => whole
+            .last()
+            .and_then(|w| all.iter().position(|s| s == w).map(|i| (i, w.clone())))
+            .ok_or_else(|| {
+                Failure::bad_input(format!(
+                    "{}: no whole stroke found (the piston must move from one reversal to \
+                     the next, 20 ms or more from the log's ends); the log has {} strokes \
+                     touching its ends: name one with --stroke to plot it anyway",
+                    args.io.measured.display(),
+                    all.len()
+                ))
+            })?,
     };
     let e = stroke_energy(&fb, &r, model.piston.mass_kg);
     steps.next("plotting");
@@ -101,7 +113,7 @@ pub fn main(args: EnergyArgs) -> CmdResult {
     .map_err(Failure::runtime)?;
     steps.finish();
     let figures = EnergyFigures {
-        stroke: args.stroke.unwrap_or(all.len().saturating_sub(1)),
+        stroke: index,
         strokes: all.len(),
         duration_s: r.len() as f64 * dt,
         energy: e,

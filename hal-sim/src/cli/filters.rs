@@ -13,8 +13,8 @@ use fpc::control::config::ControlConfig;
 use serde::Serialize;
 
 use crate::cli::analysis::{
-    column, default_window, finish, interior, read_log, read_model, sample_time_s, time_window,
-    LogToolArgs, Steps, WindowArgs, ZeroPhaseArgs,
+    column, default_window, finish, interior, read_log_needing, read_model, sample_time_s,
+    time_window, LogToolArgs, Steps, WindowArgs, ZeroPhaseArgs,
 };
 use crate::console::Num;
 use crate::failure::{CmdResult, Failure};
@@ -163,7 +163,8 @@ pub fn main(args: FiltersArgs) -> CmdResult {
         .io
         .output("filters", &["filters.svg", "filters.json"])?;
     let steps = Steps::new(3, "reading");
-    let log = read_log(&args.io.measured)?;
+    // The time and the position filtered (named by --column when missing).
+    let log = read_log_needing(&args.io.measured, &[])?;
     steps.next("filtering");
     let est = estimates(&log, &args)?;
     steps.next("plotting");

@@ -32,9 +32,10 @@ From the simulator: `fpc-sim run --telemetry up1.bin` (2000 Hz by default), then
 #[derive(Args, Debug)]
 #[command(after_help = GAP_HELP)]
 pub struct GapArgs {
-    /// The model to check (machine-model TOML).
+    /// The model to check (machine-model TOML; default: the built-in reference machine,
+    /// `fpc-sim model` prints it).
     #[arg(long)]
-    pub model: PathBuf,
+    pub model: Option<PathBuf>,
     /// The measured run (run-log CSV, sampled at 2000 Hz or faster).
     #[arg(long)]
     pub measured: PathBuf,
@@ -53,20 +54,51 @@ pub struct GapArgs {
     pub force: bool,
 }
 
+/// Refuses a log sampled slower than the workflow analyses, saying what would work.
+fn refuse_slow_log(log: &crate::runlog::RunLog, path: &std::path::Path) -> Result<(), Failure> {
+    use crate::gap::data::MIN_SAMPLE_RATE_HZ;
+    let Some(dt) = log.sample_time_s().filter(|dt| *dt > 0.0) else {
+        return Ok(());
+    };
+    let rate = 1.0 / dt;
+    // The reader's own tolerance on the rate (1 %), so a log at the limit passes.
+    if rate >= 0.99 * MIN_SAMPLE_RATE_HZ {
+        return Ok(());
+    }
+    Err(Failure::bad_input(format!(
+        "{}: sampled at {}, below the {} gap analyses (its differentiator spans 2 ms and \
+         needs 5 samples in it); log at {} or faster: `fpc-sim run --log-rate 2000` (or \
+         10000, 20000), `fpc-sim link telemetry --rate 2000` on the board, or a rig logger \
+         set to 2 kHz or more. `fpc-sim lag`, `filters` and `pv` read this log as it is",
+        crate::output::show(path),
+        crate::console::eng(rate, "Hz"),
+        crate::console::eng(MIN_SAMPLE_RATE_HZ, "Hz"),
+        crate::console::eng(MIN_SAMPLE_RATE_HZ, "Hz")
+    )))
+}
+
 /// Runs `fpc-sim gap`.
 pub fn main(args: GapArgs) -> CmdResult {
+    let mut inputs = vec![args.measured.as_path()];
+    inputs.extend(args.model.as_deref());
     let out = OutDir::prepare(
         &args.out,
         &["model.toml", "report.md", "gap.json"],
         args.force,
-        &[args.model.as_path(), args.measured.as_path()],
+        &inputs,
     )?;
     // The model is validated by the model reader (naming the key), then kept as text so the
     // augmented file keeps every key the input had.
-    MachineModel::read(&args.model).map_err(|e| Failure::bad_input(e.0))?;
-    let text = std::fs::read_to_string(&args.model)
-        .map_err(|e| Failure::bad_input(format!("cannot read {}: {e}", args.model.display())))?;
+    let text = match &args.model {
+        Some(path) => {
+            MachineModel::read(path).map_err(|e| Failure::bad_input(e.0))?;
+            std::fs::read_to_string(path)
+                .map_err(|e| Failure::bad_input(format!("cannot read {}: {e}", path.display())))?
+        }
+        None => crate::plant::model::REFERENCE_TOML.to_string(),
+    };
     let log = read_log(&args.measured)?;
+    refuse_slow_log(&log, &args.measured)?;
     let opts = GapOptions {
         band_hz: args.band_hz,
     };
@@ -85,8 +117,13 @@ pub fn main(args: GapArgs) -> CmdResult {
         .map_err(|e| Failure::runtime(format!("cannot write gap.json: {e}")))?;
     let report_out = out.final_path("report.md");
     out.commit()?;
+    // Each warning once (a pair of effects is one warning, whichever order found it).
+    let mut said: Vec<&String> = Vec::new();
     for w in &outcome.json.warnings {
-        errln!("fpc-sim gap: warning: {w}")?;
+        if !said.contains(&w) {
+            errln!("fpc-sim gap: warning: {w}")?;
+            said.push(w);
+        }
     }
     let mut names: Vec<String> = outcome
         .json
@@ -103,11 +140,10 @@ pub fn main(args: GapArgs) -> CmdResult {
         .iter()
         .map(|c| {
             format!(
-                "{} {:.3e} → {:.3e} {}",
+                "{} {} → {}",
                 c.name,
-                crate::console::Num(c.rms_before),
-                crate::console::Num(c.rms_after),
-                c.unit
+                crate::console::eng(c.rms_before, &c.unit),
+                crate::console::eng(c.rms_after, &c.unit)
             )
         })
         .collect();

@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use clap::Args;
 use serde::Serialize;
 
-use crate::cli::analysis::{column, read_log, sample_time_s};
+use crate::cli::analysis::{column, read_log_needing, sample_time_s};
 use crate::failure::{CmdResult, Failure};
 use crate::outln;
 use crate::runlog::RunLog;
@@ -93,7 +93,8 @@ pub fn measure(
 
 /// Runs `fpc-sim lag`.
 pub fn main(args: LagArgs) -> CmdResult {
-    let log = read_log(&args.measured)?;
+    // Only the time and the two columns compared (each named by its flag when missing).
+    let log = read_log_needing(&args.measured, &[])?;
     let r = measure(&log, &args.a, &args.b, args.max_lag_s)?;
     if args.json {
         let text = serde_json::to_string(&r).map_err(|e| Failure::runtime(e.to_string()))?;

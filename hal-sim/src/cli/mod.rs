@@ -19,16 +19,26 @@ pub mod model;
 pub mod pv;
 pub mod run;
 pub mod sweep;
+pub mod view;
 
-use clap::{Parser, Subcommand};
+use clap::{Args, CommandFactory, Parser, Subcommand};
 
-use crate::failure::CmdResult;
+use crate::failure::{CmdResult, Failure};
+
+/// `fpc-sim --version`: the package version, the commit it was built from, and the telemetry
+/// frame layout it decodes (what a board's firmware must send).
+pub const VERSION: &str = concat!(
+    env!("CARGO_PKG_VERSION"),
+    " (commit ",
+    env!("FPC_SIM_COMMIT"),
+    ", telemetry layout 2)"
+);
 
 /// The command line of `fpc-sim`.
 #[derive(Parser)]
 #[command(
     name = "fpc-sim",
-    version,
+    version = VERSION,
     about = "Simulator and analysis tools of the free-piston compressor"
 )]
 pub struct Cli {
@@ -67,9 +77,54 @@ enum Cmd {
     Link(link::LinkArgs),
     /// Print the built-in reference machine model with its comments (start your own from it).
     Model(model::ModelArgs),
+    /// The bench console: live plots and controls in the browser, for the simulated board,
+    /// a recorded session or the board.
+    View(view::ViewArgs),
+    /// Print the shell completions of fpc-sim (e.g. `fpc-sim completions bash >
+    /// ~/.local/share/bash-completion/completions/fpc-sim`).
+    Completions(CompletionsArgs),
+}
+
+/// `fpc-sim completions`.
+#[derive(Args, Debug)]
+pub struct CompletionsArgs {
+    /// The shell.
+    #[arg(value_enum)]
+    shell: clap_complete::Shell,
+}
+
+/// The subcommand's name, as typed.
+fn name(cmd: &Cmd) -> &'static str {
+    match cmd {
+        Cmd::Run(_) => "run",
+        Cmd::Calibrate(_) => "calibrate",
+        Cmd::Derive(_) => "derive",
+        Cmd::Decode(_) => "decode",
+        Cmd::Lag(_) => "lag",
+        Cmd::Filters(_) => "filters",
+        Cmd::Forces(_) => "forces",
+        Cmd::Energy(_) => "energy",
+        Cmd::Pv(_) => "pv",
+        Cmd::Gap(_) => "gap",
+        Cmd::Sweep(_) => "sweep",
+        Cmd::SweepMerge(_) => "sweep-merge",
+        Cmd::Link(_) => "link",
+        Cmd::Model(_) => "model",
+        Cmd::View(_) => "view",
+        Cmd::Completions(_) => "completions",
+    }
+}
+
+/// `fpc-sim completions SHELL`: the script on stdout.
+fn completions(args: CompletionsArgs) -> CmdResult {
+    let mut text = Vec::new();
+    clap_complete::generate(args.shell, &mut Cli::command(), "fpc-sim", &mut text);
+    let mut out = crate::console::stdout();
+    std::io::Write::write_all(&mut out, &text).map_err(|e| Failure::stdout_error(&e))
 }
 
 fn dispatch(cmd: Cmd) -> CmdResult {
+    crate::output::set_command(name(&cmd));
     match cmd {
         Cmd::Run(args) => run::main(args),
         Cmd::Calibrate(args) => calibrate::main(args),
@@ -85,6 +140,8 @@ fn dispatch(cmd: Cmd) -> CmdResult {
         Cmd::SweepMerge(args) => sweep::merge_main(args),
         Cmd::Link(args) => link::main(args),
         Cmd::Model(args) => model::main(args),
+        Cmd::View(args) => view::main(args),
+        Cmd::Completions(args) => completions(args),
     }
 }
 
@@ -134,6 +191,27 @@ mod tests {
     #[test]
     fn the_command_line_is_well_formed() {
         Cli::command().debug_assert();
+    }
+
+    /// `--version` names the telemetry layout this build decodes: the firmware's.
+    #[test]
+    fn the_version_names_the_commit_and_the_telemetry_layout() {
+        let layout = format!("telemetry layout {})", fpc::link::telemetry::LAYOUT);
+        assert!(super::VERSION.ends_with(&layout), "{}", super::VERSION);
+        assert!(super::VERSION.contains("(commit "), "{}", super::VERSION);
+    }
+
+    /// Every shell's script names every subcommand.
+    #[test]
+    fn completions_cover_every_subcommand() {
+        for shell in [clap_complete::Shell::Bash, clap_complete::Shell::Zsh] {
+            let mut text = Vec::new();
+            clap_complete::generate(shell, &mut Cli::command(), "fpc-sim", &mut text);
+            let text = String::from_utf8(text).unwrap();
+            for sub in Cli::command().get_subcommands() {
+                assert!(text.contains(sub.get_name()), "{shell}: {}", sub.get_name());
+            }
+        }
     }
 
     /// The link's target options may follow the subcommand, and `send start` keeps its own

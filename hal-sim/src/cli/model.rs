@@ -4,7 +4,7 @@
 
 use clap::Args;
 
-use crate::failure::CmdResult;
+use crate::failure::{CmdResult, Failure};
 use crate::outln;
 use crate::plant::model::REFERENCE_TOML;
 
@@ -14,9 +14,20 @@ pub struct ModelArgs {
     /// The reference machine (the default and, for now, the only model built in).
     #[arg(long)]
     pub reference: bool,
+    /// Print the model as one JSON object (the same keys and values, without the comments).
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Runs `fpc-sim model`.
-pub fn main(_args: ModelArgs) -> CmdResult {
+pub fn main(args: ModelArgs) -> CmdResult {
+    if args.json {
+        let value: toml::Value = REFERENCE_TOML
+            .parse()
+            .map_err(|e: toml::de::Error| Failure::runtime(e.to_string()))?;
+        let text =
+            serde_json::to_string_pretty(&value).map_err(|e| Failure::runtime(e.to_string()))?;
+        return outln!("{text}");
+    }
     outln!("{}", REFERENCE_TOML.trim_end())
 }

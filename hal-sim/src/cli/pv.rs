@@ -13,7 +13,7 @@ use std::path::Path;
 use clap::Args;
 use serde::Serialize;
 
-use crate::cli::analysis::{column, finish, read_log, read_model, LogToolArgs, Steps};
+use crate::cli::analysis::{column, finish, read_log_needing, read_model, LogToolArgs, Steps};
 use crate::console::Num;
 use crate::failure::{CmdResult, Failure};
 use crate::outln;
@@ -183,7 +183,7 @@ pub fn plot_pv(path: &Path, log: &RunLog, model: &MachineModel) -> Result<PvFigu
 pub fn main(args: PvArgs) -> CmdResult {
     let out = args.io.output("pv", &["pv.svg", "pv.json"])?;
     let steps = Steps::new(2, "reading");
-    let log = read_log(&args.io.measured)?;
+    let log = read_log_needing(&args.io.measured, &["x_m", "p_a_pa", "p_b_pa"])?;
     let model = read_model(args.io.model.as_deref())?;
     steps.next("plotting");
     let path = out.path("pv.svg");

@@ -61,6 +61,10 @@ pub struct RunArgs {
     /// ratio, designed for the pressure ratio PR; for comparison).
     #[arg(long, default_value = "adaptive", value_name = "MODE")]
     pub volume_ratio: String,
+    /// The machine's mode: `compressor` (the default) or `expander` (the firmware's
+    /// SetRotation before the first stroke: the ports timed to expand the gas).
+    #[arg(long, default_value = "compressor", value_name = "MODE")]
+    pub rotation: String,
     /// Rows of run.csv per simulated second: the control rate (20000) or a whole divisor of
     /// it (10000 matches the paper's logs; 1000 makes a long run's log 20 times smaller).
     #[arg(long, default_value_t = crate::run::CONTROL_RATE_HZ, value_name = "HZ")]
@@ -84,8 +88,9 @@ pub struct RunArgs {
     #[arg(long, default_value_t = 2.0, value_name = "S")]
     pub hold: f64,
     /// Keep the files of a run that fails (stops before its cycles without an injected
-    /// fault, or ends before a fault begins), for diagnosis; it still exits 1. Without it a
-    /// failed run writes nothing.
+    /// fault, or ends before a fault begins), for diagnosis; it still exits 1. Ctrl-C then
+    /// ends the run where it is and keeps its log up to the interrupt (exit 130). Without it
+    /// a failed or interrupted run writes nothing.
     #[arg(long)]
     pub keep_partial: bool,
     /// Benchmark (`scripts/bench-main.sh`): simulate the run N times with no log and no
@@ -124,7 +129,7 @@ pub fn main(args: RunArgs) -> CmdResult {
         .map(crate::calibration::read)
         .transpose()
         .map_err(Failure::bad_input)?;
-    let opts = RunOptions {
+    let mut opts = RunOptions {
         model,
         model_name,
         calibration,
@@ -152,6 +157,8 @@ pub fn main(args: RunArgs) -> CmdResult {
             .map_err(|e| Failure::bad_input(format!("--telemetry-channels: {e}")))?,
         ..RunOptions::reference()
     };
+    let rotation = crate::run::parse_rotation(&args.rotation).map_err(Failure::bad_input)?;
+    crate::run::set_rotation(&mut opts, rotation).map_err(Failure::bad_input)?;
     opts.validate().map_err(Failure::bad_input)?;
     if args.bench_loop > 0 {
         return bench_loop(opts, args.bench_loop);
@@ -177,6 +184,11 @@ pub fn main(args: RunArgs) -> CmdResult {
         }
         None => None,
     };
+    // With --keep-partial, Ctrl-C ends the run where it is and keeps its files (without,
+    // it removes them: nothing half-written is left).
+    if args.keep_partial {
+        crate::interrupt::catch();
+    }
     let csv = out.path("run.csv");
     let file = std::fs::File::create(&csv)
         .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&csv))))?;
@@ -269,6 +281,18 @@ pub fn main(args: RunArgs) -> CmdResult {
     if args.json {
         let text = serde_json::to_string_pretty(s).map_err(|e| Failure::runtime(e.to_string()))?;
         outln!("{text}")?;
+    }
+    if crate::interrupt::interrupted() {
+        return Err(Failure {
+            code: crate::interrupt::EXIT_CODE as u8,
+            message: format!(
+                "interrupted (Ctrl-C) after {} of {} cycles; --keep-partial kept the log up to \
+                 the interrupt, its plots and summary in {}",
+                s.cycles,
+                s.cycles_requested,
+                show(&args.out)
+            ),
+        });
     }
     if let Some(why) = failed {
         let files = if written {
@@ -364,10 +388,15 @@ pub fn plot_motion(path: &Path, log: &RunLog) -> Result<(), String> {
                 ],
                 axes: Axes::default(),
             },
+            // Scaled to the strokes' error: homing's push into head A, a spike ten times
+            // larger, is drawn at the edge and counted.
             Panel {
                 y_label: "x − reference, µm",
                 series: vec![Series::new("tracking error", t, &error)],
-                axes: Axes::default(),
+                axes: Axes {
+                    robust_y: true,
+                    ..Axes::default()
+                },
             },
         ],
     )
@@ -427,6 +456,7 @@ pub fn plot_energy(path: &Path, outcome: &crate::run::RunOutcome) -> Result<(), 
         ],
         Axes {
             integer_x: true,
+            markers: true,
             ..Axes::default()
         },
     )

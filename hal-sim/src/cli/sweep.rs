@@ -39,7 +39,7 @@ pub struct SweepArgs {
     pub plan: PathBuf,
     /// Output directory: results.csv, plan.toml (a copy), work.svg, opening_error.svg,
     /// clearance.svg.
-    #[arg(long)]
+    #[arg(long, default_value = "out/sweep")]
     pub out: PathBuf,
     /// Run only slice I of N (`I/N`, 0 ≤ I < N): runs I, I+N, I+2N, …
     #[arg(long, default_value = "0/1")]
@@ -62,6 +62,9 @@ pub struct SweepArgs {
     /// nothing.
     #[arg(long)]
     pub resume: bool,
+    /// Print the sweep's figures as one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Join the slices (`--shard I/N`) of one plan into its whole table.
@@ -71,11 +74,14 @@ pub struct MergeArgs {
     #[arg(required = true)]
     pub slices: Vec<PathBuf>,
     /// Output directory: results.csv and the plots.
-    #[arg(long)]
+    #[arg(long, default_value = "out/sweep-merge")]
     pub out: PathBuf,
     /// Replace the outputs of an earlier merge in `--out`.
     #[arg(long)]
     pub force: bool,
+    /// Print the merged table's figures as one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Largest plan or model file read, bytes.
@@ -224,17 +230,58 @@ pub fn main(args: SweepArgs) -> CmdResult {
         .map_err(|e| Failure::runtime(format!("cannot write plan.toml: {e}")))?;
     out.commit()?;
     journal.remove().map_err(Failure::runtime)?;
-    report(&table, &args.out)?;
-    errln!(
-        "fpc-sim sweep: slice {}/{} of {} runs: {runs} runs in {wall_s:.1} s on {} threads \
-         ({:.2} runs/s)",
-        shard.index,
-        shard.count,
-        plan.len(),
-        pool.current_num_threads(),
+    let mut figures = report(&table, &args.out)?;
+    let threads = pool.current_num_threads();
+    let speed = format!(
+        "{runs} runs in {wall_s:.1} s on {threads} threads ({:.2} runs/s)",
         runs as f64 / wall_s.max(1e-9)
-    )?;
+    );
+    if shard.count > 1 {
+        errln!(
+            "fpc-sim sweep: slice {}/{} of {} runs: {speed}",
+            shard.index,
+            shard.count,
+            plan.len()
+        )?;
+    } else {
+        errln!("fpc-sim sweep: {speed}")?;
+    }
+    figures.slice = format!("{}/{}", shard.index, shard.count);
+    figures.wall_s = Some(wall_s);
+    figures.threads = Some(threads);
+    if args.json {
+        print_json(&figures)?;
+    }
     failed(&table)
+}
+
+/// What `sweep --json` and `sweep-merge --json` print.
+#[derive(Debug, Default, serde::Serialize)]
+pub struct SweepFigures {
+    /// Rows in the table.
+    pub runs: usize,
+    /// Runs that stopped before their cycles.
+    pub stopped_early: usize,
+    /// Runs that could not be simulated.
+    pub could_not_run: usize,
+    /// The smallest head clearance of any run, m.
+    pub smallest_head_clearance_m: Option<f64>,
+    /// The run that had it.
+    pub smallest_head_clearance_run: Option<u64>,
+    /// The table written.
+    pub results: String,
+    /// The slice run, `I/N` (`0/1`: the whole plan; empty for a merge).
+    pub slice: String,
+    /// Wall time of the runs, s.
+    pub wall_s: Option<f64>,
+    /// Worker threads.
+    pub threads: Option<usize>,
+}
+
+fn print_json(figures: &SweepFigures) -> CmdResult {
+    let text =
+        serde_json::to_string_pretty(figures).map_err(|e| Failure::runtime(e.to_string()))?;
+    crate::outln!("{text}")
 }
 
 /// Whether `a` and `b` name the same existing file.
@@ -295,7 +342,10 @@ pub fn merge_main(args: MergeArgs) -> CmdResult {
     let out = OutDir::prepare(&args.out, &names, args.force, &input_refs)?;
     write_files(&out, &table)?;
     out.commit()?;
-    report(&table, &args.out)?;
+    let figures = report(&table, &args.out)?;
+    if args.json {
+        print_json(&figures)?;
+    }
     failed(&table)
 }
 
@@ -311,8 +361,9 @@ fn write_files(out: &OutDir, t: &Table) -> CmdResult {
     plots(out.staging_dir(), t).map_err(Failure::runtime)
 }
 
-/// One line on what the runs did: how many stopped early or failed, the smallest clearance.
-fn report(t: &Table, dir: &Path) -> CmdResult {
+/// One line on what the runs did: how many stopped early or failed, the smallest clearance;
+/// the same as figures.
+fn report(t: &Table, dir: &Path) -> Result<SweepFigures, Failure> {
     let col = |name: &str| t.cell_index(name);
     fn cell(r: &crate::sweep::Row, i: Option<usize>) -> &str {
         i.and_then(|i| r.cells.get(i)).map_or("", String::as_str)
@@ -329,15 +380,25 @@ fn report(t: &Table, dir: &Path) -> CmdResult {
         .iter()
         .filter_map(|r| cell(r, clear).parse::<f64>().ok().map(|c| (c, r.run)))
         .min_by(|a, b| a.0.total_cmp(&b.0));
-    let worst = worst.map_or_else(
+    let worst_text = worst.map_or_else(
         || "no clearance measured".to_string(),
         |(c, k)| format!("smallest head clearance {:.3} mm (run {k})", c * 1e3),
     );
+    let results = dir.join("results.csv");
     errln!(
-        "fpc-sim sweep: {} runs: {stopped} stopped early, {failed} could not run; {worst}; wrote {}",
+        "fpc-sim sweep: {} runs: {stopped} stopped early, {failed} could not run; {worst_text}; wrote {}",
         t.rows.len(),
-        show(&dir.join("results.csv"))
-    )
+        show(&results)
+    )?;
+    Ok(SweepFigures {
+        runs: t.rows.len(),
+        stopped_early: stopped,
+        could_not_run: failed,
+        smallest_head_clearance_m: worst.map(|w| w.0),
+        smallest_head_clearance_run: worst.map(|w| w.1),
+        results: results.display().to_string(),
+        ..SweepFigures::default()
+    })
 }
 
 /// Exit 1 when a run could not be simulated (its row says why in `error`).

@@ -72,6 +72,9 @@ pub struct InjectionReport {
     /// The DC link over a mains outage (`power_cut`), as it stood in the outage's last
     /// period; `None` without one.
     pub link: Option<LinkOutcome>,
+    /// The samples of the noise burst (`encoder_noise_burst`) that were corrupted, counted
+    /// from its first (1), as [`InjectionReport::samples_to_fault`] counts.
+    pub burst_corrupted: Vec<u32>,
 }
 
 /// The DC link over a mains outage.
@@ -302,6 +305,7 @@ impl Injector {
                     samples_left: samples.max(1),
                     fraction: p("fraction"),
                     started: false,
+                    sample: 0,
                 });
             }
             FaultKind::PressureOpen => {
@@ -396,6 +400,9 @@ impl Injector {
         };
         r.final_mode = Some(status.mode);
         r.final_x_m = x;
+        if w.corruption.burst_corrupted.len() != r.burst_corrupted.len() {
+            r.burst_corrupted.clone_from(&w.corruption.burst_corrupted);
+        }
         let link = &w.plant.supply;
         if !link.mains {
             r.link = Some(LinkOutcome {

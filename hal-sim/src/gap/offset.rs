@@ -39,7 +39,7 @@ pub fn position_offset_bounds(model: &MachineModel) -> (f64, f64) {
 /// 5e7 N/m contact: the zero lies 5–8 µm inside head A, and every logged position reads that
 /// much more than the plant's (7–10 µm measured on our runs). A rig's homing is the same. Near
 /// a dead point, where a chamber's volume is its ~1 mm clearance, 10 µm is 1 % of the volume
-/// and hundreds of Pa at a port opening: on a null run at 2.3 m/s, PR 6 (seed 554)
+/// and hundreds of Pa at a port opening: on a null run at 2.3 m/s, PR 6 (`docs/gap.md`)
 /// `port_restriction` took it up. Fitted here, before the selection, no named effect absorbs
 /// it; bounded by [`position_offset_bounds`].
 ///
@@ -47,7 +47,7 @@ pub fn position_offset_bounds(model: &MachineModel) -> (f64, f64) {
 /// judges it (band-filtered, at `band`'s kept samples of both chambers), each sensitivity
 /// from one replay moved by 2 µm; a step is kept only while it lowers the residual, at most
 /// [`MAX_OFFSET_STEPS`] (two replays each). On the raw residual, which the sensor's
-/// rounding dominates, the steps stopped at 3.9–4.9 µm on seed 554 and `port_restriction`
+/// rounding dominates, the steps stopped at 3.9–4.9 µm on that run and `port_restriction`
 /// was still named; on the band-filtered one they reach 7.35 µm and nothing is.
 /// `None`: no pressure channel, or no step lowered the residual.
 pub fn fit_position_offset(data: &Measured, band: &Band, model: &MachineModel) -> Option<f64> {
@@ -95,7 +95,7 @@ pub fn fit_position_offset(data: &Measured, band: &Band, model: &MachineModel) -
 /// three cycles of timed ports at 0.3 m/s. The fit replays the chambers up to
 /// 2 × [`MAX_OFFSET_STEPS`] times; the offset of a homing holds for the whole log.
 /// (The pressure searches' stretch, 1.5 s with the bypass's first 0.93 s in it, was too
-/// short: it fitted 0.66 µm on seed 554, where the whole log gives 7.35 µm.)
+/// short: it fitted 0.66 µm on that run, where the whole log gives 7.35 µm.)
 pub const MAX_OFFSET_FIT_ROWS: usize = 100_000;
 
 /// Most Gauss–Newton steps of [`fit_position_offset`].

@@ -558,6 +558,8 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
         }
     }
     let mut warnings = Vec::new();
+    // Each pair once, whichever of the two was added.
+    let mut pairs: Vec<(EffectKind, EffectKind)> = Vec::new();
     for a in &added {
         for other in &first_step {
             let k = other.proposal.kind;
@@ -565,6 +567,7 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
                 || k.channel() != a.proposal.kind.channel()
                 || !k.named()
                 || !a.proposal.kind.named()
+                || pairs.contains(&(k, a.proposal.kind))
             {
                 continue;
             }
@@ -577,9 +580,11 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
             // that merely mimics the missing effect correlates too, but explains far less.)
             let gain = |j: &Judged| j.rss_before - j.rss_after;
             if rho.abs() > COLLINEAR && gain(other) >= 0.5 * gain(mine) {
+                pairs.push((a.proposal.kind, k));
                 warnings.push(format!(
                     "{} and {} are collinear in this run (|ρ| = {:.2}): it cannot tell them \
-                     apart; a run with more varied motion would",
+                     apart; a run with more varied motion (other speeds, strokes or pressure \
+                     ratios) would separate them.",
                     a.proposal.kind.name(),
                     k.name(),
                     rho.abs()

@@ -718,6 +718,11 @@ impl<'o, 's> RunDriver<'o, 's> {
             ));
             return ControlFlow::Break(());
         }
+        // Ctrl-C, when the command keeps what ran (`run --keep-partial`).
+        if crate::interrupt::interrupted() {
+            self.stop_reason = Some(format!("interrupted (Ctrl-C) at {t:.3} s simulated"));
+            return ControlFlow::Break(());
+        }
         if t > self.stage_deadline_s && t < self.first_fault_s {
             let what = match self.phase {
                 Phase::Homing => format!(

@@ -76,6 +76,46 @@ pub fn parse_volume_ratio(text: &str) -> Result<RatioTarget, String> {
     }
 }
 
+/// Parses the machine's mode (`run --rotation`, the sweep's `rotation` axis): `compressor`
+/// (the rotation times the ports to compress, the default) or `expander` (the firmware's
+/// `SetRotation` command before the first stroke: the same ports timed the other way round).
+pub fn parse_rotation(text: &str) -> Result<fpc::motion::synchroniser::Rotation, String> {
+    use fpc::motion::synchroniser::Rotation;
+    match text.trim() {
+        "compressor" => Ok(Rotation::Compressor),
+        "expander" => Ok(Rotation::Expander),
+        other => Err(format!(
+            "--rotation {}: must be `compressor` or `expander`",
+            crate::output::clip(other, 40)
+        )),
+    }
+}
+
+/// Runs `opts` with the machine in `rotation`'s mode: an expander is told so before the
+/// first stroke, as the fault sweeps run it. The published drives' program knows no
+/// expander: refused.
+pub fn set_rotation(
+    opts: &mut RunOptions,
+    rotation: fpc::motion::synchroniser::Rotation,
+) -> Result<(), String> {
+    use fpc::motion::synchroniser::Rotation;
+    if rotation == Rotation::Compressor {
+        return Ok(());
+    }
+    if opts.controller == Controller::Published {
+        return Err(
+            "--rotation expander: the published drives' program times the ports as a \
+             compressor only (give --controller ours)"
+                .into(),
+        );
+    }
+    opts.schedule.insert(
+        0,
+        (0, HostAction::Command(Command::SetRotation { rotation })),
+    );
+    Ok(())
+}
+
 /// How a volume-ratio mode is written (`--volume-ratio`, the log's `# volume_ratio`).
 pub fn volume_ratio_name(target: RatioTarget) -> String {
     match target {

@@ -19,12 +19,32 @@ use super::{read_table, Row, Shard};
 /// The journal's file name in the output directory.
 pub const JOURNAL: &str = "results.partial.csv";
 
+/// Fault injection for the test of a killed sweep (`hal-sim/tests/sweep_resumes_where_it_was_cut.rs`):
+/// set to N, the process aborts right after its Nth row is written — no unwinding, no flush,
+/// nothing more written, as a `SIGKILL` at that instant leaves it — so the kill comes at a
+/// known row instead of wherever a timer catches it. Unset in any real use.
+pub const ABORT_AFTER_ROWS_VAR: &str = "FPC_SWEEP_ABORT_AFTER_ROWS";
+
+/// The row count of [`ABORT_AFTER_ROWS_VAR`], read once.
+fn abort_after_rows() -> Option<u64> {
+    static N: std::sync::OnceLock<Option<u64>> = std::sync::OnceLock::new();
+    *N.get_or_init(|| {
+        std::env::var(ABORT_AFTER_ROWS_VAR)
+            .ok()?
+            .trim()
+            .parse()
+            .ok()
+    })
+}
+
 /// An open journal: rows are appended by any worker thread.
 pub struct Journal {
     path: PathBuf,
     out: Mutex<File>,
     /// The first write error (later rows are not written; the sweep still finishes).
     error: Mutex<Option<String>>,
+    /// Rows this process has appended.
+    appended: std::sync::atomic::AtomicU64,
 }
 
 /// What the journal needs to know about the sweep it belongs to.
@@ -70,6 +90,7 @@ impl Journal {
             path: path.to_path_buf(),
             out: Mutex::new(f),
             error: Mutex::new(None),
+            appended: 0.into(),
         })
     }
 
@@ -145,6 +166,7 @@ impl Journal {
                 path: path.to_path_buf(),
                 out: Mutex::new(f),
                 error: Mutex::new(None),
+                appended: 0.into(),
             },
         ))
     }
@@ -162,7 +184,14 @@ impl Journal {
                 .out
                 .lock()
                 .map_err(|_| "a writer panicked".to_string())?;
-            f.write_all(&line).map_err(|e| e.to_string())
+            f.write_all(&line).map_err(|e| e.to_string())?;
+            let n = 1 + self
+                .appended
+                .fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+            if abort_after_rows() == Some(n) {
+                std::process::abort();
+            }
+            Ok(())
         });
         if let Err(e) = result {
             if let Ok(mut first) = self.error.lock() {
@@ -197,8 +226,8 @@ mod tests {
 
     #[test]
     fn a_torn_journal_gives_back_its_whole_rows_and_refuses_another_plan() {
-        let dir = std::env::temp_dir().join(format!("fpc-journal-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let scratch = tempfile::tempdir().unwrap();
+        let dir = scratch.path();
         let path = dir.join(JOURNAL);
         let header = header();
         let shard = Shard { index: 1, count: 2 };
@@ -247,6 +276,5 @@ mod tests {
         .err()
         .unwrap();
         assert!(e.contains("says 1/2"), "{e}");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -10,6 +10,7 @@
 //! fault = ["none", "overrun@1.5:cycles=2"]
 //! volume_ratio = ["adaptive", "fixed:3.1"]          # as `run --volume-ratio`
 //! controller = ["ours", "published"]                # as `run --controller`
+//! rotation = ["compressor", "expander"]             # as `run --rotation`
 //! "model.piston.mass_kg" = [11.0, 12.0, 13.0]       # any number of the model file
 //! ```
 //!
@@ -32,7 +33,7 @@ pub const MAX_RUNS: u64 = 10_000_000;
 pub const MAX_AXIS_VALUES: usize = 100_000;
 
 /// The axes a plan may name besides `model.…` keys.
-pub const KNOWN_AXES: [&str; 8] = [
+pub const KNOWN_AXES: [&str; 9] = [
     "pressure_ratio",
     "speed_mps",
     "seed",
@@ -41,6 +42,7 @@ pub const KNOWN_AXES: [&str; 8] = [
     "fault",
     "volume_ratio",
     "controller",
+    "rotation",
 ];
 
 /// One value of an axis.
@@ -232,6 +234,7 @@ impl Plan {
             ..RunOptions::reference()
         };
         let mut model_keys = Vec::new();
+        let mut rotation = None;
         for (a, v) in self.axes.iter().zip(&point) {
             match (a.name.as_str(), v) {
                 ("pressure_ratio", AxisValue::Real(x)) => opts.pressure_ratio = *x,
@@ -248,6 +251,12 @@ impl Plan {
                     opts.volume_ratio = crate::run::parse_volume_ratio(t)
                         .map_err(|e| format!("run {k} ({}): {e}", named()))?
                 }
+                ("rotation", AxisValue::Text(t)) => {
+                    rotation = Some(
+                        crate::run::parse_rotation(t)
+                            .map_err(|e| format!("run {k} ({}): {e}", named()))?,
+                    )
+                }
                 (name, v) => model_keys.push((name.trim_start_matches("model."), *v)),
             }
         }
@@ -260,6 +269,11 @@ impl Plan {
             }
             opts.model = MachineModel::parse(&toml::to_string(&t).unwrap_or_default())
                 .map_err(|e| format!("run {k} ({}): {}", named(), e.0))?;
+        }
+        // After the controller is known: the published drives refuse an expander.
+        if let Some(r) = rotation {
+            crate::run::set_rotation(&mut opts, r)
+                .map_err(|e| format!("run {k} ({}): {e}", named()))?;
         }
         opts.validate()
             .map_err(|e| format!("run {k} ({}): {e}", named()))?;
@@ -323,7 +337,7 @@ fn kind_of(name: &str) -> Result<Kind, String> {
     Ok(match name {
         "pressure_ratio" | "speed_mps" | "model_error" => Kind::Real,
         "seed" | "cycles" => Kind::Int,
-        "fault" | "volume_ratio" | "controller" => Kind::Text,
+        "fault" | "volume_ratio" | "controller" | "rotation" => Kind::Text,
         n if n.starts_with("model.")
             && n.len() > 6
             && n.split('.').all(|p| {

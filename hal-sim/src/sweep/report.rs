@@ -7,7 +7,8 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use super::Table;
-use crate::plot::{lines, lines_with, Axes, Series};
+use crate::plant::model::MachineModel;
+use crate::plot::{lines_with, Axes, Series};
 
 /// The plot files [`plots`] writes.
 pub const PLOTS: [&str; 5] = [
@@ -17,6 +18,10 @@ pub const PLOTS: [&str; 5] = [
     "force_difference.svg",
     "overshoot.svg",
 ];
+
+/// The y range of a figure spans at least this share of its largest value: differences
+/// smaller than that (the runs' noise) are drawn nearly flat, not as a zig-zag.
+pub const MIN_SPAN_OF_VALUE: f64 = 0.1;
 
 /// Column `name`'s values as numbers (`None` where empty or not a number).
 fn column(t: &Table, name: &str) -> Option<Vec<Option<f64>>> {
@@ -40,11 +45,13 @@ fn text_column(t: &Table, name: &str) -> Option<Vec<String>> {
     )
 }
 
-/// Each row's curve: its controller, peak speed and volume-ratio mode, when they are axes.
+/// Each row's curve: its controller, peak speed, volume-ratio mode and rotation, when they
+/// are axes.
 fn groups(t: &Table) -> Vec<String> {
     let controller = text_column(t, "controller");
     let speed = text_column(t, "speed_mps");
     let mode = text_column(t, "volume_ratio");
+    let rotation = text_column(t, "rotation");
     (0..t.rows.len())
         .map(|k| {
             let mut parts = Vec::new();
@@ -56,6 +63,9 @@ fn groups(t: &Table) -> Vec<String> {
             }
             if let Some(m) = mode.as_ref().and_then(|c| c.get(k)) {
                 parts.push(m.clone());
+            }
+            if let Some(r) = rotation.as_ref().and_then(|c| c.get(k)) {
+                parts.push(r.clone());
             }
             if parts.is_empty() {
                 "all".to_string()
@@ -147,7 +157,20 @@ pub fn plots(dir: &Path, t: &Table) -> Result<(), String> {
             .iter()
             .map(|(label, x, y)| Series::new(label, x, y))
             .collect();
-        lines(&dir.join(file), title, "pressure ratio", unit, &series)?;
+        // Each run's mean a marker; a spread under a tenth of the value stays flat.
+        let axes = Axes {
+            markers: true,
+            min_span_of_value: Some(MIN_SPAN_OF_VALUE),
+            ..Axes::default()
+        };
+        lines_with(
+            &dir.join(file),
+            title,
+            "pressure ratio",
+            unit,
+            &series,
+            axes,
+        )?;
     }
     let c: Vec<f64> = column(t, "min_head_clearance_m")
         .unwrap_or_default()
@@ -163,7 +186,8 @@ pub fn plots(dir: &Path, t: &Table) -> Result<(), String> {
     )
 }
 
-/// Writes the histogram of `values` (40 bins over their range, drawn as steps) to `path`.
+/// Writes the histogram of `values` (40 bins over their range, drawn as steps) to `path`,
+/// with the reference machine's least head clearance (0.3 mm) as a line.
 pub fn histogram(path: &Path, title: &str, unit: &str, values: &[f64]) -> Result<(), String> {
     let (lo, hi) = values
         .iter()
@@ -199,6 +223,10 @@ pub fn histogram(path: &Path, title: &str, unit: &str, values: &[f64]) -> Result
         &[Series::new("runs", &x, &y)],
         Axes {
             integer_y: true,
+            x_limit: Some((
+                MachineModel::reference().limits.min_head_clearance_m * 1e3,
+                " the least clearance allowed",
+            )),
             ..Axes::default()
         },
     )

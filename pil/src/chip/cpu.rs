@@ -177,8 +177,14 @@ pub fn enter(uc: &mut Unicorn<Soc>, exc: usize) -> Result<(), ChipError> {
         words.push(0);
     }
     let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
-    uc.mem_write(u64::from(frame), &bytes)
-        .map_err(err("stacking"))?;
+    if !stack_writable(uc, frame, bytes.len() as u32)
+        || uc.mem_write(u64::from(frame), &bytes).is_err()
+    {
+        // A bus error on stacking (BFSR.STKERR): its HardFault stacks below the same stack
+        // pointer and fails again, a fault on HardFault entry: lockup.
+        lockup(uc);
+        return Ok(());
+    }
     let mut exc_return: u32 = if in_handler { 0xFFFF_FFF1 } else { 0xFFFF_FFF9 };
     if fpca {
         exc_return &= !0x10;
@@ -296,7 +302,7 @@ fn exit(uc: &mut Unicorn<Soc>, exc_return: u32) -> Result<(), ChipError> {
 /// next block's check.
 pub fn after_write(uc: &mut Unicorn<Soc>) {
     let soc = uc.get_data_mut();
-    if soc.reset_pending.is_some() || !soc.powered {
+    if soc.reset_pending.is_some() || !soc.powered || soc.stop.is_some() {
         let _ = uc.emu_stop();
         return;
     }
@@ -336,6 +342,14 @@ pub fn install_hooks(uc: &mut Unicorn<'static, Soc>) -> Result<(), ChipError> {
         }
         soc.fetched(addr, size);
         soc.execute(addr, size, &block);
+        if soc.flash.busy() && (super::FLASH_BASE..super::STORE_BASE).contains(&addr) {
+            if let Some(end) = soc.flash.stall_until(addr) {
+                // Fetching from the bank being programmed or erased: stalled until it ends.
+                soc.stall_until = Some(end);
+                let _ = uc.emu_stop();
+                return;
+            }
+        }
         if block.sev {
             soc.event = true;
         }
@@ -423,11 +437,10 @@ pub fn install_hooks(uc: &mut Unicorn<'static, Soc>) -> Result<(), ChipError> {
 /// Takes a HardFault for a fault the core raised (escalated: HFSR.FORCED).
 fn fault(uc: &mut Unicorn<Soc>, cfsr: u32, bfar: Option<u32>) -> Result<(), ChipError> {
     let soc = uc.get_data_mut();
-    if soc.nvic.active[HARD_FAULT] {
-        return Err(ChipError(format!(
-            "lockup: a fault inside the HardFault handler (CFSR {cfsr:#x}, pc {:#010x})",
-            0
-        )));
+    if soc.nvic.active[HARD_FAULT] || soc.nvic.active[nvic::NMI] {
+        // A fault in the HardFault or NMI handler: lockup (ARMv7-M B1.5.15).
+        lockup(uc);
+        return Ok(());
     }
     soc.nvic.cfsr |= cfsr;
     soc.nvic.hfsr |= 1 << 30;
@@ -436,6 +449,26 @@ fn fault(uc: &mut Unicorn<Soc>, cfsr: u32, bfar: Option<u32>) -> Result<(), Chip
     }
     soc.faults_taken += 1;
     enter(uc, HARD_FAULT)
+}
+
+/// Whether the `len` bytes at `at` are RAM the core can stack into (SRAM or CCM SRAM).
+fn stack_writable(uc: &Unicorn<Soc>, at: u32, len: u32) -> bool {
+    let _ = uc;
+    [super::RAM, super::CCM]
+        .iter()
+        .any(|&(b, n)| at >= b && at.wrapping_add(len) <= b + n)
+}
+
+/// The core locks up: it stops executing until a reset; with SYSCFG_CFGR2.CLL its LOCKUP
+/// output is a system break on both bridge timers (their outputs off at once).
+fn lockup(uc: &mut Unicorn<Soc>) {
+    let soc = uc.get_data_mut();
+    soc.locked_up = true;
+    soc.lockups.push(crate::time::seconds(soc.time));
+    if soc.comps.cfgr2 & 1 != 0 {
+        soc.system_break();
+    }
+    let _ = uc.emu_stop();
 }
 
 /// The run loop: see [`Chip::run_period`].
@@ -492,6 +525,19 @@ pub fn run_until_plant_step(chip: &mut Chip) -> Result<(), ChipError> {
             fault(&mut chip.uc, (1 << 9) | (1 << 15), Some(0x4000_F000))?;
             continue;
         }
+        if soc.locked_up {
+            // Nothing runs but the peripherals (the watchdog among them).
+            soc.time = soc.time.max(soc.next_event());
+            continue;
+        }
+        if let Some(end) = soc.stall_until {
+            // Stalled on the flash: time runs on through the peripherals' events.
+            if soc.time < end {
+                soc.time = soc.next_event().min(end).max(soc.time);
+                continue;
+            }
+            soc.stall_until = None;
+        }
         if let Some(exc) = takeable_now(&chip.uc) {
             enter(&mut chip.uc, exc)?;
             continue;
@@ -532,9 +578,10 @@ pub fn run_until_plant_step(chip: &mut Chip) -> Result<(), ChipError> {
 /// transfer).
 fn flush_dma(chip: &mut Chip) -> Result<(), ChipError> {
     let writes = std::mem::take(&mut chip.uc.get_data_mut().board.dma_writes);
-    for (at, word) in writes {
+    for (at, word, bytes) in writes {
+        let b = word.to_le_bytes();
         chip.uc
-            .mem_write(u64::from(at), &word.to_le_bytes())
+            .mem_write(u64::from(at), &b[..(bytes as usize).min(4)])
             .map_err(err("dma"))?;
     }
     Ok(())

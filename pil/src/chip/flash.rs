@@ -12,6 +12,17 @@
 //! - The calibration store's pages are emulated here (mapped as MMIO), so every read of them
 //!   is checked against the ECC state: a double word left torn by a power cut reads as a
 //!   double ECC error — ECCD set, the address latched, an NMI — as the hardware does.
+//! - As RM0440's flash chapter states it (FLASH_KEYR, FLASH_SR, FLASH_CR; the program and
+//!   erase sequences): a wrong KEYR sequence locks FLASH_CR until the next reset and is a
+//!   bus error; a program or an erase started while an error flag of a previous operation
+//!   is still set does not start and sets PGSERR; EOP is set only with EOPIE = 1 and OPERR
+//!   only with ERRIE = 1; all zeros may be programmed over any double word (the way a torn
+//!   one is repaired); a read of a bank while that bank is being programmed or erased
+//!   stalls until the operation ends ([`Flash::stall_until`]).
+//!
+//! The manual's own text is not in this repository's references; what is modelled here was
+//! written from RM0440 rev. 8 as the team read it, with the register fields of ST's SVD
+//! (stm32-metapac 21: `flash_g4c3`), and is cited in each unit test.
 
 use std::collections::BTreeSet;
 
@@ -40,7 +51,11 @@ mod sr {
     pub const PGAERR: u32 = 1 << 5;
     pub const SIZERR: u32 = 1 << 6;
     pub const PGSERR: u32 = 1 << 7;
+    pub const MISERR: u32 = 1 << 8;
+    pub const FASTERR: u32 = 1 << 9;
     pub const BSY: u32 = 1 << 16;
+    /// The flags of a previous operation that keep the next one from starting (PGSERR).
+    pub const BLOCKING: u32 = PROGERR | WRPERR | PGAERR | SIZERR | PGSERR | MISERR | FASTERR;
     /// Bits cleared by writing 1.
     pub const W1C: u32 = 0xC3FB;
 }
@@ -59,14 +74,28 @@ mod cr {
 
 /// OPTR.DBANK.
 pub const OPTR_DBANK: u32 = 1 << 22;
-/// OPTR as the factory programs it (RM0440 FLASH_OPTR reset value, DBANK = 1).
+/// OPTR as the factory programs it (RM0440 FLASH_OPTR reset value, DBANK = 1, BOR_LEV = 0).
 pub const OPTR_FACTORY: u32 = 0xFFEF_F8AA;
+/// OPTR.BOR_LEV (bits 10:8).
+pub const OPTR_BOR_LEV: u32 = 7 << 8;
+/// OPTR as `docs/bring-up.md`'s step 0 leaves it: the factory's with BOR_LEV = 2.
+pub const OPTR_BRINGUP: u32 = (OPTR_FACTORY & !OPTR_BOR_LEV) | 2 << 8;
 
 /// An operation in progress.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Op {
-    Program { at: u32, data: u64 },
-    Erase { from: u32, len: u32 },
+    Program {
+        at: u32,
+        data: u64,
+    },
+    Erase {
+        from: u32,
+        len: u32,
+    },
+    /// A program whose effect is already applied (a torn one): it only takes its time.
+    Settled {
+        at: u32,
+    },
 }
 
 /// Injected faults of the flash interface.
@@ -79,6 +108,12 @@ pub struct FlashFaults {
     /// The program step that makes this many steps since power-up ends with this SR error
     /// flag set, and does not program.
     pub error_on_program: Option<(u64, u32)>,
+    /// The n-th page erase from now (1: the next) runs its time, then ends with OPERR (with
+    /// ERRIE) and the page not erased.
+    pub error_on_erase: Option<u64>,
+    /// The n-th double-word program from now (1: the next) ends as if done (EOP) but leaves
+    /// its double word half programmed and ECC-poisoned (a failing cell), the power on.
+    pub tear_on_program: Option<u64>,
 }
 
 /// The flash interface.
@@ -98,9 +133,16 @@ pub struct Flash {
     /// OPTR (DBANK is bit 22).
     pub optr: u32,
     key_step: u8,
+    /// A wrong KEYR sequence locked FLASH_CR until the next reset.
+    key_locked: bool,
+    /// A register access the flash interface answered with a bus error (a wrong key), for
+    /// the core to take as a precise data bus fault.
+    pub bus_error: bool,
     /// The first word of a double word being programmed.
     half: Option<(u32, u32)>,
     op: Option<(Op, u64)>,
+    /// The operation in progress fails at its end (an injected erase error).
+    op_fails: bool,
     /// Steps started since power-up.
     pub steps: u64,
     /// Injected faults.
@@ -127,8 +169,11 @@ impl Flash {
             eccr: 0,
             optr: OPTR_FACTORY,
             key_step: 0,
+            key_locked: false,
+            bus_error: false,
             half: None,
             op: None,
+            op_fails: false,
             steps: 0,
             faults: FlashFaults::default(),
             power_cut: false,
@@ -154,8 +199,11 @@ impl Flash {
         self.sr = 0;
         self.eccr = 0;
         self.key_step = 0;
+        self.key_locked = false;
+        self.bus_error = false;
         self.half = None;
         self.op = None;
+        self.op_fails = false;
         self.nmi = false;
     }
 
@@ -179,6 +227,14 @@ impl Flash {
         let Some((op, _)) = self.op.take() else {
             return;
         };
+        self.sr &= !sr::BSY;
+        if std::mem::take(&mut self.op_fails) {
+            // Unsuccessful: OPERR, only with ERRIE (FLASH_SR.OPERR); no EOP, nothing erased.
+            if self.cr & cr::ERRIE != 0 {
+                self.sr |= sr::OPERR;
+            }
+            return;
+        }
         match op {
             Op::Program { at, data } => {
                 if let Some(i) = store_index(at) {
@@ -199,8 +255,12 @@ impl Flash {
                     }
                 }
             }
+            Op::Settled { .. } => {}
         }
-        self.sr = (self.sr & !sr::BSY) | sr::EOP;
+        // EOP is set only with the end-of-operation interrupt enabled (FLASH_SR.EOP).
+        if self.cr & cr::EOPIE != 0 {
+            self.sr |= sr::EOP;
+        }
     }
 
     /// Starts a step, or tears it if the power is cut now. Returns false if it was torn.
@@ -229,6 +289,7 @@ impl Flash {
                     self.poisoned.insert(i);
                 }
             }
+            Op::Settled { .. } => {}
             Op::Erase { from, len } => {
                 for a in (from..from + len / 2).step_by(8) {
                     if let Some(i) = store_index(a) {
@@ -270,6 +331,10 @@ impl Flash {
                 }
             }
             0x08 => {
+                if self.key_locked {
+                    self.bus_error = true;
+                    return;
+                }
                 self.key_step = match (self.key_step, value) {
                     (0, 0x4567_0123) => 1,
                     (1, 0xCDEF_89AB) => {
@@ -277,9 +342,11 @@ impl Flash {
                         0
                     }
                     _ => {
-                        // A wrong key locks the interface until the next reset (bus error
-                        // on the real chip); modelled as staying locked.
+                        // A wrong sequence locks FLASH_CR until the next reset and is a bus
+                        // error (FLASH_KEYR).
                         self.cr |= cr::LOCK;
+                        self.key_locked = true;
+                        self.bus_error = true;
                         0
                     }
                 };
@@ -304,7 +371,7 @@ impl Flash {
     }
 
     fn start_erase(&mut self, cr_value: u32, now: u64) {
-        if self.sr & sr::BSY != 0 {
+        if self.sr & (sr::BSY | sr::BLOCKING) != 0 {
             self.sr |= sr::PGSERR;
             return;
         }
@@ -320,7 +387,10 @@ impl Flash {
             // One bank of 4 KiB pages: BKER is not looked at (RM0440 FLASH_CR).
             (FLASH_BASE + pnb * 4096, 4096)
         };
-        self.start(Op::Erase { from, len }, now, ERASE_US);
+        let fails = countdown(&mut self.faults.error_on_erase);
+        if self.start(Op::Erase { from, len }, now, ERASE_US) && fails {
+            self.op_fails = true;
+        }
     }
 
     /// A CPU write into the flash array (programming), `at` the byte address.
@@ -345,7 +415,8 @@ impl Flash {
     }
 
     fn program(&mut self, at: u32, data: u64, now: u64) {
-        if self.sr & sr::BSY != 0 {
+        if self.sr & (sr::BSY | sr::BLOCKING) != 0 {
+            // Busy, or the flags of a previous operation not cleared: PGSERR, no program.
             self.sr |= sr::PGSERR;
             return;
         }
@@ -372,6 +443,15 @@ impl Flash {
                     // A double word not erased may only be written with zeros.
                     self.steps += 1;
                     self.sr |= sr::PROGERR;
+                    return;
+                }
+                if countdown(&mut self.faults.tear_on_program) {
+                    let started = self.start(Op::Program { at, data }, now, PROGRAM_US);
+                    if started {
+                        // Ends as done, but only half its bits landed and the ECC is wrong.
+                        self.op = self.op.map(|(_, end)| (Op::Settled { at }, end));
+                        self.tear(Op::Program { at, data });
+                    }
                     return;
                 }
                 self.start(Op::Program { at, data }, now, PROGRAM_US);
@@ -410,15 +490,70 @@ impl Flash {
         v
     }
 
-    /// Whether the power was cut and the chip must stay off.
+    /// What a read of `at` returns once the operation in progress has ended: erased bytes
+    /// where it erases, the programmed bits where it programs, else the array as it is.
+    pub fn read_after_op(&mut self, at: u32, size: usize) -> u32 {
+        let v = self.read_array(at, size);
+        match self.op.map(|(op, _)| op) {
+            Some(Op::Erase { from, len }) if (from..from + len).contains(&at) => {
+                if size >= 4 {
+                    u32::MAX
+                } else {
+                    (1 << (8 * size)) - 1
+                }
+            }
+            Some(Op::Program { at: dw, data }) if at & !7 == dw => {
+                let shift = 8 * (at - dw);
+                v & (data >> shift) as u32
+            }
+            _ => v,
+        }
+    }
+
+    /// Whether a program or an erase is in progress.
     pub fn busy(&self) -> bool {
         self.sr & sr::BSY != 0
+    }
+
+    /// A read of `at` while an operation runs in the same bank stalls until it ends: that
+    /// instant (read-while-write only works across banks; in single-bank mode every
+    /// operation stalls every read).
+    pub fn stall_until(&self, at: u32) -> Option<u64> {
+        let (op, end) = self.op?;
+        let bank = |a: u32| {
+            if self.dual_bank() {
+                (a.wrapping_sub(FLASH_BASE) >= 0x4_0000) as u8
+            } else {
+                0
+            }
+        };
+        let op_at = match op {
+            Op::Program { at, .. } => at,
+            Op::Erase { from, .. } => from,
+            Op::Settled { at } => at,
+        };
+        (bank(op_at) == bank(at)).then_some(end)
     }
 }
 
 impl Default for Flash {
     fn default() -> Self {
         Flash::new()
+    }
+}
+
+/// Counts an armed fault down by one step: true (and disarmed) when it reaches its step.
+fn countdown(n: &mut Option<u64>) -> bool {
+    match *n {
+        Some(1) => {
+            *n = None;
+            true
+        }
+        Some(k) => {
+            *n = Some(k.saturating_sub(1));
+            false
+        }
+        None => false,
     }
 }
 
@@ -509,5 +644,117 @@ mod tests {
         assert_eq!(eccr >> 31, 1);
         assert_eq!(eccr & 0x7_FFF8, 0x3_E010);
         assert_eq!(eccr >> 21 & 1, 1, "bank 2");
+    }
+
+    /// RM0440, FLASH_KEYR and "Unlocking the Flash memory": "Any wrong sequence will lock up
+    /// the FLASH_CR register until the next system reset. In the case of a wrong key
+    /// sequence, a bus error is detected and a Hard Fault interrupt is generated."
+    #[test]
+    fn a_wrong_key_sequence_locks_until_reset_and_is_a_bus_error() {
+        let mut f = Flash::new();
+        f.write_reg(0x08, 0xCDEF_89AB, 0);
+        assert!(std::mem::take(&mut f.bus_error));
+        // The right sequence now changes nothing: still locked, still a bus error.
+        f.write_reg(0x08, 0x4567_0123, 0);
+        f.write_reg(0x08, 0xCDEF_89AB, 0);
+        assert!(f.bus_error);
+        assert_ne!(f.read_reg(0x14) & cr::LOCK, 0);
+        f.reset();
+        f.write_reg(0x08, 0x4567_0123, 0);
+        f.write_reg(0x08, 0xCDEF_89AB, 0);
+        assert_eq!(f.read_reg(0x14) & cr::LOCK, 0);
+        assert!(!f.bus_error);
+    }
+
+    /// RM0440, FLASH_SR.PGSERR: "Set also by hardware when PROGERR, SIZERR, PGAERR, WRPERR,
+    /// MISSERR or FASTERR is set due to a previous programming error"; the program and erase
+    /// sequences begin by checking and clearing those flags.
+    #[test]
+    fn a_program_or_erase_over_stale_error_flags_does_not_start() {
+        let mut f = unlocked();
+        f.sr |= sr::PROGERR;
+        f.write_reg(0x14, cr::PG, 0);
+        f.write_array(STORE_BASE, 0, 4, 0);
+        f.write_array(STORE_BASE + 4, 0, 4, 0);
+        assert!(!f.busy());
+        assert_ne!(f.read_reg(0x10) & sr::PGSERR, 0);
+        f.write_reg(0x14, cr::PER | cr::BKER | (124 << 3) | cr::STRT, 0);
+        assert!(!f.busy(), "the erase started over PGSERR");
+        // Cleared (write 1), the same program starts.
+        f.write_reg(0x10, sr::W1C, 0);
+        f.write_reg(0x14, cr::PG, 0);
+        f.write_array(STORE_BASE, 0, 4, 0);
+        f.write_array(STORE_BASE + 4, 0, 4, 0);
+        assert!(f.busy());
+    }
+
+    /// RM0440, FLASH_SR.EOP: "This bit is set only if the end of operation interrupts are
+    /// enabled (EOPIE = 1)"; FLASH_SR.OPERR: set when an operation completes unsuccessfully,
+    /// "only if error interrupts are enabled (ERRIE = 1)".
+    #[test]
+    fn eop_and_operr_are_set_only_with_their_interrupts_enabled() {
+        let mut f = unlocked();
+        f.write_reg(0x14, cr::PG, 0);
+        f.write_array(STORE_BASE, 0, 4, 0);
+        f.write_array(STORE_BASE + 4, 0, 4, 0);
+        f.finish();
+        assert_eq!(f.read_reg(0x10) & sr::EOP, 0, "EOP without EOPIE");
+        f.write_reg(0x14, cr::PG | cr::EOPIE, 0);
+        f.write_array(STORE_BASE + 8, 0, 4, 0);
+        f.write_array(STORE_BASE + 12, 0, 4, 0);
+        f.finish();
+        assert_ne!(f.read_reg(0x10) & sr::EOP, 0);
+        for errie in [0, cr::ERRIE] {
+            let mut g = unlocked();
+            g.faults.error_on_erase = Some(1);
+            g.write_reg(0x14, errie | cr::PER | cr::BKER | (124 << 3) | cr::STRT, 0);
+            g.finish();
+            assert_eq!(g.read_reg(0x10) & sr::OPERR != 0, errie != 0);
+            assert_eq!(g.read_reg(0x10) & sr::EOP, 0);
+            assert_eq!(g.store[0], 0xFF, "nothing was erased, nothing was there");
+        }
+    }
+
+    /// RM0440, programming: a double word not erased may be programmed again only with all
+    /// zeros (else PROGERR); the zeros' ECC is written with them, so a torn double word
+    /// programmed to zero reads without an ECC error.
+    #[test]
+    fn zeros_programmed_over_a_torn_double_word_read_without_an_ecc_error() {
+        let mut f = unlocked();
+        f.faults.tear_on_program = Some(1);
+        f.write_reg(0x14, cr::PG, 0);
+        f.write_array(STORE_BASE + 16, 0x1234_5678, 4, 0);
+        f.write_array(STORE_BASE + 20, 0x9ABC_DEF0, 4, 0);
+        assert!(
+            f.busy() && !f.power_cut,
+            "a torn program still takes its time"
+        );
+        f.finish();
+        f.read_array(STORE_BASE + 16, 4);
+        assert!(std::mem::take(&mut f.nmi));
+        f.write_reg(0x18, 1 << 31, 0);
+        f.write_array(STORE_BASE + 16, 0, 4, 0);
+        f.write_array(STORE_BASE + 20, 0, 4, 0);
+        f.finish();
+        assert_eq!(f.read_array(STORE_BASE + 16, 4), 0);
+        assert!(!f.nmi);
+    }
+
+    /// RM0440, read-while-write: in dual-bank mode one bank is read while the other is
+    /// programmed or erased; a read of the bank being erased waits for the erase's end.
+    #[test]
+    fn a_read_of_the_bank_being_erased_stalls_until_the_erase_ends() {
+        let mut f = unlocked();
+        f.store[8] = 0;
+        f.programmed[1] = true;
+        f.write_reg(0x14, cr::PER | cr::BKER | (124 << 3) | cr::STRT, 1000);
+        let end = 1000 + ERASE_US * UNITS_PER_US;
+        assert_eq!(f.stall_until(STORE_BASE + 8), Some(end));
+        assert_eq!(f.read_after_op(STORE_BASE + 8, 4), u32::MAX);
+        // Bank 1 (the program) reads on.
+        assert_eq!(f.stall_until(FLASH_BASE + 0x100), None);
+        // One bank (DBANK = 0): every read waits.
+        f.optr &= !OPTR_DBANK;
+        assert_eq!(f.stall_until(FLASH_BASE + 0x100), Some(end));
     }
 }

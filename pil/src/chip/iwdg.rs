@@ -7,7 +7,13 @@
 //! - PR and RLR are write-protected until 0x5555 is written; a write reaches the LSI domain
 //!   only after a few LSI cycles, during which SR.PVU / SR.RVU read 1, and a reload in that
 //!   time still uses the old value;
-//! - when the counter reaches 0 the chip resets (IWDGRSTF in RCC_CSR).
+//! - a write of PR or RLR while its update is still under way (SR.PVU / SR.RVU = 1) is not
+//!   taken: "the prescaler/reload value can be updated only when PVU/RVU is reset";
+//! - the chip resets when the counter, having reached 0, counts once more: a window of
+//!   RL + 1 ticks (the manual's timeout table: RL = 0 gives one tick, 0xFFF 4096), with
+//!   IWDGRSTF in RCC_CSR;
+//! - the LSI is not 32 kHz but within the datasheet's 29.5–34 kHz over temperature
+//!   ([`Iwdg::lsi_hz`], `ChipOptions::lsi_hz`).
 
 use crate::time::UNITS_PER_S;
 
@@ -58,8 +64,11 @@ impl Iwdg {
         if self.pr_lands.is_some_and(|t| now >= t) {
             // A prescaler change re-times the count from here.
             if let Some((v, at)) = self.counting {
-                let ticks = ((now - at) as f64 / self.units_per_tick(self.pr_active)) as u32;
-                self.counting = Some((v.saturating_sub(ticks), now));
+                // The whole ticks counted so far; the tick under way goes on from its start.
+                let per_tick = self.units_per_tick(self.pr_active);
+                let ticks = ((now - at) as f64 / per_tick) as u32;
+                let tick_start = at + (f64::from(ticks) * per_tick) as u64;
+                self.counting = Some((v.saturating_sub(ticks), tick_start));
             }
             self.pr_active = self.pr;
             self.pr_lands = None;
@@ -91,11 +100,11 @@ impl Iwdg {
         }
     }
 
-    /// When the counter reaches 0 (the reset), if running.
+    /// When the counter counts past 0 (the reset: RL + 1 ticks after a reload), if running.
     pub fn expiry(&self) -> Option<u64> {
         let (v, at) = self.counting?;
         // A pending prescaler write lands first; the estimate is refined when it does.
-        let t = at as f64 + f64::from(v) * self.units_per_tick(self.pr_active);
+        let t = at as f64 + f64::from(v + 1) * self.units_per_tick(self.pr_active);
         let t = t.ceil() as u64;
         Some(match self.pr_lands {
             Some(lands) if lands < t => lands,
@@ -106,7 +115,13 @@ impl Iwdg {
     /// Re-evaluates at `now`; true if the counter has reached 0.
     pub fn expired(&mut self, now: u64) -> bool {
         self.settle(now);
-        self.counting.is_some() && self.counter(now) == 0
+        match self.counting {
+            Some((v, at)) => {
+                let ticks = (now - at) as f64 / self.units_per_tick(self.pr_active);
+                ticks + 1e-9 >= f64::from(v + 1)
+            }
+            None => false,
+        }
     }
 
     /// A CPU read at offset `off`.
@@ -142,11 +157,12 @@ impl Iwdg {
                 }
                 _ => self.unlocked = false,
             },
-            0x04 if self.unlocked => {
+            // Not taken while the previous write is still on its way (PVU / RVU).
+            0x04 if self.unlocked && self.pr_lands.is_none() => {
                 self.pr = value & 7;
                 self.pr_lands = Some(now + self.lsi_cycles(UPDATE_LSI_CYCLES));
             }
-            0x08 if self.unlocked => {
+            0x08 if self.unlocked && self.rlr_lands.is_none() => {
                 self.rlr = value & 0xFFF;
                 self.rlr_lands = Some(now + self.lsi_cycles(UPDATE_LSI_CYCLES));
             }
@@ -160,6 +176,8 @@ mod tests {
     use super::*;
     use crate::time::{from_seconds, seconds};
 
+    /// RM0440 §37.3.2: after 0xCCCC the counter starts from 0xFFF; the timeout is RL + 1
+    /// ticks (the timeout table: 4096 ticks, 512 ms at /4 and 32 kHz, for RL = 0xFFF).
     #[test]
     fn started_as_embassy_does_the_first_window_is_4096_ticks() {
         let mut w = Iwdg::new(32_000.0);
@@ -170,12 +188,12 @@ mod tests {
         w.write(0x00, 0xCCCC, 0);
         let mut fresh = w.clone();
         let first = seconds(reset_time(&mut fresh));
-        assert!((first - 0.511_875).abs() < 1e-3, "{first}");
+        assert!((first - 0.512).abs() < 1e-6, "{first}");
         // A reload once RLR has landed gives the 20 ms window.
         let t = from_seconds(0.001);
         w.write(0x00, 0xAAAA, t);
         let window = seconds(reset_time(&mut w) - t);
-        assert!((window - 0.019_875).abs() < 1e-4, "{window}");
+        assert!((window - 0.020).abs() < 1e-6, "{window}");
     }
 
     /// When the watchdog resets the chip, following its events as the chip does.
@@ -188,6 +206,8 @@ mod tests {
         }
     }
 
+    /// RM0440, IWDG_SR.RVU: "the reload value can be updated only when RVU is reset"; a
+    /// reload meanwhile uses the value in force.
     #[test]
     fn a_reload_before_rlr_lands_uses_the_old_value() {
         let mut w = Iwdg::new(32_000.0);
@@ -201,5 +221,40 @@ mod tests {
         assert_eq!(w.read(0x0C, later), 0);
         w.write(0x00, 0xAAAA, later);
         assert_eq!(w.counter(later), 23);
+    }
+
+    /// RM0440, IWDG_SR.PVU/RVU: a PR or RLR write while the previous one is still being
+    /// transferred (its flag set) is not taken.
+    #[test]
+    fn a_write_while_the_update_flag_is_set_is_not_taken() {
+        let mut w = Iwdg::new(32_000.0);
+        w.write(0x00, 0x5555, 0);
+        w.write(0x08, 159, 0);
+        w.write(0x08, 23, 10);
+        let later = from_seconds(0.001);
+        assert_eq!(w.read(0x08, later), 159);
+        w.write(0x00, 0x5555, later);
+        w.write(0x08, 23, later);
+        assert_eq!(w.read(0x08, later), 23);
+        // Without the 0x5555 key, nothing is taken at all.
+        let mut v = Iwdg::new(32_000.0);
+        v.write(0x08, 23, 0);
+        assert_eq!(v.read(0x08, 0), 0xFFF);
+    }
+
+    /// Datasheet: LSI 29.5–34 kHz. The firmware's running window (RL 23 at /4) is 3.0 ms at
+    /// 32 kHz, 3.25 ms at 29.5 kHz and 2.82 ms at 34 kHz.
+    #[test]
+    fn the_window_follows_the_lsi_within_its_range() {
+        for (hz, ms) in [(29_500.0, 3.254), (32_000.0, 3.0), (34_000.0, 2.824)] {
+            let mut w = Iwdg::new(hz);
+            w.write(0x00, 0x5555, 0);
+            w.write(0x08, 23, 0);
+            w.write(0x00, 0xCCCC, 0);
+            let t = from_seconds(0.001);
+            w.write(0x00, 0xAAAA, t);
+            let window = seconds(reset_time(&mut w) - t) * 1e3;
+            assert!((window - ms).abs() < 1e-3, "{hz} Hz: {window} ms");
+        }
     }
 }

@@ -35,6 +35,10 @@ pub mod reg {
     pub const CCR1: u32 = 0x34;
     /// Break and dead time.
     pub const BDTR: u32 = 0x44;
+    /// Capture/compare mode 1 (CH1, CH2).
+    pub const CCMR1: u32 = 0x18;
+    /// Capture/compare enable.
+    pub const CCER: u32 = 0x20;
 }
 
 /// CR1.CEN.
@@ -71,6 +75,8 @@ pub struct Timer {
     stopped_cnt: u32,
     /// Counter bits (16 or 32).
     pub width_mask: u32,
+    /// The break input is active (advanced timers): MOE cannot be set.
+    pub break_active: bool,
 }
 
 /// What a counter boundary did.
@@ -96,6 +102,7 @@ impl Timer {
             matches_done: [0; 4],
             stopped_cnt: 0,
             width_mask,
+            break_active: false,
         };
         t.regs[(reg::ARR / 4) as usize] = width_mask;
         t
@@ -368,6 +375,21 @@ impl Timer {
                     self.active_arr = value & self.width_mask;
                     self.rebase(now, units_per_clock);
                 }
+            }
+            reg::BDTR => {
+                let level = self.r(reg::BDTR) >> 8 & 3;
+                let mask = super::output_stage::writable(off, level, &self.regs);
+                let mut v = (self.regs[i] & !mask) | (value & mask);
+                if self.break_active {
+                    // MOE cannot be set while the break input is active.
+                    v &= !(1 << 15);
+                }
+                self.regs[i] = v;
+            }
+            reg::CR2 | 0x18 | reg::CCMR2 | 0x20 => {
+                let level = self.r(reg::BDTR) >> 8 & 3;
+                let mask = super::output_stage::writable(off, level, &self.regs);
+                self.regs[i] = (self.regs[i] & !mask) | (value & mask);
             }
             _ => self.regs[i] = value,
         }

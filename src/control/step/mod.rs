@@ -152,6 +152,32 @@ impl ControlStep {
         }
     }
 
+    /// Whether a hardware over-current trip is latched (the control cycle then calls
+    /// [`ControlStep::hardware_trip`] each cycle; one load and a branch otherwise).
+    #[inline]
+    pub fn trip_latched(&self) -> bool {
+        self.safe.trip_latched()
+    }
+
+    /// The bridges' hardware over-current trip (`docs/firmware.md`, "The hardware
+    /// over-current trip"): `now` is which sections' timers show a break (their BIF), which
+    /// switched their outputs off in hardware. A new one latches [`Fault::Overcurrent`] and
+    /// takes that section out of service (the other brakes, as after a measured
+    /// overcurrent). Returns the sections whose trip may be re-armed (their break flag
+    /// cleared) because `ClearFaults` has cleared the fault; a break input still active then
+    /// trips again at once.
+    #[cold]
+    #[inline(never)]
+    pub fn hardware_trip(&mut self, now: PerSection<bool>) -> PerSection<bool> {
+        match self.safe.hardware_trip(now) {
+            Some(trip) => {
+                self.react(trip);
+                PerSection::default()
+            }
+            None => self.safe.rearm(),
+        }
+    }
+
     #[cold]
     #[inline(never)]
     fn supply_lost(&mut self) {

@@ -14,7 +14,7 @@ use crate::angle::{wrap_rad_cold, wrap_signed_rad_cold};
 use crate::control::config::ControlConfig;
 use crate::motion::trajectory::Setpoint;
 use crate::real::{clamp_f32, max_f32, min_f32};
-use crate::safety::faults::{FaultSet, Trip};
+use crate::safety::faults::{Fault, FaultSet, Trip};
 use crate::units::PerSection;
 use core::f32::consts::{FRAC_PI_2, TAU};
 
@@ -42,6 +42,10 @@ pub(super) struct SafeState {
     pub in_service: PerSection<f32>,
     /// The latched faults.
     pub faults: FaultSet,
+    /// Sections whose bridge the hardware over-current trip switched off (their timer's
+    /// break input), until the fault is cleared and the trip re-armed
+    /// ([`SafeState::hardware_trip`]).
+    pub tripped: PerSection<bool>,
 }
 
 impl SafeState {
@@ -49,6 +53,10 @@ impl SafeState {
         SafeState {
             in_service: config.allocation.capability,
             faults: FaultSet::new(),
+            tripped: PerSection {
+                master: false,
+                slave: false,
+            },
         }
     }
 
@@ -68,6 +76,41 @@ impl SafeState {
     pub(super) fn clear(&mut self, config: &ControlConfig) {
         self.in_service = config.allocation.capability;
         self.faults.clear();
+    }
+
+    /// Whether a hardware over-current trip is latched.
+    #[inline(always)]
+    pub(super) fn trip_latched(&self) -> bool {
+        self.tripped.master || self.tripped.slave
+    }
+
+    /// The bridges' hardware over-current trip: `now` is which sections' timers show a break
+    /// (their BIF). The sections tripped anew are remembered and named in the returned
+    /// [`Fault::Overcurrent`] trip (its reaction takes them out of service); `None` when
+    /// none is new.
+    pub(super) fn hardware_trip(&mut self, now: PerSection<bool>) -> Option<Trip> {
+        let new = PerSection {
+            master: now.master && !self.tripped.master,
+            slave: now.slave && !self.tripped.slave,
+        };
+        if !(new.master || new.slave) {
+            return None;
+        }
+        self.tripped.master |= new.master;
+        self.tripped.slave |= new.slave;
+        Some(Trip {
+            drop: new,
+            ..Trip::of(Fault::Overcurrent)
+        })
+    }
+
+    /// The sections whose hardware trip may be re-armed: all those tripped once
+    /// [`Fault::Overcurrent`] is cleared (then forgotten here), none while it stays latched.
+    pub(super) fn rearm(&mut self) -> PerSection<bool> {
+        if self.faults.contains(Fault::Overcurrent) {
+            return PerSection::default();
+        }
+        core::mem::take(&mut self.tripped)
     }
 
     /// The sections whose bridges switch while the outputs are on.

@@ -203,7 +203,7 @@ struct Target {
 }
 
 /// `--probe`: `VID:PID` or `VID:PID:SERIAL`, the ids in hex (what probe-rs takes).
-fn probe_selector(text: &str) -> Result<String, String> {
+pub(crate) fn probe_selector(text: &str) -> Result<String, String> {
     let mut parts = text.splitn(3, ':');
     let hex =
         |p: Option<&str>| p.is_some_and(|h| !h.is_empty() && u16::from_str_radix(h, 16).is_ok());
@@ -464,26 +464,6 @@ fn decoded_defmt(_bytes: &[u8], _elf: &Path) -> Result<DefmtLog, Failure> {
     Ok(DefmtLog::hex())
 }
 
-/// Set by Ctrl-C during a live capture: the capture ends and writes its files.
-static STOP: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
-
-/// Makes Ctrl-C end a live capture (a second Ctrl-C ends the process, exit 130).
-#[cfg(feature = "probe")]
-fn stop_on_ctrl_c() {
-    static ONCE: std::sync::Once = std::sync::Once::new();
-    ONCE.call_once(|| {
-        let _ = ctrlc::set_handler(|| {
-            if STOP.swap(true, std::sync::atomic::Ordering::Relaxed) {
-                std::process::exit(130);
-            }
-        });
-    });
-}
-
-/// Without the probe there is no live capture to stop.
-#[cfg(not(feature = "probe"))]
-fn stop_on_ctrl_c() {}
-
 /// Name of the run log in a capture directory.
 const RUN_LOG: &str = "run.csv";
 
@@ -505,12 +485,7 @@ fn capture(args: CaptureArgs) -> CmdResult {
         .collect();
     let input_refs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
     let log_path = args.out.join(RUN_LOG);
-    if !args.force && log_path.symlink_metadata().is_ok() {
-        return Err(Failure::bad_input(format!(
-            "{} exists; refusing to overwrite it (add --force to replace the outputs)",
-            show(&log_path)
-        )));
-    }
+    crate::output::check_replaceable(&log_path, args.force)?;
     let out = OutDir::prepare(&args.out, &name_refs, args.force, &input_refs)?;
     let mut channels = open(&args.target)?;
     let defmt = defmt_log(args.target.elf.as_deref())?;
@@ -526,8 +501,9 @@ fn capture(args: CaptureArgs) -> CmdResult {
     let mut session = CaptureSession::new(defmt);
     let live = args.target.replay.is_none();
     if live {
-        STOP.store(false, std::sync::atomic::Ordering::Relaxed);
-        stop_on_ctrl_c();
+        // Ctrl-C ends a live capture, which still writes its files (a second one abandons
+        // it: nothing lands, the staging goes).
+        crate::interrupt::catch();
     }
     let started = Instant::now();
     let mut shown = started;
@@ -540,7 +516,7 @@ fn capture(args: CaptureArgs) -> CmdResult {
             for line in lines {
                 outln!("{line}")?;
             }
-            let stopped = STOP.load(std::sync::atomic::Ordering::Relaxed);
+            let stopped = crate::interrupt::interrupted();
             if session.ended()
                 || (live && (stopped || started.elapsed().as_secs_f64() >= args.seconds))
             {

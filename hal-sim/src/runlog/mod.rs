@@ -1,9 +1,13 @@
 //! The run log (`docs/formats.md` §1): the CSV the rig logs and the simulator writes.
 //!
 //! Writing is plain formatted text (deterministic: the same values give the same bytes).
-//! Reading validates everything the contract names and refuses with the line and column at
-//! fault: missing required columns, non-numeric or non-finite values, time not increasing
-//! uniformly (1 % tolerance), fewer than 100 rows.
+//! Reading takes logs as rigs write them — `,`, `;` or tab between the fields (a `;` or tab
+//! log may write decimal commas), sample times that jitter and rows a logger dropped,
+//! resampled onto the nominal grid with the counts reported ([`grid`]) — and refuses with
+//! the line and column at fault: a column the command needs that is missing, non-numeric or
+//! non-finite values, time not increasing or too far off its grid, fewer than 100 rows.
+
+pub mod grid;
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -37,6 +41,8 @@ pub struct RunLog {
     pub names: Vec<String>,
     /// Column data, in the order of `names`.
     pub columns: Vec<Vec<f64>>,
+    /// What the reader did to put the rows on the nominal time grid (`None`: they were).
+    pub resampled: Option<grid::Resampled>,
 }
 
 /// Why a run log was refused.
@@ -70,6 +76,7 @@ impl RunLog {
             meta: Vec::new(),
             names: names.iter().map(|s| s.to_string()).collect(),
             columns: vec![Vec::new(); names.len()],
+            resampled: None,
         }
     }
 
@@ -164,6 +171,12 @@ impl RunLog {
     /// grows with the values accepted, and a file that is not a run log (no line breaks,
     /// binary, endless) is refused at its first bad line.
     pub fn read(path: &Path) -> Result<RunLog, LogError> {
+        Self::read_needing(path, &REQUIRED)
+    }
+
+    /// [`RunLog::read`] for a command that needs only the columns `needs` (`t_s` always):
+    /// a log without the others is read.
+    pub fn read_needing(path: &Path, needs: &[&str]) -> Result<RunLog, LogError> {
         let fail = |what: String| LogError {
             line: 0,
             column: None,
@@ -180,26 +193,37 @@ impl RunLog {
             .starts_with(&GZIP_MAGIC);
         if gzipped {
             let gz = BufReader::with_capacity(1 << 16, flate2::read::MultiGzDecoder::new(reader));
-            Self::parse_stream(gz, true)
+            Self::parse_stream(gz, true, needs)
         } else {
-            Self::parse_stream(reader, false)
+            Self::parse_stream(reader, false, needs)
         }
     }
 
     /// Parses and validates run-log text.
     pub fn parse(text: &str) -> Result<RunLog, LogError> {
-        Self::parse_stream(text.as_bytes(), false)
+        Self::parse_stream(text.as_bytes(), false, &REQUIRED)
+    }
+
+    /// [`RunLog::parse`] needing only the columns `needs` (and `t_s`).
+    pub fn parse_needing(text: &str, needs: &[&str]) -> Result<RunLog, LogError> {
+        Self::parse_stream(text.as_bytes(), false, needs)
     }
 
     /// Parses and validates a run log line by line, as pandas `read_csv(comment='#')` reads
     /// it: `\n`, `\r\n` or `\r` line ends, an optional UTF-8 byte-order mark, fields in
-    /// double quotes, `#` starting a comment anywhere. Refused, naming the line (and column):
-    /// lines longer than [`MAX_LINE_BYTES`], text that is not UTF-8, a missing or duplicated
-    /// column, metadata keys given twice with different values, a `sample_rate_hz` the time
-    /// column contradicts, values that are not numbers, not finite or outside
-    /// [`physical_range`], time not increasing uniformly (1 %) or with a step outside
-    /// [`SAMPLE_TIME_RANGE_S`], fewer than [`MIN_ROWS`] or more than [`MAX_VALUES`] values.
-    fn parse_stream(source: impl BufRead, gzipped: bool) -> Result<RunLog, LogError> {
+    /// double quotes, `#` starting a comment anywhere; the fields separated by the header's
+    /// separator (`,`, else `;`, else tab). Refused, naming the line (and column): lines
+    /// longer than [`MAX_LINE_BYTES`], text that is not UTF-8, a column of `needs` missing or
+    /// a column duplicated, metadata keys given twice with different values, a
+    /// `sample_rate_hz` the time column contradicts, values that are not numbers, not finite
+    /// or outside [`physical_range`], time not increasing, a step outside
+    /// [`SAMPLE_TIME_RANGE_S`], rows too far off the grid or too many missing ([`grid`]),
+    /// fewer than [`MIN_ROWS`] or more than [`MAX_VALUES`] values.
+    fn parse_stream(
+        source: impl BufRead,
+        gzipped: bool,
+        needs: &[&str],
+    ) -> Result<RunLog, LogError> {
         let err = |line: usize, column: Option<&str>, message: String| LogError {
             line,
             column: column.map(str::to_string),
@@ -214,6 +238,7 @@ impl RunLog {
         let mut time = TimeCheck::default();
         let mut time_col: Option<usize> = None;
         let mut fields: Vec<String> = Vec::new();
+        let mut sep = b',';
         let mut rows = RowBatch::default();
         let outcome = loop {
             let line_no = lines.line_no + 1;
@@ -260,7 +285,8 @@ impl RunLog {
                 }
                 continue;
             }
-            split_fields(line, &mut fields).map_err(|m| err(line_no, None, m))?;
+            sep = separator(line);
+            split_fields(line, sep, &mut fields).map_err(|m| err(line_no, None, m))?;
             if fields.len() == 1 && fields.first().is_some_and(|f| f.trim().is_empty()) {
                 continue; // a blank line, or one that is all comment
             }
@@ -274,13 +300,17 @@ impl RunLog {
                     ));
                 }
             }
-            for req in REQUIRED {
+            for req in std::iter::once(&"t_s").chain(needs) {
                 if !names.iter().any(|n| n == req) {
+                    let mut wanted: Vec<&str> = vec!["t_s"];
+                    wanted.extend(needs.iter().filter(|n| **n != "t_s"));
                     return Err(err(
                         line_no,
                         Some(req),
                         format!(
-                            "required column is missing (the header has: {})",
+                            "required column is missing (this command reads {}; the header \
+                             has: {})",
+                            wanted.join(", "),
                             echo(&names.join(","))
                         ),
                     ));
@@ -308,11 +338,11 @@ impl RunLog {
                 if stop.is_none() {
                     // The stream stays on this thread (it need not be `Send`).
                     rayon::in_place_scope(|scope| {
-                        scope.spawn(|_| parsed = rows.parse(names, &ranges));
+                        scope.spawn(|_| parsed = rows.parse(names, &ranges, sep));
                         next_stop = read_batch(&mut lines, gzipped, &mut next);
                     });
                 } else {
-                    parsed = rows.parse(names, &ranges);
+                    parsed = rows.parse(names, &ranges, sep);
                 }
                 rows.take(parsed, names, &mut columns, &mut time, time_col)?;
                 if let Some(end) = stop {
@@ -327,11 +357,15 @@ impl RunLog {
         let Some((_, names)) = header else {
             return Err(err(0, None, "no header line".into()));
         };
-        let log = RunLog {
+        let mut log = RunLog {
             meta,
             names,
             columns,
+            resampled: None,
         };
+        if let Some(i) = time_col {
+            log.place_on_grid(i, &time.lines)?;
+        }
         if log.len() < MIN_ROWS {
             return Err(err(
                 0,
@@ -349,7 +383,8 @@ impl RunLog {
                     format!("`# sample_rate_hz = {}` is not a number", echo(rate)),
                 )
             })?;
-            let from_t = 1.0 / time.step_s;
+            let step_s = log.sample_time_s().unwrap_or(f64::NAN);
+            let from_t = 1.0 / step_s;
             if !(stated.is_finite() && stated > 0.0) || (stated - from_t).abs() > 0.01 * from_t {
                 return Err(err(
                     line,
@@ -358,7 +393,7 @@ impl RunLog {
                         "`# sample_rate_hz = {}` contradicts the time column (step {:e} s = \
                          {from_t:.6} Hz)",
                         echo(rate),
-                        time.step_s
+                        step_s
                     ),
                 ));
             }
@@ -403,24 +438,26 @@ fn echo(text: &str) -> String {
     crate::output::clip(text, 40)
 }
 
-/// The time column's check, one value at a time: increasing, uniform within 1 % of the first
-/// step, that step within [`SAMPLE_TIME_RANGE_S`].
+/// The time column's check, one value at a time: increasing, the first step within
+/// [`SAMPLE_TIME_RANGE_S`]; each row's line kept for [`RunLog::place_on_grid`]'s refusals.
 #[derive(Default)]
 struct TimeCheck {
     prev: Option<f64>,
-    step_s: f64,
+    /// The line of each data row.
+    lines: Vec<u32>,
 }
 
 impl TimeCheck {
-    fn next(&mut self, t: f64) -> Result<(), String> {
+    fn next(&mut self, t: f64, line: usize) -> Result<(), String> {
+        self.lines.push(u32::try_from(line).unwrap_or(u32::MAX));
         let Some(prev) = self.prev.replace(t) else {
             return Ok(());
         };
         let dt = t - prev;
-        if self.step_s == 0.0 {
-            if dt <= 0.0 {
-                return Err("time does not increase".into());
-            }
+        if dt <= 0.0 {
+            return Err("time does not increase".into());
+        }
+        if self.lines.len() == 2 {
             let (lo, hi) = SAMPLE_TIME_RANGE_S;
             if !(lo..=hi).contains(&dt) {
                 return Err(format!(
@@ -428,14 +465,36 @@ impl TimeCheck {
                      ({lo:e}..={hi:e} s)"
                 ));
             }
-            self.step_s = dt;
-        } else if (dt - self.step_s).abs() > 0.01 * self.step_s {
-            return Err(if dt <= 0.0 {
-                "time does not increase".into()
-            } else {
-                "time step is not uniform".into()
-            });
         }
+        Ok(())
+    }
+}
+
+impl RunLog {
+    /// Puts the rows on the log's nominal time grid ([`grid::place`]): unchanged when they
+    /// are on it, else every column resampled and [`RunLog::resampled`] saying how.
+    fn place_on_grid(&mut self, time_col: usize, lines: &[u32]) -> Result<(), LogError> {
+        let t = self.columns.get(time_col).cloned().unwrap_or_default();
+        let placed = grid::place(&t).map_err(|(row, message)| LogError {
+            line: if row == 0 {
+                0
+            } else {
+                lines.get(row).map_or(0, |&l| l as usize)
+            },
+            column: Some("t_s".into()),
+            message,
+        })?;
+        let Some(g) = placed else {
+            return Ok(());
+        };
+        for (i, col) in self.columns.iter_mut().enumerate() {
+            *col = if i == time_col {
+                g.times()
+            } else {
+                g.resample(&t, col)
+            };
+        }
+        self.resampled = Some(g.report);
         Ok(())
     }
 }
@@ -469,8 +528,13 @@ impl RowBatch {
         self.lines.push((line_no, start..self.text.len()));
     }
 
-    /// Parses the batch's rows, on every core.
-    fn parse(&self, names: &[String], ranges: &[(f64, f64)]) -> Vec<Result<ParsedRow, LogError>> {
+    /// Parses the batch's rows (fields separated by `sep`), on every core.
+    fn parse(
+        &self,
+        names: &[String],
+        ranges: &[(f64, f64)],
+        sep: u8,
+    ) -> Vec<Result<ParsedRow, LogError>> {
         use rayon::prelude::*;
         self.lines
             .par_iter()
@@ -480,6 +544,7 @@ impl RowBatch {
                     *line_no,
                     names,
                     ranges,
+                    sep,
                 )
             })
             .collect()
@@ -515,7 +580,7 @@ impl RowBatch {
             }
             // The time after the whole row read: a bad value names its own column.
             if let Some(&t) = time_col.and_then(|i| columns.get(i)).and_then(|c| c.last()) {
-                time.next(t).map_err(|message| LogError {
+                time.next(t, *line_no).map_err(|message| LogError {
                     line: *line_no,
                     column: Some("t_s".into()),
                     message,
@@ -586,6 +651,7 @@ fn parse_row(
     line_no: usize,
     names: &[String],
     ranges: &[(f64, f64)],
+    sep: u8,
 ) -> Result<ParsedRow, LogError> {
     let err = |column: Option<&str>, message: String| LogError {
         line: line_no,
@@ -596,10 +662,10 @@ fn parse_row(
     // which was a third of the reading's cost on a long log); a quoted one is unquoted first.
     let mut unquoted = Vec::new();
     let fields: Vec<&str> = if line.as_bytes().contains(&b'"') {
-        split_fields(line, &mut unquoted).map_err(|m| err(None, m))?;
+        split_fields(line, sep, &mut unquoted).map_err(|m| err(None, m))?;
         unquoted.iter().map(String::as_str).collect()
     } else {
-        plain_fields(line, names.len())
+        plain_fields(line, names.len(), sep)
     };
     if fields.len() == 1 && fields.first().is_some_and(|f| f.trim().is_empty()) {
         return Ok(ParsedRow::Blank); // a blank line, or one that is all comment
@@ -616,6 +682,14 @@ fn parse_row(
         .zip(ranges)
         .map(|((field, name), &(lo, hi))| {
             let text = field.trim();
+            // A log separated by `;` or tabs may write a decimal comma (`0,25`).
+            let decimal;
+            let text = if sep != b',' && text.contains(',') {
+                decimal = text.replace(',', ".");
+                decimal.as_str()
+            } else {
+                text
+            };
             let v: f64 = text
                 .parse()
                 .map_err(|_| err(Some(name), format!("`{}` is not a number", echo(text))))?;
@@ -634,10 +708,19 @@ fn parse_row(
     Ok(ParsedRow::Values(values))
 }
 
-/// The fields of a line without quotes: the commas' pieces up to a comment (`#`), as
+/// The separator of a log, from its header line: `,` when it has one, else `;` when it has
+/// one, else a tab when it has one, else `,` (a single column).
+fn separator(header: &str) -> u8 {
+    [b',', b';', b'\t']
+        .into_iter()
+        .find(|&c| header.as_bytes().contains(&c))
+        .unwrap_or(b',')
+}
+
+/// The fields of a line without quotes: the separator's pieces up to a comment (`#`), as
 /// [`split_fields`] gives them, found byte by byte (both are ASCII, so every piece is whole
 /// UTF-8; the `str` searchers cost a tenth of reading a long log).
-fn plain_fields(line: &str, expected: usize) -> Vec<&str> {
+fn plain_fields(line: &str, expected: usize, sep: u8) -> Vec<&str> {
     let body = match line.bytes().position(|b| b == b'#') {
         Some(i) => line.get(..i).unwrap_or_default(),
         None => line,
@@ -645,7 +728,7 @@ fn plain_fields(line: &str, expected: usize) -> Vec<&str> {
     let mut out = Vec::with_capacity(expected);
     let mut start = 0;
     for (i, b) in body.bytes().enumerate() {
-        if b == b',' {
+        if b == sep {
             out.push(body.get(start..i).unwrap_or_default());
             start = i + 1;
         }
@@ -654,14 +737,16 @@ fn plain_fields(line: &str, expected: usize) -> Vec<&str> {
     out
 }
 
-/// Splits a CSV line into `fields`: commas outside double quotes separate; quotes are
+/// Splits a CSV line into `fields`: `sep` outside double quotes separates; quotes are
 /// removed (`""` inside quotes is one quote); `#` outside quotes starts a comment.
-fn split_fields(line: &str, fields: &mut Vec<String>) -> Result<(), String> {
+fn split_fields(line: &str, sep: u8, fields: &mut Vec<String>) -> Result<(), String> {
     fields.clear();
+    let sep = char::from(sep);
     if !line.contains('"') {
-        // The common line: no quotes, so the fields are the commas' pieces up to a comment.
+        // The common line: no quotes, so the fields are the separator's pieces up to a
+        // comment.
         let body = line.split('#').next().unwrap_or_default();
-        fields.extend(body.split(',').map(str::to_string));
+        fields.extend(body.split(sep).map(str::to_string));
         return Ok(());
     }
     let mut field = String::new();
@@ -675,7 +760,7 @@ fn split_fields(line: &str, fields: &mut Vec<String>) -> Result<(), String> {
             }
             ('"', true) => quoted = false,
             ('"', false) => quoted = true,
-            (',', false) => fields.push(std::mem::take(&mut field)),
+            (c, false) if c == sep => fields.push(std::mem::take(&mut field)),
             ('#', false) => break,
             (c, _) => field.push(c),
         }
@@ -949,11 +1034,95 @@ mod contract_tests {
         let mut bytes = ok.clone().into_bytes();
         let at = ok.find("0.0003").unwrap();
         bytes[at] = 0xff;
-        let path = std::env::temp_dir().join(format!("fpc-runlog-utf8-{}", std::process::id()));
+        let scratch = tempfile::tempdir().unwrap();
+        let path = scratch.path().join("not-utf8.csv");
         std::fs::write(&path, &bytes).unwrap();
         let e = RunLog::read(&path).unwrap_err();
         assert!(e.line > 3 && e.message.contains("UTF-8"), "{e}");
-        let _ = std::fs::remove_file(&path);
+    }
+
+    /// The data lines of `text` with `f` applied (metadata lines as they are).
+    fn rows_mapped(text: &str, f: impl Fn(&str) -> String) -> String {
+        text.lines()
+            .map(|l| {
+                if l.starts_with('#') {
+                    format!("{l}\n")
+                } else {
+                    format!("{}\n", f(l))
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn reads_semicolons_tabs_and_decimal_commas() {
+        let text = sample(120, "\n");
+        let plain = RunLog::parse(&text).unwrap();
+        for (what, variant) in [
+            ("`;`", rows_mapped(&text, |l| l.replace(',', ";"))),
+            (
+                "`;` with decimal commas",
+                rows_mapped(&text, |l| l.replace(',', ";").replace('.', ",")),
+            ),
+            ("tab", rows_mapped(&text, |l| l.replace(',', "\t"))),
+        ] {
+            let log = RunLog::parse(&variant).unwrap_or_else(|e| panic!("{what}: {e}"));
+            assert_eq!(log.names, plain.names, "{what}");
+            assert_eq!(log.columns, plain.columns, "{what}");
+        }
+    }
+
+    #[test]
+    fn a_command_reads_a_log_holding_only_the_columns_it_needs() {
+        let mut text = String::from("t_s,f_master_n,f_slave_n\n");
+        for i in 0..150 {
+            text.push_str(&format!("{},{},{}\n", i as f64 * 1e-4, i, i + 1));
+        }
+        let log = RunLog::parse_needing(&text, &["f_master_n", "f_slave_n"]).unwrap();
+        assert_eq!(log.len(), 150);
+        let e = RunLog::parse(&text).unwrap_err();
+        assert_eq!(e.column.as_deref(), Some("x_m"));
+        assert!(e.message.contains("this command reads t_s, x_m"), "{e}");
+    }
+
+    #[test]
+    fn jitter_and_dropped_rows_are_put_on_the_grid_and_counted() {
+        let mut text = String::from("# sample_rate_hz = 10000\n");
+        text.push_str(&REQUIRED.join(","));
+        text.push('\n');
+        for i in 0..1000 {
+            if [200, 500, 501].contains(&i) {
+                continue;
+            }
+            // ±2 µs of jitter on a 100 µs step; x = 1 m/s × t, so the grid's x is its t.
+            let t = i as f64 * 1e-4 + if i % 2 == 0 { 2e-6 } else { -2e-6 };
+            text.push_str(&format!("{t},{t},{t},0,{},1,1e5,1e5\n", i % 3));
+        }
+        let log = RunLog::parse(&text).unwrap();
+        let r = log.resampled.expect("resampled");
+        assert_eq!((log.len(), r.filled, r.rows_read), (1000, 3, 997));
+        let (t, x) = (log.column("t_s").unwrap(), log.column("x_m").unwrap());
+        for (k, (t, x)) in t.iter().zip(x).enumerate().skip(1).take(997) {
+            assert!((t - x).abs() < 1e-9, "row {k}: t {t} x {x}");
+        }
+        // A code column is held, never a fraction.
+        assert!(log
+            .column("f_master_n")
+            .unwrap()
+            .iter()
+            .all(|v| v.fract() == 0.0));
+        // Past the limit: the refusal names the line and both steps.
+        let mut gap = String::from(&REQUIRED.join(","));
+        gap.push('\n');
+        for i in (0..300).filter(|i| !(100..105).contains(i)) {
+            gap.push_str(&format!("{},0,0,0,0,0,1e5,1e5\n", i as f64 * 1e-4));
+        }
+        let e = RunLog::parse(&gap).unwrap_err();
+        assert_eq!((e.line, e.column.as_deref()), (102, Some("t_s")), "{e}");
+        assert!(
+            e.message.contains("600 µs where the log's step is 100 µs"),
+            "{e}"
+        );
     }
 
     #[test]
