@@ -965,6 +965,44 @@ mod tests {
     }
 
     #[test]
+    fn a_hardware_trip_drops_its_section_and_is_re_armed_only_once_the_fault_is_cleared() {
+        let mut step = ControlStep::new(ControlConfig::reference()).unwrap();
+        let master = PerSection {
+            master: true,
+            slave: false,
+        };
+        assert!(!step.trip_latched());
+        assert_eq!(step.hardware_trip(master), PerSection::default());
+        assert!(step.trip_latched());
+        assert!(step.safe.faults.contains(Fault::Overcurrent));
+        assert_eq!(
+            step.safe.sections_in_service(),
+            PerSection {
+                master: false,
+                slave: true
+            }
+        );
+        // Still latched: nothing to re-arm, and the same break is not a new trip.
+        assert_eq!(step.hardware_trip(master), PerSection::default());
+        assert_eq!(
+            step.hardware_trip(PerSection::default()),
+            PerSection::default()
+        );
+        assert!(step.trip_latched());
+        assert_eq!(step.command(Command::ClearFaults), Ok(()));
+        assert_eq!(step.hardware_trip(PerSection::default()), master);
+        assert!(!step.trip_latched());
+        assert!(step.safe.faults.is_empty());
+        assert_eq!(
+            step.safe.sections_in_service(),
+            PerSection {
+                master: true,
+                slave: true
+            }
+        );
+    }
+
+    #[test]
     fn a_lost_section_is_out_of_service_until_the_faults_are_cleared() {
         let mut step = ControlStep::new(ControlConfig::reference()).unwrap();
         step.react(Trip::of(Fault::Overcurrent).dropping(crate::units::Section::Slave));
