@@ -25,6 +25,7 @@ pub mod doc;
 pub mod effects;
 pub mod fit;
 mod offset;
+pub mod page;
 mod reconsider;
 pub mod report;
 pub mod residuals;
