@@ -31,6 +31,7 @@ pub mod report;
 pub mod residuals;
 pub mod select;
 pub mod synth;
+pub mod uncertainty;
 
 use std::collections::BTreeMap;
 
@@ -94,6 +95,10 @@ pub struct EffectJson {
     pub channel: String,
     /// Fitted parameters, SI, the model file's keys.
     pub params: BTreeMap<String, f64>,
+    /// One standard deviation of each fitted parameter, SI, by the same keys (a key set but
+    /// not fitted, or one the log does not pin down, is absent).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub uncertainty: BTreeMap<String, f64>,
     /// Channel RMS before adding it.
     pub rms_before: f64,
     /// Channel RMS after adding it.
@@ -373,6 +378,7 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
 /// the selection's steps), with its final parameters.
 fn effect_rows(ctx: &Ctx<'_>, selection: &Selection) -> Result<Vec<EffectJson>, String> {
     let mut rows = Vec::new();
+    let mut sigma = uncertainty::of_selection(ctx, selection);
     for (a, (before, after)) in selection.added.iter().zip(&selection.steps) {
         let kind = a.proposal.kind;
         if !kind.named() {
@@ -404,6 +410,7 @@ fn effect_rows(ctx: &Ctx<'_>, selection: &Selection) -> Result<Vec<EffectJson>, 
                 .iter()
                 .map(|(k, v)| (k.to_string(), *v))
                 .collect(),
+            uncertainty: sigma.remove(&kind).unwrap_or_default(),
             rms_before: full_rms(ctx.data, ctx.band, ch, &raw_b),
             rms_after: full_rms(ctx.data, ctx.band, ch, &raw_a),
             delta_bic: a.delta_bic,

@@ -3,7 +3,7 @@
 //! HTML ([`super::page`]) with SVG plots (residual maps, before/after overlays, the p–V
 //! replay).
 
-use crate::console::Num;
+use crate::console::{eng, eng_pm, Num};
 use rayon::prelude::*;
 use std::path::Path;
 
@@ -13,6 +13,7 @@ use crate::plot::{lines, panels, Axes, Panel, Series};
 use super::effects::{acting_force_lag, slave_force_lag, Ctx};
 use super::page::Block;
 use super::residuals::{replay_pressures, ChannelId};
+use super::uncertainty::{fitted, key_unit};
 use super::{ChannelResiduals, GapOutcome};
 
 /// Bins of a residual map.
@@ -281,6 +282,19 @@ fn summary(out: &GapOutcome) -> Vec<Block> {
     blocks
 }
 
+/// A fitted parameter as the report writes it: rounded to its uncertainty (`amplitude_n =
+/// 45.1 ± 0.2 N`); one set rather than fitted, held at zero, or without an uncertainty says
+/// so.
+fn param_cell(key: &str, value: f64, sigma: Option<f64>) -> String {
+    let unit = key_unit(key);
+    match sigma {
+        Some(s) => format!("{key} = {}", eng_pm(value, s, unit)),
+        None if !fitted(key) => format!("{key} = {} (set, not fitted)", eng(value, unit)),
+        None if value == 0.0 => format!("{key} = 0 {unit} (held at its bound)"),
+        None => format!("{key} = {} (uncertainty not known)", eng(value, unit)),
+    }
+}
+
 /// A table block from string headers.
 fn table(head: &[&str], rows: Vec<Vec<String>>) -> Block {
     Block::Table {
@@ -308,7 +322,7 @@ fn effect_tables(out: &GapOutcome) -> Vec<Block> {
                 let params: Vec<String> = e
                     .params
                     .iter()
-                    .map(|(k, v)| format!("{k} = {:.5}", Num(*v)))
+                    .map(|(k, v)| param_cell(k, *v, e.uncertainty.get(k).copied()))
                     .collect();
                 vec![
                     e.name.clone(),
