@@ -181,7 +181,9 @@ fn gap_writes_the_augmented_model_and_the_report() {
             );
         }
     }
-    assert!(svgs >= 6 * 4 + 4 + 1, "{svgs} plots");
+    // Six maps and an overlay per channel (four), and the p–V replay.
+    let plots = 4 * (6 + 1) + 1;
+    assert_eq!(svgs, plots, "{svgs} plots");
     assert!(
         !html.contains("<script") && !html.contains("http"),
         "{html}"
