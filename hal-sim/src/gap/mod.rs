@@ -305,6 +305,8 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
     {
         names.push(EffectKind::ExtraForce.name());
     }
+    // Each fitted value is written whole, with its uncertainty beside it as a comment.
+    let sigma = uncertainty::of_selection(&ctx, &selection);
     let model_text = format!(
         "# Augmented by `fpc-sim gap`: {}\n{}",
         if names.is_empty() {
@@ -312,7 +314,9 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         } else {
             names.join(", ") + " added"
         },
-        selection.doc.to_text().map_err(Failure::runtime)?
+        uncertainty::annotated(&selection.doc, &selection, &sigma)
+            .to_text()
+            .map_err(Failure::runtime)?
     );
     // Re-run the comparison with the model exactly as written.
     let after_model = crate::plant::model::MachineModel::parse(&model_text)
@@ -353,7 +357,7 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
             rms_after: rms_of_full(&measured, &band, c.channel, &c.after),
         })
         .collect();
-    let effects = effect_rows(&ctx, &selection).map_err(Failure::runtime)?;
+    let effects = effect_rows(&ctx, &selection, sigma).map_err(Failure::runtime)?;
     let discovered = discovered_rows(&ctx, &selection).map_err(Failure::runtime)?;
     Ok(GapOutcome {
         json: GapJson {
@@ -375,10 +379,13 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
 }
 
 /// Each added effect's channel RMS just before and just after it was added (the models of
-/// the selection's steps), with its final parameters.
-fn effect_rows(ctx: &Ctx<'_>, selection: &Selection) -> Result<Vec<EffectJson>, String> {
+/// the selection's steps), with its final parameters and their uncertainties `sigma`.
+fn effect_rows(
+    ctx: &Ctx<'_>,
+    selection: &Selection,
+    mut sigma: BTreeMap<EffectKind, BTreeMap<String, f64>>,
+) -> Result<Vec<EffectJson>, String> {
     let mut rows = Vec::new();
-    let mut sigma = uncertainty::of_selection(ctx, selection);
     for (a, (before, after)) in selection.added.iter().zip(&selection.steps) {
         let kind = a.proposal.kind;
         if !kind.named() {

@@ -103,6 +103,36 @@ pub fn of_selection(
     out
 }
 
+/// `doc` with each fitted parameter of `sigma` commented with its value rounded to its
+/// uncertainty (`amplitude_n = 45.052022518793216  # 45.05 ± 0.19 N, one standard deviation
+/// of gap's fit`): the value itself keeps every digit, so that a rerun reproduces exactly.
+pub fn annotated(
+    doc: &ModelDoc,
+    selection: &Selection,
+    sigma: &BTreeMap<EffectKind, BTreeMap<String, f64>>,
+) -> ModelDoc {
+    let mut out = doc.clone();
+    for a in &selection.added {
+        let Some(by_key) = sigma.get(&a.proposal.kind) else {
+            continue;
+        };
+        for e in &a.proposal.edits {
+            let Edit::Set(key, _) = e else {
+                continue;
+            };
+            let (Some(s), Some(v)) = (by_key.get(key.name), doc.number(*key)) else {
+                continue;
+            };
+            let text = format!(
+                "{}, one standard deviation of gap's fit",
+                crate::console::eng_pm(v, *s, key_unit(key.name))
+            );
+            out = out.with_comment(*key, &text);
+        }
+    }
+    out
+}
+
 /// The kept residual of `ch` for `doc` (`None`: the model does not load or the channel
 /// cannot be formed).
 fn kept(ctx: &Ctx<'_>, doc: &ModelDoc, ch: ChannelId) -> Option<Vec<f64>> {
