@@ -113,6 +113,7 @@ fn name(cmd: &Cmd) -> &'static str {
         Cmd::SweepMerge(_) => "sweep-merge",
         Cmd::Link(_) => "link",
         Cmd::Model(_) => "model",
+        Cmd::Paper(_) => "paper",
         Cmd::View(_) => "view",
         Cmd::Completions(_) => "completions",
     }
