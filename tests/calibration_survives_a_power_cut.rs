@@ -46,7 +46,6 @@ fn record(k: f32) -> CalibrationRecord {
                 encoder_offset_m: -2e-6 * k,
             }),
             cogging: Some(map),
-            encoder_map: None,
             last_error: None,
         },
         sin_cos: PerSection {

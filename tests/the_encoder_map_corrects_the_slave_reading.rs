@@ -89,8 +89,8 @@ fn the_mapped_slave_reading_differs_from_the_masters_by_a_tenth_of_what_it_did()
     // during a routine), homed first (the sweeps start from the park position).
     bench.world_mut().plant.port_mode = PortMode::Unloaded;
     bench.home();
-    let found = calibrate(&mut bench, Routine::EncoderMap);
-    let map = found.encoder_map.expect("the encoder map");
+    calibrate(&mut bench, Routine::EncoderMap);
+    let map = bench.step.config().encoder_map.expect("the encoder map");
     println!(
         "map: saw {:.1} µm stepping at {:.3} of the period, toward +x {:+.1} µm, toward −x \
          {:+.1} µm, velocity coefficient {:+.2} µm per m/s, fit residual {:.2} µm",

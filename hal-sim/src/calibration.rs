@@ -266,7 +266,6 @@ pub fn parse(text: &str) -> Result<CalibrationRecord, String> {
                 encoder_offset_m: finite("misalignment.encoder_offset_m", m.encoder_offset_m)?,
             }),
             cogging: Some(map),
-            encoder_map: None,
             last_error: None,
         },
         sin_cos: PerSection {
@@ -346,7 +345,7 @@ pub fn map_encoders(
         ("encoder_map", calibrate(Routine::EncoderMap)),
     ];
     let (step, _, _) = run_plan(model, crate::run::control_config(model), seed, &plan)?;
-    step.calibrated()
+    step.config()
         .encoder_map
         .ok_or_else(|| "the encoder map routine loaded no map".to_string())
 }

@@ -234,6 +234,12 @@ impl EncoderMapper {
         self.cruise_m + s.sweep_speed_mps * s.sweep_speed_mps / s.sweep_accel_mps2
     }
 
+    /// One cycle of the routine.
+    ///
+    /// Kept out of line (and so in flash, outside `.ccmram`): the routine runs only at
+    /// commissioning, and every byte of the 20 kHz path's code in CCM SRAM is copied there
+    /// at each boot, before the control task can brake (`src/board/ccm.rs`).
+    #[inline(never)]
     pub(super) fn step(&mut self, config: &ControlConfig, m: &Measurements) -> Demand {
         let c = &config.calibration;
         let dt = config.sample_time_s;

@@ -273,8 +273,6 @@ pub struct Calibrated {
     pub misalignment: Option<Misalignment>,
     /// The cogging map.
     pub cogging: Option<HarmonicMap>,
-    /// The encoder-difference map (not stored in flash: mapped again after a power cut).
-    pub encoder_map: Option<EncoderMap>,
     /// The last routine that failed, and why.
     pub last_error: Option<(Routine, CalibrationError)>,
 }
@@ -291,7 +289,10 @@ impl Calibrated {
             }
             Ok(Outcome::Misalignment(m)) => self.misalignment = Some(m),
             Ok(Outcome::Cogging(map)) => self.cogging = Some(map),
-            Ok(Outcome::EncoderMap(map)) => self.encoder_map = Some(map),
+            // Held in the configuration alone (`ControlConfig::encoder_map`), not in the
+            // record: a record is copied whole at every boot and save, and the map is not
+            // stored in flash (mapped again after a power cut).
+            Ok(Outcome::EncoderMap(_)) => {}
             Err(e) => self.last_error = Some((routine, e)),
         }
     }
@@ -304,7 +305,6 @@ impl Calibrated {
             self.alignment.map(Outcome::Alignment),
             self.misalignment.map(Outcome::Misalignment),
             self.cogging.map(Outcome::Cogging),
-            self.encoder_map.map(Outcome::EncoderMap),
         ];
         for outcome in loaded.iter().flatten() {
             outcome.apply(config);

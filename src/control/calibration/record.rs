@@ -117,7 +117,6 @@ impl CalibrationRecord {
                     encoder_offset_m: -2e-6,
                 }),
                 cogging: Some(map),
-                encoder_map: None,
                 last_error: None,
             },
             sin_cos: PerSection {
@@ -138,8 +137,6 @@ impl CalibrationRecord {
         CalibrationRecord {
             calibrated: Calibrated {
                 last_error: None,
-                // Not part of the layout: mapped again after a power cut.
-                encoder_map: None,
                 ..*calibrated
             },
             sin_cos: PerSection {
@@ -292,7 +289,6 @@ impl CalibrationRecord {
                 alignment: has(Routine::Alignment).then_some(align),
                 misalignment: has(Routine::Misalignment).then_some(mis),
                 cogging: has(Routine::Cogging).then_some(map),
-                encoder_map: None,
                 last_error: None,
             },
             sin_cos: PerSection { master, slave },
