@@ -90,6 +90,25 @@ impl EncoderMap {
         let half = 0.5 * (self.toward_plus_m - self.toward_minus_m);
         self.saw_m * (frac - 0.5) + mean + w * half + self.velocity_s * velocity_mps
     }
+
+    /// Takes the difference the map predicts ([`Self::difference_m`]) out of the slave's
+    /// reading `slave_m` (m) and out of its commutation angle `slave_angle` (wrapping,
+    /// 2³² = one period).
+    ///
+    /// Out of line (`memory.x` puts it in CCM SRAM with the control path): a machine without
+    /// a map pays only the test of `ControlConfig::encoder_map` in its control step.
+    #[inline(never)]
+    pub fn correct(
+        &self,
+        master_phase: u32,
+        velocity_mps: f32,
+        slave_m: &mut f32,
+        slave_angle: &mut u32,
+    ) {
+        let d = self.difference_m(master_phase, velocity_mps);
+        *slave_m -= d;
+        *slave_angle = slave_angle.wrapping_sub(crate::angle::turns(d / self.period_m));
+    }
 }
 
 /// The slave decoder's configuration with `config`'s map loaded: its glitch gate widened by

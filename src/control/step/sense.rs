@@ -262,11 +262,12 @@ impl ControlStep {
         if let Some(map) = &self.config.encoder_map {
             // The slave's mapped difference from the master (paper §4.2), taken out of its
             // reading and of its section's commutation angle.
-            let d = map.difference_m(master.angle, derivatives.velocity_mps);
-            slave_raw_m -= d;
-            slave.angle = slave
-                .angle
-                .wrapping_sub(crate::angle::turns(d / map.period_m));
+            map.correct(
+                master.angle,
+                derivatives.velocity_mps,
+                &mut slave_raw_m,
+                &mut slave.angle,
+            );
         }
         let zero = self.sensing.zero_raw_m.unwrap_or(0.0);
         let position_m = raw_m - zero;
