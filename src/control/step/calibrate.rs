@@ -71,6 +71,7 @@ impl ControlStep {
         let routine = calibration.routine();
         let measured = Measurements {
             position_m,
+            slave_position_m: s.slave_position_m,
             velocity_mps: s.velocity_mps,
             angle: PerSection {
                 master: angle_of(raw_m, self.config.encoder_master.period_m),

@@ -43,7 +43,9 @@ impl Sensing {
         Sensing {
             encoders: PerSection {
                 master: SinCosDecoder::new(config.encoder_master),
-                slave: SinCosDecoder::new(config.encoder_slave),
+                slave: SinCosDecoder::new(crate::control::calibration::encoder_map::slave_encoder(
+                    config,
+                )),
             },
             differentiator,
             quadrature: QuadratureCounter::new(),
@@ -256,7 +258,17 @@ impl ControlStep {
         let derivatives = self.sensing.differentiator.push(master.position);
         let m_per_count = self.config.encoder_master.m_per_count();
         let raw_m = master.position.to_bits() as f32 * m_per_count;
-        let slave_raw_m = self.config.encoder_slave.metres(slave.position);
+        let mut slave_raw_m = self.config.encoder_slave.metres(slave.position);
+        if let Some(map) = &self.config.encoder_map {
+            // The slave's mapped difference from the master (paper §4.2), taken out of its
+            // reading and of its section's commutation angle.
+            map.correct(
+                master.angle,
+                derivatives.velocity_mps,
+                &mut slave_raw_m,
+                &mut slave.angle,
+            );
+        }
         let zero = self.sensing.zero_raw_m.unwrap_or(0.0);
         let position_m = raw_m - zero;
 
