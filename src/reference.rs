@@ -148,6 +148,8 @@ pub mod published {
     pub const LOOP_VELOCITY_DELAY_S: f64 = 0.0;
     /// `published.position_gain_per_s`.
     pub const POSITION_GAIN_PER_S: f64 = 100.0;
+    /// `published.profile_ramp_fraction`.
+    pub const PROFILE_RAMP_FRACTION: f64 = 0.5;
     /// `published.reported_velocity_delay_s`.
     pub const REPORTED_VELOCITY_DELAY_S: f64 = 0.0085;
     /// `published.rest_s`.
@@ -246,6 +248,12 @@ pub mod simulation {
 }
 /// `[supply]`.
 pub mod supply {
+    /// `supply.bridge_forward_voltage_v`.
+    pub const BRIDGE_FORWARD_VOLTAGE_V: f64 = 1.0;
+    /// `supply.bridge_on_resistance_ohm`.
+    pub const BRIDGE_ON_RESISTANCE_OHM: f64 = 0.02;
+    /// `supply.bridge_switching_energy_j_per_va`.
+    pub const BRIDGE_SWITCHING_ENERGY_J_PER_VA: f64 = 2e-7;
     /// `supply.chopper_voltage_v`.
     pub const CHOPPER_VOLTAGE_V: f64 = 750.0;
     /// `supply.link_capacitance_f`.

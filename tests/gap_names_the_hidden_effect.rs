@@ -70,6 +70,15 @@ fn gap_names_cogging_with_its_period_within_2_percent() {
     assert!(near(param(&j, "cogging", "period_m"), 0.024, 0.02));
     assert!(near(param(&j, "cogging", "amplitude_n"), 45.0, 0.1));
     assert!((param(&j, "cogging", "phase_rad") - 0.7).abs() < 0.1);
+    // The stated uncertainties cover the truth, and are tight enough to be worth stating.
+    for (key, truth) in [
+        ("period_m", 0.024),
+        ("amplitude_n", 45.0),
+        ("phase_rad", 0.7),
+    ] {
+        assert!(covers(&j, "cogging", key, truth, 4.0), "{key}");
+        assert!(sigma(&j, "cogging", key) < 0.02 * truth, "{key}");
+    }
     assert!(shrink(&j, "force") >= SHRINK);
 }
 
@@ -96,6 +105,7 @@ fn gap_names_the_papers_slave_lag_within_0_1_ms() {
     show("slave_lag", &j);
     assert_eq!(names(&j), ["slave_lag"]);
     assert!((param(&j, "slave_lag", "delay_s") - 0.75e-3).abs() < 0.1e-3);
+    assert!(covers(&j, "slave_lag", "delay_s", 0.75e-3, 4.0));
     assert!(shrink(&j, "slave_force") >= SHRINK);
 }
 
@@ -152,6 +162,7 @@ fn gap_names_leakage_from_the_pressure_decay() {
     show("leakage", &j);
     assert_eq!(names(&j), ["leakage"]);
     assert!(near(param(&j, "leakage", "gap_m"), 25e-6, 0.05));
+    assert!(covers(&j, "leakage", "gap_m", 25e-6, 4.0));
     assert!(shrink(&j, "pressure") >= SHRINK);
 }
 

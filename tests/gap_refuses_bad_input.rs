@@ -157,6 +157,7 @@ fn gap_writes_the_augmented_model_and_the_report() {
     for f in [
         "model.toml",
         "report.md",
+        "report.html",
         "gap.json",
         "overlay_force.svg",
         "pv_replay.svg",
@@ -165,4 +166,26 @@ fn gap_writes_the_augmented_model_and_the_report() {
     }
     // The augmented model loads as `fpc-sim run --model` would load it.
     hal_sim::plant::model::MachineModel::read(&out.join("model.toml")).unwrap();
+    // Both reports embed every plot the run wrote, and the HTML one is self-contained.
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    let mut svgs = 0;
+    for e in std::fs::read_dir(&out).unwrap() {
+        let name = e.unwrap().file_name().to_string_lossy().into_owned();
+        if name.ends_with(".svg") {
+            svgs += 1;
+            assert!(md.contains(&format!("]({name})")), "report.md lacks {name}");
+            assert!(
+                html.contains(&format!("<img src=\"{name}\"")),
+                "report.html lacks {name}"
+            );
+        }
+    }
+    // Six maps and an overlay per channel (four), and the p–V replay.
+    let plots = 4 * (6 + 1) + 1;
+    assert_eq!(svgs, plots, "{svgs} plots");
+    assert!(
+        !html.contains("<script") && !html.contains("http"),
+        "{html}"
+    );
 }

@@ -318,6 +318,47 @@ pub fn commission(
 ) -> Result<(CalibrationRecord, Vec<Stage>), String> {
     let mut config = crate::run::control_config(model);
     config.allocation.cogging = HarmonicMap::none();
+    let plan: [(&'static str, Command); 5] = [
+        ("current_sense", calibrate(Routine::CurrentSense)),
+        ("alignment", calibrate(Routine::Alignment)),
+        ("home", Command::Home),
+        ("misalignment", calibrate(Routine::Misalignment)),
+        ("cogging", calibrate(Routine::Cogging)),
+    ];
+    let (_, record, stages) = run_plan(model, config, seed, &plan)?;
+    let record = record.ok_or("no routine handed a record to save")?;
+    if !record.is_complete() {
+        return Err("the commissioning left the record incomplete".into());
+    }
+    Ok((record, stages))
+}
+
+/// Maps the slave encoder's difference from the master's on the simulated `model` (the
+/// firmware's `EncoderMap` routine after homing, the controller configured with the model's
+/// own parameters, as `fpc-sim run` configures it).
+pub fn map_encoders(
+    model: &MachineModel,
+    seed: u64,
+) -> Result<fpc::control::calibration::EncoderMap, String> {
+    let plan = [
+        ("home", Command::Home),
+        ("encoder_map", calibrate(Routine::EncoderMap)),
+    ];
+    let (step, _, _) = run_plan(model, crate::run::control_config(model), seed, &plan)?;
+    step.config()
+        .encoder_map
+        .ok_or_else(|| "the encoder map routine loaded no map".to_string())
+}
+
+/// Runs the firmware's control step, configured with `config`, on the simulated `model`
+/// through `plan` (each command run until the machine leaves its mode and returns); the
+/// step, the last record it handed for saving, and the stages' durations.
+fn run_plan(
+    model: &MachineModel,
+    config: fpc::control::config::ControlConfig,
+    seed: u64,
+    plan: &[(&'static str, Command)],
+) -> Result<(ControlStep, Option<CalibrationRecord>, Vec<Stage>), String> {
     let mut step = ControlStep::new(config).map_err(|e| format!("configuration: {e:?}"))?;
     let world = std::rc::Rc::new(std::cell::RefCell::new(crate::run::world(
         model, seed, 0, 0.05,
@@ -326,14 +367,7 @@ pub fn commission(
     let mut enabled = false;
     let mut stages = Vec::new();
     let mut record = None;
-    let plan: [(&'static str, Command); 5] = [
-        ("current_sense", calibrate(Routine::CurrentSense)),
-        ("alignment", calibrate(Routine::Alignment)),
-        ("home", Command::Home),
-        ("misalignment", calibrate(Routine::Misalignment)),
-        ("cogging", calibrate(Routine::Cogging)),
-    ];
-    for (name, command) in plan {
+    for &(name, command) in plan {
         step.command(command)
             .map_err(|r| format!("{name} refused: {}", r.reason()))?;
         let t0 = world.borrow().time_s();
@@ -393,11 +427,7 @@ pub fn commission(
             duration_s: world.borrow().time_s() - t0,
         });
     }
-    let record = record.ok_or("no routine handed a record to save")?;
-    if !record.is_complete() {
-        return Err("the commissioning left the record incomplete".into());
-    }
-    Ok((record, stages))
+    Ok((step, record, stages))
 }
 
 fn calibrate(routine: Routine) -> Command {

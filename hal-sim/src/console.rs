@@ -187,9 +187,86 @@ pub fn eng_digits(value: f64, unit: &str, digits: usize) -> String {
     format!("{text}{space}{prefix}{unit}")
 }
 
+/// `value ± sigma` in engineering notation with its unit, both written to the digit the
+/// uncertainty supports: `sigma` to one significant digit (two when that digit would be a 1:
+/// `0.14`, not `0.1`), `value` rounded to the same decimal place, one SI prefix for both —
+/// `79.4 ± 0.3 N`, `750.07 ± 0.02 µs`, `1.23 ± 0.03 kN`. Without a usable `sigma` (not
+/// finite or not positive) the value alone, as [`eng`].
+pub fn eng_pm(value: f64, sigma: f64, unit: &str) -> String {
+    if !value.is_finite() || !sigma.is_finite() || sigma <= 0.0 {
+        return eng(value, unit);
+    }
+    let place = |s: f64| {
+        let e = s.log10().floor() as i32;
+        let lead = s / 10f64.powi(e);
+        // The last kept digit's power of ten.
+        if lead < 1.95 {
+            e - 1
+        } else {
+            e
+        }
+    };
+    let mut q = place(sigma);
+    let mut sig = (sigma / 10f64.powi(q)).round() * 10f64.powi(q);
+    // Rounding may carry into a new leading digit (0.96 → 1.0): take the rule again.
+    if place(sig) != q {
+        q = place(sig);
+        sig = (sigma / 10f64.powi(q)).round() * 10f64.powi(q);
+    }
+    let val = (value / 10f64.powi(q)).round() * 10f64.powi(q);
+    let top = val.abs().max(sig);
+    let exp3 = ((top.log10().floor() as i32).div_euclid(3) * 3).clamp(-18, 12);
+    let prefix = match exp3 {
+        -18 => "a",
+        -15 => "f",
+        -12 => "p",
+        -9 => "n",
+        -6 => "µ",
+        -3 => "m",
+        3 => "k",
+        6 => "M",
+        9 => "G",
+        12 => "T",
+        _ => "",
+    };
+    let decimals = (exp3 - q).max(0) as usize;
+    let k = 10f64.powi(exp3);
+    let space = if unit.is_empty() && prefix.is_empty() {
+        ""
+    } else {
+        " "
+    };
+    // `-0.0` prints as `0`.
+    let v = val / k + 0.0;
+    format!(
+        "{v:.decimals$} ± {:.decimals$}{space}{prefix}{unit}",
+        sig / k
+    )
+}
+
 #[cfg(test)]
 mod tests {
-    use super::{eng, eng_digits, Num};
+    use super::{eng, eng_digits, eng_pm, Num};
+
+    #[test]
+    fn a_value_is_written_to_the_digit_its_uncertainty_supports() {
+        // The same value, three uncertainties: three precisions.
+        assert_eq!(eng_pm(79.4321, 0.31, "N"), "79.4 ± 0.3 N");
+        assert_eq!(eng_pm(79.4321, 0.0031, "N"), "79.432 ± 0.003 N");
+        assert_eq!(eng_pm(79.4321, 3.1, "N"), "79 ± 3 N");
+        // A leading 1 keeps a second digit.
+        assert_eq!(eng_pm(79.4321, 0.14, "N"), "79.43 ± 0.14 N");
+        // Carry: 0.96 rounds to 1.0, which keeps two digits.
+        assert_eq!(eng_pm(79.4321, 0.96, "N"), "79.4 ± 1.0 N");
+        assert_eq!(eng_pm(0.000750071, 2.3e-8, "s"), "750.07 ± 0.02 µs");
+        assert_eq!(eng_pm(1234.5, 31.0, "N"), "1.23 ± 0.03 kN");
+        assert_eq!(eng_pm(-0.69312, 0.0042, "rad"), "-693 ± 4 mrad");
+        // An uncertainty larger than the value: the value rounds to its digit.
+        assert_eq!(eng_pm(45.0, 300.0, "N"), "0 ± 300 N");
+        assert_eq!(eng_pm(2.5, 0.25, ""), "2.5 ± 0.3");
+        assert_eq!(eng_pm(2.5, f64::NAN, "N"), "2.5 N");
+        assert_eq!(eng_pm(2.5, 0.0, "N"), "2.5 N");
+    }
 
     #[test]
     fn engineering_notation_has_a_prefix_and_the_digits_asked() {

@@ -87,6 +87,9 @@ impl<'a> Series<'a> {
 pub struct Axes {
     /// The y range to show (the data outside it is clipped), instead of the data's.
     pub y_range: Option<(f64, f64)>,
+    /// The x range to show (a figure's panels share the first one given), instead of the
+    /// data's.
+    pub x_range: Option<(f64, f64)>,
     /// x counts something (cycles, runs): ticks at whole numbers only.
     pub integer_x: bool,
     /// y counts something: ticks at whole numbers only.
@@ -273,15 +276,21 @@ pub fn panels(path: &Path, title: &str, x_label: &str, panels: &[Panel<'_>]) -> 
         let root = root.titled(title, ("sans-serif", 22))?;
         let rows = root.split_evenly((panels.len().max(1), 1));
         let integer_x = panels.iter().any(|p| p.axes.integer_x);
-        // A limit drawn as a line is inside the x range, however far from the data.
-        let limits = panels.iter().filter_map(|p| p.axes.x_limit.map(|l| l.0));
-        let (x0, x1) = range(
-            panels
-                .iter()
-                .flat_map(|p| p.series.iter().flat_map(|s| s.x.iter().copied()))
-                .chain(limits),
-            integer_x,
-        );
+        // An explicit x range wins; otherwise the data's, with any limit drawn as a line
+        // inside it, however far from the data.
+        let (x0, x1) = panels
+            .iter()
+            .find_map(|p| p.axes.x_range)
+            .unwrap_or_else(|| {
+                let limits = panels.iter().filter_map(|p| p.axes.x_limit.map(|l| l.0));
+                range(
+                    panels
+                        .iter()
+                        .flat_map(|p| p.series.iter().flat_map(|s| s.x.iter().copied()))
+                        .chain(limits),
+                    integer_x,
+                )
+            });
         for (row, panel) in rows.iter().zip(panels) {
             let (chart_area, legend_area) = row.split_horizontally(row.dim_in_pixel().0 - legend);
             let ys = || panel.series.iter().flat_map(|s| s.y.iter().copied());
@@ -330,6 +339,7 @@ pub fn panels(path: &Path, title: &str, x_label: &str, panels: &[Panel<'_>]) -> 
                         .copied()
                         .zip(s.y.iter().copied())
                         .step_by(stride)
+                        .filter(|(x, _)| (x0..=x1).contains(x))
                         .map(|(x, y)| (x, y.clamp(y0, y1)))
                         .collect();
                 if panel.axes.markers {

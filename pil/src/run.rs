@@ -254,7 +254,9 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
         // The read offset places each command's read within a period; the command task (thread
         // mode) may still be preempted by the next control step between reading a command and
         // posting it, which then takes it a cycle later. Of the two candidates the replay keeps
-        // the one whose trajectory matches, command by command, up to the next one.
+        // the one whose trajectory matches, command by command, up to the next one. A candidate
+        // whose replay cannot follow the ELF (the host decides a later command after the ELF
+        // took it) is not that one; if neither can, the run fails with the first's reason.
         for i in 0..taken.len() {
             let Some(c0) = taken[i].1 else { continue };
             let until = taken
@@ -262,15 +264,25 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
                 .and_then(|t| t.1)
                 .unwrap_or(track.x_m.len() as u64);
             let mut best: Option<(f64, u64)> = None;
+            let mut refused: Option<String> = None;
             for c in [c0, c0 + 1] {
                 taken[i].1 = Some(c);
-                let host = host_replay(&h, &taken, track.bypass_closed, first_control_us)?;
+                let host = match host_replay(&h, &taken, track.bypass_closed, first_control_us) {
+                    Ok(host) => host,
+                    Err(e) => {
+                        refused.get_or_insert(e);
+                        continue;
+                    }
+                };
                 let d = window_rms_diff(&track.x_m, &host.x_m, c0, until);
                 if best.is_none_or(|b| d < b.0) {
                     best = Some((d, c));
                 }
             }
-            taken[i].1 = best.map(|b| b.1);
+            match best {
+                Some((_, c)) => taken[i].1 = Some(c),
+                None => return Err(refused.unwrap_or_default()),
+            }
         }
         let host = host_replay(&h, &taken, track.bypass_closed, first_control_us)?;
         position_rms_diff(&track.x_m, &host.x_m, track.start_cycle)

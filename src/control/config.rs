@@ -102,6 +102,9 @@ pub struct ControlConfig {
     pub stroke: StrokeConfig,
     /// The calibration routines.
     pub calibration: CalibrationConfig,
+    /// The slave encoder's mapped difference from the master's, corrected in its reading
+    /// (`None`: not mapped).
+    pub encoder_map: Option<crate::sensing::encoder_map::EncoderMap>,
 }
 
 /// The machine as the controller is told it: the values of a machine model the
@@ -235,6 +238,7 @@ impl ControlConfig {
             supervisor: SupervisorConfig::reference(),
             stroke,
             calibration: CalibrationConfig::reference(),
+            encoder_map: None,
         }
     }
 }
@@ -299,6 +303,15 @@ pub struct CalibrationConfig {
     pub misalign_periods: u32,
     /// d-current on the slave during the misalignment sweeps, A.
     pub misalign_current_a: f32,
+    /// The encoder map's two sweep speeds, m/s (their difference gives the velocity
+    /// coefficient).
+    pub map_speeds_mps: [f32; 2],
+    /// Acceleration at the ends of the encoder map's sweeps, m/s².
+    pub map_accel_mps2: f32,
+    /// Periods covered at cruise speed by each encoder-map sweep.
+    pub map_periods: u32,
+    /// Speed over which the mapped direction part blends between its two values, m/s.
+    pub map_blend_mps: f32,
 }
 
 impl CalibrationConfig {
@@ -330,6 +343,10 @@ impl CalibrationConfig {
             cogging_periods: 4,
             misalign_periods: 2,
             misalign_current_a: 15.0,
+            map_speeds_mps: [0.1, 0.4],
+            map_accel_mps2: 10.0,
+            map_periods: 4,
+            map_blend_mps: 5e-3,
         }
     }
 }

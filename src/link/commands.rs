@@ -791,7 +791,7 @@ pub(crate) mod tests {
             );
         }
         assert_eq!(
-            decode_command(&[tag::CALIBRATE, 4]),
+            decode_command(&[tag::CALIBRATE, Routine::ALL.len() as u8]),
             Err(FrameError::BadValue)
         );
         assert_eq!(

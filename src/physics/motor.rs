@@ -57,6 +57,13 @@ impl<T: Real> MotorParams<T> {
     pub fn voltage_limit_v(&self) -> T {
         self.bus_voltage_v * T::of(0.577_350_3)
     }
+
+    /// Copper loss of the section carrying `current`, W: `3/2·R·(i_d² + i_q²)`, the three
+    /// phases' `R·Σi_k²` in amplitude-invariant dq.
+    #[inline]
+    pub fn copper_loss_w(&self, current: Dq<T>) -> T {
+        T::of(1.5) * self.resistance_ohm * (current.d * current.d + current.q * current.q)
+    }
 }
 
 /// A quantity in the stator frame (α, β).
@@ -129,5 +136,19 @@ mod tests {
         assert!((abc[0] + abc[1] + abc[2]).abs() < 1e-12);
         let back = park(clarke(abc), theta.sin(), theta.cos());
         assert!((back.d - dq.d).abs() < 1e-6 && (back.q - dq.q).abs() < 1e-6);
+    }
+
+    #[test]
+    fn copper_loss_is_the_phases_resistive_loss() {
+        let m = MotorParams::<f64>::reference();
+        let theta: f64 = 1.9;
+        let dq = Dq { d: 3.0, q: 20.0 };
+        let abc = inverse_clarke(inverse_park(dq, theta.sin(), theta.cos()));
+        let phases: f64 = abc.iter().map(|i| m.resistance_ohm * i * i).sum();
+        // (The transforms' constants are written to f32 precision.)
+        assert!((m.copper_loss_w(dq) - phases).abs() < 1e-6 * phases);
+        // 20 A on q alone in 0.6 Ω: 3/2·0.6·400 = 360 W.
+        let q_only = m.copper_loss_w(Dq { d: 0.0, q: 20.0 });
+        assert!((q_only - 360.0).abs() < 1e-4);
     }
 }

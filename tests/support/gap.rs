@@ -115,6 +115,25 @@ pub fn gap(model: &str, log: &RunLog) -> GapJson {
         .json
 }
 
+/// One standard deviation of an effect's fitted parameter, as `gap.json` gives it.
+pub fn sigma(j: &GapJson, name: &str, key: &str) -> f64 {
+    let e = j
+        .effects
+        .iter()
+        .find(|e| e.name == name)
+        .unwrap_or_else(|| panic!("{name} not named: {:?}", names(j)));
+    *e.uncertainty
+        .get(key)
+        .unwrap_or_else(|| panic!("{name} has no uncertainty for {key}: {:?}", e.uncertainty))
+}
+
+/// Whether the fitted `key` of `name` lies within `k` of its standard deviations of `truth`,
+/// and that deviation is finite and positive: the stated uncertainty covers the truth.
+pub fn covers(j: &GapJson, name: &str, key: &str, truth: f64, k: f64) -> bool {
+    let (v, s) = (param(j, name, key), sigma(j, name, key));
+    s.is_finite() && s > 0.0 && (v - truth).abs() <= k * s
+}
+
 /// Names of the effects found.
 pub fn names(j: &GapJson) -> Vec<String> {
     j.effects.iter().map(|e| e.name.clone()).collect()

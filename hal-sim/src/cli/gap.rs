@@ -83,7 +83,7 @@ pub fn main(args: GapArgs) -> CmdResult {
     inputs.extend(args.model.as_deref());
     let out = OutDir::prepare(
         &args.out,
-        &["model.toml", "report.md", "gap.json"],
+        &["model.toml", "report.md", "report.html", "gap.json"],
         args.force,
         &inputs,
     )?;

@@ -16,6 +16,7 @@ pub mod gap;
 pub mod lag;
 pub mod link;
 pub mod model;
+pub mod paper;
 pub mod pv;
 pub mod run;
 pub mod sweep;
@@ -67,6 +68,8 @@ enum Cmd {
     Energy(energy::EnergyArgs),
     /// p-V diagram of both chambers (Fig. 3).
     Pv(pv::PvArgs),
+    /// The paper's Figs. 3-9 from the simulator, its controller and ours side by side.
+    Paper(paper::PaperArgs),
     /// Find, name and add the effect missing from a model (model-gap workflow).
     Gap(gap::GapArgs),
     /// Every run of a plan (the axes' combinations) in parallel, one table of results.
@@ -110,6 +113,7 @@ fn name(cmd: &Cmd) -> &'static str {
         Cmd::SweepMerge(_) => "sweep-merge",
         Cmd::Link(_) => "link",
         Cmd::Model(_) => "model",
+        Cmd::Paper(_) => "paper",
         Cmd::View(_) => "view",
         Cmd::Completions(_) => "completions",
     }
@@ -135,6 +139,7 @@ fn dispatch(cmd: Cmd) -> CmdResult {
         Cmd::Forces(args) => forces::main(args),
         Cmd::Energy(args) => energy::main(args),
         Cmd::Pv(args) => pv::main(args),
+        Cmd::Paper(args) => paper::main(args),
         Cmd::Gap(args) => gap::main(args),
         Cmd::Sweep(args) => sweep::main(args),
         Cmd::SweepMerge(args) => sweep::merge_main(args),

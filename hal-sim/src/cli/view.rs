@@ -120,15 +120,20 @@ fn probe_source(args: &ViewArgs, selector: &str) -> Result<Source, Failure> {
                 .map_err(|e| Failure::bad_input(format!("--probe {e}")))?,
         )
     };
-    Ok(Source::Probe {
-        options: crate::link::probe::ProbeOptions {
-            chip: args.chip.clone(),
-            probe,
-            speed_khz: None,
-            connect_under_reset: false,
-        },
-        elf: args.elf.clone(),
-    })
+    let options = crate::link::probe::ProbeOptions {
+        chip: args.chip.clone(),
+        probe,
+        speed_khz: None,
+        connect_under_reset: false,
+    };
+    // Attached before the server starts: no probe, no board or no firmware is one error
+    // naming what is missing, with nothing started and nothing written.
+    let channels = crate::link::probe::attach(&options, args.elf.as_deref())
+        .map_err(|e| Failure::runtime(format!("--probe: {e}")))?;
+    Ok(Source::Probe(crate::view::feed::LiveLink {
+        what: format!("board {} through the probe", options.chip),
+        open: Box::new(move || Ok(Box::new(channels) as Box<dyn crate::link::Channels>)),
+    }))
 }
 
 #[cfg(not(feature = "probe"))]
@@ -138,4 +143,31 @@ fn probe_source(_args: &ViewArgs, _selector: &str) -> Result<Source, Failure> {
          board (rebuild: cargo install --path hal-sim --features probe); --replay DIR plays a \
          recorded session",
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    /// `--probe` on an fpc-sim that cannot reach a probe: one error naming what is missing
+    /// (here the `probe` feature; with it, the probe, board or firmware `attach` did not
+    /// find), exit 2, before the server starts — no folder made, nothing written.
+    #[cfg(not(feature = "probe"))]
+    #[test]
+    fn probe_without_a_way_to_the_board_is_one_error_and_changes_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("console");
+        let out_text = out.to_str().unwrap();
+        let (code, text) = crate::console::captured(|| {
+            crate::cli::execute([
+                "fpc-sim", "view", "--probe", "--out", out_text, "--port", "0",
+            ])
+        });
+        assert_eq!(code, 2, "{text}");
+        assert!(!out.exists(), "{text}");
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 1, "{text}");
+        assert!(
+            lines[0].contains("--probe") && lines[0].contains("`probe` feature"),
+            "{text}"
+        );
+    }
 }

@@ -107,6 +107,22 @@ impl ModelDoc {
         }
     }
 
+    /// This document with `comment` after the value at `key` on its line (`key = value  #
+    /// comment`, replacing a comment there); unchanged where the key is absent.
+    pub fn with_comment(&self, key: Key, comment: &str) -> Self {
+        let mut d = self.clone();
+        if d.number(key).is_some() {
+            if let Some(v) = d
+                .section_mut(key.section)
+                .and_then(|t| t.get_mut(key.name))
+                .and_then(|i| i.as_value_mut())
+            {
+                v.decor_mut().set_suffix(format!("  # {comment}"));
+            }
+        }
+        d
+    }
+
     /// This document with `edits` applied.
     pub fn with(&self, edits: &[Edit]) -> Self {
         let mut d = self.clone();
@@ -168,6 +184,27 @@ impl ModelDoc {
 mod tests {
     use super::*;
     use crate::plant::model::model_key;
+
+    #[test]
+    fn a_comment_beside_a_value_replaces_the_one_there_and_keeps_the_value() {
+        let doc = ModelDoc::parse(crate::plant::model::REFERENCE_TOML).unwrap();
+        let key = model_key!(piston / mass_kg);
+        let before = doc.number(key).unwrap();
+        let once = doc.with_comment(key, "10.0 ± 0.1 kg, first");
+        let twice = once.with_comment(key, "10.00 ± 0.02 kg, second");
+        let text = twice.to_text().unwrap();
+        let line = text
+            .lines()
+            .find(|l| l.trim_start().starts_with("mass_kg"))
+            .unwrap();
+        assert!(line.ends_with("  # 10.00 ± 0.02 kg, second"), "{line}");
+        assert!(!text.contains("first"));
+        assert_eq!(twice.number(key), Some(before));
+        twice.model().unwrap();
+        // A key the document does not have is not created.
+        let absent = model_key!(effects.slave_lag / delay_s);
+        assert_eq!(doc.with_comment(absent, "x"), doc);
+    }
 
     #[test]
     fn edits_add_replace_and_remove_effects_and_the_result_loads() {

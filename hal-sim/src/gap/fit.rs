@@ -42,6 +42,31 @@ pub fn lstsq(cols: &[Vec<f64>], y: &[f64]) -> Option<(Vec<f64>, f64)> {
         .then(|| (theta.iter().copied().collect(), rss))
 }
 
+/// One standard deviation of each coefficient of a least-squares fit whose Jacobian columns
+/// are `cols` (∂residual/∂θⱼ at the optimum) and whose residual sum of squares is `rss`
+/// over samples worth `n_eff` independent ones: `√diag(s²·(JᵀJ)⁻¹)` with
+/// `s² = rss / (n_eff − k)`. For white residuals (`n_eff = n`) this is the textbook
+/// covariance; for a smoothed residual `rss / n_eff` is its per-sample variance inflated by
+/// the `n / n_eff` samples each independent one is spread over, which is how much less the
+/// fit knows than the raw count suggests. `None` when `JᵀJ` is singular or not finite, or
+/// `n_eff ≤ k`.
+pub fn standard_errors(cols: &[Vec<f64>], rss: f64, n_eff: f64) -> Option<Vec<f64>> {
+    let k = cols.len();
+    let n = cols.first().map_or(0, Vec::len);
+    let enough = n_eff.is_finite() && n_eff > k as f64;
+    if k == 0 || cols.iter().any(|c| c.len() != n || !all_finite(c)) || !enough {
+        return None;
+    }
+    let jtj = DMatrix::from_fn(k, k, |a, b| dot(&cols[a], &cols[b]));
+    if !all_finite(jtj.as_slice()) || !rss.is_finite() {
+        return None;
+    }
+    let inv = jtj.cholesky()?.inverse();
+    let s2 = rss / (n_eff - k as f64);
+    let se: Vec<f64> = (0..k).map(|j| (s2 * inv[(j, j)]).sqrt()).collect();
+    all_finite(&se).then_some(se)
+}
+
 /// Whether every value is finite.
 pub fn all_finite(v: &[f64]) -> bool {
     v.iter().all(|x| x.is_finite())
@@ -318,5 +343,31 @@ mod tests {
         })
         .unwrap();
         assert!((u[0] - 0.08).abs() < 1e-6, "{u:?}");
+    }
+
+    #[test]
+    fn standard_errors_match_the_textbook_line_fit() {
+        // y = a + b·x + e, e = ±1 alternating: s² = rss/(n−2), and the slope's variance is
+        // s² / Σ(x − x̄)², the intercept's s²·Σx² / (n·Σ(x − x̄)²).
+        let n = 40;
+        let x: Vec<f64> = (0..n).map(f64::from).collect();
+        let e: Vec<f64> = (0..n)
+            .map(|i| if i % 2 == 0 { 1.0 } else { -1.0 })
+            .collect();
+        let y: Vec<f64> = x.iter().zip(&e).map(|(x, e)| 3.0 + 0.2 * x + e).collect();
+        let cols = [vec![1.0; n as usize], x.clone()];
+        let (_, rss) = lstsq(&cols, &y).unwrap();
+        let se = standard_errors(&cols, rss, f64::from(n)).unwrap();
+        let mean = x.iter().sum::<f64>() / f64::from(n);
+        let sxx: f64 = x.iter().map(|x| (x - mean).powi(2)).sum();
+        let s2 = rss / f64::from(n - 2);
+        assert!((se[1] - (s2 / sxx).sqrt()).abs() < 1e-12 * se[1], "{se:?}");
+        let sx2: f64 = x.iter().map(|x| x * x).sum();
+        assert!((se[0] - (s2 * sx2 / (f64::from(n) * sxx)).sqrt()).abs() < 1e-12 * se[0]);
+        // Fewer independent samples, wider: a quarter of them doubles the error.
+        let se4 = standard_errors(&cols, rss, f64::from(n - 2) / 4.0 + 2.0).unwrap();
+        assert!((se4[1] / se[1] - 2.0).abs() < 1e-9, "{se4:?}");
+        // A column that moves nothing has no error to give.
+        assert!(standard_errors(&[vec![0.0; 40]], rss, 40.0).is_none());
     }
 }

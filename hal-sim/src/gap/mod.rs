@@ -25,11 +25,13 @@ pub mod doc;
 pub mod effects;
 pub mod fit;
 mod offset;
+pub mod page;
 mod reconsider;
 pub mod report;
 pub mod residuals;
 pub mod select;
 pub mod synth;
+pub mod uncertainty;
 
 use std::collections::BTreeMap;
 
@@ -93,6 +95,10 @@ pub struct EffectJson {
     pub channel: String,
     /// Fitted parameters, SI, the model file's keys.
     pub params: BTreeMap<String, f64>,
+    /// One standard deviation of each fitted parameter, SI, by the same keys (a key set but
+    /// not fitted, or one the log does not pin down, is absent).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub uncertainty: BTreeMap<String, f64>,
     /// Channel RMS before adding it.
     pub rms_before: f64,
     /// Channel RMS after adding it.
@@ -299,6 +305,8 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
     {
         names.push(EffectKind::ExtraForce.name());
     }
+    // Each fitted value is written whole, with its uncertainty beside it as a comment.
+    let sigma = uncertainty::of_selection(&ctx, &selection);
     let model_text = format!(
         "# Augmented by `fpc-sim gap`: {}\n{}",
         if names.is_empty() {
@@ -306,7 +314,9 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         } else {
             names.join(", ") + " added"
         },
-        selection.doc.to_text().map_err(Failure::runtime)?
+        uncertainty::annotated(&selection.doc, &selection, &sigma)
+            .to_text()
+            .map_err(Failure::runtime)?
     );
     // Re-run the comparison with the model exactly as written.
     let after_model = crate::plant::model::MachineModel::parse(&model_text)
@@ -347,7 +357,7 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
             rms_after: rms_of_full(&measured, &band, c.channel, &c.after),
         })
         .collect();
-    let effects = effect_rows(&ctx, &selection).map_err(Failure::runtime)?;
+    let effects = effect_rows(&ctx, &selection, sigma).map_err(Failure::runtime)?;
     let discovered = discovered_rows(&ctx, &selection).map_err(Failure::runtime)?;
     Ok(GapOutcome {
         json: GapJson {
@@ -369,8 +379,12 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
 }
 
 /// Each added effect's channel RMS just before and just after it was added (the models of
-/// the selection's steps), with its final parameters.
-fn effect_rows(ctx: &Ctx<'_>, selection: &Selection) -> Result<Vec<EffectJson>, String> {
+/// the selection's steps), with its final parameters and their uncertainties `sigma`.
+fn effect_rows(
+    ctx: &Ctx<'_>,
+    selection: &Selection,
+    mut sigma: BTreeMap<EffectKind, BTreeMap<String, f64>>,
+) -> Result<Vec<EffectJson>, String> {
     let mut rows = Vec::new();
     for (a, (before, after)) in selection.added.iter().zip(&selection.steps) {
         let kind = a.proposal.kind;
@@ -403,6 +417,7 @@ fn effect_rows(ctx: &Ctx<'_>, selection: &Selection) -> Result<Vec<EffectJson>, 
                 .iter()
                 .map(|(k, v)| (k.to_string(), *v))
                 .collect(),
+            uncertainty: sigma.remove(&kind).unwrap_or_default(),
             rms_before: full_rms(ctx.data, ctx.band, ch, &raw_b),
             rms_after: full_rms(ctx.data, ctx.band, ch, &raw_a),
             delta_bic: a.delta_bic,

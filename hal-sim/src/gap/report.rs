@@ -1,18 +1,20 @@
 //! Where the model and the run disagree, and what adding the effects changed: residual maps
-//! (binned means), lags by FFT cross-correlation, and the report in `--out` — Markdown with
-//! SVG plots (residual maps, before/after overlays, the p–V replay).
+//! (binned means), lags by FFT cross-correlation, and the report in `--out` — Markdown and
+//! HTML ([`super::page`]) with SVG plots (residual maps, before/after overlays, the p–V
+//! replay).
 
-use crate::console::Num;
+use crate::console::{eng, eng_pm, Num};
 use rayon::prelude::*;
-use std::fmt::Write as _;
 use std::path::Path;
 
 use crate::plant::model::MachineModel;
 use crate::plot::{lines, panels, Axes, Panel, Series};
 
 use super::effects::{acting_force_lag, slave_force_lag, Ctx};
+use super::page::Block;
 use super::residuals::{replay_pressures, ChannelId};
-use super::GapOutcome;
+use super::uncertainty::{fitted, key_unit};
+use super::{ChannelResiduals, GapOutcome};
 
 /// Bins of a residual map.
 pub const BINS: usize = 24;
@@ -206,85 +208,161 @@ pub fn maps(ctx: &Ctx<'_>, model: &MachineModel, ch: ChannelId, full: &[f64]) ->
         .collect()
 }
 
-/// Writes the report (`report.md` and SVGs) into `dir`.
+/// Writes the report into `dir`: `report.md` and `report.html` (the same blocks, the plots
+/// embedded) and the SVG plots — residual maps, before/after overlays, the p–V replay.
 pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
     let ctx = Ctx {
         data: &out.measured,
         band: &out.band,
     };
+    let mut blocks = summary(out);
+    blocks.extend(effect_tables(out));
+    blocks.extend(candidates_and_lags(&ctx, out));
+    if !out.json.warnings.is_empty() {
+        blocks.push(Block::Heading(2, "Warnings".into()));
+        blocks.push(Block::List(out.json.warnings.clone()));
+    }
+    blocks.extend(maps_and_overlays(dir, &ctx, out)?);
+    blocks.extend(pv_replay(dir, out)?);
+    blocks.push(Block::Para(
+        "Maps: `map_<channel>_<variable>.svg`. Augmented model: `model.toml`.".into(),
+    ));
+    let md = super::page::markdown(&blocks);
+    std::fs::write(dir.join("report.md"), md)
+        .map_err(|e| format!("cannot write {}: {e}", dir.join("report.md").display()))?;
+    let html = super::page::html("Model-gap report", &blocks);
+    std::fs::write(dir.join("report.html"), html)
+        .map_err(|e| format!("cannot write {}: {e}", dir.join("report.html").display()))
+}
+
+/// The run's figures and each channel's RMS before and after.
+fn summary(out: &GapOutcome) -> Vec<Block> {
     let d = &out.measured;
-    let before = out.input.model()?;
-    let after = out.selection.doc.model()?;
-    let mut md = String::new();
-    let _ = writeln!(md, "# Model-gap report\n");
-    let _ = writeln!(
-        md,
-        "{} samples at {:.0} Hz ({:.2} s); differentiator window {} samples (centred); \
-         analysis band 0–{:.0} Hz; ports: {}.\n",
-        d.len(),
-        d.sample_rate_hz(),
-        d.dt_s * d.len() as f64,
-        d.sg_window,
-        out.band.band_hz,
-        match d.ports {
-            super::data::PortsMeta::Open => "open",
-            super::data::PortsMeta::Closed => "closed",
-            super::data::PortsMeta::Unknown => "not stated",
-        }
-    );
-    let _ = writeln!(md, "## Channels (band-limited residual RMS)\n");
-    let _ = writeln!(
-        md,
-        "| channel | unit | before | after | change |\n|---|---|---|---|---|"
-    );
-    for c in &out.json.channels {
-        let change = if c.rms_before > 0.0 {
-            format!("{:+.0} %", Num(100.0 * (c.rms_after / c.rms_before - 1.0)))
-        } else {
-            "—".into()
-        };
-        let _ = writeln!(
-            md,
-            "| {} | {} | {:.4e} | {:.4e} | {change} |",
-            c.name,
-            c.unit,
-            Num(c.rms_before),
-            Num(c.rms_after)
-        );
+    let mut blocks = vec![
+        Block::Heading(1, "Model-gap report".into()),
+        Block::Para(format!(
+            "{} samples at {:.0} Hz ({:.2} s); differentiator window {} samples (centred); \
+             analysis band 0–{:.0} Hz; ports: {}.",
+            d.len(),
+            d.sample_rate_hz(),
+            d.dt_s * d.len() as f64,
+            d.sg_window,
+            out.band.band_hz,
+            match d.ports {
+                super::data::PortsMeta::Open => "open",
+                super::data::PortsMeta::Closed => "closed",
+                super::data::PortsMeta::Unknown => "not stated",
+            }
+        )),
+        Block::Heading(2, "Channels (band-limited residual RMS)".into()),
+    ];
+    let rows = out
+        .json
+        .channels
+        .iter()
+        .map(|c| {
+            let change = if c.rms_before > 0.0 {
+                format!("{:+.0} %", Num(100.0 * (c.rms_after / c.rms_before - 1.0)))
+            } else {
+                "—".into()
+            };
+            vec![
+                c.name.clone(),
+                c.unit.clone(),
+                format!("{:.4e}", Num(c.rms_before)),
+                format!("{:.4e}", Num(c.rms_after)),
+                change,
+            ]
+        })
+        .collect();
+    blocks.push(table(
+        &["channel", "unit", "before", "after", "change"],
+        rows,
+    ));
+    blocks
+}
+
+/// A fitted parameter as the report writes it: rounded to its uncertainty (`amplitude_n =
+/// 45.1 ± 0.2 N`); one set rather than fitted, held at zero, or without an uncertainty says
+/// so.
+fn param_cell(key: &str, value: f64, sigma: Option<f64>) -> String {
+    let unit = key_unit(key);
+    match sigma {
+        Some(s) => format!("{key} = {}", eng_pm(value, s, unit)),
+        None if !fitted(key) => format!("{key} = {} (set, not fitted)", eng(value, unit)),
+        None if value == 0.0 => format!("{key} = 0 {unit} (held at its bound)"),
+        None => format!("{key} = {} (uncertainty not known)", eng(value, unit)),
     }
-    let _ = writeln!(md, "\n## Effects added (most significant first)\n");
+}
+
+/// A table block from string headers.
+fn table(head: &[&str], rows: Vec<Vec<String>>) -> Block {
+    Block::Table {
+        head: head.iter().map(|h| h.to_string()).collect(),
+        rows,
+    }
+}
+
+/// The effects added and the discovered terms.
+fn effect_tables(out: &GapOutcome) -> Vec<Block> {
+    let mut blocks = vec![Block::Heading(
+        2,
+        "Effects added (most significant first)".into(),
+    )];
     if out.json.effects.is_empty() {
-        let _ = writeln!(md, "None: nothing significant is missing from the model.\n");
+        blocks.push(Block::Para(
+            "None: nothing significant is missing from the model.".into(),
+        ));
     } else {
-        let _ = writeln!(md, "| effect | channel | parameters | RMS before | RMS after | ΔBIC | explained |\n|---|---|---|---|---|---|---|");
-        for e in &out.json.effects {
-            let params: Vec<String> = e
-                .params
-                .iter()
-                .map(|(k, v)| format!("{k} = {:.5}", Num(*v)))
-                .collect();
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {:.4e} | {:.4e} | {:.0} | {:.0} % |",
-                e.name,
-                e.channel,
-                params.join(", "),
-                Num(e.rms_before),
-                Num(e.rms_after),
-                Num(e.delta_bic),
-                Num(100.0 * e.explained)
-            );
-        }
+        let rows = out
+            .json
+            .effects
+            .iter()
+            .map(|e| {
+                let params: Vec<String> = e
+                    .params
+                    .iter()
+                    .map(|(k, v)| param_cell(k, *v, e.uncertainty.get(k).copied()))
+                    .collect();
+                vec![
+                    e.name.clone(),
+                    e.channel.clone(),
+                    params.join(", "),
+                    format!("{:.4e}", Num(e.rms_before)),
+                    format!("{:.4e}", Num(e.rms_after)),
+                    format!("{:.0}", Num(e.delta_bic)),
+                    format!("{:.0} %", Num(100.0 * e.explained)),
+                ]
+            })
+            .collect();
+        blocks.push(table(
+            &[
+                "effect",
+                "channel",
+                "parameters",
+                "RMS before",
+                "RMS after",
+                "ΔBIC",
+                "explained",
+            ],
+            rows,
+        ));
     }
-    let _ = writeln!(
-        md,
-        "\n## Discovered terms (a force no named effect describes, `[effects.extra_force]`)\n"
-    );
+    blocks.push(Block::Heading(
+        2,
+        "Discovered terms (a force no named effect describes, `[effects.extra_force]`)".into(),
+    ));
     if out.json.discovered.is_empty() {
-        let _ = writeln!(md, "None: no force is left that the basis describes.\n");
-    } else {
-        let _ = writeln!(md, "| channel | terms (SI) | reading | RMS before | RMS after | explained |\n|---|---|---|---|---|---|");
-        for d in &out.json.discovered {
+        blocks.push(Block::Para(
+            "None: no force is left that the basis describes.".into(),
+        ));
+        return blocks;
+    }
+    let rows = out
+        .json
+        .discovered
+        .iter()
+        .map(|d| {
             let mut terms: Vec<String> = d
                 .terms
                 .iter()
@@ -293,47 +371,81 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
             if let Some(p) = d.period_m {
                 terms.push(format!("period_m = {:.5}", Num(p)));
             }
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {:.4e} | {:.4e} | {:.1} % |",
-                d.channel,
+            vec![
+                d.channel.clone(),
                 terms.join(", "),
-                d.reading,
-                Num(d.rms_before),
-                Num(d.rms_after),
-                Num(100.0 * d.explained)
-            );
-        }
-        let _ = writeln!(
-            md,
-            "\nThe force maps below (`map_force_*`) show the residual with and without them."
-        );
-    }
-    let _ = writeln!(md, "\n## Every candidate at the first step\n");
-    let _ = writeln!(md, "| candidate | channel | fitted | ΔBIC | explained (all) | explained where it acts | acts on (kept samples) | change RMS where it acts / resolution | significant |\n|---|---|---|---|---|---|---|---|---|");
-    for j in &out.selection.first_step {
-        let fitted: Vec<String> = j
-            .proposal
-            .params
-            .iter()
-            .map(|(k, v)| format!("{k} = {:.4e}", Num(*v)))
-            .collect();
-        let _ = writeln!(
-            md,
-            "| {} | {} | {} | {:.1} | {:.1} % | {:.1} % | {} | {:.2} | {} |",
-            j.proposal.kind.name(),
-            j.proposal.kind.channel().name(),
-            fitted.join(", "),
-            Num(j.delta_bic),
-            Num(100.0 * j.explained_total),
-            Num(100.0 * j.explained),
-            j.support,
-            Num(j.change_rms / j.resolution.max(f64::MIN_POSITIVE)),
-            if j.significant() { "yes" } else { "no" }
-        );
-    }
-    let _ = writeln!(md, "\n## Lags (FFT cross-correlation)\n");
-    let _ = writeln!(md, "| what | lag, ms | correlation |\n|---|---|---|");
+                d.reading.clone(),
+                format!("{:.4e}", Num(d.rms_before)),
+                format!("{:.4e}", Num(d.rms_after)),
+                format!("{:.1} %", Num(100.0 * d.explained)),
+            ]
+        })
+        .collect();
+    blocks.push(table(
+        &[
+            "channel",
+            "terms (SI)",
+            "reading",
+            "RMS before",
+            "RMS after",
+            "explained",
+        ],
+        rows,
+    ));
+    blocks.push(Block::Para(
+        "The force maps below (`map_force_*`) show the residual with and without them.".into(),
+    ));
+    blocks
+}
+
+/// Every candidate judged at the first step, and the lags by FFT cross-correlation.
+fn candidates_and_lags(ctx: &Ctx<'_>, out: &GapOutcome) -> Vec<Block> {
+    let rows = out
+        .selection
+        .first_step
+        .iter()
+        .map(|j| {
+            let fitted: Vec<String> = j
+                .proposal
+                .params
+                .iter()
+                .map(|(k, v)| format!("{k} = {:.4e}", Num(*v)))
+                .collect();
+            vec![
+                j.proposal.kind.name().into(),
+                j.proposal.kind.channel().name().into(),
+                fitted.join(", "),
+                format!("{:.1}", Num(j.delta_bic)),
+                format!("{:.1} %", Num(100.0 * j.explained_total)),
+                format!("{:.1} %", Num(100.0 * j.explained)),
+                j.support.to_string(),
+                format!(
+                    "{:.2}",
+                    Num(j.change_rms / j.resolution.max(f64::MIN_POSITIVE))
+                ),
+                if j.significant() { "yes" } else { "no" }.into(),
+            ]
+        })
+        .collect();
+    let mut blocks = vec![
+        Block::Heading(2, "Every candidate at the first step".into()),
+        table(
+            &[
+                "candidate",
+                "channel",
+                "fitted",
+                "ΔBIC",
+                "explained (all)",
+                "explained where it acts",
+                "acts on (kept samples)",
+                "change RMS where it acts / resolution",
+                "significant",
+            ],
+            rows,
+        ),
+        Block::Heading(2, "Lags (FFT cross-correlation)".into()),
+    ];
+    let d = &out.measured;
     // The three cross-correlations are independent: computed side by side.
     let docs = [
         ("input model", &out.input),
@@ -343,167 +455,316 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
         || slave_force_lag(d),
         || {
             docs.par_iter()
-                .map(|(label, doc)| (*label, acting_force_lag(&ctx, doc)))
+                .map(|(label, doc)| (*label, acting_force_lag(ctx, doc)))
                 .collect::<Vec<_>>()
         },
     );
+    let mut rows = Vec::new();
     if let Some(l) = slave {
-        let _ = writeln!(
-            md,
-            "| slave force behind master force | {:.4} | {:.3} |",
-            Num(l.seconds * 1e3),
-            Num(l.correlation)
-        );
+        rows.push(vec![
+            "slave force behind master force".into(),
+            format!("{:.4}", Num(l.seconds * 1e3)),
+            format!("{:.3}", Num(l.correlation)),
+        ]);
     }
     for (label, lag) in acting {
         if let Some(l) = lag {
-            let _ = writeln!(
-                md,
-                "| acting force behind reported force ({label}) | {:.4} | {:.3} |",
-                Num(l.seconds * 1e3),
-                Num(l.correlation)
-            );
+            rows.push(vec![
+                format!("acting force behind reported force ({label})"),
+                format!("{:.4}", Num(l.seconds * 1e3)),
+                format!("{:.3}", Num(l.correlation)),
+            ]);
         }
     }
-    if !out.json.warnings.is_empty() {
-        let _ = writeln!(md, "\n## Warnings\n");
-        for w in &out.json.warnings {
-            let _ = writeln!(md, "- {w}");
-        }
-    }
-    let _ = writeln!(md, "\n## Residual maps\n");
-    let _ = writeln!(md, "Share of each channel's residual variance explained by its mean along each variable (before → after).\n");
-    let _ = writeln!(md, "| channel | x | x mod pole | x mod N–N | v | a | p_A − p_B |\n|---|---|---|---|---|---|---|");
-    let mut overlays = Vec::new();
-    // Each channel's replays, filtering and maps are independent: computed on every core,
-    // then written in the channels' order.
-    // (The residuals are the analysis' own, band-filtered once there.)
+    blocks.push(table(&["what", "lag, ms", "correlation"], rows));
+    blocks
+}
+
+/// The residual maps (share of each channel's variance its mean along each variable
+/// explains, before → after; each map embedded) and the before/after overlays in time.
+fn maps_and_overlays(dir: &Path, ctx: &Ctx<'_>, out: &GapOutcome) -> Result<Vec<Block>, String> {
+    let before = out.input.model()?;
+    let after = out.selection.doc.model()?;
+    // Each channel's maps are independent: computed on every core, written in order.
     let computed: Vec<_> = out
         .filtered
         .par_iter()
         .map(|c| {
-            let (fb, fa) = (&c.before, &c.after);
             let (mb, ma) = rayon::join(
-                || maps(&ctx, &before, c.channel, fb),
-                || maps(&ctx, &after, c.channel, fa),
+                || maps(ctx, &before, c.channel, &c.before),
+                || maps(ctx, &after, c.channel, &c.after),
             );
-            (c.channel, fb, fa, mb, ma)
+            (c, mb, ma)
         })
         .collect();
-    for (ch, fb, fa, mb, ma) in computed {
-        let (res_unit, res_k) = plot_unit(ch);
-        let cells: Vec<String> = mb
-            .iter()
-            .zip(&ma)
-            .map(|(b, a)| format!("{:.2} → {:.2}", Num(b.structure), Num(a.structure)))
+    let mut rows = Vec::new();
+    let mut images = Vec::new();
+    for (c, mb, ma) in &computed {
+        let cells: Vec<String> = std::iter::once(c.channel.name().to_string())
+            .chain(
+                mb.iter()
+                    .zip(ma)
+                    .map(|(b, a)| format!("{:.2} → {:.2}", Num(b.structure), Num(a.structure))),
+            )
             .collect();
-        let _ = writeln!(md, "| {} | {} |", ch.name(), cells.join(" | "));
-        for (b, a) in mb.iter().zip(&ma) {
-            let file = format!("map_{}_{}.svg", ch.name(), b.by.slug());
-            let keep = |m: &super::report::Map| -> (Vec<f64>, Vec<f64>) {
-                m.centres
-                    .iter()
-                    .zip(&m.means)
-                    .filter(|(_, v)| v.is_finite())
-                    .map(|(c, v)| (*c, *v))
-                    .unzip()
-            };
-            let (by_label, by_k) = b.by.label();
-            let scale =
-                |v: Vec<f64>, k: f64| -> Vec<f64> { v.into_iter().map(|v| v * k).collect() };
-            let (xb, yb) = keep(b);
-            let (xa, ya) = keep(a);
-            let (xb, yb, xa, ya) = (
-                scale(xb, by_k),
-                scale(yb, res_k),
-                scale(xa, by_k),
-                scale(ya, res_k),
-            );
-            lines(
-                &dir.join(&file),
-                &format!("{} residual by {}", ch.name(), by_label),
-                by_label,
-                &format!("mean residual, {res_unit}"),
-                &[
-                    Series::new("input model", &xb, &yb),
-                    Series::new("augmented model", &xa, &ya).dashed(),
-                ],
-            )?;
+        rows.push(cells);
+        let mut files = Vec::new();
+        for (b, a) in mb.iter().zip(ma) {
+            let file = format!("map_{}_{}.svg", c.channel.name(), b.by.slug());
+            map_plot(&dir.join(&file), c.channel, b, a)?;
+            files.push((format!("{} by {}", c.channel.name(), b.by.label().0), file));
         }
-        // Before/after overlay in time.
-        let n = d.len();
-        let t = &d.t_s;
-        let file = format!("overlay_{}.svg", ch.name());
-        let in_unit = |v: &[f64]| -> Vec<f64> { v.iter().map(|v| v * res_k).collect() };
-        let (yb, ya) = (
-            in_unit(fb.get(..n).unwrap_or(fb)),
-            in_unit(fa.get(..n).unwrap_or(fa)),
-        );
-        lines(
-            &dir.join(&file),
-            &format!(
-                "{} residual (band-limited){}",
-                ch.name(),
-                if ch == ChannelId::Pressure {
-                    ", chamber A"
-                } else {
-                    ""
-                }
-            ),
-            "t, s",
-            &format!("residual, {res_unit}"),
+        let file = format!("overlay_{}.svg", c.channel.name());
+        overlay_plot(&dir.join(&file), ctx.data, c)?;
+        files.push((format!("{} overlay", c.channel.name()), file));
+        images.push(files);
+    }
+    let mut blocks = vec![
+        Block::Heading(2, "Residual maps".into()),
+        Block::Para(
+            "Share of each channel's residual variance explained by its mean along each \
+             variable (input model → augmented model); the input model solid, the augmented \
+             model dashed."
+                .into(),
+        ),
+        table(
             &[
-                Series::new("input model", t, &yb).faint(),
-                Series::new("augmented model", t, &ya),
+                "channel",
+                "x",
+                "x mod pole",
+                "x mod N–N",
+                "v",
+                "a",
+                "p_A − p_B",
             ],
-        )?;
-        overlays.push(format!("![{0} overlay](overlay_{0}.svg)", ch.name()));
+            rows,
+        ),
+    ];
+    for ((c, _, _), files) in computed.iter().zip(images) {
+        blocks.push(Block::Heading(3, c.channel.name().to_string()));
+        blocks.push(Block::Images(files));
     }
-    for o in &overlays {
-        let _ = writeln!(md, "\n{o}");
+    Ok(blocks)
+}
+
+/// One residual map, input model solid and augmented model dashed over it.
+fn map_plot(path: &Path, ch: ChannelId, b: &Map, a: &Map) -> Result<(), String> {
+    let keep = |m: &Map| -> (Vec<f64>, Vec<f64>) {
+        m.centres
+            .iter()
+            .zip(&m.means)
+            .filter(|(_, v)| v.is_finite())
+            .map(|(c, v)| (*c, *v))
+            .unzip()
+    };
+    let (res_unit, res_k) = plot_unit(ch);
+    let (by_label, by_k) = b.by.label();
+    let scale = |v: Vec<f64>, k: f64| -> Vec<f64> { v.into_iter().map(|v| v * k).collect() };
+    let (xb, yb) = keep(b);
+    let (xa, ya) = keep(a);
+    let (xb, yb, xa, ya) = (
+        scale(xb, by_k),
+        scale(yb, res_k),
+        scale(xa, by_k),
+        scale(ya, res_k),
+    );
+    lines(
+        path,
+        &format!("{} residual by {}", ch.name(), by_label),
+        by_label,
+        &format!("mean residual, {res_unit}"),
+        &[
+            Series::new("input model", &xb, &yb),
+            Series::new("augmented model", &xa, &ya).dashed(),
+        ],
+    )
+}
+
+/// A channel's band-limited residual in time, the input model solid and the augmented model
+/// dashed over it (as the maps: `docs/gap.md`).
+fn overlay_plot(
+    path: &Path,
+    d: &super::data::Measured,
+    c: &ChannelResiduals,
+) -> Result<(), String> {
+    let n = d.len();
+    let (res_unit, res_k) = plot_unit(c.channel);
+    let in_unit = |v: &[f64]| -> Vec<f64> { v.iter().map(|v| v * res_k).collect() };
+    let (yb, ya) = (
+        in_unit(c.before.get(..n).unwrap_or(&c.before)),
+        in_unit(c.after.get(..n).unwrap_or(&c.after)),
+    );
+    lines(
+        path,
+        &format!(
+            "{} residual (band-limited){}",
+            c.channel.name(),
+            if c.channel == ChannelId::Pressure {
+                ", chamber A"
+            } else {
+                ""
+            }
+        ),
+        "t, s",
+        &format!("residual, {res_unit}"),
+        &[
+            Series::new("input model", &d.t_s, &yb),
+            Series::new("augmented model", &d.t_s, &ya).dashed(),
+        ],
+    )
+}
+
+/// One p–V panel's series: the measured pressure (if `measured`), the input model's replay
+/// `first` dashed, and the augmented model's `second` where it differs.
+fn pv_series<'a>(
+    model_label: &'a str,
+    differ: bool,
+    v: &'a [f64],
+    measured: Option<&'a [f64]>,
+    first: &'a [f64],
+    second: &'a [f64],
+) -> Vec<Series<'a>> {
+    let mut s = Vec::new();
+    if let Some(m) = measured {
+        s.push(Series::new("measured", v, m).colour(6));
     }
-    if let (Some((pa0, pb0)), Some((pa1, pb1))) = rayon::join(
+    let line = Series::new(model_label, v, first).colour(0);
+    s.push(if measured.is_some() {
+        line.dashed()
+    } else {
+        line
+    });
+    if differ {
+        s.push(Series::new("augmented model", v, second).dashed().colour(1));
+    }
+    s
+}
+
+/// The p–V replay of a port-state log: each chamber's measured pressure against its volume
+/// with the input model's replay dashed over it (and the augmented model's where it differs:
+/// three equal traces drawn over each other show one), and what the replay misses against
+/// the volume beneath it, where a difference of a few hundred pascals shows.
+fn pv_replay(dir: &Path, out: &GapOutcome) -> Result<Vec<Block>, String> {
+    let d = &out.measured;
+    let before = out.input.model()?;
+    let after = out.selection.doc.model()?;
+    let (Some((pa0, pb0)), Some((pa1, pb1))) = rayon::join(
         || replay_pressures(d, &before),
         || replay_pressures(d, &after),
-    ) {
-        let cyl = after.cylinder();
-        let va: Vec<f64> = d.x_m.iter().map(|&x| cyl.volume_a_m3(x)).collect();
-        let vb: Vec<f64> = d.x_m.iter().map(|&x| cyl.volume_b_m3(x)).collect();
-        let k = |v: &[f64], k: f64| -> Vec<f64> { v.iter().map(|v| v * k).collect() };
-        let (va, vb) = (k(&va, 1e6), k(&vb, 1e6));
-        let (ma, mb) = (k(&d.p_a_pa, 1e-3), k(&d.p_b_pa, 1e-3));
-        let (pa0, pa1, pb0, pb1) = (k(&pa0, 1e-3), k(&pa1, 1e-3), k(&pb0, 1e-3), k(&pb1, 1e-3));
-        panels(
-            &dir.join("pv_replay.svg"),
-            "p-V: measured and replayed along the measured motion",
-            "V, cm³",
-            &[
-                Panel {
-                    y_label: "chamber A: p, kPa",
-                    series: vec![
-                        Series::new("measured", &va, &ma),
-                        Series::new("input model", &va, &pa0).dashed(),
-                        Series::new("augmented model", &va, &pa1).dashed(),
-                    ],
-                    axes: Axes::default(),
-                },
-                Panel {
-                    y_label: "chamber B: p, kPa",
-                    series: vec![
-                        Series::new("measured", &vb, &mb),
-                        Series::new("input model", &vb, &pb0).dashed(),
-                        Series::new("augmented model", &vb, &pb1).dashed(),
-                    ],
-                    axes: Axes::default(),
-                },
-            ],
-        )?;
-        let _ = writeln!(md, "\n![p-V replay](pv_replay.svg)\n");
-    }
-    let _ = writeln!(
-        md,
-        "\nMaps: `map_<channel>_<variable>.svg`. Augmented model: `model.toml`."
+    ) else {
+        return Ok(Vec::new());
+    };
+    let cyl = after.cylinder();
+    let k = |v: &[f64], k: f64| -> Vec<f64> { v.iter().map(|v| v * k).collect() };
+    let va = k(
+        &d.x_m
+            .iter()
+            .map(|&x| cyl.volume_a_m3(x))
+            .collect::<Vec<_>>(),
+        1e6,
     );
-    std::fs::write(dir.join("report.md"), md)
-        .map_err(|e| format!("cannot write {}: {e}", dir.join("report.md").display()))
+    let vb = k(
+        &d.x_m
+            .iter()
+            .map(|&x| cyl.volume_b_m3(x))
+            .collect::<Vec<_>>(),
+        1e6,
+    );
+    let differ = pa0 != pa1 || pb0 != pb1;
+    let miss = |m: &[f64], r: &[f64]| -> Vec<f64> {
+        m.iter().zip(r).map(|(m, r)| (m - r) * 1e-3).collect()
+    };
+    let (ma, mb) = (k(&d.p_a_pa, 1e-3), k(&d.p_b_pa, 1e-3));
+    let (ra0, rb0, ra1, rb1) = (k(&pa0, 1e-3), k(&pb0, 1e-3), k(&pa1, 1e-3), k(&pb1, 1e-3));
+    let (ea0, eb0, ea1, eb1) = (
+        miss(&d.p_a_pa, &pa0),
+        miss(&d.p_b_pa, &pb0),
+        miss(&d.p_a_pa, &pa1),
+        miss(&d.p_b_pa, &pb1),
+    );
+    let model_label = if differ {
+        "input model"
+    } else {
+        "model (input = augmented)"
+    };
+    let chamber = |v, m, r0, r1| pv_series(model_label, differ, v, Some(m), r0, r1);
+    let misses = |v, e0, e1| pv_series(model_label, differ, v, None, e0, e1);
+    panels(
+        &dir.join("pv_replay.svg"),
+        "p-V: measured and replayed along the measured motion",
+        "V, cm³",
+        &[
+            Panel {
+                y_label: "chamber A: p, kPa",
+                series: chamber(&va, &ma, &ra0, &ra1),
+                axes: Axes::default(),
+            },
+            Panel {
+                y_label: "A: measured − replay, kPa",
+                series: misses(&va, &ea0, &ea1),
+                axes: Axes::default(),
+            },
+            Panel {
+                y_label: "chamber B: p, kPa",
+                series: chamber(&vb, &mb, &rb0, &rb1),
+                axes: Axes::default(),
+            },
+            Panel {
+                y_label: "B: measured − replay, kPa",
+                series: misses(&vb, &eb0, &eb1),
+                axes: Axes::default(),
+            },
+        ],
+    )?;
+    Ok(vec![
+        Block::Heading(2, "p–V replay".into()),
+        Block::Images(vec![("p-V replay".into(), "pv_replay.svg".into())]),
+    ])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plot::Stroke;
+
+    /// (label, stroke) of each series, in drawing order.
+    fn drawn(s: &[Series<'_>]) -> Vec<(String, Stroke)> {
+        s.iter().map(|s| (s.label.to_string(), s.stroke)).collect()
+    }
+
+    #[test]
+    fn a_pv_panel_draws_one_replay_when_both_models_give_the_same() {
+        let (v, m, r) = ([1.0, 2.0], [3.0, 4.0], [3.5, 4.5]);
+        let same = pv_series("model (input = augmented)", false, &v, Some(&m), &r, &r);
+        assert_eq!(
+            drawn(&same),
+            vec![
+                ("measured".into(), Stroke::Solid),
+                ("model (input = augmented)".into(), Stroke::Dashed),
+            ]
+        );
+        let r2 = [3.6, 4.6];
+        let differ = pv_series("input model", true, &v, Some(&m), &r, &r2);
+        assert_eq!(
+            drawn(&differ),
+            vec![
+                ("measured".into(), Stroke::Solid),
+                ("input model".into(), Stroke::Dashed),
+                ("augmented model".into(), Stroke::Dashed),
+            ]
+        );
+        // The three keep their colours apart, so the dashed two stay distinguishable.
+        let colours: Vec<_> = differ.iter().map(|s| s.colour).collect();
+        assert_eq!(colours, vec![Some(6), Some(0), Some(1)]);
+        // The misses panel (no measured trace): the input model's line solid under the dashed
+        // augmented model.
+        let misses = pv_series("input model", true, &v, None, &r, &r2);
+        assert_eq!(
+            drawn(&misses),
+            vec![
+                ("input model".into(), Stroke::Solid),
+                ("augmented model".into(), Stroke::Dashed),
+            ]
+        );
+    }
 }

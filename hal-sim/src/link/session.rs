@@ -608,7 +608,13 @@ pub fn describe(command: &Command) -> String {
 }
 
 /// Operator names of the calibration routines, by wire number.
-pub const ROUTINES: [&str; 4] = ["current-sense", "alignment", "misalignment", "cogging"];
+pub const ROUTINES: [&str; 5] = [
+    "current-sense",
+    "alignment",
+    "misalignment",
+    "cogging",
+    "encoder-map",
+];
 /// Operator names of the parameters, by wire number (from 1).
 pub const PARAMETERS: [&str; 5] = [
     "position-kp",

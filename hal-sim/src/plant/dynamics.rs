@@ -30,6 +30,7 @@ use fpc::physics::friction::FrictionParams;
 use fpc::physics::motor::{clarke, AlphaBeta, Dq};
 use fpc::units::{PerSection, PhaseDuties, Section, CONTROL_PERIOD_S};
 
+use crate::plant::bridge::{BridgeParams, ElectricalTotals, SectionState};
 use crate::plant::chambers::{ChamberParams, Chambers, Lines, PortMode};
 use crate::plant::model::extra_force::{ExtraForceEffect, ExtraState, Term};
 use crate::plant::model::MachineModel;
@@ -70,6 +71,8 @@ pub struct PlantParams {
     pub substeps: u32,
     /// The drive board's supply (DC link, chopper, logic supply).
     pub supply: SupplyParams,
+    /// The sections' bridges' loss model and the servo drive's efficiency.
+    pub bridge: BridgeParams,
 }
 
 impl PlantParams {
@@ -115,6 +118,14 @@ impl PlantParams {
             suction_temperature_k: model.gas.temperature_k,
             substeps: model.simulation.substeps_per_period,
             supply: SupplyParams::from_model(model),
+            bridge: BridgeParams {
+                forward_voltage_v: model.supply.bridge_forward_voltage_v,
+                on_resistance_ohm: model.supply.bridge_on_resistance_ohm,
+                switching_energy_j_per_va: model.supply.bridge_switching_energy_j_per_va,
+                // The bridges switch once per control period (centred PWM at the control rate).
+                switching_frequency_hz: 1.0 / f64::from(CONTROL_PERIOD_S),
+                servo_efficiency: model.supply.servo_efficiency,
+            },
         }
     }
 
@@ -172,6 +183,8 @@ pub struct Plant {
     pub injected: PlantFaults,
     /// The drive board's DC link (held at its nominal voltage while the mains is present).
     pub supply: Link,
+    /// The electrical energies since the plant was made ([`crate::plant::bridge`]).
+    pub electrical: ElectricalTotals,
     /// Stator-frame voltages of the period being simulated (`None`: that bridge is off).
     voltages: PerSection<Option<AlphaBeta<f64>>>,
 }
@@ -203,6 +216,7 @@ impl Plant {
             port_mode: PortMode::Timed,
             injected: Default::default(),
             supply: Link::new(params.supply),
+            electrical: ElectricalTotals::default(),
             voltages: PerSection::default(),
             params,
         }
@@ -261,7 +275,9 @@ impl Plant {
             let servo_w = self.rotation.torque_nm * self.rotation.servo_speed_rad_s;
             self.supply.discharge(sections_w, servo_w, dt);
         }
+        let start = self.motors.current;
         self.motors.step(&voltages, self.v_mps, dt);
+        self.account_electrical(start, dt);
         if self.injected.any_section_dead() {
             self.injected.kill_sections(&mut self.motors);
         }
@@ -327,6 +343,26 @@ impl Plant {
         if self.injected.any_vented() {
             self.injected.vent(&mut self.chambers);
         }
+    }
+
+    /// Adds this sub-step's electrical energies to [`Plant::electrical`]: the period's
+    /// voltages, the currents from `start` to where the step took them.
+    fn account_electrical(&mut self, start: PerSection<Dq<f64>>, dt: f64) {
+        let bus_v = self.params.sections.motor.master.bus_voltage_v * self.supply.bus_scale();
+        let state = |s: Section| SectionState {
+            motor: self.params.sections.motor.get(s),
+            voltage: *self.voltages.get(s),
+            current: (*start.get(s), *self.motors.current.get(s)),
+            angle: self.motors.angle(s),
+        };
+        let sections = PerSection {
+            master: state(Section::Master),
+            slave: state(Section::Slave),
+        };
+        let servo_w = self.rotation.torque_nm * self.rotation.servo_speed_rad_s;
+        let mut totals = self.electrical;
+        totals.add(&self.params.bridge, sections, bus_v, servo_w, dt);
+        self.electrical = totals;
     }
 
     /// Electrical power the two bridges deliver to the sections now, W (negative: the

@@ -23,6 +23,7 @@
 //! published drives had none of this project's fault reactions, so `--fault` is refused.
 
 pub mod drive;
+pub mod paper;
 pub mod profile;
 
 use std::f64::consts::TAU;
@@ -73,6 +74,9 @@ pub struct Rig {
     section_force_n: f64,
     /// The slave's setpoint as it arrives, N.
     slave_force_n: f64,
+    /// An open-loop replay: the master's force command of each period from the first, N
+    /// (the last held after its end), and the period it started.
+    replay: Option<(Vec<f64>, u64)>,
     dead_a_m: f64,
     dead_b_m: f64,
     stroke: Stroke,
@@ -81,6 +85,8 @@ pub struct Rig {
     rotation: RotationProgramme,
     programme: Programme,
     peak_mps: f64,
+    /// The strokes' ramp fraction (`profile_ramp_fraction`).
+    ramp_fraction: f64,
     servo: Servo,
     setpoint: Setpoint,
     /// The last status, as the firmware's would read.
@@ -145,6 +151,20 @@ impl Rig {
         let cycle_periods = (p.cycle_s / period_s).round().max(1.0) as u64;
         let cycle_s = cycle_periods as f64 * period_s;
         let cycles = |s: f64| (s / cycle_s).round() as usize;
+        let sections = model.motor_sections();
+        let current_limit_a = if p.current_limit_a > 0.0 {
+            p.current_limit_a
+        } else {
+            sections.master.current_limit_a
+        };
+        // Half the setpoint goes to each section, each clamped at the drive's current: the
+        // loop's output is limited where that clamp acts (or at the force limit, if lower),
+        // so its integrator stops winding up where the force really stops growing.
+        let kf_min = sections
+            .master
+            .force_constant_n_per_a
+            .min(sections.slave.force_constant_n_per_a);
+        let clamp_n = 2.0 * kf_min * current_limit_a;
         let gains = LoopGains {
             cycle_s,
             position_gain_per_s: p.position_gain_per_s,
@@ -155,9 +175,8 @@ impl Rig {
             loop_velocity_delay_cycles: cycles(p.loop_velocity_delay_s),
             // A moving average of N backward differences is late by N/2 cycles.
             reported_velocity_cycles: cycles(2.0 * p.reported_velocity_delay_s).max(1),
-            force_limit_n: model.limits.force_limit_n,
+            force_limit_n: model.limits.force_limit_n.min(clamp_n),
         };
-        let sections = model.motor_sections();
         let current = |s: Section| {
             let m = sections.get(s);
             CurrentLoop::new(
@@ -186,11 +205,7 @@ impl Rig {
                 master: sections.master.force_constant_n_per_a,
                 slave: sections.slave.force_constant_n_per_a,
             },
-            current_limit_a: if p.current_limit_a > 0.0 {
-                p.current_limit_a
-            } else {
-                sections.master.current_limit_a
-            },
+            current_limit_a,
             electrical_period_m: 2.0 * model.motor.pole_pitch_m,
             encoders: PerSection {
                 master: enc(codes.master),
@@ -204,6 +219,7 @@ impl Rig {
             slave_link: Delay::new((p.slave_lag_s / period_s).round() as usize),
             section_force_n: 0.0,
             slave_force_n: 0.0,
+            replay: None,
             dead_a_m,
             dead_b_m,
             stroke: Stroke {
@@ -211,12 +227,14 @@ impl Rig {
                 from_m: x0,
                 to_m: x0,
                 peak_mps: CREEP_MPS,
+                ramp_fraction: 0.5,
             },
             toward_b: true,
             turns: 0.0,
             rotation: RotationProgramme::new(model, dead_a_m, dead_b_m, pr),
             programme: Programme::Hold,
             peak_mps: 1.0,
+            ramp_fraction: p.profile_ramp_fraction,
             servo: Servo {
                 counts_per_rev: f64::from(model.servo.counts_per_rev),
                 inertia: model.servo.inertia_kgm2,
@@ -273,6 +291,7 @@ impl Rig {
                     from_m: self.setpoint.x_m,
                     to_m: self.dead_b_m,
                     peak_mps: self.peak_mps,
+                    ramp_fraction: self.ramp_fraction,
                 };
                 self.programme = Programme::Strokes { stop: false };
                 self.status.mode = ModeKind::Running;
@@ -295,8 +314,17 @@ impl Rig {
             from_m: self.setpoint.x_m,
             to_m: x_m,
             peak_mps,
+            ramp_fraction: 0.5,
         };
         self.programme = Programme::Hold;
+        self.status.mode = ModeKind::Moving;
+    }
+
+    /// Drives the force command open loop from now on: `force_n[k]` in the `k`-th period
+    /// (the last value held after the end), the position loop out of the path, as the
+    /// paper's closed-port test replayed "the same force as a function of time" (§4).
+    pub fn replay_force(&mut self, force_n: Vec<f64>, cycle: u64) {
+        self.replay = Some((force_n, cycle));
         self.status.mode = ModeKind::Moving;
     }
 
@@ -314,6 +342,7 @@ impl Rig {
                     from_m: self.setpoint.x_m,
                     to_m: self.dead_a_m,
                     peak_mps: CREEP_MPS,
+                    ramp_fraction: 0.5,
                 };
                 self.programme = Programme::ToDeadPoint;
             }
@@ -340,6 +369,7 @@ impl Rig {
                         from_m: self.stroke.to_m,
                         to_m: to,
                         peak_mps: self.peak_mps,
+                        ramp_fraction: self.ramp_fraction,
                     };
                 }
             }
@@ -361,7 +391,12 @@ impl Rig {
         let xs = self.encoders.slave.read(inputs.encoders.slave);
         let (sp, theta_ref, rate_ref) = self.programme(t);
         self.setpoint = sp;
-        if world.cycle().is_multiple_of(self.cycle_periods) {
+        if let Some((force_n, from)) = &self.replay {
+            let k = usize::try_from(world.cycle().saturating_sub(*from)).unwrap_or(usize::MAX);
+            let f = force_n.get(k).or(force_n.last()).copied().unwrap_or(0.0);
+            self.status.force_command_n = f as f32;
+            self.section_force_n = 0.5 * f;
+        } else if world.cycle().is_multiple_of(self.cycle_periods) {
             let f = self.cascade.step(x, sp.x_m, sp.v_mps);
             self.status.force_command_n = f as f32;
             self.section_force_n = 0.5 * f;

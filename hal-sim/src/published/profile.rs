@@ -4,7 +4,10 @@
 //! the translation of the piston and its rotation were synchronized").
 //!
 //! A stroke of length `S` at peak speed `v` accelerates at `a = v²/S` over its first half and
-//! brakes at `a` over its second, so it lasts `2S/v` (a triangle in velocity). The rotation
+//! brakes at `a` over its second, so it lasts `2S/v` (a triangle in velocity). A ramp fraction
+//! `f < ½` (`[published] profile_ramp_fraction`) accelerates over the first `f·S` at
+//! `a = v²/(2fS)`, cruises at `v`, and brakes over the last `f·S`: it lasts `(1 + 2f)·S/v`,
+//! the same peak speed with a force `1/(2f)` times the triangle's. The rotation
 //! is programmed on the *reference* stroke, not on the measured one: within a stroke the
 //! port phase is piecewise linear in the reference position, half open at the isentropic
 //! opening position for the programmed pressure ratio.
@@ -37,12 +40,19 @@ pub struct Stroke {
     pub to_m: f64,
     /// Peak speed (reached at mid-stroke), m/s.
     pub peak_mps: f64,
+    /// Share of the stroke spent accelerating, and again braking (0.5: the triangle).
+    pub ramp_fraction: f64,
 }
 
 impl Stroke {
     /// Duration, s.
     pub fn duration_s(&self) -> f64 {
-        2.0 * (self.to_m - self.from_m).abs() / self.peak_mps.max(1e-9)
+        (1.0 + 2.0 * self.ramp()) * (self.to_m - self.from_m).abs() / self.peak_mps.max(1e-9)
+    }
+
+    /// The ramp fraction within (0, ½].
+    fn ramp(&self) -> f64 {
+        self.ramp_fraction.clamp(1e-3, 0.5)
     }
 
     /// End time, s.
@@ -62,12 +72,20 @@ impl Stroke {
             };
         }
         let tau = (t_s - self.t0_s).max(0.0);
-        let a = self.peak_mps * self.peak_mps / s;
-        if tau < 0.5 * d {
+        let v = self.peak_mps;
+        let ramp_s = 2.0 * self.ramp() * s / v.max(1e-9);
+        let a = v / ramp_s.max(1e-12);
+        if tau < ramp_s {
             Setpoint {
                 x_m: self.from_m + dir * 0.5 * a * tau * tau,
                 v_mps: dir * a * tau,
                 a_mps2: dir * a,
+            }
+        } else if tau < d - ramp_s {
+            Setpoint {
+                x_m: self.from_m + dir * (0.5 * v * ramp_s + v * (tau - ramp_s)),
+                v_mps: dir * v,
+                a_mps2: 0.0,
             }
         } else {
             let r = d - tau;
@@ -160,6 +178,7 @@ mod tests {
             from_m: 0.001,
             to_m: 0.204,
             peak_mps: 4.1,
+            ramp_fraction: 0.5,
         };
         let d = s.duration_s();
         assert!((d - 2.0 * 0.203 / 4.1).abs() < 1e-12);
@@ -171,6 +190,37 @@ mod tests {
         let (t, h) = (1.0 + 0.3 * d, 1e-7);
         let dx = (s.at(t + h).x_m - s.at(t - h).x_m) / (2.0 * h);
         assert!((dx - s.at(t).v_mps).abs() < 1e-5);
+    }
+
+    #[test]
+    fn a_shorter_ramp_cruises_at_the_peak_speed_and_pushes_harder() {
+        let tri = Stroke {
+            t0_s: 0.0,
+            from_m: 0.204,
+            to_m: 0.001,
+            peak_mps: 4.1,
+            ramp_fraction: 0.5,
+        };
+        let steep = Stroke {
+            ramp_fraction: 0.125,
+            ..tri
+        };
+        let d = steep.duration_s();
+        assert!((d - 1.25 * 0.203 / 4.1).abs() < 1e-12);
+        // Four times the triangle's acceleration, the same peak speed, cruising mid-stroke.
+        assert!((steep.at(1e-4).a_mps2 - 4.0 * tri.at(1e-4).a_mps2).abs() < 1e-9);
+        let mid = steep.at(0.5 * d);
+        assert!((mid.v_mps + 4.1).abs() < 1e-9 && mid.a_mps2 == 0.0);
+        assert!((mid.x_m - 0.1025).abs() < 1e-9);
+        // Continuous in position and velocity everywhere; it ends at rest on its target.
+        let mut last = steep.at(0.0);
+        for k in 1..=2000 {
+            let now = steep.at(d * k as f64 / 2000.0);
+            let h = d / 2000.0;
+            assert!((now.x_m - last.x_m - 0.5 * h * (now.v_mps + last.v_mps)).abs() < 1e-6);
+            last = now;
+        }
+        assert_eq!((last.x_m, last.v_mps), (0.001, 0.0));
     }
 
     #[test]

@@ -63,6 +63,29 @@ pub(super) fn simulate(
     test: ClosedPort,
     csv: Option<&mut dyn Write>,
 ) -> Result<RunOutcome, String> {
+    simulate_replaying(opts, test, csv, None).map(|(out, _)| out)
+}
+
+/// The paper's closed-port test both ways (§4): the move to `test.stop_m` under the position
+/// loop, then the same master force command as a function of time replayed open loop on a
+/// fresh plant (same seed). Returns (closed loop, open loop).
+pub fn closed_and_open_loop(
+    opts: &RunOptions,
+    test: ClosedPort,
+) -> Result<(RunOutcome, RunOutcome), String> {
+    let (closed, force_n) = simulate_replaying(opts, test, None, None)?;
+    let (open, _) = simulate_replaying(opts, test, None, Some(force_n))?;
+    Ok((closed, open))
+}
+
+/// [`simulate`], its force command recorded each period from the move's start, or (with
+/// `replay`) that record driven open loop instead of the move.
+fn simulate_replaying(
+    opts: &RunOptions,
+    test: ClosedPort,
+    csv: Option<&mut dyn Write>,
+    mut replay: Option<Vec<f64>>,
+) -> Result<(RunOutcome, Vec<f64>), String> {
     let model = &opts.model;
     let start = 0.5 * model.piston.travel_m;
     let mut w = world(model, opts.seed, opts.start_us, start);
@@ -92,6 +115,7 @@ pub(super) fn simulate(
     let mut capture = Capture::new(end_s + 0.01, csv, &log);
     let stride = u64::from((CONTROL_RATE_HZ / opts.log_rate_hz.max(1)).max(1));
     let mut moved = false;
+    let mut recorded = Vec::new();
     let (mut peak_pa, mut peak_speed, mut min_clear) = (0.0f64, 0.0f64, f64::INFINITY);
     let started = Instant::now();
     let world = crate::published::simulate(w, &mut rig, |w, rig| {
@@ -100,8 +124,13 @@ pub(super) fn simulate(
             capture.push(&rig.status(), w);
         }
         if !moved && t >= REST_BEFORE_S {
-            rig.move_to(test.stop_m, speed, t);
+            match replay.take() {
+                Some(force_n) => rig.replay_force(force_n, w.cycle() + 1),
+                None => rig.move_to(test.stop_m, speed, t),
+            }
             moved = true;
+        } else if moved {
+            recorded.push(f64::from(rig.status().force_command_n));
         }
         peak_pa = peak_pa.max(w.plant.chambers.b.pressure_pa);
         peak_speed = peak_speed.max(w.plant.v_mps.abs());
@@ -143,13 +172,16 @@ pub(super) fn simulate(
         closed_port_end_pa: Some(end_pa),
         ..Summary::default()
     };
-    Ok(RunOutcome {
-        summary,
-        log,
-        telemetry: Vec::new(),
-        opening_errors: Vec::new(),
-        cycle_work_j: Vec::new(),
-        cycle_motor_work_j: Vec::new(),
-        injection: Default::default(),
-    })
+    Ok((
+        RunOutcome {
+            summary,
+            log,
+            telemetry: Vec::new(),
+            opening_errors: Vec::new(),
+            cycle_work_j: Vec::new(),
+            cycle_motor_work_j: Vec::new(),
+            injection: Default::default(),
+        },
+        recorded,
+    ))
 }

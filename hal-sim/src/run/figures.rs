@@ -16,6 +16,10 @@ pub const DEAD_POINT_WINDOW_S: f64 = 5e-3;
 /// Samples of position error kept for the spectra (3.3 s at 20 kHz): a bounded ring.
 const SPECTRUM_SAMPLES: usize = 1 << 16;
 
+/// The band searched for the position error's strongest line wherever it lies (a limit
+/// cycle outside 340–460 Hz), Hz: above the strokes' own harmonics.
+pub const WIDE_BAND_HZ: (f64, f64) = (100.0, 2000.0);
+
 /// Cycles the figures are taken over (the last ones), as the other figures of `run`.
 const LAST_CYCLES: usize = 5;
 
@@ -27,6 +31,7 @@ struct Extremes {
     v_b: (f64, f64),
     p_a: (f64, f64),
     p_b: (f64, f64),
+    force: (f64, f64),
 }
 
 impl Default for Extremes {
@@ -38,6 +43,7 @@ impl Default for Extremes {
             v_b: e,
             p_a: e,
             p_b: e,
+            force: e,
         }
     }
 }
@@ -125,6 +131,7 @@ impl PaperFigures {
         widen(&mut e.v_b, c.b.volume_m3);
         widen(&mut e.p_a, c.a.pressure_pa);
         widen(&mut e.p_b, c.b.pressure_pa);
+        widen(&mut e.force, f_master + f_slave);
     }
 
     /// The reference turned at a dead point at `t_s`; the piston went `overshoot_m` past the
@@ -166,6 +173,8 @@ impl PaperFigures {
         let rest: Vec<f64> = self.rest_err.into_iter().collect();
         let line = line_in(&stroke, dt, LINE_BAND_HZ);
         let rest_line = line_in(&rest, dt, LINE_BAND_HZ);
+        let wide = line_in(&stroke, dt, WIDE_BAND_HZ);
+        let rest_wide = line_in(&rest, dt, WIDE_BAND_HZ);
         Figures {
             dead_point_force_diff_n: last(&self.dead_point_diffs),
             force_diff_rms_fraction: (self.total_sq > 0.0)
@@ -174,12 +183,17 @@ impl PaperFigures {
             travel_m: span(|e| e.x).map(|r| r.1 - r.0),
             volume_ratio_reached: mean2(ratio(span(|e| e.v_a)), ratio(span(|e| e.v_b))),
             pv_pressure_ratio: mean2(ratio(span(|e| e.p_a)), ratio(span(|e| e.p_b))),
+            peak_motor_force_n: span(|e| e.force).map(|r| r.0.abs().max(r.1.abs())),
             line_hz: line.map(|l| l.hz),
             line_m: line.map(|l| l.amplitude),
             line_floor_m: line.map(|l| l.floor),
             rest_line_hz: rest_line.map(|l| l.hz),
             rest_line_m: rest_line.map(|l| l.amplitude),
             rest_line_floor_m: rest_line.map(|l| l.floor),
+            wide_line_hz: wide.map(|l| l.hz),
+            wide_line_m: wide.map(|l| l.amplitude),
+            rest_wide_line_hz: rest_wide.map(|l| l.hz),
+            rest_wide_line_m: rest_wide.map(|l| l.amplitude),
         }
     }
 }
@@ -197,6 +211,8 @@ pub struct Figures {
     pub travel_m: Option<f64>,
     /// See [`super::Summary::volume_ratio_reached`].
     pub volume_ratio_reached: Option<f64>,
+    /// See [`super::Summary::peak_motor_force_n`].
+    pub peak_motor_force_n: Option<f64>,
     /// See [`super::Summary::pv_pressure_ratio`].
     pub pv_pressure_ratio: Option<f64>,
     /// See [`super::Summary::line_hz`].
@@ -211,6 +227,14 @@ pub struct Figures {
     pub rest_line_m: Option<f64>,
     /// See [`super::Summary::rest_line_floor_m`].
     pub rest_line_floor_m: Option<f64>,
+    /// See [`super::Summary::wide_line_hz`].
+    pub wide_line_hz: Option<f64>,
+    /// See [`super::Summary::wide_line_m`].
+    pub wide_line_m: Option<f64>,
+    /// See [`super::Summary::rest_wide_line_hz`].
+    pub rest_wide_line_hz: Option<f64>,
+    /// See [`super::Summary::rest_wide_line_m`].
+    pub rest_wide_line_m: Option<f64>,
 }
 
 // The run summary's own figures (the work per cycle, the last clearances, the discharge
@@ -233,6 +257,21 @@ pub(super) fn indicated_work(cumulative_j: &[f64]) -> Option<f64> {
     let last = cumulative_j.get(n - 1)?;
     let first = cumulative_j.get(n - 1 - k)?;
     Some((last - first) / k as f64)
+}
+
+/// Mean electrical energies per cycle over the last 5 cycles (the cycles of
+/// [`indicated_work`]), from the plant's totals at each cycle end.
+pub(super) fn electrical_per_cycle(
+    at_cycle: &[crate::plant::bridge::ElectricalTotals],
+) -> Option<crate::plant::bridge::ElectricalTotals> {
+    let n = at_cycle.len();
+    let k = 5.min(n.saturating_sub(1));
+    if k == 0 {
+        return None;
+    }
+    let last = at_cycle.get(n - 1)?;
+    let first = at_cycle.get(n - 1 - k)?;
+    Some(last.since(first).per(k as f64))
 }
 
 /// If a discharge port's half-open angle was crossed since `last_phase_rad` (forward

@@ -36,7 +36,7 @@ use crate::runlog::{RunLog, REQUIRED};
 mod capture;
 pub mod closed;
 mod figures;
-use figures::{discharge_opening, indicated_work, last_max};
+use figures::{discharge_opening, electrical_per_cycle, indicated_work, last_max};
 mod options;
 pub mod spectrum;
 pub mod text;
@@ -101,6 +101,9 @@ pub struct Summary {
     /// p_max/p_min of each chamber over the last 5 cycles, mean of A and B (the PR of the
     /// paper's Fig. 3 read from its p–V loops; the target is the line ratio).
     pub pv_pressure_ratio: Option<f64>,
+    /// Largest |F_master + F_slave| (the sections' reported forces) over the last 5 cycles,
+    /// N (the paper's "sum of both forces", §4.1, and the motor force of Fig. 9).
+    pub peak_motor_force_n: Option<f64>,
     /// Frequency of the line in 340–460 Hz of the measured position error (the master
     /// encoder's position − the reference: what the rig sees of a vibration) while
     /// stroking, Hz.
@@ -116,10 +119,35 @@ pub struct Summary {
     pub rest_line_m: Option<f64>,
     /// Its noise floor, m.
     pub rest_line_floor_m: Option<f64>,
+    /// The position error's most prominent line in 100–2000 Hz while stroking, Hz (a limit
+    /// cycle wherever it settles).
+    pub wide_line_hz: Option<f64>,
+    /// Its amplitude, m.
+    pub wide_line_m: Option<f64>,
+    /// The same at rest, Hz.
+    pub rest_wide_line_hz: Option<f64>,
+    /// Its amplitude, m.
+    pub rest_wide_line_m: Option<f64>,
     /// Closed-port run (`--closed-port`): the highest pressure of chamber B, Pa.
     pub closed_port_peak_pa: Option<f64>,
     /// Closed-port run: chamber B's pressure at the end of the hold, Pa.
     pub closed_port_end_pa: Option<f64>,
+    /// Electrical input per cycle, mean of the last 5 cycles, J: both sections' bridges'
+    /// output and losses and the servo drive's draw, regeneration stored in the DC link and
+    /// used again (`plant::bridge`).
+    pub electrical_energy_j_per_cycle: Option<f64>,
+    /// Both sections' copper loss per cycle, mean of the last 5 cycles, J.
+    pub copper_loss_j_per_cycle: Option<f64>,
+    /// Both bridges' loss per cycle (conduction and switching, the stated model), J.
+    pub bridge_loss_j_per_cycle: Option<f64>,
+    /// The servo drive's draw per cycle, J.
+    pub servo_energy_j_per_cycle: Option<f64>,
+    /// What the sections returned to the DC link per cycle while braking, J.
+    pub regenerated_j_per_cycle: Option<f64>,
+    /// The I²-losses per cycle the sections' unequal currents added (the fight's cost), J.
+    pub fight_loss_j_per_cycle: Option<f64>,
+    /// Indicated work over electrical input, the same cycles.
+    pub efficiency: Option<f64>,
     /// A `power_cut` run: the energy the DC link held at the end of the mains outage (or of
     /// the run), J; `null` without one.
     pub link_energy_left_j: Option<f64>,
@@ -202,6 +230,8 @@ struct Metrics {
     motor_work_j: f64,
     /// `motor_work_j` at each completed cycle.
     motor_work_at_cycle_j: Vec<f64>,
+    /// The plant's electrical energies at each completed cycle.
+    electrical_at_cycle: Vec<crate::plant::bridge::ElectricalTotals>,
     extreme_m: Option<f64>,
     min_clearance_m: Option<f64>,
     peak_speed_mps: f64,
@@ -657,6 +687,7 @@ impl<'o, 's> RunDriver<'o, 's> {
                             .work_at_cycle_j
                             .push(c.a.totals.work_on_gas_j + c.b.totals.work_on_gas_j);
                         metrics.motor_work_at_cycle_j.push(metrics.motor_work_j);
+                        metrics.electrical_at_cycle.push(w.plant.electrical);
                         metrics.paper.cycle_done();
                     }
                     if self.cycles_done >= opts.cycles {
@@ -766,6 +797,8 @@ impl<'o, 's> RunDriver<'o, 's> {
         let sim_time_s = world.time_s();
         let last5 = metrics.dead_point_errors.len().saturating_sub(10);
         let paper = std::mem::take(&mut metrics.paper).finish();
+        let indicated = indicated_work(&metrics.work_at_cycle_j);
+        let electrical = electrical_per_cycle(&metrics.electrical_at_cycle);
         let summary = Summary {
             sim_time_s,
             wall_time_s: wall,
@@ -801,7 +834,7 @@ impl<'o, 's> RunDriver<'o, 's> {
             ),
             tracking_error_rms_m: (metrics.tracking_n > 0)
                 .then(|| (metrics.tracking_sq_m2 / metrics.tracking_n as f64).sqrt()),
-            indicated_work_j_per_cycle: indicated_work(&metrics.work_at_cycle_j),
+            indicated_work_j_per_cycle: indicated,
             dead_point_error_m: metrics
                 .dead_point_errors
                 .get(last5..)
@@ -823,14 +856,28 @@ impl<'o, 's> RunDriver<'o, 's> {
             travel_m: paper.travel_m,
             volume_ratio_reached: paper.volume_ratio_reached,
             pv_pressure_ratio: paper.pv_pressure_ratio,
+            peak_motor_force_n: paper.peak_motor_force_n,
             line_hz: paper.line_hz,
             line_m: paper.line_m,
             line_floor_m: paper.line_floor_m,
             rest_line_hz: paper.rest_line_hz,
             rest_line_m: paper.rest_line_m,
             rest_line_floor_m: paper.rest_line_floor_m,
+            wide_line_hz: paper.wide_line_hz,
+            wide_line_m: paper.wide_line_m,
+            rest_wide_line_hz: paper.rest_wide_line_hz,
+            rest_wide_line_m: paper.rest_wide_line_m,
             closed_port_peak_pa: None,
             closed_port_end_pa: None,
+            electrical_energy_j_per_cycle: electrical.map(|e| e.input_j()),
+            copper_loss_j_per_cycle: electrical.map(|e| e.copper_total_j()),
+            bridge_loss_j_per_cycle: electrical.map(|e| e.bridge_loss_total_j()),
+            servo_energy_j_per_cycle: electrical.map(|e| e.servo_j),
+            regenerated_j_per_cycle: electrical.map(|e| e.regenerated_j),
+            fight_loss_j_per_cycle: electrical.map(|e| e.fight_j),
+            efficiency: indicated
+                .zip(electrical)
+                .and_then(|(w, e)| (e.input_j() > 0.0).then(|| w / e.input_j())),
             link_energy_left_j: injection.link.map(|l| l.energy_left_j),
             link_peak_v: injection.link.map(|l| l.peak_v),
             link_lowest_v: injection.link.map(|l| l.lowest_v),
@@ -859,6 +906,7 @@ impl<'o, 's> RunDriver<'o, 's> {
 fn act(w: &mut World, link: &mut dyn HostLink, action: HostAction) {
     match action {
         HostAction::SetLinePressureRatio(pr) => w.plant.lines.set_pressure_ratio(pr),
+        HostAction::UnloadPorts => w.plant.port_mode = PortMode::Unloaded,
         HostAction::Command(c) => {
             let _ = link.post_command(c);
         }

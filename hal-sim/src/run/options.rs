@@ -221,6 +221,9 @@ pub enum HostAction {
     SetLinePressureRatio(f64),
     /// Send a command to the firmware.
     Command(Command),
+    /// Open both chambers to the suction line whatever the rotation (the start-up bypass
+    /// kept open: strokes without compression, the paper's Figs. 5 and 6 "no compression").
+    UnloadPorts,
 }
 
 impl RunOptions {

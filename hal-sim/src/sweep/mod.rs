@@ -58,7 +58,7 @@ impl Shard {
 /// The summary fields of a row, after the axes (`docs/formats.md` §3 less the wall clock, and
 /// `controller`, which a plan gives as an axis), and `error` (a run that could not be
 /// simulated).
-pub const FIELDS: [&str; 28] = [
+pub const FIELDS: [&str; 40] = [
     "sim_time_s",
     "cycles",
     "cycles_requested",
@@ -86,6 +86,18 @@ pub const FIELDS: [&str; 28] = [
     "rest_line_hz",
     "rest_line_m",
     "rest_line_floor_m",
+    "electrical_energy_j_per_cycle",
+    "copper_loss_j_per_cycle",
+    "bridge_loss_j_per_cycle",
+    "servo_energy_j_per_cycle",
+    "regenerated_j_per_cycle",
+    "fight_loss_j_per_cycle",
+    "efficiency",
+    "peak_motor_force_n",
+    "wide_line_hz",
+    "wide_line_m",
+    "rest_wide_line_hz",
+    "rest_wide_line_m",
     "error",
 ];
 
@@ -131,6 +143,18 @@ fn summary_cells(s: &Summary) -> Vec<String> {
         opt(s.rest_line_hz),
         opt(s.rest_line_m),
         opt(s.rest_line_floor_m),
+        opt(s.electrical_energy_j_per_cycle),
+        opt(s.copper_loss_j_per_cycle),
+        opt(s.bridge_loss_j_per_cycle),
+        opt(s.servo_energy_j_per_cycle),
+        opt(s.regenerated_j_per_cycle),
+        opt(s.fight_loss_j_per_cycle),
+        opt(s.efficiency),
+        opt(s.peak_motor_force_n),
+        opt(s.wide_line_hz),
+        opt(s.wide_line_m),
+        opt(s.rest_wide_line_hz),
+        opt(s.rest_wide_line_m),
         String::new(),
     ]
 }

@@ -14,7 +14,10 @@
 //!   the recording, as `fpc-sim link send --replay` answers them: the recording decides what
 //!   the machine does. Stop plays on to the recording's own stop and holds there; the next
 //!   control plays it again from its start.
-//! * **Board** (cargo feature `probe`): the probe transport of `fpc-sim link`.
+//! * **Board** (cargo feature `probe`): the probe transport of `fpc-sim link`, attached by
+//!   the caller before the console starts (no probe: one error, nothing started) and handed
+//!   over as a [`LiveLink`]: any transport with the link's interface ([`Channels`]) runs the
+//!   same way, polled every millisecond.
 //!
 //! Recording writes the raw channels as `fpc-sim link capture` does — `DIR/rec-N/up0.bin`,
 //! `up1.bin`, `up2.bin` — and, when it ends, the run log `run.csv` (`fpc-sim decode`'s) and
@@ -54,8 +57,25 @@ const MOST_STEPPED_S: f64 = 0.05;
 /// Bytes read from a channel at once.
 const READ_BYTES: usize = 4096;
 
+/// A live board's channels, opened once in the link thread: the board's RTT channels
+/// behind a probe ([`crate::link::probe::attach`]), or any transport with the same interface.
+pub struct LiveLink {
+    /// What is on the other end, in words (the page's title).
+    pub what: String,
+    /// Opens the channels.
+    pub open: Box<dyn FnOnce() -> Result<Box<dyn Channels>, String> + Send>,
+}
+
+impl std::fmt::Debug for LiveLink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LiveLink")
+            .field("what", &self.what)
+            .finish()
+    }
+}
+
 /// Where the console's stream comes from.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub enum Source {
     /// The simulated board on a machine model.
     Sim {
@@ -71,14 +91,8 @@ pub enum Source {
         /// The directory.
         dir: PathBuf,
     },
-    /// The board through a debug probe.
-    #[cfg(feature = "probe")]
-    Probe {
-        /// How to attach.
-        options: crate::link::probe::ProbeOptions,
-        /// The firmware ELF (finds the RTT block).
-        elf: Option<PathBuf>,
-    },
+    /// The board through a debug probe (or a transport with its interface).
+    Probe(LiveLink),
 }
 
 impl Source {
@@ -87,8 +101,7 @@ impl Source {
         match self {
             Source::Sim { .. } => "sim",
             Source::Replay { .. } => "replay",
-            #[cfg(feature = "probe")]
-            Source::Probe { .. } => "probe",
+            Source::Probe(_) => "probe",
         }
     }
 
@@ -97,8 +110,7 @@ impl Source {
         match self {
             Source::Sim { model_name, .. } => format!("simulated board, {model_name} machine"),
             Source::Replay { dir } => format!("recorded session {}", show(dir)),
-            #[cfg(feature = "probe")]
-            Source::Probe { options, .. } => format!("board {} through the probe", options.chip),
+            Source::Probe(link) => link.what.clone(),
         }
     }
 }
@@ -157,13 +169,10 @@ fn run(
     let result = match source {
         Source::Sim { model, seed, .. } => run_sim(&model, seed, &mut host, &controls, stop),
         Source::Replay { dir } => run_replay(&dir, &mut host, &controls, stop),
-        #[cfg(feature = "probe")]
-        Source::Probe { options, elf } => {
-            match crate::link::probe::attach(&options, elf.as_deref()) {
-                Ok(mut channels) => run_board(&mut channels, &mut host, &controls, stop),
-                Err(e) => Err(e),
-            }
-        }
+        Source::Probe(link) => match (link.open)() {
+            Ok(mut channels) => run_board(&mut *channels, &mut host, &controls, stop),
+            Err(e) => Err(e),
+        },
     };
     if let Err(e) = &result {
         host.log(&format!("the link ended: {e}"), "refused");
@@ -807,7 +816,6 @@ fn run_sim(
 }
 
 /// The board (or any live transport): polled every millisecond.
-#[cfg_attr(not(feature = "probe"), allow(dead_code))]
 fn run_board(
     channels: &mut dyn Channels,
     host: &mut Host,
@@ -1124,6 +1132,139 @@ mod tests {
         let log = crate::runlog::RunLog::read(&rec.join("run.csv")).unwrap();
         assert!(log.len() >= 100, "{} rows", log.len());
         assert!(rec.join("up1.bin").is_file() && rec.join("up2.bin").is_file());
+    }
+
+    /// The simulated board behind a stand-in for the probe: its firmware runs on in wall-clock
+    /// time whether or not anyone looks, and each access through the probe's interface
+    /// ([`TargetMemory`]) first lets it catch up — what a probe reading a running board's
+    /// RAM sees. The rig's lines are the rig's: the discharge at pressure ratio 3.1 and the
+    /// ports timed from the start, since the console does not touch them on a board.
+    struct RunningBoard {
+        board: crate::board::exec::LinkedBoard<'static>,
+        started: Instant,
+        cycles: u64,
+    }
+
+    impl RunningBoard {
+        fn boot() -> RunningBoard {
+            let model = MachineModel::reference();
+            let opts = crate::run::RunOptions::reference();
+            let mut world = crate::run::world(&model, 3, 0, opts.start_position_m);
+            world.plant.lines.set_pressure_ratio(3.1);
+            world.plant.port_mode = crate::plant::chambers::PortMode::Timed;
+            // The board's shared state lives as long as the board (the test's whole run).
+            let shared = Box::leak(Box::new(crate::board::exec::SimShared::new()));
+            let board = crate::board::exec::LinkedBoard::boot(
+                world,
+                crate::run::control_config(&model),
+                shared,
+                fpc::link::telemetry::DEFAULT_DECIMATION,
+            );
+            RunningBoard {
+                board,
+                started: Instant::now(),
+                cycles: 0,
+            }
+        }
+
+        fn catch_up(&mut self) {
+            let due = (self.started.elapsed().as_secs_f64() * CYCLES_PER_S as f64) as u64;
+            while self.cycles < due {
+                self.board.step();
+                self.cycles += 1;
+            }
+        }
+    }
+
+    impl crate::link::memory::TargetMemory for RunningBoard {
+        fn read(&mut self, address: u64, buf: &mut [u8]) -> io::Result<()> {
+            self.catch_up();
+            crate::link::memory::TargetMemory::read(&mut self.board.world().ram, address, buf)
+        }
+
+        fn write(&mut self, address: u64, bytes: &[u8]) -> io::Result<()> {
+            self.catch_up();
+            crate::link::memory::TargetMemory::write(&mut self.board.world().ram, address, bytes)
+        }
+    }
+
+    /// `--probe`'s path with the probe's transport over the stand-in: the RTT block found by
+    /// scanning RAM, as [`crate::link::probe::attach`] does without an ELF.
+    fn stand_in_probe() -> Source {
+        Source::Probe(LiveLink {
+            what: "simulated board through the probe's transport".into(),
+            open: Box::new(|| {
+                let locate =
+                    crate::link::rtt::Locate::Scan(vec![crate::board::ram::SimRam::range()]);
+                crate::link::rtt::RttChannels::attach(RunningBoard::boot(), &locate)
+                    .map(|c| Box::new(c) as Box<dyn Channels>)
+            }),
+        })
+    }
+
+    /// The console's board path over the probe's interface: Home, then Start at pressure
+    /// ratio 3.1 strokes the piston over ≥ 150 mm and reads `running`, and Stop brings it
+    /// to `holding` — the same controls, frames and answers a board behind a probe gives.
+    #[test]
+    fn the_board_path_runs_the_console_over_the_probes_transport() {
+        let out = tempfile::tempdir().unwrap();
+        let source = stand_in_probe();
+        assert_eq!(source.mode(), "probe");
+        let feed = Feed::start(source, out.path().to_path_buf());
+        let mut rx = feed.messages.subscribe();
+        feed.controls.send(Control::Home).unwrap();
+        until(&mut rx, 30.0, |m| {
+            m["type"] == "log" && m["text"] == "accepted: home"
+        });
+        until(&mut rx, 30.0, |m| {
+            m["type"] == "frames" && m["mode"] == "holding" && m["homed"] == true
+        });
+        feed.controls
+            .send(Control::Start {
+                pressure_ratio: 3.1,
+                speed_mps: None,
+                rotation: "compressor".into(),
+            })
+            .unwrap();
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        until(&mut rx, 30.0, |m| {
+            if m["type"] == "frames" && m["mode"] == "running" {
+                for x in m["x"].as_array().unwrap() {
+                    let x = x.as_f64().unwrap();
+                    (lo, hi) = (lo.min(x), hi.max(x));
+                }
+            }
+            hi - lo >= 0.150
+        });
+        feed.controls.send(Control::Stop).unwrap();
+        until(&mut rx, 30.0, |m| {
+            m["type"] == "frames" && m["mode"] == "holding"
+        });
+        feed.finish().unwrap();
+        // Nothing recorded, nothing written.
+        assert_eq!(std::fs::read_dir(out.path()).unwrap().count(), 0);
+    }
+
+    /// A live link that cannot be opened ends the link thread with its error, said on the
+    /// page.
+    #[test]
+    fn a_live_link_that_does_not_open_ends_with_its_error() {
+        let out = tempfile::tempdir().unwrap();
+        let feed = Feed::start(
+            Source::Probe(LiveLink {
+                what: "nothing".into(),
+                open: Box::new(|| Err("no debug probe found".into())),
+            }),
+            out.path().to_path_buf(),
+        );
+        let mut rx = feed.messages.subscribe();
+        let end = Instant::now() + Duration::from_secs(10);
+        while !feed.ended() && Instant::now() < end {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        assert_eq!(feed.finish(), Err("no debug probe found".to_string()));
+        let _ = rx.try_recv();
+        assert_eq!(std::fs::read_dir(out.path()).unwrap().count(), 0);
     }
 
     /// A replay answers the controls from its recording, the answers before shown as

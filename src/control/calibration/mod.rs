@@ -7,6 +7,7 @@
 //! | [`Routine::Alignment`] | encoder angle ↔ magnets, per section | a current vector at a forced angle, one section at a time, approached from both sides at 8 angles over a period | `angle_offset.*` |
 //! | [`Routine::Misalignment`] | the slave's frame against the master's (Eq. 4's sine error) | the master alone holds the position on constant-velocity sweeps while the slave carries a d-current of ±I: the master's force changes by `2·K_f·I·sin ε` | `angle_offset.slave`; reports `D_dif` and the master−slave encoder offset |
 //! | [`Routine::Cogging`] | detent force over the pitch | constant-velocity sweeps both ways under position control, `−(F_motors + F_gas)` fitted by harmonics; the two directions' average cancels friction | `allocation.cogging` |
+//! | [`Routine::EncoderMap`] | the slave encoder's difference from the master's (paper §4.2, Fig. 6) | constant-velocity sweeps both ways at two speeds; the difference binned over the master's period, fitted as a saw stepping once a pitch, a part per direction and a velocity coefficient ([`encoder_map`]) | `encoder_map` (the slave's reading corrected) |
 //!
 //! Each routine is a state machine. While one runs, the controller calls
 //! [`Calibration::step`] once per cycle with what it measured ([`Measurements`]) and does what
@@ -60,16 +61,20 @@ pub enum Routine {
     Misalignment = 2,
     /// Cogging map (homed).
     Cogging = 3,
+    /// The slave encoder's difference from the master's, mapped and corrected (homed;
+    /// optional: the machine runs without it).
+    EncoderMap = 4,
 }
 
 impl Routine {
     /// Every routine, in number order (and in the order a new machine runs them, homing
     /// between alignment and misalignment).
-    pub const ALL: [Routine; 4] = [
+    pub const ALL: [Routine; 5] = [
         Routine::CurrentSense,
         Routine::Alignment,
         Routine::Misalignment,
         Routine::Cogging,
+        Routine::EncoderMap,
     ];
 
     /// Stable snake_case name.
@@ -79,6 +84,7 @@ impl Routine {
             Routine::Alignment => "alignment",
             Routine::Misalignment => "misalignment",
             Routine::Cogging => "cogging",
+            Routine::EncoderMap => "encoder_map",
         }
     }
 
@@ -89,7 +95,10 @@ impl Routine {
 
     /// Whether the routine moves the piston under position control (it needs the zero).
     pub const fn needs_homing(self) -> bool {
-        matches!(self, Routine::Misalignment | Routine::Cogging)
+        matches!(
+            self,
+            Routine::Misalignment | Routine::Cogging | Routine::EncoderMap
+        )
     }
 }
 
@@ -98,6 +107,8 @@ impl Routine {
 pub struct Measurements<'a> {
     /// Position (the homed frame once homed, else the raw frame), m.
     pub position_m: f32,
+    /// The slave encoder's position in the same frame, m.
+    pub slave_position_m: f32,
     /// Velocity, m/s.
     pub velocity_mps: f32,
     /// Each section's encoder angle, without offset (wrapping, 2³² = one period).
@@ -167,6 +178,8 @@ pub enum Outcome {
     Misalignment(Misalignment),
     /// The cogging map.
     Cogging(HarmonicMap),
+    /// The encoder-difference map.
+    EncoderMap(EncoderMap),
 }
 
 impl Outcome {
@@ -180,6 +193,7 @@ impl Outcome {
             Outcome::Alignment(offsets) => config.angle_offset = *offsets,
             Outcome::Misalignment(m) => config.angle_offset.slave = m.slave_angle_offset,
             Outcome::Cogging(map) => config.allocation.cogging = *map,
+            Outcome::EncoderMap(map) => config.encoder_map = Some(*map),
         }
     }
 }
@@ -207,6 +221,9 @@ pub enum CalibrationError {
     MisalignmentImplausible,
     /// No room for the sweeps between the heads from where the piston is.
     NoRoom,
+    /// The encoder map's sweeps left part of the period without a sample: the piston did not
+    /// move as commanded. Check that it is free to move, then map again.
+    MapIncomplete,
 }
 
 impl core::fmt::Display for CalibrationError {
@@ -237,6 +254,10 @@ impl core::fmt::Display for CalibrationError {
             CalibrationError::NoRoom => {
                 f.write_str("no room for the sweeps between the heads from where the piston is")
             }
+            CalibrationError::MapIncomplete => f.write_str(
+                "the encoder map's sweeps left part of the period without a sample: check that \
+                 the piston is free to move, then map again",
+            ),
         }
     }
 }
@@ -268,6 +289,10 @@ impl Calibrated {
             }
             Ok(Outcome::Misalignment(m)) => self.misalignment = Some(m),
             Ok(Outcome::Cogging(map)) => self.cogging = Some(map),
+            // Held in the configuration alone (`ControlConfig::encoder_map`), not in the
+            // record: a record is copied whole at every boot and save, and the map is not
+            // stored in flash (mapped again after a power cut).
+            Ok(Outcome::EncoderMap(_)) => {}
             Err(e) => self.last_error = Some((routine, e)),
         }
     }
@@ -299,6 +324,7 @@ enum State {
     CurrentSense(SenseAverage),
     Alignment(Aligner),
     Sweeps(Sweeps),
+    EncoderMap(EncoderMapper),
 }
 
 impl Calibration {
@@ -333,6 +359,9 @@ impl Calibration {
             (Routine::Misalignment | Routine::Cogging, Some(position_m)) => {
                 State::Sweeps(Sweeps::new(config, position_m, routine)?)
             }
+            (Routine::EncoderMap, Some(position_m)) => {
+                State::EncoderMap(EncoderMapper::new(config, position_m)?)
+            }
         };
         Ok(Calibration { routine, state })
     }
@@ -348,6 +377,7 @@ impl Calibration {
             State::CurrentSense(s) => s.step(&config.calibration, m),
             State::Alignment(a) => a.step(config, m),
             State::Sweeps(s) => s.step(config, m, self.routine),
+            State::EncoderMap(e) => e.step(config, m),
         }
     }
 }
@@ -367,12 +397,15 @@ fn cycles(s: f32, dt: f32) -> u32 {
 }
 
 mod align;
+pub mod encoder_map;
 pub mod record;
 mod sense;
 pub mod store;
 mod sweeps;
 
 use align::Aligner;
+pub use encoder_map::EncoderMap;
+use encoder_map::EncoderMapper;
 use sense::SenseAverage;
 pub use sense::SenseMonitor;
 use sweeps::Sweeps;
@@ -390,7 +423,7 @@ mod tests {
             assert_eq!(*r as u8 as usize, i);
             assert_eq!(Routine::from_code(i as u8), Some(*r));
         }
-        assert_eq!(Routine::from_code(4), None);
+        assert_eq!(Routine::from_code(Routine::ALL.len() as u8), None);
     }
 
     #[test]
@@ -448,6 +481,7 @@ mod tests {
             let mut cal = Calibration::new(Routine::CurrentSense, &config, None).unwrap();
             let m = Measurements {
                 position_m: 0.0,
+                slave_position_m: 0.0,
                 velocity_mps: 0.0,
                 angle: PerSection::default(),
                 currents: &codes,

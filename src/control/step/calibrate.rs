@@ -95,6 +95,7 @@ pub(super) fn measurements<'a>(
     };
     Measurements {
         position_m: now.position_m,
+        slave_position_m: now.slave_position_m,
         velocity_mps: now.velocity_mps,
         angle: PerSection {
             master: angle_of(raw_m, c.encoder_master.period_m),

@@ -221,7 +221,9 @@ impl ControlStep {
                 // The decoders copy their sin/cos correction when built.
                 self.sensing.encoders = PerSection {
                     master: SinCosDecoder::new(self.config.encoder_master),
-                    slave: SinCosDecoder::new(self.config.encoder_slave),
+                    slave: SinCosDecoder::new(
+                        crate::control::calibration::encoder_map::slave_encoder(&self.config),
+                    ),
                 };
                 self.plan.calibration.calibrated = record.calibrated;
                 self.plan.calibration.status = record.status();

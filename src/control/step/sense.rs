@@ -43,7 +43,9 @@ impl Sensing {
         Sensing {
             encoders: PerSection {
                 master: SinCosDecoder::new(config.encoder_master),
-                slave: SinCosDecoder::new(config.encoder_slave),
+                slave: SinCosDecoder::new(crate::control::calibration::encoder_map::slave_encoder(
+                    config,
+                )),
             },
             differentiator,
             quadrature: QuadratureCounter::new(),
@@ -291,7 +293,17 @@ impl Sensing {
         let derivatives = self.differentiator.push(master.position);
         let m_per_count = c.encoder_master.m_per_count();
         let raw_m = master.position.to_bits() as f32 * m_per_count;
-        let slave_raw_m = c.encoder_slave.metres(slave.position);
+        let mut slave_raw_m = c.encoder_slave.metres(slave.position);
+        if let Some(map) = &c.encoder_map {
+            // The slave's mapped difference from the master (paper §4.2), taken out of its
+            // reading and of its section's commutation angle.
+            map.correct(
+                master.angle,
+                derivatives.velocity_mps,
+                &mut slave_raw_m,
+                &mut slave.angle,
+            );
+        }
         let zero = self.zero_raw_m.unwrap_or(0.0);
         let position_m = raw_m - zero;
 

@@ -329,6 +329,7 @@ enum RoutineArg {
     Alignment,
     Misalignment,
     Cogging,
+    EncoderMap,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -380,6 +381,7 @@ impl CommandArg {
                     RoutineArg::Alignment => Routine::Alignment,
                     RoutineArg::Misalignment => Routine::Misalignment,
                     RoutineArg::Cogging => Routine::Cogging,
+                    RoutineArg::EncoderMap => Routine::EncoderMap,
                 },
             },
             CommandArg::SetParameter { name, value } => Command::SetParameter {

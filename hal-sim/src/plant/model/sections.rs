@@ -336,6 +336,14 @@ pub struct Supply {
     /// The servo drive's efficiency: its shaft power drawn from the link divided by it
     /// (what the servo brakes is burnt in its drive, none goes back).
     pub servo_efficiency: f64,
+    /// Knee voltage of a conducting switch or diode of a section's bridge, V (its loss
+    /// model: `plant::bridge`).
+    pub bridge_forward_voltage_v: f64,
+    /// Slope resistance of a conducting switch or diode, Ω.
+    pub bridge_on_resistance_ohm: f64,
+    /// Turn-on plus turn-off energy of a bridge leg per volt of link and ampere switched,
+    /// J/(V·A).
+    pub bridge_switching_energy_j_per_va: f64,
 }
 
 checks!(Supply {
@@ -345,6 +353,9 @@ checks!(Supply {
     logic_dropout_voltage_v: Positive, 1.0, 2000.0, "V";
     logic_power_w: NonNegative, 0.0, 10_000.0, "W";
     servo_efficiency: Positive, 0.05, 1.0, "";
+    bridge_forward_voltage_v: NonNegative, 0.0, 10.0, "V";
+    bridge_on_resistance_ohm: NonNegative, 0.0, 10.0, "Ω";
+    bridge_switching_energy_j_per_va: NonNegative, 0.0, 1e-4, "J/(V·A)";
 });
 
 impl Default for Supply {
@@ -357,6 +368,9 @@ impl Default for Supply {
             logic_dropout_voltage_v: supply::LOGIC_DROPOUT_VOLTAGE_V,
             logic_power_w: supply::LOGIC_POWER_W,
             servo_efficiency: supply::SERVO_EFFICIENCY,
+            bridge_forward_voltage_v: supply::BRIDGE_FORWARD_VOLTAGE_V,
+            bridge_on_resistance_ohm: supply::BRIDGE_ON_RESISTANCE_OHM,
+            bridge_switching_energy_j_per_va: supply::BRIDGE_SWITCHING_ENERGY_J_PER_VA,
         }
     }
 }
@@ -750,6 +764,10 @@ pub struct Published {
     pub rest_s: f64,
     /// Current limit of each drive, A (0 = the motor's `current_limit_a`).
     pub current_limit_a: f64,
+    /// Share of each stroke spent accelerating, and again braking, at a constant rate
+    /// (0.5: the paper's accelerate-then-stop triangle; less: a cruise at the peak speed
+    /// between two steeper ramps).
+    pub profile_ramp_fraction: f64,
 }
 
 checks!(Published {
@@ -765,6 +783,7 @@ checks!(Published {
     current_bandwidth_hz: NonNegative, 10.0, 5000.0, "Hz";
     rest_s: NonNegative, 0.0, 60.0, "s";
     current_limit_a: NonNegative, 0.0, 1000.0, "A";
+    profile_ramp_fraction: Positive, 0.02, 0.5, "";
 });
 
 impl Default for Published {
@@ -783,6 +802,7 @@ impl Default for Published {
             current_bandwidth_hz: p::CURRENT_BANDWIDTH_HZ,
             rest_s: p::REST_S,
             current_limit_a: p::CURRENT_LIMIT_A,
+            profile_ramp_fraction: p::PROFILE_RAMP_FRACTION,
         }
     }
 }
