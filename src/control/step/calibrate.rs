@@ -4,7 +4,7 @@
 use super::modes::Mode;
 use super::{ControlStep, CycleInputs};
 use crate::control::calibration::record::{CalibrationRecord, CalibrationStatus};
-use crate::control::calibration::{Calibrated, Demand, Measurements, SenseMonitor};
+use crate::control::calibration::{Calibrated, Demand, Measurements, Outcome, SenseMonitor};
 use crate::drive::allocation::allocate;
 use crate::motion::trajectory::Setpoint;
 use crate::physics::motor::Dq;
@@ -88,6 +88,15 @@ impl ControlStep {
         if let Demand::Done(result) = demand {
             if let Ok(outcome) = &result {
                 outcome.apply(&mut self.config);
+                if let Outcome::EncoderMap(_) = outcome {
+                    // The slave's gate passes the map's step from the next cycle on.
+                    let slave =
+                        crate::control::calibration::encoder_map::slave_encoder(&self.config);
+                    self.sensing
+                        .encoders
+                        .slave
+                        .set_glitch_gate(slave.glitch_gate_periods);
+                }
                 self.calibration.unsaved = true;
             }
             self.calibration.calibrated.record(routine, result);
