@@ -10,7 +10,7 @@ use crate::angle::wrap_signed_rad;
 use crate::control::config::ControlConfig;
 use crate::drive::allocation::allocate;
 use crate::drive::servo::{RotarySetpoint, ServoController};
-use crate::motion::stroke::Direction;
+use crate::motion::stroke::{Direction, StrokeGenerator};
 use crate::motion::synchroniser::{Rotation, Synchroniser};
 use crate::motion::trajectory::Setpoint;
 use crate::motion::volume_ratio::{Chamber, VolumeRatio};
@@ -108,6 +108,8 @@ impl RotaryAxis {
 
     /// The turn from the rotation reference to the phase a stroke in `direction` starts at
     /// from rest (0 at dead point A, π at dead point B), the shorter way, rad in [−π, π).
+    #[cold]
+    #[inline(never)]
     pub(super) fn start_turn_rad(&self, direction: Direction) -> f32 {
         let start_phase = match direction {
             Direction::TowardB => 0.0,
@@ -116,11 +118,18 @@ impl RotaryAxis {
         wrap_signed_rad(start_phase - self.reference_rad)
     }
 
-    /// One cycle of the turn before the first stroke: the rotation reference moves toward
-    /// the starting phase of a stroke in `direction` at [`VENT_SPEED_RAD_S`].
-    pub(super) fn turn_to_start(&mut self, direction: Direction, dt: f32) {
+    /// One cycle of the turn before the first stroke of `g` (while it waits): the rotation
+    /// reference moves toward that stroke's starting phase at [`VENT_SPEED_RAD_S`]. True
+    /// once the wait is over (the stroke's half cycle is to begin).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn turn_to_start(&mut self, g: &StrokeGenerator, dt: f32) -> bool {
+        if !g.waiting() {
+            return true;
+        }
         let step = VENT_SPEED_RAD_S * dt;
-        self.reference_rad += clamp_f32(self.start_turn_rad(direction), -step, step);
+        self.reference_rad += clamp_f32(self.start_turn_rad(g.direction()), -step, step);
+        false
     }
 
     /// Whether the rotation turns at less than a quarter of its reference's speed.

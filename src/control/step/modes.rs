@@ -143,10 +143,7 @@ impl ControlStep {
                 let stopped = g.stopped();
                 // The turn before the first stroke (`Command::Start`); that stroke's half
                 // cycle begins as the turn ends.
-                let started = waited && !g.waiting();
-                if g.waiting() {
-                    self.rotary.turn_to_start(g.direction(), dt);
-                }
+                let started = waited && self.rotary.turn_to_start(g, dt);
                 if let Some(d) = dead {
                     self.last_dead_point = Some(d);
                 }
