@@ -3,11 +3,14 @@
 //! servo that turns the piston in step with the stroke.
 
 use super::modes::Mode;
+use super::safe_state::{VENT_SPEED_RAD_S, VENT_TIME_S};
 use super::sense::Sensed;
 use super::{ControlStep, CycleInputs};
+use crate::angle::wrap_signed_rad;
 use crate::control::config::ControlConfig;
 use crate::drive::allocation::allocate;
 use crate::drive::servo::{RotarySetpoint, ServoController};
+use crate::motion::stroke::{Direction, StrokeGenerator};
 use crate::motion::synchroniser::{Rotation, Synchroniser};
 use crate::motion::trajectory::Setpoint;
 use crate::motion::volume_ratio::{Chamber, VolumeRatio};
@@ -17,6 +20,7 @@ use crate::physics::motor::Dq;
 use crate::real::clamp_f32;
 use crate::sensing::differentiator::Derivatives;
 use crate::units::{DacCode, PerSection, PhaseDuties, Section};
+use core::f32::consts::PI;
 
 /// The rotation's state: the servo, the synchroniser that slaves it to the stroke, the
 /// volume ratio that places the port edge, and the reference it tracks.
@@ -36,6 +40,11 @@ pub(super) struct RotaryAxis {
     /// The discharge pressure the current half cycle's opening was planned for, Pa.
     pub planned_discharge_pa: f32,
 }
+
+/// How long a start holds the piston while the rotation turns to the first stroke's
+/// starting phase, s: half a turn, the farthest, at [`VENT_SPEED_RAD_S`] and 0.25 s for the
+/// servo to settle there.
+pub(super) const START_TURN_TIME_S: f32 = VENT_TIME_S;
 
 impl RotaryAxis {
     pub(super) fn new(config: &ControlConfig) -> Self {
@@ -95,6 +104,32 @@ impl RotaryAxis {
             self.turns = self.turns.saturating_add(turns);
         }
         servo
+    }
+
+    /// The turn from the rotation reference to the phase a stroke in `direction` starts at
+    /// from rest (0 at dead point A, π at dead point B), the shorter way, rad in [−π, π).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn start_turn_rad(&self, direction: Direction) -> f32 {
+        let start_phase = match direction {
+            Direction::TowardB => 0.0,
+            Direction::TowardA => PI,
+        };
+        wrap_signed_rad(start_phase - self.reference_rad)
+    }
+
+    /// One cycle of the turn before the first stroke of `g` (while it waits): the rotation
+    /// reference moves toward that stroke's starting phase at [`VENT_SPEED_RAD_S`]. True
+    /// once the wait is over (the stroke's half cycle is to begin).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn turn_to_start(&mut self, g: &StrokeGenerator, dt: f32) -> bool {
+        if !g.waiting() {
+            return true;
+        }
+        let step = VENT_SPEED_RAD_S * dt;
+        self.reference_rad += clamp_f32(self.start_turn_rad(g.direction()), -step, step);
+        false
     }
 
     /// Whether the rotation turns at less than a quarter of its reference's speed.

@@ -1,5 +1,6 @@
 //! Host commands: what each may change, and when. A refused command changes nothing.
 
+use super::actuate::START_TURN_TIME_S;
 use super::modes::{AfterStop, Mode};
 use super::safe_state::FaultedBrake;
 use super::ControlStep;
@@ -11,6 +12,7 @@ use crate::motion::trajectory::PointToPoint;
 use crate::motion::volume_ratio::RatioTarget;
 use crate::safety::faults::Fault;
 use crate::sensing::homing::Homing;
+use core::f32::consts::FRAC_PI_2;
 
 impl ControlStep {
     /// Handles a host command. A refused command changes nothing.
@@ -79,8 +81,16 @@ impl ControlStep {
                 };
                 let mut stroke = self.config.stroke;
                 stroke.peak_speed_mps = peak_speed_mps;
-                let generator = StrokeGenerator::new(stroke, sp.position_m);
-                self.begin_half(&generator);
+                let mut generator = StrokeGenerator::new(stroke, sp.position_m);
+                // The first stroke's rotation starts from the phase of the dead point the
+                // piston rests at. A rotation nearer the other dead point's phase (a piston
+                // moved across the stroke with the rotation still, as homing does) first
+                // turns there, the piston held.
+                if self.rotary.start_turn_rad(generator.direction()).abs() > FRAC_PI_2 {
+                    generator.wait(START_TURN_TIME_S);
+                } else {
+                    self.begin_half(&generator);
+                }
                 self.mode = Mode::Running(generator);
                 // The plausibility of the chamber pressures is judged over running strokes.
                 self.sensing.pressures.restart_stroke_watch();

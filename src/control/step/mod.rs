@@ -402,7 +402,7 @@ impl ControlStep {
         let plan = self.plan(&sensed);
         let pwm = self.actuate(inputs, &sensed, plan);
         let stroke = match (&self.mode, &plan) {
-            (Mode::Running(_), Some((sp, _))) => Some(sp),
+            (Mode::Running(g), Some((sp, _))) if !g.waiting() => Some(sp),
             _ => None,
         };
         let servo = self.rotary.rotate(

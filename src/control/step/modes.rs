@@ -138,10 +138,16 @@ impl ControlStep {
                 Some((sp, limit))
             }
             Mode::Running(g) => {
+                let waited = g.waiting();
                 let (sp, dead) = g.step(dt, self.status.position_m);
                 let stopped = g.stopped();
+                // The turn before the first stroke (`Command::Start`); that stroke's half
+                // cycle begins as the turn ends.
+                let started = waited && self.rotary.turn_to_start(g, dt);
                 if let Some(d) = dead {
                     self.last_dead_point = Some(d);
+                }
+                if started || dead.is_some() {
                     let generator = g.clone();
                     self.begin_half(&generator);
                 }
