@@ -3,9 +3,10 @@
 //! of the declared 0.1 mm stepping once a magnetic pitch, 0.05 mm more moving toward head B).
 //! The routine (`Calibrate EncoderMap`) maps the difference on slow sweeps; with the map
 //! loaded, the slave's reading differs from the master's by at most 10 % of what it did
-//! (RMS), moving either way, on strokes at three speeds well above the sweeps'. (The map is
-//! not yet part of the flash record: it is loaded here as the configuration, as a
-//! commissioned machine loads its calibration at start-up, when the decoders are built.)
+//! (RMS), moving either way, on strokes at three speeds well above the sweeps': on the
+//! machine that has just mapped (the slave decoder's glitch gate widened as the routine
+//! ends, its position running on) and with the map given at start-up, when the decoders are
+//! built. (The map is not part of the flash record: it is mapped again after a power cut.)
 
 mod support;
 
@@ -85,12 +86,14 @@ fn the_mapped_slave_reading_differs_from_the_masters_by_a_tenth_of_what_it_did()
         .map(|&v| difference(&mut bench, v, None))
         .collect();
 
-    // Mapped as on a commissioning: the start-up bypass open (the rotation is not driven
-    // during a routine), homed first (the sweeps start from the park position).
-    bench.world_mut().plant.port_mode = PortMode::Unloaded;
-    bench.home();
-    calibrate(&mut bench, Routine::EncoderMap);
-    let map = bench.step.config().encoder_map.expect("the encoder map");
+    // Mapped as on a commissioning, on a machine fresh from power-up: the start-up bypass
+    // open (the rotation is not driven during a routine), homed first (the sweeps start
+    // from the park position).
+    let mut mapping = Bench::new(&model, hal_sim::run::control_config(&model), 11, 0.05);
+    mapping.world_mut().plant.port_mode = PortMode::Unloaded;
+    mapping.home();
+    calibrate(&mut mapping, Routine::EncoderMap);
+    let map = mapping.step.config().encoder_map.expect("the encoder map");
     println!(
         "map: saw {:.1} µm stepping at {:.3} of the period, toward +x {:+.1} µm, toward −x \
          {:+.1} µm, velocity coefficient {:+.2} µm per m/s, fit residual {:.2} µm",
@@ -115,15 +118,36 @@ fn the_mapped_slave_reading_differs_from_the_masters_by_a_tenth_of_what_it_did()
     );
     assert!(map.velocity_s.abs() < 2e-6, "{} s", map.velocity_s);
 
-    // The map loaded as a commissioned machine loads its calibration at start-up.
+    // Judged twice: on the machine that has just run the routine (homed again with the
+    // ports timed), and with the map loaded as a commissioned machine loads its calibration
+    // at start-up.
+    mapping.world_mut().plant.port_mode = PortMode::Timed;
+    mapping.home();
     let mut config = hal_sim::run::control_config(&model);
     config.encoder_map = Some(map);
-    let mut mapped = Bench::new(&model, config, 11, 0.05);
-    mapped.home();
+    let mut loaded = Bench::new(&model, config, 11, 0.05);
+    loaded.home();
+    for (machine, mapped) in [
+        ("loaded at start-up", &mut loaded),
+        ("just mapped", &mut mapping),
+    ] {
+        judge(machine, mapped, &before, &map);
+    }
+}
+
+/// The slave − master pattern left on `mapped` at the three speeds, against `before`:
+/// ≤ 10 % of it, both directions, and the directions' means together.
+fn judge(
+    machine: &str,
+    mapped: &mut Bench,
+    before: &[[Spread; 2]],
+    map: &fpc::control::calibration::EncoderMap,
+) {
+    println!("{machine}:");
     let mut worst: f64 = 0.0;
     let mut worst_away: f64 = 0.0;
-    for (speed, before) in SPEEDS.iter().zip(&before) {
-        let after = difference(&mut mapped, *speed, Some(f64::from(map.step_phase)));
+    for (speed, before) in SPEEDS.iter().zip(before) {
+        let after = difference(mapped, *speed, Some(f64::from(map.step_phase)));
         for (k, way) in ["toward +x", "toward −x"].iter().enumerate() {
             let ratio = after[k].1 / before[k].1;
             let ratio_away = after[k].2 / before[k].1;
@@ -152,16 +176,22 @@ fn the_mapped_slave_reading_differs_from_the_masters_by_a_tenth_of_what_it_did()
             split * 1e6
         );
     }
-    // ≤ 10 % of the pattern left, both directions, three speeds (measured 7.1–8.2 %: what is
-    // left is the encoders' noise, ≈ 2 µm RMS). It needs the slave decoder's glitch gate
-    // widened by the map's step (`encoder_map::slave_encoder`): with the plain 50 µm gate the
-    // decoder extrapolates over the scale's 0.1 mm step and re-locks a cycle or two later,
-    // leaving those samples a whole step wrong (measured 13–25 %). Away from the step alone
-    // (beyond ±0.25 mm) 5.5–6.5 %.
+    // ≤ 10 % of the pattern left, both directions, three speeds (measured 5.9–7.0 % just
+    // mapped, 5.8–9.7 % given at start-up: what is left is the encoders' noise, ≈ 2 µm RMS).
+    // It needs the slave decoder's glitch gate widened by the map's step
+    // (`encoder_map::slave_encoder`, and `set_glitch_gate` as the routine ends): with the
+    // plain 50 µm gate the decoder extrapolates over the scale's 0.1 mm step and re-locks a
+    // cycle or two later, leaving those samples a whole step wrong (measured 13.6–25.5 % on
+    // the machine that had just mapped). Away from the step alone (beyond ±0.25 mm)
+    // 5.5–6.7 %.
     assert!(
         worst_away <= 0.10,
-        "{:.1} % of the pattern left away from the step",
+        "{machine}: {:.1} % of the pattern left away from the step",
         100.0 * worst_away
     );
-    assert!(worst <= 0.10, "{:.1} % of the pattern left", 100.0 * worst);
+    assert!(
+        worst <= 0.10,
+        "{machine}: {:.1} % of the pattern left",
+        100.0 * worst
+    );
 }

@@ -142,6 +142,19 @@ impl StrokeGenerator {
         self.config.peak_speed_mps = peak_speed_mps;
     }
 
+    /// Holds the reference at rest where it starts for `wait_s` (s, ≥ 0) before the first
+    /// stroke; only before that stroke has begun.
+    pub fn wait(&mut self, wait_s: f32) {
+        if self.half_cycles == 0 && self.elapsed_s <= 0.0 {
+            self.elapsed_s = -max_f32(wait_s, 0.0);
+        }
+    }
+
+    /// Whether the reference still rests before the first stroke ([`Self::wait`]).
+    pub fn waiting(&self) -> bool {
+        self.elapsed_s < 0.0
+    }
+
     /// Finishes the current stroke, then stops at its dead point.
     pub fn request_stop(&mut self) {
         self.stop_requested = true;
@@ -210,6 +223,31 @@ impl StrokeGenerator {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_wait_holds_the_reference_at_rest_before_the_first_stroke() {
+        let mut g = StrokeGenerator::new(StrokeConfig::reference(2.0), 0.01);
+        g.wait(0.1);
+        let mut rest_cycles = 0;
+        while g.waiting() {
+            let (sp, dead) = g.step(50e-6, 0.01);
+            assert_eq!(dead, None);
+            if g.waiting() {
+                assert_eq!((sp.position_m, sp.velocity_mps), (0.01, 0.0));
+            }
+            rest_cycles += 1;
+        }
+        // 0.1 s of 50 µs cycles (± one for the f32 clock).
+        assert!((1999..=2001).contains(&rest_cycles), "{rest_cycles}");
+        let mut sp = Setpoint::at_rest(0.01);
+        for _ in 0..200 {
+            sp = g.step(50e-6, 0.01).0;
+        }
+        assert!(sp.position_m > 0.0101 && sp.velocity_mps > 0.0, "{sp:?}");
+        // Once stroking, a wait changes nothing.
+        g.wait(0.1);
+        assert!(!g.waiting());
+    }
 
     #[test]
     fn strokes_alternate_and_report_dead_points() {

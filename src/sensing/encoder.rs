@@ -440,6 +440,21 @@ impl SinCosDecoder {
         }
     }
 
+    /// Sets the glitch gate (periods of the scale, 0–0.49) without restarting the decoder:
+    /// the angle, its step and the period count run on, so the position found by homing
+    /// still holds. A calibration that changes what the gate must pass calls it (out of
+    /// line: it runs once per routine, from flash, not from the control path's CCM SRAM).
+    #[inline(never)]
+    pub fn set_glitch_gate(&mut self, periods: f32) {
+        self.config.glitch_gate_periods = periods;
+        self.gate = (clamp_f32(periods, 0.0, 0.49) * 4_294_967_296.0) as u32;
+        // Before the second good sample the speed limit applies; the next good one
+        // switches to the (new) gate.
+        if self.gate_now != self.max_step {
+            self.gate_now = self.gate;
+        }
+    }
+
     /// The configuration.
     pub fn config(&self) -> &EncoderConfig {
         &self.config

@@ -43,7 +43,7 @@ pub use safe_state::HOLD_RELEASE_S;
 
 use crate::control::calibration::record::{CalibrationRecord, CalibrationStatus};
 use crate::control::calibration::store::LoadError;
-use crate::control::calibration::{Calibrated, Demand};
+use crate::control::calibration::{encoder_map, Calibrated, Demand, Outcome};
 use crate::control::command::{Command, Parameter, Refusal};
 use crate::control::config::{ConfigError, ControlConfig};
 use crate::motion::stroke::DeadPoint;
@@ -381,7 +381,7 @@ impl ControlStep {
 
         // Rotate.
         let stroke = match (&self.plan.mode, &planned.setpoint) {
-            (Mode::Running(_), Some((sp, _))) => Some(sp),
+            (Mode::Running(g), Some((sp, _))) if !g.waiting() => Some(sp),
             _ => None,
         };
         let servo = self.rotary.rotate(
@@ -607,6 +607,12 @@ impl ControlStep {
         if let Demand::Done(result) = demand {
             if let Ok(outcome) = &result {
                 outcome.apply(&mut self.config);
+                if let Outcome::EncoderMap(_) = outcome {
+                    // The slave's gate passes the map's step from the next cycle on.
+                    let slave = encoder_map::slave_encoder(&self.config);
+                    let gate = slave.glitch_gate_periods;
+                    self.sensing.encoders.slave.set_glitch_gate(gate);
+                }
             }
             self.plan.calibration.finish(routine, result, &self.config);
             let hold = Setpoint::at_rest(now.position_m);
@@ -727,9 +733,18 @@ impl ControlStep {
                 self.plan.mode = Mode::Homing(homing);
                 self.sensing.zero_raw_m = None;
             }
-            Change::Start(generator) => {
-                let last_pa = &self.sensing.pressures.last_pa;
-                modes::begin_half(&mut self.rotary, &generator, &self.config, last_pa);
+            Change::Start(mut generator) => {
+                // The first stroke's rotation starts from the phase of the dead point the
+                // piston rests at. A rotation nearer the other dead point's phase (a piston
+                // moved across the stroke with the rotation still, as homing does) first
+                // turns there, the piston held.
+                let turn_rad = self.rotary.start_turn_rad(generator.direction());
+                if turn_rad.abs() > core::f32::consts::FRAC_PI_2 {
+                    generator.wait(rotate::START_TURN_TIME_S);
+                } else {
+                    let last_pa = &self.sensing.pressures.last_pa;
+                    modes::begin_half(&mut self.rotary, &generator, &self.config, last_pa);
+                }
                 self.plan.mode = Mode::Running(generator);
                 // The plausibility of the chamber pressures is judged over running strokes.
                 self.sensing.pressures.restart_stroke_watch();

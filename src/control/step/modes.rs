@@ -188,10 +188,16 @@ impl Plan {
                 Some((sp, limit))
             }
             Mode::Running(g) => {
+                let waited = g.waiting();
                 let (sp, dead) = g.step(dt, x.previous.position_m);
                 let stopped = g.stopped();
+                // The turn before the first stroke (`Command::Start`); that stroke's half
+                // cycle begins as the turn ends.
+                let started = waited && rotary.turn_to_start(g, dt);
                 if let Some(d) = dead {
                     self.last_dead_point = Some(d);
+                }
+                if started || dead.is_some() {
                     begin_half(rotary, g, c, &x.pressures.last_pa);
                 }
                 if stopped {

@@ -2,9 +2,10 @@
 //! synchroniser slaves it to the measured stroke, the volume ratio places the timed port
 //! edge), and the park's turn to a phase where both chambers vent.
 
-use crate::angle::{wrap_rad_cold, wrap_signed_rad_cold};
+use crate::angle::{wrap_rad_cold, wrap_signed_rad, wrap_signed_rad_cold};
 use crate::control::config::ControlConfig;
 use crate::drive::servo::{RotarySetpoint, ServoController};
+use crate::motion::stroke::{Direction, StrokeGenerator};
 use crate::motion::synchroniser::{Rotation, Synchroniser};
 use crate::motion::trajectory::Setpoint;
 use crate::motion::volume_ratio::{Chamber, VolumeRatio};
@@ -21,6 +22,11 @@ pub const VENT_SPEED_RAD_S: f32 = core::f32::consts::TAU;
 /// half a turn at [`VENT_SPEED_RAD_S`] and 0.25 s for the servo to settle there. The park
 /// move's clock starts this far below zero (its path is at rest there).
 pub const VENT_TIME_S: f32 = 0.75;
+
+/// How long a start holds the piston while the rotation turns to the first stroke's
+/// starting phase, s: half a turn, the farthest, at [`VENT_SPEED_RAD_S`] and 0.25 s for the
+/// servo to settle there.
+pub const START_TURN_TIME_S: f32 = VENT_TIME_S;
 
 /// The rotation's state: the servo, the synchroniser that slaves it to the stroke, the
 /// volume ratio that places the port edge, and the reference it tracks.
@@ -99,6 +105,32 @@ impl RotaryAxis {
             self.turns = self.turns.saturating_add(turns);
         }
         servo
+    }
+
+    /// The turn from the rotation reference to the phase a stroke in `direction` starts at
+    /// from rest (0 at dead point A, π at dead point B), the shorter way, rad in [−π, π).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn start_turn_rad(&self, direction: Direction) -> f32 {
+        let start_phase = match direction {
+            Direction::TowardB => 0.0,
+            Direction::TowardA => core::f32::consts::PI,
+        };
+        wrap_signed_rad(start_phase - self.reference_rad)
+    }
+
+    /// One cycle of the turn before the first stroke of `g` (while it waits): the rotation
+    /// reference moves toward that stroke's starting phase at [`VENT_SPEED_RAD_S`]. True
+    /// once the wait is over (the stroke's half cycle is to begin).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn turn_to_start(&mut self, g: &StrokeGenerator, dt: f32) -> bool {
+        if !g.waiting() {
+            return true;
+        }
+        let step = VENT_SPEED_RAD_S * dt;
+        self.reference_rad += clamp_f32(self.start_turn_rad(g.direction()), -step, step);
+        false
     }
 
     /// Whether the rotation turns at less than a quarter of its reference's speed.
