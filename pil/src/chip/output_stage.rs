@@ -21,6 +21,7 @@
 //! `timer_v2`), and each is cited in its unit test.
 
 use super::timers::{reg, Timer};
+use crate::board::{Bridge, MIN_DEAD_TIME_NS};
 
 /// CCER of the three phase channels: CCxE, CCxP, CCxNE, CCxNP at 4·x.
 const CCER: u32 = 0x20;
@@ -89,22 +90,6 @@ pub fn writable(off: u32, level: u32, regs: &[u32]) -> u32 {
         }
         _ => !0,
     }
-}
-
-/// What one bridge's six gates do over the coming period.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Bridge {
-    /// Switching complementarily: the compare values drive the phases; `inverted` marks the
-    /// phases whose outputs are both inverted (CCxP = CCxNP = 1: the high side's on-time is
-    /// then the period less the compare value).
-    Switching {
-        /// Phases U, V, W with both outputs inverted.
-        inverted: [bool; 3],
-    },
-    /// Every gate low (MOE = 0, OSSI = 1, idle levels low): off.
-    Off,
-    /// Something the board cannot take: the reason, for the operator.
-    Unsafe(&'static str),
 }
 
 /// The bridge that the output stage of `t` drives now (RM0440, "Output control bits for
@@ -240,7 +225,7 @@ pub fn apply_system_break(t: &mut Timer) {
 impl super::Soc {
     /// The bridges as the two output stages drive them now, checked against what the board
     /// can take: an unsafe state, or a dead time below the bridge's minimum
-    /// ([`crate::board::MIN_DEAD_TIME_NS`]), ends the emulation with the reason (the bridge
+    /// ([`MIN_DEAD_TIME_NS`]), ends the emulation with the reason (the bridge
     /// would be destroyed, or its gates left to the pull-downs).
     pub(super) fn bridges(&mut self) -> [Bridge; 2] {
         if !self.powered {
@@ -257,11 +242,11 @@ impl super::Soc {
                 }
                 Bridge::Switching { .. } => {
                     let dead_ns = f64::from(dead_time_clocks(t)) * clock_ns;
-                    if dead_ns < crate::board::MIN_DEAD_TIME_NS {
+                    if dead_ns < MIN_DEAD_TIME_NS {
                         self.error.get_or_insert(format!(
                             "board: {name}: dead time {dead_ns:.0} ns, below the bridge's {:.0} ns: \
                              shoot-through",
-                            crate::board::MIN_DEAD_TIME_NS
+                            MIN_DEAD_TIME_NS
                         ));
                     }
                 }
@@ -269,11 +254,11 @@ impl super::Soc {
                     // The outputs taken, not yet switching: the dead time they will switch
                     // with is already set.
                     let dead_ns = f64::from(dead_time_clocks(t)) * clock_ns;
-                    if dead_ns < crate::board::MIN_DEAD_TIME_NS {
+                    if dead_ns < MIN_DEAD_TIME_NS {
                         self.error.get_or_insert(format!(
                             "board: {name}: dead time {dead_ns:.0} ns, below the bridge's {:.0} ns: \
                              shoot-through at the first switching",
-                            crate::board::MIN_DEAD_TIME_NS
+                            MIN_DEAD_TIME_NS
                         ));
                     }
                 }
