@@ -288,6 +288,11 @@ fn run_board(
 
 #[cfg(test)]
 mod tests {
+    use std::io;
+
+    use fpc::control::command::Command;
+    use fpc::link::telemetry::Ports;
+
     use super::host::Clock;
     use super::*;
 
