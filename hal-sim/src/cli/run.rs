@@ -256,7 +256,7 @@ fn write_outputs(
 ) -> CmdResult {
     plot_motion(out.path("motion.svg").as_path(), &outcome.log).map_err(Failure::runtime)?;
     plot_pv(out.path("pv.svg").as_path(), &outcome.log).map_err(Failure::runtime)?;
-    plot_energy(out.path("energy.svg").as_path(), &outcome).map_err(Failure::runtime)?;
+    plot_energy(out.path("energy.svg").as_path(), outcome).map_err(Failure::runtime)?;
     // The summary beside the files it describes, as `--json` prints it.
     let summary_path = out.path("summary.json");
     let summary_text = serde_json::to_string_pretty(&outcome.summary)
