@@ -251,45 +251,13 @@ fn decode_frames(
             CHANNELS[..7].join(", ")
         ));
     }
-    // The decimation is the most common sequence step; any other step is a gap.
-    let steps: Vec<u16> = frames
-        .windows(2)
-        .map(|w| w[1].seq.wrapping_sub(w[0].seq))
-        .collect();
-    // A step of 0 is no step (a repeated sequence number is a gap, never the decimation).
-    let nonzero: Vec<u16> = steps.iter().copied().filter(|&s| s > 0).collect();
-    let decimation = mode_of(&nonzero).unwrap_or(1);
-    let tick_steps: Vec<u32> = frames
-        .windows(2)
-        .map(|w| w[1].t.0.wrapping_sub(w[0].t.0))
-        .collect();
-    let positive: Vec<u32> = tick_steps.iter().copied().filter(|&t| t > 0).collect();
-    let tick_step = mode_of(&positive).unwrap_or(0);
-    // A break: a frame lost (the step), another rate, other channels, or the ports
-    // declared otherwise — except a bypass closing (bypassed → timed or sealed), which the
-    // log states as `# ports_from_s`.
-    let breaks: Vec<usize> = frames
-        .windows(2)
-        .zip(steps.iter().zip(&tick_steps))
-        .enumerate()
-        .filter(|(_, (w, (&s, &t)))| {
-            s != decimation
-                || t != tick_step
-                || w[1].channels != w[0].channels
-                || (w[1].ports != w[0].ports && w[0].ports != Ports::Bypassed)
-        })
-        .map(|(i, _)| i + 1)
-        .collect();
-    // Longest run of frames between breaks.
-    let bounds: Vec<usize> = std::iter::once(0)
-        .chain(breaks.iter().copied())
-        .chain(std::iter::once(frames.len()))
-        .collect();
-    let (start, end) = bounds
-        .windows(2)
-        .map(|w| (w[0], w[1]))
-        .max_by_key(|(a, b)| (b - a, usize::MAX - a))
-        .unwrap_or((0, frames.len()));
+    let Stretch {
+        start,
+        end,
+        decimation,
+        tick_step,
+        breaks,
+    } = longest_stretch(&frames);
     let kept = frames.get(start..end).unwrap_or_default();
     let channels = kept.first().map_or(ChannelSet::ALL, |f| f.channels);
 
@@ -344,7 +312,7 @@ fn decode_frames(
     Ok(Decoded {
         log,
         stats,
-        gaps: breaks.len(),
+        gaps: breaks,
         left_out: frames.len() - kept.len() + incomplete,
         duplicates,
         dropped: frames.last().map_or(0, |f| f.dropped),
@@ -352,6 +320,69 @@ fn decode_frames(
         layout_1,
         channels,
     })
+}
+
+/// The longest stretch of frames without a break, `start..end`, with the stream's decimation
+/// (its most common sequence step), its most common step of the µs time base and the number
+/// of breaks in the whole stream.
+struct Stretch {
+    start: usize,
+    end: usize,
+    decimation: u16,
+    tick_step: u32,
+    breaks: usize,
+}
+
+/// The [`Stretch`] of `frames`: a break is a frame lost (the step), another rate, other
+/// channels, or the ports declared otherwise — except a bypass closing (bypassed → timed
+/// or sealed), which the log states as `# ports_from_s`.
+fn longest_stretch(frames: &[Frame]) -> Stretch {
+    // The decimation is the most common sequence step; any other step is a gap.
+    let steps: Vec<u16> = frames
+        .windows(2)
+        .map(|w| w[1].seq.wrapping_sub(w[0].seq))
+        .collect();
+    // A step of 0 is no step (a repeated sequence number is a gap, never the decimation).
+    let nonzero: Vec<u16> = steps.iter().copied().filter(|&s| s > 0).collect();
+    let decimation = mode_of(&nonzero).unwrap_or(1);
+    let tick_steps: Vec<u32> = frames
+        .windows(2)
+        .map(|w| w[1].t.0.wrapping_sub(w[0].t.0))
+        .collect();
+    let positive: Vec<u32> = tick_steps.iter().copied().filter(|&t| t > 0).collect();
+    let tick_step = mode_of(&positive).unwrap_or(0);
+    // A break: a frame lost (the step), another rate, other channels, or the ports
+    // declared otherwise — except a bypass closing (bypassed → timed or sealed), which the
+    // log states as `# ports_from_s`.
+    let breaks: Vec<usize> = frames
+        .windows(2)
+        .zip(steps.iter().zip(&tick_steps))
+        .enumerate()
+        .filter(|(_, (w, (&s, &t)))| {
+            s != decimation
+                || t != tick_step
+                || w[1].channels != w[0].channels
+                || (w[1].ports != w[0].ports && w[0].ports != Ports::Bypassed)
+        })
+        .map(|(i, _)| i + 1)
+        .collect();
+    // Longest run of frames between breaks.
+    let bounds: Vec<usize> = std::iter::once(0)
+        .chain(breaks.iter().copied())
+        .chain(std::iter::once(frames.len()))
+        .collect();
+    let (start, end) = bounds
+        .windows(2)
+        .map(|w| (w[0], w[1]))
+        .max_by_key(|(a, b)| (b - a, usize::MAX - a))
+        .unwrap_or((0, frames.len()));
+    Stretch {
+        start,
+        end,
+        decimation,
+        tick_step,
+        breaks: breaks.len(),
+    }
 }
 
 /// The most frequent value (the smallest among ties), if any.
