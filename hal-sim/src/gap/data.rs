@@ -181,7 +181,7 @@ pub struct Measured {
     /// ([`super::residuals::ports_resolved`]); all 1 until the workflow sets it.
     pub pressure_judged: Vec<f64>,
     /// How far the logged position reads beyond the chambers' own, m: what the pressure
-    /// replay subtracts from `x_m` ([`super::residuals::fit_position_offset`], fitted once
+    /// replay subtracts from `x_m` ([`super::offset::fit_position_offset`], fitted once
     /// per log before the selection; 0 until the workflow sets it).
     pub x_offset_m: f64,
     /// Stretches of motion between standstills (runs of `moving`): an encoder may be zeroed

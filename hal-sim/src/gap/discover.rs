@@ -27,10 +27,11 @@ use crate::plant::fastmath::sin_cos;
 use crate::plant::model::extra_force::{ExtraState, Term};
 use crate::plant::model::{model_section, MachineModel};
 
+use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
 use super::effects::{kept_span, kept_x, Ctx, EffectKind, Proposal};
 use super::fit::{lstsq, minimise_1d_par};
-use super::residuals::{extra_states, force_raw, ChannelId};
+use super::residuals::{extra_states, force_raw};
 
 /// Shortest period of the periodic pair searched, m.
 pub const MIN_PERIOD_M: f64 = 2e-3;

@@ -19,12 +19,13 @@
 
 pub mod align;
 pub mod band;
+pub mod channel;
 pub mod data;
 pub mod discover;
 pub mod doc;
 pub mod effects;
 pub mod fit;
-mod offset;
+pub mod offset;
 pub mod page;
 mod reconsider;
 pub mod report;
@@ -42,10 +43,11 @@ use crate::failure::Failure;
 use crate::plant::model::{model_key, model_section};
 use crate::runlog::RunLog;
 
+use channel::ChannelId;
 use data::Measured;
 use doc::ModelDoc;
 use effects::{Ctx, EffectKind};
-use residuals::{channel_raw, full_of_raw, full_rms, rms_of_full, Band, ChannelId};
+use residuals::{channel_raw, full_of_raw, full_rms, rms_of_full, Band};
 use select::{select, Selection};
 
 /// Default upper edge of the analysis band, Hz: above the cogging frequency at 4 m/s
@@ -221,11 +223,11 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         }
         Band::new(head, opts.band_hz)
             .ok()
-            .and_then(|b| residuals::fit_position_offset(head, &b, &model))
+            .and_then(|b| offset::fit_position_offset(head, &b, &model))
     };
-    let long = measured.len() > residuals::MAX_OFFSET_FIT_ROWS;
+    let long = measured.len() > offset::MAX_OFFSET_FIT_ROWS;
     let offset = if long {
-        fit_offset(&mut measured.head(residuals::MAX_OFFSET_FIT_ROWS))
+        fit_offset(&mut measured.head(offset::MAX_OFFSET_FIT_ROWS))
     } else {
         fit_offset(&mut measured)
     };

@@ -4,8 +4,9 @@
 
 use crate::plant::model::MachineModel;
 
+use super::channel::{resolution, ChannelId};
 use super::data::Measured;
-use super::residuals::{residual, Band, ChannelId};
+use super::residuals::{residual, Band};
 
 /// Widest offset of the logged position from the chambers' own that
 /// [`fit_position_offset`] accepts whatever the model says, m: a homing push's contact and
@@ -17,7 +18,7 @@ pub const MAX_POSITION_OFFSET_M: f64 = 50e-6;
 /// homing push — the homing force limit ([`fpc::sensing::homing::HomingConfig::reference`],
 /// 400 N: the current never exceeds it, the command stays 5 % below) on the heads' contact
 /// stiffness (`piston.stop_stiffness_n_per_m`, 5e7 N/m: 8 µm) — plus one step of the
-/// encoder's interpolation ([`super::select::resolution`], ≈ 2.4 µm: where within a step
+/// encoder's interpolation ([`resolution`], ≈ 2.4 µm: where within a step
 /// the zero was declared), and never more than [`MAX_POSITION_OFFSET_M`]. One sign: homing
 /// pushes the piston *into* head A, so the logged position reads more than the chambers'.
 /// Bounded so, the offset cannot take up a pressure effect's pattern: at ±50 µm it ran to
@@ -25,7 +26,7 @@ pub const MAX_POSITION_OFFSET_M: f64 = 50e-6;
 pub fn position_offset_bounds(model: &MachineModel) -> (f64, f64) {
     let push_n = f64::from(fpc::sensing::homing::HomingConfig::reference().force_limit_n);
     let contact_m = push_n / model.piston.stop_stiffness_n_per_m;
-    let step_m = super::select::resolution(ChannelId::Encoder, model);
+    let step_m = resolution(ChannelId::Encoder, model);
     (0.0, (contact_m + step_m).min(MAX_POSITION_OFFSET_M))
 }
 
@@ -100,3 +101,29 @@ pub const MAX_OFFSET_FIT_ROWS: usize = 100_000;
 
 /// Most Gauss–Newton steps of [`fit_position_offset`].
 const MAX_OFFSET_STEPS: usize = 6;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_homing_offset_is_bounded_by_the_push_on_the_heads_contact() {
+        let mut model = MachineModel::reference();
+        let step = resolution(ChannelId::Encoder, &model);
+        let push = f64::from(fpc::sensing::homing::HomingConfig::reference().force_limit_n);
+        // One sign (into head A), and a few microns on the reference contact (5e7 N/m).
+        let (lo, hi) = position_offset_bounds(&model);
+        assert_eq!(lo, 0.0);
+        let contact = push / model.piston.stop_stiffness_n_per_m;
+        assert!((hi - (contact + step)).abs() < 1e-12, "{hi}");
+        assert!(
+            hi > 5e-6 && hi < 15e-6,
+            "{hi}: the reference's 8 µm contact + one step"
+        );
+        // A stiffer head gives less; a soft one never more than the outer bound.
+        model.piston.stop_stiffness_n_per_m *= 10.0;
+        assert!(position_offset_bounds(&model).1 < hi);
+        model.piston.stop_stiffness_n_per_m = 1e3;
+        assert_eq!(position_offset_bounds(&model).1, MAX_POSITION_OFFSET_M);
+    }
+}

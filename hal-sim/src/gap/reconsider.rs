@@ -6,9 +6,10 @@
 use rayon::prelude::*;
 use std::cell::RefCell;
 
+use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
 use super::effects::{Ctx, EffectKind};
-use super::residuals::{residual, ChannelId};
+use super::residuals::residual;
 use super::select::{
     effective_n, judge_proposal, outdone_by_basis, prune_terms, Judged, MAX_EFFECTS, MIN_DELTA_BIC,
 };

@@ -58,10 +58,11 @@ use rayon::prelude::*;
 
 use std::cell::RefCell;
 
+use super::channel::{resolution, sample_resolution, ChannelId};
 use super::doc::{Edit, ModelDoc};
 use super::effects::{Ctx, EffectKind, Proposal};
 use super::fit::correlation;
-use super::residuals::{residual, ChannelId, Residual};
+use super::residuals::{residual, Residual};
 use crate::plant::model::extra_force::Term;
 
 /// Smallest BIC improvement that adds an effect ("very strong" evidence on Kass and
@@ -73,46 +74,6 @@ pub const MIN_EXPLAINED: f64 = 0.20;
 
 /// Smallest share of the channel's whole residual sum of squares it must explain.
 pub const MIN_EXPLAINED_TOTAL: f64 = 0.05;
-
-/// Smallest RMS change of the force channels an effect must make, N: below the force the
-/// drives can resolve (one current-sensor code is 4 N per phase) averaged over the band.
-pub const FORCE_RESOLUTION_N: f64 = 2.0;
-
-/// Smallest RMS change of the pressure channel, Pa (a third of the reference sensor's
-/// 305 Pa code).
-pub const PRESSURE_RESOLUTION_PA: f64 = 100.0;
-
-/// The smallest RMS change of a channel's residual worth naming: what its sensors resolve.
-/// The encoder's is one step of the sin/cos interpolation, `λ/(2π·amplitude)` (≈ 2.4 µm
-/// on the reference encoder): patterns below it are the interpolation's own rounding.
-pub fn resolution(ch: ChannelId, model: &crate::plant::model::MachineModel) -> f64 {
-    match ch {
-        ChannelId::Force | ChannelId::SlaveForce => FORCE_RESOLUTION_N,
-        ChannelId::Encoder => {
-            let amp = model.sensors.encoder_master.amplitude_codes.max(1.0);
-            model.encoder.period_m / (std::f64::consts::TAU * amp)
-        }
-        ChannelId::Pressure => PRESSURE_RESOLUTION_PA,
-    }
-}
-
-/// The smallest change of one kept sample the sparse test counts (module header): one code
-/// of the sensor behind the channel. Force: one current-sensor code (`a_per_code` of the
-/// reference current sense, 100/2048 A) times the force constant, ≈ 3.9 N on the reference
-/// drives. Pressure: one code of the reference pressure sensor, ≈ 305 Pa. Encoder: one step
-/// of the sin/cos interpolation, as [`resolution`] (already a per-sample yardstick).
-pub fn sample_resolution(ch: ChannelId, model: &crate::plant::model::MachineModel) -> f64 {
-    match ch {
-        ChannelId::Force | ChannelId::SlaveForce => {
-            f64::from(fpc::drive::foc::CurrentSense::reference().a_per_code)
-                * model.motor.force_constant_n_per_a
-        }
-        ChannelId::Encoder => resolution(ch, model),
-        ChannelId::Pressure => {
-            f64::from(fpc::sensing::pressure::PressureCalibration::reference().pa_per_code)
-        }
-    }
-}
 
 /// Fewest kept samples an effect must act on.
 pub const MIN_SUPPORT: usize = 8;

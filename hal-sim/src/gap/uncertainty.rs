@@ -15,10 +15,11 @@ use rayon::prelude::*;
 
 use crate::plant::model::Key;
 
+use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
 use super::effects::{Ctx, EffectKind};
 use super::fit::{standard_errors, sumsq};
-use super::residuals::{channel_raw, kept_of_raw, ChannelId};
+use super::residuals::{channel_raw, kept_of_raw};
 use super::select::{effective_n, Selection};
 
 /// Central-difference step, relative to the parameter's value.

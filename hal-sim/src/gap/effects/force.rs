@@ -8,10 +8,11 @@ use rayon::prelude::*;
 use crate::plant::model::{model_key, model_section};
 use crate::signal::xcorr_lag;
 
+use super::super::channel::ChannelId;
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::{lstsq, minimise_1d_par};
 use super::super::residuals::{
-    acting_motor_force_n, force_raw, force_terms, motor_sum_n, shifted, tangential_mps, ChannelId,
+    acting_motor_force_n, force_raw, force_terms, motor_sum_n, shifted, tangential_mps,
 };
 use super::{harmonics, kept_span, kept_x, Ctx, EffectKind, Proposal, MAX_LAG_S};
 

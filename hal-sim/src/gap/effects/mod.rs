@@ -27,9 +27,10 @@ use std::f64::consts::TAU;
 use crate::plant::fastmath::sin_cos;
 use crate::plant::model::{model_section, Key, SectionKey};
 
+use super::channel::ChannelId;
 use super::data::Measured;
 use super::doc::{Edit, ModelDoc};
-use super::residuals::{Band, ChannelId};
+use super::residuals::Band;
 
 mod encoder;
 mod force;
