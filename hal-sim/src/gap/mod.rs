@@ -19,6 +19,7 @@
 
 pub mod align;
 pub mod band;
+pub mod candidate;
 pub mod channel;
 pub mod data;
 pub mod discover;
@@ -43,10 +44,10 @@ use crate::failure::Failure;
 use crate::plant::model::{model_key, model_section};
 use crate::runlog::RunLog;
 
+use candidate::{Ctx, EffectKind};
 use channel::ChannelId;
 use data::Measured;
 use doc::ModelDoc;
-use effects::{Ctx, EffectKind};
 use residuals::{channel_raw, full_of_raw, full_rms, rms_of_full, Band};
 use select::{select, Selection};
 

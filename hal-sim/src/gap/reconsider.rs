@@ -6,9 +6,10 @@
 use rayon::prelude::*;
 use std::cell::RefCell;
 
+use super::candidate::{Ctx, EffectKind};
 use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
-use super::effects::{Ctx, EffectKind};
+use super::effects::propose;
 use super::residuals::residual;
 use super::select::{
     effective_n, judge_proposal, outdone_by_basis, prune_terms, Judged, MAX_EFFECTS, MIN_DELTA_BIC,
@@ -41,7 +42,7 @@ fn without_named(
     if let Some(section) = kind.section() {
         return Some(doc.with(&[Edit::RemoveSection(section)]));
     }
-    let p = kind.propose(ctx, doc)?;
+    let p = propose(kind, ctx, doc)?;
     let edits: Vec<Edit> = p
         .edits
         .iter()
@@ -76,7 +77,7 @@ fn swap_term(
     let force_rss = |d: &ModelDoc| -> Option<f64> {
         Some(residual(ctx.data, ctx.band, &d.model().ok()?, ChannelId::Force)?.rss())
     };
-    let first = kind.propose(ctx, &without)?;
+    let first = propose(kind, ctx, &without)?;
     let mut alt = without.with(&first.edits);
     // Back-fitting, as the selection does: each named effect once more with the others in
     // place, then the discovered terms left refitted — never one more term (`named` holds
@@ -84,7 +85,7 @@ fn swap_term(
     // parameter the model with `term` never had, and `f_motor` would lose to its own
     // decomposition (module header).
     for k in named.iter().copied().filter(|k| k.named()).chain([kind]) {
-        let Some(p) = k.propose(ctx, &alt) else {
+        let Some(p) = propose(k, ctx, &alt) else {
             continue;
         };
         let next = alt.with(&p.edits);
@@ -102,7 +103,7 @@ fn swap_term(
     // The named effect judged as if added last, with the same competition as in selection.
     let base = without_named(ctx, input, &alt, kind)?;
     let before = residual(ctx.data, ctx.band, &base.model().ok()?, ChannelId::Force)?;
-    let p = kind.propose(ctx, &base)?;
+    let p = propose(kind, ctx, &base)?;
     let j = judge_proposal(ctx, &base, p, &before)?;
     if outdone_by_basis(ctx, &base, &j, &before, &RefCell::new(Vec::new())) {
         return None;

@@ -58,9 +58,10 @@ use rayon::prelude::*;
 
 use std::cell::RefCell;
 
+use super::candidate::{Ctx, EffectKind, Proposal};
 use super::channel::{resolution, sample_resolution, ChannelId};
 use super::doc::{Edit, ModelDoc};
-use super::effects::{Ctx, EffectKind, Proposal};
+use super::effects::propose;
 use super::fit::correlation;
 use super::residuals::{residual, Residual};
 use crate::plant::model::extra_force::Term;
@@ -149,7 +150,7 @@ pub struct Selection {
 
 /// Judges `kind` on top of `doc`, whose residual of the effect's channel is `before`.
 pub fn judge(ctx: &Ctx<'_>, doc: &ModelDoc, kind: EffectKind, before: &Residual) -> Option<Judged> {
-    let proposal = kind.propose(ctx, doc)?;
+    let proposal = propose(kind, ctx, doc)?;
     judge_proposal(ctx, doc, proposal, before)
 }
 
@@ -176,16 +177,16 @@ fn judge_joint(
         .map(Edit::RemoveSection)
         .collect();
     let base = doc.with(&edits);
-    let first = kind.propose(ctx, &base)?;
+    let first = propose(kind, ctx, &base)?;
     edits.extend(first.edits.iter().cloned());
     let mut cur = doc.with(&edits);
     for other in joint {
-        if let Some(p) = other.propose(ctx, &cur) {
+        if let Some(p) = propose(*other, ctx, &cur) {
             cur = cur.with(&p.edits);
             edits.extend(p.edits);
         }
     }
-    let last = kind.propose(ctx, &cur)?;
+    let last = propose(kind, ctx, &cur)?;
     edits.extend(last.edits.iter().cloned());
     let proposal = Proposal {
         kind,

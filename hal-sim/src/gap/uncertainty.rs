@@ -15,9 +15,9 @@ use rayon::prelude::*;
 
 use crate::plant::model::Key;
 
+use super::candidate::{Ctx, EffectKind};
 use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
-use super::effects::{Ctx, EffectKind};
 use super::fit::{standard_errors, sumsq};
 use super::residuals::{channel_raw, kept_of_raw};
 use super::select::{effective_n, Selection};
