@@ -1,5 +1,5 @@
 //! A run of the very machine the model describes must name nothing: the workflow's
-//! significance test and floors (`gap::select`) hold on closed-loop runs at every speed and
+//! significance test and floors (`gap::judge`) hold on closed-loop runs at every speed and
 //! on the closed- and open-port pressure runs, over many noise seeds.
 //!
 //! A few seeds run by default; the 20-seed sweeps are `#[ignore]`: in full,

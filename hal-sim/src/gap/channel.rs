@@ -1,6 +1,6 @@
 //! The channels the workflow compares, and what their sensors resolve: the yardsticks below
 //! which a change of a channel's residual is the sensors' own rounding, not an effect
-//! ([`super::select`] judges every candidate by them; the position offset's bound and the
+//! ([`super::judge`] judges every candidate by them; the position offset's bound and the
 //! pressure replay's angle mask use the encoder's and the pressure sensor's).
 
 use crate::plant::model::MachineModel;
@@ -69,7 +69,7 @@ pub fn resolution(ch: ChannelId, model: &MachineModel) -> f64 {
     }
 }
 
-/// The smallest change of one kept sample the selection's sparse test counts ([`super::select`]): one code
+/// The smallest change of one kept sample selection's sparse test counts ([`super::judge`]): one code
 /// of the sensor behind the channel. Force: one current-sensor code (`a_per_code` of the
 /// reference current sense, 100/2048 A) times the force constant, ≈ 3.9 N on the reference
 /// drives. Pressure: one code of the reference pressure sensor, ≈ 305 Pa. Encoder: one step
@@ -84,5 +84,28 @@ pub fn sample_resolution(ch: ChannelId, model: &MachineModel) -> f64 {
         ChannelId::Pressure => {
             f64::from(fpc::sensing::pressure::PressureCalibration::reference().pa_per_code)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_sample_is_judged_by_a_whole_code_and_an_rms_by_a_fraction_of_one() {
+        let m = MachineModel::reference();
+        for ch in ChannelId::ALL {
+            assert!(
+                sample_resolution(ch, &m) >= resolution(ch, &m),
+                "{ch:?}: a single sample cannot resolve more finely than an RMS"
+            );
+        }
+        // The relation of the two yardsticks (the selection's rules, `super::judge`): the averaged yardstick is a third of a pressure
+        // code and half a current code (within the codes' rounding to whole pascal/newtons).
+        let near = |a: f64, b: f64| (a - b).abs() <= 0.05 * b;
+        let p = ChannelId::Pressure;
+        let f = ChannelId::Force;
+        assert!(near(3.0 * resolution(p, &m), sample_resolution(p, &m)));
+        assert!(near(2.0 * resolution(f, &m), sample_resolution(f, &m)));
     }
 }

@@ -26,6 +26,7 @@ pub mod discover;
 pub mod doc;
 pub mod effects;
 pub mod fit;
+pub mod judge;
 pub mod offset;
 pub mod page;
 mod reconsider;

@@ -1,7 +1,9 @@
-//! The end of selection: each discovered term judged once more against the named force
-//! effects not in the final model (`reconsider_terms`). Forward selection adds one candidate
-//! at a time, and a basis term can take a step from a named effect it only resembles; here
-//! it gives it back where the named effect explains as much (see `reconsider_terms`).
+//! The discovered terms judged again once others are in. After each selection step, a term
+//! that no longer passes the rules with the later ones in place is dropped
+//! ([`prune_terms`]). At the end of selection, each term is judged once more against the
+//! named force effects not in the final model ([`reconsider_terms`]): forward selection adds
+//! one candidate at a time, and a basis term can take a step from a named effect it only
+//! resembles; here it gives it back where the named effect explains as much.
 
 use rayon::prelude::*;
 use std::cell::RefCell;
@@ -10,12 +12,53 @@ use super::candidate::{Ctx, EffectKind};
 use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
 use super::effects::propose;
-use super::residuals::residual;
-use super::select::{
-    effective_n, judge_proposal, outdone_by_basis, prune_terms, Judged, MAX_EFFECTS, MIN_DELTA_BIC,
+use super::judge::{
+    effective_n, judge_proposal, outdone_by_basis, Judged, MAX_EFFECTS, MIN_DELTA_BIC,
 };
+use super::residuals::residual;
 use crate::plant::model::extra_force::Term;
 use crate::plant::model::model_section;
+
+/// Drops discovered terms that no longer pass the significance rules with the others in
+/// place (forward selection can add a term that only stood in for one added later): each
+/// term is judged as if it were added last, onto the others refitted without it, and the
+/// least significant failing one is dropped, until every one passes.
+pub(super) fn prune_terms(ctx: &Ctx<'_>, mut doc: ModelDoc) -> ModelDoc {
+    loop {
+        let Ok(model) = doc.model() else { return doc };
+        let Some(terms) = model
+            .effects
+            .extra_force
+            .as_ref()
+            .and_then(|e| e.parsed().ok())
+        else {
+            return doc;
+        };
+        let mut worst: Option<(f64, ModelDoc)> = None;
+        for (term, _) in &terms {
+            let Some((without, back)) = super::discover::without_term(ctx, &doc, *term) else {
+                continue;
+            };
+            let Some(before) = without
+                .model()
+                .ok()
+                .and_then(|m| residual(ctx.data, ctx.band, &m, ChannelId::Force))
+            else {
+                continue;
+            };
+            let Some(j) = judge_proposal(ctx, &without, back, &before) else {
+                continue;
+            };
+            if !j.significant() && worst.as_ref().is_none_or(|(d, _)| j.delta_bic < *d) {
+                worst = Some((j.delta_bic, without));
+            }
+        }
+        match worst {
+            Some((_, without)) => doc = without,
+            None => return doc,
+        }
+    }
+}
 
 /// The named force effects a discovered term can be judged against at the end of selection:
 /// the library's named effects on the force channel.
