@@ -117,94 +117,15 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
     let mut cache: Cache = Vec::new();
     for step in 0..MAX_EFFECTS {
         let model = doc.model()?;
-        let mut best: Option<Judged> = None;
-        let mut judged = Vec::new();
         // Each channel's residual on its own core (the pressure replay is the long one).
         let befores: Vec<(ChannelId, Residual)> = ChannelId::ALL
             .par_iter()
             .filter_map(|&c| Some((c, residual(ctx.data, ctx.band, &model, c)?)))
             .collect();
-        let mut best_extra: Option<Judged> = None;
         let fits = RefCell::new(BasisFits::new());
-        // The candidates are independent given `doc`: judged on every core (the cached
-        // ones reused), then taken in the library's order, as one thread would.
-        let mut jobs: Vec<(EffectKind, &Residual, Vec<EffectKind>)> = Vec::new();
-        for kind in EffectKind::ALL {
-            if kind.named() && added.iter().any(|a| a.proposal.kind == kind) {
-                continue;
-            }
-            let Some((_, before)) = befores.iter().find(|(c, _)| *c == kind.channel()) else {
-                continue;
-            };
-            // Pressure candidates are judged with the pressure effects already added
-            // refitted around them (`judge_joint`).
-            let joint: Vec<EffectKind> = if kind.channel() == ChannelId::Pressure {
-                added
-                    .iter()
-                    .map(|a| a.proposal.kind)
-                    .filter(|k| k.channel() == ChannelId::Pressure)
-                    .collect()
-            } else {
-                Vec::new()
-            };
-            jobs.push((kind, before, joint));
-        }
-        let results: Vec<(Option<Judged>, bool)> = jobs
-            .par_iter()
-            .map(
-                |(kind, before, joint)| match cached(&cache, *kind, before) {
-                    Some(j) => (Some(j), true),
-                    None => (uncached_judge(ctx, &doc, *kind, before, joint), false),
-                },
-            )
-            .collect();
-        for ((kind, before, _), (j, hit)) in jobs.iter().zip(results) {
-            let kind = *kind;
-            let Some(j) = j else { continue };
-            if !hit {
-                remember(&mut cache, kind, before, &j);
-            }
-            if j.significant() {
-                if !kind.named() {
-                    best_extra = Some(j.clone());
-                } else if best.as_ref().is_none_or(|b| j.delta_bic > b.delta_bic)
-                    && !outdone_by_basis(ctx, &doc, &j, before, &fits)
-                {
-                    best = Some(j.clone());
-                }
-            }
-            judged.push(j);
-        }
-        // A named effect is preferred where it explains as much (fewer numbers, a physical
-        // name): the basis wins only with significantly more evidence, and never when all it
-        // adds is a significant named effect's own form (then it has found that effect, and
-        // the difference is the law's detail, such as a regularised sign).
-        let own_form_of = |e: &Judged| -> Option<Judged> {
-            let added = super::discover::added_terms(&doc, &e.proposal);
-            if added.is_empty() {
-                return None;
-            }
-            judged
-                .iter()
-                .filter(|n| n.proposal.kind.named() && n.significant())
-                .filter(|n| {
-                    let form = n.proposal.kind.basis_form();
-                    added.iter().all(|t| form.contains(t))
-                })
-                .max_by(|a, b| a.delta_bic.total_cmp(&b.delta_bic))
-                .filter(|n| {
-                    befores
-                        .iter()
-                        .find(|(c, _)| *c == n.proposal.kind.channel())
-                        .is_some_and(|(_, before)| !outdone_by_basis(ctx, &doc, n, before, &fits))
-                })
-                .cloned()
-        };
-        let best = match (best, best_extra) {
-            (Some(n), Some(e)) if e.delta_bic < n.delta_bic + MIN_DELTA_BIC => Some(n),
-            (_, Some(e)) => own_form_of(&e).or(Some(e)),
-            (n, None) => n,
-        };
+        let (judged, best, best_extra) =
+            judge_candidates(ctx, &doc, &befores, &added, &mut cache, &fits);
+        let best = preferred(ctx, &doc, &befores, &judged, best, best_extra, &fits);
         if step == 0 {
             first_step = judged;
         }
@@ -226,8 +147,129 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
     if added.iter().any(|a| !a.proposal.kind.named()) {
         doc = reconsider_terms(ctx, &input, doc, &mut added, &mut steps);
     }
-    // Each named effect's parameters as the final model holds them: a later joint fit or
-    // back-fitting may have refitted them after they were judged.
+    final_parameters(&doc, &mut added);
+    let warnings = collinear_warnings(&added, &first_step);
+    Ok(Selection {
+        doc,
+        added,
+        steps,
+        first_step,
+        warnings,
+    })
+}
+
+/// Every candidate not yet added (a named effect once, the discovered terms at every step)
+/// judged on top of `doc`, whose channels' residuals are `befores`: all the judgements, in
+/// the library's order, with the significant named effect of the largest evidence that the
+/// basis does not outdo, and the significant discovered terms.
+fn judge_candidates(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    befores: &[(ChannelId, Residual)],
+    added: &[Judged],
+    cache: &mut Cache,
+    fits: &RefCell<BasisFits>,
+) -> (Vec<Judged>, Option<Judged>, Option<Judged>) {
+    let mut best: Option<Judged> = None;
+    let mut judged = Vec::new();
+    let mut best_extra: Option<Judged> = None;
+    // The candidates are independent given `doc`: judged on every core (the cached
+    // ones reused), then taken in the library's order, as one thread would.
+    let mut jobs: Vec<(EffectKind, &Residual, Vec<EffectKind>)> = Vec::new();
+    for kind in EffectKind::ALL {
+        if kind.named() && added.iter().any(|a| a.proposal.kind == kind) {
+            continue;
+        }
+        let Some((_, before)) = befores.iter().find(|(c, _)| *c == kind.channel()) else {
+            continue;
+        };
+        // Pressure candidates are judged with the pressure effects already added
+        // refitted around them (`judge_joint`).
+        let joint: Vec<EffectKind> = if kind.channel() == ChannelId::Pressure {
+            added
+                .iter()
+                .map(|a| a.proposal.kind)
+                .filter(|k| k.channel() == ChannelId::Pressure)
+                .collect()
+        } else {
+            Vec::new()
+        };
+        jobs.push((kind, before, joint));
+    }
+    let results: Vec<(Option<Judged>, bool)> = jobs
+        .par_iter()
+        .map(|(kind, before, joint)| match cached(cache, *kind, before) {
+            Some(j) => (Some(j), true),
+            None => (uncached_judge(ctx, doc, *kind, before, joint), false),
+        })
+        .collect();
+    for ((kind, before, _), (j, hit)) in jobs.iter().zip(results) {
+        let kind = *kind;
+        let Some(j) = j else { continue };
+        if !hit {
+            remember(cache, kind, before, &j);
+        }
+        if j.significant() {
+            if !kind.named() {
+                best_extra = Some(j.clone());
+            } else if best.as_ref().is_none_or(|b| j.delta_bic > b.delta_bic)
+                && !outdone_by_basis(ctx, doc, &j, before, fits)
+            {
+                best = Some(j.clone());
+            }
+        }
+        judged.push(j);
+    }
+    (judged, best, best_extra)
+}
+
+/// The candidate a step adds, of the best named effect `best` and the discovered terms
+/// `best_extra` (`judged`: the step's judgements, `befores`: its channels' residuals).
+///
+/// A named effect is preferred where it explains as much (fewer numbers, a physical
+/// name): the basis wins only with significantly more evidence, and never when all it
+/// adds is a significant named effect's own form (then it has found that effect, and
+/// the difference is the law's detail, such as a regularised sign).
+fn preferred(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    befores: &[(ChannelId, Residual)],
+    judged: &[Judged],
+    best: Option<Judged>,
+    best_extra: Option<Judged>,
+    fits: &RefCell<BasisFits>,
+) -> Option<Judged> {
+    let own_form_of = |e: &Judged| -> Option<Judged> {
+        let added = super::discover::added_terms(doc, &e.proposal);
+        if added.is_empty() {
+            return None;
+        }
+        judged
+            .iter()
+            .filter(|n| n.proposal.kind.named() && n.significant())
+            .filter(|n| {
+                let form = n.proposal.kind.basis_form();
+                added.iter().all(|t| form.contains(t))
+            })
+            .max_by(|a, b| a.delta_bic.total_cmp(&b.delta_bic))
+            .filter(|n| {
+                befores
+                    .iter()
+                    .find(|(c, _)| *c == n.proposal.kind.channel())
+                    .is_some_and(|(_, before)| !outdone_by_basis(ctx, doc, n, before, fits))
+            })
+            .cloned()
+    };
+    match (best, best_extra) {
+        (Some(n), Some(e)) if e.delta_bic < n.delta_bic + MIN_DELTA_BIC => Some(n),
+        (_, Some(e)) => own_form_of(&e).or(Some(e)),
+        (n, None) => n,
+    }
+}
+
+/// Sets each named effect of `added` to its parameters as the final model `doc` holds them:
+/// a later joint fit or back-fitting may have refitted them after they were judged.
+fn final_parameters(doc: &ModelDoc, added: &mut [Judged]) {
     for a in added.iter_mut().filter(|a| a.proposal.kind.named()) {
         let keys: Vec<crate::plant::model::Key> = a
             .proposal
@@ -249,11 +291,17 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
             }
         }
     }
+}
+
+/// A warning for each named effect of `added` and named candidate of its channel at the
+/// first step (`first_step`) that the run cannot tell apart ([`COLLINEAR`], module header),
+/// each pair once whichever of the two was added.
+fn collinear_warnings(added: &[Judged], first_step: &[Judged]) -> Vec<String> {
     let mut warnings = Vec::new();
     // Each pair once, whichever of the two was added.
     let mut pairs: Vec<(EffectKind, EffectKind)> = Vec::new();
-    for a in &added {
-        for other in &first_step {
+    for a in added {
+        for other in first_step {
             let k = other.proposal.kind;
             if k == a.proposal.kind
                 || k.channel() != a.proposal.kind.channel()
@@ -284,13 +332,7 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
             }
         }
     }
-    Ok(Selection {
-        doc,
-        added,
-        steps,
-        first_step,
-        warnings,
-    })
+    warnings
 }
 
 /// Fits each effect of `added` again on top of `doc` (which holds them all), keeping a refit
