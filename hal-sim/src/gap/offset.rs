@@ -6,7 +6,7 @@ use crate::plant::model::MachineModel;
 
 use super::channel::{resolution, ChannelId};
 use super::data::Measured;
-use super::residuals::{residual, Band};
+use super::residuals::{ports_resolved, residual, Band};
 
 /// Widest offset of the logged position from the chambers' own that
 /// [`fit_position_offset`] accepts whatever the model says, m: a homing push's contact and
@@ -90,6 +90,42 @@ pub fn fit_position_offset(data: &Measured, band: &Band, model: &MachineModel) -
         }
     }
     (best.0 != data.x_offset_m).then_some(best.0)
+}
+
+/// Fits the logged position's offset ([`fit_position_offset`]) and sets it on `measured`,
+/// with the pressure channel's angle-resolution mask ([`ports_resolved`]) made with it in
+/// place; `band_hz` is the analysis band's upper edge, Hz.
+///
+/// The logged position's zero (homing's push into head A) is a nuisance of the pressure
+/// replay: fitted once, before any effect may take it up, on the log's first
+/// `MAX_OFFSET_FIT_ROWS` with their own angle-resolution mask (each step replays the
+/// chambers twice: on the 732k-row log the whole log would cost seconds). The whole
+/// log's mask is then made with the offset in place: its nominal replay, made beside the
+/// moved one, is the one the selection's first step reads.
+pub fn set_position_offset(measured: &mut Measured, model: &MachineModel, band_hz: f64) {
+    let fit_offset = |head: &mut Measured| -> Option<f64> {
+        if let Some(judged) = ports_resolved(head, model) {
+            head.pressure_judged = judged;
+        }
+        Band::new(head, band_hz)
+            .ok()
+            .and_then(|b| fit_position_offset(head, &b, model))
+    };
+    let long = measured.len() > MAX_OFFSET_FIT_ROWS;
+    let offset = if long {
+        fit_offset(&mut measured.head(MAX_OFFSET_FIT_ROWS))
+    } else {
+        fit_offset(measured)
+    };
+    if let Some(offset) = offset {
+        measured.x_offset_m = offset;
+    }
+    // (A short log's mask is already the whole log's where the offset stayed at 0.)
+    if long || offset.is_some() {
+        if let Some(judged) = ports_resolved(measured, model) {
+            measured.pressure_judged = judged;
+        }
+    }
 }
 
 /// Most rows of a log [`fit_position_offset`] is fitted on (its first ones): 5 s at 20 kHz,
