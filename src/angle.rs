@@ -118,6 +118,19 @@ pub fn wrap_signed_rad<T: Real>(angle_rad: T) -> T {
     wrap_rad(angle_rad + T::PI) - T::PI
 }
 
+/// [`wrap_rad`] out of line, for cold paths that call it often (the stops and the brakes'
+/// turns: a dozen inlined copies cost flash).
+#[inline(never)]
+pub fn wrap_rad_cold(angle_rad: f32) -> f32 {
+    wrap_rad(angle_rad)
+}
+
+/// [`wrap_signed_rad`] on [`wrap_rad_cold`]: the shorter way round, rad in [−π, π).
+#[inline]
+pub fn wrap_signed_rad_cold(angle_rad: f32) -> f32 {
+    wrap_rad_cold(angle_rad + core::f32::consts::PI) - core::f32::consts::PI
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

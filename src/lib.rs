@@ -33,6 +33,7 @@ pub mod motion;
 pub mod physics;
 pub mod ports;
 pub mod real;
+pub mod reference;
 pub mod safety;
 pub mod sensing;
 pub mod shared;

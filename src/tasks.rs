@@ -85,7 +85,7 @@ where
         step.load_calibration(loaded);
     }
     shared.publish_calibration(step.calibration_record());
-    shared.publish(*step.status());
+    shared.publish(step.status());
     // Which sections' outputs are switching (None: all off).
     let mut switching: Option<PerSection<bool>> = None;
     loop {
@@ -159,9 +159,10 @@ pub fn control_cycle<M, T, E, C, P, Q, S, R>(
     if let Some(record) = step.take_calibration_to_save() {
         shared.post_calibration(record);
     }
-    shared.publish(*step.status());
-    shared.queue_telemetry(step.status());
-    shared.record_scope(step.status());
+    let status = step.status();
+    shared.publish(status);
+    shared.queue_telemetry(&status);
+    shared.record_scope(&status);
     shared.check_in(task_bits::CONTROL);
 }
 

@@ -150,7 +150,7 @@ impl Section {
 }
 
 /// One value per motor section, indexed by [`Section`] without any fallible indexing.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct PerSection<T> {
     /// Value for the master section.

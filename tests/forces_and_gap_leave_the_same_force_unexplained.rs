@@ -14,7 +14,8 @@
 use std::path::PathBuf;
 
 use hal_sim::balance::{force_balance, read_measured};
-use hal_sim::gap::residuals::{force_raw, full_rms, ChannelId};
+use hal_sim::gap::channel::ChannelId;
+use hal_sim::gap::residuals::{force_raw, full_rms};
 use hal_sim::gap::{analyse, GapOptions};
 use hal_sim::plant::model::{MachineModel, REFERENCE_TOML};
 use hal_sim::runlog::RunLog;

@@ -1,5 +1,5 @@
 //! A run of the very machine the model describes must name nothing: the workflow's
-//! significance test and floors (`gap::select`) hold on closed-loop runs at every speed and
+//! significance test and floors (`gap::judge`) hold on closed-loop runs at every speed and
 //! on the closed- and open-port pressure runs, over many noise seeds.
 //!
 //! A few seeds run by default; the 20-seed sweeps are `#[ignore]`: in full,
@@ -136,7 +136,7 @@ fn own_run_null(
         .collect();
     // Seed 537 (PR 4.5, 0.6 m/s, full rate) named `port_restriction` at `area_scale` 0.996
     // until the sparse significance test counted a sample only when the change reaches one
-    // sensor code (`gap::select::sample_resolution`): its change was below one code on every
+    // sensor code (`gap::channel::sample_resolution`): its change was below one code on every
     // sample.
     assert!(
         named.is_empty(),
@@ -183,7 +183,7 @@ fn gap_names_nothing_on_slow_high_ratio_runs() {
 /// The point of the sweep below where the logged position's homing offset (7–10 µm into
 /// head A) showed once the angle-unresolved samples were left out: `port_restriction` was
 /// named (area 1.006) until the replay fitted that offset as a nuisance
-/// (`gap::residuals::fit_position_offset`).
+/// (`gap::offset::fit_position_offset`).
 #[test]
 #[ignore = "slow: a run at 2.3 m/s, PR 6"]
 fn gap_names_nothing_where_the_homing_offset_showed() {

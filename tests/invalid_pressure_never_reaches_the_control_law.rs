@@ -128,7 +128,7 @@ async fn control_with_probe(
             None => io.pwm.disable(),
         }
         TorqueOutput::write(&mut io.servo, out.servo);
-        shared.publish(*step.status());
+        shared.publish(step.status());
     }
 }
 

@@ -20,6 +20,7 @@ pub mod faults;
 pub mod gap;
 pub mod interrupt;
 pub mod link;
+pub mod logmeta;
 pub mod output;
 pub mod plant;
 pub mod plot;

@@ -276,51 +276,18 @@ pub fn panels(path: &Path, title: &str, x_label: &str, panels: &[Panel<'_>]) -> 
         let root = root.titled(title, ("sans-serif", 22))?;
         let rows = root.split_evenly((panels.len().max(1), 1));
         let integer_x = panels.iter().any(|p| p.axes.integer_x);
-        // An explicit x range wins; otherwise the data's, with any limit drawn as a line
-        // inside it, however far from the data.
-        let (x0, x1) = panels
-            .iter()
-            .find_map(|p| p.axes.x_range)
-            .unwrap_or_else(|| {
-                let limits = panels.iter().filter_map(|p| p.axes.x_limit.map(|l| l.0));
-                range(
-                    panels
-                        .iter()
-                        .flat_map(|p| p.series.iter().flat_map(|s| s.x.iter().copied()))
-                        .chain(limits),
-                    integer_x,
-                )
-            });
+        let (x0, x1) = shared_x_range(panels, integer_x);
         for (row, panel) in rows.iter().zip(panels) {
             let (chart_area, legend_area) = row.split_horizontally(row.dim_in_pixel().0 - legend);
             let ys = || panel.series.iter().flat_map(|s| s.y.iter().copied());
-            let (y0, y1) = panel.axes.y_range.unwrap_or_else(|| {
-                let full = range(ys(), panel.axes.integer_y);
-                let chosen = if panel.axes.robust_y {
-                    robust_range(ys()).unwrap_or(full)
-                } else {
-                    full
-                };
-                match panel.axes.min_span_of_value {
-                    Some(share) => floored(chosen, share),
-                    None => chosen,
-                }
-            });
+            let (y0, y1) = y_range(panel);
             let mut chart = ChartBuilder::on(&chart_area)
                 .margin(12)
                 .x_label_area_size(45)
                 .y_label_area_size(75)
                 .build_cartesian_2d(x0..x1, y0..y1)?;
-            let x_ticks = if integer_x {
-                ((x1 - x0) as usize + 1).clamp(2, 12)
-            } else {
-                10
-            };
-            let y_ticks = if panel.axes.integer_y {
-                ((y1 - y0) as usize + 1).clamp(2, 12)
-            } else {
-                10
-            };
+            let x_ticks = tick_count(integer_x, x1 - x0);
+            let y_ticks = tick_count(panel.axes.integer_y, y1 - y0);
             chart
                 .configure_mesh()
                 .x_desc(x_label)
@@ -411,6 +378,52 @@ pub fn panels(path: &Path, title: &str, x_label: &str, panels: &[Panel<'_>]) -> 
         Ok(())
     };
     draw().map_err(|e| format!("cannot draw {}: {e}", path.display()))
+}
+
+/// The x range the stacked `panels` share: an explicit one wins; otherwise the data's, with
+/// any limit drawn as a line inside it, however far from the data (whole numbers when
+/// `integer_x`).
+fn shared_x_range(panels: &[Panel<'_>], integer_x: bool) -> (f64, f64) {
+    panels
+        .iter()
+        .find_map(|p| p.axes.x_range)
+        .unwrap_or_else(|| {
+            let limits = panels.iter().filter_map(|p| p.axes.x_limit.map(|l| l.0));
+            range(
+                panels
+                    .iter()
+                    .flat_map(|p| p.series.iter().flat_map(|s| s.x.iter().copied()))
+                    .chain(limits),
+                integer_x,
+            )
+        })
+}
+
+/// A panel's y range: an explicit one wins; otherwise its data's (robust when asked),
+/// floored to the share of the value asked for.
+fn y_range(panel: &Panel<'_>) -> (f64, f64) {
+    let ys = || panel.series.iter().flat_map(|s| s.y.iter().copied());
+    panel.axes.y_range.unwrap_or_else(|| {
+        let full = range(ys(), panel.axes.integer_y);
+        let chosen = if panel.axes.robust_y {
+            robust_range(ys()).unwrap_or(full)
+        } else {
+            full
+        };
+        match panel.axes.min_span_of_value {
+            Some(share) => floored(chosen, share),
+            None => chosen,
+        }
+    })
+}
+
+/// Ticks on an axis spanning `span`: one per whole number (2 to 12) when `integer`, else 10.
+fn tick_count(integer: bool, span: f64) -> usize {
+    if integer {
+        (span as usize + 1).clamp(2, 12)
+    } else {
+        10
+    }
 }
 
 /// The legend of one panel, in its own column: a sample of each series' stroke and its label.

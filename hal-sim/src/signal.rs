@@ -77,6 +77,49 @@ pub fn xcorr_lag(
     if n < 8 {
         return Err(format!("{n} samples: at least 8 needed for a lag"));
     }
+    check_lag_inputs(a, b, n, sample_time_s)?;
+    // Centred for numerical conditioning; the coefficient itself ignores offsets.
+    let centred = |x: &[f64]| {
+        let x = x.get(..n).unwrap_or_default();
+        let mean = x.iter().sum::<f64>() / n as f64;
+        x.iter().map(|v| v - mean).collect::<Vec<f64>>()
+    };
+    let (a, b) = (centred(a), centred(b));
+    let max_lag = lag_window(sample_time_s, max_lag_samples, n);
+    let coefficient = Coefficient::new(&a, &b, max_lag);
+    let max_lag = max_lag as isize;
+    let (k, peak) = (-max_lag..=max_lag)
+        .filter_map(|k| Some((k, coefficient.at(k)?)))
+        .fold(None::<(isize, f64)>, |best, (k, v)| match best {
+            Some((_, b)) if b >= v => best,
+            _ => Some((k, v)),
+        })
+        .ok_or("a signal is constant: no lag can be found")?;
+    // A straight line (a time column, a ramp) correlates perfectly at every lag: no peak,
+    // no lag.
+    let flat = [k - 2, k + 2]
+        .iter()
+        .filter_map(|&j| coefficient.at(j))
+        .any(|v| v >= peak - 1e-12);
+    if flat {
+        return Err(format!(
+            "the correlation has no peak (it is {peak:.12} two samples either side of the best \
+             lag too): the signals have no feature to align, such as a straight line"
+        ));
+    }
+    let samples = refine_smoothed(&a, &b, k, sample_time_s);
+    Ok(Lag {
+        samples,
+        seconds: samples * sample_time_s,
+        // Rounding can put a perfect match a hair above 1.
+        correlation: peak.clamp(-1.0, 1.0),
+    })
+}
+
+/// Refuses what [`xcorr_lag`] cannot correlate: a value of the first `n` samples of `a` or
+/// `b` beyond ±[`MAX_LAG_INPUT`] (or not a number), or a sample time, s, that is not
+/// positive.
+fn check_lag_inputs(a: &[f64], b: &[f64], n: usize, sample_time_s: f64) -> Result<(), String> {
     // The FFT and the prefix sums of squares must see finite values whose squares summed
     // over the log stay finite: a NaN or an infinity there would become every lag's
     // coefficient.
@@ -98,62 +141,81 @@ pub fn xcorr_lag(
             "sample time {sample_time_s} s: must be a positive number of seconds"
         ));
     }
-    // Centred for numerical conditioning; the coefficient itself ignores offsets.
-    let centred = |x: &[f64]| {
-        let x = x.get(..n).unwrap_or_default();
-        let mean = x.iter().sum::<f64>() / n as f64;
-        x.iter().map(|v| v - mean).collect::<Vec<f64>>()
-    };
-    let (a, b) = (centred(a), centred(b));
+    Ok(())
+}
+
+/// The largest lag [`xcorr_lag`] looks at, samples: `max_lag_samples`, or the samples of
+/// [`DEFAULT_MAX_LAG_S`] at `sample_time_s` (at least 1), and never more than `n − 2` (an
+/// overlap of two samples).
+fn lag_window(sample_time_s: f64, max_lag_samples: Option<usize>, n: usize) -> usize {
     let default_window = (DEFAULT_MAX_LAG_S / sample_time_s).round();
     let default_window = if default_window.is_finite() && default_window >= 1.0 {
         default_window as usize
     } else {
         1
     };
-    let max_lag = max_lag_samples.unwrap_or(default_window).min(n - 2);
-    // Zero padding to n + the largest lag looked at (the window and the two samples of the
-    // flatness check) keeps the circular correlation linear at every lag used.
-    let nfft = (n + max_lag + 3).next_power_of_two();
-    let (forward, inverse) = fft_pair(nfft);
-    // Both real signals in one complex transform, z = a + i·b, separated by the symmetry
-    // of real spectra: A[k] = (Z[k] + Z*[−k])/2, B[k] = (Z[k] − Z*[−k])/2i; then the
-    // cross-spectrum A*·B and one inverse transform give Σ a[i]·b[i+k] at every lag.
-    let mut z: Vec<Complex<f64>> = a
-        .iter()
-        .zip(&b)
-        .map(|(&x, &y)| Complex::new(x, y))
-        .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
-        .take(nfft)
-        .collect();
-    forward.process(&mut z);
-    let mut r: Vec<Complex<f64>> = (0..nfft)
-        .map(|k| {
-            let zk = z.get(k).copied().unwrap_or_default();
-            let zm = z.get((nfft - k) % nfft).copied().unwrap_or_default().conj();
-            let fa = (zk + zm) * 0.5;
-            let fb = (zk - zm) * Complex::new(0.0, -0.5);
-            fa.conj() * fb
-        })
-        .collect();
-    inverse.process(&mut r);
-    // Prefix sums of x and x² (index i: sum of the first i samples).
-    let prefix = |x: &[f64]| {
-        let mut s = vec![(0.0, 0.0)];
-        let mut acc = (0.0, 0.0);
-        for v in x {
-            acc = (acc.0 + v, acc.1 + v * v);
-            s.push(acc);
+    max_lag_samples.unwrap_or(default_window).min(n - 2)
+}
+
+/// The correlation coefficient of two centred signals of equal length at every lag up to
+/// a largest one: the products `Σ a[i]·b[i+k]` of one FFT cross-correlation, and the prefix
+/// sums that give each overlap's own means and energies.
+struct Coefficient {
+    /// Samples of each signal.
+    n: usize,
+    /// Length of the zero-padded transform.
+    nfft: usize,
+    /// `Σ a[i]·b[i+k]` times `nfft` at index `k` (negative lags from the end).
+    products: Vec<Complex<f64>>,
+    /// Prefix sums of `a` and `a²` (index i: the sum of the first i samples).
+    prefix_a: Vec<(f64, f64)>,
+    /// The same of `b`.
+    prefix_b: Vec<(f64, f64)>,
+}
+
+impl Coefficient {
+    /// The coefficient of `a` and `b` (centred, of equal length) for lags up to `max_lag`
+    /// samples either way.
+    fn new(a: &[f64], b: &[f64], max_lag: usize) -> Self {
+        let n = a.len();
+        // Zero padding to n + the largest lag looked at (the window and the two samples of the
+        // flatness check) keeps the circular correlation linear at every lag used.
+        let nfft = (n + max_lag + 3).next_power_of_two();
+        let (forward, inverse) = fft_pair(nfft);
+        // Both real signals in one complex transform, z = a + i·b, separated by the symmetry
+        // of real spectra: A[k] = (Z[k] + Z*[−k])/2, B[k] = (Z[k] − Z*[−k])/2i; then the
+        // cross-spectrum A*·B and one inverse transform give Σ a[i]·b[i+k] at every lag.
+        let mut z: Vec<Complex<f64>> = a
+            .iter()
+            .zip(b)
+            .map(|(&x, &y)| Complex::new(x, y))
+            .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
+            .take(nfft)
+            .collect();
+        forward.process(&mut z);
+        let mut r: Vec<Complex<f64>> = (0..nfft)
+            .map(|k| {
+                let zk = z.get(k).copied().unwrap_or_default();
+                let zm = z.get((nfft - k) % nfft).copied().unwrap_or_default().conj();
+                let fa = (zk + zm) * 0.5;
+                let fb = (zk - zm) * Complex::new(0.0, -0.5);
+                fa.conj() * fb
+            })
+            .collect();
+        inverse.process(&mut r);
+        Coefficient {
+            n,
+            nfft,
+            products: r,
+            prefix_a: prefix_sums(a),
+            prefix_b: prefix_sums(b),
         }
-        s
-    };
-    let (pa, pb) = (prefix(&a), prefix(&b));
-    let sums = |p: &[(f64, f64)], from: usize, to: usize| -> Option<(f64, f64)> {
-        let (hi, lo) = (p.get(to)?, p.get(from)?);
-        Some((hi.0 - lo.0, hi.1 - lo.1))
-    };
-    // Correlation coefficient at lag k (b[n+k] against a[n]); None where undefined.
-    let rho = |k: isize| -> Option<f64> {
+    }
+
+    /// The correlation coefficient at lag `k` (`b[n+k]` against `a[n]`); `None` where it
+    /// is undefined (an overlap under two samples, or a constant part).
+    fn at(&self, k: isize) -> Option<f64> {
+        let (n, nfft) = (self.n, self.nfft);
         let shift = k.unsigned_abs();
         let m = n.checked_sub(shift).filter(|m| *m >= 2)?;
         let (a_range, b_range) = if k >= 0 {
@@ -161,37 +223,40 @@ pub fn xcorr_lag(
         } else {
             ((shift, n), (0, m))
         };
-        let (sa, saa) = sums(&pa, a_range.0, a_range.1)?;
-        let (sb, sbb) = sums(&pb, b_range.0, b_range.1)?;
+        let (sa, saa) = range_sums(&self.prefix_a, a_range.0, a_range.1)?;
+        let (sb, sbb) = range_sums(&self.prefix_b, b_range.0, b_range.1)?;
         let at = if k >= 0 { shift } else { nfft - shift };
-        let sab = r.get(at)?.re / nfft as f64;
+        let sab = self.products.get(at)?.re / nfft as f64;
         let mf = m as f64;
         let var = (saa - sa * sa / mf) * (sbb - sb * sb / mf);
         (var > 0.0).then(|| (sab - sa * sb / mf) / var.sqrt())
-    };
-    let max_lag = max_lag as isize;
-    let (k, peak) = (-max_lag..=max_lag)
-        .filter_map(|k| Some((k, rho(k)?)))
-        .fold(None::<(isize, f64)>, |best, (k, v)| match best {
-            Some((_, b)) if b >= v => best,
-            _ => Some((k, v)),
-        })
-        .ok_or("a signal is constant: no lag can be found")?;
-    // A straight line (a time column, a ramp) correlates perfectly at every lag: no peak,
-    // no lag.
-    let flat = [k - 2, k + 2]
-        .iter()
-        .filter_map(|&j| rho(j))
-        .any(|v| v >= peak - 1e-12);
-    if flat {
-        return Err(format!(
-            "the correlation has no peak (it is {peak:.12} two samples either side of the best \
-             lag too): the signals have no feature to align, such as a straight line"
-        ));
     }
-    // Refine on both signals low-passed alike (zero phase: the lag is kept): interpolating
-    // white noise lowers its variance by up to a third between samples, which would pull
-    // the maximum toward half-sample lags.
+}
+
+/// Prefix sums of `x` and `x²` (index i: the sum of the first i samples).
+fn prefix_sums(x: &[f64]) -> Vec<(f64, f64)> {
+    let mut s = vec![(0.0, 0.0)];
+    let mut acc = (0.0, 0.0);
+    for v in x {
+        acc = (acc.0 + v, acc.1 + v * v);
+        s.push(acc);
+    }
+    s
+}
+
+/// The sums of `x` and `x²` over samples `from..to`, from their prefix sums `p`.
+fn range_sums(p: &[(f64, f64)], from: usize, to: usize) -> Option<(f64, f64)> {
+    let (hi, lo) = (p.get(to)?, p.get(from)?);
+    Some((hi.0 - lo.0, hi.1 - lo.1))
+}
+
+/// The lag `k`, samples, refined below one sample ([`refine_lag`], `k` itself if it cannot
+/// be) on `a` and `b` low-passed alike at [`REFINE_BAND`] of the sample rate.
+///
+/// Refine on both signals low-passed alike (zero phase: the lag is kept): interpolating
+/// white noise lowers its variance by up to a third between samples, which would pull
+/// the maximum toward half-sample lags.
+fn refine_smoothed(a: &[f64], b: &[f64], k: isize, sample_time_s: f64) -> f64 {
     let smooth = |x: &[f64]| match butterworth_lowpass(
         4,
         REFINE_BAND * sample_rate(sample_time_s),
@@ -200,13 +265,7 @@ pub fn xcorr_lag(
         Ok(s) => filtfilt(&s, x),
         Err(_) => x.to_vec(),
     };
-    let samples = refine_lag(&smooth(&a), &smooth(&b), k as f64).unwrap_or(k as f64);
-    Ok(Lag {
-        samples,
-        seconds: samples * sample_time_s,
-        // Rounding can put a perfect match a hair above 1.
-        correlation: peak.clamp(-1.0, 1.0),
-    })
+    refine_lag(&smooth(a), &smooth(b), k as f64).unwrap_or(k as f64)
 }
 
 /// Band of the sub-sample refinement, as a fraction of the sample rate.

@@ -31,12 +31,28 @@
 use fpc::units::{DacCode, Duty, PerSection, PhaseDuties};
 use hal_sim::board::world::World;
 
-use crate::chip::output_stage::Bridge;
-
 /// The least dead time the bridge takes, ns: its switches' turn-off and the gate driver's
 /// propagation mismatch (an assumption of the board model; `docs/bring-up.md` 2.3 measures
 /// the margin). The firmware inserts 500 ns.
 pub const MIN_DEAD_TIME_NS: f64 = 300.0;
+
+/// What one bridge's six gates do over the coming period: the board's side of the gate
+/// drive, which the timer's output stage decides from its registers
+/// ([`crate::chip::output_stage::bridge`]) and [`Board::step`] applies to the plant.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Bridge {
+    /// Switching complementarily: the compare values drive the phases; `inverted` marks the
+    /// phases whose outputs are both inverted (CCxP = CCxNP = 1: the high side's on-time is
+    /// then the period less the compare value).
+    Switching {
+        /// Phases U, V, W with both outputs inverted.
+        inverted: [bool; 3],
+    },
+    /// Every gate low (MOE = 0, OSSI = 1, idle levels low): off.
+    Off,
+    /// Something the board cannot take: the reason, for the operator.
+    Unsafe(&'static str),
+}
 
 /// A phase current stepped above what the machine draws (a winding short, say), as the
 /// sensor reports it from `at_s` on.

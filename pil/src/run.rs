@@ -15,9 +15,9 @@ use hal_sim::run::{HostLink, RunDriver, RunOptions, RunOutcome, Summary};
 use serde::Serialize;
 
 use crate::board::Board;
-use crate::chip::{ChipOptions, PeriodLoad};
+use crate::chip::{ChipOptions, Milestone, PeriodLoad, Soc};
 use crate::elf::Image;
-use crate::session::Session;
+use crate::session::{SentCommand, Session};
 
 /// The SYSCLK the instruction figures are stated at, Hz.
 pub const SYSCLK_HZ: f64 = 170e6;
@@ -162,144 +162,37 @@ pub fn commissioned(run: &RunOptions) -> Result<CalibrationRecord, String> {
 pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome, String> {
     let started = Instant::now();
     opts.run.validate()?;
-    let mut run_opts = opts.run.clone();
-    let record = match &run_opts.calibration {
-        Some(r) => *r,
-        None => commissioned(&run_opts)?,
-    };
-    run_opts.calibration = Some(record);
-    // The host can see the firmware's status only through telemetry: the log has a row per
-    // frame (the firmware's default decimation, 1 kHz).
-    run_opts.log_rate_hz = 1_000_000
-        / fpc::units::CONTROL_PERIOD_US
-        / u32::from(fpc::link::telemetry::DEFAULT_DECIMATION);
-
-    let flash = hal_sim::board::flash::holding(&record)?;
-    let mut world = hal_sim::run::world(
-        &run_opts.model,
-        run_opts.seed,
-        run_opts.start_us,
-        run_opts.start_position_m,
-    );
-    world
-        .plant
-        .lines
-        .set_pressure_ratio(run_opts.pressure_ratio);
-    let mut session = Session::new(opts.image.clone(), Board::new(world), opts.chip.clone())?;
-    session.chip.soc().flash.load_image(flash.image());
+    let (run_opts, record) = pil_run_options(&opts.run)?;
+    let mut session = commissioned_session(opts, &run_opts, &record)?;
     let config = hal_sim::run::run_config(&run_opts);
     let mut driver = RunDriver::new(&run_opts, &config, "fpc-pil run", csv).log_each_status();
     let pil_started = Instant::now();
-    let mut running_from: Option<usize> = None;
-    let mut track = Track::default();
-    loop {
-        session.step()?;
-        let fresh = session.fresh;
-        let (world, mut link) = session.link();
-        let mode = world.plant.port_mode;
-        let flow = driver.cycle(world, &mut link, fresh, None);
-        track.record(world, mode);
-        if running_from.is_none()
-            && driver.cycles_done() == 0
-            && session.status.mode == fpc::status::ModeKind::Running
-        {
-            let soc = session.chip.soc();
-            soc.recording = true;
-            soc.profile = opts.profile;
-            running_from = Some(0);
-        }
-        if flow.is_break() {
-            break;
-        }
-    }
+    let track = drive(&mut session, &mut driver, opts.profile)?;
     let pil_wall = pil_started.elapsed().as_secs_f64();
     let soc = session.chip.soc();
     let periods = std::mem::take(&mut soc.periods);
     let resets = soc.resets.len();
-    // The ELF's control task first ran in this plant cycle (its boot from power-on); the host
-    // build starts its tasks in the same one, so that every rate the firmware divides down
-    // from its control steps (the telemetry's decimation, the 1 kHz work) has the same phase
-    // to the plant and to the commands as on the ELF.
-    let first_control_us = soc
-        .milestones
-        .iter()
-        .find(|(_, m)| *m == crate::chip::Milestone::ControlTask)
-        .map(|(t, _)| {
-            let period = u64::from(fpc::units::CONTROL_PERIOD_US);
-            (t * 1e6 / period as f64).floor() as u64 * period
-        });
+    let first_control_us = first_control_us(soc);
     let profile = profile_rows(&opts.image, &soc.profile_worst.1);
     let world = soc.board.world.clone();
     let outcome = driver.finish(world, Default::default())?;
-    let n = periods.len().max(1) as f64;
-    let mean = periods.iter().map(|p| p.interrupt_path as f64).sum::<f64>() / n;
-    let max = periods.iter().map(|p| p.interrupt_path).max().unwrap_or(0);
-    let thread = periods.iter().map(|p| p.thread as f64).sum::<f64>() / n;
-    let cycles_mean = periods.iter().map(|p| p.path_cycles as f64).sum::<f64>() / n;
-    let worst = periods
-        .iter()
-        .max_by_key(|p| p.path_cycles)
-        .copied()
-        .unwrap_or_default();
-    let path_total: u64 = periods.iter().map(|p| p.interrupt_path).sum();
-    let path_flash: u64 = periods.iter().map(|p| p.path_flash_instructions).sum();
+    let load = PathLoad::of(&periods);
     let rms = if opts.compare_with_host && opts.run.schedule.is_empty() {
-        let mut h = opts.run.clone();
-        h.calibration = Some(record);
-        let mut taken: Vec<_> = session
-            .sent
-            .iter()
-            .map(|c| (c.command, c.taken_after_cycle))
-            .collect();
-        // The read offset places each command's read within a period; the command task (thread
-        // mode) may still be preempted by the next control step between reading a command and
-        // posting it, which then takes it a cycle later. Of the two candidates the replay keeps
-        // the one whose trajectory matches, command by command, up to the next one. A candidate
-        // whose replay cannot follow the ELF (the host decides a later command after the ELF
-        // took it) is not that one; if neither can, the run fails with the first's reason.
-        for i in 0..taken.len() {
-            let Some(c0) = taken[i].1 else { continue };
-            let until = taken
-                .get(i + 1)
-                .and_then(|t| t.1)
-                .unwrap_or(track.x_m.len() as u64);
-            let mut best: Option<(f64, u64)> = None;
-            let mut refused: Option<String> = None;
-            for c in [c0, c0 + 1] {
-                taken[i].1 = Some(c);
-                let host = match host_replay(&h, &taken, track.bypass_closed, first_control_us) {
-                    Ok(host) => host,
-                    Err(e) => {
-                        refused.get_or_insert(e);
-                        continue;
-                    }
-                };
-                let d = window_rms_diff(&track.x_m, &host.x_m, c0, until);
-                if best.is_none_or(|b| d < b.0) {
-                    best = Some((d, c));
-                }
-            }
-            match best {
-                Some((_, c)) => taken[i].1 = Some(c),
-                None => return Err(refused.unwrap_or_default()),
-            }
-        }
-        let host = host_replay(&h, &taken, track.bypass_closed, first_control_us)?;
-        position_rms_diff(&track.x_m, &host.x_m, track.start_cycle)
+        position_rms_diff_vs_host(&opts.run, record, &session.sent, &track, first_control_us)?
     } else {
         None
     };
     let stack = crate::stack::stack_use(&session.chip);
     let summary = PilSummary {
         run: outcome.summary.clone(),
-        instructions_per_cycle_mean: mean,
-        instructions_per_cycle_max: max,
-        thread_instructions_per_cycle_mean: thread,
-        cycles_per_cycle_mean: cycles_mean,
-        cycles_per_cycle_max: worst.path_cycles,
-        worst_cycle_us: worst.path_cycles as f64 / SYSCLK_HZ * 1e6,
-        flash_fetched_share: path_flash as f64 / path_total.max(1) as f64,
-        worst_cycle_flash_wait_cycles: worst.path_wait_cycles,
+        instructions_per_cycle_mean: load.mean,
+        instructions_per_cycle_max: load.max,
+        thread_instructions_per_cycle_mean: load.thread,
+        cycles_per_cycle_mean: load.cycles_mean,
+        cycles_per_cycle_max: load.worst.path_cycles,
+        worst_cycle_us: load.worst.path_cycles as f64 / SYSCLK_HZ * 1e6,
+        flash_fetched_share: load.flash_fetched_share,
+        worst_cycle_flash_wait_cycles: load.worst.path_wait_cycles,
         timeline_cpi: opts.chip.cpi,
         position_rms_diff_vs_host_m: rms,
         pil_wall_time_s: pil_wall,
@@ -316,6 +209,183 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
         periods,
         profile,
     })
+}
+
+/// The run as the PIL makes it, with the calibration the board's flash holds: `run`'s own,
+/// or the model commissioned ([`commissioned`]). The host can see the firmware's status
+/// only through telemetry, so the log has a row per frame (the firmware's default
+/// decimation, 1 kHz).
+fn pil_run_options(run: &RunOptions) -> Result<(RunOptions, CalibrationRecord), String> {
+    let mut run_opts = run.clone();
+    let record = match &run_opts.calibration {
+        Some(r) => *r,
+        None => commissioned(&run_opts)?,
+    };
+    run_opts.calibration = Some(record);
+    run_opts.log_rate_hz = 1_000_000
+        / fpc::units::CONTROL_PERIOD_US
+        / u32::from(fpc::link::telemetry::DEFAULT_DECIMATION);
+    Ok((run_opts, record))
+}
+
+/// The board with `record` in its flash store, around the plant of `run_opts` (model, seed,
+/// start, pressure ratio), and the host attached to it.
+fn commissioned_session(
+    opts: &PilOptions,
+    run_opts: &RunOptions,
+    record: &CalibrationRecord,
+) -> Result<Session, String> {
+    let flash = hal_sim::board::flash::holding(record)?;
+    let mut world = hal_sim::run::world(
+        &run_opts.model,
+        run_opts.seed,
+        run_opts.start_us,
+        run_opts.start_position_m,
+    );
+    world
+        .plant
+        .lines
+        .set_pressure_ratio(run_opts.pressure_ratio);
+    let mut session = Session::new(opts.image.clone(), Board::new(world), opts.chip.clone())?;
+    session.chip.soc().flash.load_image(flash.image());
+    Ok(session)
+}
+
+/// Steps the board and the operator until the run ends, keeping the piston's track. The
+/// chip records each period's load (and with `profile` the worst period's interrupt path)
+/// from the first status in Running, before any compression cycle is done.
+fn drive(
+    session: &mut Session,
+    driver: &mut RunDriver<'_, '_>,
+    profile: bool,
+) -> Result<Track, String> {
+    let mut recording = false;
+    let mut track = Track::default();
+    loop {
+        session.step()?;
+        let fresh = session.fresh;
+        let (world, mut link) = session.link();
+        let mode = world.plant.port_mode;
+        let flow = driver.cycle(world, &mut link, fresh, None);
+        track.record(world, mode);
+        if !recording
+            && driver.cycles_done() == 0
+            && session.status.mode == fpc::status::ModeKind::Running
+        {
+            let soc = session.chip.soc();
+            soc.recording = true;
+            soc.profile = profile;
+            recording = true;
+        }
+        if flow.is_break() {
+            return Ok(track);
+        }
+    }
+}
+
+/// The start, µs, of the plant cycle in which the ELF's control task first ran (its boot
+/// from power-on); `None` if it never ran.
+fn first_control_us(soc: &Soc) -> Option<u64> {
+    // The host build starts its tasks in the same plant cycle, so that every rate the
+    // firmware divides down from its control steps (the telemetry's decimation, the 1 kHz
+    // work) has the same phase to the plant and to the commands as on the ELF.
+    soc.milestones
+        .iter()
+        .find(|(_, m)| *m == Milestone::ControlTask)
+        .map(|(t, _)| {
+            let period = u64::from(fpc::units::CONTROL_PERIOD_US);
+            (t * 1e6 / period as f64).floor() as u64 * period
+        })
+}
+
+/// The interrupt path's load over the recorded periods, as [`PilSummary`] states it.
+struct PathLoad {
+    /// Instructions per period, mean.
+    mean: f64,
+    /// Instructions per period, the largest.
+    max: u64,
+    /// Thread-mode instructions per period, mean.
+    thread: f64,
+    /// Clock cycles per period, mean.
+    cycles_mean: f64,
+    /// The period with the most clock cycles.
+    worst: PeriodLoad,
+    /// The part of the path's instructions fetched from program flash.
+    flash_fetched_share: f64,
+}
+
+impl PathLoad {
+    /// The figures of `periods` (all zero if there are none).
+    fn of(periods: &[PeriodLoad]) -> PathLoad {
+        let n = periods.len().max(1) as f64;
+        let path_total: u64 = periods.iter().map(|p| p.interrupt_path).sum();
+        let path_flash: u64 = periods.iter().map(|p| p.path_flash_instructions).sum();
+        PathLoad {
+            mean: periods.iter().map(|p| p.interrupt_path as f64).sum::<f64>() / n,
+            max: periods.iter().map(|p| p.interrupt_path).max().unwrap_or(0),
+            thread: periods.iter().map(|p| p.thread as f64).sum::<f64>() / n,
+            cycles_mean: periods.iter().map(|p| p.path_cycles as f64).sum::<f64>() / n,
+            worst: periods
+                .iter()
+                .max_by_key(|p| p.path_cycles)
+                .copied()
+                .unwrap_or_default(),
+            flash_fetched_share: path_flash as f64 / path_total.max(1) as f64,
+        }
+    }
+}
+
+/// [`PilSummary::position_rms_diff_vs_host_m`]: the host build replays `run` with `record`,
+/// each command the ELF's operator sent (`sent`) taken by the same control step, against the
+/// ELF's `track`.
+fn position_rms_diff_vs_host(
+    run: &RunOptions,
+    record: CalibrationRecord,
+    sent: &[SentCommand],
+    track: &Track,
+    first_control_us: Option<u64>,
+) -> Result<Option<f64>, String> {
+    let mut h = run.clone();
+    h.calibration = Some(record);
+    let mut taken: Vec<_> = sent
+        .iter()
+        .map(|c| (c.command, c.taken_after_cycle))
+        .collect();
+    // The read offset places each command's read within a period; the command task (thread
+    // mode) may still be preempted by the next control step between reading a command and
+    // posting it, which then takes it a cycle later. Of the two candidates the replay keeps
+    // the one whose trajectory matches, command by command, up to the next one. A candidate
+    // whose replay cannot follow the ELF (the host decides a later command after the ELF
+    // took it) is not that one; if neither can, the run fails with the first's reason.
+    for i in 0..taken.len() {
+        let Some(c0) = taken[i].1 else { continue };
+        let until = taken
+            .get(i + 1)
+            .and_then(|t| t.1)
+            .unwrap_or(track.x_m.len() as u64);
+        let mut best: Option<(f64, u64)> = None;
+        let mut refused: Option<String> = None;
+        for c in [c0, c0 + 1] {
+            taken[i].1 = Some(c);
+            let host = match host_replay(&h, &taken, track.bypass_closed, first_control_us) {
+                Ok(host) => host,
+                Err(e) => {
+                    refused.get_or_insert(e);
+                    continue;
+                }
+            };
+            let d = window_rms_diff(&track.x_m, &host.x_m, c0, until);
+            if best.is_none_or(|b| d < b.0) {
+                best = Some((d, c));
+            }
+        }
+        match best {
+            Some((_, c)) => taken[i].1 = Some(c),
+            None => return Err(refused.unwrap_or_default()),
+        }
+    }
+    let host = host_replay(&h, &taken, track.bypass_closed, first_control_us)?;
+    Ok(position_rms_diff(&track.x_m, &host.x_m, track.start_cycle))
 }
 
 /// The plant as the PIL run moved it: the piston position at every cycle, and when the

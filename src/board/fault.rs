@@ -45,6 +45,7 @@ use fpc::units::DacCode;
 
 use super::clocks::SYSCLK_HZ;
 use super::store_flash;
+use super::watchdog::reload_watchdog;
 
 /// A boot-time read-back that did not match: the board refuses to run. Stable numbers (they
 /// are logged); each line tells the operator what to do.
@@ -84,11 +85,6 @@ pub fn boot_fault(check: BootCheck) -> ! {
     safe_outputs_off();
     defmt::error!("boot check failed: {} ({=u8})", check, check as u8);
     reset_after_log()
-}
-
-/// The IWDG's reload key (IWDG_KR = 0xAAAA): no effect while the watchdog is stopped.
-pub(super) fn reload_watchdog() {
-    pac::IWDG.kr().write_value(pac::iwdg::regs::Kr(0xAAAA));
 }
 
 /// Waits 1 ms (170,000 core clocks at 170 MHz; ≈ 10 ms at the 16 MHz boot clock) so an

@@ -22,7 +22,7 @@ use embassy_stm32::interrupt::typelevel::{Handler, FLASH};
 use embassy_stm32::pac;
 use embedded_storage_async::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 
-use super::fault::reload_watchdog;
+use super::watchdog::reload_watchdog;
 
 /// FLASH_SR's error flags (RM0440, FLASH_SR): OPERR, PROGERR, WRPERR, PGAERR, SIZERR,
 /// PGSERR, MISERR, FASTERR.

@@ -89,3 +89,8 @@ impl Watchdog for BoardWatchdog {
         self.wdg.pet();
     }
 }
+
+/// The IWDG's reload key (IWDG_KR = 0xAAAA): no effect while the watchdog is stopped.
+pub(super) fn reload_watchdog() {
+    pac::IWDG.kr().write_value(pac::iwdg::regs::Kr(0xAAAA));
+}

@@ -104,25 +104,100 @@ pub struct ControlConfig {
     pub calibration: CalibrationConfig,
     /// The slave encoder's mapped difference from the master's, corrected in its reading
     /// (`None`: not mapped).
-    pub encoder_map: Option<crate::control::calibration::EncoderMap>,
+    pub encoder_map: Option<crate::sensing::encoder_map::EncoderMap>,
+}
+
+/// The machine as the controller is told it: the values of a machine model the
+/// configuration follows (the rest is the firmware's own tuning). One mapping for every
+/// machine: [`ControlConfig::for_machine`]; the reference's values come from the one
+/// `reference.toml` ([`crate::reference`]), a simulated model's from the model.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Machine {
+    /// Moving mass, kg.
+    pub moving_mass_kg: f32,
+    /// Head-to-head travel, m.
+    pub travel_m: f32,
+    /// Cylinder geometry.
+    pub cylinder: Cylinder<f32>,
+    /// The friction law (its sign regularisation the firmware's own).
+    pub friction: FrictionParams<f32>,
+    /// Both encoders' signal period, m.
+    pub encoder_period_m: f32,
+    /// The motor sections (the master's values for both).
+    pub motor: MotorParams<f32>,
+    /// The rotation's inertia at the piston, kg·m².
+    pub servo_inertia_kgm2: f32,
+    /// The servo drive's torque at full scale, N·m.
+    pub servo_torque_full_scale_nm: f32,
+    /// The rotation encoder's counts per revolution.
+    pub servo_counts_per_rev: u32,
+    /// Clearance to a head that commanded positions keep, m.
+    pub target_clearance_m: f32,
+    /// The strokes' dead points, that clearance from head A and from head B, m.
+    pub dead_points_m: (f32, f32),
+    /// Total force limit of both sections, N.
+    pub force_limit_n: f32,
+    /// Largest commanded speed, m/s.
+    pub max_speed_mps: f32,
+}
+
+impl Machine {
+    /// The reference machine of `docs/machine.md`, from its one source (`reference.toml`,
+    /// generated into [`crate::reference`]).
+    pub fn reference() -> Self {
+        use crate::reference::{encoder, limits, motor, piston, servo};
+        let clearance = limits::TARGET_HEAD_CLEARANCE_M;
+        Machine {
+            moving_mass_kg: piston::MASS_KG as f32,
+            travel_m: piston::TRAVEL_M as f32,
+            cylinder: Cylinder::reference(),
+            friction: FrictionParams::reference(),
+            encoder_period_m: encoder::PERIOD_M as f32,
+            motor: MotorParams {
+                electrical_period_m: (2.0 * motor::POLE_PITCH_M) as f32,
+                ..MotorParams::reference()
+            },
+            servo_inertia_kgm2: servo::INERTIA_KGM2 as f32,
+            servo_torque_full_scale_nm: servo::TORQUE_FULL_SCALE_NM as f32,
+            servo_counts_per_rev: servo::COUNTS_PER_REV,
+            target_clearance_m: clearance as f32,
+            dead_points_m: (clearance as f32, (piston::TRAVEL_M - clearance) as f32),
+            force_limit_n: limits::FORCE_LIMIT_N as f32,
+            max_speed_mps: limits::MAX_SPEED_MPS as f32,
+        }
+    }
 }
 
 impl ControlConfig {
-    /// The reference machine of `docs/machine.md`.
+    /// The reference machine of `docs/machine.md` with the firmware's tuning: what the
+    /// flashed firmware runs before its calibration record is loaded.
     pub fn reference() -> Self {
-        let motor = MotorParams::<f32>::reference();
+        Self::for_machine(&Machine::reference())
+    }
+
+    /// The firmware's tuning for `machine`. The current loops, the allocation's section
+    /// limit, the port geometry, the gas and the sensors' calibrations are the reference
+    /// machine's whatever `machine` says (the firmware is tuned for it).
+    pub fn for_machine(machine: &Machine) -> Self {
+        let reference_motor = MotorParams::<f32>::reference();
+        let encoder = EncoderConfig {
+            period_m: machine.encoder_period_m,
+            ..EncoderConfig::reference()
+        };
+        let mut stroke = StrokeConfig::reference(2.3);
+        (stroke.dead_a_m, stroke.dead_b_m) = machine.dead_points_m;
         ControlConfig {
             sample_time_s: 50e-6,
-            travel_m: 0.205,
-            target_clearance_m: 1.0e-3,
-            moving_mass_kg: 12.0,
-            friction: FrictionParams::reference(),
-            cylinder: Cylinder::reference(),
+            travel_m: machine.travel_m,
+            target_clearance_m: machine.target_clearance_m,
+            moving_mass_kg: machine.moving_mass_kg,
+            friction: machine.friction,
+            cylinder: machine.cylinder,
             gas: GasProperties::air(),
             port_geometry: PortGeometry::reference(),
             volume_ratio: VolumeRatioConfig::reference(),
-            encoder_master: EncoderConfig::reference(),
-            encoder_slave: EncoderConfig::reference(),
+            encoder_master: encoder,
+            encoder_slave: encoder,
             // 25, not 21: acceleration error 3.8 % vs 4.5 % of peak on a 4 m/s stroke at
             // σx = 1 µm, same cost (tests/velocity_estimate_quality.rs).
             sg_window: 25,
@@ -139,24 +214,29 @@ impl ControlConfig {
             disturbance_bandwidth_rad_s: 4000.0,
             disturbance_threshold_n: 300.0,
             disturbance_slow_rad_s: 250.0,
-            force_limit_n: 10_000.0,
-            max_speed_mps: 4.5,
-            current_gains: CurrentLoopGains::for_bandwidth(&motor, 8000.0),
+            force_limit_n: machine.force_limit_n,
+            max_speed_mps: machine.max_speed_mps,
+            current_gains: CurrentLoopGains::for_bandwidth(&reference_motor, 8000.0),
             allocation: AllocationConfig::reference(),
-            motor,
+            motor: machine.motor,
             current_sense: PerSection {
                 master: CurrentSense::reference(),
                 slave: CurrentSense::reference(),
             },
             angle_offset: PerSection::default(),
-            servo: ServoConfig::reference(),
+            servo: ServoConfig {
+                inertia_kgm2: machine.servo_inertia_kgm2,
+                torque_full_scale_nm: machine.servo_torque_full_scale_nm,
+                counts_per_rev: machine.servo_counts_per_rev,
+                ..ServoConfig::reference()
+            },
             pressure: PressureCalibration::reference(),
             homing: HomingConfig::reference(),
             park_position_m: 0.01,
             park_speed_mps: 0.2,
             heartbeat_timeout_s: 0.5,
             supervisor: SupervisorConfig::reference(),
-            stroke: StrokeConfig::reference(2.3),
+            stroke,
             calibration: CalibrationConfig::reference(),
             encoder_map: None,
         }

@@ -13,9 +13,10 @@ use crate::units::PerSection;
 /// Allocation parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AllocationConfig {
-    /// Relative capability of each section, within [0, 1] (1 = nominal, 0 = lost;
-    /// `ControlStep::new` refuses others, so [`allocate`] does not clamp it every cycle).
-    /// Shares are proportional.
+    /// Relative capability of each section as built, within [0, 1] (1 = nominal, 0 = not
+    /// fitted; `ControlStep::new` refuses others, so [`allocate`] does not clamp it every
+    /// cycle). The sections in service are the step's state: a section taken out after a
+    /// fault is allocated 0 until the fault is cleared.
     pub capability: PerSection<f32>,
     /// Peak force one nominal section can deliver, N.
     pub section_limit_n: f32,
@@ -37,13 +38,19 @@ impl AllocationConfig {
     }
 }
 
-/// The forces to command, per section, for a total `force_n` at position `x_m`. NaN in, zero
+/// The forces to command, per section, for a total `force_n` at position `x_m`, shared in
+/// proportion to `capability` (each section's, within [0, 1]: 0 out of service). NaN in, zero
 /// out; each share saturates at its section's limit. Always inlined: it is part of the
 /// control step (the calibration calls it too).
 #[inline(always)]
-pub fn allocate(config: &AllocationConfig, force_n: f32, x_m: f32) -> PerSection<f32> {
+pub fn allocate(
+    config: &AllocationConfig,
+    capability: PerSection<f32>,
+    force_n: f32,
+    x_m: f32,
+) -> PerSection<f32> {
     let wanted = force_n - config.cogging.force_n(x_m);
-    let (cm, cs) = (config.capability.master, config.capability.slave);
+    let (cm, cs) = (capability.master, capability.slave);
     let total = cm + cs;
     if wanted.is_nan() || total.is_nan() || total <= 0.0 {
         return PerSection::default();
@@ -65,14 +72,17 @@ mod tests {
     #[test]
     fn equal_split_by_default_and_all_to_the_healthy_section() {
         let mut c = AllocationConfig::reference();
-        let f = allocate(&c, 3000.0, 0.1);
+        let f = allocate(&c, c.capability, 3000.0, 0.1);
         assert_eq!((f.master, f.slave), (1500.0, 1500.0));
         c.capability.slave = 0.0;
-        let f = allocate(&c, 3000.0, 0.1);
+        let f = allocate(&c, c.capability, 3000.0, 0.1);
         assert_eq!((f.master, f.slave), (3000.0, 0.0));
-        let f = allocate(&c, 9000.0, 0.1);
+        let f = allocate(&c, c.capability, 9000.0, 0.1);
         assert_eq!(f.master, 5000.0);
-        assert_eq!(allocate(&c, f32::NAN, 0.1), PerSection::default());
+        assert_eq!(
+            allocate(&c, c.capability, f32::NAN, 0.1),
+            PerSection::default()
+        );
     }
 
     #[test]
@@ -80,7 +90,7 @@ mod tests {
         let mut c = AllocationConfig::reference();
         c.cogging.sin_n[0] = 30.0;
         // At a quarter period the map predicts +30 N: the motors supply 30 N less.
-        let f = allocate(&c, 0.0, 0.006);
+        let f = allocate(&c, c.capability, 0.0, 0.006);
         assert!((f.master + f.slave + 30.0).abs() < 0.1);
     }
 
@@ -91,9 +101,15 @@ mod tests {
             master: 0.0,
             slave: 0.0,
         };
-        assert_eq!(allocate(&c, 3000.0, 0.1), PerSection::default());
+        assert_eq!(
+            allocate(&c, c.capability, 3000.0, 0.1),
+            PerSection::default()
+        );
         c.capability.master = f32::NAN;
-        assert_eq!(allocate(&c, 3000.0, 0.1), PerSection::default());
+        assert_eq!(
+            allocate(&c, c.capability, 3000.0, 0.1),
+            PerSection::default()
+        );
     }
 
     #[test]

@@ -31,14 +31,13 @@ impl ServoConfig {
     /// Reference servo tuned for ≈ 30 Hz (ω = 190 rad/s, damping 0.8).
     pub const fn reference() -> Self {
         ServoConfig {
-            counts_per_rev: 4096,
-            inertia_kgm2: 2e-3,
+            counts_per_rev: crate::reference::servo::COUNTS_PER_REV,
+            inertia_kgm2: crate::reference::servo::INERTIA_KGM2 as f32,
             kp_nm_per_rad: 72.0,
             kd_nms_per_rad: 0.6,
-            // The reference machine's drive (its model, `reference.toml`: 20 N·m, enough
-            // for the piston's sliding friction at 4 m/s). With 5 N·m here the flashed
-            // firmware commanded 4× the torque it meant, its loop gain 4× the simulator's.
-            torque_full_scale_nm: 20.0,
+            // The reference machine's drive (20 N·m, enough for the piston's sliding
+            // friction at 4 m/s).
+            torque_full_scale_nm: crate::reference::servo::TORQUE_FULL_SCALE_NM as f32,
             velocity_filter_s: 5e-4,
             sample_time_s: 50e-6,
         }
@@ -66,6 +65,10 @@ pub struct RotarySetpoint {
 #[derive(Clone, Debug)]
 pub struct ServoController {
     config: ServoConfig,
+    /// The configuration's [`ServoConfig::rad_per_count`], rad.
+    rad_per_count: f32,
+    /// The velocity filter's gain per sample, Ts / (τ + Ts), in (0, 1].
+    velocity_alpha: f32,
     last_count: Option<i64>,
     /// Count at angle zero of the current base.
     count_base: i64,
@@ -79,6 +82,9 @@ impl ServoController {
     pub fn new(config: ServoConfig) -> Self {
         ServoController {
             config,
+            rad_per_count: config.rad_per_count(),
+            velocity_alpha: config.sample_time_s
+                / (config.velocity_filter_s + config.sample_time_s),
             last_count: None,
             count_base: 0,
             velocity_rad_s: 0.0,
@@ -118,10 +124,10 @@ impl ServoController {
         // whole turns), so the f32 angle keeps its full resolution however long it runs.
         // i64 → f32 by halves: `as f32` is a library call of ~35 instructions on the M4,
         // twice per cycle (exact either way for the few turns the angle spans).
-        self.angle_rad = i64_to_f32(count.saturating_sub(self.count_base)) * c.rad_per_count();
-        let raw_velocity = i64_to_f32(step) * c.rad_per_count() / c.sample_time_s;
-        let alpha = c.sample_time_s / (c.velocity_filter_s + c.sample_time_s);
-        self.velocity_rad_s += alpha * (raw_velocity - self.velocity_rad_s);
+        // The configuration's constants are taken once, at construction.
+        self.angle_rad = i64_to_f32(count.saturating_sub(self.count_base)) * self.rad_per_count;
+        let raw_velocity = i64_to_f32(step) * self.rad_per_count / c.sample_time_s;
+        self.velocity_rad_s += self.velocity_alpha * (raw_velocity - self.velocity_rad_s);
     }
 
     /// One loop step: measure, then compute the torque command for `reference`.

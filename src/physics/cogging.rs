@@ -7,6 +7,7 @@
 //! Sign: the force acts on the piston, positive toward +x.
 
 use crate::real::Real;
+use crate::reference::effects::cogging;
 
 /// A single-harmonic cogging law `F = A·sin(2π·x/p + φ)`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -23,9 +24,9 @@ impl<T: Real> CoggingParams<T> {
     /// The reference machine: 30 N at the 24 mm pitch (**A**).
     pub fn reference() -> Self {
         CoggingParams {
-            amplitude_n: T::of(30.0),
-            period_m: T::of(0.024),
-            phase_rad: T::ZERO,
+            amplitude_n: T::of(cogging::AMPLITUDE_N as f32),
+            period_m: T::of(cogging::PERIOD_M as f32),
+            phase_rad: T::of(cogging::PHASE_RAD as f32),
         }
     }
 

@@ -8,6 +8,7 @@
 //! and the feed-forward must not chatter on velocity noise around a reversal.
 
 use crate::real::Real;
+use crate::reference::friction;
 
 /// Friction parameters, SI. Reference values from `docs/machine.md` (assumed, **A**).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -30,11 +31,11 @@ impl<T: Real> FrictionParams<T> {
     /// The reference machine: F_c 40 N, F_s 60 N, v_s 0.02 m/s, ζ 1, b 25 N·s/m.
     pub fn reference() -> Self {
         FrictionParams {
-            coulomb_n: T::of(40.0),
-            static_n: T::of(60.0),
-            stribeck_velocity_mps: T::of(0.02),
-            stribeck_exponent: T::of(1.0),
-            viscous_ns_per_m: T::of(25.0),
+            coulomb_n: T::of(friction::COULOMB_N as f32),
+            static_n: T::of(friction::STATIC_N as f32),
+            stribeck_velocity_mps: T::of(friction::STRIBECK_VELOCITY_MPS as f32),
+            stribeck_exponent: T::of(friction::STRIBECK_EXPONENT as f32),
+            viscous_ns_per_m: T::of(friction::VISCOUS_NS_PER_M as f32),
             sign_velocity_mps: T::of(1e-3),
         }
     }

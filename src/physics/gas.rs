@@ -38,9 +38,9 @@ impl<T: Real> GasProperties<T> {
     /// Air: γ 1.4, R 287 J/(kg·K), μ 1.8e-5 Pa·s (`docs/machine.md`).
     pub fn air() -> Self {
         GasProperties {
-            gamma: T::of(1.4),
-            gas_constant_j_per_kg_k: T::of(287.0),
-            viscosity_pa_s: T::of(1.8e-5),
+            gamma: T::of(crate::reference::gas::GAMMA as f32),
+            gas_constant_j_per_kg_k: T::of(crate::reference::gas::GAS_CONSTANT_J_PER_KG_K as f32),
+            viscosity_pa_s: T::of(crate::reference::gas::VISCOSITY_PA_S as f32),
         }
     }
 
@@ -166,12 +166,13 @@ impl<T: Real> Cylinder<T> {
     /// The reference machine: bore 90 mm, rod 20 mm, travel 0.205 m, 0.5 mm dead length each
     /// side (**A**, `docs/machine.md`).
     pub fn reference() -> Self {
+        use crate::reference::piston;
         Self::from_bore(
-            T::of(0.090),
-            T::of(0.020),
-            T::of(0.205),
-            T::of(0.0005),
-            T::of(0.0005),
+            T::of(piston::BORE_M as f32),
+            T::of(piston::ROD_M as f32),
+            T::of(piston::TRAVEL_M as f32),
+            T::of(piston::DEAD_LENGTH_A_M as f32),
+            T::of(piston::DEAD_LENGTH_B_M as f32),
         )
     }
 

@@ -7,6 +7,7 @@
 //! simulator's motor model use these same transforms and parameters.
 
 use crate::real::Real;
+use crate::reference::motor;
 
 /// Electrical parameters of one motor section (SI; reference values are assumptions **A**
 /// chosen to give 5 kN peak at 62.5 A and 4 m/s under a 560 V bus).
@@ -30,12 +31,12 @@ impl<T: Real> MotorParams<T> {
     /// Reference section: K_f 80 N/A, R 0.6 Ω, L 6 mH, λ 24 mm, 560 V bus, 62.5 A peak.
     pub fn reference() -> Self {
         MotorParams {
-            force_constant_n_per_a: T::of(80.0),
-            resistance_ohm: T::of(0.6),
-            inductance_h: T::of(6e-3),
-            electrical_period_m: T::of(0.024),
-            bus_voltage_v: T::of(560.0),
-            current_limit_a: T::of(62.5),
+            force_constant_n_per_a: T::of(motor::FORCE_CONSTANT_N_PER_A as f32),
+            resistance_ohm: T::of(motor::RESISTANCE_OHM as f32),
+            inductance_h: T::of(motor::INDUCTANCE_H as f32),
+            electrical_period_m: T::of((2.0 * motor::POLE_PITCH_M) as f32),
+            bus_voltage_v: T::of(motor::BUS_VOLTAGE_V as f32),
+            current_limit_a: T::of(motor::CURRENT_LIMIT_A as f32),
         }
     }
 

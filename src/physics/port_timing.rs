@@ -101,6 +101,79 @@ impl<T: Real> PortWindow<T> {
     }
 }
 
+impl<T: Real> PortWindow<T> {
+    /// Whether `phase_rad` lies in the window, the opening edge included, the closing edge not.
+    #[inline]
+    pub fn contains(&self, phase_rad: T) -> bool {
+        wrap_rad(phase_rad - self.open_rad) < self.span_rad()
+    }
+
+    /// How long a turn of the rotation by `turn_rad` (signed: positive forward) from
+    /// `phase_rad` spends in the window, s, driven toward its end at `accel_rad_s2` (> 0)
+    /// from its speed `speed_rad_s` (signed). Against its speed the rotation first coasts to
+    /// a stop, deeper into a window it is in, and comes back: that time counts too. 0 for no
+    /// turn.
+    pub fn time_in_turn(&self, phase_rad: T, turn_rad: T, speed_rad_s: T, accel_rad_s2: T) -> T {
+        if turn_rad == T::ZERO {
+            return T::ZERO;
+        }
+        let forward_turn = turn_rad > T::ZERO;
+        let length = turn_rad.abs();
+        // Speed along the turn, and the time to have come `s` along it (the later root:
+        // against the speed the rotation passes its start again on the way).
+        let v0 = if forward_turn {
+            speed_rad_s
+        } else {
+            -speed_rad_s
+        };
+        let reach = |s: T| ((v0 * v0 + T::of(2.0) * accel_rad_s2 * s).sqrt() - v0) / accel_rad_s2;
+        // The window in the turn's own coordinate: where it begins ahead on the path, and
+        // how far into it the path begins.
+        let (edge_ahead, edge_behind) = if forward_turn {
+            (self.open_rad, self.close_rad)
+        } else {
+            (self.close_rad, self.open_rad)
+        };
+        let width = self.span_rad();
+        let along = |a: T, b: T| {
+            if forward_turn {
+                wrap_rad(b - a)
+            } else {
+                wrap_rad(a - b)
+            }
+        };
+        let ahead = along(phase_rad, edge_ahead);
+        let mut time = T::ZERO;
+        if ahead < length && ahead > T::ZERO {
+            time = time + (reach((ahead + width).min(length)) - reach(ahead));
+        }
+        // Inside the window at the start: until the path leaves it.
+        let left = along(phase_rad, edge_behind);
+        if along(edge_ahead, phase_rad) < width && left > T::ZERO {
+            time = time + reach(left.min(length));
+        }
+        time
+    }
+}
+
+/// An arc of rotation phase: from `start_rad` forward over `span_rad`, rad.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PhaseArc<T> {
+    /// Where the arc begins, rad (not wrapped: an edge plus a ramp).
+    pub start_rad: T,
+    /// Its length going forward, rad, in [0, 2π).
+    pub span_rad: T,
+}
+
+impl<T: Real> PhaseArc<T> {
+    /// How far past the arc's start `phase_rad` lies going forward, rad in [0, 2π): within
+    /// the arc while at most [`PhaseArc::span_rad`].
+    #[inline]
+    pub fn past_start(&self, phase_rad: T) -> T {
+        wrap_rad(phase_rad - self.start_rad)
+    }
+}
+
 /// `3t² − 2t³` on t clamped to [0, 1].
 #[inline]
 fn smoothstep<T: Real>(t: T) -> T {
@@ -162,15 +235,19 @@ impl<T: Real> PortGeometry<T> {
     /// discharge-opening volume of PR ≈ 4 (V/V₀ ≈ 0.37); the synchroniser moves the crossing
     /// to the position each pressure ratio needs.
     pub fn reference() -> Self {
+        use crate::reference::ports;
+        let w = |[open, close]: [f64; 2]| {
+            PortWindow::from_degrees(T::of(open as f32), T::of(close as f32))
+        };
         PortGeometry {
-            intake_a: PortWindow::from_degrees(T::ZERO, T::of(180.0)),
-            discharge_a: PortWindow::from_degrees(T::of(288.0), T::of(360.0)),
-            intake_b: PortWindow::from_degrees(T::of(180.0), T::of(360.0)),
-            discharge_b: PortWindow::from_degrees(T::of(108.0), T::of(180.0)),
-            ramp_rad: T::of(6.0) * T::PI / T::of(180.0),
-            intake_area_m2: T::of(5e-4),
-            discharge_area_m2: T::of(5e-4),
-            discharge_coefficient: T::of(0.8),
+            intake_a: w(ports::INTAKE_A_DEG),
+            discharge_a: w(ports::DISCHARGE_A_DEG),
+            intake_b: w(ports::INTAKE_B_DEG),
+            discharge_b: w(ports::DISCHARGE_B_DEG),
+            ramp_rad: T::of(ports::RAMP_DEG as f32) * T::PI / T::of(180.0),
+            intake_area_m2: T::of(ports::INTAKE_AREA_M2 as f32),
+            discharge_area_m2: T::of(ports::DISCHARGE_AREA_M2 as f32),
+            discharge_coefficient: T::of(ports::DISCHARGE_COEFFICIENT as f32),
         }
     }
 
@@ -239,6 +316,32 @@ impl<T: Real> PortGeometry<T> {
         [
             keep(middle(&self.discharge_b)),
             keep(middle(&self.discharge_a)),
+        ]
+    }
+
+    /// The two arcs where both ports of a chamber (its `intake` and `discharge` windows) are
+    /// closed, each inset by a ramp at both ends so the ports are fully shut on it: from the
+    /// intake's closing to the discharge's opening, and from the discharge's closing to the
+    /// intake's opening. `None` for an arc no longer than two ramps.
+    pub fn sealed_arcs(
+        &self,
+        intake: &PortWindow<T>,
+        discharge: &PortWindow<T>,
+    ) -> [Option<PhaseArc<T>>; 2] {
+        let ramp = self.ramp_rad;
+        let arc = |from: T, to: T| {
+            if wrap_rad(to - from) <= T::of(2.0) * ramp {
+                return None;
+            }
+            let start_rad = from + ramp;
+            Some(PhaseArc {
+                start_rad,
+                span_rad: wrap_rad(to - ramp - start_rad),
+            })
+        };
+        [
+            arc(intake.close_rad, discharge.open_rad),
+            arc(discharge.close_rad, intake.open_rad),
         ]
     }
 
@@ -343,6 +446,41 @@ mod tests {
     }
 
     #[test]
+    fn a_window_contains_its_opening_edge_not_its_closing_one() {
+        let w = PortWindow::<f64>::from_degrees(300.0, 20.0);
+        assert!(w.contains(deg(300.0)) && w.contains(deg(10.0)) && w.contains(deg(359.0)));
+        assert!(!w.contains(deg(20.0)) && !w.contains(deg(150.0)));
+    }
+
+    #[test]
+    fn the_reference_seals_each_chamber_on_one_arc_between_its_ports() {
+        let g = PortGeometry::<f64>::reference();
+        // A: intake closes at 180°, discharge opens at 288° (an arc of 108°, 96° inset by
+        // the 6° ramps); discharge closes at 360° where the intake opens: no arc.
+        let [a, none] = g.sealed_arcs(&g.intake_a, &g.discharge_a);
+        let a = a.unwrap();
+        assert!(
+            (a.start_rad - deg(186.0)).abs() < 1e-12,
+            "{}",
+            a.start_rad.to_degrees()
+        );
+        assert!(
+            (a.span_rad - deg(96.0)).abs() < 1e-12,
+            "{}",
+            a.span_rad.to_degrees()
+        );
+        assert_eq!(none, None);
+        assert!((a.past_start(deg(200.0)) - deg(14.0)).abs() < 1e-12);
+        assert!(a.past_start(deg(100.0)) > a.span_rad);
+        // B: 360°…108°, inset to 366° (6°)…102°; its other arc closes up at 180°.
+        let [b, none] = g.sealed_arcs(&g.intake_b, &g.discharge_b);
+        let b = b.unwrap();
+        assert!((wrap_rad(b.start_rad) - deg(6.0)).abs() < 1e-12);
+        assert!((b.span_rad - deg(96.0)).abs() < 1e-12);
+        assert_eq!(none, None);
+    }
+
+    #[test]
     fn zero_ramp_opens_as_a_step() {
         let w = PortWindow::<f64>::from_degrees(10.0, 20.0);
         assert_eq!(w.fraction(deg(15.0), 0.0), 1.0);
@@ -364,6 +502,61 @@ mod tests {
                     "{port:?} at {i}"
                 );
             }
+        }
+    }
+
+    /// The same time found by stepping the motion through time: the angle at full
+    /// acceleration toward the turn from the speed now, and whether it is in the window,
+    /// tested directly at each step of 1 µs until the turn is done.
+    fn stepped(phase: f32, turn: f32, w: &PortWindow<f32>, speed: f32, accel: f32) -> f32 {
+        let (phase, turn, speed, accel) = (
+            f64::from(phase),
+            f64::from(turn),
+            f64::from(speed),
+            f64::from(accel),
+        );
+        let (open, close) = (f64::from(w.open_rad), f64::from(w.close_rad));
+        let tau = std::f64::consts::TAU;
+        let dir = turn.signum();
+        let dt = 1e-6;
+        let (mut angle, mut v, mut inside_s) = (0.0f64, speed * dir, 0.0);
+        while angle < turn.abs() {
+            let at = (phase + dir * angle).rem_euclid(tau);
+            if (at - open).rem_euclid(tau) < (close - open).rem_euclid(tau) {
+                inside_s += dt;
+            }
+            v += accel * dt;
+            angle += v * dt;
+        }
+        inside_s as f32
+    }
+
+    #[test]
+    fn the_time_in_a_window_is_the_stepped_motions() {
+        let g = PortGeometry::<f32>::reference();
+        let accel = 2500.0;
+        // Each way, with and against the speed, from inside the window, before it and past
+        // it; the coast before turning round stays well inside the region it starts in.
+        let deg = |d: f32| d.to_radians();
+        let cases = [
+            (deg(327.7), deg(38.3), -34.0),
+            (deg(327.7), deg(-225.7), -34.0),
+            (deg(250.0), deg(116.0), -34.0),
+            (deg(250.0), deg(-148.0), -34.0),
+            (deg(250.0), deg(116.0), 34.0),
+            (deg(100.0), deg(250.0), 20.0),
+            (deg(20.0), deg(-120.0), 0.0),
+            (deg(20.0), 0.0, 34.0),
+        ];
+        for (phase, turn, speed) in cases {
+            let w = &g.discharge_a;
+            let formula = w.time_in_turn(phase, turn, speed, accel);
+            let reference = stepped(phase, turn, w, speed, accel);
+            println!("φ {phase:.3} turn {turn:+.3} ω {speed:+.0}: {formula:.6} s (stepped {reference:.6} s)");
+            assert!(
+                (formula - reference).abs() < 2e-5,
+                "φ {phase} turn {turn} ω {speed}: {formula} s, stepped {reference} s"
+            );
         }
     }
 }

@@ -6,6 +6,8 @@
 //! Faults latch; [`FaultSet::clear`] is only called on an explicit clear command once the
 //! cause is gone (the controller checks that).
 
+use crate::units::{PerSection, Section};
+
 /// A fault condition. `0` is reserved for "no fault" in logs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -95,11 +97,10 @@ impl Fault {
     /// The reaction this fault asks for (`docs/faults.md`: SS1 while the position is still
     /// trustworthy, STO when it is not, and the drive's own reactions built on them).
     ///
-    /// For the encoder faults this is the reaction when no encoder can be trusted; the
-    /// control step knows more than the kind: with one encoder lost and the other good, the
-    /// good one stands in (the lost one's section dropped) and the reaction is SS1 on the
-    /// other section; two encoders that disagree where one is clearly the wrong one,
-    /// likewise (`control/step/sense.rs`).
+    /// For the encoder faults this is the reaction when no encoder can be trusted; a
+    /// detector that names the encoder at fault knows more, and its [`Trip`] says what
+    /// follows: the other encoder stands in, the named one's section is dropped, SS1 on the
+    /// other section ([`Trip::encoder_lost`], [`Trip::judged`]).
     pub const fn reaction(self) -> Reaction {
         match self {
             Fault::EncoderSignal => Reaction::BrakeWithoutPosition,
@@ -135,8 +136,8 @@ pub enum Reaction {
     Ss1,
     /// Safe torque off: the outputs off at once (the position cannot be trusted).
     Sto,
-    /// The section with the larger phase current taken out of the allocation, then SS1 on
-    /// the other (either section alone can stop the piston).
+    /// The section with the larger phase current (the [`Trip`] names it) taken out of the
+    /// allocation, then SS1 on the other (either section alone can stop the piston).
     DropSection,
     /// No position left (both encoders lost), or no supply (the DC link's energy must last
     /// until the piston is at rest): STO while the winding currents decay, then the windings
@@ -157,6 +158,74 @@ impl Reaction {
             self,
             Reaction::Ss1 | Reaction::DropSection | Reaction::BrakeAfterReset
         )
+    }
+}
+
+/// A fault found, and what the machine does about it, as data: the reaction, and the sections
+/// taken out of service. The detectors make it (the supervisor's verdict, the sense stage's
+/// encoder checks); the control step's safe state carries it out, the sections first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Trip {
+    /// The fault latched.
+    pub fault: Fault,
+    /// What the machine does.
+    pub reaction: Reaction,
+    /// The sections taken out of the allocation (lost, or the hotter after an overcurrent);
+    /// the others stop the piston.
+    pub drop: PerSection<bool>,
+}
+
+impl Trip {
+    /// `fault` with the reaction its kind asks for ([`Fault::reaction`]), no section named.
+    pub const fn of(fault: Fault) -> Trip {
+        Trip {
+            fault,
+            reaction: fault.reaction(),
+            drop: PerSection {
+                master: false,
+                slave: false,
+            },
+        }
+    }
+
+    /// The same trip with `section` taken out of service as well.
+    pub const fn dropping(mut self, section: Section) -> Trip {
+        match section {
+            Section::Master => self.drop.master = true,
+            Section::Slave => self.drop.slave = true,
+        }
+        self
+    }
+
+    /// The encoder of `section` lost while the other still gives the position: the other
+    /// stands in, the lost one's section (its commutation angle gone) is dropped, and the
+    /// other section stops the piston (SS1) — unless the two disagreed before
+    /// (`mismatch_latched`): then neither is trusted, STO.
+    pub const fn encoder_lost(section: Section, mismatch_latched: bool) -> Trip {
+        Trip {
+            reaction: if mismatch_latched {
+                Reaction::Sto
+            } else {
+                Reaction::Ss1
+            },
+            ..Trip::of(Fault::EncoderSignal)
+        }
+        .dropping(section)
+    }
+
+    /// An [`Fault::EncoderMismatch`] trip once the readings are judged: with a `suspect`
+    /// (its readings show it is the wrong one) it is taken out as if lost and SS1 runs on the
+    /// other section (the position carries at most the disagreement); with none, nothing
+    /// says which one is right: STO, the table's reaction.
+    pub const fn judged(self, suspect: Option<Section>) -> Trip {
+        match suspect {
+            Some(section) => Trip {
+                reaction: Reaction::Ss1,
+                ..self
+            }
+            .dropping(section),
+            None => self,
+        }
     }
 }
 
@@ -273,6 +342,28 @@ mod tests {
             Reaction::BrakeWithoutPosition
         );
         assert_eq!(Fault::WatchdogReset.reaction(), Reaction::BrakeAfterReset);
+    }
+
+    #[test]
+    fn a_trip_names_the_section_it_takes_out() {
+        let t = Trip::encoder_lost(Section::Slave, false);
+        assert_eq!((t.fault, t.reaction), (Fault::EncoderSignal, Reaction::Ss1));
+        assert_eq!((t.drop.master, t.drop.slave), (false, true));
+        // The encoders disagreed before: neither is trusted.
+        assert_eq!(
+            Trip::encoder_lost(Section::Master, true).reaction,
+            Reaction::Sto
+        );
+        let mismatch = Trip::of(Fault::EncoderMismatch);
+        assert_eq!(mismatch.reaction, Reaction::Sto);
+        let t = mismatch.judged(Some(Section::Master));
+        assert_eq!((t.reaction, t.drop.master), (Reaction::Ss1, true));
+        assert_eq!(mismatch.judged(None), mismatch);
+        let t = Trip::of(Fault::Overcurrent).dropping(Section::Master);
+        assert_eq!(
+            (t.reaction, t.drop.master, t.drop.slave),
+            (Reaction::DropSection, true, false)
+        );
     }
 
     #[test]

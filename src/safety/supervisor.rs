@@ -16,7 +16,8 @@
 
 use crate::real::{max_f32, sqrt_f32};
 
-use crate::safety::faults::Fault;
+use crate::safety::faults::{Fault, Trip};
+use crate::units::{PerSection, Section};
 
 /// Limits of the supervisor, SI.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -60,8 +61,8 @@ impl SupervisorConfig {
     /// 5 ms once its reference moves at ≥ 25 rad/s (mid-stroke: 40–65 rad/s).
     pub const fn reference() -> Self {
         SupervisorConfig {
-            travel_m: 0.205,
-            min_clearance_m: 0.3e-3,
+            travel_m: crate::reference::piston::TRAVEL_M as f32,
+            min_clearance_m: crate::reference::limits::MIN_HEAD_CLEARANCE_M as f32,
             brake_deceleration_mps2: 150.0,
             overspeed_mps: 5.4,
             overcurrent_a: 70.0,
@@ -141,12 +142,12 @@ pub struct Observation {
     pub velocity_mps: f32,
     /// Position reference, m (when driving).
     pub reference_m: f32,
-    /// Largest phase-current magnitude of either section, A.
-    pub peak_phase_a: f32,
+    /// Largest phase-current magnitude of each section, A.
+    pub peak_phase_a: PerSection<f32>,
     /// Force commanded to each section, N.
-    pub commanded_n: [f32; 2],
+    pub commanded_n: PerSection<f32>,
     /// Force each section delivers (measured q-current × K_f), N.
-    pub delivered_n: [f32; 2],
+    pub delivered_n: PerSection<f32>,
     /// Rotation reference minus measured angle, rad (0 when the servo is not controlled).
     pub rotation_error_rad: f32,
     /// The rotation has (all but) stopped while its reference moves on: it turns at less
@@ -158,18 +159,8 @@ pub struct Observation {
 #[derive(Clone, Debug, Default)]
 pub struct Supervisor {
     following_s: f32,
-    section_s: [f32; 2],
+    section_s: PerSection<f32>,
     rotation_s: f32,
-}
-
-/// Result of one supervision pass.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Verdict {
-    /// The first fault found this cycle, if any (others follow on later cycles if they
-    /// persist; the cause is the first).
-    pub fault: Option<Fault>,
-    /// A section found lost (0 = master, 1 = slave): the allocation drops it.
-    pub lost_section: Option<usize>,
 }
 
 impl Supervisor {
@@ -177,7 +168,10 @@ impl Supervisor {
     pub const fn new() -> Self {
         Supervisor {
             following_s: 0.0,
-            section_s: [0.0; 2],
+            section_s: PerSection {
+                master: 0.0,
+                slave: 0.0,
+            },
             rotation_s: 0.0,
         }
     }
@@ -187,28 +181,38 @@ impl Supervisor {
         *self = Supervisor::new();
     }
 
-    /// Runs every check once.
-    pub fn check(&mut self, c: &SupervisorConfig, o: &Observation) -> Verdict {
-        let mut v = Verdict::default();
-        let trip = |f: Fault, v: &mut Verdict| {
-            if v.fault.is_none() {
-                v.fault = Some(f);
+    /// Runs every check once: the first fault found this cycle, if any (others follow on
+    /// later cycles if they persist; the cause is the first), as a [`Trip`] with the
+    /// reaction its kind asks for and the sections to drop — a section found lost (whatever
+    /// fault came first), the one with the larger phase current on an overcurrent.
+    pub fn check(&mut self, c: &SupervisorConfig, o: &Observation) -> Option<Trip> {
+        let mut fault = None;
+        let mut drop = PerSection::<bool>::default();
+        let trip = |f: Fault, fault: &mut Option<Fault>| {
+            if fault.is_none() {
+                *fault = Some(f);
             }
         };
         // NaN-safe in one compare: a NaN current is not within the limit, and trips.
-        let within = o.peak_phase_a <= c.overcurrent_a;
+        let within = max_f32(o.peak_phase_a.master, o.peak_phase_a.slave) <= c.overcurrent_a;
         if !within {
-            trip(Fault::Overcurrent, &mut v);
+            trip(Fault::Overcurrent, &mut fault);
+            let hotter = if o.peak_phase_a.master >= o.peak_phase_a.slave {
+                Section::Master
+            } else {
+                Section::Slave
+            };
+            *drop.get_mut(hotter) = true;
         }
         if o.homed {
             if (o.position_m - o.slave_position_m).abs() > c.encoder_mismatch_m {
-                trip(Fault::EncoderMismatch, &mut v);
+                trip(Fault::EncoderMismatch, &mut fault);
             }
             if o.velocity_mps.abs() > c.overspeed_mps {
-                trip(Fault::Overspeed, &mut v);
+                trip(Fault::Overspeed, &mut fault);
             }
             if c.envelope_violated(o.position_m, o.velocity_mps) {
-                trip(Fault::BrakingEnvelope, &mut v);
+                trip(Fault::BrakingEnvelope, &mut fault);
             }
         }
         if o.driving && o.homed {
@@ -218,22 +222,24 @@ impl Supervisor {
                 o.dt_s,
             );
             if self.following_s >= c.following_error_time_s {
-                trip(Fault::FollowingError, &mut v);
+                trip(Fault::FollowingError, &mut fault);
             }
         } else {
             self.following_s = 0.0;
         }
         if o.driving {
-            for (i, (cmd, got)) in o.commanded_n.iter().zip(&o.delivered_n).enumerate() {
+            let mut lost = false;
+            for section in Section::ALL {
+                let (cmd, got) = (*o.commanded_n.get(section), *o.delivered_n.get(section));
                 // A section that delivers far less than asked, in the asked direction.
                 let short = cmd.abs() > c.section_shortfall_n
                     && (got * cmd.signum()) < cmd.abs() - c.section_shortfall_n;
-                if let Some(s) = self.section_s.get_mut(i) {
-                    *s = persist(*s, short, o.dt_s);
-                    if *s >= c.section_time_s && v.lost_section.is_none() {
-                        v.lost_section = Some(i);
-                        trip(Fault::SectionFault, &mut v);
-                    }
+                let s = self.section_s.get_mut(section);
+                *s = persist(*s, short, o.dt_s);
+                if *s >= c.section_time_s && !lost {
+                    lost = true;
+                    *drop.get_mut(section) = true;
+                    trip(Fault::SectionFault, &mut fault);
                 }
             }
             let error = o.rotation_error_rad.abs();
@@ -246,13 +252,16 @@ impl Supervisor {
                 o.dt_s,
             );
             if self.rotation_s >= c.rotation_time_s {
-                trip(Fault::RotationSync, &mut v);
+                trip(Fault::RotationSync, &mut fault);
             }
         } else {
-            self.section_s = [0.0; 2];
+            self.section_s = PerSection::default();
             self.rotation_s = 0.0;
         }
-        v
+        fault.map(|f| Trip {
+            drop,
+            ..Trip::of(f)
+        })
     }
 }
 
@@ -300,9 +309,12 @@ mod tests {
         o.slave_position_m = 0.005;
         o.reference_m = 0.005;
         o.velocity_mps = -2.0;
-        assert_eq!(s.check(&c, &o).fault, Some(Fault::BrakingEnvelope));
+        assert_eq!(
+            s.check(&c, &o).map(|t| t.fault),
+            Some(Fault::BrakingEnvelope)
+        );
         o.velocity_mps = -1.0;
-        assert_eq!(s.check(&c, &o).fault, None);
+        assert_eq!(s.check(&c, &o).map(|t| t.fault), None);
     }
 
     #[test]
@@ -313,7 +325,7 @@ mod tests {
         o.reference_m = 0.105;
         let mut tripped = None;
         for i in 0..200 {
-            if s.check(&c, &o).fault == Some(Fault::FollowingError) {
+            if s.check(&c, &o).map(|t| t.fault) == Some(Fault::FollowingError) {
                 tripped = Some(i);
                 break;
             }
@@ -327,16 +339,23 @@ mod tests {
         let c = SupervisorConfig::reference();
         let mut s = Supervisor::new();
         let mut o = obs();
-        o.commanded_n = [1500.0, 1500.0];
-        o.delivered_n = [1500.0, 0.0];
-        let mut v = Verdict::default();
+        o.commanded_n = PerSection {
+            master: 1500.0,
+            slave: 1500.0,
+        };
+        o.delivered_n = PerSection {
+            master: 1500.0,
+            slave: 0.0,
+        };
+        let mut v = None;
         for _ in 0..110 {
-            if v.fault.is_none() {
+            if v.is_none() {
                 v = s.check(&c, &o);
             }
         }
-        assert_eq!(v.fault, Some(Fault::SectionFault));
-        assert_eq!(v.lost_section, Some(1));
+        let v = v.unwrap();
+        assert_eq!(v.fault, Fault::SectionFault);
+        assert_eq!((v.drop.master, v.drop.slave), (false, true));
     }
 
     #[test]
@@ -363,12 +382,13 @@ mod tests {
         // Lagging 0.2 rad behind a moving reference: within the limit.
         o.rotation_error_rad = 0.2;
         for _ in 0..200 {
-            assert_eq!(s.check(&c, &o).fault, None);
+            assert_eq!(s.check(&c, &o).map(|t| t.fault), None);
         }
         // The same error with the rotation stopped: 1 ms later (20 cycles, ±1 for the f32
         // sum of the steps), RotationSync.
         o.rotation_stalled = true;
-        let n = (0..100).position(|_| s.check(&c, &o).fault == Some(Fault::RotationSync));
+        let n =
+            (0..100).position(|_| s.check(&c, &o).map(|t| t.fault) == Some(Fault::RotationSync));
         assert!(matches!(n, Some(18..=20)), "{n:?}");
     }
 
@@ -377,9 +397,12 @@ mod tests {
         let c = SupervisorConfig::reference();
         let mut s = Supervisor::new();
         let mut o = obs();
-        o.peak_phase_a = 80.0;
-        assert_eq!(s.check(&c, &o).fault, Some(Fault::Overcurrent));
-        o.peak_phase_a = f32::NAN;
-        assert_eq!(s.check(&c, &o).fault, Some(Fault::Overcurrent));
+        o.peak_phase_a.slave = 80.0;
+        let t = s.check(&c, &o).unwrap();
+        assert_eq!(t.fault, Fault::Overcurrent);
+        // The hotter section is the one taken out.
+        assert_eq!((t.drop.master, t.drop.slave), (false, true));
+        o.peak_phase_a.master = f32::NAN;
+        assert_eq!(s.check(&c, &o).map(|t| t.fault), Some(Fault::Overcurrent));
     }
 }

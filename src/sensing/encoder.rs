@@ -318,10 +318,10 @@ impl EncoderConfig {
     /// Reference encoder (λ = 24 mm, ideal calibration at nominal amplitude).
     pub const fn reference() -> Self {
         EncoderConfig {
-            period_m: 0.024,
+            period_m: crate::reference::encoder::PERIOD_M as f32,
             calibration: SinCosCalibration::ideal(NOMINAL_AMPLITUDE_CODES),
             max_step_periods: 0.0125,
-            glitch_gate_periods: 50e-6 / 0.024,
+            glitch_gate_periods: 50e-6 / (crate::reference::encoder::PERIOD_M as f32),
             error_increment: 64,
             error_limit: 80,
         }

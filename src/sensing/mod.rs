@@ -8,6 +8,7 @@
 
 pub mod differentiator;
 pub mod encoder;
+pub mod encoder_map;
 pub mod homing;
 pub mod pressure;
 pub mod quadrature;

@@ -56,7 +56,7 @@ impl Bench {
 
     /// The status of the last step.
     pub fn status(&self) -> Status {
-        *self.step.status()
+        self.step.status()
     }
 
     /// Simulated time, s.
@@ -112,7 +112,7 @@ impl Bench {
         let end = self.time_s() + limit_s;
         while self.time_s() < end {
             self.cycle();
-            if done(&self.world.borrow(), self.step.status()) {
+            if done(&self.world.borrow(), &self.step.status()) {
                 return true;
             }
         }
@@ -124,7 +124,7 @@ impl Bench {
         let end = self.time_s() + duration_s;
         while self.time_s() < end {
             self.cycle();
-            each(&self.world.borrow(), self.step.status());
+            each(&self.world.borrow(), &self.step.status());
         }
     }
 

@@ -190,7 +190,7 @@ fn main() -> ! {
         CONTROL_STEP,
         CALLS,
         &mut state,
-        |(c, _)| plant.next(&config, c.status(), &mut rng),
+        |(c, _)| plant.next(&config, &c.status(), &mut rng),
         |(c, out), i| *out = Some(c.step(i)),
     );
     ok &= regime_kept("control_step_holding", &state.0, ModeKind::Holding);
@@ -203,7 +203,7 @@ fn main() -> ! {
         .expect("start accepted when holding");
     // The first stroke starts from the park position, not a dead point: not counted.
     for _ in 0..2 * CALLS {
-        let inputs = plant.next(&config, control.status(), &mut rng);
+        let inputs = plant.next(&config, &control.status(), &mut rng);
         control.step(&inputs);
     }
     let mut state = (control, None::<CycleOutputs>);
@@ -212,7 +212,7 @@ fn main() -> ! {
         CONTROL_STEP,
         4 * CALLS,
         &mut state,
-        |(c, _)| plant.next(&config, c.status(), &mut rng),
+        |(c, _)| plant.next(&config, &c.status(), &mut rng),
         |(c, out), i| *out = Some(c.step(i)),
     );
     ok &= regime_kept("control_step_running", &state.0, ModeKind::Running);
@@ -495,13 +495,13 @@ fn holding_control_step(config: &ControlConfig, rng: &mut XorShift) -> (ControlS
     };
     // One cycle to start the decoders, then home: detection, the move to park and settling
     // take about 0.3 s of machine time.
-    control.step(&plant.next(config, control.status(), rng));
+    control.step(&plant.next(config, &control.status(), rng));
     control.command(Command::Home).expect("home accepted");
     for _ in 0..40_000 {
         if control.status().mode == ModeKind::Holding || !control.status().faults.is_empty() {
             break;
         }
-        control.step(&plant.next(config, control.status(), rng));
+        control.step(&plant.next(config, &control.status(), rng));
     }
     if !regime_kept("control_step (homing)", &control, ModeKind::Holding) {
         exit(false);

@@ -6,6 +6,7 @@
 //! `run` module). The bytes are exactly what the board would send, so `fpc-sim decode` reads
 //! both alike.
 
+use crate::logmeta::{LogMeta, PortsDeclared, ThetaSource};
 use crate::runlog::RunLog;
 use fpc::link::frame::LinkStats;
 use fpc::link::telemetry::{
@@ -250,6 +251,92 @@ fn decode_frames(
             CHANNELS[..7].join(", ")
         ));
     }
+    let Stretch {
+        start,
+        end,
+        decimation,
+        tick_step,
+        breaks,
+    } = longest_stretch(&frames);
+    let kept = frames.get(start..end).unwrap_or_default();
+    let channels = kept.first().map_or(ChannelSet::ALL, |f| f.channels);
+
+    let mut log = RunLog::with_columns(&decoded_columns(channels));
+    let mut meta = LogMeta {
+        source: Some("fpc-sim decode".into()),
+        sample_rate_hz: (tick_step > 0).then(|| 1e6 / f64::from(tick_step)),
+        telemetry_decimation: Some(u32::from(decimation)),
+        telemetry_layout: Some(u32::from(LAYOUT)),
+        // The firmware's own conventions, fixed by the layout (fpc::link::telemetry).
+        force_delay_s: Some(f64::from(FORCE_DELAY_PERIODS * CONTROL_PERIOD_US) / 1e6),
+        theta_source: ThetaSource::from_name(THETA_SOURCE),
+        ..LogMeta::default()
+    };
+    // Unwrap the µs time base (it wraps every 71.6 min) from the first kept frame on.
+    let mut t_us = kept.first().map_or(0, |f| u64::from(f.t.0));
+    let mut prev = kept.first().map(|f| f.t);
+    let mut ports_from: Option<(Ports, f64)> = None;
+    for f in kept {
+        if let Some(p) = prev {
+            t_us += u64::from(f.t.0.wrapping_sub(p.0));
+        }
+        prev = Some(f.t);
+        // Divide (correctly rounded), exactly as the simulator's clock prints its time.
+        let t_s = t_us as f64 / 1e6;
+        if f.ports != Ports::Bypassed && ports_from.is_none() {
+            ports_from = Some((f.ports, t_s));
+        }
+        let mut row = vec![t_s];
+        row.extend(
+            f.values()
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| channels.has(*i))
+                .map(|(_, v)| f64::from(*v)),
+        );
+        row.push(f64::from(f.fault));
+        row.push(f64::from(fpc::link::telemetry::mode_code(f.mode)));
+        log.push_row(&row);
+    }
+    if let Some((ports, from_s)) = ports_from {
+        meta.ports = Some(if ports == Ports::Sealed {
+            PortsDeclared::Closed
+        } else {
+            PortsDeclared::Open
+        });
+        if kept.first().is_some_and(|f| f.ports == Ports::Bypassed) {
+            meta.ports_from_s = Some(from_s);
+        }
+    }
+    meta.write(&mut log);
+    Ok(Decoded {
+        log,
+        stats,
+        gaps: breaks,
+        left_out: frames.len() - kept.len() + incomplete,
+        duplicates,
+        dropped: frames.last().map_or(0, |f| f.dropped),
+        decimation: u32::from(decimation),
+        layout_1,
+        channels,
+    })
+}
+
+/// The longest stretch of frames without a break, `start..end`, with the stream's decimation
+/// (its most common sequence step), its most common step of the µs time base and the number
+/// of breaks in the whole stream.
+struct Stretch {
+    start: usize,
+    end: usize,
+    decimation: u16,
+    tick_step: u32,
+    breaks: usize,
+}
+
+/// The [`Stretch`] of `frames`: a break is a frame lost (the step), another rate, other
+/// channels, or the ports declared otherwise — except a bypass closing (bypassed → timed
+/// or sealed), which the log states as `# ports_from_s`.
+fn longest_stretch(frames: &[Frame]) -> Stretch {
     // The decimation is the most common sequence step; any other step is a gap.
     let steps: Vec<u16> = frames
         .windows(2)
@@ -289,80 +376,13 @@ fn decode_frames(
         .map(|w| (w[0], w[1]))
         .max_by_key(|(a, b)| (b - a, usize::MAX - a))
         .unwrap_or((0, frames.len()));
-    let kept = frames.get(start..end).unwrap_or_default();
-    let channels = kept.first().map_or(ChannelSet::ALL, |f| f.channels);
-
-    let mut log = RunLog::with_columns(&decoded_columns(channels));
-    log.meta.push(("source".into(), "fpc-sim decode".into()));
-    if tick_step > 0 {
-        let rate = 1e6 / f64::from(tick_step);
-        log.meta.push(("sample_rate_hz".into(), format!("{rate}")));
+    Stretch {
+        start,
+        end,
+        decimation,
+        tick_step,
+        breaks: breaks.len(),
     }
-    log.meta
-        .push(("telemetry_decimation".into(), decimation.to_string()));
-    log.meta
-        .push(("telemetry_layout".into(), LAYOUT.to_string()));
-    // The firmware's own conventions, fixed by the layout (fpc::link::telemetry).
-    log.meta.push((
-        "force_delay_s".into(),
-        format!(
-            "{:e}",
-            f64::from(FORCE_DELAY_PERIODS * CONTROL_PERIOD_US) / 1e6
-        ),
-    ));
-    log.meta
-        .push(("theta_source".into(), THETA_SOURCE.to_string()));
-    // Unwrap the µs time base (it wraps every 71.6 min) from the first kept frame on.
-    let mut t_us = kept.first().map_or(0, |f| u64::from(f.t.0));
-    let mut prev = kept.first().map(|f| f.t);
-    let mut ports_from: Option<(Ports, f64)> = None;
-    for f in kept {
-        if let Some(p) = prev {
-            t_us += u64::from(f.t.0.wrapping_sub(p.0));
-        }
-        prev = Some(f.t);
-        // Divide (correctly rounded), exactly as the simulator's clock prints its time.
-        let t_s = t_us as f64 / 1e6;
-        if f.ports != Ports::Bypassed && ports_from.is_none() {
-            ports_from = Some((f.ports, t_s));
-        }
-        let mut row = vec![t_s];
-        row.extend(
-            f.values()
-                .iter()
-                .enumerate()
-                .filter(|(i, _)| channels.has(*i))
-                .map(|(_, v)| f64::from(*v)),
-        );
-        row.push(f64::from(f.fault));
-        row.push(f64::from(fpc::link::telemetry::mode_code(f.mode)));
-        log.push_row(&row);
-    }
-    if let Some((ports, from_s)) = ports_from {
-        log.meta.push((
-            "ports".into(),
-            if ports == Ports::Sealed {
-                "closed"
-            } else {
-                "open"
-            }
-            .into(),
-        ));
-        if kept.first().is_some_and(|f| f.ports == Ports::Bypassed) {
-            log.meta.push(("ports_from_s".into(), format!("{from_s}")));
-        }
-    }
-    Ok(Decoded {
-        log,
-        stats,
-        gaps: breaks.len(),
-        left_out: frames.len() - kept.len() + incomplete,
-        duplicates,
-        dropped: frames.last().map_or(0, |f| f.dropped),
-        decimation: u32::from(decimation),
-        layout_1,
-        channels,
-    })
 }
 
 /// The most frequent value (the smallest among ties), if any.

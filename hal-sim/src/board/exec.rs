@@ -200,6 +200,55 @@ where
     Rc::try_unwrap(world).map_or_else(|rc| rc.borrow().clone(), RefCell::into_inner)
 }
 
+impl Execution {
+    /// Whether the MCU runs its tasks at `now_us`: supplied and not booting (a boot that has
+    /// ended is forgotten).
+    fn runs_at(&mut self, now_us: u64) -> bool {
+        let powered = self.power_off_until_us.is_none();
+        let booting = self.booting_until_us.is_some_and(|until| now_us < until);
+        if !booting {
+            self.booting_until_us = None;
+        }
+        powered && !booting
+    }
+
+    /// A mains outage: the supply restored when it ends, the board off for the rest of it
+    /// once the DC link can no longer hold the logic supply.
+    fn follow_mains(&mut self, w: &mut World) {
+        if let Some(back) = self.mains_off_until_us {
+            if w.time_us() >= back {
+                self.mains_off_until_us = None;
+                w.plant.supply.restore();
+            } else if !w.plant.supply.logic_powered() && self.power_off_until_us.is_none() {
+                // The link ran down: the board is off for the rest of the outage.
+                self.power_off_until_us = Some(back);
+            }
+        }
+    }
+
+    /// A boot begins at `t_us` (µs): the MCU runs again after [`BOOT_US`], every task from
+    /// its entry (no hang, no overrun carried over).
+    fn boot_from(&mut self, t_us: u64) {
+        self.booting_until_us = Some(t_us + BOOT_US);
+        self.control_hung = false;
+        self.supervision_hung = false;
+        self.control_busy_periods = 0;
+    }
+
+    /// Whether the running watchdog was not fed within its window (the longer boot window
+    /// until the first feed since a boot).
+    fn starved(&self, w: &World) -> bool {
+        self.watchdog_timeout_us.is_some_and(|timeout| {
+            let window = if w.watchdog_fed_since_boot {
+                timeout
+            } else {
+                timeout.max(BOOT_WATCHDOG_TIMEOUT_US)
+            };
+            w.time_us().saturating_sub(w.watchdog_fed_us) >= window
+        })
+    }
+}
+
 /// Runs the firmware's control, supervision and telemetry tasks on `world` as
 /// [`simulate`] does, with the board's [`Execution`]: `each_cycle` may make the control
 /// step overrun or a task hang, and when the watchdog is running and not fed for its timeout
@@ -257,15 +306,8 @@ where
             &shared
         ));
         loop {
-            let powered = execution.power_off_until_us.is_none();
             let now_us = world.borrow().time_us();
-            let booting = execution
-                .booting_until_us
-                .is_some_and(|until| now_us < until);
-            if !booting {
-                execution.booting_until_us = None;
-            }
-            let powered = powered && !booting;
+            let powered = execution.runs_at(now_us);
             if powered && !execution.control_hung {
                 if execution.control_busy_periods == 0 {
                     let _ = control.as_mut().poll(&mut cx);
@@ -290,26 +332,14 @@ where
             if each_cycle(&mut w, &shared, &mut execution).is_break() {
                 break 'boot;
             }
-            if let Some(back) = execution.mains_off_until_us {
-                if w.time_us() >= back {
-                    execution.mains_off_until_us = None;
-                    w.plant.supply.restore();
-                } else if !w.plant.supply.logic_powered() && execution.power_off_until_us.is_none()
-                {
-                    // The link ran down: the board is off for the rest of the outage.
-                    execution.power_off_until_us = Some(back);
-                }
-            }
+            execution.follow_mains(&mut w);
             if let Some(until) = execution.power_off_until_us {
                 if w.time_us() >= until {
                     // Power is back: a cold boot (RAM lost, watchdog in its boot window,
                     // the flash as the cut left it).
                     execution.power_off_until_us = None;
                     execution.power_ups_us.push(w.time_us());
-                    execution.booting_until_us = Some(w.time_us() + BOOT_US);
-                    execution.control_hung = false;
-                    execution.supervision_hung = false;
-                    execution.control_busy_periods = 0;
+                    execution.boot_from(w.time_us());
                     if let Some(f) = execution.flash.as_mut() {
                         *f = f.reboot();
                     }
@@ -324,24 +354,13 @@ where
                 w.advance();
                 continue;
             }
-            let starved = execution.watchdog_timeout_us.is_some_and(|timeout| {
-                let window = if w.watchdog_fed_since_boot {
-                    timeout
-                } else {
-                    timeout.max(BOOT_WATCHDOG_TIMEOUT_US)
-                };
-                w.time_us().saturating_sub(w.watchdog_fed_us) >= window
-            });
-            if starved {
+            if execution.starved(&w) {
                 w.outputs_reset();
                 // Started again by the boot, in its boot window, as the firmware's init does.
                 w.watchdog_fed_us = w.time_us();
                 w.watchdog_fed_since_boot = false;
                 execution.resets_us.push(w.time_us());
-                execution.booting_until_us = Some(w.time_us() + BOOT_US);
-                execution.control_hung = false;
-                execution.supervision_hung = false;
-                execution.control_busy_periods = 0;
+                execution.boot_from(w.time_us());
                 cause = ResetCause::Watchdog;
                 w.advance();
                 continue 'boot;

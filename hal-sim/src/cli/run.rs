@@ -110,6 +110,52 @@ pub const OUTPUTS: [&str; 5] = [
 
 /// Runs `fpc-sim run`.
 pub fn main(args: RunArgs) -> CmdResult {
+    let opts = options(&args)?;
+    if args.bench_loop > 0 {
+        return bench_loop(opts, args.bench_loop);
+    }
+    // Every output is checked before the run: an existing one without --force, an input, an
+    // unwritable place are refused now (exit 2), not after the simulation.
+    let inputs: Vec<&Path> = args
+        .model
+        .iter()
+        .chain(&args.calibration)
+        .map(PathBuf::as_path)
+        .collect();
+    let out = OutDir::prepare(&args.out, &OUTPUTS, args.force, &inputs)?;
+    let telemetry = telemetry_file(&args, &out, &inputs)?;
+    // With --keep-partial, Ctrl-C ends the run where it is and keeps its files (without,
+    // it removes them: nothing half-written is left).
+    if args.keep_partial {
+        crate::interrupt::catch();
+    }
+    let outcome = simulate(&opts, &out)?;
+    write_outputs(&out, &outcome, telemetry.as_ref())?;
+    let csv = out.final_path("run.csv");
+    let s = &outcome.summary;
+    let failed = failure(&opts, s);
+    let written = failed.is_none() || args.keep_partial;
+    if written {
+        out.commit()?;
+        if let Some(t) = telemetry {
+            t.commit()?;
+        }
+    } else {
+        // A failed run leaves nothing (the staged files go with `out`).
+        drop(out);
+        drop(telemetry);
+    }
+    print_figures(s, written, &csv)?;
+    print_injection(&outcome.injection)?;
+    if args.json {
+        let text = serde_json::to_string_pretty(s).map_err(|e| Failure::runtime(e.to_string()))?;
+        outln!("{text}")?;
+    }
+    verdict(&args, s, failed, written)
+}
+
+/// The run the arguments ask for, checked (bad input: exit 2).
+fn options(args: &RunArgs) -> Result<RunOptions, Failure> {
     let (model, model_name) = match &args.model {
         Some(path) => (
             MachineModel::read(path).map_err(|e| Failure::bad_input(e.0))?,
@@ -160,19 +206,16 @@ pub fn main(args: RunArgs) -> CmdResult {
     let rotation = crate::run::parse_rotation(&args.rotation).map_err(Failure::bad_input)?;
     crate::run::set_rotation(&mut opts, rotation).map_err(Failure::bad_input)?;
     opts.validate().map_err(Failure::bad_input)?;
-    if args.bench_loop > 0 {
-        return bench_loop(opts, args.bench_loop);
-    }
-    // Every output is checked before the run: an existing one without --force, an input, an
-    // unwritable place are refused now (exit 2), not after the simulation.
-    let inputs: Vec<&Path> = args
-        .model
-        .iter()
-        .chain(&args.calibration)
-        .map(PathBuf::as_path)
-        .collect();
-    let out = OutDir::prepare(&args.out, &OUTPUTS, args.force, &inputs)?;
-    let telemetry = match &args.telemetry {
+    Ok(opts)
+}
+
+/// The `--telemetry` file, prepared (refused when it is one of the run's own outputs).
+fn telemetry_file(
+    args: &RunArgs,
+    out: &OutDir,
+    inputs: &[&Path],
+) -> Result<Option<OutFile>, Failure> {
+    Ok(match &args.telemetry {
         Some(path) => {
             if OUTPUTS.iter().any(|n| out.final_path(n) == *path) {
                 return Err(Failure::bad_input(format!(
@@ -180,55 +223,56 @@ pub fn main(args: RunArgs) -> CmdResult {
                     show(path)
                 )));
             }
-            Some(OutFile::prepare(path, args.force, &inputs)?)
+            Some(OutFile::prepare(path, args.force, inputs)?)
         }
         None => None,
-    };
-    // With --keep-partial, Ctrl-C ends the run where it is and keeps its files (without,
-    // it removes them: nothing half-written is left).
-    if args.keep_partial {
-        crate::interrupt::catch();
-    }
+    })
+}
+
+/// Runs `opts`, streaming its log into the staged `run.csv` of `out`, a progress bar on a
+/// terminal.
+fn simulate(opts: &RunOptions, out: &OutDir) -> Result<crate::run::RunOutcome, Failure> {
     let csv = out.path("run.csv");
     let file = std::fs::File::create(&csv)
         .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&csv))))?;
     let mut writer = std::io::BufWriter::with_capacity(1 << 20, file);
     // A bar on a terminal (hidden in pipes and files): a long run is otherwise silent.
     let bar = crate::cli::analysis::progress(u64::from(opts.cycles), "cycles");
-    let outcome = run_streamed_with_progress(&opts, &mut writer, &|done| {
+    let outcome = run_streamed_with_progress(opts, &mut writer, &|done| {
         bar.set_position(u64::from(done));
     })
     .map_err(Failure::runtime)?;
     bar.finish_and_clear();
     drop(writer);
+    Ok(outcome)
+}
+
+/// The plots, `summary.json` and the telemetry of `outcome`, staged in `out` (and
+/// `telemetry`).
+fn write_outputs(
+    out: &OutDir,
+    outcome: &crate::run::RunOutcome,
+    telemetry: Option<&OutFile>,
+) -> CmdResult {
     plot_motion(out.path("motion.svg").as_path(), &outcome.log).map_err(Failure::runtime)?;
     plot_pv(out.path("pv.svg").as_path(), &outcome.log).map_err(Failure::runtime)?;
-    plot_energy(out.path("energy.svg").as_path(), &outcome).map_err(Failure::runtime)?;
+    plot_energy(out.path("energy.svg").as_path(), outcome).map_err(Failure::runtime)?;
     // The summary beside the files it describes, as `--json` prints it.
     let summary_path = out.path("summary.json");
     let summary_text = serde_json::to_string_pretty(&outcome.summary)
         .map_err(|e| Failure::runtime(e.to_string()))?;
     std::fs::write(&summary_path, summary_text + "\n")
         .map_err(|e| Failure::runtime(format!("cannot write {}: {e}", show(&summary_path))))?;
-    if let Some(t) = &telemetry {
+    if let Some(t) = telemetry {
         std::fs::write(t.path(), &outcome.telemetry).map_err(|e| {
             Failure::runtime(format!("cannot write {}: {e}", show(&t.final_path())))
         })?;
     }
-    let csv = out.final_path("run.csv");
-    let s = &outcome.summary;
-    let failed = failure(&opts, s);
-    let written = failed.is_none() || args.keep_partial;
-    if written {
-        out.commit()?;
-        if let Some(t) = telemetry {
-            t.commit()?;
-        }
-    } else {
-        // A failed run leaves nothing (the staged files go with `out`).
-        drop(out);
-        drop(telemetry);
-    }
+    Ok(())
+}
+
+/// The run's line: its figures and whether its files were `written` (`csv` named).
+fn print_figures(s: &crate::run::Summary, written: bool, csv: &Path) -> CmdResult {
     errln!(
         "fpc-sim run: {} cycles in {:.3} s simulated ({:.0}x real time), state {}, peak speed {:.2} m/s, \
          min head clearance {}, dead-point error {}, faults [{}]; {} {}",
@@ -243,7 +287,11 @@ pub fn main(args: RunArgs) -> CmdResult {
         if written { "wrote" } else { "did not write" },
         csv.display()
     )?;
-    let r = &outcome.injection;
+    Ok(())
+}
+
+/// What the injected faults did (nothing without them).
+fn print_injection(r: &crate::faults::apply::InjectionReport) -> CmdResult {
     if let Some(onset_us) = r.first_onset_us() {
         let detected = r.first_fault_after_onset().map_or_else(
             || "no fault latched".to_string(),
@@ -278,10 +326,18 @@ pub fn main(args: RunArgs) -> CmdResult {
             )?;
         }
     }
-    if args.json {
-        let text = serde_json::to_string_pretty(s).map_err(|e| Failure::runtime(e.to_string()))?;
-        outln!("{text}")?;
-    }
+    Ok(())
+}
+
+/// How the command ends: interrupted (its exit code), a failed run (exit 1, saying whether
+/// the files were `written`), or success (saying why a run with injected faults stopped
+/// early).
+fn verdict(
+    args: &RunArgs,
+    s: &crate::run::Summary,
+    failed: Option<String>,
+    written: bool,
+) -> CmdResult {
     if crate::interrupt::interrupted() {
         return Err(Failure {
             code: crate::interrupt::EXIT_CODE as u8,

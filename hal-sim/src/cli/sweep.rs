@@ -110,16 +110,7 @@ fn read_text(path: &Path, max: u64, what: &str) -> Result<String, Failure> {
 
 /// Runs `fpc-sim sweep`.
 pub fn main(args: SweepArgs) -> CmdResult {
-    let text = read_text(&args.plan, MAX_PLAN_BYTES, "plan")?;
-    let dir = args.plan.parent().unwrap_or(Path::new("."));
-    let mut model_path: Option<PathBuf> = None;
-    let plan = Plan::parse(&text, |p| {
-        let path = dir.join(p);
-        let text = read_text(&path, MAX_PLAN_BYTES, "model").map_err(|f| f.message)?;
-        model_path = Some(path.clone());
-        Ok((text, path.display().to_string()))
-    })
-    .map_err(|e| Failure::bad_input(format!("{}: {e}", show(&args.plan))))?;
+    let (text, plan, model_path) = read_plan(&args.plan)?;
     let shard = Shard::parse(&args.shard).map_err(Failure::bad_input)?;
     let rate = crate::run::RunOptions {
         log_rate_hz: args.log_rate,
@@ -168,16 +159,7 @@ pub fn main(args: SweepArgs) -> CmdResult {
             show(&journal_path)
         )));
     }
-    let (mut rows, journal) = if args.resume {
-        Journal::resume(&journal_path, &id).map_err(Failure::bad_input)?
-    } else {
-        std::fs::create_dir_all(&args.out)
-            .map_err(|e| Failure::bad_input(format!("cannot create {}: {e}", show(&args.out))))?;
-        (
-            Vec::new(),
-            Journal::create(&journal_path, &id).map_err(Failure::bad_input)?,
-        )
-    };
+    let (mut rows, journal) = start_journal(&args, &journal_path, &id)?;
     let finished: std::collections::BTreeSet<u64> = rows.iter().map(|r| r.run).collect();
     let todo: Vec<u64> = shard
         .runs(plan.len())
@@ -232,20 +214,7 @@ pub fn main(args: SweepArgs) -> CmdResult {
     journal.remove().map_err(Failure::runtime)?;
     let mut figures = report(&table, &args.out)?;
     let threads = pool.current_num_threads();
-    let speed = format!(
-        "{runs} runs in {wall_s:.1} s on {threads} threads ({:.2} runs/s)",
-        runs as f64 / wall_s.max(1e-9)
-    );
-    if shard.count > 1 {
-        errln!(
-            "fpc-sim sweep: slice {}/{} of {} runs: {speed}",
-            shard.index,
-            shard.count,
-            plan.len()
-        )?;
-    } else {
-        errln!("fpc-sim sweep: {speed}")?;
-    }
+    print_speed(shard, plan.len(), runs, wall_s, threads)?;
     figures.slice = format!("{}/{}", shard.index, shard.count);
     figures.wall_s = Some(wall_s);
     figures.threads = Some(threads);
@@ -253,6 +222,59 @@ pub fn main(args: SweepArgs) -> CmdResult {
         print_json(&figures)?;
     }
     failed(&table)
+}
+
+/// The plan file's text, the plan, and the model file it names (read beside the plan).
+fn read_plan(plan_path: &Path) -> Result<(String, Plan, Option<PathBuf>), Failure> {
+    let text = read_text(plan_path, MAX_PLAN_BYTES, "plan")?;
+    let dir = plan_path.parent().unwrap_or(Path::new("."));
+    let mut model_path: Option<PathBuf> = None;
+    let plan = Plan::parse(&text, |p| {
+        let path = dir.join(p);
+        let text = read_text(&path, MAX_PLAN_BYTES, "model").map_err(|f| f.message)?;
+        model_path = Some(path.clone());
+        Ok((text, path.display().to_string()))
+    })
+    .map_err(|e| Failure::bad_input(format!("{}: {e}", show(plan_path))))?;
+    Ok((text, plan, model_path))
+}
+
+/// The journal of the sweep `id` at `path`: resumed with the rows it holds (`--resume`),
+/// or started empty in a fresh output directory.
+fn start_journal(
+    args: &SweepArgs,
+    path: &Path,
+    id: &Identity<'_>,
+) -> Result<(Vec<crate::sweep::Row>, Journal), Failure> {
+    Ok(if args.resume {
+        Journal::resume(path, id).map_err(Failure::bad_input)?
+    } else {
+        std::fs::create_dir_all(&args.out)
+            .map_err(|e| Failure::bad_input(format!("cannot create {}: {e}", show(&args.out))))?;
+        (
+            Vec::new(),
+            Journal::create(path, id).map_err(Failure::bad_input)?,
+        )
+    })
+}
+
+/// The sweep's speed: `runs` of a plan of `plan_runs` in `wall_s` s on `threads` threads
+/// (naming the slice when `shard` is one).
+fn print_speed(shard: Shard, plan_runs: u64, runs: u64, wall_s: f64, threads: usize) -> CmdResult {
+    let speed = format!(
+        "{runs} runs in {wall_s:.1} s on {threads} threads ({:.2} runs/s)",
+        runs as f64 / wall_s.max(1e-9)
+    );
+    if shard.count > 1 {
+        errln!(
+            "fpc-sim sweep: slice {}/{} of {plan_runs} runs: {speed}",
+            shard.index,
+            shard.count,
+        )?;
+    } else {
+        errln!("fpc-sim sweep: {speed}")?;
+    }
+    Ok(())
 }
 
 /// What `sweep --json` and `sweep-merge --json` print.

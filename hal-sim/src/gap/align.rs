@@ -18,9 +18,10 @@
 
 use crate::plant::model::MachineModel;
 
+use super::channel::ChannelId;
 use super::data::{Measured, ALIGN_WINDOW_SAMPLES, UNDECLARED_ALIGN_SAMPLES};
 use super::fit::{minimise_1d, sumsq};
-use super::residuals::{force_raw, Band, ChannelId};
+use super::residuals::{force_raw, Band};
 
 /// What the alignment fit found.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -2,6 +2,8 @@
 //! and acceleration (centred Savitzky–Golay), the rotation speed, and the masks that say
 //! which samples each channel may be judged on.
 
+pub use crate::logmeta::ThetaSource;
+use crate::logmeta::{LogMeta, PortsDeclared};
 use crate::runlog::RunLog;
 use crate::signal::{firmware_derivatives, SgSettings};
 
@@ -51,7 +53,7 @@ pub const ALIGN_WINDOW_SAMPLES: f64 = 1.5;
 pub const UNDECLARED_ALIGN_SAMPLES: f64 = 0.5;
 
 /// Longest `# force_delay_s` accepted, s (a logging convention is samples, not strokes).
-pub const MAX_FORCE_DELAY_S: f64 = 10e-3;
+pub use crate::logmeta::MAX_FORCE_DELAY_S;
 
 /// Slowest sample rate the workflow analyses, Hz: its differentiator spans 2 ms and needs
 /// at least 5 samples there; a coarser log cannot resolve a stroke's acceleration.
@@ -107,19 +109,6 @@ pub enum PortsMeta {
     Open,
     /// No `ports` metadata: no pressure channel.
     Unknown,
-}
-
-/// What the log's `theta_rad` measures (`# theta_source = …`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ThetaSource {
-    /// `piston` (or no key): the piston's own angle, which times the ports (`docs/formats.md` §1).
-    Piston,
-    /// `servo_encoder`: the servo's quadrature count times its resolution (the count's
-    /// lower edge), as our firmware reports it. The piston, which times the ports, follows
-    /// through the spline's play: the replay takes the count's centre and carries the
-    /// piston along by the flank the servo pushes on (`[servo] counts_per_rev` and
-    /// `backlash_rad` of the model).
-    ServoEncoder,
 }
 
 /// The measured run, with what the workflow derives from it.
@@ -192,7 +181,7 @@ pub struct Measured {
     /// ([`super::residuals::ports_resolved`]); all 1 until the workflow sets it.
     pub pressure_judged: Vec<f64>,
     /// How far the logged position reads beyond the chambers' own, m: what the pressure
-    /// replay subtracts from `x_m` ([`super::residuals::fit_position_offset`], fitted once
+    /// replay subtracts from `x_m` ([`super::offset::fit_position_offset`], fitted once
     /// per log before the selection; 0 until the workflow sets it).
     pub x_offset_m: f64,
     /// Stretches of motion between standstills (runs of `moving`): an encoder may be zeroed
@@ -249,89 +238,17 @@ impl Measured {
         }
         let t_s = col("t_s")?;
         let n = t_s.len();
-        let dt_s = match (t_s.first(), t_s.last()) {
-            (Some(a), Some(b)) if n > 1 && b > a => (b - a) / (n - 1) as f64,
-            _ => return Err("column `t_s`: no usable time step".into()),
-        };
-        // The step is taken from the ends: each step must be it (a log of uniform rate).
-        if let Some(i) = t_s.windows(2).position(|w| {
-            let step = w.get(1).copied().unwrap_or(0.0) - w.first().copied().unwrap_or(0.0);
-            !((1.0 - MAX_STEP_JITTER) * dt_s..=(1.0 + MAX_STEP_JITTER) * dt_s).contains(&step)
-        }) {
-            return Err(format!(
-                "column `t_s`, data row {}: the step from the previous row is not the log's \
-                 sample time {dt_s:e} s within {:.0} % (the workflow needs a uniform rate)",
-                i + 2,
-                100.0 * MAX_STEP_JITTER
-            ));
-        }
-        let rate = 1.0 / dt_s;
-        let accepted =
-            min_rate_hz * (1.0 - RATE_TOLERANCE)..=MAX_SAMPLE_RATE_HZ * (1.0 + RATE_TOLERANCE);
-        if !accepted.contains(&rate) {
-            return Err(format!(
-                "column `t_s`: sample rate {rate:.6e} Hz; the workflow analyses logs sampled at \
-                 {min_rate_hz} Hz to {MAX_SAMPLE_RATE_HZ:e} Hz"
-            ));
-        }
-        let ports = match log.meta("ports").map(str::trim) {
-            Some("closed") => PortsMeta::Closed,
-            Some("open") => PortsMeta::Open,
+        let dt_s = uniform_sample_time(&t_s, min_rate_hz)?;
+        let meta = LogMeta::read(log)?;
+        let ports = match meta.ports {
+            Some(PortsDeclared::Closed) => PortsMeta::Closed,
+            Some(PortsDeclared::Open) => PortsMeta::Open,
             None => PortsMeta::Unknown,
-            Some(other) => {
-                return Err(format!(
-                    "metadata `# ports = {other}`: must be `open` or `closed`"
-                ))
-            }
         };
-        let force_delay_s = match log.meta("force_delay_s").map(str::trim) {
-            None => None,
-            Some(v) => match v.parse::<f64>() {
-                Ok(d) if d.is_finite() && d.abs() <= MAX_FORCE_DELAY_S => Some(d),
-                _ => {
-                    return Err(format!(
-                        "metadata `# force_delay_s = {}`: must be a number of seconds within \
-                         ±{MAX_FORCE_DELAY_S}",
-                        v.chars().take(40).collect::<String>()
-                    ))
-                }
-            },
-        };
-        let ports_delay_s = match log.meta("ports_delay_s").map(str::trim) {
-            None => 0.0,
-            Some(v) => match v.parse::<f64>() {
-                Ok(d) if d.is_finite() && (0.0..=MAX_FORCE_DELAY_S).contains(&d) => d,
-                _ => {
-                    return Err(format!(
-                        "metadata `# ports_delay_s = {}`: must be a number of seconds within \
-                         0..={MAX_FORCE_DELAY_S}",
-                        v.chars().take(40).collect::<String>()
-                    ))
-                }
-            },
-        };
-        let theta_source = match log.meta("theta_source").map(str::trim) {
-            None | Some("piston") => ThetaSource::Piston,
-            Some("servo_encoder") => ThetaSource::ServoEncoder,
-            Some(other) => {
-                return Err(format!(
-                    "metadata `# theta_source = {}`: must be `piston` or `servo_encoder`",
-                    other.chars().take(40).collect::<String>()
-                ))
-            }
-        };
-        let ports_from_s = match log.meta("ports_from_s").map(str::trim) {
-            None => None,
-            Some(v) => match v.parse::<f64>() {
-                Ok(t) if t.is_finite() => Some(t),
-                _ => {
-                    return Err(format!(
-                        "metadata `# ports_from_s = {}`: must be a time in seconds",
-                        v.chars().take(40).collect::<String>()
-                    ))
-                }
-            },
-        };
+        let force_delay_s = meta.force_delay_s;
+        let ports_delay_s = meta.ports_delay_s.unwrap_or(0.0);
+        let theta_source = meta.theta_source.unwrap_or(ThetaSource::Piston);
+        let ports_from_s = meta.ports_from_s;
         let force_align_s = force_delay_s.map_or(UNDECLARED_ALIGN_SAMPLES * dt_s, |d| -d);
         let x_m = col("x_m")?;
         let theta_rad = col("theta_rad")?;
@@ -350,63 +267,27 @@ impl Measured {
             lag: sg_window / 2,
         };
         let (v_mps, a_mps2) = firmware_derivatives(&x_m, dt_s, encoder_period_m, settings)?;
-        // The rotation's angle is coarse (4096 counts per turn: at 1.5 rad/s one count per
-        // millisecond) and its motion slow (servo bandwidth ≈ 30 Hz), so its speed is a
-        // Savitzky–Golay slope (f64: hundreds of radians exceed the firmware
-        // differentiator's counts) over a window that spans about [`ROTATION_COUNTS`]
-        // counts at the run's typical speed, within [`ROTATION_SPAN_S`], of the angle
-        // drawn through the count's crossings ([`angle_through_crossings`]).
-        let rot_window = rotation_window(&theta_rad, dt_s, n);
-        let w1 = sg_weights(rot_window, 2, 1, dt_s).ok_or("rotation-speed weights")?;
-        let through = angle_through_crossings(&theta_rad);
-        let omega_rad_s = Kernel::new(w1).apply(&through);
-        let ports_angle_rad = match theta_source {
-            ThetaSource::Piston => theta_rad.clone(),
-            ThetaSource::ServoEncoder => ports_angle(&through, dt_s),
-        };
+        let (omega_rad_s, ports_angle_rad) = rotation(&theta_rad, dt_s, n, theta_source)?;
         let w_p = Kernel::new(sg_weights(sg_window, 2, 1, dt_s).ok_or("pressure-rate weights")?);
         let p_a_pa = col("p_a_pa")?;
         let p_b_pa = col("p_b_pa")?;
         let dp_a_pa_per_s = w_p.apply(&p_a_pa);
         let dp_b_pa_per_s = w_p.apply(&p_b_pa);
-        let d2x_mps2: Vec<f64> = (0..n)
-            .map(|i| {
-                match (
-                    i.checked_sub(1).and_then(|k| x_m.get(k)),
-                    x_m.get(i),
-                    x_m.get(i + 1),
-                ) {
-                    (Some(a), Some(b), Some(c)) => (a - 2.0 * b + c) / (dt_s * dt_s),
-                    _ => 0.0,
-                }
-            })
-            .collect();
+        let d2x_mps2 = second_difference(&x_m, dt_s, n);
         let edge = 2 * sg_window;
         let inner: Vec<f64> = (0..n)
             .map(|i| f64::from(u8::from(i >= edge && i + edge < n)))
             .collect();
         // What the fits see: the derivatives of values in range are finite, and this says
         // which row made one that is not (a last guard before any solver).
-        for (name, v) in [
+        check_derived(&[
             ("velocity of `x_m`", &v_mps),
             ("acceleration of `x_m`", &a_mps2),
             ("second difference of `x_m`", &d2x_mps2),
             ("rate of `theta_rad`", &omega_rad_s),
             ("rate of `p_a_pa`", &dp_a_pa_per_s),
             ("rate of `p_b_pa`", &dp_b_pa_per_s),
-        ] {
-            if let Some(i) = v
-                .iter()
-                .position(|x| !(-MAX_DERIVED..=MAX_DERIVED).contains(x))
-            {
-                return Err(format!(
-                    "data row {}: the {name} there is {}, beyond what the fits can use \
-                     (±{MAX_DERIVED:e})",
-                    i + 1,
-                    v.get(i).copied().unwrap_or(f64::NAN)
-                ));
-            }
-        }
+        ])?;
         let moving = moving_mask(&v_mps, &inner, dt_s, sg_window);
         let segments = runs(&moving);
         Ok(Measured {
@@ -551,6 +432,102 @@ impl Measured {
         }
         out
     }
+}
+
+/// The log's sample time, s, from the ends of `t_s`: every step must be it within
+/// [`MAX_STEP_JITTER`] (the workflow needs a uniform rate), and its rate between
+/// `min_rate_hz` and [`MAX_SAMPLE_RATE_HZ`] (each within [`RATE_TOLERANCE`]).
+fn uniform_sample_time(t_s: &[f64], min_rate_hz: f64) -> Result<f64, String> {
+    let n = t_s.len();
+    let dt_s = match (t_s.first(), t_s.last()) {
+        (Some(a), Some(b)) if n > 1 && b > a => (b - a) / (n - 1) as f64,
+        _ => return Err("column `t_s`: no usable time step".into()),
+    };
+    // The step is taken from the ends: each step must be it (a log of uniform rate).
+    if let Some(i) = t_s.windows(2).position(|w| {
+        let step = w.get(1).copied().unwrap_or(0.0) - w.first().copied().unwrap_or(0.0);
+        !((1.0 - MAX_STEP_JITTER) * dt_s..=(1.0 + MAX_STEP_JITTER) * dt_s).contains(&step)
+    }) {
+        return Err(format!(
+            "column `t_s`, data row {}: the step from the previous row is not the log's \
+             sample time {dt_s:e} s within {:.0} % (the workflow needs a uniform rate)",
+            i + 2,
+            100.0 * MAX_STEP_JITTER
+        ));
+    }
+    let rate = 1.0 / dt_s;
+    let accepted =
+        min_rate_hz * (1.0 - RATE_TOLERANCE)..=MAX_SAMPLE_RATE_HZ * (1.0 + RATE_TOLERANCE);
+    if !accepted.contains(&rate) {
+        return Err(format!(
+            "column `t_s`: sample rate {rate:.6e} Hz; the workflow analyses logs sampled at \
+             {min_rate_hz} Hz to {MAX_SAMPLE_RATE_HZ:e} Hz"
+        ));
+    }
+    Ok(dt_s)
+}
+
+/// The rotation's speed, rad/s, and the angle that times the ports, rad (the logged angle,
+/// or the one drawn through the servo encoder's crossings: [`ports_angle`]), from the logged
+/// angle `theta_rad` of `n` rows at the sample time `dt_s`, s.
+///
+/// The rotation's angle is coarse (4096 counts per turn: at 1.5 rad/s one count per
+/// millisecond) and its motion slow (servo bandwidth ≈ 30 Hz), so its speed is a
+/// Savitzky–Golay slope (f64: hundreds of radians exceed the firmware
+/// differentiator's counts) over a window that spans about [`ROTATION_COUNTS`]
+/// counts at the run's typical speed, within [`ROTATION_SPAN_S`], of the angle
+/// drawn through the count's crossings ([`angle_through_crossings`]).
+fn rotation(
+    theta_rad: &[f64],
+    dt_s: f64,
+    n: usize,
+    theta_source: ThetaSource,
+) -> Result<(Vec<f64>, Vec<f64>), String> {
+    let rot_window = rotation_window(theta_rad, dt_s, n);
+    let w1 = sg_weights(rot_window, 2, 1, dt_s).ok_or("rotation-speed weights")?;
+    let through = angle_through_crossings(theta_rad);
+    let omega_rad_s = Kernel::new(w1).apply(&through);
+    let ports_angle_rad = match theta_source {
+        ThetaSource::Piston => theta_rad.to_vec(),
+        ThetaSource::ServoEncoder => ports_angle(&through, dt_s),
+    };
+    Ok((omega_rad_s, ports_angle_rad))
+}
+
+/// The raw second difference of `x_m` over its `n` rows at the sample time `dt_s`, m/s²
+/// (0 at the ends): the force channel's acceleration before its kernel.
+fn second_difference(x_m: &[f64], dt_s: f64, n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|i| {
+            match (
+                i.checked_sub(1).and_then(|k| x_m.get(k)),
+                x_m.get(i),
+                x_m.get(i + 1),
+            ) {
+                (Some(a), Some(b), Some(c)) => (a - 2.0 * b + c) / (dt_s * dt_s),
+                _ => 0.0,
+            }
+        })
+        .collect()
+}
+
+/// Refuses a derived column (`derived`: its name, its values) with a value beyond
+/// ±[`MAX_DERIVED`], naming the first data row (counted from 1) that has one.
+fn check_derived(derived: &[(&str, &[f64])]) -> Result<(), String> {
+    for (name, v) in derived {
+        if let Some(i) = v
+            .iter()
+            .position(|x| !(-MAX_DERIVED..=MAX_DERIVED).contains(x))
+        {
+            return Err(format!(
+                "data row {}: the {name} there is {}, beyond what the fits can use \
+                 (±{MAX_DERIVED:e})",
+                i + 1,
+                v.get(i).copied().unwrap_or(f64::NAN)
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// The rotation-speed window, samples (odd): the angle's step (its smallest nonzero change

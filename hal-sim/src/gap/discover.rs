@@ -4,7 +4,7 @@
 //! `t*sgn(v)` and `sin, cos(2πx/p)` with `p` fitted.
 //!
 //! The terms are a candidate of the forward selection like any named effect
-//! ([`super::effects::EffectKind::ExtraForce`]): each proposal adds the one term (or the
+//! ([`super::candidate::EffectKind::ExtraForce`]): each proposal adds the one term (or the
 //! periodic pair with its period) that lowers the force residual most, all present terms
 //! refitted jointly with it, and it is added only under the same significance rules
 //! ([`super::select`]). The terms enter the model as `[effects.extra_force]`, so the force
@@ -27,10 +27,11 @@ use crate::plant::fastmath::sin_cos;
 use crate::plant::model::extra_force::{ExtraState, Term};
 use crate::plant::model::{model_section, MachineModel};
 
+use super::candidate::{kept_span, kept_x, Ctx, EffectKind, Proposal};
+use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
-use super::effects::{kept_span, kept_x, Ctx, EffectKind, Proposal};
 use super::fit::{lstsq, minimise_1d_par};
-use super::residuals::{extra_states, force_raw, ChannelId};
+use super::residuals::{extra_states, force_raw};
 
 /// Shortest period of the periodic pair searched, m.
 pub const MIN_PERIOD_M: f64 = 2e-3;

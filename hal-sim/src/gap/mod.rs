@@ -19,12 +19,15 @@
 
 pub mod align;
 pub mod band;
+pub mod candidate;
+pub mod channel;
 pub mod data;
 pub mod discover;
 pub mod doc;
 pub mod effects;
 pub mod fit;
-mod offset;
+pub mod judge;
+pub mod offset;
 pub mod page;
 mod reconsider;
 pub mod report;
@@ -39,13 +42,14 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::failure::Failure;
-use crate::plant::model::{model_key, model_section};
+use crate::plant::model::{model_key, model_section, MachineModel};
 use crate::runlog::RunLog;
 
+use candidate::{Ctx, EffectKind};
+use channel::ChannelId;
 use data::Measured;
 use doc::ModelDoc;
-use effects::{Ctx, EffectKind};
-use residuals::{channel_raw, full_of_raw, full_rms, rms_of_full, Band, ChannelId};
+use residuals::{channel_raw, full_of_raw, full_rms, rms_of_full, Band};
 use select::{select, Selection};
 
 /// Default upper edge of the analysis band, Hz: above the cogging frequency at 4 m/s
@@ -191,135 +195,19 @@ pub struct ChannelResiduals {
 /// Runs the workflow on a validated log and model text. Bad input (a model or a log the
 /// workflow cannot use) is exit 2; the rest is exit 1.
 pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapOutcome, Failure> {
-    let input = ModelDoc::parse(model_text).map_err(Failure::bad_input)?;
-    let model = input.model().map_err(Failure::bad_input)?;
-    if !(opts.band_hz.is_finite() && opts.band_hz > 0.0) {
-        return Err(Failure::bad_input(format!(
-            "--band-hz {}: must be positive",
-            opts.band_hz
-        )));
-    }
-    let mut measured =
-        Measured::from_log(log, model.encoder.period_m).map_err(Failure::bad_input)?;
-    measured.check_against(&model).map_err(Failure::bad_input)?;
-    let nyquist = 0.5 * measured.sample_rate_hz();
-    if opts.band_hz >= nyquist {
-        return Err(Failure::bad_input(format!(
-            "--band-hz {}: must be below the log's Nyquist frequency, {nyquist} Hz",
-            opts.band_hz
-        )));
-    }
-    // The logged position's zero (homing's push into head A) is a nuisance of the pressure
-    // replay: fitted once, before any effect may take it up, on the log's first
-    // `MAX_OFFSET_FIT_ROWS` with their own angle-resolution mask (each step replays the
-    // chambers twice: on the 732k-row log the whole log would cost seconds). The whole
-    // log's mask is then made with the offset in place: its nominal replay, made beside the
-    // moved one, is the one the selection's first step reads.
-    let fit_offset = |head: &mut Measured| -> Option<f64> {
-        if let Some(judged) = residuals::ports_resolved(head, &model) {
-            head.pressure_judged = judged;
-        }
-        Band::new(head, opts.band_hz)
-            .ok()
-            .and_then(|b| residuals::fit_position_offset(head, &b, &model))
-    };
-    let long = measured.len() > residuals::MAX_OFFSET_FIT_ROWS;
-    let offset = if long {
-        fit_offset(&mut measured.head(residuals::MAX_OFFSET_FIT_ROWS))
-    } else {
-        fit_offset(&mut measured)
-    };
-    if let Some(offset) = offset {
-        measured.x_offset_m = offset;
-    }
-    // (A short log's mask is already the whole log's where the offset stayed at 0.)
-    if long || offset.is_some() {
-        if let Some(judged) = residuals::ports_resolved(&measured, &model) {
-            measured.pressure_judged = judged;
-        }
-    }
+    let (input, model, mut measured) = checked_inputs(model_text, log, opts)?;
+    offset::set_position_offset(&mut measured, &model, opts.band_hz);
     let band = Band::new(&measured, opts.band_hz).map_err(Failure::runtime)?;
-    let mut fitted_alignment = if measured.force_delay_s.is_none() {
-        align::estimate(&measured, &band, &model)
-    } else {
-        None
-    };
-    if let Some(a) = fitted_alignment {
-        measured.force_align_s = a.used_s;
-    }
-    let mut selection = select(
-        &Ctx {
-            data: &measured,
-            band: &band,
-        },
-        &input,
-    )
-    .map_err(Failure::runtime)?;
-    // The alignment was fitted with the input model, whose missing effects bias it. Fit it
-    // again with the augmented model — less any actuator lag, which is the same shift and
-    // may only have been added to make up for a biased alignment — and, if it moved, select
-    // again from the input model with it, until it settles (a few passes at most).
-    for _ in 0..MAX_ALIGNMENT_PASSES {
-        let Some(previous) = fitted_alignment else {
-            break;
-        };
-        let augmented = selection
-            .doc
-            .with(&[doc::Edit::RemoveSection(model_section!(
-                effects.actuator_lag
-            ))])
-            .model()
-            .map_err(Failure::runtime)?;
-        let Some(next) = align::estimate(&measured, &band, &augmented) else {
-            break;
-        };
-        if (next.used_s - previous.used_s).abs() <= 0.05 * measured.dt_s {
-            break;
-        }
-        measured.force_align_s = next.used_s;
-        fitted_alignment = Some(next);
-        selection = select(
-            &Ctx {
-                data: &measured,
-                band: &band,
-            },
-            &input,
-        )
-        .map_err(Failure::runtime)?;
-    }
+    let (selection, fitted_alignment) = aligned_selection(&mut measured, &band, &model, &input)?;
     let ctx = Ctx {
         data: &measured,
         band: &band,
     };
-    // What the final model holds: the named effects added, and the discovered terms if any
-    // survived the pruning.
-    let mut names: Vec<&str> = selection
-        .added
-        .iter()
-        .filter(|a| a.proposal.kind.named())
-        .map(|a| a.proposal.kind.name())
-        .collect();
-    if selection
-        .doc
-        .has_section(model_section!(effects.extra_force))
-    {
-        names.push(EffectKind::ExtraForce.name());
-    }
     // Each fitted value is written whole, with its uncertainty beside it as a comment.
     let sigma = uncertainty::of_selection(&ctx, &selection);
-    let model_text = format!(
-        "# Augmented by `fpc-sim gap`: {}\n{}",
-        if names.is_empty() {
-            "nothing significant was missing".to_string()
-        } else {
-            names.join(", ") + " added"
-        },
-        uncertainty::annotated(&selection.doc, &selection, &sigma)
-            .to_text()
-            .map_err(Failure::runtime)?
-    );
+    let model_text = augmented_text(&selection, &sigma)?;
     // Re-run the comparison with the model exactly as written.
-    let after_model = crate::plant::model::MachineModel::parse(&model_text)
+    let after_model = MachineModel::parse(&model_text)
         .map_err(|e| Failure::runtime(format!("augmented model does not load: {e}")))?;
     let mut warnings = selection.warnings.clone();
     if measured.ports == data::PortsMeta::Unknown {
@@ -327,27 +215,7 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
             "no `# ports = open|closed` metadata: the pressure channel is not compared".into(),
         );
     }
-    // The channels' replays are independent: on every core, kept in the channels' order.
-    // Their band-filtered residuals are kept for the report's maps and overlays.
-    let filtered: Vec<ChannelResiduals> = ChannelId::ALL
-        .par_iter()
-        .filter_map(|&ch| {
-            let (b, a) = rayon::join(
-                || channel_raw(&measured, &model, ch),
-                || channel_raw(&measured, &after_model, ch),
-            );
-            let (b, a) = (b?, a?);
-            let (before, after) = rayon::join(
-                || full_of_raw(&measured, &band, ch, &b),
-                || full_of_raw(&measured, &band, ch, &a),
-            );
-            Some(ChannelResiduals {
-                channel: ch,
-                before,
-                after,
-            })
-        })
-        .collect();
+    let filtered = filtered_residuals(&measured, &band, &model, &after_model);
     let channels: Vec<ChannelJson> = filtered
         .iter()
         .map(|c| ChannelJson {
@@ -376,6 +244,158 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         selection,
         filtered,
     })
+}
+
+/// The input model (as a document and loaded) and the measured run, checked against each
+/// other and the band `opts.band_hz` (positive, below the log's Nyquist frequency); every
+/// error is bad input.
+fn checked_inputs(
+    model_text: &str,
+    log: &RunLog,
+    opts: &GapOptions,
+) -> Result<(ModelDoc, MachineModel, Measured), Failure> {
+    let input = ModelDoc::parse(model_text).map_err(Failure::bad_input)?;
+    let model = input.model().map_err(Failure::bad_input)?;
+    if !(opts.band_hz.is_finite() && opts.band_hz > 0.0) {
+        return Err(Failure::bad_input(format!(
+            "--band-hz {}: must be positive",
+            opts.band_hz
+        )));
+    }
+    let measured = Measured::from_log(log, model.encoder.period_m).map_err(Failure::bad_input)?;
+    measured.check_against(&model).map_err(Failure::bad_input)?;
+    let nyquist = 0.5 * measured.sample_rate_hz();
+    if opts.band_hz >= nyquist {
+        return Err(Failure::bad_input(format!(
+            "--band-hz {}: must be below the log's Nyquist frequency, {nyquist} Hz",
+            opts.band_hz
+        )));
+    }
+    Ok((input, model, measured))
+}
+
+/// The selection from `input` with the force alignment the log declares, or else with the
+/// one fitted ([`align`]), refitted on the augmented model until it settles; the fitted
+/// alignment, if any, is set on `measured`.
+fn aligned_selection(
+    measured: &mut Measured,
+    band: &Band,
+    model: &MachineModel,
+    input: &ModelDoc,
+) -> Result<(Selection, Option<align::Alignment>), Failure> {
+    let mut fitted_alignment = if measured.force_delay_s.is_none() {
+        align::estimate(measured, band, model)
+    } else {
+        None
+    };
+    if let Some(a) = fitted_alignment {
+        measured.force_align_s = a.used_s;
+    }
+    let mut selection = select(
+        &Ctx {
+            data: measured,
+            band,
+        },
+        input,
+    )
+    .map_err(Failure::runtime)?;
+    // The alignment was fitted with the input model, whose missing effects bias it. Fit it
+    // again with the augmented model — less any actuator lag, which is the same shift and
+    // may only have been added to make up for a biased alignment — and, if it moved, select
+    // again from the input model with it, until it settles (a few passes at most).
+    for _ in 0..MAX_ALIGNMENT_PASSES {
+        let Some(previous) = fitted_alignment else {
+            break;
+        };
+        let augmented = selection
+            .doc
+            .with(&[doc::Edit::RemoveSection(model_section!(
+                effects.actuator_lag
+            ))])
+            .model()
+            .map_err(Failure::runtime)?;
+        let Some(next) = align::estimate(measured, band, &augmented) else {
+            break;
+        };
+        if (next.used_s - previous.used_s).abs() <= 0.05 * measured.dt_s {
+            break;
+        }
+        measured.force_align_s = next.used_s;
+        fitted_alignment = Some(next);
+        selection = select(
+            &Ctx {
+                data: measured,
+                band,
+            },
+            input,
+        )
+        .map_err(Failure::runtime)?;
+    }
+    Ok((selection, fitted_alignment))
+}
+
+/// The augmented model file: a first comment naming what was added, then the selection's
+/// model with each fitted value's uncertainty `sigma` beside it as a comment.
+fn augmented_text(
+    selection: &Selection,
+    sigma: &BTreeMap<EffectKind, BTreeMap<String, f64>>,
+) -> Result<String, Failure> {
+    // What the final model holds: the named effects added, and the discovered terms if any
+    // survived the pruning.
+    let mut names: Vec<&str> = selection
+        .added
+        .iter()
+        .filter(|a| a.proposal.kind.named())
+        .map(|a| a.proposal.kind.name())
+        .collect();
+    if selection
+        .doc
+        .has_section(model_section!(effects.extra_force))
+    {
+        names.push(EffectKind::ExtraForce.name());
+    }
+    Ok(format!(
+        "# Augmented by `fpc-sim gap`: {}\n{}",
+        if names.is_empty() {
+            "nothing significant was missing".to_string()
+        } else {
+            names.join(", ") + " added"
+        },
+        uncertainty::annotated(&selection.doc, selection, sigma)
+            .to_text()
+            .map_err(Failure::runtime)?
+    ))
+}
+
+/// Each channel's band-filtered residual at every sample with the input `model` and the
+/// augmented `after_model`, in the channels' order.
+fn filtered_residuals(
+    measured: &Measured,
+    band: &Band,
+    model: &MachineModel,
+    after_model: &MachineModel,
+) -> Vec<ChannelResiduals> {
+    // The channels' replays are independent: on every core, kept in the channels' order.
+    // Their band-filtered residuals are kept for the report's maps and overlays.
+    ChannelId::ALL
+        .par_iter()
+        .filter_map(|&ch| {
+            let (b, a) = rayon::join(
+                || channel_raw(measured, model, ch),
+                || channel_raw(measured, after_model, ch),
+            );
+            let (b, a) = (b?, a?);
+            let (before, after) = rayon::join(
+                || full_of_raw(measured, band, ch, &b),
+                || full_of_raw(measured, band, ch, &a),
+            );
+            Some(ChannelResiduals {
+                channel: ch,
+                before,
+                after,
+            })
+        })
+        .collect()
 }
 
 /// Each added effect's channel RMS just before and just after it was added (the models of

@@ -4,8 +4,9 @@
 
 use crate::plant::model::MachineModel;
 
+use super::channel::{resolution, ChannelId};
 use super::data::Measured;
-use super::residuals::{residual, Band, ChannelId};
+use super::residuals::{ports_resolved, residual, Band};
 
 /// Widest offset of the logged position from the chambers' own that
 /// [`fit_position_offset`] accepts whatever the model says, m: a homing push's contact and
@@ -17,7 +18,7 @@ pub const MAX_POSITION_OFFSET_M: f64 = 50e-6;
 /// homing push — the homing force limit ([`fpc::sensing::homing::HomingConfig::reference`],
 /// 400 N: the current never exceeds it, the command stays 5 % below) on the heads' contact
 /// stiffness (`piston.stop_stiffness_n_per_m`, 5e7 N/m: 8 µm) — plus one step of the
-/// encoder's interpolation ([`super::select::resolution`], ≈ 2.4 µm: where within a step
+/// encoder's interpolation ([`resolution`], ≈ 2.4 µm: where within a step
 /// the zero was declared), and never more than [`MAX_POSITION_OFFSET_M`]. One sign: homing
 /// pushes the piston *into* head A, so the logged position reads more than the chambers'.
 /// Bounded so, the offset cannot take up a pressure effect's pattern: at ±50 µm it ran to
@@ -25,7 +26,7 @@ pub const MAX_POSITION_OFFSET_M: f64 = 50e-6;
 pub fn position_offset_bounds(model: &MachineModel) -> (f64, f64) {
     let push_n = f64::from(fpc::sensing::homing::HomingConfig::reference().force_limit_n);
     let contact_m = push_n / model.piston.stop_stiffness_n_per_m;
-    let step_m = super::select::resolution(ChannelId::Encoder, model);
+    let step_m = resolution(ChannelId::Encoder, model);
     (0.0, (contact_m + step_m).min(MAX_POSITION_OFFSET_M))
 }
 
@@ -91,6 +92,42 @@ pub fn fit_position_offset(data: &Measured, band: &Band, model: &MachineModel) -
     (best.0 != data.x_offset_m).then_some(best.0)
 }
 
+/// Fits the logged position's offset ([`fit_position_offset`]) and sets it on `measured`,
+/// with the pressure channel's angle-resolution mask ([`ports_resolved`]) made with it in
+/// place; `band_hz` is the analysis band's upper edge, Hz.
+///
+/// The logged position's zero (homing's push into head A) is a nuisance of the pressure
+/// replay: fitted once, before any effect may take it up, on the log's first
+/// `MAX_OFFSET_FIT_ROWS` with their own angle-resolution mask (each step replays the
+/// chambers twice: on the 732k-row log the whole log would cost seconds). The whole
+/// log's mask is then made with the offset in place: its nominal replay, made beside the
+/// moved one, is the one the selection's first step reads.
+pub fn set_position_offset(measured: &mut Measured, model: &MachineModel, band_hz: f64) {
+    let fit_offset = |head: &mut Measured| -> Option<f64> {
+        if let Some(judged) = ports_resolved(head, model) {
+            head.pressure_judged = judged;
+        }
+        Band::new(head, band_hz)
+            .ok()
+            .and_then(|b| fit_position_offset(head, &b, model))
+    };
+    let long = measured.len() > MAX_OFFSET_FIT_ROWS;
+    let offset = if long {
+        fit_offset(&mut measured.head(MAX_OFFSET_FIT_ROWS))
+    } else {
+        fit_offset(measured)
+    };
+    if let Some(offset) = offset {
+        measured.x_offset_m = offset;
+    }
+    // (A short log's mask is already the whole log's where the offset stayed at 0.)
+    if long || offset.is_some() {
+        if let Some(judged) = ports_resolved(measured, model) {
+            measured.pressure_judged = judged;
+        }
+    }
+}
+
 /// Most rows of a log [`fit_position_offset`] is fitted on (its first ones): 5 s at 20 kHz,
 /// three cycles of timed ports at 0.3 m/s. The fit replays the chambers up to
 /// 2 × [`MAX_OFFSET_STEPS`] times; the offset of a homing holds for the whole log.
@@ -100,3 +137,29 @@ pub const MAX_OFFSET_FIT_ROWS: usize = 100_000;
 
 /// Most Gauss–Newton steps of [`fit_position_offset`].
 const MAX_OFFSET_STEPS: usize = 6;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_homing_offset_is_bounded_by_the_push_on_the_heads_contact() {
+        let mut model = MachineModel::reference();
+        let step = resolution(ChannelId::Encoder, &model);
+        let push = f64::from(fpc::sensing::homing::HomingConfig::reference().force_limit_n);
+        // One sign (into head A), and a few microns on the reference contact (5e7 N/m).
+        let (lo, hi) = position_offset_bounds(&model);
+        assert_eq!(lo, 0.0);
+        let contact = push / model.piston.stop_stiffness_n_per_m;
+        assert!((hi - (contact + step)).abs() < 1e-12, "{hi}");
+        assert!(
+            hi > 5e-6 && hi < 15e-6,
+            "{hi}: the reference's 8 µm contact + one step"
+        );
+        // A stiffer head gives less; a soft one never more than the outer bound.
+        model.piston.stop_stiffness_n_per_m *= 10.0;
+        assert!(position_offset_bounds(&model).1 < hi);
+        model.piston.stop_stiffness_n_per_m = 1e3;
+        assert_eq!(position_offset_bounds(&model).1, MAX_POSITION_OFFSET_M);
+    }
+}

@@ -1,19 +1,64 @@
-//! The end of selection: each discovered term judged once more against the named force
-//! effects not in the final model (`reconsider_terms`). Forward selection adds one candidate
-//! at a time, and a basis term can take a step from a named effect it only resembles; here
-//! it gives it back where the named effect explains as much (see `reconsider_terms`).
+//! The discovered terms judged again once others are in. After each selection step, a term
+//! that no longer passes the rules with the later ones in place is dropped
+//! ([`prune_terms`]). At the end of selection, each term is judged once more against the
+//! named force effects not in the final model ([`reconsider_terms`]): forward selection adds
+//! one candidate at a time, and a basis term can take a step from a named effect it only
+//! resembles; here it gives it back where the named effect explains as much.
 
 use rayon::prelude::*;
 use std::cell::RefCell;
 
+use super::candidate::{Ctx, EffectKind};
+use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
-use super::effects::{Ctx, EffectKind};
-use super::residuals::{residual, ChannelId};
-use super::select::{
-    effective_n, judge_proposal, outdone_by_basis, prune_terms, Judged, MAX_EFFECTS, MIN_DELTA_BIC,
+use super::effects::propose;
+use super::judge::{
+    effective_n, judge_proposal, outdone_by_basis, Judged, MAX_EFFECTS, MIN_DELTA_BIC,
 };
+use super::residuals::residual;
 use crate::plant::model::extra_force::Term;
 use crate::plant::model::model_section;
+
+/// Drops discovered terms that no longer pass the significance rules with the others in
+/// place (forward selection can add a term that only stood in for one added later): each
+/// term is judged as if it were added last, onto the others refitted without it, and the
+/// least significant failing one is dropped, until every one passes.
+pub(super) fn prune_terms(ctx: &Ctx<'_>, mut doc: ModelDoc) -> ModelDoc {
+    loop {
+        let Ok(model) = doc.model() else { return doc };
+        let Some(terms) = model
+            .effects
+            .extra_force
+            .as_ref()
+            .and_then(|e| e.parsed().ok())
+        else {
+            return doc;
+        };
+        let mut worst: Option<(f64, ModelDoc)> = None;
+        for (term, _) in &terms {
+            let Some((without, back)) = super::discover::without_term(ctx, &doc, *term) else {
+                continue;
+            };
+            let Some(before) = without
+                .model()
+                .ok()
+                .and_then(|m| residual(ctx.data, ctx.band, &m, ChannelId::Force))
+            else {
+                continue;
+            };
+            let Some(j) = judge_proposal(ctx, &without, back, &before) else {
+                continue;
+            };
+            if !j.significant() && worst.as_ref().is_none_or(|(d, _)| j.delta_bic < *d) {
+                worst = Some((j.delta_bic, without));
+            }
+        }
+        match worst {
+            Some((_, without)) => doc = without,
+            None => return doc,
+        }
+    }
+}
 
 /// The named force effects a discovered term can be judged against at the end of selection:
 /// the library's named effects on the force channel.
@@ -40,7 +85,7 @@ fn without_named(
     if let Some(section) = kind.section() {
         return Some(doc.with(&[Edit::RemoveSection(section)]));
     }
-    let p = kind.propose(ctx, doc)?;
+    let p = propose(kind, ctx, doc)?;
     let edits: Vec<Edit> = p
         .edits
         .iter()
@@ -75,7 +120,7 @@ fn swap_term(
     let force_rss = |d: &ModelDoc| -> Option<f64> {
         Some(residual(ctx.data, ctx.band, &d.model().ok()?, ChannelId::Force)?.rss())
     };
-    let first = kind.propose(ctx, &without)?;
+    let first = propose(kind, ctx, &without)?;
     let mut alt = without.with(&first.edits);
     // Back-fitting, as the selection does: each named effect once more with the others in
     // place, then the discovered terms left refitted — never one more term (`named` holds
@@ -83,7 +128,7 @@ fn swap_term(
     // parameter the model with `term` never had, and `f_motor` would lose to its own
     // decomposition (module header).
     for k in named.iter().copied().filter(|k| k.named()).chain([kind]) {
-        let Some(p) = k.propose(ctx, &alt) else {
+        let Some(p) = propose(k, ctx, &alt) else {
             continue;
         };
         let next = alt.with(&p.edits);
@@ -101,7 +146,7 @@ fn swap_term(
     // The named effect judged as if added last, with the same competition as in selection.
     let base = without_named(ctx, input, &alt, kind)?;
     let before = residual(ctx.data, ctx.band, &base.model().ok()?, ChannelId::Force)?;
-    let p = kind.propose(ctx, &base)?;
+    let p = propose(kind, ctx, &base)?;
     let j = judge_proposal(ctx, &base, p, &before)?;
     if outdone_by_basis(ctx, &base, &j, &before, &RefCell::new(Vec::new())) {
         return None;

@@ -10,9 +10,11 @@ use std::path::Path;
 use crate::plant::model::MachineModel;
 use crate::plot::{lines, panels, Axes, Panel, Series};
 
-use super::effects::{acting_force_lag, slave_force_lag, Ctx};
+use super::candidate::Ctx;
+use super::channel::ChannelId;
+use super::effects::{acting_force_lag, slave_force_lag};
 use super::page::Block;
-use super::residuals::{replay_pressures, ChannelId};
+use super::residuals::replay_pressures;
 use super::uncertainty::{fitted, key_unit};
 use super::{ChannelResiduals, GapOutcome};
 

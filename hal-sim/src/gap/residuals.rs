@@ -22,56 +22,11 @@ use crate::plant::model::MachineModel;
 use crate::plant::servo::through_play;
 use crate::signal::delayed;
 
-pub use super::offset::{
-    fit_position_offset, position_offset_bounds, MAX_OFFSET_FIT_ROWS, MAX_POSITION_OFFSET_M,
-};
-
 use super::band::{force_kernel, lowpass, sg_weights, ColumnCache, Kernel};
+use super::channel::{sample_resolution, ChannelId};
 use super::data::{
     count_quantum, count_spans_rows, Measured, PortsMeta, ThetaSource, PORTS_ANGLE_SPAN_S,
 };
-
-/// The channels compared.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum ChannelId {
-    /// The force balance on the piston.
-    Force,
-    /// Slave-section force against the master's.
-    SlaveForce,
-    /// Slave encoder against the master encoder.
-    Encoder,
-    /// Chamber pressures against the replay.
-    Pressure,
-}
-
-impl ChannelId {
-    /// Every channel, in report order.
-    pub const ALL: [ChannelId; 4] = [
-        ChannelId::Force,
-        ChannelId::SlaveForce,
-        ChannelId::Encoder,
-        ChannelId::Pressure,
-    ];
-
-    /// Name in the JSON and the report.
-    pub fn name(self) -> &'static str {
-        match self {
-            ChannelId::Force => "force",
-            ChannelId::SlaveForce => "slave_force",
-            ChannelId::Encoder => "encoder",
-            ChannelId::Pressure => "pressure",
-        }
-    }
-
-    /// Unit of the residual.
-    pub fn unit(self) -> &'static str {
-        match self {
-            ChannelId::Force | ChannelId::SlaveForce => "N",
-            ChannelId::Encoder => "m",
-            ChannelId::Pressure => "Pa",
-        }
-    }
-}
 
 /// The analysis band and the sample sets the statistics use.
 ///
@@ -550,7 +505,7 @@ pub fn replay_pressures(data: &Measured, model: &MachineModel) -> Option<(Vec<f6
 /// So each sample's angle is taken as known within `±u`, half a count times the count's
 /// length over [`PORTS_ANGLE_SPAN_S`] (at most half a count), and a sample whose replay,
 /// with every angle moved by `u`, changes by more than one sensor code
-/// ([`super::select::sample_resolution`]) is not judged: what it shows is the angle's
+/// ([`sample_resolution`]) is not judged: what it shows is the angle's
 /// position within its count, not the chambers' physics. (One moved replay beside the
 /// model's own, which the selection reads anyway: on the 732k-row log two moved replays
 /// cost 2.7 s of CPU and about 1.4 s of wall time.)
@@ -580,7 +535,7 @@ pub fn ports_resolved(data: &Measured, model: &MachineModel) -> Option<Vec<f64>>
     // made here beside the moved one, it costs no extra time.
     let (nominal, ahead) = rayon::join(|| replay_pressures(data, model), moved);
     let ((a0, b0), (a1, b1)) = (nominal?, ahead?);
-    let code = super::select::sample_resolution(ChannelId::Pressure, model);
+    let code = sample_resolution(ChannelId::Pressure, model);
     Some(
         (0..data.len())
             .map(|i| {
@@ -834,31 +789,5 @@ pub fn rms_of_full(data: &Measured, band: &Band, ch: ChannelId, full: &[f64]) ->
         0.0
     } else {
         (s / c as f64).sqrt()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_homing_offset_is_bounded_by_the_push_on_the_heads_contact() {
-        let mut model = MachineModel::reference();
-        let step = super::super::select::resolution(ChannelId::Encoder, &model);
-        let push = f64::from(fpc::sensing::homing::HomingConfig::reference().force_limit_n);
-        // One sign (into head A), and a few microns on the reference contact (5e7 N/m).
-        let (lo, hi) = position_offset_bounds(&model);
-        assert_eq!(lo, 0.0);
-        let contact = push / model.piston.stop_stiffness_n_per_m;
-        assert!((hi - (contact + step)).abs() < 1e-12, "{hi}");
-        assert!(
-            hi > 5e-6 && hi < 15e-6,
-            "{hi}: the reference's 8 µm contact + one step"
-        );
-        // A stiffer head gives less; a soft one never more than the outer bound.
-        model.piston.stop_stiffness_n_per_m *= 10.0;
-        assert!(position_offset_bounds(&model).1 < hi);
-        model.piston.stop_stiffness_n_per_m = 1e3;
-        assert_eq!(position_offset_bounds(&model).1, MAX_POSITION_OFFSET_M);
     }
 }

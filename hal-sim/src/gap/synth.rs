@@ -7,6 +7,7 @@
 //! prescribed runs cover what the closed loop cannot do: the paper's closed-port campaign
 //! (compress, hold, let the pressure decay) and timed ports along a known rotation.
 
+use crate::logmeta::{LogMeta, PortsDeclared};
 use std::f64::consts::PI;
 
 use fpc::physics::balance::PistonState;
@@ -173,25 +174,18 @@ fn prescribed(
     let mut cols = REQUIRED.to_vec();
     cols.extend(["p_suction_pa", "p_discharge_pa"]);
     let mut log = RunLog::with_columns(&cols);
-    log.meta.push((
-        "ports".into(),
-        if mode == PortMode::Closed {
-            "closed"
+    LogMeta {
+        source: Some("fpc-sim gap synth (prescribed motion)".into()),
+        sample_rate_hz: Some((1.0 / dt).round()),
+        force_delay_s: Some(crate::run::FIRMWARE_FORCE_DELAY_S),
+        ports: Some(if mode == PortMode::Closed {
+            PortsDeclared::Closed
         } else {
-            "open"
-        }
-        .into(),
-    ));
-    log.meta.push((
-        "source".into(),
-        "fpc-sim gap synth (prescribed motion)".into(),
-    ));
-    log.meta
-        .push(("sample_rate_hz".into(), (1.0 / dt).round().to_string()));
-    log.meta.push((
-        "force_delay_s".into(),
-        format!("{:e}", crate::run::FIRMWARE_FORCE_DELAY_S),
-    ));
+            PortsDeclared::Open
+        }),
+        ..LogMeta::default()
+    }
+    .write(&mut log);
     let mut lagged = [plant.chambers.a.pressure_pa, plant.chambers.b.pressure_pa];
     // The drives' forces are reported as the firmware reports them: one control period
     // behind the row's position (declared as `# force_delay_s`).
@@ -259,12 +253,10 @@ pub fn decimate(log: &RunLog, factor: usize) -> RunLog {
     for c in &mut out.columns {
         *c = c.iter().copied().step_by(f).collect();
     }
-    for (k, v) in &mut out.meta {
-        if k == "sample_rate_hz" {
-            if let Ok(r) = v.parse::<f64>() {
-                *v = (r / f as f64).to_string();
-            }
-        }
+    // (Our own logs: their metadata reads.)
+    if let Ok(mut meta) = LogMeta::read(log) {
+        meta.sample_rate_hz = meta.sample_rate_hz.map(|r| r / f as f64);
+        meta.write(&mut out);
     }
     out
 }

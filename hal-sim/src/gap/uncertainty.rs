@@ -6,7 +6,7 @@
 //! The Jacobian is taken numerically on the final model, each parameter moved by a central
 //! difference of [`REL_STEP`] of its value, so the same code serves the linear fits, the
 //! periodogram-and-golden-section ones and the chamber replays; the residual's sample count
-//! is its effective one ([`super::select::effective_n`]), since the band filter and the
+//! is its effective one ([`super::judge::effective_n`]), since the band filter and the
 //! differentiator spread each independent sample over many rows.
 
 use std::collections::BTreeMap;
@@ -15,11 +15,13 @@ use rayon::prelude::*;
 
 use crate::plant::model::Key;
 
+use super::candidate::{Ctx, EffectKind};
+use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
-use super::effects::{Ctx, EffectKind};
 use super::fit::{standard_errors, sumsq};
-use super::residuals::{channel_raw, kept_of_raw, ChannelId};
-use super::select::{effective_n, Selection};
+use super::judge::effective_n;
+use super::residuals::{channel_raw, kept_of_raw};
+use super::select::Selection;
 
 /// Central-difference step, relative to the parameter's value.
 pub const REL_STEP: f64 = 1e-4;

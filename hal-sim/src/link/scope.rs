@@ -8,6 +8,7 @@
 //! apart (the control task missed a cycle while recording), or when its angle's code
 //! disagrees with the angle the header states.
 
+use crate::logmeta::{LogMeta, PortsDeclared, ThetaSource};
 use std::collections::BTreeMap;
 
 use fpc::link::frame::Deframer;
@@ -216,30 +217,23 @@ impl ScopeRecording {
         let clipped = decoded.iter().filter(|(_, c)| *c).count();
 
         let mut log = RunLog::with_columns(&REQUIRED);
-        log.meta.push(("source".into(), "fpc scope".into()));
-        log.meta.push((
-            "sample_rate_hz".into(),
-            format!("{}", 1e6 / f64::from(CONTROL_PERIOD_US)),
-        ));
-        log.meta.push((
-            "force_delay_s".into(),
-            format!(
-                "{:e}",
-                f64::from(FORCE_DELAY_PERIODS * CONTROL_PERIOD_US) / 1e6
-            ),
-        ));
-        log.meta
-            .push(("theta_source".into(), THETA_SOURCE.to_string()));
-        match r.ports {
-            Ports::Timed => log.meta.push(("ports".into(), "open".into())),
-            Ports::Sealed => log.meta.push(("ports".into(), "closed".into())),
-            Ports::Bypassed => {}
-        }
-        log.meta
+        let mut meta = LogMeta {
+            source: Some("fpc scope".into()),
+            sample_rate_hz: Some(1e6 / f64::from(CONTROL_PERIOD_US)),
+            force_delay_s: Some(f64::from(FORCE_DELAY_PERIODS * CONTROL_PERIOD_US) / 1e6),
+            theta_source: ThetaSource::from_name(THETA_SOURCE),
+            ports: match r.ports {
+                Ports::Timed => Some(PortsDeclared::Open),
+                Ports::Sealed => Some(PortsDeclared::Closed),
+                Ports::Bypassed => None,
+            },
+            ..LogMeta::default()
+        };
+        meta.other
             .push(("scope_trigger".into(), trigger_text(r.trigger)));
-        log.meta
+        meta.other
             .push(("scope_pre_samples".into(), r.pre.to_string()));
-        log.meta.push((
+        meta.other.push((
             "scope_modes".into(),
             format!(
                 "{} at the trigger, {} at the end",
@@ -248,9 +242,10 @@ impl ScopeRecording {
             ),
         ));
         if clipped > 0 {
-            log.meta
+            meta.other
                 .push(("scope_clipped_samples".into(), clipped.to_string()));
         }
+        meta.write(&mut log);
         for (k, ((v, _), u)) in decoded.iter().zip(&unwrapped).enumerate() {
             let ticks =
                 i64::from(r.t_trigger.0) + (k as i64 - pre as i64) * i64::from(CONTROL_PERIOD_US);

@@ -136,6 +136,35 @@ impl Servo {
     }
 }
 
+/// The published drives' cascade gains of `model` at the loop's cycle `cycle_s`, s, its
+/// output limited at the force limit or where the sections' current clamp `current_limit_a`,
+/// A, acts.
+fn loop_gains(model: &MachineModel, cycle_s: f64, current_limit_a: f64) -> LoopGains {
+    let p = &model.published;
+    let sections = model.motor_sections();
+    let cycles = |s: f64| (s / cycle_s).round() as usize;
+    // Half the setpoint goes to each section, each clamped at the drive's current: the
+    // loop's output is limited where that clamp acts (or at the force limit, if lower),
+    // so its integrator stops winding up where the force really stops growing.
+    let kf_min = sections
+        .master
+        .force_constant_n_per_a
+        .min(sections.slave.force_constant_n_per_a);
+    let clamp_n = 2.0 * kf_min * current_limit_a;
+    LoopGains {
+        cycle_s,
+        position_gain_per_s: p.position_gain_per_s,
+        velocity_gain_ns_per_m: p.velocity_gain_ns_per_m,
+        velocity_integral_time_s: p.velocity_integral_time_s,
+        velocity_feedforward: p.velocity_feedforward,
+        velocity_filter_s: p.velocity_filter_s,
+        loop_velocity_delay_cycles: cycles(p.loop_velocity_delay_s),
+        // A moving average of N backward differences is late by N/2 cycles.
+        reported_velocity_cycles: cycles(2.0 * p.reported_velocity_delay_s).max(1),
+        force_limit_n: model.limits.force_limit_n.min(clamp_n),
+    }
+}
+
 impl Rig {
     /// The rig of `model`, its drives zeroed on the piston where `world` has it, the rotation
     /// programmed for the pressure ratio `pressure_ratio` (a fixed volume ratio `target`
@@ -150,33 +179,13 @@ impl Rig {
         let period_s = f64::from(CONTROL_PERIOD_S);
         let cycle_periods = (p.cycle_s / period_s).round().max(1.0) as u64;
         let cycle_s = cycle_periods as f64 * period_s;
-        let cycles = |s: f64| (s / cycle_s).round() as usize;
         let sections = model.motor_sections();
         let current_limit_a = if p.current_limit_a > 0.0 {
             p.current_limit_a
         } else {
             sections.master.current_limit_a
         };
-        // Half the setpoint goes to each section, each clamped at the drive's current: the
-        // loop's output is limited where that clamp acts (or at the force limit, if lower),
-        // so its integrator stops winding up where the force really stops growing.
-        let kf_min = sections
-            .master
-            .force_constant_n_per_a
-            .min(sections.slave.force_constant_n_per_a);
-        let clamp_n = 2.0 * kf_min * current_limit_a;
-        let gains = LoopGains {
-            cycle_s,
-            position_gain_per_s: p.position_gain_per_s,
-            velocity_gain_ns_per_m: p.velocity_gain_ns_per_m,
-            velocity_integral_time_s: p.velocity_integral_time_s,
-            velocity_feedforward: p.velocity_feedforward,
-            velocity_filter_s: p.velocity_filter_s,
-            loop_velocity_delay_cycles: cycles(p.loop_velocity_delay_s),
-            // A moving average of N backward differences is late by N/2 cycles.
-            reported_velocity_cycles: cycles(2.0 * p.reported_velocity_delay_s).max(1),
-            force_limit_n: model.limits.force_limit_n.min(clamp_n),
-        };
+        let gains = loop_gains(model, cycle_s, current_limit_a);
         let current = |s: Section| {
             let m = sections.get(s);
             CurrentLoop::new(

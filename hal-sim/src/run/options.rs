@@ -413,47 +413,11 @@ pub fn speed_for_pressure_ratio(pr: f64) -> f64 {
     prev.1
 }
 
-/// The controller's configuration for a model: the firmware's reference tuning with the
-/// model's machine parameters.
+/// The controller's configuration for a model: the firmware's tuning for the model's machine
+/// (`ControlConfig::for_machine` of [`MachineModel::machine`]), with the model's cogging as
+/// the compensation map (what the calibration would find).
 pub fn control_config(model: &MachineModel) -> ControlConfig {
-    let mut c = ControlConfig::reference();
-    c.moving_mass_kg = model.piston.mass_kg as f32;
-    c.travel_m = model.piston.travel_m as f32;
-    c.cylinder = fpc::physics::gas::Cylinder::from_bore(
-        model.piston.bore_m as f32,
-        model.piston.rod_m as f32,
-        model.piston.travel_m as f32,
-        model.piston.dead_length_a_m as f32,
-        model.piston.dead_length_b_m as f32,
-    );
-    let f = model.friction();
-    c.friction.coulomb_n = f.coulomb_n as f32;
-    c.friction.static_n = f.static_n as f32;
-    c.friction.viscous_ns_per_m = f.viscous_ns_per_m as f32;
-    c.friction.stribeck_velocity_mps = f.stribeck_velocity_mps as f32;
-    c.friction.stribeck_exponent = f.stribeck_exponent as f32;
-    c.encoder_master.period_m = model.encoder.period_m as f32;
-    c.encoder_slave.period_m = model.encoder.period_m as f32;
-    c.motor.electrical_period_m = (2.0 * model.motor.pole_pitch_m) as f32;
-    let m = model.motor_sections().master;
-    c.motor.force_constant_n_per_a = m.force_constant_n_per_a as f32;
-    c.motor.resistance_ohm = m.resistance_ohm as f32;
-    c.motor.inductance_h = m.inductance_h as f32;
-    c.motor.bus_voltage_v = m.bus_voltage_v as f32;
-    c.motor.current_limit_a = m.current_limit_a as f32;
-    c.servo.inertia_kgm2 = model.servo.inertia_kgm2 as f32;
-    c.servo.torque_full_scale_nm = model.servo.torque_full_scale_nm as f32;
-    c.servo.counts_per_rev = model.servo.counts_per_rev;
-    c.target_clearance_m = model.limits.target_head_clearance_m as f32;
-    // The dead points at the target clearance from each head of this model's travel (the
-    // firmware's reference stroke is for a 0.205 m travel: on another travel it stroked into
-    // a head or short of it).
-    let clearance = model.limits.target_head_clearance_m;
-    c.stroke.dead_a_m = clearance as f32;
-    c.stroke.dead_b_m = (model.piston.travel_m - clearance) as f32;
-    c.force_limit_n = model.limits.force_limit_n as f32;
-    c.max_speed_mps = model.limits.max_speed_mps as f32;
-    // The model's cogging as the compensation map (what the calibration would find).
+    let mut c = ControlConfig::for_machine(&model.machine());
     if let Some(cog) = model.cogging() {
         let mut map = fpc::physics::cogging::HarmonicMap::none();
         map.period_m = cog.period_m as f32;

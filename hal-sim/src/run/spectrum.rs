@@ -13,6 +13,7 @@
 use rustfft::num_complex::Complex;
 use rustfft::FftPlanner;
 use serde::Serialize;
+use std::ops::Range;
 
 /// Band searched for the paper's self-excitation, Hz (400 Hz ± 15 %).
 pub const LINE_BAND_HZ: (f64, f64) = (340.0, 460.0);
@@ -79,33 +80,100 @@ pub fn line_in(x: &[f64], dt_s: f64, band: (f64, f64)) -> Option<Line> {
     let df = spec.get(1).map_or(1.0, |b| b.0);
     let half = (FLOOR_HALF_WIDTH_HZ / df).round().max(2.0) as usize;
     let gap = (LINE_HALF_WIDTH_HZ / df).round().min(half as f64 - 1.0) as usize;
-    let mut around = Vec::with_capacity(2 * half + 1);
+    let mut around = Neighbourhood::default();
     spec.iter()
         .enumerate()
         .filter(|(_, (f, _))| (band.0..=band.1).contains(f))
         .filter_map(|(k, &(hz, amplitude))| {
-            around.clear();
-            let below = spec.get(k.saturating_sub(half)..k.saturating_sub(gap))?;
-            let above = spec.get((k + gap + 1).min(spec.len())..(k + half + 1).min(spec.len()))?;
-            around.extend(below.iter().chain(above).map(|b| b.1));
-            let mid = around.len() / 2;
-            if mid >= around.len() {
-                return None;
-            }
-            let (_, floor, _) = around.select_nth_unstable_by(mid, f64::total_cmp);
-            let floor = *floor;
+            let below = k.saturating_sub(half)..k.saturating_sub(gap);
+            let above = (k + gap + 1).min(spec.len())..(k + half + 1).min(spec.len());
+            spec.get(below.clone())?;
+            spec.get(above.clone())?;
+            around.move_to(&spec, below, above);
             Some(Line {
                 hz,
                 amplitude,
-                floor,
+                floor: around.median()?,
             })
         })
         .max_by(|a, b| a.prominence().total_cmp(&b.prominence()))
 }
 
+/// A bin's neighbourhood for its floor: the amplitudes of the bins `below` and `above` it,
+/// kept sorted (by `f64::total_cmp`) as the bins advance, so each bin costs the bins that
+/// enter and leave, not a selection over the whole neighbourhood.
+#[derive(Default)]
+struct Neighbourhood {
+    sorted: Vec<f64>,
+    below: Range<usize>,
+    above: Range<usize>,
+}
+
+impl Neighbourhood {
+    /// Moves to the bins `below` and `above` of `spec` (valid ranges of it).
+    fn move_to(&mut self, spec: &[(f64, f64)], below: Range<usize>, above: Range<usize>) {
+        let old_below = std::mem::replace(&mut self.below, below.clone());
+        let old_above = std::mem::replace(&mut self.above, above.clone());
+        for (old, new) in [(old_below, below), (old_above, above)] {
+            for i in outside(&old, &new) {
+                let v = spec[i].1;
+                if let Ok(j) = self.sorted.binary_search_by(|p| p.total_cmp(&v)) {
+                    self.sorted.remove(j);
+                }
+            }
+            for i in outside(&new, &old) {
+                let v = spec[i].1;
+                let j = self
+                    .sorted
+                    .binary_search_by(|p| p.total_cmp(&v))
+                    .unwrap_or_else(|j| j);
+                self.sorted.insert(j, v);
+            }
+        }
+    }
+
+    /// The median amplitude (the upper one of an even count), or `None` for no bins.
+    fn median(&self) -> Option<f64> {
+        self.sorted.get(self.sorted.len() / 2).copied()
+    }
+}
+
+/// The indices of `a` that are not in `b`: below `b`'s start, and from `b`'s end.
+fn outside(a: &Range<usize>, b: &Range<usize>) -> impl Iterator<Item = usize> {
+    (a.start..a.end.min(b.start)).chain(a.start.max(b.end)..a.end)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_sorted_neighbourhood_gives_the_median_a_selection_gives() {
+        let mut noise = crate::plant::noise::Noise::new(11);
+        // Repeated values too: ties must leave the same median.
+        let spec: Vec<(f64, f64)> = (0..400)
+            .map(|k| (k as f64, (noise.normal().abs() * 8.0).round() / 4.0))
+            .collect();
+        let (half, gap) = (37, 6);
+        let mut around = Neighbourhood::default();
+        for k in 20usize..380 {
+            let below = k.saturating_sub(half)..k.saturating_sub(gap);
+            let above = (k + gap + 1).min(spec.len())..(k + half + 1).min(spec.len());
+            around.move_to(&spec, below.clone(), above.clone());
+            let mut all: Vec<f64> = spec[below]
+                .iter()
+                .chain(&spec[above])
+                .map(|b| b.1)
+                .collect();
+            let mid = all.len() / 2;
+            let (_, m, _) = all.select_nth_unstable_by(mid, f64::total_cmp);
+            assert_eq!(
+                around.median().map(f64::to_bits),
+                Some(m.to_bits()),
+                "bin {k}"
+            );
+        }
+    }
 
     #[test]
     fn a_sine_in_noise_reads_its_frequency_and_amplitude() {

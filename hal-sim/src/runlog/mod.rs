@@ -8,6 +8,9 @@
 //! non-finite values, time not increasing or too far off its grid, fewer than 100 rows.
 
 pub mod grid;
+mod lines;
+
+use lines::{line_error, plain_fields, separator, split_fields, utf8_line, LineReader};
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -224,139 +227,20 @@ impl RunLog {
         gzipped: bool,
         needs: &[&str],
     ) -> Result<RunLog, LogError> {
-        let err = |line: usize, column: Option<&str>, message: String| LogError {
-            line,
-            column: column.map(str::to_string),
-            message,
-        };
         let mut lines = LineReader::new(source);
-        let mut meta: Vec<(String, String)> = Vec::new();
-        let mut meta_lines: Vec<usize> = Vec::new();
-        let mut header: Option<(usize, Vec<String>)> = None;
-        let mut columns: Vec<Vec<f64>> = Vec::new();
-        let mut ranges: Vec<(f64, f64)> = Vec::new();
-        let mut time = TimeCheck::default();
-        let mut time_col: Option<usize> = None;
-        let mut fields: Vec<String> = Vec::new();
-        let mut sep = b',';
-        let mut rows = RowBatch::default();
-        let outcome = loop {
-            let line_no = lines.line_no + 1;
-            if header.is_some() {
-                break Ok(());
-            }
-            let raw = match lines.next_line() {
-                Ok(Some(raw)) => raw,
-                Ok(None) => break Ok(()),
-                Err(e) => break Err(line_error(line_no, e, gzipped)),
-            };
-            let mut line = match utf8_line(raw, line_no) {
-                Ok(line) => line,
-                Err(e) => break Err(e),
-            };
-            if line_no == 1 {
-                line = line.strip_prefix('\u{feff}').unwrap_or(line);
-            }
-            if let Some(rest) = line.trim_start().strip_prefix('#') {
-                if header.is_none() {
-                    if let Some((k, v)) = rest.split_once('=') {
-                        let (k, v) = (k.trim(), v.trim());
-                        if let Some(i) = meta.iter().position(|(mk, _)| mk == k) {
-                            let first = meta_lines.get(i).copied().unwrap_or(0);
-                            let value = meta.get(i).map_or("", |(_, mv)| mv.as_str());
-                            if value != v {
-                                return Err(err(
-                                    line_no,
-                                    None,
-                                    format!(
-                                        "`# {}` given twice with different values (line \
-                                         {first}: `{}`, here: `{}`)",
-                                        echo(k),
-                                        echo(value),
-                                        echo(v)
-                                    ),
-                                ));
-                            }
-                        } else {
-                            meta.push((k.to_string(), v.to_string()));
-                            meta_lines.push(line_no);
-                        }
-                    }
-                }
-                continue;
-            }
-            sep = separator(line);
-            split_fields(line, sep, &mut fields).map_err(|m| err(line_no, None, m))?;
-            if fields.len() == 1 && fields.first().is_some_and(|f| f.trim().is_empty()) {
-                continue; // a blank line, or one that is all comment
-            }
-            let names: Vec<String> = fields.iter().map(|f| f.trim().to_string()).collect();
-            for (i, name) in names.iter().enumerate() {
-                if let Some(j) = names.iter().skip(i + 1).position(|n| n == name) {
-                    return Err(err(
-                        line_no,
-                        Some(&echo(name)),
-                        format!("column given twice (fields {} and {})", i + 1, i + j + 2),
-                    ));
-                }
-            }
-            for req in std::iter::once(&"t_s").chain(needs) {
-                if !names.iter().any(|n| n == req) {
-                    let mut wanted: Vec<&str> = vec!["t_s"];
-                    wanted.extend(needs.iter().filter(|n| **n != "t_s"));
-                    return Err(err(
-                        line_no,
-                        Some(req),
-                        format!(
-                            "required column is missing (this command reads {}; the header \
-                             has: {})",
-                            wanted.join(", "),
-                            echo(&names.join(","))
-                        ),
-                    ));
-                }
-            }
-            columns = vec![Vec::new(); names.len()];
-            ranges = names.iter().map(|n| physical_range(n)).collect();
-            time_col = names.iter().position(|n| n == "t_s");
-            header = Some((line_no, names));
-        };
-        // The data rows, a batch at a time: each batch is parsed on every core while the
-        // next one is read (reading is one thread's work, a third of the whole); then its
-        // values are taken in file order, so the result and the first error named are those
-        // of reading the rows one at a time.
-        let mut outcome = outcome;
-        if let (Ok(()), Some((_, names))) = (&outcome, &header) {
-            let mut stop = read_batch(&mut lines, gzipped, &mut rows);
-            // Two batches take turns (their buffers reused: no fresh memory per batch).
-            let mut next = RowBatch::default();
-            loop {
-                next.text.clear();
-                next.lines.clear();
-                let mut parsed = Vec::new();
-                let mut next_stop = None;
-                if stop.is_none() {
-                    // The stream stays on this thread (it need not be `Send`).
-                    rayon::in_place_scope(|scope| {
-                        scope.spawn(|_| parsed = rows.parse(names, &ranges, sep));
-                        next_stop = read_batch(&mut lines, gzipped, &mut next);
-                    });
-                } else {
-                    parsed = rows.parse(names, &ranges, sep);
-                }
-                rows.take(parsed, names, &mut columns, &mut time, time_col)?;
-                if let Some(end) = stop {
-                    outcome = end;
-                    break;
-                }
-                std::mem::swap(&mut rows, &mut next);
-                stop = next_stop;
-            }
-        }
-        outcome?;
+        let Head {
+            meta,
+            meta_lines,
+            header,
+            sep,
+        } = read_head(&mut lines, gzipped, needs)?;
         let Some((_, names)) = header else {
-            return Err(err(0, None, "no header line".into()));
+            return Err(log_error(0, None, "no header line".into()));
         };
+        let mut columns: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
+        let mut time = TimeCheck::default();
+        read_rows(&mut lines, gzipped, &names, sep, &mut columns, &mut time)?;
+        let time_col = names.iter().position(|n| n == "t_s");
         let mut log = RunLog {
             meta,
             names,
@@ -367,39 +251,212 @@ impl RunLog {
             log.place_on_grid(i, &time.lines)?;
         }
         if log.len() < MIN_ROWS {
-            return Err(err(
+            return Err(log_error(
                 0,
                 None,
                 format!("{} data rows, at least {MIN_ROWS} needed", log.len()),
             ));
         }
-        if let Some(i) = log.meta.iter().position(|(k, _)| k == "sample_rate_hz") {
-            let rate = log.meta.get(i).map_or("", |(_, v)| v.as_str());
-            let line = meta_lines.get(i).copied().unwrap_or(0);
-            let stated: f64 = rate.parse().map_err(|_| {
-                err(
-                    line,
+        check_sample_rate(&log, &meta_lines)?;
+        Ok(log)
+    }
+}
+
+/// A refusal of a run log at `line` (0: the whole log), in `column` if one is named.
+fn log_error(line: usize, column: Option<&str>, message: String) -> LogError {
+    LogError {
+        line,
+        column: column.map(str::to_string),
+        message,
+    }
+}
+
+/// What a run log's lines up to its header give: the metadata (`# key = value`, with the
+/// line each was first given on), the header (its line and column names; `None` when the
+/// log ends before one) and its field separator.
+struct Head {
+    meta: Vec<(String, String)>,
+    meta_lines: Vec<usize>,
+    header: Option<(usize, Vec<String>)>,
+    sep: u8,
+}
+
+/// Reads the lines up to and including the header: comment lines are metadata where they
+/// hold `key = value` (a key given twice with different values is refused), blank lines
+/// are skipped, and the header must name `t_s` and every column of `needs`, each once.
+fn read_head<R: BufRead>(
+    lines: &mut LineReader<R>,
+    gzipped: bool,
+    needs: &[&str],
+) -> Result<Head, LogError> {
+    let mut head = Head {
+        meta: Vec::new(),
+        meta_lines: Vec::new(),
+        header: None,
+        sep: b',',
+    };
+    let mut fields: Vec<String> = Vec::new();
+    while head.header.is_none() {
+        let line_no = lines.line_no + 1;
+        let raw = match lines.next_line() {
+            Ok(Some(raw)) => raw,
+            Ok(None) => break,
+            Err(e) => return Err(line_error(line_no, e, gzipped)),
+        };
+        let mut line = utf8_line(raw, line_no)?;
+        if line_no == 1 {
+            line = line.strip_prefix('\u{feff}').unwrap_or(line);
+        }
+        if let Some(rest) = line.trim_start().strip_prefix('#') {
+            head.meta_line(rest, line_no)?;
+            continue;
+        }
+        head.sep = separator(line);
+        split_fields(line, head.sep, &mut fields).map_err(|m| log_error(line_no, None, m))?;
+        if fields.len() == 1 && fields.first().is_some_and(|f| f.trim().is_empty()) {
+            continue; // a blank line, or one that is all comment
+        }
+        let names: Vec<String> = fields.iter().map(|f| f.trim().to_string()).collect();
+        check_header(&names, needs, line_no)?;
+        head.header = Some((line_no, names));
+    }
+    Ok(head)
+}
+
+impl Head {
+    /// A comment line before the header, `rest` after its `#`, on line `line_no`: a
+    /// `key = value` is kept (once; again with another value is refused).
+    fn meta_line(&mut self, rest: &str, line_no: usize) -> Result<(), LogError> {
+        let Some((k, v)) = rest.split_once('=') else {
+            return Ok(());
+        };
+        let (k, v) = (k.trim(), v.trim());
+        if let Some(i) = self.meta.iter().position(|(mk, _)| mk == k) {
+            let first = self.meta_lines.get(i).copied().unwrap_or(0);
+            let value = self.meta.get(i).map_or("", |(_, mv)| mv.as_str());
+            if value != v {
+                return Err(log_error(
+                    line_no,
                     None,
-                    format!("`# sample_rate_hz = {}` is not a number", echo(rate)),
-                )
-            })?;
-            let step_s = log.sample_time_s().unwrap_or(f64::NAN);
-            let from_t = 1.0 / step_s;
-            if !(stated.is_finite() && stated > 0.0) || (stated - from_t).abs() > 0.01 * from_t {
-                return Err(err(
-                    line,
-                    Some("t_s"),
                     format!(
-                        "`# sample_rate_hz = {}` contradicts the time column (step {:e} s = \
-                         {from_t:.6} Hz)",
-                        echo(rate),
-                        step_s
+                        "`# {}` given twice with different values (line {first}: `{}`, here: \
+                         `{}`)",
+                        echo(k),
+                        echo(value),
+                        echo(v)
                     ),
                 ));
             }
+        } else {
+            self.meta.push((k.to_string(), v.to_string()));
+            self.meta_lines.push(line_no);
         }
-        Ok(log)
+        Ok(())
     }
+}
+
+/// The header's column `names` on line `line_no`: each once, `t_s` and every column of
+/// `needs` among them.
+fn check_header(names: &[String], needs: &[&str], line_no: usize) -> Result<(), LogError> {
+    for (i, name) in names.iter().enumerate() {
+        if let Some(j) = names.iter().skip(i + 1).position(|n| n == name) {
+            return Err(log_error(
+                line_no,
+                Some(&echo(name)),
+                format!("column given twice (fields {} and {})", i + 1, i + j + 2),
+            ));
+        }
+    }
+    for req in std::iter::once(&"t_s").chain(needs) {
+        if !names.iter().any(|n| n == req) {
+            let mut wanted: Vec<&str> = vec!["t_s"];
+            wanted.extend(needs.iter().filter(|n| **n != "t_s"));
+            return Err(log_error(
+                line_no,
+                Some(req),
+                format!(
+                    "required column is missing (this command reads {}; the header has: {})",
+                    wanted.join(", "),
+                    echo(&names.join(","))
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Reads the data rows after the header (columns `names`, fields separated by `sep`) into
+/// `columns`, the time column checked by `time`.
+fn read_rows<R: BufRead>(
+    lines: &mut LineReader<R>,
+    gzipped: bool,
+    names: &[String],
+    sep: u8,
+    columns: &mut [Vec<f64>],
+    time: &mut TimeCheck,
+) -> Result<(), LogError> {
+    let ranges: Vec<(f64, f64)> = names.iter().map(|n| physical_range(n)).collect();
+    let time_col = names.iter().position(|n| n == "t_s");
+    let mut rows = RowBatch::default();
+    // The data rows, a batch at a time: each batch is parsed on every core while the
+    // next one is read (reading is one thread's work, a third of the whole); then its
+    // values are taken in file order, so the result and the first error named are those
+    // of reading the rows one at a time.
+    let mut stop = read_batch(lines, gzipped, &mut rows);
+    // Two batches take turns (their buffers reused: no fresh memory per batch).
+    let mut next = RowBatch::default();
+    loop {
+        next.text.clear();
+        next.lines.clear();
+        let mut parsed = Vec::new();
+        let mut next_stop = None;
+        if stop.is_none() {
+            // The stream stays on this thread (it need not be `Send`).
+            rayon::in_place_scope(|scope| {
+                scope.spawn(|_| parsed = rows.parse(names, &ranges, sep));
+                next_stop = read_batch(&mut *lines, gzipped, &mut next);
+            });
+        } else {
+            parsed = rows.parse(names, &ranges, sep);
+        }
+        rows.take(parsed, names, columns, time, time_col)?;
+        if let Some(end) = stop {
+            return end;
+        }
+        std::mem::swap(&mut rows, &mut next);
+        stop = next_stop;
+    }
+}
+
+/// A `# sample_rate_hz` of `log` (stated on the line `meta_lines` gives) must be a
+/// positive number within 1 % of the rate its time column steps at.
+fn check_sample_rate(log: &RunLog, meta_lines: &[usize]) -> Result<(), LogError> {
+    if let Some(i) = log.meta.iter().position(|(k, _)| k == "sample_rate_hz") {
+        let rate = log.meta.get(i).map_or("", |(_, v)| v.as_str());
+        let line = meta_lines.get(i).copied().unwrap_or(0);
+        let stated: f64 = rate.parse().map_err(|_| {
+            log_error(
+                line,
+                None,
+                format!("`# sample_rate_hz = {}` is not a number", echo(rate)),
+            )
+        })?;
+        let step_s = log.sample_time_s().unwrap_or(f64::NAN);
+        let from_t = 1.0 / step_s;
+        if !(stated.is_finite() && stated > 0.0) || (stated - from_t).abs() > 0.01 * from_t {
+            return Err(log_error(
+                line,
+                Some("t_s"),
+                format!(
+                    "`# sample_rate_hz = {}` contradicts the time column (step {:e} s = \
+                         {from_t:.6} Hz)",
+                    echo(rate),
+                    step_s
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Longest line a run log may have, bytes (a header of hundreds of columns fits).
@@ -619,32 +676,6 @@ fn read_batch<R: BufRead>(
     None
 }
 
-/// The refusal of a line [`LineReader`] could not read.
-fn line_error(line_no: usize, e: LineError, gzipped: bool) -> LogError {
-    let message = match e {
-        LineError::TooLong => format!("longer than {MAX_LINE_BYTES} bytes: not a run log"),
-        LineError::Io(e) if gzipped => format!("not a valid gzip stream ({e})"),
-        LineError::Io(e) => format!("cannot read on ({e})"),
-    };
-    LogError {
-        line: line_no,
-        column: None,
-        message,
-    }
-}
-
-/// A line's bytes as text, or the refusal naming its first byte that is not UTF-8.
-fn utf8_line(raw: &[u8], line_no: usize) -> Result<&str, LogError> {
-    std::str::from_utf8(raw).map_err(|e| LogError {
-        line: line_no,
-        column: None,
-        message: format!(
-            "not UTF-8 text (invalid byte at column {})",
-            e.valid_up_to() + 1
-        ),
-    })
-}
-
 /// One data row's fields as numbers, checked against the columns' physical ranges.
 fn parse_row(
     line: &str,
@@ -706,140 +737,6 @@ fn parse_row(
         })
         .collect();
     Ok(ParsedRow::Values(values))
-}
-
-/// The separator of a log, from its header line: `,` when it has one, else `;` when it has
-/// one, else a tab when it has one, else `,` (a single column).
-fn separator(header: &str) -> u8 {
-    [b',', b';', b'\t']
-        .into_iter()
-        .find(|&c| header.as_bytes().contains(&c))
-        .unwrap_or(b',')
-}
-
-/// The fields of a line without quotes: the separator's pieces up to a comment (`#`), as
-/// [`split_fields`] gives them, found byte by byte (both are ASCII, so every piece is whole
-/// UTF-8; the `str` searchers cost a tenth of reading a long log).
-fn plain_fields(line: &str, expected: usize, sep: u8) -> Vec<&str> {
-    let body = match line.bytes().position(|b| b == b'#') {
-        Some(i) => line.get(..i).unwrap_or_default(),
-        None => line,
-    };
-    let mut out = Vec::with_capacity(expected);
-    let mut start = 0;
-    for (i, b) in body.bytes().enumerate() {
-        if b == sep {
-            out.push(body.get(start..i).unwrap_or_default());
-            start = i + 1;
-        }
-    }
-    out.push(body.get(start..).unwrap_or_default());
-    out
-}
-
-/// Splits a CSV line into `fields`: `sep` outside double quotes separates; quotes are
-/// removed (`""` inside quotes is one quote); `#` outside quotes starts a comment.
-fn split_fields(line: &str, sep: u8, fields: &mut Vec<String>) -> Result<(), String> {
-    fields.clear();
-    let sep = char::from(sep);
-    if !line.contains('"') {
-        // The common line: no quotes, so the fields are the separator's pieces up to a
-        // comment.
-        let body = line.split('#').next().unwrap_or_default();
-        fields.extend(body.split(sep).map(str::to_string));
-        return Ok(());
-    }
-    let mut field = String::new();
-    let mut quoted = false;
-    let mut chars = line.chars().peekable();
-    while let Some(c) = chars.next() {
-        match (c, quoted) {
-            ('"', true) if chars.peek() == Some(&'"') => {
-                chars.next();
-                field.push('"');
-            }
-            ('"', true) => quoted = false,
-            ('"', false) => quoted = true,
-            (c, false) if c == sep => fields.push(std::mem::take(&mut field)),
-            ('#', false) => break,
-            (c, _) => field.push(c),
-        }
-    }
-    if quoted {
-        return Err("a quoted field is not closed".into());
-    }
-    fields.push(field);
-    Ok(())
-}
-
-/// Why [`LineReader`] stopped.
-enum LineError {
-    TooLong,
-    Io(std::io::Error),
-}
-
-/// Lines of a byte stream ending in `\n`, `\r\n` or `\r`, each at most [`MAX_LINE_BYTES`].
-struct LineReader<R> {
-    source: R,
-    line: Vec<u8>,
-    /// The last line ended in `\r`: a `\n` right after it belongs to it.
-    after_cr: bool,
-    /// Lines returned so far.
-    line_no: usize,
-}
-
-impl<R: BufRead> LineReader<R> {
-    fn new(source: R) -> Self {
-        LineReader {
-            source,
-            line: Vec::new(),
-            after_cr: false,
-            line_no: 0,
-        }
-    }
-
-    /// The next line without its end, or `None` at the end of the stream.
-    fn next_line(&mut self) -> Result<Option<&[u8]>, LineError> {
-        self.line.clear();
-        loop {
-            let buf = match self.source.fill_buf() {
-                Ok(b) => b,
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-                Err(e) => return Err(LineError::Io(e)),
-            };
-            if buf.is_empty() {
-                if self.line.is_empty() {
-                    return Ok(None);
-                }
-                self.line_no += 1;
-                return Ok(Some(&self.line));
-            }
-            let start = usize::from(self.after_cr && buf.first() == Some(&b'\n'));
-            self.after_cr = false;
-            let rest = buf.get(start..).unwrap_or_default();
-            match rest.iter().position(|&b| b == b'\n' || b == b'\r') {
-                Some(i) => {
-                    if self.line.len() + i > MAX_LINE_BYTES {
-                        return Err(LineError::TooLong);
-                    }
-                    self.line
-                        .extend_from_slice(rest.get(..i).unwrap_or_default());
-                    self.after_cr = rest.get(i) == Some(&b'\r');
-                    self.source.consume(start + i + 1);
-                    self.line_no += 1;
-                    return Ok(Some(&self.line));
-                }
-                None => {
-                    if self.line.len() + rest.len() > MAX_LINE_BYTES {
-                        return Err(LineError::TooLong);
-                    }
-                    self.line.extend_from_slice(rest);
-                    let n = buf.len();
-                    self.source.consume(n);
-                }
-            }
-        }
-    }
 }
 
 /// A map of metadata for quick lookup.

@@ -30,6 +30,166 @@ fn uc_err(what: &str) -> impl Fn(unicorn_engine::uc_error) -> ChipError + '_ {
     move |e| ChipError(format!("unicorn: {what}: {e:?}"))
 }
 
+/// Program flash below the calibration store: erased (0xFF), then `image`'s flash segments;
+/// read and execute only (a stray write is a bus fault). The store's pages are the flash
+/// model's ([`map_store`]).
+fn map_program_flash(uc: &mut Unicorn<'static, Soc>, image: &Image) -> Result<(), ChipError> {
+    uc.mem_map(
+        u64::from(FLASH_BASE),
+        u64::from(STORE_BASE - FLASH_BASE),
+        Prot::READ | Prot::EXEC,
+    )
+    .map_err(uc_err("map flash"))?;
+    let erased = vec![0xFF; (STORE_BASE - FLASH_BASE) as usize];
+    uc.mem_write(u64::from(FLASH_BASE), &erased)
+        .map_err(uc_err("erase flash"))?;
+    for (addr, bytes) in &image.segments {
+        if *addr >= FLASH_BASE && *addr < FLASH_BASE + FLASH_BYTES {
+            uc.mem_write(u64::from(*addr), bytes)
+                .map_err(uc_err("load"))?;
+        }
+    }
+    Ok(())
+}
+
+/// The calibration store's pages, through the flash model: a read of a bank being
+/// programmed or erased stalls the core until the operation ends, a read with a double ECC
+/// error raises the NMI before the next instruction, and a write whose program step meets an
+/// injected power cut leaves the chip unpowered.
+fn map_store(uc: &mut Unicorn<'static, Soc>) -> Result<(), ChipError> {
+    uc.mmio_map(
+        u64::from(STORE_BASE),
+        u64::from(STORE_BYTES),
+        Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize| {
+            let soc = uc.get_data_mut();
+            soc.store_reads += 1;
+            let at = STORE_BASE + off as u32;
+            if let Some(end) = soc.flash.stall_until(at) {
+                // The read waits for the operation in its bank, then reads what it left.
+                soc.stall_until = Some(end);
+                let v = soc.flash.read_after_op(at, size);
+                let _ = uc.emu_stop();
+                return u64::from(v);
+            }
+            let v = soc.flash.read_array(at, size);
+            if soc.flash.nmi {
+                soc.update_irqs();
+                let _ = uc.emu_stop();
+            }
+            u64::from(v)
+        }),
+        Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize, value: u64| {
+            let soc = uc.get_data_mut();
+            let now = soc.time;
+            soc.flash
+                .write_array(STORE_BASE + off as u32, value as u32, size, now);
+            if soc.flash.power_cut {
+                soc.powered = false;
+                soc.plant_next = soc.time + 50 * UNITS_PER_US;
+                let _ = uc.emu_stop();
+            }
+        }),
+    )
+    .map_err(uc_err("map store"))?;
+    Ok(())
+}
+
+/// SRAM1 + SRAM2 and CCM SRAM (read, write, execute); system memory read only, with the
+/// flash size register (RM0440 §47.2: 512 KiB).
+fn map_ram_and_system_memory(uc: &mut Unicorn<'static, Soc>) -> Result<(), ChipError> {
+    for (b, size) in [RAM, CCM] {
+        uc.mem_map(u64::from(b), u64::from(size), Prot::ALL)
+            .map_err(uc_err("map ram"))?;
+    }
+    uc.mem_map(
+        u64::from(SYSMEM.0),
+        u64::from(SYSMEM.1),
+        Prot::READ | Prot::EXEC,
+    )
+    .map_err(uc_err("map system memory"))?;
+    // The flash size register (RM0440 §47.2): 512 KiB.
+    uc.mem_write(0x1FFF_75E0, &512u16.to_le_bytes())
+        .map_err(uc_err("flash size"))?;
+    Ok(())
+}
+
+/// The peripherals (APB1, APB2, AHB1, AHB2) through [`Soc::periph_read`] and
+/// [`Soc::periph_write`], word by word: a byte or half-word write merges into the word.
+fn map_peripherals(uc: &mut Unicorn<'static, Soc>) -> Result<(), ChipError> {
+    uc.mmio_map(
+        u64::from(PERIPH.0),
+        u64::from(PERIPH.1),
+        Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize| {
+            let addr = PERIPH.0 + off as u32;
+            let word = uc.get_data_mut().periph_read(addr & !3);
+            u64::from(extract(word, addr, size))
+        }),
+        Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize, value: u64| {
+            let addr = PERIPH.0 + off as u32;
+            let soc = uc.get_data_mut();
+            let word = addr & !3;
+            let merged = if size == 4 {
+                value as u32
+            } else {
+                let old = soc.periph_read(word);
+                merge(old, addr, size, value as u32)
+            };
+            // Flag registers written with a byte/half-word access still clear only what
+            // they write: the models take the whole word.
+            soc.periph_write(word, merged);
+            cpu::after_write(uc);
+        }),
+    )
+    .map_err(uc_err("map peripherals"))?;
+    Ok(())
+}
+
+/// The private peripheral bus (NVIC, SCB, SysTick, DWT, DBGMCU) through [`Soc::ppb_read`]
+/// and [`Soc::ppb_write`], a narrow write with its byte lanes' mask.
+fn map_ppb(uc: &mut Unicorn<'static, Soc>) -> Result<(), ChipError> {
+    uc.mmio_map(
+        u64::from(PPB.0),
+        u64::from(PPB.1),
+        Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize| {
+            let addr = PPB.0 + off as u32;
+            let word = uc.get_data_mut().ppb_read(addr & !3);
+            u64::from(extract(word, addr, size))
+        }),
+        Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize, value: u64| {
+            let addr = PPB.0 + off as u32;
+            let shift = (addr & 3) * 8;
+            let mask = if size >= 4 {
+                !0
+            } else {
+                ((1u32 << (8 * size)) - 1) << shift
+            };
+            let v = (value as u32) << shift;
+            uc.get_data_mut().ppb_write(addr, v, mask);
+            cpu::after_write(uc);
+        }),
+    )
+    .map_err(uc_err("map ppb"))?;
+    Ok(())
+}
+
+/// The addresses the chip watches for: the `b .` a hung task is sent to, `main`, and
+/// `fpc::tasks::control_cycle` (0 where the image has none).
+fn place_spin_and_symbols(uc: &mut Unicorn<'static, Soc>, image: &Image) -> Result<(), ChipError> {
+    // A `b .` in erased flash below the store, where a hung task is sent.
+    let spin = STORE_BASE - 0x10;
+    uc.mem_write(u64::from(spin), &[0xFE, 0xE7])
+        .map_err(uc_err("spin"))?;
+    uc.get_data_mut().spin_address = spin;
+    uc.get_data_mut().main_address = image.symbol("main").unwrap_or(0) & !1;
+    // The function itself (legacy mangling, any hash), not a long-branch thunk to it.
+    uc.get_data_mut().control_cycle_address = image
+        .symbols
+        .iter()
+        .find(|(n, _)| n.starts_with("_ZN3fpc5tasks13control_cycle17h"))
+        .map_or(0, |(_, a)| *a & !1);
+    Ok(())
+}
+
 impl Chip {
     /// A powered chip with `image` in its flash and `board` around it, held in reset (call
     /// [`Chip::power_on`]).
@@ -39,141 +199,24 @@ impl Chip {
             .map_err(uc_err("new"))?;
         uc.ctl_set_cpu_model(unicorn_engine::ArmCpuModel::CORTEX_M4 as i32)
             .map_err(uc_err("cpu model"))?;
-        // Program flash below the store: read and execute only (a stray write is a bus
-        // fault). The store's pages are the flash model's.
-        uc.mem_map(
+        map_program_flash(&mut uc, &image)?;
+        map_store(&mut uc)?;
+        map_ram_and_system_memory(&mut uc)?;
+        map_peripherals(&mut uc)?;
+        map_ppb(&mut uc)?;
+        place_spin_and_symbols(&mut uc, &image)?;
+        // A data read of program flash pays its wait states (instruction fetches are
+        // counted per block, `load`).
+        uc.add_mem_hook(
+            unicorn_engine::HookType::MEM_READ,
             u64::from(FLASH_BASE),
-            u64::from(STORE_BASE - FLASH_BASE),
-            Prot::READ | Prot::EXEC,
+            u64::from(STORE_BASE - 1),
+            |uc, _kind, addr, size, _value| {
+                uc.get_data_mut().flash_read(addr as u32, size as u32);
+                true
+            },
         )
-        .map_err(uc_err("map flash"))?;
-        let erased = vec![0xFF; (STORE_BASE - FLASH_BASE) as usize];
-        uc.mem_write(u64::from(FLASH_BASE), &erased)
-            .map_err(uc_err("erase flash"))?;
-        for (addr, bytes) in &image.segments {
-            if *addr >= FLASH_BASE && *addr < FLASH_BASE + FLASH_BYTES {
-                uc.mem_write(u64::from(*addr), bytes)
-                    .map_err(uc_err("load"))?;
-            }
-        }
-        uc.mmio_map(
-            u64::from(STORE_BASE),
-            u64::from(STORE_BYTES),
-            Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize| {
-                let soc = uc.get_data_mut();
-                soc.store_reads += 1;
-                let at = STORE_BASE + off as u32;
-                if let Some(end) = soc.flash.stall_until(at) {
-                    // The read waits for the operation in its bank, then reads what it left.
-                    soc.stall_until = Some(end);
-                    let v = soc.flash.read_after_op(at, size);
-                    let _ = uc.emu_stop();
-                    return u64::from(v);
-                }
-                let v = soc.flash.read_array(at, size);
-                if soc.flash.nmi {
-                    soc.update_irqs();
-                    let _ = uc.emu_stop();
-                }
-                u64::from(v)
-            }),
-            Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize, value: u64| {
-                let soc = uc.get_data_mut();
-                let now = soc.time;
-                soc.flash
-                    .write_array(STORE_BASE + off as u32, value as u32, size, now);
-                if soc.flash.power_cut {
-                    soc.powered = false;
-                    soc.plant_next = soc.time + 50 * UNITS_PER_US;
-                    let _ = uc.emu_stop();
-                }
-            }),
-        )
-        .map_err(uc_err("map store"))?;
-        for (b, size) in [RAM, CCM] {
-            uc.mem_map(u64::from(b), u64::from(size), Prot::ALL)
-                .map_err(uc_err("map ram"))?;
-        }
-        uc.mem_map(
-            u64::from(SYSMEM.0),
-            u64::from(SYSMEM.1),
-            Prot::READ | Prot::EXEC,
-        )
-        .map_err(uc_err("map system memory"))?;
-        // The flash size register (RM0440 §47.2): 512 KiB.
-        uc.mem_write(0x1FFF_75E0, &512u16.to_le_bytes())
-            .map_err(uc_err("flash size"))?;
-        uc.mmio_map(
-            u64::from(PERIPH.0),
-            u64::from(PERIPH.1),
-            Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize| {
-                let addr = PERIPH.0 + off as u32;
-                let word = uc.get_data_mut().periph_read(addr & !3);
-                u64::from(extract(word, addr, size))
-            }),
-            Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize, value: u64| {
-                let addr = PERIPH.0 + off as u32;
-                let soc = uc.get_data_mut();
-                let word = addr & !3;
-                let merged = if size == 4 {
-                    value as u32
-                } else {
-                    let old = soc.periph_read(word);
-                    merge(old, addr, size, value as u32)
-                };
-                // Flag registers written with a byte/half-word access still clear only what
-                // they write: the models take the whole word.
-                soc.periph_write(word, merged);
-                cpu::after_write(uc);
-            }),
-        )
-        .map_err(uc_err("map peripherals"))?;
-        uc.mmio_map(
-            u64::from(PPB.0),
-            u64::from(PPB.1),
-            Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize| {
-                let addr = PPB.0 + off as u32;
-                let word = uc.get_data_mut().ppb_read(addr & !3);
-                u64::from(extract(word, addr, size))
-            }),
-            Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize, value: u64| {
-                let addr = PPB.0 + off as u32;
-                let shift = (addr & 3) * 8;
-                let mask = if size >= 4 {
-                    !0
-                } else {
-                    ((1u32 << (8 * size)) - 1) << shift
-                };
-                let v = (value as u32) << shift;
-                uc.get_data_mut().ppb_write(addr, v, mask);
-                cpu::after_write(uc);
-            }),
-        )
-        .map_err(uc_err("map ppb"))?;
-        // A `b .` in erased flash below the store, where a hung task is sent.
-        let spin = STORE_BASE - 0x10;
-        uc.mem_write(u64::from(spin), &[0xFE, 0xE7])
-            .map_err(uc_err("spin"))?;
-        uc.get_data_mut().spin_address = spin;
-        uc.get_data_mut().main_address = image.symbol("main").unwrap_or(0) & !1;
-        // The function itself (legacy mangling, any hash), not a long-branch thunk to it.
-        uc.get_data_mut().control_cycle_address = image
-            .symbols
-            .iter()
-            .find(|(n, _)| n.starts_with("_ZN3fpc5tasks13control_cycle17h"))
-            .map_or(0, |(_, a)| *a & !1);
-        {
-            uc.add_mem_hook(
-                unicorn_engine::HookType::MEM_READ,
-                u64::from(FLASH_BASE),
-                u64::from(STORE_BASE - 1),
-                |uc, _kind, addr, size, _value| {
-                    uc.get_data_mut().flash_read(addr as u32, size as u32);
-                    true
-                },
-            )
-            .map_err(uc_err("flash read hook"))?;
-        }
+        .map_err(uc_err("flash read hook"))?;
         cpu::install_hooks(&mut uc)?;
         Ok(Chip { uc, image })
     }

@@ -6,8 +6,8 @@
 //! | exceptions: entry, return, tail-chaining, WFE/SEV, faults | [`cpu`] |
 //! | NVIC and SCB | [`nvic`] |
 //! | SCB's other registers, DWT, DBGMCU (the private peripheral bus) | [`ppb`] |
-//! | TIM1, TIM8, TIM2, TIM4 | [`timers`] |
-//! | TIM1/TIM8's output stage, break and lock | [`output_stage`] |
+//! | TIM1, TIM8, TIM2, TIM4; the lock of TIM1/TIM8's output settings | [`timers`] |
+//! | TIM1/TIM8's output stage and break | [`output_stage`] |
 //! | COMP1–7, their threshold DACs (DAC3, DAC4), SYSCFG_CFGR2 | [`comp`] |
 //! | ADC1/ADC2 dual mode | [`adc`] |
 //! | DMA1 and DMAMUX | [`dma`] |

@@ -1,7 +1,6 @@
-//! The advanced-control timers' output stage, break and lock (TIM1, TIM8; RM0440 §28.3:
-//! "Complementary outputs and dead-time insertion", "Using the break function",
-//! "Locking mechanism"; the register descriptions of TIMx_BDTR, TIMx_CCER, TIMx_CR2,
-//! TIMx_AF1, TIMx_SR).
+//! The advanced-control timers' output stage and break (TIM1, TIM8; RM0440 §28.3:
+//! "Complementary outputs and dead-time insertion", "Using the break function"; the register
+//! descriptions of TIMx_BDTR, TIMx_CCER, TIMx_CR2, TIMx_AF1, TIMx_SR).
 //!
 //! What a bridge's gates do is decided here, from the registers, not from MOE alone:
 //!
@@ -12,106 +11,29 @@
 //! - The break input (BDTR.BKE, active level BKP, filter BKF; its sources in TIMx_AF1: the
 //!   BKIN pin and the comparators, each comparator's polarity in BKCMPxP for COMP1–4)
 //!   clears MOE asynchronously and sets SR.BIF; while it is active MOE cannot be set.
-//! - LOCK (BDTR[9:8], writable once after reset) freezes, level 1: DTG, BKE, BKP, BKF, AOE
-//!   (BDTR) and OISx/OISxN (CR2); level 2 adds CCxP/CCxNP (CCER) and OSSI/OSSR; level 3 adds
-//!   OCxM/OCxPE (CCMRx).
+//!
+//! The lock of these settings (BDTR.LOCK) is a rule of the register writes:
+//! [`super::timers::unlocked_bits`].
 //!
 //! The manual's text is not in this repository's references: these rules were written from
 //! RM0440 rev. 8 as the team read it and the field layouts of ST's SVD (stm32-metapac 21,
 //! `timer_v2`), and each is cited in its unit test.
 
-use super::timers::{reg, Timer};
+use super::timers::{bdtr, reg, Timer};
+use crate::board::{Bridge, MIN_DEAD_TIME_NS};
 
-/// CCER of the three phase channels: CCxE, CCxP, CCxNE, CCxNP at 4·x.
-const CCER: u32 = 0x20;
 /// TIMx_AF1.
 pub const AF1: u32 = 0x60;
-/// CR2 bits of the idle levels: OISx at 8 + 2·x, OISxN at 9 + 2·x.
-const CR2_OIS: u32 = 0x3F << 8;
-/// BDTR fields.
-mod bdtr {
-    pub const DTG: u32 = 0xFF;
-    pub const LOCK: u32 = 3 << 8;
-    pub const OSSI: u32 = 1 << 10;
-    pub const OSSR: u32 = 1 << 11;
-    pub const BKE: u32 = 1 << 12;
-    pub const BKP: u32 = 1 << 13;
-    pub const AOE: u32 = 1 << 14;
-    pub const MOE: u32 = 1 << 15;
-    pub const BKF: u32 = 0xF << 16;
-    /// BK2F, BK2E, BK2P, BKDSRM, BK2DSRM, BKBID, BK2BID.
-    pub const BREAK2_AND_BIDIR: u32 = 0x3FF << 20;
-}
 /// SR.BIF.
 pub const SR_BIF: u32 = 1 << 7;
 /// SR.SBIF.
 pub const SR_SBIF: u32 = 1 << 13;
 
-/// The bits of `value` a write to `off` may change at lock level `level` (the rest keep
-/// their old value).
-pub fn writable(off: u32, level: u32, regs: &[u32]) -> u32 {
-    let ccmr_output = |ccmr: u32, half: u32| (ccmr >> (8 * half)) & 3 == 0;
-    match (off, level) {
-        (_, 0) => !0,
-        (reg::BDTR, _) => {
-            // LOCK itself is write-once; MOE is never locked.
-            let mut locked = bdtr::LOCK | bdtr::DTG | bdtr::BKE | bdtr::BKP | bdtr::BKF;
-            locked |= bdtr::AOE | bdtr::BREAK2_AND_BIDIR;
-            if level >= 2 {
-                locked |= bdtr::OSSI | bdtr::OSSR;
-            }
-            !locked
-        }
-        (reg::CR2, _) => !CR2_OIS,
-        (CCER, l) if l >= 2 => {
-            // CCxP/CCxNP of the channels configured as outputs.
-            let ccmr1 = regs[(0x18 / 4) as usize];
-            let ccmr2 = regs[(reg::CCMR2 / 4) as usize];
-            let mut locked = 0;
-            for ch in 0..4u32 {
-                let ccmr = if ch < 2 { ccmr1 } else { ccmr2 };
-                if ccmr_output(ccmr, ch % 2) {
-                    locked |= 0b1010 << (4 * ch);
-                }
-            }
-            !locked
-        }
-        (0x18 | reg::CCMR2, 3) => {
-            // OCxM (bits 6:4 and 16) and OCxPE (bit 3) of each output half.
-            let ccmr = regs[(off / 4) as usize];
-            let mut locked = 0;
-            for half in 0..2 {
-                if ccmr_output(ccmr, half) {
-                    locked |= (0x78 << (8 * half)) | (1 << (16 + 8 * half));
-                }
-            }
-            !locked
-        }
-        _ => !0,
-    }
-}
-
-/// What one bridge's six gates do over the coming period.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Bridge {
-    /// Switching complementarily: the compare values drive the phases; `inverted` marks the
-    /// phases whose outputs are both inverted (CCxP = CCxNP = 1: the high side's on-time is
-    /// then the period less the compare value).
-    Switching {
-        /// Phases U, V, W with both outputs inverted.
-        inverted: [bool; 3],
-    },
-    /// Every gate low (MOE = 0, OSSI = 1, idle levels low): off.
-    Off,
-    /// Something the board cannot take: the reason, for the operator.
-    Unsafe(&'static str),
-}
-
 /// The bridge that the output stage of `t` drives now (RM0440, "Output control bits for
 /// complementary OCx and OCxN channels with break feature").
 pub fn bridge(t: &Timer) -> Bridge {
     let bdtr = t.regs[(reg::BDTR / 4) as usize];
-    let ccer = t.regs[(CCER / 4) as usize];
+    let ccer = t.regs[(reg::CCER / 4) as usize];
     let cr2 = t.regs[(reg::CR2 / 4) as usize];
     if bdtr & bdtr::MOE == 0 {
         if ccer & 0x555 == 0 {
@@ -240,7 +162,7 @@ pub fn apply_system_break(t: &mut Timer) {
 impl super::Soc {
     /// The bridges as the two output stages drive them now, checked against what the board
     /// can take: an unsafe state, or a dead time below the bridge's minimum
-    /// ([`crate::board::MIN_DEAD_TIME_NS`]), ends the emulation with the reason (the bridge
+    /// ([`MIN_DEAD_TIME_NS`]), ends the emulation with the reason (the bridge
     /// would be destroyed, or its gates left to the pull-downs).
     pub(super) fn bridges(&mut self) -> [Bridge; 2] {
         if !self.powered {
@@ -257,23 +179,23 @@ impl super::Soc {
                 }
                 Bridge::Switching { .. } => {
                     let dead_ns = f64::from(dead_time_clocks(t)) * clock_ns;
-                    if dead_ns < crate::board::MIN_DEAD_TIME_NS {
+                    if dead_ns < MIN_DEAD_TIME_NS {
                         self.error.get_or_insert(format!(
                             "board: {name}: dead time {dead_ns:.0} ns, below the bridge's {:.0} ns: \
                              shoot-through",
-                            crate::board::MIN_DEAD_TIME_NS
+                            MIN_DEAD_TIME_NS
                         ));
                     }
                 }
-                Bridge::Off if t.regs[(CCER / 4) as usize] & 0x555 != 0 => {
+                Bridge::Off if t.regs[(reg::CCER / 4) as usize] & 0x555 != 0 => {
                     // The outputs taken, not yet switching: the dead time they will switch
                     // with is already set.
                     let dead_ns = f64::from(dead_time_clocks(t)) * clock_ns;
-                    if dead_ns < crate::board::MIN_DEAD_TIME_NS {
+                    if dead_ns < MIN_DEAD_TIME_NS {
                         self.error.get_or_insert(format!(
                             "board: {name}: dead time {dead_ns:.0} ns, below the bridge's {:.0} ns: \
                              shoot-through at the first switching",
-                            crate::board::MIN_DEAD_TIME_NS
+                            MIN_DEAD_TIME_NS
                         ));
                     }
                 }
@@ -334,37 +256,9 @@ mod tests {
         // PWM mode 1 on CH1..3 with preload, both outputs enabled, OSSI = OSSR = 1.
         t.write(0x18, 0x6868, 0, 1.0);
         t.write(reg::CCMR2, 0x68, 0, 1.0);
-        t.write(CCER, 0x555, 0, 1.0);
+        t.write(reg::CCER, 0x555, 0, 1.0);
         t.write(reg::BDTR, bdtr::OSSI | bdtr::OSSR | 85, 0, 1.0);
         t
-    }
-
-    /// RM0440, TIMx_BDTR.LOCK: "level 1: DTG, BKE, BKP, AOE ... in BDTR and OISx/OISxN in
-    /// CR2 can no longer be written; level 2: also CCxP/CCxNP (channels in output) and
-    /// OSSR/OSSI; level 3: also OCxM/OCxPE (channels in output)". LOCK itself is written
-    /// once after reset; MOE is never locked.
-    #[test]
-    fn lock_level_3_freezes_the_protection_but_not_moe() {
-        let mut t = tim();
-        t.write(
-            reg::BDTR,
-            bdtr::OSSI | bdtr::OSSR | 85 | bdtr::BKE | 3 << 8,
-            0,
-            1.0,
-        );
-        t.write(reg::BDTR, bdtr::MOE, 0, 1.0);
-        let b = t.regs[(reg::BDTR / 4) as usize];
-        assert_eq!(b & 0xFF, 85, "DTG");
-        assert_ne!(b & bdtr::BKE, 0, "BKE");
-        assert_ne!(b & bdtr::OSSI, 0, "OSSI");
-        assert_eq!(b & bdtr::LOCK, 3 << 8, "LOCK");
-        assert_ne!(b & bdtr::MOE, 0, "MOE is not locked");
-        t.write(reg::CR2, 0x3F << 8, 0, 1.0);
-        assert_eq!(t.regs[1] & CR2_OIS, 0, "OIS");
-        t.write(CCER, 0xFFF, 0, 1.0);
-        assert_eq!(t.regs[(CCER / 4) as usize] & 0xAAA, 0, "CCxP/CCxNP");
-        t.write(0x18, 0x7070, 0, 1.0);
-        assert_eq!(t.regs[6] & 0x7070, 0x6060, "OCxM");
     }
 
     /// RM0440, output control table: MOE = 0, OSSI = 1 → OCx = OISx, OCxN = OISxN (driven
@@ -393,14 +287,14 @@ mod tests {
                 inverted: [false; 3]
             }
         );
-        t.write(CCER, 0x55F, 0, 1.0);
+        t.write(reg::CCER, 0x55F, 0, 1.0);
         assert_eq!(
             bridge(&t),
             Bridge::Switching {
                 inverted: [true, false, false]
             }
         );
-        t.write(CCER, 0x557, 0, 1.0);
+        t.write(reg::CCER, 0x557, 0, 1.0);
         assert!(matches!(bridge(&t), Bridge::Unsafe(m) if m.contains("CCxP")));
     }
 

@@ -3,6 +3,11 @@
 //! compare flags, update flag) and TIM4 (encoder mode: the counter is the servo encoder's
 //! count, which the board supplies).
 //!
+//! A write changes only what the register's rules let it change: not the read-only and
+//! preloaded fields, and on TIM1/TIM8 not what the lock of the output stage's settings
+//! freezes (BDTR.LOCK, RM0440 "Locking mechanism": [`unlocked_bits`]). What the output stage
+//! makes of those settings is [`super::output_stage`].
+//!
 //! A running counter is kept as an origin in time rather than ticked: its value, its next
 //! event and its flags are computed from the time when asked, so the emulator only stops the
 //! CPU at the instants something happens.
@@ -41,6 +46,34 @@ pub mod reg {
     pub const CCER: u32 = 0x20;
 }
 
+/// TIMx_BDTR's fields (break and dead-time register, RM0440; the field layout of ST's SVD,
+/// `timer_v2`).
+pub mod bdtr {
+    /// DTG[7:0]: the dead-time generator setup.
+    pub const DTG: u32 = 0xFF;
+    /// LOCK[1:0]: the lock level, writable once after reset.
+    pub const LOCK: u32 = 3 << 8;
+    /// OSSI: off-state selection for idle mode (MOE = 0).
+    pub const OSSI: u32 = 1 << 10;
+    /// OSSR: off-state selection for run mode (MOE = 1).
+    pub const OSSR: u32 = 1 << 11;
+    /// BKE: break enable.
+    pub const BKE: u32 = 1 << 12;
+    /// BKP: break polarity (1: active high).
+    pub const BKP: u32 = 1 << 13;
+    /// AOE: automatic output enable.
+    pub const AOE: u32 = 1 << 14;
+    /// MOE: main output enable.
+    pub const MOE: u32 = 1 << 15;
+    /// BKF[3:0]: break filter.
+    pub const BKF: u32 = 0xF << 16;
+    /// BK2F, BK2E, BK2P, BKDSRM, BK2DSRM, BKBID, BK2BID.
+    pub const BREAK2_AND_BIDIR: u32 = 0x3FF << 20;
+}
+
+/// CR2 bits of the idle levels: OISx at 8 + 2·x, OISxN at 9 + 2·x.
+const CR2_OIS: u32 = 0x3F << 8;
+
 /// CR1.CEN.
 const CEN: u32 = 1;
 /// CR1.URS.
@@ -77,6 +110,54 @@ pub struct Timer {
     pub width_mask: u32,
     /// The break input is active (advanced timers): MOE cannot be set.
     pub break_active: bool,
+}
+
+/// The bits of a write to register `off` that lock level `level` (BDTR.LOCK) lets change; the
+/// rest keep their old value (RM0440, "Locking mechanism" and TIMx_BDTR.LOCK). Level 1
+/// freezes DTG, BKE, BKP, BKF, AOE and the break-2 fields (BDTR) and OISx/OISxN (CR2); level
+/// 2 adds CCxP/CCxNP of the channels in output (CCER) and OSSI/OSSR; level 3 adds OCxM/OCxPE
+/// of the channels in output (CCMRx). LOCK itself is written once; MOE is never locked.
+/// `regs` is the register file (word index = offset / 4).
+pub fn unlocked_bits(off: u32, level: u32, regs: &[u32]) -> u32 {
+    let ccmr_output = |ccmr: u32, half: u32| (ccmr >> (8 * half)) & 3 == 0;
+    match (off, level) {
+        (_, 0) => !0,
+        (reg::BDTR, _) => {
+            // LOCK itself is write-once; MOE is never locked.
+            let mut locked = bdtr::LOCK | bdtr::DTG | bdtr::BKE | bdtr::BKP | bdtr::BKF;
+            locked |= bdtr::AOE | bdtr::BREAK2_AND_BIDIR;
+            if level >= 2 {
+                locked |= bdtr::OSSI | bdtr::OSSR;
+            }
+            !locked
+        }
+        (reg::CR2, _) => !CR2_OIS,
+        (reg::CCER, l) if l >= 2 => {
+            // CCxP/CCxNP of the channels configured as outputs.
+            let ccmr1 = regs[(0x18 / 4) as usize];
+            let ccmr2 = regs[(reg::CCMR2 / 4) as usize];
+            let mut locked = 0;
+            for ch in 0..4u32 {
+                let ccmr = if ch < 2 { ccmr1 } else { ccmr2 };
+                if ccmr_output(ccmr, ch % 2) {
+                    locked |= 0b1010 << (4 * ch);
+                }
+            }
+            !locked
+        }
+        (0x18 | reg::CCMR2, 3) => {
+            // OCxM (bits 6:4 and 16) and OCxPE (bit 3) of each output half.
+            let ccmr = regs[(off / 4) as usize];
+            let mut locked = 0;
+            for half in 0..2 {
+                if ccmr_output(ccmr, half) {
+                    locked |= (0x78 << (8 * half)) | (1 << (16 + 8 * half));
+                }
+            }
+            !locked
+        }
+        _ => !0,
+    }
 }
 
 /// What a counter boundary did.
@@ -378,17 +459,17 @@ impl Timer {
             }
             reg::BDTR => {
                 let level = self.r(reg::BDTR) >> 8 & 3;
-                let mask = super::output_stage::writable(off, level, &self.regs);
+                let mask = unlocked_bits(off, level, &self.regs);
                 let mut v = (self.regs[i] & !mask) | (value & mask);
                 if self.break_active {
                     // MOE cannot be set while the break input is active.
-                    v &= !(1 << 15);
+                    v &= !bdtr::MOE;
                 }
                 self.regs[i] = v;
             }
             reg::CR2 | 0x18 | reg::CCMR2 | 0x20 => {
                 let level = self.r(reg::BDTR) >> 8 & 3;
-                let mask = super::output_stage::writable(off, level, &self.regs);
+                let mask = unlocked_bits(off, level, &self.regs);
                 self.regs[i] = (self.regs[i] & !mask) | (value & mask);
             }
             _ => self.regs[i] = value,
@@ -470,5 +551,38 @@ mod tests {
         assert_eq!(t.read(reg::SR, 0) & 4, 4);
         assert_eq!(t.next_match(1), Some(1360 * (100 + 65536)));
         assert_eq!(t.next_boundary(), Some(1360 * 65536));
+    }
+
+    /// RM0440, TIMx_BDTR.LOCK: "level 1: DTG, BKE, BKP, AOE ... in BDTR and OISx/OISxN in
+    /// CR2 can no longer be written; level 2: also CCxP/CCxNP (channels in output) and
+    /// OSSR/OSSI; level 3: also OCxM/OCxPE (channels in output)". LOCK itself is written
+    /// once after reset; MOE is never locked.
+    #[test]
+    fn lock_level_3_freezes_the_protection_but_not_moe() {
+        let mut t = Timer::new(0xFFFF);
+        // PWM mode 1 on CH1..3 with preload, both outputs enabled, OSSI = OSSR = 1.
+        t.write(reg::CCMR1, 0x6868, 0, 1.0);
+        t.write(reg::CCMR2, 0x68, 0, 1.0);
+        t.write(reg::CCER, 0x555, 0, 1.0);
+        t.write(reg::BDTR, bdtr::OSSI | bdtr::OSSR | 85, 0, 1.0);
+        t.write(
+            reg::BDTR,
+            bdtr::OSSI | bdtr::OSSR | 85 | bdtr::BKE | 3 << 8,
+            0,
+            1.0,
+        );
+        t.write(reg::BDTR, bdtr::MOE, 0, 1.0);
+        let b = t.regs[(reg::BDTR / 4) as usize];
+        assert_eq!(b & 0xFF, 85, "DTG");
+        assert_ne!(b & bdtr::BKE, 0, "BKE");
+        assert_ne!(b & bdtr::OSSI, 0, "OSSI");
+        assert_eq!(b & bdtr::LOCK, 3 << 8, "LOCK");
+        assert_ne!(b & bdtr::MOE, 0, "MOE is not locked");
+        t.write(reg::CR2, 0x3F << 8, 0, 1.0);
+        assert_eq!(t.regs[1] & CR2_OIS, 0, "OIS");
+        t.write(reg::CCER, 0xFFF, 0, 1.0);
+        assert_eq!(t.regs[(reg::CCER / 4) as usize] & 0xAAA, 0, "CCxP/CCxNP");
+        t.write(0x18, 0x7070, 0, 1.0);
+        assert_eq!(t.regs[6] & 0x7070, 0x6060, "OCxM");
     }
 }

@@ -1,7 +1,7 @@
 //! The encoder-difference map (paper §4.2, Fig. 6): the slave encoder's reading against the
 //! master's, mapped as a function of the position within the magnetic pitch and of the
-//! direction, with a correction coefficient for the velocity — and the correction the
-//! firmware applies to the slave's reading with it.
+//! direction, with a correction coefficient for the velocity. The correction the firmware
+//! applies to the slave's reading with it is `sensing::encoder_map`.
 //!
 //! The paper found the difference "with a very clear pattern and a step corresponding with a
 //! magnetic pitch, … larger during the piston movement from left to right", and proposed
@@ -35,11 +35,12 @@
 //! difference along the stroke) stays in the corrected reading; the routine reports the RMS
 //! the fit leaves ([`EncoderMap::residual_m`]).
 
-use super::{cycles, CalibrationError, Demand, Measurements, Outcome, TURN};
+use super::{cycles, CalibrationError, Demand, Measurements, Outcome};
 use crate::control::config::{CalibrationConfig, ControlConfig};
 use crate::motion::trajectory::Setpoint;
-use crate::real::{clamp_f32, max_f32};
+use crate::real::max_f32;
 use crate::sensing::encoder::EncoderConfig;
+pub use crate::sensing::encoder_map::EncoderMap;
 
 /// Bins of the master's phase within a period.
 pub const MAP_BINS: usize = 16;
@@ -52,64 +53,6 @@ pub const STEP_CANDIDATES: usize = 240;
 
 /// Step phases evaluated per control cycle during the fit.
 const CANDIDATES_PER_CYCLE: usize = 8;
-
-/// The slave encoder's difference from the master's, as mapped (see the module header).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct EncoderMap {
-    /// The encoders' period λ, m.
-    pub period_m: f32,
-    /// Saw height S, m (negative: a falling saw).
-    pub saw_m: f32,
-    /// Where in the master's period the saw steps, fraction of a period in [0, 1).
-    pub step_phase: f32,
-    /// Mean difference moving toward +x, m (the velocity part removed).
-    pub toward_plus_m: f32,
-    /// Mean difference moving toward −x, m.
-    pub toward_minus_m: f32,
-    /// Velocity coefficient k_v, m per m/s.
-    pub velocity_s: f32,
-    /// Speed over which the direction part blends between its two values, m/s.
-    pub blend_mps: f32,
-    /// RMS of what the fit left in the bins, m (what the map cannot explain).
-    pub residual_m: f32,
-}
-
-impl EncoderMap {
-    /// The difference the map predicts, m, with the master encoder at `master_phase`
-    /// (wrapping, 2³² = one period, in its own frame) and the piston at `velocity_mps`.
-    pub fn difference_m(&self, master_phase: u32, velocity_mps: f32) -> f32 {
-        let u = master_phase as f32 / TURN;
-        let s = u - self.step_phase;
-        let frac = s - libm::floorf(s);
-        let w = if self.blend_mps > 0.0 {
-            clamp_f32(velocity_mps / self.blend_mps, -1.0, 1.0)
-        } else {
-            0.0
-        };
-        let mean = 0.5 * (self.toward_plus_m + self.toward_minus_m);
-        let half = 0.5 * (self.toward_plus_m - self.toward_minus_m);
-        self.saw_m * (frac - 0.5) + mean + w * half + self.velocity_s * velocity_mps
-    }
-
-    /// Takes the difference the map predicts ([`Self::difference_m`]) out of the slave's
-    /// reading `slave_m` (m) and out of its commutation angle `slave_angle` (wrapping,
-    /// 2³² = one period).
-    ///
-    /// Out of line (`memory.x` puts it in CCM SRAM with the control path): a machine without
-    /// a map pays only the test of `ControlConfig::encoder_map` in its control step.
-    #[inline(never)]
-    pub fn correct(
-        &self,
-        master_phase: u32,
-        velocity_mps: f32,
-        slave_m: &mut f32,
-        slave_angle: &mut u32,
-    ) {
-        let d = self.difference_m(master_phase, velocity_mps);
-        *slave_m -= d;
-        *slave_angle = slave_angle.wrapping_sub(crate::angle::turns(d / self.period_m));
-    }
-}
 
 /// The slave decoder's configuration with `config`'s map loaded: its glitch gate widened by
 /// the map's step height. The scale's step moves the slave's reading by `|S|` within one
@@ -488,6 +431,7 @@ impl Fit {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::control::calibration::TURN;
 
     #[test]
     fn the_bin_averaged_saw_is_the_saw_away_from_the_step_and_its_mean_across_it() {

@@ -1,51 +1,44 @@
-//! The estimator: both disturbance observers of the force balance on the piston, in one
-//! place — the controlled stop's (the force the model does not explain, low-passed) and the
-//! running step's (a momentum observer whose estimate the feed-forward cancels).
+//! Both disturbance observers of the force balance on the piston, in one place — the
+//! controlled stop's (the force the model does not explain, low-passed; the stop's state) and
+//! the running strokes' (a momentum observer whose estimate the drive's feed-forward
+//! cancels; the drive's state).
 
+use super::publish::Previous;
 use super::sense::Sensed;
 use crate::control::config::ControlConfig;
 use crate::physics::balance::PistonForces;
 use crate::real::clamp_f32;
-use crate::status::Status;
 
 /// Time constant of the controlled stop's disturbance observer, s: 2 ms, longer than the
 /// differentiator's 1.25 ms window (its acceleration is the noisiest input) and still fast
-/// next to the 10–30 ms a stop takes. At 0.5 ms the stop rang after a watchdog reset
-/// (`tests/faults_are_caught_and_the_machine_stays_safe.rs`, s12).
+/// next to the 10–30 ms a stop takes (shorter, the stop rings after a watchdog reset:
+/// `tests/faults_are_caught_and_the_machine_stays_safe.rs`, s12).
 pub const DOB_TIME_S: f32 = 2.0e-3;
 
-/// Both observers' state, N (toward +x).
+/// The controlled stop's observer: its estimate, N (toward +x).
 #[derive(Clone, Debug)]
-pub(super) struct Estimator {
-    /// The stop's estimate of the force the model does not explain, N.
-    pub stop_n: f32,
-    /// The running observer's state, N: its bandwidth times the momentum the known forces
-    /// and the estimate account for (NaN: restarts next cycle).
-    pub load_state: f32,
-    /// The running observer's estimate as cancelled, N.
-    pub load_n: f32,
+pub(super) struct StopObserver {
+    /// The estimate of the force the model does not explain, N.
+    pub n: f32,
 }
 
-impl Estimator {
+impl StopObserver {
     pub(super) fn new() -> Self {
-        Estimator {
-            stop_n: 0.0,
-            load_state: f32::NAN,
-            load_n: 0.0,
-        }
+        StopObserver { n: 0.0 }
     }
 
     /// The disturbance observer of a controlled stop: the force on the piston that the model
     /// does not explain, `m·a − (F_motor + F_gas − F_friction(v))`
-    /// ([`PistonForces::unexplained_n`]) from the measured acceleration, motor force
-    /// (q-currents) and gas force (when the pressures are usable; otherwise the gas is part of
-    /// what it estimates), low-passed over [`DOB_TIME_S`]. N, toward +x.
+    /// ([`PistonForces::unexplained_n`]) from the measured acceleration (`st`: the last
+    /// cycle's), motor force (q-currents) and gas force (when the pressures are usable;
+    /// otherwise the gas is part of what it estimates), low-passed over [`DOB_TIME_S`]. N,
+    /// toward +x.
     #[cold]
     #[inline(never)]
-    pub(super) fn observe_stop(
+    pub(super) fn observe(
         &mut self,
         c: &ControlConfig,
-        st: &Status,
+        st: &Previous,
         pressures_usable: bool,
         motor_force_n: f32,
         dt: f32,
@@ -60,21 +53,47 @@ impl Estimator {
                 .unexplained_n(c.moving_mass_kg, st.acceleration_mps2);
         if unexplained.is_finite() {
             let alpha = clamp_f32(dt / DOB_TIME_S, 0.0, 1.0);
-            self.stop_n += alpha * (unexplained - self.stop_n);
+            self.n += alpha * (unexplained - self.n);
         }
         // Never more than the sections can push against.
         let limit = c.force_limit_n;
-        self.stop_n = clamp_f32(self.stop_n, -limit, limit);
-        self.stop_n
+        self.n = clamp_f32(self.n, -limit, limit);
+        self.n
+    }
+}
+
+/// The running strokes' observer: its state and its estimate as cancelled, N (toward +x).
+#[derive(Clone, Debug)]
+#[repr(C)]
+pub(super) struct LoadObserver {
+    /// Its bandwidth times the momentum the known forces and the estimate account for, N
+    /// (NaN: restarts next cycle).
+    pub state: f32,
+    /// The estimate as cancelled, N.
+    pub n: f32,
+}
+
+impl LoadObserver {
+    pub(super) fn new() -> Self {
+        LoadObserver {
+            state: f32::NAN,
+            n: 0.0,
+        }
     }
 
-    /// The running strokes' disturbance observer: the force on the piston that
-    /// the model does not explain — an external load, the model's mass or gas-force error —
-    /// N, toward +x, within ±`limit`.
+    /// The outputs are off: the observer restarts from the next cycle with outputs on.
+    pub(super) fn reset(&mut self) {
+        self.state = f32::NAN;
+        self.n = 0.0;
+    }
+
+    /// The running strokes' disturbance observer: the force on the piston that the model
+    /// does not explain — an external load, the model's mass or gas-force error — N, toward
+    /// +x, within ±`limit`.
     ///
     /// A momentum observer. With the forces the step knows, the balance's net force
     /// `F = F_motor + F_gas − F_fr` ([`PistonForces::net_n`]: the motor's from the measured
-    /// q-currents, the rest from `model`, [`ControlStep::model_forces`]), and the
+    /// q-currents, the rest from `model`, [`model_forces`](super::actuate::model_forces)), and the
     /// momentum they account for, `p̂ ← p̂ + T·(F + d̂)`, the raw estimate is
     /// `d̂ = K·(m·v − p̂)`: it follows the true disturbance d as a first-order lag,
     /// `dd̂/dt = K·(d − d̂)`, whatever the loop commands (K =
@@ -88,14 +107,12 @@ impl Estimator {
     /// of its bandwidth — the velocity estimate's noise times `K·m`, and what looks like
     /// the motor's force ripple (on the reference plant, which has cogging and no
     /// calibrated map: ±100–170 N near 600 Hz at 2.3 m/s, six times the electrical
-    /// frequency) — and
-    /// passed on at full bandwidth these doubled the force reference's cycle-to-cycle
-    /// change: the voltages a hung control task leaves on the bridges for the watchdog's
-    /// 3 ms then drive a far larger current (the current loop's proportional gain acts on
-    /// the reference's last step), and of 120 hangs around a dead point the worst came
-    /// within 0.12 mm of the head (two lags at 3000 rad/s; 0.85 mm without the observer).
-    /// Slowed below the threshold, the force reference moves as it did without the
-    /// observer (worst of the same 120 hangs 0.78 mm).
+    /// frequency). Passed on at full bandwidth these would double the force reference's
+    /// cycle-to-cycle change, and the voltages a hung control task leaves on the bridges
+    /// until the watchdog resets would then drive a far larger current (the current loop's
+    /// proportional gain acts on the reference's last step). Slowed below the threshold,
+    /// the force reference moves as it does without the observer (`docs/firmware.md`, "The
+    /// running observer").
     ///
     /// Ranges and saturation: the raw estimate is limited to ±`limit` (the force limit:
     /// never more than the sections can push against), and the state is set back to the
@@ -107,7 +124,7 @@ impl Estimator {
     /// of 0 and the observer restarts from the next cycle; outputs off reset it the same
     /// way (`w` NaN, the estimate 0). State: `w = K·p̂` and the cancelled estimate, both N.
     #[inline(always)]
-    pub(super) fn observe_load(
+    pub(super) fn observe(
         &mut self,
         c: &ControlConfig,
         s: &Sensed,
@@ -117,7 +134,7 @@ impl Estimator {
         let k = c.disturbance_bandwidth_rad_s;
         let gain = k * c.sample_time_s;
         let momentum = k * c.moving_mass_kg * s.derivatives.velocity_mps;
-        let raw = momentum - self.load_state;
+        let raw = momentum - self.state;
         // Limited to ±limit, NaN to 0 (clamp_f32 would give −limit).
         let d = if raw > -limit {
             if raw < limit {
@@ -135,15 +152,15 @@ impl Estimator {
             ..*model
         }
         .net_n();
-        self.load_state = momentum - d + gain * (known_n + d);
-        let gap = d - self.load_n;
+        self.state = momentum - d + gain * (known_n + d);
+        let gap = d - self.n;
         let follow = if gap.abs() > c.disturbance_threshold_n {
             gain
         } else {
             c.disturbance_slow_rad_s * c.sample_time_s
         };
-        self.load_n += follow * gap;
-        self.load_n
+        self.n += follow * gap;
+        self.n
     }
 }
 
@@ -175,10 +192,10 @@ mod tests {
 
     /// `cycles` of a piston at constant speed whose motor pushes `motor_n` (the load is
     /// then `−motor_n`); the last estimate cancelled.
-    fn hold(e: &mut Estimator, c: &ControlConfig, motor_n: f32, cycles: usize) -> f32 {
+    fn hold(e: &mut LoadObserver, c: &ControlConfig, motor_n: f32, cycles: usize) -> f32 {
         let mut d = 0.0;
         for _ in 0..cycles {
-            d = e.observe_load(c, &sensed(1.0, motor_n), &PistonForces::default(), 10_000.0);
+            d = e.observe(c, &sensed(1.0, motor_n), &PistonForces::default(), 10_000.0);
         }
         d
     }
@@ -186,7 +203,7 @@ mod tests {
     #[test]
     fn the_observer_finds_a_steady_load_saturates_at_the_limit_and_recovers() {
         let c = ControlConfig::reference();
-        let mut e = Estimator::new();
+        let mut e = LoadObserver::new();
         // A 3 kN load toward +x the motor holds: cancelled to within the 300 N threshold in
         // 2 ms (40 cycles), to 1 % in 20 ms.
         let d = hold(&mut e, &c, -3000.0, 40);
@@ -207,9 +224,9 @@ mod tests {
     #[test]
     fn a_nan_input_gives_no_force_and_the_observer_restarts() {
         let c = ControlConfig::reference();
-        let mut e = Estimator::new();
+        let mut e = LoadObserver::new();
         hold(&mut e, &c, -3000.0, 40);
-        let d = e.observe_load(
+        let d = e.observe(
             &c,
             &sensed(f32::NAN, -3000.0),
             &PistonForces::default(),
@@ -224,7 +241,7 @@ mod tests {
     fn switched_off_it_estimates_nothing() {
         let mut config = ControlConfig::reference();
         config.disturbance_bandwidth_rad_s = 0.0;
-        assert_eq!(hold(&mut Estimator::new(), &config, -3000.0, 100), 0.0);
+        assert_eq!(hold(&mut LoadObserver::new(), &config, -3000.0, 100), 0.0);
     }
 
     #[test]

@@ -1,16 +1,16 @@
 //! The sense stage: what the samples say about the machine, and what a failed encoder
-//! changes (the other stands in for it, its section is dropped).
+//! changes in the position frame (the other encoder stands in for it; the safe state drops
+//! its section).
 
-use super::{ControlStep, CycleInputs};
+use super::publish::Previous;
 use crate::control::config::ControlConfig;
-use crate::ports::PressureCodes;
+use crate::drive::foc::CurrentController;
+use crate::ports::{EncoderCodes, PressureCodes};
 use crate::real::clamp_f32;
-use crate::safety::faults::{Fault, Reaction};
 use crate::sensing::differentiator::{Derivatives, SavitzkyGolay};
 use crate::sensing::encoder::{EncoderReading, PositionCounts, SinCosDecoder};
 use crate::sensing::pressure::{PressureSample, StuckConfig, StuckMonitor};
 use crate::sensing::quadrature::QuadratureCounter;
-use crate::status::Status;
 use crate::units::{AdcCode, PerSection, Section, Ticks, CONTROL_PERIOD_US};
 
 /// The sense stage's state: both decoders, the differentiator, the rotation's counter, the
@@ -64,10 +64,11 @@ impl Sensing {
     /// real sample that follows is judged against where the piston now is, not rejected as
     /// a jump. Up to 40 missed samples (2 ms); beyond that the extrapolation means nothing
     /// and the decoders judge the new sample as they would after a glitch. `config` gives
-    /// the encoders and the period, `status` the last cycle's positions and velocity.
+    /// the encoders and the period, `previous` the last cycle's positions and velocity.
     #[cold]
     #[inline(never)]
-    pub(super) fn catch_up(&mut self, gap_us: i32, config: &ControlConfig, status: &Status) {
+    pub(super) fn catch_up(&mut self, gap_us: i32, config: &ControlConfig, previous: &Previous) {
+        let status = previous;
         let period = CONTROL_PERIOD_US as i32;
         let missed = ((gap_us + period / 2) / period - 1).clamp(0, 40) as u32;
         let v = status.velocity_mps;
@@ -232,34 +233,68 @@ pub(super) struct Sensed {
     pub force_slave_n: f32,
 }
 
-impl ControlStep {
-    /// The deadline check: a gap of more than 1.5 periods since the last cycle means at
-    /// least one was missed (the decoders are caught up, the fault latched).
-    pub(super) fn check_deadline(&mut self, t: Ticks) {
-        if let Some(last) = self.sensing.last_t {
+/// What the encoder checks found this cycle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum EncoderLoss {
+    /// The encoder of this section was lost; the other stands in for it from now on.
+    One(Section),
+    /// Both are lost (at once, or the second after the first): nothing gives the position.
+    Both,
+}
+
+impl Sensing {
+    /// The deadline check: the time since the last cycle's sampling instant, µs, when it is
+    /// more than 1.5 periods (at least one cycle was missed; the caller latches
+    /// [`Fault::Deadline`](crate::safety::faults::Fault::Deadline) and catches the decoders
+    /// up, [`Sensing::catch_up`]).
+    #[inline]
+    pub(super) fn overrun_us(&mut self, t: Ticks) -> Option<i32> {
+        let late = self.last_t.and_then(|last| {
             let gap_us = t.since_us(last);
-            if gap_us > (CONTROL_PERIOD_US * 3 / 2) as i32 {
-                self.latch(Fault::Deadline);
-                self.sensing.catch_up(gap_us, &self.config, &self.status);
-            }
-        }
-        self.sensing.last_t = Some(t);
+            (gap_us > (CONTROL_PERIOD_US * 3 / 2) as i32).then_some(gap_us)
+        });
+        self.last_t = Some(t);
+        late
     }
 
-    /// The sense stage: both encoders decoded (a failed one replaced by the other), the
-    /// master position differentiated, the pressures converted and checked, the rotation's
-    /// count read, and the section forces of the last cycle's currents.
-    pub(super) fn sense(&mut self, inputs: &CycleInputs) -> Sensed {
-        let mut master = self.sensing.encoders.master.update(inputs.encoders.master);
-        let mut slave = self.sensing.encoders.slave.update(inputs.encoders.slave);
-        if master.signal_fault || slave.signal_fault || self.sensing.lost_encoder.is_some() {
-            (master.position, slave.position) = self.encoder_fault(&master, &slave);
-        }
-        let derivatives = self.sensing.differentiator.push(master.position);
-        let m_per_count = self.config.encoder_master.m_per_count();
+    /// Both encoders' samples decoded: the master's reading and the slave's.
+    #[inline]
+    pub(super) fn decode(&mut self, codes: &EncoderCodes) -> (EncoderReading, EncoderReading) {
+        (
+            self.encoders.master.update(codes.master),
+            self.encoders.slave.update(codes.slave),
+        )
+    }
+
+    /// Whether an encoder needs [`Sensing::encoder_fault`]: a filter tripped this cycle, or
+    /// one was lost before.
+    #[inline(always)]
+    pub(super) fn encoder_trouble(&self, master: &EncoderReading, slave: &EncoderReading) -> bool {
+        master.signal_fault || slave.signal_fault || self.lost_encoder.is_some()
+    }
+
+    /// The sense stage proper, once the encoders are decoded: the master position (`positions`,
+    /// counts: the decoders' or the stand-in's) differentiated, both positions in metres, the
+    /// pressures converted and checked, the sections' forces from their current loops'
+    /// (`currents`) last q-currents. The second value: the chamber samples were invalid two cycles in
+    /// a row (one glitch is tolerated), the sensor fault
+    /// ([`Fault::PressureSensor`](crate::safety::faults::Fault::PressureSensor)).
+    #[inline(always)]
+    pub(super) fn measure(
+        &mut self,
+        c: &ControlConfig,
+        (master, slave): (EncoderReading, EncoderReading),
+        positions: (PositionCounts, PositionCounts),
+        pressures: &PressureCodes,
+        currents: &PerSection<CurrentController>,
+    ) -> (Sensed, bool) {
+        let (mut master, mut slave) = (master, slave);
+        (master.position, slave.position) = positions;
+        let derivatives = self.differentiator.push(master.position);
+        let m_per_count = c.encoder_master.m_per_count();
         let raw_m = master.position.to_bits() as f32 * m_per_count;
-        let mut slave_raw_m = self.config.encoder_slave.metres(slave.position);
-        if let Some(map) = &self.config.encoder_map {
+        let mut slave_raw_m = c.encoder_slave.metres(slave.position);
+        if let Some(map) = &c.encoder_map {
             // The slave's mapped difference from the master (paper §4.2), taken out of its
             // reading and of its section's commutation angle.
             map.correct(
@@ -269,46 +304,31 @@ impl ControlStep {
                 &mut slave.angle,
             );
         }
-        let zero = self.sensing.zero_raw_m.unwrap_or(0.0);
+        let zero = self.zero_raw_m.unwrap_or(0.0);
         let position_m = raw_m - zero;
 
-        let cal = self.config.pressure;
-        let pa = cal.convert(inputs.pressures.chamber_a);
-        let pb = cal.convert(inputs.pressures.chamber_b);
+        let cal = c.pressure;
+        let pa = cal.convert(pressures.chamber_a);
+        let pb = cal.convert(pressures.chamber_b);
         let gas_force_n = match (pa.valid(), pb.valid()) {
-            (Some(a), Some(b)) if self.sensing.pressures.trusted => {
-                self.config.cylinder.gas_force_n(a, b)
-            }
+            (Some(a), Some(b)) if self.pressures.trusted => c.cylinder.gas_force_n(a, b),
             _ => 0.0,
         };
 
-        let ps = cal.convert(inputs.pressures.suction);
-        let pd = cal.convert(inputs.pressures.discharge);
-        self.sensing.pressures.remember([pa, pb, ps, pd]);
-
-        let count = self.sensing.quadrature.update(inputs.quadrature);
-        self.rotary.servo.observe(count);
+        let ps = cal.convert(pressures.suction);
+        let pd = cal.convert(pressures.discharge);
+        self.pressures.remember([pa, pb, ps, pd]);
 
         // Measured section forces (before this cycle's FOC step: last cycle's state).
-        let kf = self.config.motor.force_constant_n_per_a;
-        let force_master_n = self.currents.master.state().current.q * kf;
-        let force_slave_n = self.currents.slave.state().current.q * kf;
+        let kf = c.motor.force_constant_n_per_a;
+        let force_master_n = currents.master.state().current.q * kf;
+        let force_slave_n = currents.slave.state().current.q * kf;
 
         // Invalid pressure samples never reach the control law (the gas feed-forward above
-        // falls back to zero); two in a row latch the fault (one glitch is tolerated).
+        // falls back to zero); two in a row are the sensor fault (one glitch is tolerated).
         let chambers_valid = pa.valid().is_some() && pb.valid().is_some();
-        if self.sensing.pressures.count_invalid(chambers_valid) {
-            self.latch(Fault::PressureSensor);
-        }
-        if self.running()
-            && self
-                .sensing
-                .pressures
-                .watch_stroke(&inputs.pressures, position_m)
-        {
-            self.latch(Fault::PressurePlausibility);
-        }
-        Sensed {
+        let pressures_failed = self.pressures.count_invalid(chambers_valid);
+        let sensed = Sensed {
             master,
             slave,
             derivatives,
@@ -320,101 +340,95 @@ impl ControlStep {
             gas_force_n,
             force_master_n,
             force_slave_n,
-        }
+        };
+        (sensed, pressures_failed)
+    }
+
+    /// The rotation's quadrature count from the counter's `raw` 16 bits (unwrapped).
+    #[inline(always)]
+    pub(super) fn rotation_count(&mut self, raw: u16) -> i64 {
+        self.quadrature.update(raw)
     }
 
     /// An encoder's error-rate filter tripped, or one was lost before; returns the master
-    /// and slave positions, counts, to use from now on. One encoder lost while the other is
-    /// good: the good one gives both positions, at the offset between them when the other
-    /// was lost (it had extrapolated its last rejected samples, so the position runs on
-    /// without a jump and the master/slave cross-check, which has nothing left to compare,
-    /// stays quiet); the lost one's section is dropped (its commutation angle is gone) and
-    /// the other section stops the piston (SS1). Both lost: nothing tells where the piston
-    /// is: STO, then braking without position ([`Reaction::BrakeWithoutPosition`]).
+    /// and slave positions, counts, to use from now on, and the loss found this cycle. One
+    /// encoder lost while the other is good: the good one gives both positions, at the
+    /// offset between them when the other was lost (it had extrapolated its last rejected
+    /// samples, so the position runs on without a jump and the master/slave cross-check,
+    /// which has nothing left to compare, stays quiet); its section is dropped (its
+    /// commutation angle is gone) and the other section stops the piston
+    /// ([`Trip::encoder_lost`](crate::safety::faults::Trip::encoder_lost)). Both lost:
+    /// nothing tells where the piston is ([`EncoderLoss::Both`]: braking without position).
     #[cold]
     #[inline(never)]
     pub(super) fn encoder_fault(
         &mut self,
+        c: &ControlConfig,
         master: &EncoderReading,
         slave: &EncoderReading,
-    ) -> (PositionCounts, PositionCounts) {
+    ) -> ((PositionCounts, PositionCounts), Option<EncoderLoss>) {
         let both = (master.position, slave.position);
         let failed = match (master.signal_fault, slave.signal_fault) {
-            (true, true) => {
-                self.latch(Fault::EncoderSignal);
-                return both;
-            }
+            (true, true) => return (both, Some(EncoderLoss::Both)),
             (true, false) => Some(Section::Master),
             (false, true) => Some(Section::Slave),
             // Lost earlier by the cross-check.
             (false, false) => None,
         };
-        match (failed, self.sensing.lost_encoder) {
-            (Some(f), Some(lost)) if f != lost => {
-                // The other one was lost before: none is left.
-                self.latch(Fault::EncoderSignal);
-                return both;
-            }
+        let loss = match (failed, self.lost_encoder) {
+            // The other one was lost before: none is left.
+            (Some(f), Some(lost)) if f != lost => return (both, Some(EncoderLoss::Both)),
             (Some(f), None) => {
-                // The other stands in: SS1 on its section, unless the two disagreed before
-                // (then neither is trusted: STO).
-                let reaction = if self.faults.contains(Fault::EncoderMismatch) {
-                    Reaction::Sto
-                } else {
-                    Reaction::Ss1
-                };
-                self.lose_encoder(f, master, slave);
-                self.react(Fault::EncoderSignal, reaction);
+                self.lose_encoder(c, f, master, slave);
+                Some(EncoderLoss::One(f))
             }
-            _ => {}
-        }
-        let offset = self.sensing.slave_offset_counts;
-        match self.sensing.lost_encoder {
+            _ => None,
+        };
+        let offset = self.slave_offset_counts;
+        let positions = match self.lost_encoder {
             Some(Section::Master) => (slave.position.wrapping_add(offset), slave.position),
             Some(Section::Slave) => (master.position, master.position.wrapping_sub(offset)),
             None => both,
-        }
+        };
+        (positions, loss)
     }
 
     /// Takes `failed` out: the other encoder stands in for it from now on, at their present
-    /// offset, and its section is dropped. The slave's zero moves to where the two agree
-    /// now: the master/slave cross-check has nothing left to compare.
+    /// offset. The slave's zero moves to where the two agree now: the master/slave
+    /// cross-check has nothing left to compare.
     pub(super) fn lose_encoder(
         &mut self,
+        c: &ControlConfig,
         failed: Section,
         master: &EncoderReading,
         slave: &EncoderReading,
     ) {
-        self.sensing.lost_encoder = Some(failed);
-        self.sensing.slave_offset_counts = master.position.wrapping_sub(slave.position);
-        let master_raw_m = self.config.encoder_master.metres(master.position);
-        let slave_raw_m = self.config.encoder_slave.metres(slave.position);
-        self.sensing.zero_slave_raw_m =
-            slave_raw_m - (master_raw_m - self.sensing.zero_raw_m.unwrap_or(0.0));
-        self.drop_section(if failed == Section::Master { 0 } else { 1 });
+        self.lost_encoder = Some(failed);
+        self.slave_offset_counts = master.position.wrapping_sub(slave.position);
+        let master_raw_m = c.encoder_master.metres(master.position);
+        let slave_raw_m = c.encoder_slave.metres(slave.position);
+        self.zero_slave_raw_m = slave_raw_m - (master_raw_m - self.zero_raw_m.unwrap_or(0.0));
     }
 
-    /// The two encoders disagree. If one of them looks wrong — its error-rate filter is up,
-    /// or its amplitude is off nominal by more than 20 % in power while the other's is within
-    /// 10 % (a stuck channel passes the amplitude window near the axes and drifts before
-    /// the filter trips) — and the other does not, the other is trusted: the suspect is lost
-    /// as if its filter had tripped, and SS1 runs on the other (the position carries at most
-    /// the disagreement, 2 mm). Otherwise nothing says which one is right: STO. Returns the
-    /// reaction for the supervise stage to carry out.
+    /// The two encoders disagree: the one whose readings show it is wrong, if one does and
+    /// no encoder was lost before — its error-rate filter is up, or its amplitude is off
+    /// nominal by more than 20 % in power while the other's is within 10 % (a stuck channel
+    /// passes the amplitude window near the axes and drifts before the filter trips) — and
+    /// the other does not.
     #[cold]
     #[inline(never)]
-    pub(super) fn encoder_mismatch(
-        &mut self,
+    pub(super) fn suspect(
+        &self,
         master: &EncoderReading,
         slave: &EncoderReading,
-    ) -> Reaction {
+    ) -> Option<Section> {
         let odd = |r: &EncoderReading, d: &SinCosDecoder| {
             d.cause_present() || (r.amplitude_squared - 1.0).abs() > 0.2
         };
         let sound = |r: &EncoderReading, d: &SinCosDecoder| {
             !d.cause_present() && (r.amplitude_squared - 1.0).abs() < 0.1
         };
-        let (dm, ds) = (&self.sensing.encoders.master, &self.sensing.encoders.slave);
+        let (dm, ds) = (&self.encoders.master, &self.encoders.slave);
         let suspect = if odd(master, dm) && sound(slave, ds) {
             Some(Section::Master)
         } else if odd(slave, ds) && sound(master, dm) {
@@ -422,12 +436,27 @@ impl ControlStep {
         } else {
             None
         };
-        match (suspect, self.sensing.lost_encoder) {
-            (Some(s), None) => {
-                self.lose_encoder(s, master, slave);
-                Reaction::Ss1
-            }
-            _ => Reaction::Sto,
+        suspect.filter(|_| self.lost_encoder.is_none())
+    }
+
+    /// Faults cleared: both decoders' filters reset, the stand-in ends, the chamber
+    /// pressures are trusted again; after an encoder fault (`encoder_fault` true) the zero
+    /// is lost and homing is required again.
+    pub(super) fn clear_faults(&mut self, encoder_fault: bool) {
+        self.encoders.master.clear_fault();
+        self.encoders.slave.clear_fault();
+        if encoder_fault {
+            self.zero_raw_m = None;
         }
+        self.lost_encoder = None;
+        self.pressures.trusted = true;
+    }
+
+    /// Whether a cause of a latched fault is still present: an encoder's, or an invalid
+    /// chamber pressure.
+    pub(super) fn cause_present(&self) -> bool {
+        self.encoders.master.cause_present()
+            || self.encoders.slave.cause_present()
+            || self.pressures.bad_cycles > 0
     }
 }

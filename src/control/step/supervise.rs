@@ -1,132 +1,70 @@
-//! The supervise stage: limits and faults detected, and the one place that dispatches a
-//! latched fault to its reaction ([`ControlStep::react`]: one `match` on
-//! [`Reaction`]); the reactions themselves are in `safe_state.rs`.
+//! The supervise stage: the machine's limits checked against each cycle's measurements, the
+//! host's heartbeat timed, the supply watched. What it finds is a [`Trip`] (the fault, its
+//! reaction, the sections to drop) for the safe state to carry out.
 
-use super::modes::{AfterStop, Mode};
-use super::sense::Sensed;
-use super::ControlStep;
-use crate::real::max_f32;
-use crate::safety::faults::{Fault, Reaction};
-use crate::safety::supervisor::{LimitFlags, Observation, Supervisor};
+use crate::safety::faults::Trip;
+use crate::safety::supervisor::{Observation, Supervisor, SupervisorConfig};
 
-/// The supervision's state: the per-cycle checks, the host's heartbeat and the limits hit.
+/// The supervision's state: the per-cycle checks, the host's heartbeat and the power-good
+/// input as last read.
 #[derive(Clone, Debug)]
+#[repr(C)]
 pub(super) struct Supervision {
-    pub supervisor: Supervisor,
-    /// Time since the last heartbeat, s; `None` until the host sends one.
+    /// Time since the last heartbeat, s; `None` until the host sends one (and after it was
+    /// lost, until it is back).
     pub heartbeat_s: Option<f32>,
-    /// The limits hit in this cycle.
-    pub limits: LimitFlags,
+    /// Time without a heartbeat after which the piston parks, s (a host's `SetParameter`).
+    pub heartbeat_timeout_s: f32,
+    /// The power-good input as the supervision task last read it.
+    pub supply_good: bool,
+    pub supervisor: Supervisor,
 }
 
 impl Supervision {
-    pub(super) fn new() -> Self {
+    pub(super) fn new(heartbeat_timeout_s: f32) -> Self {
         Supervision {
-            supervisor: Supervisor::new(),
             heartbeat_s: None,
-            limits: LimitFlags::default(),
+            heartbeat_timeout_s,
+            supply_good: true,
+            supervisor: Supervisor::new(),
         }
     }
-}
 
-impl ControlStep {
-    /// The supervise stage: the machine's limits checked against this cycle's measurements
-    /// (a fault latched and its reaction started, a lost section dropped), and the host's
-    /// heartbeat timed (host lost: park).
-    pub(super) fn supervise(&mut self, s: &Sensed) {
-        let dt = self.config.sample_time_s;
-        let homed = self.sensing.zero_raw_m.is_some();
-        let driving = !matches!(self.mode, Mode::Idle | Mode::Faulted);
-        // The rotation times the ports only while compressing; in a stop it only holds (or,
-        // after a reset, coasts down), whatever the linear motion does.
-        let running = matches!(self.mode, Mode::Running(_));
-        let rotation_error_rad = if running {
-            self.rotary.reference_rad - self.rotary.servo.angle_rad()
-        } else {
-            0.0
-        };
-        // Only looked at once the error is large (never in normal running: the step stays
-        // cheap).
-        let rotation_stalled = rotation_error_rad.abs()
-            > self.config.supervisor.rotation_stall_error_rad
-            && self.rotary.stalled();
-        let observation = Observation {
-            dt_s: dt,
-            homed,
-            driving: driving && !matches!(self.mode, Mode::Homing(_)),
-            position_m: s.position_m,
-            slave_position_m: s.slave_raw_m - self.sensing.zero_slave_raw_m,
-            velocity_mps: s.derivatives.velocity_mps,
-            reference_m: self.reference_m().unwrap_or(s.position_m),
-            peak_phase_a: max_f32(
-                self.currents.master.state().peak_phase_a,
-                self.currents.slave.state().peak_phase_a,
-            ),
-            commanded_n: [self.shares.master, self.shares.slave],
-            delivered_n: [s.force_master_n, s.force_slave_n],
-            rotation_error_rad,
-            rotation_stalled,
-        };
-        let verdict = self
-            .supervision
-            .supervisor
-            .check(&self.config.supervisor, &observation);
-        if let Some(section) = verdict.lost_section {
-            self.drop_section(section);
-        }
-        if let Some(fault) = verdict.fault {
-            // Two encoders that disagree: the readings may show which one is wrong (it is
-            // taken out, SS1 on the other); the fault's kind alone cannot.
-            let reaction = match fault {
-                Fault::EncoderMismatch => self.encoder_mismatch(&s.master, &s.slave),
-                _ => fault.reaction(),
-            };
-            self.react(fault, reaction);
-        }
+    /// The limits checked against this cycle's `observation`: the first fault found, if any.
+    #[inline(always)]
+    pub(super) fn check(
+        &mut self,
+        c: &SupervisorConfig,
+        observation: &Observation,
+    ) -> Option<Trip> {
+        self.supervisor.check(c, observation)
+    }
 
-        if let Some(elapsed) = self.supervision.heartbeat_s.as_mut() {
+    /// A heartbeat from the host: the first arms the host watchdog, every one restarts it.
+    pub(super) fn heartbeat(&mut self) {
+        self.heartbeat_s = Some(0.0);
+    }
+
+    /// One cycle of `dt` s on the host watchdog: true once the host has been silent for the
+    /// timeout (then disarmed until the host is back: the caller parks the piston, which is
+    /// not a fault).
+    #[inline(always)]
+    pub(super) fn host_lost(&mut self, dt: f32) -> bool {
+        if let Some(elapsed) = self.heartbeat_s.as_mut() {
             *elapsed += dt;
-            if *elapsed >= self.config.heartbeat_timeout_s {
-                // Host lost: park (a controlled stop first), not a fault. Disarmed until the
-                // host is back.
-                self.supervision.heartbeat_s = None;
-                if matches!(
-                    self.mode,
-                    Mode::Moving { .. } | Mode::Holding(_) | Mode::Running(_)
-                ) {
-                    self.begin_stop(AfterStop::Park);
-                }
+            if *elapsed >= self.heartbeat_timeout_s {
+                self.heartbeat_s = None;
+                return true;
             }
         }
+        false
     }
 
-    /// Latches `fault` and starts the reaction it asks for ([`Fault::reaction`]).
-    pub(super) fn latch(&mut self, fault: Fault) {
-        self.react(fault, fault.reaction());
-    }
-
-    /// The one dispatch from a fault to the safe state: latches `fault` and carries out
-    /// `reaction` (`safe_state.rs`). Each reaction starts SS1 (a controlled stop ending with
-    /// the outputs off; STO while not homed) or STO, the section or braking steps around it.
-    #[cold]
-    #[inline(never)]
-    pub(super) fn react(&mut self, fault: Fault, reaction: Reaction) {
-        match reaction {
-            Reaction::Ss1 | Reaction::Sto => {
-                self.enter_safe_state(fault, reaction.position_trusted());
-            }
-            Reaction::DropSection => {
-                self.drop_hotter_section();
-                self.enter_safe_state(fault, true);
-            }
-            Reaction::BrakeWithoutPosition => {
-                self.enter_safe_state(fault, false);
-                self.brake_without_position();
-            }
-            Reaction::BrakeAfterReset => {
-                self.enter_safe_state(fault, true);
-                self.await_velocity_then_brake();
-            }
-        }
+    /// What the power-good input reads now: true when it has just fallen (the supply lost).
+    #[inline(always)]
+    pub(super) fn supply(&mut self, good: bool) -> bool {
+        let lost = !good && self.supply_good;
+        self.supply_good = good;
+        lost
     }
 }

@@ -549,28 +549,7 @@ fn capture(args: CaptureArgs) -> CmdResult {
     drop((up0, up1, up2));
     let counters = session.counters();
     outln!("{counters}")?;
-    for line in session.scope().incomplete() {
-        outln!("scope: {line}")?;
-    }
-    for rec in session.scope().recordings() {
-        let name = format!("scope-{}.csv", rec.recording.id);
-        match rec.to_log() {
-            Ok(log) => {
-                log.write(&out.path(&name)).map_err(|e| {
-                    Failure::runtime(format!("cannot write {}: {e}", show(&out.path(&name))))
-                })?;
-                outln!(
-                    "scope recording {} (trigger {}, {} samples, {} before it) written to {}",
-                    rec.recording.id,
-                    trigger_text(rec.recording.trigger),
-                    rec.recording.samples,
-                    rec.recording.pre,
-                    show(&out.final_path(&name))
-                )?;
-            }
-            Err(e) => outln!("scope: {e}")?,
-        }
-    }
+    write_scopes(session.scope(), &out)?;
     let decoded = session.into_telemetry().finish();
     let why = match &decoded {
         Ok(d) if mostly_unusable(d).is_none() || args.accept_loss => None,
@@ -594,6 +573,34 @@ fn capture(args: CaptureArgs) -> CmdResult {
             show(&args.out)
         ))),
     }
+}
+
+/// The scope recordings a capture received, each written into `out` as `scope-N.csv`
+/// (and named), the incomplete ones named.
+fn write_scopes(scope: &crate::link::scope::ScopeCollector, out: &OutDir) -> CmdResult {
+    for line in scope.incomplete() {
+        outln!("scope: {line}")?;
+    }
+    for rec in scope.recordings() {
+        let name = format!("scope-{}.csv", rec.recording.id);
+        match rec.to_log() {
+            Ok(log) => {
+                log.write(&out.path(&name)).map_err(|e| {
+                    Failure::runtime(format!("cannot write {}: {e}", show(&out.path(&name))))
+                })?;
+                outln!(
+                    "scope recording {} (trigger {}, {} samples, {} before it) written to {}",
+                    rec.recording.id,
+                    trigger_text(rec.recording.trigger),
+                    rec.recording.samples,
+                    rec.recording.pre,
+                    show(&out.final_path(&name))
+                )?;
+            }
+            Err(e) => outln!("scope: {e}")?,
+        }
+    }
+    Ok(())
 }
 
 /// The answer timeout, checked.

@@ -5,10 +5,12 @@ use rayon::prelude::*;
 
 use crate::plant::model::{model_key, model_section};
 
+use super::super::candidate::{kept_span, Ctx, EffectKind, Proposal};
+use super::super::channel::ChannelId;
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::{lstsq, minimise_1d_par};
-use super::super::residuals::{channel_raw, kept_of_raw, ChannelId};
-use super::{harmonics, kept_span, Ctx, EffectKind, Proposal};
+use super::super::residuals::{channel_raw, kept_of_raw};
+use super::harmonics;
 
 pub(super) fn pitch_error(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let base = doc.with(&[Edit::RemoveSection(model_section!(

@@ -8,12 +8,14 @@ use rayon::prelude::*;
 use crate::plant::model::{model_key, model_section};
 use crate::signal::xcorr_lag;
 
+use super::super::candidate::{kept_span, kept_x, Ctx, EffectKind, Proposal};
+use super::super::channel::ChannelId;
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::{lstsq, minimise_1d_par};
 use super::super::residuals::{
-    acting_motor_force_n, force_raw, force_terms, motor_sum_n, shifted, tangential_mps, ChannelId,
+    acting_motor_force_n, force_raw, force_terms, motor_sum_n, shifted, tangential_mps,
 };
-use super::{harmonics, kept_span, kept_x, Ctx, EffectKind, Proposal, MAX_LAG_S};
+use super::{harmonics, MAX_LAG_S};
 
 /// The force residual of `doc` at the kept samples.
 fn force_kept(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Vec<f64>> {

@@ -4,11 +4,12 @@
 
 use crate::plant::model::{model_key, model_section};
 
+use super::super::candidate::{Ctx, EffectKind, Proposal};
+use super::super::channel::ChannelId;
 use super::super::data::{Measured, PortsMeta};
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::{gauss_newton_nonneg, minimise_1d_par};
-use super::super::residuals::{channel_raw, kept_of_raw, Band, ChannelId};
-use super::{Ctx, EffectKind, Proposal};
+use super::super::residuals::{channel_raw, kept_of_raw, Band};
 
 /// Stretch of a log the pressure candidates' parameter searches replay, s: each search
 /// replays the chambers 15–20 times, and [`PRESSURE_SEARCH_S`] of a compressor run (several

@@ -4,11 +4,12 @@
 use crate::plant::model::model_key;
 use crate::signal::{delayed, xcorr_lag};
 
+use super::super::candidate::{Ctx, EffectKind, Proposal};
+use super::super::channel::ChannelId;
 use super::super::data::Measured;
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::minimise_1d_par;
-use super::super::residuals::ChannelId;
-use super::{Ctx, EffectKind, Proposal, MAX_LAG_S};
+use super::MAX_LAG_S;
 
 /// How far the slave force lags the master's (the paper's FFT method).
 pub fn slave_force_lag(data: &Measured) -> Option<crate::signal::Lag> {

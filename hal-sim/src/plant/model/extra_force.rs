@@ -200,6 +200,12 @@ impl ExtraForceEffect {
     pub fn coefficient(&self, term: Term) -> Option<f64> {
         self.terms.get(term.name()).copied()
     }
+
+    /// The `a` term's coefficient, kg (it changes the moving mass: `(m − c_a)·a`), if
+    /// present.
+    pub fn mass_term_kg(&self) -> Option<f64> {
+        self.coefficient(Term::A)
+    }
 }
 
 #[cfg(test)]

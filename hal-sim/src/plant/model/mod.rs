@@ -11,6 +11,7 @@
 //! a non-physical value (zero or negative where a positive quantity is meant, a port window
 //! outside one turn, …).
 
+use fpc::control::config::Machine;
 use fpc::physics::balance::PistonLaws;
 use fpc::physics::cogging::CoggingParams;
 use fpc::physics::friction::FrictionParams;
@@ -81,7 +82,7 @@ pub struct MachineModel {
 }
 
 /// A key of the model file, `section.name` (the section a dotted path such as
-/// `effects.cogging`): made by [`model_key!`] from the model's own fields, so that a
+/// `effects.cogging`): made by [`model_key!`](validate::model_key) from the model's own fields, so that a
 /// renamed field fails to compile where its key is used.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Key {
@@ -91,41 +92,12 @@ pub struct Key {
     pub name: &'static str,
 }
 
-/// A section of the model file, its dotted path: made by [`model_section!`] from the
+/// A section of the model file, its dotted path: made by [`model_section!`](validate::model_section) from the
 /// model's own fields.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SectionKey(pub &'static str);
 
-/// The typed key of the model's field at `section.path / field`: `model_key!(effects.cogging
-/// / amplitude_n)` is `effects.cogging.amplitude_n`, checked at compile time against
-/// [`MachineModel`]'s fields (through an optional section too).
-macro_rules! model_key {
-    ($($part:ident).+ / $field:ident) => {{
-        #[allow(dead_code)]
-        fn exists(m: &$crate::plant::model::MachineModel) {
-            use $crate::plant::model::validate::SectionSlot;
-            let _ = m.$($part).+.section().map(|s| &s.$field);
-        }
-        $crate::plant::model::Key {
-            section: stringify!($($part).+),
-            name: stringify!($field),
-        }
-    }};
-}
-pub(crate) use model_key;
-
-/// The typed path of the model's section at `section.path`, checked at compile time.
-macro_rules! model_section {
-    ($($part:ident).+) => {{
-        #[allow(dead_code)]
-        fn exists(m: &$crate::plant::model::MachineModel) {
-            use $crate::plant::model::validate::SectionSlot;
-            let _ = m.$($part).+.section();
-        }
-        $crate::plant::model::SectionKey(stringify!($($part).+))
-    }};
-}
-pub(crate) use model_section;
+pub(crate) use validate::{model_key, model_section};
 
 /// The largest model file read, bytes (the reference file is about 6 KB).
 pub const MAX_MODEL_BYTES: u64 = 1 << 20;
@@ -228,6 +200,53 @@ impl MachineModel {
         // The sign regularisation must stay well below the Stribeck velocity.
         f.sign_velocity_mps = f.sign_velocity_mps.min(0.05 * f.stribeck_velocity_mps);
         f
+    }
+
+    /// The machine as the controller is told it ([`fpc::control::config::Machine`]): the
+    /// values of this model the firmware's configuration follows
+    /// (`fpc::control::config::ControlConfig::for_machine`), rounded to `f32`; the friction's
+    /// sign regularisation stays the firmware's own.
+    pub fn machine(&self) -> Machine {
+        let p = &self.piston;
+        let f = self.friction();
+        let m = self.motor_sections().master;
+        let clearance = self.limits.target_head_clearance_m;
+        Machine {
+            moving_mass_kg: p.mass_kg as f32,
+            travel_m: p.travel_m as f32,
+            cylinder: Cylinder::from_bore(
+                p.bore_m as f32,
+                p.rod_m as f32,
+                p.travel_m as f32,
+                p.dead_length_a_m as f32,
+                p.dead_length_b_m as f32,
+            ),
+            friction: FrictionParams {
+                coulomb_n: f.coulomb_n as f32,
+                static_n: f.static_n as f32,
+                viscous_ns_per_m: f.viscous_ns_per_m as f32,
+                stribeck_velocity_mps: f.stribeck_velocity_mps as f32,
+                stribeck_exponent: f.stribeck_exponent as f32,
+                ..FrictionParams::<f32>::reference()
+            },
+            encoder_period_m: self.encoder.period_m as f32,
+            motor: MotorParams {
+                force_constant_n_per_a: m.force_constant_n_per_a as f32,
+                resistance_ohm: m.resistance_ohm as f32,
+                inductance_h: m.inductance_h as f32,
+                electrical_period_m: (2.0 * self.motor.pole_pitch_m) as f32,
+                bus_voltage_v: m.bus_voltage_v as f32,
+                current_limit_a: m.current_limit_a as f32,
+            },
+            servo_inertia_kgm2: self.servo.inertia_kgm2 as f32,
+            servo_torque_full_scale_nm: self.servo.torque_full_scale_nm as f32,
+            servo_counts_per_rev: self.servo.counts_per_rev,
+            target_clearance_m: clearance as f32,
+            // The dead points at the target clearance from each head of this model's travel.
+            dead_points_m: (clearance as f32, (p.travel_m - clearance) as f32),
+            force_limit_n: self.limits.force_limit_n as f32,
+            max_speed_mps: self.limits.max_speed_mps as f32,
+        }
     }
 
     /// The port geometry (`[effects.port_restriction]` not included: see

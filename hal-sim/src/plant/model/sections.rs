@@ -256,9 +256,10 @@ checks!(Lines {
 
 impl Default for Lines {
     fn default() -> Self {
+        use fpc::reference::lines;
         Lines {
-            suction_pa: 1.0e5,
-            pressure_ratio: 3.1,
+            suction_pa: lines::SUCTION_PA,
+            pressure_ratio: lines::PRESSURE_RATIO,
         }
     }
 }
@@ -298,15 +299,16 @@ checks!(Servo {
 
 impl Default for Servo {
     fn default() -> Self {
+        use fpc::reference::servo;
         Servo {
-            inertia_kgm2: 2e-3,
-            viscous_nms_per_rad: 1e-3,
-            coulomb_nm: 0.05,
-            torque_full_scale_nm: 20.0,
-            torque_limit_nm: 20.0,
-            torque_time_constant_s: 2e-4,
-            backlash_rad: 2e-3,
-            counts_per_rev: 4096,
+            inertia_kgm2: servo::INERTIA_KGM2,
+            viscous_nms_per_rad: servo::VISCOUS_NMS_PER_RAD,
+            coulomb_nm: servo::COULOMB_NM,
+            torque_full_scale_nm: servo::TORQUE_FULL_SCALE_NM,
+            torque_limit_nm: servo::TORQUE_LIMIT_NM,
+            torque_time_constant_s: servo::TORQUE_TIME_CONSTANT_S,
+            backlash_rad: servo::BACKLASH_RAD,
+            counts_per_rev: servo::COUNTS_PER_REV,
         }
     }
 }
@@ -358,16 +360,17 @@ checks!(Supply {
 
 impl Default for Supply {
     fn default() -> Self {
+        use fpc::reference::supply;
         Supply {
-            link_capacitance_f: 2.0e-3,
-            chopper_voltage_v: 750.0,
-            power_good_voltage_v: 500.0,
-            logic_dropout_voltage_v: 150.0,
-            logic_power_w: 40.0,
-            servo_efficiency: 0.85,
-            bridge_forward_voltage_v: 1.0,
-            bridge_on_resistance_ohm: 0.02,
-            bridge_switching_energy_j_per_va: 2.0e-7,
+            link_capacitance_f: supply::LINK_CAPACITANCE_F,
+            chopper_voltage_v: supply::CHOPPER_VOLTAGE_V,
+            power_good_voltage_v: supply::POWER_GOOD_VOLTAGE_V,
+            logic_dropout_voltage_v: supply::LOGIC_DROPOUT_VOLTAGE_V,
+            logic_power_w: supply::LOGIC_POWER_W,
+            servo_efficiency: supply::SERVO_EFFICIENCY,
+            bridge_forward_voltage_v: supply::BRIDGE_FORWARD_VOLTAGE_V,
+            bridge_on_resistance_ohm: supply::BRIDGE_ON_RESISTANCE_OHM,
+            bridge_switching_energy_j_per_va: supply::BRIDGE_SWITCHING_ENERGY_J_PER_VA,
         }
     }
 }
@@ -519,11 +522,12 @@ checks!(Limits {
 
 impl Default for Limits {
     fn default() -> Self {
+        use fpc::reference::limits;
         Limits {
-            target_head_clearance_m: 1.0e-3,
-            min_head_clearance_m: 0.3e-3,
-            force_limit_n: 10_000.0,
-            max_speed_mps: 4.5,
+            target_head_clearance_m: limits::TARGET_HEAD_CLEARANCE_M,
+            min_head_clearance_m: limits::MIN_HEAD_CLEARANCE_M,
+            force_limit_n: limits::FORCE_LIMIT_N,
+            max_speed_mps: limits::MAX_SPEED_MPS,
         }
     }
 }
@@ -543,7 +547,7 @@ checks!(Simulation {
 impl Default for Simulation {
     fn default() -> Self {
         Simulation {
-            substeps_per_period: 1,
+            substeps_per_period: fpc::reference::simulation::SUBSTEPS_PER_PERIOD,
         }
     }
 }
@@ -784,52 +788,55 @@ checks!(Published {
 
 impl Default for Published {
     fn default() -> Self {
+        use fpc::reference::published as p;
         Published {
-            cycle_s: 1.0e-4,
-            slave_lag_s: 0.75e-3,
-            position_gain_per_s: 100.0,
-            velocity_gain_ns_per_m: 8000.0,
-            velocity_integral_time_s: 10e-3,
-            velocity_feedforward: 1.0,
-            velocity_filter_s: 0.0,
-            loop_velocity_delay_s: 0.0,
-            reported_velocity_delay_s: 8.5e-3,
-            current_bandwidth_hz: 1000.0,
-            rest_s: 0.25,
-            current_limit_a: 0.0,
-            profile_ramp_fraction: 0.5,
+            cycle_s: p::CYCLE_S,
+            slave_lag_s: p::SLAVE_LAG_S,
+            position_gain_per_s: p::POSITION_GAIN_PER_S,
+            velocity_gain_ns_per_m: p::VELOCITY_GAIN_NS_PER_M,
+            velocity_integral_time_s: p::VELOCITY_INTEGRAL_TIME_S,
+            velocity_feedforward: p::VELOCITY_FEEDFORWARD,
+            velocity_filter_s: p::VELOCITY_FILTER_S,
+            loop_velocity_delay_s: p::LOOP_VELOCITY_DELAY_S,
+            reported_velocity_delay_s: p::REPORTED_VELOCITY_DELAY_S,
+            current_bandwidth_hz: p::CURRENT_BANDWIDTH_HZ,
+            rest_s: p::REST_S,
+            current_limit_a: p::CURRENT_LIMIT_A,
+            profile_ramp_fraction: p::PROFILE_RAMP_FRACTION,
         }
     }
 }
 
-/// Defaults of the optional keys in the required sections (reference machine).
+/// Defaults of the optional keys in the required sections: the reference machine's
+/// (`reference.toml`, generated into `fpc::reference`).
 mod d {
+    use fpc::reference::{effects, gas, motor, piston};
     pub fn stop_stiffness() -> f64 {
-        5.0e7 // A: steel head with a polymer bumper
+        piston::STOP_STIFFNESS_N_PER_M
     }
     pub fn stop_damping() -> f64 {
-        2.0e4 // A
+        piston::STOP_DAMPING_NS_PER_M
     }
     pub fn viscosity() -> f64 {
-        1.8e-5 // air at 20 °C
+        gas::VISCOSITY_PA_S
     }
     pub fn force_constant() -> f64 {
-        80.0 // A: 5 kN peak at 62.5 A
+        motor::FORCE_CONSTANT_N_PER_A
     }
     pub fn resistance() -> f64 {
-        0.6 // A
+        motor::RESISTANCE_OHM
     }
     pub fn inductance() -> f64 {
-        6e-3 // A
+        motor::INDUCTANCE_H
     }
     pub fn bus_voltage() -> f64 {
-        560.0 // A
+        motor::BUS_VOLTAGE_V
     }
     pub fn current_limit() -> f64 {
-        62.5 // A
+        motor::CURRENT_LIMIT_A
     }
     pub fn rod_seal_length() -> f64 {
-        0.03 // A
+        effects::leakage::ROD_SEAL_LENGTH_M
     }
     pub fn one() -> f64 {
         1.0

@@ -127,6 +127,37 @@ impl<T: Checked> SectionSlot for Option<T> {
     }
 }
 
+/// The typed key of the model's field at `section.path / field`: `model_key!(effects.cogging
+/// / amplitude_n)` is `effects.cogging.amplitude_n`, checked at compile time against
+/// [`MachineModel`]'s fields (through an optional section too).
+macro_rules! model_key {
+    ($($part:ident).+ / $field:ident) => {{
+        #[allow(dead_code)]
+        fn exists(m: &$crate::plant::model::MachineModel) {
+            use $crate::plant::model::validate::SectionSlot;
+            let _ = m.$($part).+.section().map(|s| &s.$field);
+        }
+        $crate::plant::model::Key {
+            section: stringify!($($part).+),
+            name: stringify!($field),
+        }
+    }};
+}
+pub(crate) use model_key;
+
+/// The typed path of the model's section at `section.path`, checked at compile time.
+macro_rules! model_section {
+    ($($part:ident).+) => {{
+        #[allow(dead_code)]
+        fn exists(m: &$crate::plant::model::MachineModel) {
+            use $crate::plant::model::validate::SectionSlot;
+            let _ = m.$($part).+.section();
+        }
+        $crate::plant::model::SectionKey(stringify!($($part).+))
+    }};
+}
+pub(crate) use model_section;
+
 /// A section's rules and ranges next to its struct: `checks!(Type { key: rule, lo, hi,
 /// "unit"; … })`. The keys are the struct's fields (a renamed field fails to compile).
 macro_rules! checks {
@@ -322,7 +353,7 @@ impl MachineModel {
         if let Some(e) = &self.effects.extra_force {
             e.parsed().map_err(ModelError)?;
             // The `a` term changes the moving mass (`(m − c_a)·a`): it must leave a mass.
-            let c_a = e.coefficient(super::extra_force::Term::A).unwrap_or(0.0);
+            let c_a = e.mass_term_kg().unwrap_or(0.0);
             if c_a >= 0.5 * self.piston.mass_kg {
                 return Err(ModelError(format!(
                     "`effects.extra_force.terms.\"a\"` = {} kg leaves less than half of \
@@ -362,6 +393,24 @@ impl MachineModel {
     /// The model as a whole: values that are each in range but make no machine together.
     /// The rules are listed in [`CONSISTENCY_RULES`].
     fn check_consistency(&self) -> Result<(), ModelError> {
+        self.check_geometry()?;
+        self.check_supply()?;
+        let p = &self.piston;
+        if self.encoder.period_m > p.travel_m {
+            return Err(ModelError(format!(
+                "`encoder.period_m` = {} m is longer than `piston.travel_m` = {} m",
+                num(self.encoder.period_m),
+                num(p.travel_m)
+            )));
+        }
+        self.check_motor_force()?;
+        self.check_ports()?;
+        self.check_sensor_ranges()
+    }
+
+    /// The piston: its rod thinner than its bore, each dead length shorter than the travel,
+    /// and a stroke left at least as long as the dead lengths and clearances take.
+    fn check_geometry(&self) -> Result<(), ModelError> {
         let p = &self.piston;
         let l = &self.limits;
         let fail = |m: String| Err(ModelError(m));
@@ -393,6 +442,12 @@ impl MachineModel {
                 num(2.0 * reserved)
             ));
         }
+        Ok(())
+    }
+
+    /// The DC link's thresholds in order: logic dropout < power good < bus < chopper, V.
+    fn check_supply(&self) -> Result<(), ModelError> {
+        let fail = |m: String| Err(ModelError(m));
         let su = &self.supply;
         let bus_v = self.motor.bus_voltage_v;
         if !(su.logic_dropout_voltage_v < su.power_good_voltage_v
@@ -409,13 +464,14 @@ impl MachineModel {
                 num(su.chopper_voltage_v)
             ));
         }
-        if self.encoder.period_m > p.travel_m {
-            return fail(format!(
-                "`encoder.period_m` = {} m is longer than `piston.travel_m` = {} m",
-                num(self.encoder.period_m),
-                num(p.travel_m)
-            ));
-        }
+        Ok(())
+    }
+
+    /// One section's peak force, N, above what it must overcome: twice the cogging amplitude
+    /// (and the force limit too), and every friction force.
+    fn check_motor_force(&self) -> Result<(), ModelError> {
+        let l = &self.limits;
+        let fail = |m: String| Err(ModelError(m));
         // One section's peak force: what the motor can hold against friction and cogging.
         let m = &self.motor;
         let peak_force = m.force_constant_n_per_a * m.current_limit_a;
@@ -457,7 +513,13 @@ impl MachineModel {
                 ));
             }
         }
-        self.check_ports()?;
+        Ok(())
+    }
+
+    /// The sensors' ranges: each encoder's swing within the 12-bit ADC, the discharge
+    /// pressure within the pressure sensors' full scale.
+    fn check_sensor_ranges(&self) -> Result<(), ModelError> {
+        let fail = |m: String| Err(ModelError(m));
         for (name, e) in [
             ("encoder_master", &self.sensors.encoder_master),
             ("encoder_slave", &self.sensors.encoder_slave),
