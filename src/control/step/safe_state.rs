@@ -231,7 +231,7 @@ impl Stop {
         self.brake = FaultedBrake::AfterReset((RESET_FIT_SAMPLES - 1) as u16);
     }
 
-    /// Both encoders lost (`docs/faults.md` #22) or the supply lost (#24): nothing tells
+    /// Both encoders lost or the supply lost (`docs/faults.md` #22, #24): nothing tells
     /// where the piston is, so nothing can commutate a braking force. The reaction, chosen
     /// by simulation over the whole stroke cycle (`docs/firmware.md`, "Both encoders lost"):
     ///
