@@ -148,11 +148,7 @@ fn simulate_replaying(
     let summary = Summary {
         sim_time_s,
         wall_time_s: wall,
-        realtime_factor: if wall > 0.0 {
-            sim_time_s / wall
-        } else {
-            f64::INFINITY
-        },
+        realtime_factor: super::summary::realtime_factor(sim_time_s, wall),
         cycles: 0,
         cycles_requested: 0,
         stopped_early: None,

@@ -7,7 +7,7 @@ use fpc::units::CONTROL_PERIOD_S;
 use super::figures::{
     discharge_opening, electrical_per_cycle, indicated_work, last_max, PaperFigures,
 };
-use super::summary::Summary;
+use super::summary::{realtime_factor, Summary};
 use super::RunOptions;
 use crate::board::world::World;
 use crate::failure::num;
@@ -187,11 +187,7 @@ impl Metrics {
         Summary {
             sim_time_s,
             wall_time_s: wall,
-            realtime_factor: if wall > 0.0 {
-                sim_time_s / wall
-            } else {
-                f64::INFINITY
-            },
+            realtime_factor: realtime_factor(sim_time_s, wall),
             cycles: cycles_done,
             cycles_requested: opts.cycles,
             stopped_early: self.stopped_early(opts, end),

@@ -3,6 +3,16 @@
 
 use serde::Serialize;
 
+/// Simulated seconds per wall second of `sim_time_s` simulated in `wall_s` (infinite for a
+/// wall time the clock could not resolve).
+pub fn realtime_factor(sim_time_s: f64, wall_s: f64) -> f64 {
+    if wall_s > 0.0 {
+        sim_time_s / wall_s
+    } else {
+        f64::INFINITY
+    }
+}
+
 /// The JSON summary of a run (`docs/formats.md` §3). `None` is printed as `null`: a figure that
 /// this simulation cannot yet produce is never invented.
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
