@@ -7,7 +7,7 @@ use std::collections::VecDeque;
 
 use fpc::units::CONTROL_PERIOD_S;
 
-use super::spectrum::{line_in, LINE_BAND_HZ, MIN_SAMPLES};
+use super::spectrum::{Spectrum, LINE_BAND_HZ, MIN_SAMPLES};
 use crate::plant::dynamics::Plant;
 
 /// Half-width of the window around a dead point in which the force difference counts, s.
@@ -171,10 +171,13 @@ impl PaperFigures {
         let dt = f64::from(CONTROL_PERIOD_S);
         let stroke: Vec<f64> = self.stroke_err.into_iter().collect();
         let rest: Vec<f64> = self.rest_err.into_iter().collect();
-        let line = line_in(&stroke, dt, LINE_BAND_HZ);
-        let rest_line = line_in(&rest, dt, LINE_BAND_HZ);
-        let wide = line_in(&stroke, dt, WIDE_BAND_HZ);
-        let rest_wide = line_in(&rest, dt, WIDE_BAND_HZ);
+        // One spectrum of each record, searched in both bands.
+        let stroke = Spectrum::of(&stroke, dt);
+        let rest = Spectrum::of(&rest, dt);
+        let line = stroke.as_ref().and_then(|s| s.line_in(LINE_BAND_HZ));
+        let rest_line = rest.as_ref().and_then(|s| s.line_in(LINE_BAND_HZ));
+        let wide = stroke.as_ref().and_then(|s| s.line_in(WIDE_BAND_HZ));
+        let rest_wide = rest.as_ref().and_then(|s| s.line_in(WIDE_BAND_HZ));
         Figures {
             dead_point_force_diff_n: last(&self.dead_point_diffs),
             force_diff_rms_fraction: (self.total_sq > 0.0)

@@ -73,30 +73,48 @@ pub fn amplitude_spectrum(x: &[f64], dt_s: f64) -> Vec<(f64, f64)> {
 /// The largest line of `x` (sampled every `dt_s`) in `band` and the floor, or `None` for a
 /// record shorter than [`MIN_SAMPLES`].
 pub fn line_in(x: &[f64], dt_s: f64, band: (f64, f64)) -> Option<Line> {
-    if x.len() < MIN_SAMPLES {
-        return None;
-    }
-    let spec = amplitude_spectrum(x, dt_s);
-    let df = spec.get(1).map_or(1.0, |b| b.0);
-    let half = (FLOOR_HALF_WIDTH_HZ / df).round().max(2.0) as usize;
-    let gap = (LINE_HALF_WIDTH_HZ / df).round().min(half as f64 - 1.0) as usize;
-    let mut around = Neighbourhood::default();
-    spec.iter()
-        .enumerate()
-        .filter(|(_, (f, _))| (band.0..=band.1).contains(f))
-        .filter_map(|(k, &(hz, amplitude))| {
-            let below = k.saturating_sub(half)..k.saturating_sub(gap);
-            let above = (k + gap + 1).min(spec.len())..(k + half + 1).min(spec.len());
-            spec.get(below.clone())?;
-            spec.get(above.clone())?;
-            around.move_to(&spec, below, above);
-            Some(Line {
-                hz,
-                amplitude,
-                floor: around.median()?,
-            })
+    Spectrum::of(x, dt_s)?.line_in(band)
+}
+
+/// The amplitude spectrum of one record ([`amplitude_spectrum`]), taken once and searched
+/// band by band.
+pub struct Spectrum {
+    bins: Vec<(f64, f64)>,
+}
+
+impl Spectrum {
+    /// The spectrum of `x` sampled every `dt_s`, or `None` for a record shorter than
+    /// [`MIN_SAMPLES`].
+    pub fn of(x: &[f64], dt_s: f64) -> Option<Self> {
+        (x.len() >= MIN_SAMPLES).then(|| Spectrum {
+            bins: amplitude_spectrum(x, dt_s),
         })
-        .max_by(|a, b| a.prominence().total_cmp(&b.prominence()))
+    }
+
+    /// The bin of `band` that stands highest above its floor, and that floor.
+    pub fn line_in(&self, band: (f64, f64)) -> Option<Line> {
+        let spec = &self.bins;
+        let df = spec.get(1).map_or(1.0, |b| b.0);
+        let half = (FLOOR_HALF_WIDTH_HZ / df).round().max(2.0) as usize;
+        let gap = (LINE_HALF_WIDTH_HZ / df).round().min(half as f64 - 1.0) as usize;
+        let mut around = Neighbourhood::default();
+        spec.iter()
+            .enumerate()
+            .filter(|(_, (f, _))| (band.0..=band.1).contains(f))
+            .filter_map(|(k, &(hz, amplitude))| {
+                let below = k.saturating_sub(half)..k.saturating_sub(gap);
+                let above = (k + gap + 1).min(spec.len())..(k + half + 1).min(spec.len());
+                spec.get(below.clone())?;
+                spec.get(above.clone())?;
+                around.move_to(spec, below, above);
+                Some(Line {
+                    hz,
+                    amplitude,
+                    floor: around.median()?,
+                })
+            })
+            .max_by(|a, b| a.prominence().total_cmp(&b.prominence()))
+    }
 }
 
 /// A bin's neighbourhood for its floor: the amplitudes of the bins `below` and `above` it,
