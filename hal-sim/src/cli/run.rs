@@ -254,9 +254,17 @@ fn write_outputs(
     outcome: &crate::run::RunOutcome,
     telemetry: Option<&OutFile>,
 ) -> CmdResult {
-    plot_motion(out.path("motion.svg").as_path(), &outcome.log).map_err(Failure::runtime)?;
-    plot_pv(out.path("pv.svg").as_path(), &outcome.log).map_err(Failure::runtime)?;
-    plot_energy(out.path("energy.svg").as_path(), outcome).map_err(Failure::runtime)?;
+    // The three plots are independent: drawn side by side, the first failure reported.
+    let (motion, (pv, energy)) = rayon::join(
+        || plot_motion(out.path("motion.svg").as_path(), &outcome.log),
+        || {
+            rayon::join(
+                || plot_pv(out.path("pv.svg").as_path(), &outcome.log),
+                || plot_energy(out.path("energy.svg").as_path(), outcome),
+            )
+        },
+    );
+    motion.and(pv).and(energy).map_err(Failure::runtime)?;
     // The summary beside the files it describes, as `--json` prints it.
     let summary_path = out.path("summary.json");
     let summary_text = serde_json::to_string_pretty(&outcome.summary)
