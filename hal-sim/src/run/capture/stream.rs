@@ -22,9 +22,9 @@ use crate::runlog::RunLog;
 /// Halved as soon as it is outgrown, so a chunk's rows are kept only at the stride in force.
 pub const KEPT_ROWS: usize = 1 << 13;
 
-/// Bytes of CSV text handed to the writer at a time (above a `BufWriter`'s 1 MiB, so it
-/// goes straight through).
-const WRITE_BYTES: usize = 1 << 20;
+/// Bytes of CSV text handed on at a time (a chunk's text is one or two such pieces; each
+/// buffer in flight is this size, so few fresh pages are touched).
+const WRITE_BYTES: usize = 1 << 18;
 
 /// Chunks waiting for the maker beyond the one it is making: the loop waits when it is that
 /// far ahead, so the rows in flight stay a few chunks.
