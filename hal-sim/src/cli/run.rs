@@ -255,15 +255,13 @@ fn write_outputs(
     telemetry: Option<&OutFile>,
 ) -> CmdResult {
     // The three plots are independent: drawn side by side, the first failure reported.
-    let (motion, (pv, energy)) = rayon::join(
-        || plot_motion(out.path("motion.svg").as_path(), &outcome.log),
-        || {
-            rayon::join(
-                || plot_pv(out.path("pv.svg").as_path(), &outcome.log),
-                || plot_energy(out.path("energy.svg").as_path(), outcome),
-            )
-        },
-    );
+    let (motion, pv, energy) = std::thread::scope(|s| {
+        let pv = s.spawn(|| plot_pv(out.path("pv.svg").as_path(), &outcome.log));
+        let motion = plot_motion(out.path("motion.svg").as_path(), &outcome.log);
+        let energy = plot_energy(out.path("energy.svg").as_path(), outcome);
+        let pv = pv.join().unwrap_or_else(|_| Err("pv.svg: the plot failed".into()));
+        (motion, pv, energy)
+    });
     motion.and(pv).and(energy).map_err(Failure::runtime)?;
     // The summary beside the files it describes, as `--json` prints it.
     let summary_path = out.path("summary.json");
