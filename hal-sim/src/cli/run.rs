@@ -259,7 +259,9 @@ fn write_outputs(
         let pv = s.spawn(|| plot_pv(out.path("pv.svg").as_path(), &outcome.log));
         let motion = plot_motion(out.path("motion.svg").as_path(), &outcome.log);
         let energy = plot_energy(out.path("energy.svg").as_path(), outcome);
-        let pv = pv.join().unwrap_or_else(|_| Err("pv.svg: the plot failed".into()));
+        let pv = pv
+            .join()
+            .unwrap_or_else(|_| Err("pv.svg: the plot failed".into()));
         (motion, pv, energy)
     });
     motion.and(pv).and(energy).map_err(Failure::runtime)?;

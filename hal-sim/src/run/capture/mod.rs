@@ -12,7 +12,7 @@ use fpc::units::CONTROL_PERIOD_S;
 use crate::board::world::World;
 use crate::runlog::RunLog;
 use row::{fill_columns, CapturedRow};
-use stream::{Chunk, Stream};
+use stream::Stream;
 
 /// The run log as the loop records it, made into [`COLUMNS`](super::COLUMNS) after the loop (with the CSV),
 /// or chunk by chunk into the CSV while it runs ([`run_streamed`]).
@@ -111,10 +111,9 @@ impl<'s> Capture<'s> {
         let Some(s) = self.stream.as_mut() else {
             return;
         };
-        let rows = std::mem::replace(&mut self.rows, s.rows_buffer(STREAM_CHUNK_ROWS));
         let in_force = self.lines.last().map(|&(_, su, di)| (0, su, di));
         let lines = std::mem::replace(&mut self.lines, in_force.into_iter().collect());
-        s.send(Chunk { rows, lines }, ports);
+        s.send(&mut self.rows, lines, ports);
     }
 
     /// Wall time spent writing the streamed CSV so far, s.

@@ -6,7 +6,7 @@
 //! into pieces: the rows are formatted in order by one maker.
 
 use std::io::Write;
-use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
+use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender, TrySendError};
 use std::thread::JoinHandle;
 use std::time::Instant;
 
@@ -25,6 +25,11 @@ pub const KEPT_ROWS: usize = 1 << 13;
 /// Bytes of CSV text handed on at a time (a chunk's text is one or two such pieces; each
 /// buffer in flight is this size, so few fresh pages are touched).
 const WRITE_BYTES: usize = 1 << 18;
+
+/// Text buffers ([`WRITE_BYTES`] each) the maker uses at most: a chunk far longer than
+/// usual (the rows held back until the head is known) reuses them rather than touching
+/// fresh pages for all its text.
+const TEXT_BUFFERS: usize = 3;
 
 /// Chunks waiting for the maker beyond the one it is making: the loop waits when it is that
 /// far ahead, so the rows in flight stay a few chunks.
@@ -109,22 +114,21 @@ impl<'s> Stream<'s> {
         self.head_written
     }
 
-    /// A buffer for the next chunk's rows (one the maker is done with, or a new one of
-    /// `capacity`).
-    pub fn rows_buffer(&mut self, capacity: usize) -> Vec<CapturedRow> {
-        self.spare_rows
-            .pop()
-            .unwrap_or_else(|| Vec::with_capacity(capacity))
-    }
-
     /// Wall time the loop's thread spent on the log so far, s.
     pub fn writing_s(&self) -> f64 {
         self.writing_s
     }
 
-    /// Writes the head (with `more_meta` after the log's metadata) if it is not out yet, and
-    /// hands `chunk` to the maker; writes the text it has made so far.
-    pub fn send(&mut self, chunk: Chunk, more_meta: Vec<(String, String)>) {
+    /// Writes the head (with `more_meta` after the log's metadata) if it is not out yet and
+    /// the text made so far, and hands the maker the chunk of `rows` (left with an empty
+    /// buffer for the next chunk, one the maker is done with when there is one) and `lines`
+    /// (their line pressures' changes, [`Chunk::lines`]).
+    pub fn send(
+        &mut self,
+        rows: &mut Vec<CapturedRow>,
+        lines: Vec<(usize, f64, f64)>,
+        more_meta: Vec<(String, String)>,
+    ) {
         let started = Instant::now();
         if !self.head_written {
             self.head_written = true;
@@ -133,6 +137,30 @@ impl<'s> Stream<'s> {
             self.head.head_to_csv(&mut head);
             self.write(head.as_bytes());
         }
+        // What is made is taken before the chunk goes: its buffers are back before the
+        // maker needs them.
+        if let Maker::Thread {
+            made, spare_text, ..
+        } = &self.maker
+        {
+            while let Ok(m) = made.try_recv() {
+                take(
+                    m,
+                    self.out,
+                    &mut self.error,
+                    spare_text,
+                    &mut self.spare_rows,
+                );
+            }
+        }
+        let next = self
+            .spare_rows
+            .pop()
+            .unwrap_or_else(|| Vec::with_capacity(rows.capacity()));
+        let mut chunk = Chunk {
+            rows: std::mem::replace(rows, next),
+            lines,
+        };
         match &mut self.maker {
             Maker::Thread {
                 chunks,
@@ -140,16 +168,24 @@ impl<'s> Stream<'s> {
                 spare_text,
                 ..
             } => {
-                // A maker that is gone has panicked: `finish` reports it.
-                let _ = chunks.send(chunk);
-                while let Ok(m) = made.try_recv() {
-                    take(
-                        m,
-                        self.out,
-                        &mut self.error,
-                        spare_text,
-                        &mut self.spare_rows,
-                    );
+                // While the maker's queue is full, what it makes is taken (it may be waiting
+                // for a text buffer back). A maker that is gone has panicked: `finish`
+                // reports it.
+                loop {
+                    match chunks.try_send(chunk) {
+                        Err(TrySendError::Full(c)) => chunk = c,
+                        Ok(()) | Err(TrySendError::Disconnected(_)) => break,
+                    }
+                    match made.recv() {
+                        Ok(m) => take(
+                            m,
+                            self.out,
+                            &mut self.error,
+                            spare_text,
+                            &mut self.spare_rows,
+                        ),
+                        Err(_) => break,
+                    }
                 }
             }
             Maker::Inline { decimated, text } => {
@@ -249,10 +285,20 @@ impl Maker {
             .name("run-log text".into())
             .spawn(move || {
                 let mut decimated = Decimated::new();
-                let fresh = |spare: &Receiver<text::Line>| {
-                    spare
-                        .try_recv()
-                        .unwrap_or_else(|_| text::Line::with_room(WRITE_BYTES))
+                // At most TEXT_BUFFERS buffers: past that, one is waited for (the loop's
+                // thread takes what is made whenever the queue is full, and at the end).
+                let mut buffers = 0;
+                let mut fresh = |spare: &Receiver<text::Line>| {
+                    if let Ok(t) = spare.try_recv() {
+                        return t;
+                    }
+                    if buffers >= TEXT_BUFFERS {
+                        if let Ok(t) = spare.recv() {
+                            return t;
+                        }
+                    }
+                    buffers += 1;
+                    text::Line::with_room(WRITE_BYTES)
                 };
                 // Sends fail only when the stream was dropped unfinished: nobody is waiting.
                 for chunk in chunk_in {
@@ -366,17 +412,22 @@ mod tests {
         log.meta.push(("model".into(), "test".into()));
         let mut out = Vec::new();
         let mut s = Stream::with_maker(&mut out, &log, maker);
-        let rows_per_chunk = 3000;
+        // The first chunk long (rows held back for the head): more text than the maker's
+        // buffers hold.
+        let length = |c: usize| if c == 0 { 20_000 } else { 3000 };
+        let mut first = 0;
         for c in 0..chunks {
-            let first = c * rows_per_chunk;
-            let rows = (first..first + rows_per_chunk)
+            let rows_per_chunk = length(c);
+            let mut rows = (first..first + rows_per_chunk)
                 .map(|k| CapturedRow::synthetic(k as u32))
                 .collect();
             let lines = vec![
                 (0, 1e5 + c as f64, 3e5),
                 (rows_per_chunk / 3, 1e5 + c as f64 + 0.5, 3.1e5),
             ];
-            s.send(Chunk { rows, lines }, vec![("ports".into(), "open".into())]);
+            s.send(&mut rows, lines, vec![("ports".into(), "open".into())]);
+            assert!(rows.is_empty());
+            first += rows_per_chunk;
         }
         let kept = s.finish().unwrap();
         (out, kept)
@@ -384,10 +435,15 @@ mod tests {
 
     #[test]
     fn the_text_and_the_kept_rows_are_the_same_on_the_makers_thread_and_inline() {
-        // 12 chunks of 3000 rows: several 1 MiB pieces and the kept copy halved twice.
+        // 12 chunks: many text pieces, more than the maker's buffers at once, and the kept
+        // copy halved three times.
         let (threaded, kept_t) = stream(Maker::start(), 12);
         let (inline, kept_i) = stream(Maker::inline(), 12);
-        assert!(threaded.len() > 3 * WRITE_BYTES, "{} bytes", threaded.len());
+        assert!(
+            threaded.len() > 12 * WRITE_BYTES,
+            "{} bytes",
+            threaded.len()
+        );
         assert!(threaded == inline, "the two makers' texts differ");
         assert_eq!(kept_t.columns, kept_i.columns);
         assert_eq!(kept_t.meta, kept_i.meta);
@@ -400,11 +456,11 @@ mod tests {
             .filter(|l| !l.starts_with('#'))
             .skip(1)
             .collect();
-        assert_eq!(rows.len(), 12 * 3000);
+        assert_eq!(rows.len(), 20_000 + 11 * 3000);
         let cycle = |l: &str| l.split(',').next().unwrap().parse::<f64>().unwrap();
         assert!(rows.windows(2).all(|w| cycle(w[1]) > cycle(w[0])));
         // The line pressures change where the chunk says.
         assert!(rows[0].ends_with(",100000,300000"), "{}", rows[0]);
-        assert!(rows[1000].ends_with(",100000.5,310000"), "{}", rows[1000]);
+        assert!(rows[7000].ends_with(",100000.5,310000"), "{}", rows[7000]);
     }
 }
