@@ -171,21 +171,16 @@ impl<'s> Stream<'s> {
                 // While the maker's queue is full, what it makes is taken (it may be waiting
                 // for a text buffer back). A maker that is gone has panicked: `finish`
                 // reports it.
-                loop {
-                    match chunks.try_send(chunk) {
-                        Err(TrySendError::Full(c)) => chunk = c,
-                        Ok(()) | Err(TrySendError::Disconnected(_)) => break,
-                    }
-                    match made.recv() {
-                        Ok(m) => take(
-                            m,
-                            self.out,
-                            &mut self.error,
-                            spare_text,
-                            &mut self.spare_rows,
-                        ),
-                        Err(_) => break,
-                    }
+                while let Err(TrySendError::Full(c)) = chunks.try_send(chunk) {
+                    chunk = c;
+                    let Ok(m) = made.recv() else { break };
+                    take(
+                        m,
+                        self.out,
+                        &mut self.error,
+                        spare_text,
+                        &mut self.spare_rows,
+                    );
                 }
             }
             Maker::Inline { decimated, text } => {
