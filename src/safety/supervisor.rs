@@ -231,9 +231,13 @@ impl Supervisor {
             let mut lost = false;
             for section in Section::ALL {
                 let (cmd, got) = (*o.commanded_n.get(section), *o.delivered_n.get(section));
-                // A section that delivers far less than asked, in the asked direction.
+                // A section that delivers far less than asked, in the asked direction. The
+                // delivered force along the command, `got·sgn(cmd)`, by a sign flip on the
+                // command's sign bit (the same for every non-NaN `cmd`; a NaN one is never
+                // short: its `abs()` compares false).
+                let along = if cmd.is_sign_negative() { -got } else { got };
                 let short = cmd.abs() > c.section_shortfall_n
-                    && (got * cmd.signum()) < cmd.abs() - c.section_shortfall_n;
+                    && along < cmd.abs() - c.section_shortfall_n;
                 let s = self.section_s.get_mut(section);
                 *s = persist(*s, short, o.dt_s);
                 if *s >= c.section_time_s && !lost {
