@@ -236,8 +236,8 @@ impl Supervisor {
                 // command's sign bit (the same for every non-NaN `cmd`; a NaN one is never
                 // short: its `abs()` compares false).
                 let along = if cmd.is_sign_negative() { -got } else { got };
-                let short = cmd.abs() > c.section_shortfall_n
-                    && along < cmd.abs() - c.section_shortfall_n;
+                let short =
+                    cmd.abs() > c.section_shortfall_n && along < cmd.abs() - c.section_shortfall_n;
                 let s = self.section_s.get_mut(section);
                 *s = persist(*s, short, o.dt_s);
                 if *s >= c.section_time_s && !lost {
