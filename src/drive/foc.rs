@@ -122,6 +122,7 @@ impl CurrentController {
     /// motional cross-coupling `ω_e·L·i` and the back-EMF `K_e·v`) puts the steady-state
     /// voltage in directly, so the integrator only trims model error and a saturated step
     /// settles at the fast closed-loop pole instead.
+    #[inline(always)]
     pub fn step(
         &mut self,
         phase_a: [f32; 3],
