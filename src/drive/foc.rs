@@ -81,8 +81,13 @@ pub struct FocState {
 pub struct CurrentController {
     gains: CurrentLoopGains,
     motor: MotorParams<f32>,
-    sample_time_s: f32,
+    /// The integral gain times the sample time, V/A, and the back-EMF constant, V·s/m:
+    /// products the step would otherwise form every cycle, taken once (the same values).
+    ki_dt_v_per_a: f32,
+    back_emf_v_per_mps: f32,
     voltage_limit_v: f32,
+    /// The voltage limit squared, V² (the step compares squares).
+    voltage_limit_sq_v2: f32,
     /// 1/V_dc, precomputed (a division per cycle saved).
     inv_bus_voltage: f32,
     integral: Dq<f32>,
@@ -95,8 +100,10 @@ impl CurrentController {
         CurrentController {
             gains,
             motor: *motor,
-            sample_time_s,
+            ki_dt_v_per_a: gains.ki_v_per_as * sample_time_s,
+            back_emf_v_per_mps: motor.back_emf_v_per_mps(),
             voltage_limit_v: motor.voltage_limit_v(),
+            voltage_limit_sq_v2: motor.voltage_limit_v() * motor.voltage_limit_v(),
             inv_bus_voltage: 1.0 / motor.bus_voltage_v,
             integral: Dq::default(),
             state: FocState::default(),
@@ -122,6 +129,7 @@ impl CurrentController {
     /// motional cross-coupling `ω_e·L·i` and the back-EMF `K_e·v`) puts the steady-state
     /// voltage in directly, so the integrator only trims model error and a saturated step
     /// settles at the fast closed-loop pole instead.
+    #[inline(always)]
     pub fn step(
         &mut self,
         phase_a: [f32; 3],
@@ -141,10 +149,10 @@ impl CurrentController {
             d: m.resistance_ohm * reference.d - we_l * reference.q,
             q: m.resistance_ohm * reference.q
                 + we_l * reference.d
-                + m.back_emf_v_per_mps() * velocity_mps,
+                + self.back_emf_v_per_mps * velocity_mps,
         };
         let kp = self.gains.kp_v_per_a;
-        let ki_dt = self.gains.ki_v_per_as * self.sample_time_s;
+        let ki_dt = self.ki_dt_v_per_a;
         let integral = Dq {
             d: self.integral.d + ki_dt * err.d,
             q: self.integral.q + ki_dt * err.q,
@@ -155,7 +163,7 @@ impl CurrentController {
         };
         // Compare squares: the square root is only needed when the limit is hit.
         let mag_sq = v.d * v.d + v.q * v.q;
-        let limited = mag_sq > self.voltage_limit_v * self.voltage_limit_v;
+        let limited = mag_sq > self.voltage_limit_sq_v2;
         if limited {
             // Scale back onto the circle and hold the integrators (anti-windup).
             let k = self.voltage_limit_v / sqrt_f32(mag_sq);

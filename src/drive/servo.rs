@@ -118,14 +118,17 @@ impl ServoController {
     /// Updates the measurement from the wide count without commanding (outputs off).
     pub fn observe(&mut self, count: i64) {
         let c = &self.config;
-        let step = self.last_count.map_or(0, |l| count.saturating_sub(l));
+        // Wrapping differences: two i64 instructions on the M4 where saturating ones take a
+        // dozen. Exact for every count a quadrature counter makes (it moves by at most 2¹⁵ a
+        // cycle and stays within ±2⁶³ for centuries of turning at any speed).
+        let step = self.last_count.map_or(0, |l| count.wrapping_sub(l));
         self.last_count = Some(count);
         // Relative to the base, the count stays within a few turns (the controller re-bases by
         // whole turns), so the f32 angle keeps its full resolution however long it runs.
         // i64 → f32 by halves: `as f32` is a library call of ~35 instructions on the M4,
         // twice per cycle (exact either way for the few turns the angle spans).
         // The configuration's constants are taken once, at construction.
-        self.angle_rad = i64_to_f32(count.saturating_sub(self.count_base)) * self.rad_per_count;
+        self.angle_rad = i64_to_f32(count.wrapping_sub(self.count_base)) * self.rad_per_count;
         let raw_velocity = i64_to_f32(step) * self.rad_per_count / c.sample_time_s;
         self.velocity_rad_s += self.velocity_alpha * (raw_velocity - self.velocity_rad_s);
     }
@@ -155,7 +158,10 @@ impl ServoController {
         };
         self.torque_nm = t;
         // The float→int cast saturates; t is within ±fs, so the code is within 1..=4095.
-        DacCode((2048.0 + t / fs * 2047.0 + 0.5) as u16)
+        // Through u32 (one VCVT) and an integer cap: the same code as `as u16`, which
+        // compares the float against both ends instead.
+        let code = (2048.0 + t / fs * 2047.0 + 0.5) as u32;
+        DacCode(code.min(u32::from(u16::MAX)) as u16)
     }
 }
 

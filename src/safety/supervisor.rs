@@ -228,19 +228,29 @@ impl Supervisor {
             self.following_s = 0.0;
         }
         if o.driving {
-            let mut lost = false;
-            for section in Section::ALL {
-                let (cmd, got) = (*o.commanded_n.get(section), *o.delivered_n.get(section));
-                // A section that delivers far less than asked, in the asked direction.
-                let short = cmd.abs() > c.section_shortfall_n
-                    && (got * cmd.signum()) < cmd.abs() - c.section_shortfall_n;
-                let s = self.section_s.get_mut(section);
-                *s = persist(*s, short, o.dt_s);
-                if *s >= c.section_time_s && !lost {
-                    lost = true;
-                    *drop.get_mut(section) = true;
-                    trip(Fault::SectionFault, &mut fault);
-                }
+            // A section that delivers far less than asked, in the asked direction. The
+            // delivered force along the command, `got·sgn(cmd)`, by a sign flip on the
+            // command's sign bit (the same for every non-NaN `cmd`; a NaN one is never
+            // short: its `abs()` compares false).
+            let short = |cmd: f32, got: f32| {
+                let along = if cmd.is_sign_negative() { -got } else { got };
+                cmd.abs() > c.section_shortfall_n && along < cmd.abs() - c.section_shortfall_n
+            };
+            // Written out per section (a loop indexes every field by section).
+            let (cmd, got, timers) = (&o.commanded_n, &o.delivered_n, &mut self.section_s);
+            timers.master = persist(timers.master, short(cmd.master, got.master), o.dt_s);
+            timers.slave = persist(timers.slave, short(cmd.slave, got.slave), o.dt_s);
+            // One section found lost a cycle, the master first.
+            let lost = if timers.master >= c.section_time_s {
+                Some(Section::Master)
+            } else if timers.slave >= c.section_time_s {
+                Some(Section::Slave)
+            } else {
+                None
+            };
+            if let Some(section) = lost {
+                *drop.get_mut(section) = true;
+                trip(Fault::SectionFault, &mut fault);
             }
             let error = o.rotation_error_rad.abs();
             // A blocked rotation: the reference moves on, the rotation does not — caught at a

@@ -491,7 +491,7 @@ impl SinCosDecoder {
     }
 
     /// Decodes one sample.
-    #[inline]
+    #[inline(always)]
     pub fn update(&mut self, codes: SinCosCodes) -> EncoderReading {
         // A channel at either rail (0 or full scale) is out of range whatever the other one
         // reads: a clipped signal (amplitude ×1.5 reaches the rails) can look in-window near

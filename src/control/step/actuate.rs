@@ -110,24 +110,18 @@ impl Drive {
         let force_limited = force_n.abs() >= limit;
         let shares = allocate(&c.allocation, in_service, force_n, s.position_m);
         let inv_kf = 1.0 / c.motor.force_constant_n_per_a;
-        let mut duties = PerSection::<PhaseDuties>::default();
-        for (section, angle) in [
-            (Section::Master, s.master.angle),
-            (Section::Slave, s.slave.angle),
-        ] {
+        let frame = |section: Section, angle: u32| {
             let reference = Dq {
                 d: 0.0,
                 q: *shares.get(section) * inv_kf,
             };
-            let amps = c.current_sense.get(section).amps(codes.get(section));
-            let angle = angle.wrapping_add(*c.angle_offset.get(section));
-            *duties.get_mut(section) = self.currents.get_mut(section).step(
-                amps,
-                angle,
-                reference,
-                s.derivatives.velocity_mps,
-            );
-        }
+            (angle.wrapping_add(*c.angle_offset.get(section)), reference)
+        };
+        let frames = PerSection {
+            master: frame(Section::Master, s.master.angle),
+            slave: frame(Section::Slave, s.slave.angle),
+        };
+        let duties = self.drive_sections(c, codes, frames, s.derivatives.velocity_mps);
         Actuation {
             duties,
             force_n,
@@ -181,7 +175,11 @@ impl Drive {
     /// Both sections' current loops in this cycle: each in its `frames` (the electrical
     /// angle it commutates on and its d/q current reference, A) on its phase currents
     /// `codes`, at the piston's `velocity_mps` (back-EMF feed-forward).
-    #[inline(always)]
+    ///
+    /// Out of line, with both current loops inlined in it: the loops then have the
+    /// registers to themselves (inlined in the step, they would spill its values; called
+    /// out of line each, they pay a call apiece).
+    #[inline(never)]
     pub(super) fn drive_sections(
         &mut self,
         c: &ControlConfig,
@@ -189,16 +187,23 @@ impl Drive {
         frames: PerSection<(u32, Dq<f32>)>,
         velocity_mps: f32,
     ) -> PerSection<PhaseDuties> {
-        let mut out = PerSection::<PhaseDuties>::default();
-        for section in Section::ALL {
-            let (angle, reference) = *frames.get(section);
-            let amps = c.current_sense.get(section).amps(codes.get(section));
-            *out.get_mut(section) =
-                self.currents
-                    .get_mut(section)
-                    .step(amps, angle, reference, velocity_mps);
-        }
-        out
+        // Written out per section, not looped: a loop over the sections keeps the current
+        // loop's body once and indexes every field by section.
+        let (currents, sense) = (&mut self.currents, &c.current_sense);
+        let ((angle_m, reference_m), (angle_s, reference_s)) = (frames.master, frames.slave);
+        let master = currents.master.step(
+            sense.master.amps(&codes.master),
+            angle_m,
+            reference_m,
+            velocity_mps,
+        );
+        let slave = currents.slave.step(
+            sense.slave.amps(&codes.slave),
+            angle_s,
+            reference_s,
+            velocity_mps,
+        );
+        PerSection { master, slave }
     }
 
     /// The outputs with no setpoint (not calibrating): off — the current loops and the load

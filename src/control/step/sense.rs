@@ -258,7 +258,10 @@ impl Sensing {
     }
 
     /// Both encoders' samples decoded: the master's reading and the slave's.
-    #[inline]
+    ///
+    /// Out of line, with both decoders inlined in it (the same layout as the drive's two
+    /// current loops): no call apiece, and the decoders do not spill the step's values.
+    #[inline(never)]
     pub(super) fn decode(&mut self, codes: &EncoderCodes) -> (EncoderReading, EncoderReading) {
         (
             self.encoders.master.update(codes.master),
