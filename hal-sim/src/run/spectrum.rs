@@ -70,12 +70,6 @@ pub fn amplitude_spectrum(x: &[f64], dt_s: f64) -> Vec<(f64, f64)> {
         .collect()
 }
 
-/// The largest line of `x` (sampled every `dt_s`) in `band` and the floor, or `None` for a
-/// record shorter than [`MIN_SAMPLES`].
-pub fn line_in(x: &[f64], dt_s: f64, band: (f64, f64)) -> Option<Line> {
-    Spectrum::of(x, dt_s)?.line_in(band)
-}
-
 /// The amplitude spectrum of one record ([`amplitude_spectrum`]), taken once and searched
 /// band by band.
 pub struct Spectrum {
@@ -203,7 +197,7 @@ mod tests {
                 3e-6 * (std::f64::consts::TAU * 410.0 * t).sin() + 1e-6 * noise.normal()
             })
             .collect();
-        let line = line_in(&x, dt, LINE_BAND_HZ).unwrap();
+        let line = Spectrum::of(&x, dt).unwrap().line_in(LINE_BAND_HZ).unwrap();
         assert!((line.hz - 410.0).abs() <= 0.05, "{line:?}");
         assert!((line.amplitude - 3e-6).abs() < 0.1e-6, "{line:?}");
         // White noise of σ over N samples: ≈ σ·√(π/N)·√(1.5)… per bin, far below the line.
@@ -213,6 +207,6 @@ mod tests {
             .enumerate()
             .map(|(k, _)| 1e-6 * ((k * 7919) % 13) as f64)
             .collect();
-        assert!(line_in(&quiet[..100], dt, LINE_BAND_HZ).is_none());
+        assert!(Spectrum::of(&quiet[..100], dt).is_none());
     }
 }
