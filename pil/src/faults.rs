@@ -143,6 +143,9 @@ pub struct Report {
     pub switched_after_break: u64,
     /// The stack's use at the end (since the last boot's paint).
     pub stack: Option<crate::stack::StackUse>,
+    /// Every sample's duties against their update event, over the whole scenario
+    /// ([`crate::chip::deadline`]).
+    pub deadline: crate::chip::DeadlineFigures,
 }
 
 impl Report {
@@ -156,7 +159,7 @@ impl Report {
 const START_POSITION_M: f64 = 1e-3;
 
 /// How long a scenario with the machine stroking goes on after the injection, s: the
-/// watchdog's 3 ms, the boot's 1.4 ms, the brake from full speed (≈ 10 ms), with room.
+/// watchdog's 2 ms, the boot's 2.4 ms, the brake from full speed (≈ 10 ms), with room.
 const AFTER_INJECTION_S: f64 = 0.15;
 
 /// Where and how hard a scenario with the machine stroking injects its fault.
@@ -166,8 +169,8 @@ pub struct Options {
     pub inject_after_start_s: f64,
     /// Pressure ratio (the peak speed follows it, as in `fpc-sim run`).
     pub pressure_ratio: f64,
-    /// `Some(cpi)`: emulated time runs at this CPI; `None`: on the counted cycles
-    /// ([`ChipOptions::cpi`]).
+    /// `None` (the default): emulated time runs on the counted cycles; `Some(cpi)`: at this
+    /// CPI ([`ChipOptions::cpi`]).
     pub cpi: Option<f64>,
 }
 
@@ -176,7 +179,7 @@ impl Default for Options {
         Options {
             inject_after_start_s: 0.25,
             pressure_ratio: RunOptions::reference().pressure_ratio,
-            cpi: Some(crate::DEFAULT_CPI),
+            cpi: None,
         }
     }
 }
@@ -313,6 +316,7 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
     }
     let mut s = Session::new(image.clone(), Board::new(world), chip)?;
     s.chip.soc().flash.load_image(store.image());
+    s.chip.soc().recording = true;
     let mut r = Run {
         s,
         clearance: Clearance::NONE,
@@ -357,6 +361,7 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
         breaks: soc.breaks.clone(),
         switched_after_break: r.switched_after_break,
         stack: crate::stack::stack_use(&r.s.chip),
+        deadline: crate::chip::DeadlineFigures::of(&soc.samples),
     })
 }
 

@@ -31,7 +31,3 @@ pub mod save_timing;
 pub mod session;
 pub mod stack;
 pub mod time;
-
-/// Clock cycles per instruction of the emulated time by default (`pil/README.md`, "Cycles":
-/// the periods' cycles are counted per instruction; the time runs at this typical figure).
-pub const DEFAULT_CPI: f64 = 1.5;

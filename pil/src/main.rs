@@ -85,13 +85,10 @@ struct FaultArgs {
     /// Scenarios that stroke: the pressure ratio (the peak speed follows it).
     #[arg(long, default_value_t = 3.1)]
     pressure_ratio: f64,
-    /// Clock cycles per instruction of the emulated time.
-    #[arg(long, default_value_t = fpc_pil::DEFAULT_CPI)]
-    cpi: f64,
-    /// Run the emulated time on the cycles counted per instruction (an upper bound)
-    /// instead of `--cpi`.
+    /// Run the emulated time at this many clock cycles per instruction instead of the cycles
+    /// counted per instruction (the default).
     #[arg(long)]
-    counted_time: bool,
+    cpi: Option<f64>,
 }
 
 #[derive(clap::Args)]
@@ -111,14 +108,10 @@ struct RunArgs {
     /// Noise seed.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Clock cycles per instruction of the emulated time (the cycle figures are counted
-    /// per instruction either way).
-    #[arg(long, default_value_t = fpc_pil::DEFAULT_CPI)]
-    cpi: f64,
-    /// Run the emulated time on the cycles counted per instruction (an upper bound)
-    /// instead of `--cpi`.
+    /// Run the emulated time at this many clock cycles per instruction instead of the cycles
+    /// counted per instruction (the default; the cycle figures are counted either way).
     #[arg(long)]
-    counted_time: bool,
+    cpi: Option<f64>,
     /// Print, on stderr, where the worst period's interrupt path spent its cycles (by
     /// function, and whether from flash or CCM SRAM).
     #[arg(long)]
@@ -160,7 +153,7 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
         ),
         None => (MachineModel::reference(), "reference".into()),
     };
-    let cpi = timeline(args.cpi, args.counted_time)?;
+    let cpi = timeline(args.cpi)?;
     let run_opts = RunOptions {
         model,
         model_name,
@@ -232,6 +225,7 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
         s.position_rms_diff_vs_host_m
             .map_or("n/a".into(), |v| format!("{:.2} µm", v * 1e6)),
     );
+    eprintln!("fpc-pil run: {}", deadline_line(&s.deadline));
     if args.json {
         println!(
             "{}",
@@ -241,12 +235,28 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// The samples' duties against their update events, in words.
+fn deadline_line(d: &fpc_pil::chip::DeadlineFigures) -> String {
+    format!(
+        "last compare write {:.0} cycles after the burst's end mean, {} worst, of a deadline of \
+         {} ({:.0} %); {} of {} samples missed their update",
+        d.mean_cycle_cycles,
+        d.worst_cycle_cycles,
+        d.deadline_cycles,
+        100.0 * d.worst_cycle_cycles as f64 / d.deadline_cycles.max(1) as f64,
+        d.missed_updates,
+        d.timed_samples,
+    )
+}
+
 /// The emulated time's CPI (`None`: the counted cycles); `--cpi` must be plausible.
-fn timeline(cpi: f64, counted: bool) -> Result<Option<f64>, String> {
-    if !(cpi.is_finite() && (0.5..=5.0).contains(&cpi)) {
-        return Err(format!("--cpi {cpi}: must be within [0.5, 5]"));
+fn timeline(cpi: Option<f64>) -> Result<Option<f64>, String> {
+    match cpi {
+        Some(c) if !(c.is_finite() && (0.5..=5.0).contains(&c)) => {
+            Err(format!("--cpi {c}: must be within [0.5, 5]"))
+        }
+        _ => Ok(cpi),
     }
-    Ok((!counted).then_some(cpi))
 }
 
 fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
@@ -267,7 +277,7 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
     if !(args.at.is_finite() && (0.0..=10.0).contains(&args.at)) {
         return Err(format!("--at {}: must be within [0, 10] s", args.at));
     }
-    let cpi = timeline(args.cpi, args.counted_time)?;
+    let cpi = timeline(args.cpi)?;
     let opts = fpc_pil::faults::Options {
         inject_after_start_s: args.at,
         pressure_ratio: args.pressure_ratio,
@@ -299,6 +309,7 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
         r.faults.join(", "),
         r.final_mode
     );
+    println!("  {}", deadline_line(&r.deadline));
     for (t, line) in &r.log {
         println!("  {t:.4} {line}");
     }
@@ -366,6 +377,11 @@ fn save_timing_cmd(args: SaveTimingArgs) -> Result<ExitCode, String> {
     row("idle, no save", &t.no_save);
     row("during the save", &t.during_save);
     row("stroking", &t.stroking);
+    println!(
+        "  calibrating and saving: {}",
+        deadline_line(&t.deadline_calibrating)
+    );
+    println!("  stroking: {}", deadline_line(&t.deadline_stroking));
     println!(
         "  worst control period during the save: {:.1} µs of {} µs (data cache off, as it \
          was); no-cache bound {:.1} µs; a save overlapping the strokes: {:.1} µs (no-cache \

@@ -10,13 +10,15 @@
 //! | [`Check::HangAtRest`] | the boot, the first feed, then the control task hung | the watchdog resets within 5 ms of the hang |
 //! | [`Check::TornSave`] | [`crate::faults::Scenario::TornSaveStaleFlag`] | the previous record loads |
 //! | [`Check::FactoryBrownOut`] | [`crate::faults::Scenario::FactoryBrownOut`] | the boot refuses to run |
+//! | [`Check::Deadline`] | the boot, then 0.1 s of homing (the bridges switching) | every sample's duties in the compare registers before their update event ([`crate::chip::deadline`]) |
 
 use std::path::Path;
 
+use fpc::control::command::Command;
 use hal_sim::run::RunOptions;
 
 use crate::board::{Board, CurrentStep};
-use crate::chip::{ChipOptions, ResetKind};
+use crate::chip::{ChipOptions, DeadlineFigures, ResetKind};
 use crate::elf::Image;
 use crate::faults::{self, Scenario};
 use crate::session::Session;
@@ -34,10 +36,12 @@ pub enum Check {
     TornSave,
     /// The option bytes as shipped.
     FactoryBrownOut,
+    /// The duties against their update events while the bridges switch.
+    Deadline,
 }
 
 /// Every mutation (`src/board/mutation.rs`'s `ALL`) and the check that must catch it.
-pub const MUTATIONS: [(&str, Check); 12] = [
+pub const MUTATIONS: [(&str, Check); 13] = [
     ("ossi-clear", Check::Boot),
     ("ois-high", Check::Boot),
     ("bke-off", Check::TripAtRest),
@@ -50,6 +54,7 @@ pub const MUTATIONS: [(&str, Check); 12] = [
     ("flash-over-stale-flags", Check::TornSave),
     ("bor-zero-accepted", Check::FactoryBrownOut),
     ("stack-overflow", Check::Boot),
+    ("late-duties", Check::Deadline),
 ];
 
 /// A session at rest on the reference machine, `image` flashed with a calibration.
@@ -166,7 +171,7 @@ pub fn run(image: &Image, check: Check) -> Result<(), String> {
             match reset {
                 Some(t) if t - at <= 5e-3 => Ok(()),
                 Some(t) => Err(format!(
-                    "the watchdog reset {:.1} ms after the control task hung (its window is 3 ms)",
+                    "the watchdog reset {:.1} ms after the control task hung (its window is 2 ms)",
                     (t - at) * 1e3
                 )),
                 None => Err("no watchdog reset within 30 ms of the control task hanging".into()),
@@ -183,6 +188,28 @@ pub fn run(image: &Image, check: Check) -> Result<(), String> {
                 }
                 Some((_, l)) => Err(format!("the torn word was not repaired: {l}")),
                 None => Err("the next boot never met the torn word".into()),
+            }
+        }
+        Check::Deadline => {
+            let mut s = session(image)?;
+            until(&mut s, 0.02)?;
+            s.chip.soc().recording = true;
+            while !s.send(Command::Home) {
+                s.step()?;
+            }
+            let t = s.chip.time_s() + 0.1;
+            until(&mut s, t)?;
+            let d = DeadlineFigures::of(&s.chip.soc_ref().samples);
+            if d.worst_cycle_cycles == 0 {
+                Err("no compare written while homing".into())
+            } else if d.missed_updates > 0 || d.worst_cycle_cycles > d.deadline_cycles {
+                Err(format!(
+                    "{} of {} samples' duties missed their update (last write {} cycles after \
+                     the burst's end, deadline {})",
+                    d.missed_updates, d.timed_samples, d.worst_cycle_cycles, d.deadline_cycles
+                ))
+            } else {
+                Ok(())
             }
         }
         Check::FactoryBrownOut => {
@@ -207,6 +234,7 @@ pub fn verdicts(release: &Image, dir: &Path) -> Result<Vec<String>, String> {
         Check::HangAtRest,
         Check::TornSave,
         Check::FactoryBrownOut,
+        Check::Deadline,
     ] {
         run(release, check).map_err(|e| format!("the release ELF fails {check:?}: {e}"))?;
     }

@@ -15,7 +15,7 @@ use hal_sim::run::{HostLink, RunDriver, RunOptions, RunOutcome, Summary};
 use serde::Serialize;
 
 use crate::board::Board;
-use crate::chip::{ChipOptions, Milestone, PeriodLoad, Soc};
+use crate::chip::{ChipOptions, DeadlineFigures, Milestone, PeriodLoad, Soc};
 use crate::elf::Image;
 use crate::session::{SentCommand, Session};
 
@@ -46,14 +46,19 @@ pub struct PilSummary {
     pub cycles_per_cycle_max: u64,
     /// The worst period's interrupt path at 170 MHz, µs (the budget is 50).
     pub worst_cycle_us: f64,
+    /// Each sample's duties against the update event that puts them in force
+    /// ([`crate::chip::deadline`]): `deadline_cycles`, `worst_cycle_cycles`,
+    /// `mean_cycle_cycles`, `missed_updates`, `timed_samples`.
+    #[serde(flatten)]
+    pub deadline: DeadlineFigures,
     /// The part of the interrupt path's instructions fetched from program flash (the rest run
     /// from CCM SRAM), over the periods from Start on.
     pub flash_fetched_share: f64,
     /// Flash wait-state cycles in the worst period (instruction lines, flash data reads,
     /// vector fetches; 4 each).
     pub worst_cycle_flash_wait_cycles: u64,
-    /// The emulated time's clock: the CPI it ran at (`--cpi`, 1.5 by default), or `null`
-    /// when it ran on the counted cycles (`--counted-time`).
+    /// The emulated time's clock: `null` when it ran on the counted cycles (the default),
+    /// or the CPI it ran at (`--cpi`).
     pub timeline_cpi: Option<f64>,
     /// RMS of the difference between the piston position (the plant's) of this run and of
     /// the host build on the same plant and seed, the same command taken by the same control
@@ -171,6 +176,7 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
     let pil_wall = pil_started.elapsed().as_secs_f64();
     let soc = session.chip.soc();
     let periods = std::mem::take(&mut soc.periods);
+    let deadline = DeadlineFigures::of(&std::mem::take(&mut soc.samples));
     let resets = soc.resets.len();
     let first_control_us = first_control_us(soc);
     let profile = profile_rows(&opts.image, &soc.profile_worst.1);
@@ -191,6 +197,7 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
         cycles_per_cycle_mean: load.cycles_mean,
         cycles_per_cycle_max: load.worst.path_cycles,
         worst_cycle_us: load.worst.path_cycles as f64 / SYSCLK_HZ * 1e6,
+        deadline,
         flash_fetched_share: load.flash_fetched_share,
         worst_cycle_flash_wait_cycles: load.worst.path_wait_cycles,
         timeline_cpi: opts.chip.cpi,

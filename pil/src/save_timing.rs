@@ -34,7 +34,7 @@ use hal_sim::run::RunOptions;
 use serde::Serialize;
 
 use crate::board::Board;
-use crate::chip::{ChipOptions, PeriodLoad};
+use crate::chip::{ChipOptions, DeadlineFigures, PeriodLoad};
 use crate::elf::Image;
 use crate::run::{profile_rows, ProfileRow, SYSCLK_HZ};
 use crate::session::Session;
@@ -120,6 +120,11 @@ pub struct SaveTiming {
     pub calibration_profile: Vec<ProfileRow>,
     /// The control period, µs.
     pub period_us: f64,
+    /// The samples' duties against their update events while calibrating and saving, on
+    /// the counted timeline ([`crate::chip::deadline`]).
+    pub deadline_calibrating: DeadlineFigures,
+    /// The same over the strokes.
+    pub deadline_stroking: DeadlineFigures,
 }
 
 /// Runs the scenario on `image`.
@@ -165,6 +170,7 @@ pub fn run(image: &Image) -> Result<SaveTiming, String> {
     soc.profile = false;
     let calibration_profile = profile_rows(image, &soc.profile_worst.1);
     let periods = std::mem::take(&mut soc.periods);
+    let deadline_calibrating = DeadlineFigures::of(&std::mem::take(&mut soc.samples));
     let acr = soc.flash.acr_during_ops.clone();
     let (during, idle): (Vec<_>, Vec<_>) =
         periods.iter().partition(|p| p.flash_busy || p.dcache_off);
@@ -192,6 +198,7 @@ pub fn run(image: &Image) -> Result<SaveTiming, String> {
         return Err(format!("not stroking after the Start: {:?}", s.status.mode));
     }
     let stroking = std::mem::take(&mut s.chip.soc().periods);
+    let deadline_stroking = DeadlineFigures::of(&std::mem::take(&mut s.chip.soc().samples));
 
     Ok(SaveTiming {
         wait_states: FLASH_WAIT_STATES,
@@ -202,5 +209,7 @@ pub fn run(image: &Image) -> Result<SaveTiming, String> {
         save_outcome: outcome,
         calibration_profile,
         period_us: PERIOD_US,
+        deadline_calibrating,
+        deadline_stroking,
     })
 }

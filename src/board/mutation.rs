@@ -11,7 +11,7 @@
 const ACTIVE: Option<&str> = option_env!("FPC_MUTATION");
 
 /// Every mutation, by name (a build with any other name fails to compile).
-pub const ALL: [&str; 12] = [
+pub const ALL: [&str; 13] = [
     "ossi-clear",
     "ois-high",
     "bke-off",
@@ -24,6 +24,7 @@ pub const ALL: [&str; 12] = [
     "flash-over-stale-flags",
     "bor-zero-accepted",
     "stack-overflow",
+    "late-duties",
 ];
 
 const fn same(a: &str, b: &str) -> bool {

@@ -282,6 +282,11 @@ fn configure_section(tim: TimAdv, section: Section) {
 impl PwmOutput for MotorPwm {
     fn write(&mut self, section: Section, duties: PhaseDuties) {
         let tim = timer(section);
+        if mutation::is("late-duties") && section == Section::Master {
+            // The duties reach the compare registers ≈ 4,000 cycles later: past the update
+            // event that should put them in force.
+            cortex_m::asm::delay(4_000);
+        }
         for (ch, duty) in PHASES.into_iter().zip(duties) {
             tim.ccr(ch).write(|w| w.set_ccr(compare_value(duty)));
         }

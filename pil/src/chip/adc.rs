@@ -291,8 +291,9 @@ impl Soc {
         self.adc_ccr = (self.adc_ccr & !mask) | (value & mask);
     }
 
-    /// TIM1_TRGO2: both ADCs start their injected then regular sequences if armed.
-    pub(super) fn adc_trigger(&mut self) {
+    /// TIM1_TRGO2 at `at` (time units): both ADCs start their injected then regular sequences
+    /// if armed.
+    pub(super) fn adc_trigger(&mut self, at: u64) {
         let dual = self.adc_ccr & 0x1F;
         let inj = self.adc1.injected_armed(JEXTSEL_TIM1_TRGO2);
         let reg = self.adc1.regular_armed(EXTSEL_TIM1_TRGO2);
@@ -325,7 +326,9 @@ impl Soc {
         } else {
             0.0
         };
-        let now = self.time;
+        // The burst starts at the trigger's instant, which the emulator handles at the first
+        // block boundary after it.
+        let now = at;
         let inj_end = if inj {
             now + inj_t.ceil() as u64
         } else {
@@ -357,6 +360,8 @@ impl Soc {
         }
         let reg = self.burst.map(|(_, r)| r).unwrap_or(u64::MAX);
         self.burst = if reg == u64::MAX {
+            let inj = self.burst.map_or(self.time, |(i, _)| i);
+            self.burst_ended(inj);
             None
         } else {
             Some((u64::MAX, reg))
@@ -366,7 +371,9 @@ impl Soc {
     /// The regular sequence converted: each pair to ADC12_CDR and on by DMA. Returns the
     /// memory writes to make (address, word).
     pub(super) fn regular_done(&mut self) {
+        let end = self.burst.map_or(self.time, |(_, r)| r);
         self.burst = None;
+        self.burst_ended(end);
         let ch1 = self.adc1.regular_channels();
         let ch2 = self.adc2.regular_channels();
         let request = self.dma.mux[0] & 0x7F;

@@ -90,6 +90,7 @@ impl Soc {
         match addr {
             a if (base::TIM1..base::TIM1 + 0x400).contains(&a) => {
                 let started = self.tim1.write(off(base::TIM1), value, now, clk);
+                self.timer_written(0, off(base::TIM1));
                 if started {
                     self.milestone(Milestone::PwmStarted);
                 }
@@ -105,6 +106,7 @@ impl Soc {
             }
             a if (base::TIM8..base::TIM8 + 0x400).contains(&a) => {
                 self.tim8.write(off(base::TIM8), value, now, clk);
+                self.timer_written(1, off(base::TIM8));
             }
             a if (base::TIM2..base::TIM2 + 0x400).contains(&a) => {
                 self.tim2.write(off(base::TIM2), value, now, clk);

@@ -121,12 +121,15 @@ fn map_peripherals(uc: &mut Unicorn<'static, Soc>) -> Result<(), ChipError> {
         u64::from(PERIPH.1),
         Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize| {
             let addr = PERIPH.0 + off as u32;
-            let word = uc.get_data_mut().periph_read(addr & !3);
+            let soc = uc.get_data_mut();
+            soc.peripheral_access(addr);
+            let word = soc.periph_read(addr & !3);
             u64::from(extract(word, addr, size))
         }),
         Some(|uc: &mut Unicorn<Soc>, off: u64, size: usize, value: u64| {
             let addr = PERIPH.0 + off as u32;
             let soc = uc.get_data_mut();
+            soc.peripheral_access(addr);
             let word = addr & !3;
             let merged = if size == 4 {
                 value as u32

@@ -74,9 +74,13 @@ impl Soc {
             let now = self.time;
             let mut handled = false;
             if self.pwm_running() {
-                if self.tim1_trgo2_is_oc4() && self.tim1.next_oc4_rise().is_some_and(|t| t <= now) {
+                if let Some(at) = self
+                    .tim1
+                    .next_oc4_rise()
+                    .filter(|&t| t <= now && self.tim1_trgo2_is_oc4())
+                {
                     self.tim1.fire_oc4();
-                    self.adc_trigger();
+                    self.adc_trigger(at);
                     handled = true;
                 }
                 if self.tim1.next_boundary().is_some_and(|t| t <= now) {
@@ -86,7 +90,11 @@ impl Soc {
                         return;
                     }
                     self.release = false;
+                    let at = self.tim1.next_boundary().unwrap_or(now);
                     let b = self.tim1.fire_boundary();
+                    if b.update {
+                        self.timer_updated(0, at);
+                    }
                     if b.update && b.peak {
                         self.pwm_period_end();
                     }
@@ -103,7 +111,11 @@ impl Soc {
                 handled = true;
             }
             if self.tim8.next_boundary().is_some_and(|t| t <= now) {
+                let at = self.tim8.next_boundary().unwrap_or(now);
                 let b = self.tim8.fire_boundary();
+                if b.update {
+                    self.timer_updated(1, at);
+                }
                 if b.update && b.peak {
                     // TIM8 counts a few clocks behind TIM1 (started by its trigger): its
                     // compare values go into force at its own update, just after TIM1's.

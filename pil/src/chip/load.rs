@@ -1,6 +1,7 @@
-//! Time and cycles: each executed block advances the emulated time (by its instructions at
-//! the CPI, or by its counted cycles), and the PWM period's load adds up the instructions,
-//! cycles and flash wait states of its interrupt path (`pil/README.md`, "Cycles").
+//! Time and cycles: each executed block advances the emulated time (by its counted cycles,
+//! the flash's wait states as its caches leave them ([`super::art`]), or by its instructions
+//! at a fixed CPI), and the PWM period's load adds up the instructions, cycles and flash wait
+//! states (no cache: the bound) of its interrupt path (`pil/README.md`, "Cycles").
 
 use super::*;
 
@@ -46,6 +47,26 @@ pub struct PeriodLoad {
     pub dcache_off: bool,
 }
 
+/// FLASH_ACR.ICEN: the instruction cache enabled (RM0440 §3.7.1).
+const ACR_ICEN: u32 = 1 << 9;
+/// FLASH_ACR.DCEN: the data cache enabled.
+const ACR_DCEN: u32 = 1 << 10;
+
+/// The end of APB1 and APB2 (RM0440 Table 4, "STM32G4 Series memory map and peripheral
+/// register boundary addresses"): AHB1 starts here, AHB2 at 0x4800_0000.
+const APB_END: u32 = 0x4002_0000;
+
+/// Wait cycles of a CPU access to an APB peripheral (TIM1, TIM8, TIM2, TIM4, IWDG, PWR): the
+/// access crosses the bus matrix to an AHB/APB bridge (RM0440 §2.1, Figure 1), and an APB
+/// transfer takes a setup and an access phase (AMBA APB protocol: at least 2 PCLK cycles,
+/// PCLK = HCLK here), one more than an AHB data phase, plus the bridge's own stage. An upper
+/// end: the store buffer hides a write's wait from the core, which this does not model.
+pub const PERIPHERAL_WAIT_APB: u64 = 2;
+
+/// Wait cycles of a CPU access to an AHB peripheral (DMA, RCC, flash interface, ADC, DAC):
+/// the bus matrix's arbitration, no bridge.
+pub const PERIPHERAL_WAIT_AHB: u64 = 1;
+
 impl Soc {
     /// Notes the flash interface's state in the period's load (busy, data cache off).
     pub(crate) fn note_flash_state(&mut self) {
@@ -82,7 +103,8 @@ impl Soc {
         if self.path_open {
             self.period.path_wait_cycles += ws;
         }
-        self.account(ws, false);
+        let cached = self.flash.acr & ACR_DCEN != 0 && self.dcache.access(addr & !7);
+        self.account_apart(ws, if cached { 0 } else { ws }, false);
         if self.flash_timing && self.path_open {
             self.period.path_flash_reads += 1;
             self.path_data_lines.insert(addr & !7);
@@ -111,14 +133,21 @@ impl Soc {
             }
         }
         self.branch = Some((addr.wrapping_add(size), b.flow));
-        // Wait states: each move of the fetch into another 64-bit line of program flash.
+        // Wait states: each move of the fetch into another 64-bit line of program flash (the
+        // periods' figures: no cache), and of those the instruction cache's misses (the time).
         let mut wait = 0;
+        let mut timed_wait = 0;
         let in_flash = (FLASH_BASE..STORE_BASE).contains(&addr);
+        let icen = self.flash.acr & ACR_ICEN != 0;
         if in_flash && size > 0 {
             let mut line = addr & !7;
             while line < addr + size {
                 if line != self.fetch_line {
-                    wait += self.flash_latency();
+                    let ws = self.flash_latency();
+                    wait += ws;
+                    if !(icen && self.icache.access(line)) {
+                        timed_wait += ws;
+                    }
                     self.fetch_line = line;
                 }
                 line += 8;
@@ -147,9 +176,21 @@ impl Soc {
         }
         let cycles_f = match self.cpi {
             Some(cpi) => f64::from(n) * cpi,
-            None => cycles as f64,
+            None => (cycles - wait + timed_wait) as f64,
         };
         self.advance(cycles_f);
+    }
+
+    /// A CPU access (read or write) of the peripheral register at `addr`: the wait cycles of
+    /// the bus matrix and bridges on top of the load or store's own 2 cycles
+    /// ([`PERIPHERAL_WAIT_APB`], [`PERIPHERAL_WAIT_AHB`]).
+    pub(super) fn peripheral_access(&mut self, addr: u32) {
+        let wait = if addr < APB_END {
+            PERIPHERAL_WAIT_APB
+        } else {
+            PERIPHERAL_WAIT_AHB
+        };
+        self.account(wait, false);
     }
 
     /// FLASH_ACR.LATENCY: the wait states of a flash access now.
@@ -169,12 +210,24 @@ impl Soc {
     /// data read): counted in the interrupt path if `path` (or if one is open), and in time
     /// unless time runs at a fixed CPI.
     pub(super) fn account(&mut self, cycles: u64, path: bool) {
+        self.account_apart(cycles, cycles, path);
+    }
+
+    /// [`Soc::account`] with a cost that differs between the interrupt path's figure (the
+    /// no-cache bound) and the time (the caches as FLASH_ACR enables them).
+    fn account_apart(&mut self, figure: u64, time: u64, path: bool) {
         if path || self.path_open {
-            self.period.path_cycles += cycles;
+            self.period.path_cycles += figure;
         }
         if self.cpi.is_none() {
-            self.advance(cycles as f64);
+            self.advance(time as f64);
         }
+    }
+
+    /// The flash interface's caches emptied (a reset).
+    pub(super) fn caches_cleared(&mut self) {
+        self.icache.clear();
+        self.dcache.clear();
     }
 
     /// An exception was entered: 12 cycles (ARM DDI 0439B §3.3.1: entry latency with

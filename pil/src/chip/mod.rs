@@ -12,18 +12,19 @@
 //! | ADC1/ADC2 dual mode | [`adc`] |
 //! | DMA1 and DMAMUX | [`dma`] |
 //! | flash interface, option bytes, ECC, the calibration store | [`flash`] |
+//! | the flash interface's instruction and data caches, as time pays them | [`art`] |
 //! | IWDG | [`iwdg`] |
 //! | RCC (clocks, reset flags, peripheral resets), PWR | [`rcc`] |
 //! | the peripheral bus: register dispatch, DAC1, GPIOB's input | [`bus`] |
 //! | the peripherals' events and interrupt lines, the plant's step | [`events`] |
 //! | time, cycles and the period's load | [`load`] |
+//! | each sample's compare writes against the update event | [`deadline`] |
 //! | the emulator: memory map, boot, resets, power, probe access | [`emulator`] |
 //!
-//! Time is the CPU's: each executed block advances it by its instructions times the CPI
-//! ([`ChipOptions::cpi`], 1.5 by default) at the current SYSCLK, or by its clock cycles as
-//! counted per instruction from the Cortex-M4 TRM ([`timing`], with the wait states of
-//! flash and the exception entries and returns). The periods' cycle figures are counted
-//! either way. The CPU is stopped at the instants
+//! Time is the CPU's: each executed block advances it by its clock cycles as counted per
+//! instruction from the Cortex-M4 TRM ([`timing`], with the wait states of flash and the
+//! exception entries and returns) at the current SYSCLK, or, with [`ChipOptions::cpi`], by
+//! its instructions times that CPI. The periods' cycle figures are counted either way. The CPU is stopped at the instants
 //! the peripherals do something (a timer boundary, the end of an ADC burst, the end of a
 //! flash operation, the watchdog's expiry). Interrupts are taken between blocks, where the
 //! NVIC's priorities, PRIMASK and BASEPRI allow.
@@ -32,9 +33,11 @@
 //! and what the bridges and the servo make of the compare registers and the DAC.
 
 pub mod adc;
+pub mod art;
 mod bus;
 pub mod comp;
 pub mod cpu;
+pub mod deadline;
 pub mod dma;
 mod emulator;
 mod events;
@@ -48,6 +51,7 @@ mod rcc;
 pub mod timers;
 pub mod timing;
 
+pub use deadline::{DeadlineFigures, SampleTiming};
 pub use emulator::{Chip, ChipError};
 pub use load::PeriodLoad;
 
@@ -117,9 +121,9 @@ pub mod irqn {
 /// Options of the emulated chip.
 #[derive(Clone, Debug)]
 pub struct ChipOptions {
-    /// `Some(cpi)`: time advances by instructions × this CPI (the default: 1.5, the typical
-    /// figure, `pil/README.md`). `None`: by the cycles counted per instruction ([`timing`]),
-    /// an upper bound. The periods' cycle figures are counted either way.
+    /// `None` (the default): time advances by the cycles counted per instruction
+    /// ([`timing`]), an upper bound. `Some(cpi)`: by instructions × this CPI (`--cpi`, to
+    /// see what a faster core would do). The periods' cycle figures are counted either way.
     pub cpi: Option<f64>,
     /// LSI frequency, Hz (the IWDG's clock).
     pub lsi_hz: f64,
@@ -133,7 +137,7 @@ pub struct ChipOptions {
 impl Default for ChipOptions {
     fn default() -> Self {
         ChipOptions {
-            cpi: Some(crate::DEFAULT_CPI),
+            cpi: None,
             lsi_hz: 32_000.0,
             optr: flash::OPTR_BRINGUP,
             flash_timing: false,
@@ -174,6 +178,10 @@ pub struct Soc {
     return_due: Option<u32>,
     /// The 64-bit flash line the instruction fetch is in (for the wait states).
     fetch_line: u32,
+    /// The flash interface's instruction cache, as the time pays it.
+    icache: art::LineCache,
+    /// The flash interface's data cache, as the time pays it.
+    dcache: art::LineCache,
     /// Per-block counts of the period's interrupt path (with [`Soc::profile`]).
     profile_now: HashMap<u32, (u64, u64)>,
     /// Record, per block address, the instructions and cycles of each period's interrupt
@@ -245,8 +253,12 @@ pub struct Soc {
     period: PeriodLoad,
     /// Loads of the finished periods since recording began.
     pub periods: Vec<PeriodLoad>,
-    /// Record [`Soc::periods`].
+    /// Record [`Soc::periods`] and [`Soc::samples`].
     pub recording: bool,
+    /// The sample in progress (from an ADC burst's end to the next).
+    sample: Option<deadline::OpenSample>,
+    /// Timings of the finished samples since recording began.
+    pub samples: Vec<SampleTiming>,
     /// An interrupt path is open (handler mode entered from thread mode).
     path_open: bool,
     /// The core is in lockup (a fault while entering HardFault, or in it): it executes
@@ -365,6 +377,8 @@ impl Soc {
             branch: None,
             return_due: None,
             fetch_line: u32::MAX,
+            icache: art::LineCache::instructions(),
+            dcache: art::LineCache::data(),
             profile_now: HashMap::new(),
             profile: false,
             profile_worst: (0, HashMap::new()),
@@ -408,6 +422,8 @@ impl Soc {
             period: PeriodLoad::default(),
             periods: Vec::new(),
             recording: false,
+            sample: None,
+            samples: Vec::new(),
             path_open: false,
             stall_until: None,
             locked_up: false,

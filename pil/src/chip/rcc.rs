@@ -63,6 +63,8 @@ impl Soc {
         self.plant_next = self.time + 50 * UNITS_PER_US;
         self.reset_pending = None;
         self.path_open = false;
+        self.sample_dropped();
+        self.caches_cleared();
         self.hang_pending = false;
         self.stall_until = None;
         self.locked_up = false;

@@ -273,8 +273,8 @@ fn fp(hw1: u16, hw2: u16) -> u32 {
         return 2;
     }
     if hw1 & 0xFF20 == 0xED00 {
-        // VLDR / VSTR: 2.
-        return 2;
+        // VLDR / VSTR: 2 for a single, 3 for a double (coprocessor field 0xB; TRM Table 7-1).
+        return if hw2 & 0x0F00 == 0x0B00 { 3 } else { 2 };
     }
     // VLDM/VSTM/VPUSH/VPOP: 1 + N words (imm8 counts words for both sizes, + 1 for FLDMX).
     1 + u32::from(hw2 & 0xFF)
@@ -379,6 +379,8 @@ mod tests {
         assert_eq!(one(&[0x41, 0xEC, 0x10, 0x0B]), (2, Flow::Next)); // vmov d0, r0, r1
         assert_eq!(one(&[0xBD, 0xEC, 0x04, 0x8A]), (5, Flow::Next)); // vpop {s16-s19}
         assert_eq!(one(&[0x80, 0xED, 0x01, 0x0A]), (2, Flow::Next)); // vstr s0, [r0, #4]
+        assert_eq!(one(&[0x90, 0xED, 0x00, 0x0B]), (3, Flow::Next)); // vldr d0, [r0]
+        assert_eq!(one(&[0x80, 0xED, 0x02, 0x0B]), (3, Flow::Next)); // vstr d0, [r0, #8]
         assert_eq!(one(&[0x00, 0xEE, 0xC1, 0x0A]), (3, Flow::Next)); // vmls.f32 s0, s1, s2
         assert_eq!(one(&[0x20, 0xEE, 0xC1, 0x0A]), (1, Flow::Next)); // vnmul.f32 s0, s1, s2
         assert_eq!(one(&[0xB1, 0xEE, 0x60, 0x0A]), (1, Flow::Next)); // vneg.f32 s0, s1
