@@ -309,7 +309,7 @@ fn what_is_left(dir: &Path, out: &GapOutcome) -> Result<Vec<Block>, String> {
             continue;
         };
         let (res_unit, res_k) = plot_unit(ch);
-        let scaled: Vec<(String, Vec<f64>, Vec<f64>)> = u
+        let scaled: Vec<super::unexplained::Curve> = u
             .curves
             .iter()
             .map(|(label, k, m)| {

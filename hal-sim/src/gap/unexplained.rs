@@ -156,6 +156,9 @@ pub struct UnexplainedJson {
     pub share_of_gap: f64,
 }
 
+/// A drawn curve: its label, the variable's values (SI) and the residual's means there.
+pub type Curve = (String, Vec<f64>, Vec<f64>);
+
 /// The judgement of one channel, with what the report draws.
 #[derive(Clone, Debug)]
 pub struct Unexplained {
@@ -170,7 +173,7 @@ pub struct Unexplained {
     /// Binned means of the residual along the first variable: (series label, centres in the
     /// variable's SI unit, means in the channel's unit); `x·sgn v` is drawn against `x` per
     /// direction.
-    pub curves: Vec<(String, Vec<f64>, Vec<f64>)>,
+    pub curves: Vec<Curve>,
 }
 
 /// The judged samples of a channel (decimated to the band's stride) as indices into its
@@ -398,7 +401,7 @@ fn shape(
     r: &[f64],
     bins: &[usize],
     x_low: f64,
-) -> (String, Vec<(String, Vec<f64>, Vec<f64>)>) {
+) -> (String, Vec<Curve>) {
     if var == Variable::XSgnV {
         // Against x per direction: |x·sgn v| is the distance from the stroke's lower end.
         let (kp, mp) = curve(keys, r, bins, |k| k > 0.0);
