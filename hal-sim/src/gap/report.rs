@@ -305,7 +305,15 @@ fn what_is_left(dir: &Path, out: &GapOutcome) -> Result<Vec<Block>, String> {
             j.follows.join(", "),
             format!("{:.2}", Num(j.share_of_gap)),
         ]);
+        let file = format!("left_{}.svg", ch.name());
         let Some(var) = u.follows.first() else {
+            // A plot an earlier analysis left in the directory would describe another model.
+            match std::fs::remove_file(dir.join(&file)) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                    return Err(format!("cannot remove {}: {e}", dir.join(&file).display()))
+                }
+                _ => {}
+            }
             continue;
         };
         let (res_unit, res_k) = plot_unit(ch);
@@ -333,7 +341,6 @@ fn what_is_left(dir: &Path, out: &GapOutcome) -> Result<Vec<Block>, String> {
             }
             v => format!("{} (SI)", v.name()),
         };
-        let file = format!("left_{}.svg", ch.name());
         lines(
             &dir.join(&file),
             &format!("{} residual left, by {}", ch.name(), var.name()),
