@@ -181,8 +181,17 @@ fn gap_writes_the_augmented_model_and_the_report() {
             );
         }
     }
-    // Six maps and an overlay per channel (four), and the p–V replay.
-    let plots = 4 * (6 + 1) + 1;
+    // Six maps and an overlay per channel (four), the p–V replay, and the residual left on
+    // each channel judged structured drawn against what it follows.
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("gap.json")).unwrap()).unwrap();
+    let structured = json["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["unexplained"]["structured"] == serde_json::Value::Bool(true))
+        .count();
+    let plots = 4 * (6 + 1) + 1 + structured;
     assert_eq!(svgs, plots, "{svgs} plots");
     assert!(
         !html.contains("<script") && !html.contains("http"),

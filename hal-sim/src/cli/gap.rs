@@ -158,6 +158,14 @@ pub fn main(args: GapArgs) -> CmdResult {
         model_out.display(),
         report_out.display()
     )?;
+    let left: Vec<String> = outcome
+        .unexplained
+        .iter()
+        .map(|u| crate::gap::unexplained::sentence(u, u.channel.unit()))
+        .collect();
+    if !left.is_empty() {
+        errln!("fpc-sim gap: {}", left.join("; "))?;
+    }
     if args.json {
         outln!("{json}")?;
     }

@@ -35,6 +35,7 @@ pub mod residuals;
 pub mod select;
 pub mod synth;
 pub mod uncertainty;
+pub mod unexplained;
 
 use std::collections::BTreeMap;
 
@@ -88,6 +89,8 @@ pub struct ChannelJson {
     pub rms_before: f64,
     /// The same with the augmented model.
     pub rms_after: f64,
+    /// What the augmented model still misses, judged ([`unexplained`]).
+    pub unexplained: unexplained::UnexplainedJson,
 }
 
 /// An effect added (`docs/formats.md` §3).
@@ -178,6 +181,8 @@ pub struct GapOutcome {
     /// Each channel's residual with the input and the augmented model, band-filtered at
     /// every sample ([`residuals::full_of_raw`]), in the channels' order.
     pub filtered: Vec<ChannelResiduals>,
+    /// Each channel's residual after the fit, judged, in the channels' order.
+    pub unexplained: Vec<unexplained::Unexplained>,
 }
 
 /// One channel's band-filtered residual at every sample, with the input and the augmented
@@ -216,13 +221,28 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         );
     }
     let filtered = filtered_residuals(&measured, &band, &model, &after_model);
+    let unexplained: Vec<unexplained::Unexplained> = filtered
+        .iter()
+        .map(|c| {
+            unexplained::judge(
+                &measured,
+                &band,
+                &after_model,
+                c.channel,
+                &c.before,
+                &c.after,
+            )
+        })
+        .collect();
     let channels: Vec<ChannelJson> = filtered
         .iter()
-        .map(|c| ChannelJson {
+        .zip(&unexplained)
+        .map(|(c, u)| ChannelJson {
             name: c.channel.name().into(),
             unit: c.channel.unit().into(),
             rms_before: rms_of_full(&measured, &band, c.channel, &c.before),
             rms_after: rms_of_full(&measured, &band, c.channel, &c.after),
+            unexplained: u.json.clone(),
         })
         .collect();
     let effects = effect_rows(&ctx, &selection, sigma).map_err(Failure::runtime)?;
@@ -243,6 +263,7 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         band,
         selection,
         filtered,
+        unexplained,
     })
 }
 

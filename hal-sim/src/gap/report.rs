@@ -219,6 +219,7 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
     };
     let mut blocks = summary(out);
     blocks.extend(effect_tables(out));
+    blocks.extend(what_is_left(dir, out)?);
     blocks.extend(candidates_and_lags(&ctx, out));
     if !out.json.warnings.is_empty() {
         blocks.push(Block::Heading(2, "Warnings".into()));
@@ -282,6 +283,93 @@ fn summary(out: &GapOutcome) -> Vec<Block> {
         rows,
     ));
     blocks
+}
+
+/// What the augmented model still misses per channel ([`super::unexplained`]): in words, as
+/// a table, and each structured residual drawn against the variable it follows.
+fn what_is_left(dir: &Path, out: &GapOutcome) -> Result<Vec<Block>, String> {
+    let mut blocks = vec![Block::Heading(2, "What is left".into())];
+    let mut said = Vec::new();
+    let mut rows = Vec::new();
+    let mut images = Vec::new();
+    for u in &out.unexplained {
+        let j = &u.json;
+        let ch = u.channel;
+        said.push(super::unexplained::sentence(u, ch.unit()));
+        rows.push(vec![
+            ch.name().to_string(),
+            eng(j.rms, ch.unit()),
+            eng(j.noise_floor, ch.unit()),
+            format!("{:.2}", Num(j.structured_share)),
+            if j.structured { "yes" } else { "no" }.into(),
+            j.follows.join(", "),
+            format!("{:.2}", Num(j.share_of_gap)),
+        ]);
+        let file = format!("left_{}.svg", ch.name());
+        let Some(var) = u.follows.first() else {
+            // A plot an earlier analysis left in the directory would describe another model.
+            match std::fs::remove_file(dir.join(&file)) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                    return Err(format!("cannot remove {}: {e}", dir.join(&file).display()))
+                }
+                _ => {}
+            }
+            continue;
+        };
+        let (res_unit, res_k) = plot_unit(ch);
+        let scaled: Vec<super::unexplained::Curve> = u
+            .curves
+            .iter()
+            .map(|(label, k, m)| {
+                let kk = if *var == super::unexplained::Variable::XSgnV
+                    || *var == super::unexplained::Variable::X
+                {
+                    k.iter().map(|v| v * 1e3).collect()
+                } else {
+                    k.clone()
+                };
+                (label.clone(), kk, m.iter().map(|v| v * res_k).collect())
+            })
+            .collect();
+        let series: Vec<Series<'_>> = scaled
+            .iter()
+            .map(|(label, k, m)| Series::new(label, k, m))
+            .collect();
+        let x_label = match var {
+            super::unexplained::Variable::XSgnV | super::unexplained::Variable::X => {
+                "x, mm".to_string()
+            }
+            v => format!("{} (SI)", v.name()),
+        };
+        lines(
+            &dir.join(&file),
+            &format!("{} residual left, by {}", ch.name(), var.name()),
+            &x_label,
+            &format!("mean residual, {res_unit}"),
+            &series,
+        )?;
+        images.push((
+            format!("{} residual left by {}", ch.name(), var.name()),
+            file,
+        ));
+    }
+    blocks.push(Block::List(said));
+    blocks.push(table(
+        &[
+            "channel",
+            "RMS left",
+            "noise floor",
+            "structured share",
+            "structured",
+            "follows",
+            "RMS² after / before",
+        ],
+        rows,
+    ));
+    if !images.is_empty() {
+        blocks.push(Block::Images(images));
+    }
+    Ok(blocks)
 }
 
 /// A fitted parameter as the report writes it: rounded to its uncertainty (`amplitude_n =
