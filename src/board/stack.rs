@@ -103,9 +103,17 @@ pub fn paint() {
     }
 }
 
-/// The deepest the stack has reached since [`paint`], bytes from its top.
-pub fn high_water() -> u32 {
+/// Words [`high_water`] reads between two yields: ≈ 5,000 cycles, 30 µs at 170 MHz.
+const SCAN_CHUNK_WORDS: u32 = 512;
+
+/// The deepest the stack has reached since [`paint`], bytes from its top. The scan reads
+/// up to the whole painted stack (≈ 17,000 words, ≈ 1 ms of the core at 170 MHz, more with
+/// the 20 kHz interrupts taking their share): it yields to the other thread-mode tasks every
+/// [`SCAN_CHUNK_WORDS`], so that the supervision task, which alone feeds the watchdog, is
+/// never held off by it.
+pub async fn high_water() -> u32 {
     let mut at = bottom();
+    let mut chunk = 0;
     while at < top() {
         // SAFETY: an aligned word of SRAM1 inside the stack's range, read without a
         // reference (the stack's owner may be writing it: a torn view only moves the mark
@@ -115,6 +123,11 @@ pub fn high_water() -> u32 {
             break;
         }
         at += 4;
+        chunk += 1;
+        if chunk == SCAN_CHUNK_WORDS {
+            chunk = 0;
+            embassy_futures::yield_now().await;
+        }
     }
     top() - at
 }
@@ -124,8 +137,8 @@ static LOGGED: AtomicU32 = AtomicU32::new(0);
 
 /// Logs the high-water mark when it has grown by 256 bytes or more since last logged (and the
 /// first time): called by the stack-watch task.
-pub fn log_growth() {
-    let used = high_water();
+pub async fn log_growth() {
+    let used = high_water().await;
     if used >= LOGGED.load(Ordering::Relaxed) + 256 || LOGGED.load(Ordering::Relaxed) == 0 {
         LOGGED.store(used, Ordering::Relaxed);
         defmt::info!(
