@@ -481,11 +481,23 @@ fn gram_binomial_coefficients(n: usize, p: usize) -> Option<[u32; MAX_ORDER + 1]
 /// 2⁵³ for every window (checked by the tests), so also exact as an f64.
 fn gram_norm(alpha: &[i32; MAX_ORDER + 1], n: usize) -> u64 {
     let mut norm = 0u64;
-    for j in 0..n {
-        let value = alpha.iter().enumerate().fold(0i64, |s, (q, &a)| {
-            s.wrapping_add(i64::from(a).wrapping_mul(i64::from(binomial(j, q))))
+    // C(j, q), q = 0..=MAX_ORDER, for j = 0, 1, … in turn: C(j+1, q) = C(j, q) + C(j, q−1)
+    // (Pascal's rule, exact), a sum per entry where a binomial per entry took q divisions.
+    let mut row = [0i64; MAX_ORDER + 1];
+    if let Some(first) = row.first_mut() {
+        *first = 1;
+    }
+    for _ in 0..n {
+        let value = alpha.iter().zip(&row).fold(0i64, |s, (&a, &c)| {
+            s.wrapping_add(i64::from(a).wrapping_mul(c))
         });
         norm = norm.wrapping_add(value.unsigned_abs().wrapping_mul(value.unsigned_abs()));
+        let mut below = 0i64;
+        for c in row.iter_mut() {
+            let this = *c;
+            *c = this.wrapping_add(below);
+            below = this;
+        }
     }
     norm
 }
