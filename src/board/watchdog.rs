@@ -31,7 +31,7 @@ const _: () = assert!(
 const _: () =
     assert!(WATCHDOG_TIMEOUT_US.is_multiple_of(TICK_US) && WATCHDOG_TIMEOUT_US >= 2 * TICK_US);
 
-/// Reload value of the running window (LSI 29.5–34 kHz over temperature: 2.8–3.3 ms).
+/// Reload value of the running window (LSI 29.5–34 kHz over temperature: 1.9–2.2 ms).
 const RELOAD: u16 = (WATCHDOG_TIMEOUT_US / TICK_US - 1) as u16;
 
 /// The running IWDG. Once started it cannot be stopped (hardware), only fed.

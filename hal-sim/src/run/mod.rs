@@ -134,6 +134,7 @@ fn simulate<'s>(
     // The board's independent watchdog runs as on the MCU (only a hung task starves it).
     let execution = Execution {
         watchdog_timeout_us: Some(opts.watchdog_timeout_us),
+        boot_us: Some(opts.boot_us),
         flash: opts
             .calibration
             .as_ref()

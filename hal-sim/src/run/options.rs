@@ -198,6 +198,9 @@ pub struct RunOptions {
     /// Timeout of the board's independent watchdog, µs (the board's
     /// [`crate::board::exec::WATCHDOG_TIMEOUT_US`]; a run may try another).
     pub watchdog_timeout_us: u64,
+    /// Time from a reset of the MCU to its first control cycle, µs (the board's
+    /// [`crate::board::exec::BOOT_US`]; a run may try another).
+    pub boot_us: u64,
     /// How the volume ratio is chosen (`--volume-ratio`): sent to the firmware before the
     /// first stroke when fixed.
     pub volume_ratio: RatioTarget,
@@ -245,6 +248,7 @@ impl RunOptions {
             schedule: Vec::new(),
             faults: Vec::new(),
             watchdog_timeout_us: WATCHDOG_TIMEOUT_US,
+            boot_us: crate::board::exec::BOOT_US,
             volume_ratio: RatioTarget::FollowMeasured,
             log_rate_hz: CONTROL_RATE_HZ,
             calibration: None,
