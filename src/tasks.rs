@@ -44,7 +44,7 @@ pub const SUPERVISION_PERIOD_US: u32 = 1000;
 pub const WATCHDOG_TIMEOUT_US: u32 = 2_000;
 
 /// Timeout of the watchdog from power-up to its first feed, µs: board bring-up and
-/// building the control step (≈ 0.21 M instructions, `bench/cm4`) come before the control
+/// building the control step (≈ 14,000 instructions, `bench/cm4`) come before the control
 /// task's first check-in; the outputs are off all that time.
 pub const BOOT_WATCHDOG_TIMEOUT_US: u32 = 20_000;
 
