@@ -146,9 +146,9 @@ const REGULATOR_STARTUP_CYCLES: u32 = 20 * (super::clocks::SYSCLK_HZ / 1_000_000
 
 /// Clocks ADC1 and ADC2 (kernel clock SYSCLK / 4 = 42.5 MHz, under the 60 MHz maximum), starts
 /// both regulators together, waits their start-up once, and calibrates both single-ended
-/// together (RM0440 §21.4.6 "ADC deep-power-down mode and ADC voltage regulator", §21.4.8
-/// "Single-ended and differential input channels": no channel is differential, so no
-/// differential calibration). Leaves both disabled. Embassy's `Adc::new` does the same one ADC
+/// together (RM0440's ADC chapter, "ADC deep-power-down mode and ADC voltage regulator",
+/// "Calibration", "Single-ended and differential input channels": no channel is
+/// differential, so no differential calibration). Leaves both disabled. Embassy's `Adc::new` does the same one ADC
 /// at a time with three 20 µs waits each: ≈ 0.5 ms of the boot, which delays the brake after
 /// a watchdog reset.
 fn power_up_and_calibrate(_adc1: Peri<'static, ADC1>, _adc2: Peri<'static, ADC2>) {

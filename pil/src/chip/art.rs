@@ -1,5 +1,5 @@
-//! The flash interface's caches as the emulated time pays them (RM0440 §3.3.3–3.3.5, "Read
-//! access latency", "Instruction cache memory", "Data cache memory"): with FLASH_ACR.ICEN an
+//! The flash interface's caches as the emulated time pays them (RM0440's embedded flash memory,
+//! "Read access latency", "Instruction cache memory", "Data cache memory"): with FLASH_ACR.ICEN an
 //! instruction fetch from program flash that hits the 1 KiB instruction cache (32 lines of
 //! 4 × 64 bits) costs no wait state; with DCEN a data read that hits the 256-byte data cache
 //! (8 lines of 4 × 64 bits) neither. A miss pays FLASH_ACR.LATENCY and the 64-bit flash line

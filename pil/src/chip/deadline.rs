@@ -1,7 +1,8 @@
 //! The control period against its true deadline: the duties computed from a sample must be in
 //! TIM1/TIM8's compare registers before the update event that follows the sample, or they
-//! go into force one period late (the compares are preloaded, RM0440 §28.3.9 "Output compare
-//! mode": the preload register is transferred to the shadow register at each update event).
+//! go into force one period late (the compares are preloaded, OCxPE: RM0440's advanced-control
+//! timers, "PWM mode": the preload register is transferred to the shadow register at each
+//! update event).
 //!
 //! A sample opens when the ADC burst ends (the regular group's last conversion carried by
 //! DMA, or the injected group's if there is no regular one): the firmware's interrupt is

@@ -47,13 +47,13 @@ pub struct PeriodLoad {
     pub dcache_off: bool,
 }
 
-/// FLASH_ACR.ICEN: the instruction cache enabled (RM0440 §3.7.1).
+/// FLASH_ACR.ICEN: the instruction cache enabled (RM0440, "Flash access control register").
 const ACR_ICEN: u32 = 1 << 9;
 /// FLASH_ACR.DCEN: the data cache enabled.
 const ACR_DCEN: u32 = 1 << 10;
 
-/// The end of APB1 and APB2 (RM0440 Table 4, "STM32G4 Series memory map and peripheral
-/// register boundary addresses"): AHB1 starts here, AHB2 at 0x4800_0000.
+/// The end of APB1 and APB2 (RM0440's memory map, "peripheral register boundary addresses"):
+/// AHB1 starts here, AHB2 at 0x4800_0000.
 const APB_END: u32 = 0x4002_0000;
 
 /// Wait cycles of a CPU access to an APB peripheral (TIM1, TIM8, TIM2, TIM4, IWDG, PWR): the
