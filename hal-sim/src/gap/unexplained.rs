@@ -10,6 +10,7 @@ use crate::plant::model::MachineModel;
 
 use super::channel::{resolution, ChannelId};
 use super::data::Measured;
+use super::fit::correlation;
 use super::residuals::{rms_of_full, Band};
 
 /// Bins per variable (quantiles of the variable over the judged samples).
@@ -345,26 +346,6 @@ fn additive(y: &[f64], fold: &[usize], binned: &Binned) -> (Vec<usize>, f64) {
         }
     }
     (taken, (1.0 - current / base).max(0.0))
-}
-
-/// Pearson correlation of two equally long series (0 when either is constant).
-fn correlation(a: &[f64], b: &[f64]) -> f64 {
-    let n = a.len().min(b.len()) as f64;
-    if n < 2.0 {
-        return 0.0;
-    }
-    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
-    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
-    for (x, y) in a.iter().zip(b) {
-        sab += (x - ma) * (y - mb);
-        saa += (x - ma).powi(2);
-        sbb += (y - mb).powi(2);
-    }
-    if saa > 0.0 && sbb > 0.0 {
-        sab / (saa * sbb).sqrt()
-    } else {
-        0.0
-    }
 }
 
 /// In-sample bin centres (mean key) and means of `r` by `bins`, bins with samples only.
