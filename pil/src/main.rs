@@ -225,7 +225,7 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
         s.position_rms_diff_vs_host_m
             .map_or("n/a".into(), |v| format!("{:.2} µm", v * 1e6)),
     );
-    eprintln!("fpc-pil run: {}", deadline_line(&s.deadline));
+    eprintln!("fpc-pil run: {}", s.deadline);
     if args.json {
         println!(
             "{}",
@@ -233,20 +233,6 @@ fn run_cmd(args: RunArgs) -> Result<ExitCode, String> {
         );
     }
     Ok(ExitCode::SUCCESS)
-}
-
-/// The samples' duties against their update events, in words.
-fn deadline_line(d: &fpc_pil::chip::DeadlineFigures) -> String {
-    format!(
-        "last compare write {:.0} cycles after the burst's end mean, {} worst, of a deadline of \
-         {} ({:.0} %); {} of {} samples missed their update",
-        d.mean_cycle_cycles,
-        d.worst_cycle_cycles,
-        d.deadline_cycles,
-        100.0 * d.worst_cycle_cycles as f64 / d.deadline_cycles.max(1) as f64,
-        d.missed_updates,
-        d.timed_samples,
-    )
 }
 
 /// The emulated time's CPI (`None`: the counted cycles); `--cpi` must be plausible.
@@ -309,7 +295,7 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
         r.faults.join(", "),
         r.final_mode
     );
-    println!("  {}", deadline_line(&r.deadline));
+    println!("  {}", r.deadline);
     for (t, line) in &r.log {
         println!("  {t:.4} {line}");
     }
@@ -377,11 +363,8 @@ fn save_timing_cmd(args: SaveTimingArgs) -> Result<ExitCode, String> {
     row("idle, no save", &t.no_save);
     row("during the save", &t.during_save);
     row("stroking", &t.stroking);
-    println!(
-        "  calibrating and saving: {}",
-        deadline_line(&t.deadline_calibrating)
-    );
-    println!("  stroking: {}", deadline_line(&t.deadline_stroking));
+    println!("  calibrating and saving: {}", t.deadline_calibrating);
+    println!("  stroking: {}", t.deadline_stroking);
     println!(
         "  worst control period during the save: {:.1} µs of {} µs (data cache off, as it \
          was); no-cache bound {:.1} µs; a save overlapping the strokes: {:.1} µs (no-cache \

@@ -135,3 +135,20 @@ impl DeadlineFigures {
         }
     }
 }
+
+impl std::fmt::Display for DeadlineFigures {
+    /// The figures in words, as `fpc-pil` and the PIL's tests print them.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "last compare write {:.0} cycles after the burst's end mean, {} worst, of a \
+             deadline of {} ({:.0} %); {} of {} samples missed their update",
+            self.mean_cycle_cycles,
+            self.worst_cycle_cycles,
+            self.deadline_cycles,
+            100.0 * self.worst_cycle_cycles as f64 / self.deadline_cycles.max(1) as f64,
+            self.missed_updates,
+            self.timed_samples,
+        )
+    }
+}
