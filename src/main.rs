@@ -32,7 +32,6 @@ mod firmware {
     use core::convert::Infallible;
 
     use embassy_executor::Spawner;
-    use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
     use fpc::control::calibration::record::CalibrationRecord;
     use fpc::control::calibration::store::LoadError;
     use fpc::control::config::ControlConfig;
@@ -41,9 +40,9 @@ mod firmware {
 
     use crate::board::{self, BoardClock, BoardSleep, BoardWatchdog};
 
-    /// State shared by the control and supervision tasks (two executors, so a
-    /// critical-section mutex).
-    static SHARED: Shared<CriticalSectionRawMutex> = Shared::new();
+    /// State shared by the control task and the thread-mode tasks (masks every interrupt
+    /// while held: [`board::critical`]).
+    static SHARED: Shared<board::critical::ControlRawMutex> = Shared::new();
 
     /// The 20 kHz control task (control executor, woken by each ADC burst).
     #[embassy_executor::task]

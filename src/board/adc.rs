@@ -38,7 +38,6 @@ use embassy_stm32::pac::bdma::vals::{Dir, Pl, Size};
 use embassy_stm32::peripherals::{ADC1, ADC2, DMA1_CH1};
 use embassy_stm32::triggers::TIM1_TRGO2;
 use embassy_stm32::Peri;
-use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::signal::Signal;
 use fpc::ports::{
@@ -46,6 +45,8 @@ use fpc::ports::{
     PressureInput, SinCosCodes,
 };
 use fpc::units::{AdcCode, Section, Ticks};
+
+use super::critical::ControlRawMutex;
 
 use super::fault::{boot_fault, BootCheck};
 use super::time::now_ticks;
@@ -131,9 +132,9 @@ impl Burst {
 }
 
 /// Hands each burst from the DMA interrupt to the control task (latest wins).
-static BURST_READY: Signal<CriticalSectionRawMutex, Burst> = Signal::new();
+static BURST_READY: Signal<ControlRawMutex, Burst> = Signal::new();
 /// The burst of the current control cycle, read by the input ports.
-static CURRENT: Mutex<CriticalSectionRawMutex, Cell<Burst>> = Mutex::new(Cell::new(Burst::EMPTY));
+static CURRENT: Mutex<ControlRawMutex, Cell<Burst>> = Mutex::new(Cell::new(Burst::EMPTY));
 
 fn current() -> Burst {
     CURRENT.lock(Cell::get)

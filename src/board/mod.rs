@@ -71,6 +71,7 @@
 mod adc;
 mod ccm;
 mod clocks;
+pub mod critical;
 mod fault;
 mod mutation;
 mod pwm;

@@ -19,7 +19,7 @@
 use core::cell::{Cell, RefCell};
 use core::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
-use cortex_m::interrupt::{CriticalSection, Mutex};
+use critical_section::{CriticalSection, Mutex, RestoreState};
 use fpc::link::channels::{
     COMMANDS_BYTES, DEFMT_BYTES, REPLIES_BYTES, TELEMETRY_BYTES, UP_DEFMT, UP_REPLIES, UP_TELEMETRY,
 };
@@ -153,8 +153,9 @@ impl UpBuffer for RawUp {
     }
 }
 
-/// The defmt logger: one frame at a time inside a critical section (frames from different
-/// priorities must not interleave), never waiting. The encoder hands its output over in
+/// The defmt logger: one frame at a time inside the global critical section
+/// ([`super::critical`]: it masks the thread-mode and time interrupts, never the control
+/// ones, which do not log), never waiting. The encoder hands its output over in
 /// small chunks (rzcobs: down to single bytes), so a frame written chunk by chunk would be
 /// torn when the channel fills part-way through it: its head in the buffer, a middle chunk
 /// dropped, its tail (or the next frame) after it, and the host decoding garbage or a wrong
@@ -173,16 +174,17 @@ static FRAME: Mutex<RefCell<(heapless::Vec<u8, FRAME_BYTES>, bool)>> =
 
 /// A frame is being written.
 static TAKEN: AtomicBool = AtomicBool::new(false);
-/// A log began while a frame was being written (only a fault handler can do that, the
-/// frame masks interrupts): that nested frame is dropped, the outer one goes on.
+/// A log began while a frame was being written (a panic or fault handler preempting it):
+/// that nested frame is dropped, the outer one goes on.
 static NESTED: AtomicBool = AtomicBool::new(false);
-/// Whether interrupts were enabled when the frame began, restored at its end.
-static INTERRUPTS_WERE_ON: Mutex<Cell<bool>> = Mutex::new(Cell::new(false));
+/// The critical section's restore state, taken when the frame began and given back at its
+/// end.
+static RESTORE: Mutex<Cell<RestoreState>> = Mutex::new(Cell::new(RestoreState::invalid()));
 static ENCODER: Mutex<RefCell<defmt::Encoder>> = Mutex::new(RefCell::new(defmt::Encoder::new()));
 
 /// Appends an encoded chunk to the frame being written (inside the logger's critical
 /// section).
-fn write_chunk(cs: &CriticalSection, bytes: &[u8]) {
+fn write_chunk(cs: CriticalSection, bytes: &[u8]) {
     let mut frame = FRAME.borrow(cs).borrow_mut();
     if frame.0.extend_from_slice(bytes).is_err() {
         frame.1 = true;
@@ -190,7 +192,7 @@ fn write_chunk(cs: &CriticalSection, bytes: &[u8]) {
 }
 
 /// Writes the collected frame to up 0 whole, or drops it; empties it for the next one.
-fn commit_frame(cs: &CriticalSection) {
+fn commit_frame(cs: CriticalSection) {
     let mut frame = FRAME.borrow(cs).borrow_mut();
     if !frame.1 {
         if let Some(mut channel) = RawUp::get(UP_DEFMT) {
@@ -201,25 +203,26 @@ fn commit_frame(cs: &CriticalSection) {
     frame.1 = false;
 }
 
-// SAFETY: `acquire` and `release` bracket each frame in one critical section (interrupts
-// masked from the first to the last byte), so the encoder and the channel have one user; a
-// nested frame (from a fault handler) touches neither.
+// SAFETY: `acquire` and `release` bracket each frame in one global critical section, from
+// the first to the last byte, and only the holder of `TAKEN` touches the encoder and the
+// channel; a nested frame (from a handler that preempted the frame) touches neither.
 unsafe impl defmt::Logger for Logger {
     fn acquire() {
-        let were_on = cortex_m::register::primask::read().is_active();
-        cortex_m::interrupt::disable();
+        // SAFETY: released in `release` (defmt pairs them), or at once when nested.
+        let restore = unsafe { critical_section::acquire() };
         if TAKEN.swap(true, Ordering::Relaxed) {
-            // Interrupts were already masked by the outer frame: nothing to restore.
             NESTED.store(true, Ordering::Relaxed);
+            // SAFETY: the state this `acquire` just returned, released in order.
+            unsafe { critical_section::release(restore) };
             return;
         }
-        // SAFETY: interrupts are masked just above, until `release`.
+        // SAFETY: inside the critical section taken just above, until `release`.
         let cs = unsafe { CriticalSection::new() };
-        INTERRUPTS_WERE_ON.borrow(&cs).set(were_on);
+        RESTORE.borrow(cs).set(restore);
         ENCODER
-            .borrow(&cs)
+            .borrow(cs)
             .borrow_mut()
-            .start_frame(|b| write_chunk(&cs, b));
+            .start_frame(|b| write_chunk(cs, b));
     }
 
     unsafe fn flush() {}
@@ -228,29 +231,28 @@ unsafe impl defmt::Logger for Logger {
         if NESTED.swap(false, Ordering::Relaxed) {
             return;
         }
-        // SAFETY: called after `acquire`, interrupts still masked.
+        // SAFETY: called after `acquire`, still inside its critical section.
         let cs = unsafe { CriticalSection::new() };
         ENCODER
-            .borrow(&cs)
+            .borrow(cs)
             .borrow_mut()
-            .end_frame(|b| write_chunk(&cs, b));
-        commit_frame(&cs);
+            .end_frame(|b| write_chunk(cs, b));
+        commit_frame(cs);
+        let restore = RESTORE.borrow(cs).get();
         TAKEN.store(false, Ordering::Relaxed);
-        if INTERRUPTS_WERE_ON.borrow(&cs).get() {
-            // SAFETY: restores the state `acquire` found.
-            unsafe { cortex_m::interrupt::enable() };
-        }
+        // SAFETY: ends the critical section `acquire` began, with its state.
+        unsafe { critical_section::release(restore) };
     }
 
     unsafe fn write(bytes: &[u8]) {
         if NESTED.load(Ordering::Relaxed) {
             return;
         }
-        // SAFETY: called between `acquire` and `release`, interrupts masked.
+        // SAFETY: called between `acquire` and `release`, inside the critical section.
         let cs = unsafe { CriticalSection::new() };
         ENCODER
-            .borrow(&cs)
+            .borrow(cs)
             .borrow_mut()
-            .write(bytes, |b| write_chunk(&cs, b));
+            .write(bytes, |b| write_chunk(cs, b));
     }
 }

@@ -299,6 +299,28 @@ unsafe impl defmt::Logger for NoLog {
     unsafe fn write(_bytes: &[u8]) {}
 }
 
+/// The critical section the shared state's mutex takes: every interrupt masked (PRIMASK),
+/// as the firmware's `ControlRawMutex` does for the same state.
+struct MaskAll;
+critical_section::set_impl!(MaskAll);
+
+// SAFETY: one core; `acquire` sets PRIMASK and `release` clears it only if it was clear
+// before, so nothing else runs between them.
+unsafe impl critical_section::Impl for MaskAll {
+    unsafe fn acquire() -> u8 {
+        let was_on = cortex_m::register::primask::read().is_active();
+        cortex_m::interrupt::disable();
+        u8::from(was_on)
+    }
+
+    unsafe fn release(was_on: u8) {
+        if was_on != 0 {
+            // SAFETY: interrupts were enabled when the matching `acquire` ran.
+            unsafe { cortex_m::interrupt::enable() };
+        }
+    }
+}
+
 #[defmt::panic_handler]
 fn defmt_panic() -> ! {
     panic!("defmt panic")
