@@ -10,7 +10,7 @@
 //! | [`Check::HangAtRest`] | the boot, the first feed, then the control task hung | the watchdog resets within 5 ms of the hang |
 //! | [`Check::TornSave`] | [`crate::faults::Scenario::TornSaveStaleFlag`] | the previous record loads |
 //! | [`Check::FactoryBrownOut`] | [`crate::faults::Scenario::FactoryBrownOut`] | the boot refuses to run |
-//! | [`Check::Deadline`] | the boot, then 0.1 s of homing (the bridges switching) | every sample's duties in the compare registers before their update event ([`crate::chip::deadline`]) |
+//! | [`Check::Deadline`] | the boot, then 0.1 s of homing (the bridges switching) | every sample's duties in the compare registers before their update event ([`crate::chip::deadline`]); no global critical section entered at the control priorities (the firmware's `CONTROL_LEVEL_ENTRIES`) |
 
 use std::path::Path;
 
@@ -41,7 +41,7 @@ pub enum Check {
 }
 
 /// Every mutation (`src/board/mutation.rs`'s `ALL`) and the check that must catch it.
-pub const MUTATIONS: [(&str, Check); 13] = [
+pub const MUTATIONS: [(&str, Check); 14] = [
     ("ossi-clear", Check::Boot),
     ("ois-high", Check::Boot),
     ("bke-off", Check::TripAtRest),
@@ -55,6 +55,7 @@ pub const MUTATIONS: [(&str, Check); 13] = [
     ("bor-zero-accepted", Check::FactoryBrownOut),
     ("stack-overflow", Check::Boot),
     ("late-duties", Check::Deadline),
+    ("control-critical-section", Check::Deadline),
 ];
 
 /// A session at rest on the reference machine, `image` flashed with a calibration.
@@ -200,7 +201,12 @@ pub fn run(image: &Image, check: Check) -> Result<(), String> {
             let t = s.chip.time_s() + 0.1;
             until(&mut s, t)?;
             let d = DeadlineFigures::of(&s.chip.soc_ref().samples);
-            if d.worst_cycle_cycles == 0 {
+            let entries = crate::run::read_symbol_word(&s.chip, "CONTROL_LEVEL_ENTRIES");
+            if entries != Some(0) {
+                Err(format!(
+                    "global critical sections entered at the control priorities: {entries:?}"
+                ))
+            } else if d.worst_cycle_cycles == 0 {
                 Err("no compare written while homing".into())
             } else if d.missed_updates > 0 || d.worst_cycle_cycles > d.deadline_cycles {
                 Err(format!(

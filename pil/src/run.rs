@@ -77,6 +77,10 @@ pub struct PilSummary {
     /// The deepest the stack has been since the boot painted it, bytes (read from RAM as a
     /// probe would: the lowest word that lost the paint).
     pub stack_high_water_bytes: Option<u32>,
+    /// Global critical sections the firmware entered at the control or end-of-burst
+    /// priority (its `CONTROL_LEVEL_ENTRIES`, read from RAM; `None`: no such symbol): each
+    /// could preempt a thread-mode holder, so 0 is the rule (`src/board/critical.rs`).
+    pub control_level_critical_sections: Option<u32>,
 }
 
 /// A finished PIL run.
@@ -208,6 +212,7 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
         telemetry_frames: session.frames,
         stack_bytes: stack.map(|s| s.size),
         stack_high_water_bytes: stack.map(|s| s.high_water),
+        control_level_critical_sections: read_symbol_word(&session.chip, "CONTROL_LEVEL_ENTRIES"),
     };
     Ok(PilOutcome {
         summary,
@@ -216,6 +221,14 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
         periods,
         profile,
     })
+}
+
+/// The 32-bit word at the firmware's symbol `name`, read from the emulated RAM.
+pub(crate) fn read_symbol_word(chip: &crate::chip::Chip, name: &str) -> Option<u32> {
+    let addr = chip.image().symbol(name)?;
+    let mut w = [0u8; 4];
+    chip.read_mem(addr, &mut w).ok()?;
+    Some(u32::from_le_bytes(w))
 }
 
 /// The run as the PIL makes it, with the calibration the board's flash holds: `run`'s own,

@@ -673,6 +673,13 @@ fn the_main_scenario_on_the_elf_meets_the_figures_of_the_host_build_within_50_us
     assert!(s.run.faults.is_empty(), "faults: {:?}", s.run.faults);
     assert_eq!(s.run.state, "holding");
     assert_eq!(s.resets, 0);
+    // No global critical section at the control priorities: it could preempt a thread-mode
+    // holder of it (src/board/critical.rs).
+    assert_eq!(
+        s.control_level_critical_sections,
+        Some(0),
+        "global critical sections at the control priorities"
+    );
     let clearance = s.run.min_head_clearance_m.expect("no clearance figure");
     assert!(clearance >= 0.6e-3, "head clearance {clearance} m < 0.6 mm");
     let dead_point = s.run.dead_point_error_m.expect("no dead-point figure");

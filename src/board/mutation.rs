@@ -11,7 +11,7 @@
 const ACTIVE: Option<&str> = option_env!("FPC_MUTATION");
 
 /// Every mutation, by name (a build with any other name fails to compile).
-pub const ALL: [&str; 13] = [
+pub const ALL: [&str; 14] = [
     "ossi-clear",
     "ois-high",
     "bke-off",
@@ -25,6 +25,7 @@ pub const ALL: [&str; 13] = [
     "bor-zero-accepted",
     "stack-overflow",
     "late-duties",
+    "control-critical-section",
 ];
 
 const fn same(a: &str, b: &str) -> bool {

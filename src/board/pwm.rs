@@ -287,6 +287,11 @@ impl PwmOutput for MotorPwm {
             // event that should put them in force.
             cortex_m::asm::delay(4_000);
         }
+        if mutation::is("control-critical-section") {
+            // The global critical section at the control priority (against the rule of
+            // `super::critical`).
+            critical_section::with(|_| ());
+        }
         for (ch, duty) in PHASES.into_iter().zip(duties) {
             tim.ccr(ch).write(|w| w.set_ccr(compare_value(duty)));
         }
