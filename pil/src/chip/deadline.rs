@@ -7,9 +7,11 @@
 //! A sample opens when the ADC burst ends (the regular group's last conversion carried by
 //! DMA, or the injected group's if there is no regular one): the firmware's interrupt is
 //! pended from then on, so the latency to its entry (a masked interrupt, another handler
-//! running) counts against the deadline. Each CPU write of CCR1–CCR3 of TIM1 or TIM8 while
-//! the sample is open is timed at the end of the block that makes it (the emulator advances
-//! time a block at a time: an upper bound). The sample closes at the next burst's end.
+//! running) counts against the deadline. Each write of CCR1–CCR3 of TIM1 or TIM8 by the
+//! control executor's interrupt (UART5, which runs the control step: the sample's duties;
+//! the set-up's writes in thread mode are no sample's) while the sample is open is timed at
+//! the end of the block that makes it (the emulator advances time a block at a time: an
+//! upper bound). The sample closes at the next burst's end.
 //!
 //! A write after its own timer's update event since the sample is a missed update (the value
 //! applies a period late, as on the chip); the deadline is the time from the burst's end to
@@ -85,9 +87,10 @@ impl Soc {
         }
     }
 
-    /// The CPU wrote register `off` of timer `t` (0: TIM1, 1: TIM8).
+    /// The CPU wrote register `off` of timer `t` (0: TIM1, 1: TIM8); only the control
+    /// executor's writes of the phases' compares are timed.
     pub(super) fn timer_written(&mut self, t: usize, off: u32) {
-        if !PHASE_CCRS.contains(&off) {
+        if !PHASE_CCRS.contains(&off) || self.ipsr != nvic::irq(irqn::UART5) {
             return;
         }
         let now = self.time;
