@@ -255,7 +255,7 @@ impl SavitzkyGolay {
     /// [`SavitzkyGolay::new`] figure), and a bias of `a·T·(m−1)/2` under an acceleration a.
     ///
     /// `samples` is clamped to 2..=N; before a start this is a no-op (zero output). Costs
-    /// N−1 pushes: a cold path, once.
+    /// N−1 slides of the window and one output: a cold path, once.
     #[cold]
     #[inline(never)]
     pub fn restart_on_line(&mut self, samples: usize) -> Derivatives {
@@ -289,12 +289,36 @@ impl SavitzkyGolay {
             let half = if offset < 0.0 { -0.5 } else { 0.5 };
             base.wrapping_add((offset + half) as i32)
         };
-        self.start(line(0));
-        let mut out = Derivatives::default();
-        for i in 1..n {
-            out = self.push(PositionCounts::from_bits(line(i)));
+        let mut xs = [0i32; MAX_WINDOW];
+        for (i, x) in xs.iter_mut().enumerate().take(n) {
+            *x = line(i);
         }
-        out
+        let (first, rest) = xs.split_at(1);
+        self.start(first.first().copied().unwrap_or(base));
+        let rest = rest.get(..n - 1).unwrap_or_default();
+        match self.order {
+            1 => self.fill::<1>(rest),
+            2 => self.fill::<2>(rest),
+            3 => self.fill::<3>(rest),
+            _ => self.fill::<4>(rest),
+        }
+    }
+
+    /// Slides `xs` in and returns the derivatives once, at the end: the state and the output
+    /// of as many pushes, without the outputs nobody reads.
+    #[inline(never)]
+    fn fill<const K: usize>(&mut self, xs: &[i32]) -> Derivatives {
+        for &x in xs {
+            self.slide_apart::<K>(x);
+        }
+        self.derivatives::<K>()
+    }
+
+    /// [`SavitzkyGolay::slide`] as a call of its own: `fill`'s loop, unrolled around the
+    /// inlined body, took kilobytes of flash per order for a path that runs once per stop.
+    #[inline(never)]
+    fn slide_apart<const K: usize>(&mut self, x: i32) {
+        self.slide::<K>(x);
     }
 
     /// Adds the newest position and returns the derivatives at the evaluation point.
@@ -334,6 +358,13 @@ impl SavitzkyGolay {
 
     #[inline(always)]
     fn advance<const K: usize>(&mut self, x: i32) -> Derivatives {
+        self.slide::<K>(x);
+        self.derivatives::<K>()
+    }
+
+    /// Slides the window by one raw input `x`: the ring and the moments T₀..T_K.
+    #[inline(always)]
+    fn slide<const K: usize>(&mut self, x: i32) {
         let newest = self
             .unwrapped
             .wrapping_add(i64::from(x.wrapping_sub(self.last_input)));
@@ -362,7 +393,11 @@ impl SavitzkyGolay {
         }
         *t1 = t1.wrapping_add(*t0).wrapping_sub(leave(c1));
         *t0 = t0.wrapping_add(newest.wrapping_sub(oldest));
+    }
 
+    /// The derivatives at the evaluation point from the moments T₀..T_K.
+    #[inline(always)]
+    fn derivatives<const K: usize>(&self) -> Derivatives {
         let t = &self.moments;
         let [a1, a2, a3, a4] = &self.alpha;
         let [v1, v2, v3, v4] = self.weights_v;
@@ -966,6 +1001,28 @@ mod tests {
                 "k={k}"
             );
             assert!((f64::from(d.acceleration_mps2) - a).abs() < 0.1, "k={k}");
+        }
+    }
+
+    /// The refill slides the line in without its outputs: the moments and the output are
+    /// those of a fresh filter fed the window's contents, oldest first, to the bit, for every
+    /// order.
+    #[test]
+    fn a_restart_holds_what_pushing_the_line_would() {
+        for order in 1..=4 {
+            let mut sg = SavitzkyGolay::new(cfg(21, order, 0)).unwrap();
+            for i in 0..9 {
+                sg.push(bits(i32::MAX - 300 + 37 * i + (i * i) % 5));
+            }
+            let d = sg.restart_on_line(7);
+            let mut fresh = SavitzkyGolay::new(cfg(21, order, 0)).unwrap();
+            let mut reference = Derivatives::default();
+            for k in 0..sg.window {
+                let x = sg.ring[(sg.head + k) % sg.window];
+                reference = fresh.push(bits(x as i32));
+            }
+            assert_eq!(sg.gram_moments(), fresh.gram_moments(), "order {order}");
+            assert_eq!(d, reference, "order {order}");
         }
     }
 
