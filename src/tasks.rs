@@ -28,7 +28,7 @@ use crate::ports::{
 };
 use crate::safety::faults::ResetCause;
 use crate::shared::{task_bits, Shared};
-use crate::units::{DacCode, PerSection, Section};
+use crate::units::{DacCode, PerSection, PhaseDuties, Section};
 
 /// Period of the supervision task, µs.
 pub const SUPERVISION_PERIOD_US: u32 = 1000;
@@ -140,23 +140,15 @@ pub fn control_cycle<M, T, E, C, P, Q, S, R>(
         quadrature: ports.quadrature.count(),
         pressures: ports.pressures.read(),
     };
-    let out = step.step(&inputs);
-    match out.pwm {
-        Some(duties) => {
-            // Both sections in the same cycle, from the same force command.
-            ports.pwm.write(Section::Master, duties.master);
-            ports.pwm.write(Section::Slave, duties.slave);
-            if *switching != Some(out.sections) {
-                ports.pwm.enable(out.sections);
-                *switching = Some(out.sections);
-            }
-        }
-        None => {
-            if switching.is_some() {
-                ports.pwm.disable();
-                *switching = None;
-            }
-        }
+    // The duties go out as soon as the drive stage has them (their deadline is the next
+    // PWM update); the rotation and the status follow.
+    let mut written = false;
+    let out = step.step_then(&inputs, |pwm, sections| {
+        drive_bridges(&mut ports.pwm, switching, pwm, sections);
+        written = true;
+    });
+    if !written {
+        drive_bridges(&mut ports.pwm, switching, out.pwm.as_ref(), out.sections);
     }
     ports.servo.write(out.servo);
     if let Some(record) = step.take_calibration_to_save() {
@@ -167,6 +159,34 @@ pub fn control_cycle<M, T, E, C, P, Q, S, R>(
     shared.queue_telemetry(&status);
     shared.record_scope(&status);
     shared.check_in(task_bits::CONTROL);
+}
+
+/// Writes both sections' duties (`None`: all outputs off) and switches the bridges of
+/// `sections` on if they are not (`switching`: which sections' outputs are switching).
+#[inline(always)]
+fn drive_bridges<P: PwmOutput>(
+    pwm: &mut P,
+    switching: &mut Option<PerSection<bool>>,
+    duties: Option<&PerSection<PhaseDuties>>,
+    sections: PerSection<bool>,
+) {
+    match duties {
+        Some(duties) => {
+            // Both sections in the same cycle, from the same force command.
+            pwm.write(Section::Master, duties.master);
+            pwm.write(Section::Slave, duties.slave);
+            if *switching != Some(sections) {
+                pwm.enable(sections);
+                *switching = Some(sections);
+            }
+        }
+        None => {
+            if switching.is_some() {
+                pwm.disable();
+                *switching = None;
+            }
+        }
+    }
 }
 
 /// The control task's part of the command link, before each step: every pending command

@@ -298,6 +298,19 @@ impl ControlStep {
     /// stroke) → publish (what the next cycle reads, the status). A calibration routine,
     /// when one runs, takes the outputs after the rest.
     pub fn step(&mut self, inputs: &CycleInputs) -> CycleOutputs {
+        self.step_then(inputs, |_, _| {})
+    }
+
+    /// [`ControlStep::step`], handing the duties and the sections in service to `out` as
+    /// soon as the drive stage has them, before the rotate and publish stages (the board
+    /// writes them to the bridges there: their deadline is the next PWM update). Not called
+    /// while a calibration runs: its duties come after the rest, in the returned outputs.
+    #[inline(always)]
+    pub fn step_then(
+        &mut self,
+        inputs: &CycleInputs,
+        out: impl FnOnce(Option<&PerSection<PhaseDuties>>, PerSection<bool>),
+    ) -> CycleOutputs {
         // Sense. A missed cycle: the decoders are caught up on what the last velocity
         // predicts.
         if let Some(gap_us) = self.sensing.overrun_us(inputs.t) {
@@ -379,7 +392,17 @@ impl ControlStep {
             }
         };
 
+        let sections = self.safe.sections_in_service();
+        let calibrating = matches!(self.plan.mode, Mode::Calibrating(_));
+        if !calibrating {
+            out(pwm.as_ref(), sections);
+        }
+
         // Rotate.
+        if let Some(half) = planned.half {
+            let last_pa = &self.sensing.pressures.last_pa;
+            modes::begin_half(&mut self.rotary, half, &self.config, last_pa);
+        }
         let stroke = match (&self.plan.mode, &planned.setpoint) {
             (Mode::Running(g), Some((sp, _))) if !g.waiting() => Some(sp),
             _ => None,
@@ -394,8 +417,7 @@ impl ControlStep {
 
         // Publish.
         self.publish(inputs.t, &s, limits);
-        let sections = self.safe.sections_in_service();
-        let pwm = if matches!(self.plan.mode, Mode::Calibrating(_)) {
+        let pwm = if calibrating {
             self.calibration_cycle(&inputs.currents)
         } else {
             pwm
@@ -743,7 +765,8 @@ impl ControlStep {
                     generator.wait(rotate::START_TURN_TIME_S);
                 } else {
                     let last_pa = &self.sensing.pressures.last_pa;
-                    modes::begin_half(&mut self.rotary, &generator, &self.config, last_pa);
+                    let half = modes::HalfStart::of(&generator);
+                    modes::begin_half(&mut self.rotary, half, &self.config, last_pa);
                 }
                 self.plan.mode = Mode::Running(generator);
                 // The plausibility of the chamber pressures is judged over running strokes.

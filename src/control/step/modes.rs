@@ -10,7 +10,7 @@ use super::safe_state::{stop_deceleration, FaultedBrake, SafeState, Stop, RESET_
 use super::sense::{PressureMonitor, Sensed};
 use crate::control::calibration::Calibration;
 use crate::control::config::ControlConfig;
-use crate::motion::stroke::{DeadPoint, StrokeGenerator};
+use crate::motion::stroke::{DeadPoint, Direction, StrokeGenerator};
 use crate::motion::synchroniser::{Rotation, Synchroniser};
 use crate::motion::trajectory::{PointToPoint, Setpoint};
 use crate::safety::faults::Fault;
@@ -89,6 +89,30 @@ pub(super) struct Planned {
     /// With no setpoint: the fault the plan found for the react stage (homing found no end
     /// stop, [`Fault::HomingFailed`]).
     pub fault: Option<Fault>,
+    /// A half cycle of the strokes began: the rotate stage starts its rotation
+    /// ([`begin_half`]), after the duties are out.
+    pub half: Option<HalfStart>,
+}
+
+/// A half cycle's stroke, as the rotation's start needs it.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct HalfStart {
+    direction: Direction,
+    /// Where the stroke's path starts and ends, m.
+    from_m: f32,
+    to_m: f32,
+}
+
+impl HalfStart {
+    /// The half cycle `g` is beginning.
+    pub(super) fn of(g: &StrokeGenerator) -> HalfStart {
+        let (from_m, to_m) = g.path_ends_m();
+        HalfStart {
+            direction: g.direction(),
+            from_m,
+            to_m,
+        }
+    }
 }
 
 impl Plan {
@@ -125,8 +149,8 @@ impl Plan {
 
     /// The plan stage: the mode advanced one cycle with this cycle's sensing `s`. It turns
     /// the rotation's reference itself where a mode asks for it (`rotary`: a park's turn to
-    /// a venting phase, SS1's rest turn, the blind brake's sealing turn, a new half cycle's
-    /// timing), sets the position frame where homing finds the end stop and restarts the
+    /// a venting phase, SS1's rest turn, the blind brake's sealing turn; a new half cycle's
+    /// timing it returns, [`Planned::half`]), sets the position frame where homing finds the end stop and restarts the
     /// differentiator on the first samples after a watchdog reset (`frame`); a fault it
     /// finds it returns.
     pub(super) fn plan(
@@ -141,6 +165,7 @@ impl Plan {
         let dt = c.sample_time_s;
         let limit = c.force_limit_n;
         let mut fault = None;
+        let mut half = None;
         let setpoint = match &mut self.mode {
             // The faulted state may still brake; the outputs are its own.
             Mode::Faulted => {
@@ -198,7 +223,7 @@ impl Plan {
                     self.last_dead_point = Some(d);
                 }
                 if started || dead.is_some() {
-                    begin_half(rotary, g, c, &x.pressures.last_pa);
+                    half = Some(HalfStart::of(g));
                 }
                 if stopped {
                     self.mode = Mode::Holding(Setpoint::at_rest(sp.position_m));
@@ -210,7 +235,11 @@ impl Plan {
                 self.stopping(s, x, homed, rotary, measured_force_n)
             }
         };
-        Planned { setpoint, fault }
+        Planned {
+            setpoint,
+            fault,
+            half,
+        }
     }
 
     /// A cycle of a controlled stop: the plan advanced on the stop's deceleration, its
@@ -386,19 +415,23 @@ impl Plan {
     }
 }
 
-/// Starts the rotation of a new half cycle of `g` (at a dead point, or as strokes start):
-/// where the timed port edge must be crossed (discharge opening, or expander cut-off) from
-/// the measured line pressures (`last_pa`). Out of line: once per stroke.
+/// Starts the rotation of a new half cycle (at a dead point, or as strokes start): where
+/// the timed port edge must be crossed (discharge opening, or expander cut-off) from the
+/// measured line pressures (`last_pa`). Out of line: once per stroke.
 #[inline(never)]
 pub(super) fn begin_half(
     rotary: &mut RotaryAxis,
-    g: &StrokeGenerator,
+    half: HalfStart,
     c: &ControlConfig,
     last_pa: &[f32; 4],
 ) {
-    let (from, to) = g.path_ends_m();
+    let HalfStart {
+        direction,
+        from_m: from,
+        to_m: to,
+    } = half;
     let rotation = rotary.direction;
-    let chamber = Synchroniser::timed_chamber(g.direction(), rotation);
+    let chamber = Synchroniser::timed_chamber(direction, rotation);
     // The chamber's largest volume is where its compression starts (compressor: the
     // stroke's start) or its expansion ends (expander: the stroke's end).
     let reference_x = match rotation {
@@ -421,5 +454,5 @@ pub(super) fn begin_half(
     let reference_rad = rotary.reference_rad;
     rotary
         .synchroniser
-        .begin_half(g.direction(), rotation, x_start, to, edge, reference_rad);
+        .begin_half(direction, rotation, x_start, to, edge, reference_rad);
 }
