@@ -292,6 +292,10 @@ where
             }
             rest = rest.get(taken..).unwrap_or_default();
         }
+        // At a frame every control cycle the next is always ready: without a turn for the
+        // other thread-mode tasks here, the supervision task would never run again and the
+        // watchdog would reset the board.
+        yield_now().await;
     }
 }
 
