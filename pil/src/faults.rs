@@ -18,9 +18,13 @@
 //! | [`Scenario::FactoryBrownOut`] | option bytes as shipped: BOR_LEV = 0 (≈ 1.7 V) |
 //! | [`Scenario::SupplyLoss`] | the mains stops while stroking: the board runs on the plant's DC link, PB5 (power good) falls with it |
 //! | [`Scenario::Overcurrent`] | section 1's phase U current steps to 120 A while stroking (the comparator trips at 85 A) |
+//! | [`Scenario::BusyLink`] | no fault at first: telemetry every control cycle (20 kHz) with the scope armed (recording, never fired) while stroking; then the over-current for 2 ms, and `ClearFaults` once it is gone |
 
 use fpc::control::calibration::Routine;
 use fpc::control::command::Command;
+use fpc::link::scope::Trigger;
+use fpc::link::settings::LinkRequest;
+use fpc::link::telemetry::ChannelSet;
 use fpc::status::ModeKind;
 use hal_sim::plant::chambers::PortMode;
 use hal_sim::run::RunOptions;
@@ -66,11 +70,15 @@ pub enum Scenario {
     /// A phase current above the hardware trip's threshold while stroking: the comparator
     /// and the timer's break switch the bridge off, the firmware reports `Overcurrent`.
     Overcurrent,
+    /// The link at its busiest while stroking (telemetry at 20 kHz, the scope armed), an
+    /// over-current, then `ClearFaults`: the control period's deadline under the most the
+    /// link asks of the firmware.
+    BusyLink,
 }
 
 impl Scenario {
     /// Every scenario.
-    pub const ALL: [Scenario; 13] = [
+    pub const ALL: [Scenario; 14] = [
         Scenario::BootWindow,
         Scenario::HungControl,
         Scenario::FaultPath,
@@ -84,6 +92,7 @@ impl Scenario {
         Scenario::FactoryBrownOut,
         Scenario::SupplyLoss,
         Scenario::Overcurrent,
+        Scenario::BusyLink,
     ];
 
     /// Its name on the command line.
@@ -102,6 +111,7 @@ impl Scenario {
             Scenario::FactoryBrownOut => "factory-brown-out",
             Scenario::SupplyLoss => "supply-loss",
             Scenario::Overcurrent => "overcurrent",
+            Scenario::BusyLink => "busy-link",
         }
     }
 }
@@ -137,6 +147,10 @@ pub struct Report {
     pub record_before: Vec<u8>,
     /// The calibration store's pages at the end.
     pub store_after: Vec<u8>,
+    /// Telemetry frames the host received.
+    pub telemetry_frames: u64,
+    /// Answers on up 2: (accepted, refused).
+    pub answers: (u32, u32),
     /// The breaks the bridges' timers took from their break inputs.
     pub breaks: Vec<crate::chip::BreakRecord>,
     /// Plant periods after the first break in which the tripped bridge switched again.
@@ -342,6 +356,7 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
         Scenario::TornSave | Scenario::TornSaveStaleFlag => torn_save(&mut r, scenario)?,
         Scenario::TornSaveInMotion => torn_save_in_motion(&mut r)?,
         Scenario::SaveError | Scenario::EraseError => save_error(&mut r, scenario)?,
+        Scenario::BusyLink => busy_link(&mut r)?,
     }
     let soc = r.s.chip.soc_ref();
     Ok(Report {
@@ -362,7 +377,43 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
         switched_after_break: r.switched_after_break,
         stack: crate::stack::stack_use(&r.s.chip),
         deadline: crate::chip::DeadlineFigures::of(&soc.samples),
+        telemetry_frames: r.s.frames,
+        answers: r.s.answers_seen,
     })
+}
+
+/// [`Scenario::BusyLink`]: homes, asks for every channel at every control cycle and arms
+/// the scope (recording every cycle, fired by the host's command, which never comes),
+/// strokes for 0.3 s, steps section 1's phase U to 120 A for 2 ms (the hardware trip,
+/// `Overcurrent`), and 50 ms after the current is gone sends `ClearFaults`, then follows
+/// 0.1 s.
+fn busy_link(r: &mut Run) -> Result<(), String> {
+    r.home()?;
+    r.s.request(&LinkRequest::SetTelemetry {
+        decimation: 1,
+        channels: ChannelSet::ALL,
+    });
+    r.s.request(&LinkRequest::ScopeArm {
+        trigger: Trigger::Command,
+        pre: 100,
+    });
+    r.start_strokes();
+    let t = r.s.chip.time_s() + 0.3;
+    r.until(t)?;
+    r.s.chip.soc().board.current_step = Some(crate::board::CurrentStep {
+        section: 0,
+        phase: 0,
+        amps: 120.0,
+    });
+    r.injected_at = Some(r.s.chip.time_s());
+    let t = r.s.chip.time_s() + 0.002;
+    r.until(t)?;
+    r.s.chip.soc().board.current_step = None;
+    let t = r.s.chip.time_s() + 0.05;
+    r.until(t)?;
+    r.s.send(Command::ClearFaults);
+    let t = r.s.chip.time_s() + 0.1;
+    r.until(t)
 }
 
 /// Homes, starts the strokes and injects `scenario`'s fault at full speed.

@@ -287,6 +287,16 @@ impl Session {
         }
     }
 
+    /// Queues the link request `request` for down 0; false until the firmware's channels
+    /// are up.
+    pub fn request(&mut self, request: &LinkRequest) -> bool {
+        if self.rtt.is_none() {
+            return false;
+        }
+        queue_link(request, &mut self.outbox, &mut self.queued);
+        true
+    }
+
     /// Queues `command` for down 0; false until the firmware's channels are up.
     pub fn send(&mut self, command: Command) -> bool {
         if self.rtt.is_none() {
