@@ -19,6 +19,7 @@ use crate::plant::chambers::{Chambers, Lines, PortMode};
 use crate::plant::dynamics::PlantParams;
 use crate::plant::model::extra_force::ExtraState;
 use crate::plant::model::MachineModel;
+use crate::plant::sensing::Transducer;
 use crate::plant::servo::through_play;
 use crate::signal::delayed;
 
@@ -330,8 +331,9 @@ pub fn force_terms(data: &Measured, model: &MachineModel) -> Vec<PistonForces<f6
     let acting = acting_motor_force_n(data, actuator_delay_s(model));
     let laws = model.piston_laws();
     let tang = tangential_mps(data, model);
-    // The gas force acts with the chambers' true pressures: the readings less the model's
-    // sensor offsets, with the sensors' first-order lag undone (p = p_read + τ·ṗ_read).
+    // The gas force acts with the chambers' true pressures: the readings through the model's
+    // sensor offsets and gains, the sensors' first-order lag undone
+    // (p = (p_read − offset + τ·ṗ_read)/gain).
     // Left in, the lag reads as friction (it follows the stroke direction) or as an actuator
     // lag (it follows the force's rate).
     let sensor = &model.sensors.pressure;
@@ -345,12 +347,12 @@ pub fn force_terms(data: &Measured, model: &MachineModel) -> Vec<PistonForces<f6
                 pressure_a_pa: sensor.true_pressure_pa(
                     g(&data.p_a_pa),
                     g(&data.dp_a_pa_per_s),
-                    sensor.offset_a_pa,
+                    sensor.chamber_a(),
                 ),
                 pressure_b_pa: sensor.true_pressure_pa(
                     g(&data.p_b_pa),
                     g(&data.dp_b_pa_per_s),
-                    sensor.offset_b_pa,
+                    sensor.chamber_b(),
                 ),
                 motor_n: g(&acting),
             })
@@ -452,7 +454,7 @@ pub const MAX_REPLAY_SUBSTEPS: usize = 16;
 /// pressure sensors would read them: (p_A, p_B), Pa. `None` without `# ports`.
 ///
 /// The replay starts from what the sensors read while the piston still rests (up to
-/// 20 ms), less their offsets, at the wall temperature: the log is taken to start in
+/// 20 ms), through their offsets and gains, at the wall temperature: the log is taken to start in
 /// equilibrium. Sealed chambers never forget that start, so its noise (0.4 kPa over 20 ms
 /// is ±30 Pa) comes back multiplied by the compression ratio at every stroke, a pattern the
 /// leak and heat candidates would gladly explain. For a log sealed from its first row the
@@ -571,9 +573,10 @@ fn replay_pressures_anew(
         .count()
         .max(1);
     let mean = |p: &[f64]| p.iter().take(rest).sum::<f64>() / rest as f64;
+    let true_at_rest = |p: &[f64], t: Transducer| (mean(p) - t.offset_pa) / t.gain;
     let start = (
-        mean(&data.p_a_pa) - sensor.offset_a_pa,
-        mean(&data.p_b_pa) - sensor.offset_b_pa,
+        true_at_rest(&data.p_a_pa, sensor.chamber_a()),
+        true_at_rest(&data.p_b_pa, sensor.chamber_b()),
     );
     let (pa, pb) = replay_from(data, model, mode, start, angle_rad);
     if mode != PortMode::Closed || data.ports_from_s.is_some() {
@@ -692,8 +695,8 @@ fn replay_from(
                 sensor_lag.step(&mut lb, ch.b.pressure_pa);
             }
         }
-        pa.push(sensor.reading_pa(la, sensor.offset_a_pa));
-        pb.push(sensor.reading_pa(lb, sensor.offset_b_pa));
+        pa.push(sensor.reading_pa(la, sensor.chamber_a()));
+        pb.push(sensor.reading_pa(lb, sensor.chamber_b()));
     }
     (pa, pb)
 }
