@@ -40,7 +40,7 @@ use super::candidate::{kept_span, kept_x, Ctx, EffectKind, Proposal};
 use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
 use super::fit::{lstsq, minimise_1d_par};
-use super::residuals::{extra_states, force_raw};
+use super::residuals::{basis_key, extra_states, force_raw};
 
 /// Shortest period of the periodic pair searched, m.
 pub const MIN_PERIOD_M: f64 = 2e-3;
@@ -116,10 +116,19 @@ impl<'a> Basis<'a> {
             periods: machine_periods(model),
             plain: Vec::new(),
         };
+        // The columns depend on the log, and `f_motor`'s on the actuator lag: the band keeps
+        // them for every later proposal, refit and competition.
         b.plain = plain_terms()
             .collect::<Vec<_>>()
             .par_iter()
-            .map(|&t| (t, b.filtered(t, 1.0)))
+            .map(|&t| {
+                let key = basis_key(t, ctx.data, model);
+                let kept = ctx
+                    .band
+                    .basis_columns
+                    .get_or_make(key, || vec![b.filtered(t, 1.0)]);
+                (t, kept.first().cloned().unwrap_or_default())
+            })
             .collect();
         b
     }
@@ -547,8 +556,9 @@ fn cubic_reading(k3: f64, k2: f64, k1: f64, k0: f64) -> String {
         if k3 < 0.0 { "hardening" } else { "softening" },
         -k3,
         x0,
-        -k,
-        f0
+        // Rounded first, so that a tiny negative reads 0 rather than −0.
+        (-k).round() + 0.0,
+        (10.0 * f0).round() / 10.0 + 0.0
     )
 }
 

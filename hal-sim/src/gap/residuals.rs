@@ -17,7 +17,7 @@ use fpc::physics::balance::{PistonForces, PistonState};
 
 use crate::plant::chambers::{Chambers, Lines, PortMode};
 use crate::plant::dynamics::PlantParams;
-use crate::plant::model::extra_force::ExtraState;
+use crate::plant::model::extra_force::{ExtraState, Term};
 use crate::plant::model::MachineModel;
 use crate::plant::sensing::Transducer;
 use crate::plant::servo::through_play;
@@ -72,6 +72,9 @@ pub struct Band {
     pub idx_inner: Vec<usize>,
     /// Columns of this band's searches, kept for the next selection step.
     pub columns: ColumnCache,
+    /// The discovery basis's plain columns at the force channel's kept samples, by term and
+    /// by what they depend on beyond the log ([`basis_key`]).
+    pub basis_columns: ColumnCache<(Term, u64, u64)>,
 }
 
 /// `mask` eroded by `half` samples on each side: 1 only where every sample within `half`
@@ -135,6 +138,7 @@ impl Band {
             mask_force,
             mask_inner,
             columns: ColumnCache::default(),
+            basis_columns: ColumnCache::default(),
         })
     }
 
@@ -286,6 +290,21 @@ pub fn shifted(x: &[f64], samples: f64) -> Vec<f64> {
             }
         })
         .collect()
+}
+
+/// The key of the discovery basis's plain column of `term` on `data` with `model` in
+/// [`Band::basis_columns`]: the term, and for `f_motor` (the motor forces as they act) the
+/// model's actuator lag and the log's force alignment, bit for bit; every other term is the
+/// log's alone.
+pub fn basis_key(term: Term, data: &Measured, model: &MachineModel) -> (Term, u64, u64) {
+    match term {
+        Term::FMotor => (
+            term,
+            actuator_delay_s(model).to_bits(),
+            data.force_align_s.to_bits(),
+        ),
+        _ => (term, 0, 0),
+    }
 }
 
 /// The model's actuator lag, s (0 without `[effects.actuator_lag]`).
