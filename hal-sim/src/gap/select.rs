@@ -130,8 +130,9 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
     let mut cache: Cache = Vec::new();
     match select_from(ctx, doc, true, &mut cache)? {
         Some(s) => Ok(s),
-        None => select_from(ctx, doc, false, &mut cache)?
-            .ok_or_else(|| "selection failed".to_string()),
+        None => {
+            select_from(ctx, doc, false, &mut cache)?.ok_or_else(|| "selection failed".to_string())
+        }
     }
 }
 
@@ -143,14 +144,7 @@ fn reading_is_clean(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<bool, String> {
         return Ok(true);
     };
     let after = full_of_raw(ctx.data, ctx.band, ChannelId::Force, &raw);
-    let u = super::unexplained::judge(
-        ctx.data,
-        ctx.band,
-        &model,
-        ChannelId::Force,
-        &after,
-        &after,
-    );
+    let u = super::unexplained::judge(ctx.data, ctx.band, &model, ChannelId::Force, &after, &after);
     Ok(!u.json.structured)
 }
 
