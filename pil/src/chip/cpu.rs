@@ -287,6 +287,9 @@ fn exit(uc: &mut Unicorn<Soc>, exc_return: u32) -> Result<(), ChipError> {
     let soc = uc.get_data_mut();
     let returning = soc.ipsr;
     soc.nvic.active[returning] = false;
+    if returning == nvic::irq(irqn::UART5) {
+        soc.control_returned();
+    }
     soc.ipsr = (xpsr & 0x1FF) as usize;
     soc.event = true;
     soc.exception_returned(fp);

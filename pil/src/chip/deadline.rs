@@ -11,7 +11,10 @@
 //! control executor's interrupt (UART5, which runs the control step: the sample's duties;
 //! the set-up's writes in thread mode are no sample's) while the sample is open is timed at
 //! the end of the block that makes it (the emulator advances time a block at a time: an
-//! upper bound). The sample closes at the next burst's end.
+//! upper bound). The sample closes at the next burst's end. If the control executor's
+//! interrupt is still active then, the step overran its period: the compare writes it makes
+//! before it returns are that sample's, each a missed update (a hung step that writes
+//! nothing more misses none: the watchdog's case).
 //!
 //! A write after its own timer's update event since the sample is a missed update (the value
 //! applies a period late, as on the chip); the deadline is the time from the burst's end to
@@ -54,6 +57,11 @@ impl Soc {
     /// handles at the first block boundary after it): the previous sample closes, a new one
     /// opens.
     pub(super) fn burst_ended(&mut self, end: u64) {
+        if self.nvic.active[nvic::irq(irqn::UART5)] && self.overrun.is_none() {
+            // The control step still runs as the next burst ends: the duties it writes
+            // from now on, until its interrupt returns, are that sample's, past its update.
+            self.overrun = self.sample.map(|s| s.end);
+        }
         self.close_sample();
         self.sample = Some(OpenSample {
             end,
@@ -94,6 +102,17 @@ impl Soc {
             return;
         }
         let now = self.time;
+        if let Some(end) = self.overrun {
+            if self.recording {
+                let cycles = (now.saturating_sub(end) as f64 / self.units_per_cycle).round();
+                self.samples.push(SampleTiming {
+                    deadline_cycles: None,
+                    write_cycles: Some(cycles as u64),
+                    missed: true,
+                });
+            }
+            return;
+        }
         if let Some(s) = self.sample.as_mut() {
             s.last_write = Some(now);
             s.missed |= s.updates[t] > 0;
@@ -103,6 +122,12 @@ impl Soc {
     /// A reset: the sample in progress is dropped (its writes never come).
     pub(super) fn sample_dropped(&mut self) {
         self.sample = None;
+        self.overrun = None;
+    }
+
+    /// The control executor's interrupt returned: a step that overran has ended.
+    pub(super) fn control_returned(&mut self) {
+        self.overrun = None;
     }
 }
 

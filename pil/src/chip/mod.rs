@@ -257,6 +257,8 @@ pub struct Soc {
     pub recording: bool,
     /// The sample in progress (from an ADC burst's end to the next).
     sample: Option<deadline::OpenSample>,
+    /// The burst end of a sample whose control step overran its period and still runs.
+    overrun: Option<u64>,
     /// Timings of the finished samples since recording began.
     pub samples: Vec<SampleTiming>,
     /// An interrupt path is open (handler mode entered from thread mode).
@@ -423,6 +425,7 @@ impl Soc {
             periods: Vec::new(),
             recording: false,
             sample: None,
+            overrun: None,
             samples: Vec::new(),
             path_open: false,
             stall_until: None,
