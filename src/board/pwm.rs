@@ -283,9 +283,10 @@ impl PwmOutput for MotorPwm {
     fn write(&mut self, section: Section, duties: PhaseDuties) {
         let tim = timer(section);
         if mutation::is("late-duties") && section == Section::Master {
-            // The duties reach the compare registers ≈ 4,000 cycles later: past the update
-            // event that should put them in force.
-            cortex_m::asm::delay(4_000);
+            // The duties reach the compare registers ≈ 6,000 cycles later: past the update
+            // event that should put them in force (they are written ≈ 3,800 cycles after
+            // the burst, the update comes 7,777 after it).
+            cortex_m::asm::delay(6_000);
         }
         if mutation::is("control-critical-section") {
             // The global critical section at the control priority (against the rule of
