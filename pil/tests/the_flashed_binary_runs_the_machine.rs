@@ -465,10 +465,10 @@ fn a_link_at_its_busiest_keeps_the_duties_on_time() {
         "{:?}",
         r.faults
     );
-    // 0.35 s at 20 kHz before the 1 kHz of homing's frames: the rate, not the count, is
-    // the point.
+    // 0.35 s asked at 20 kHz after homing's frames at 1 kHz: thread mode sends about half
+    // of them, the rest dropped and counted in the frames (the control task never waits).
     assert!(
-        r.telemetry_frames >= 6_000,
+        r.telemetry_frames >= 4_000,
         "{} telemetry frames",
         r.telemetry_frames
     );
