@@ -35,8 +35,8 @@ enum Cmd {
     Run(RunArgs),
     /// A fault scenario on the ELF (docs/faults.md): boot-window, hung-control, fault-path,
     /// panic-on-stop, torn-save, torn-save-stale-flag, torn-save-in-motion, save-error,
-    /// erase-error, single-bank, factory-brown-out, supply-loss, overcurrent; prints the
-    /// resets, the log and the faults.
+    /// erase-error, single-bank, factory-brown-out, supply-loss, overcurrent, busy-link;
+    /// prints the resets, the log and the faults.
     Fault(FaultArgs),
     /// The control period while a calibration save erases and programs flash (data cache
     /// off): the interrupt path's flash lines and flash data reads per period, turned into
