@@ -399,21 +399,7 @@ impl ControlStep {
         }
 
         // Rotate.
-        if let Some(half) = planned.half {
-            let last_pa = &self.sensing.pressures.last_pa;
-            modes::begin_half(&mut self.rotary, half, &self.config, last_pa);
-        }
-        let stroke = match (&self.plan.mode, &planned.setpoint) {
-            (Mode::Running(g), Some((sp, _))) if !g.waiting() => Some(sp),
-            _ => None,
-        };
-        let servo = self.rotary.rotate(
-            s.position_m,
-            stroke,
-            pwm.is_some(),
-            &self.config.gas,
-            &self.sensing.pressures.last_pa,
-        );
+        let servo = self.rotate_stage(&s, &planned, pwm.is_some());
 
         // Publish.
         self.publish(inputs.t, &s, limits);
@@ -427,6 +413,27 @@ impl ControlStep {
             sections,
             servo,
         }
+    }
+
+    /// The rotate stage: a new half cycle's rotation started, then the servo's command
+    /// synchronised to the stroke (`outputs_on`: the bridges switch this cycle).
+    #[inline(always)]
+    fn rotate_stage(&mut self, s: &Sensed, planned: &modes::Planned, outputs_on: bool) -> DacCode {
+        if let Some(half) = planned.half {
+            let last_pa = &self.sensing.pressures.last_pa;
+            modes::begin_half(&mut self.rotary, half, &self.config, last_pa);
+        }
+        let stroke = match (&self.plan.mode, &planned.setpoint) {
+            (Mode::Running(g), Some((sp, _))) if !g.waiting() => Some(sp),
+            _ => None,
+        };
+        self.rotary.rotate(
+            s.position_m,
+            stroke,
+            outputs_on,
+            &self.config.gas,
+            &self.sensing.pressures.last_pa,
+        )
     }
 
     /// An encoder's filter tripped, or one was lost before: the positions to use
