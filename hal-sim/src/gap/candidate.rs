@@ -71,10 +71,6 @@ pub enum EffectKind {
     HeatTransfer,
     /// Ports passing less than designed.
     PortRestriction,
-    /// The chamber pressure transducers read offset.
-    PressureOffset,
-    /// The chamber pressure transducers read with a gain other than 1.
-    PressureGain,
     /// Not a named effect: terms of the discovery basis ([`super::discover`]), one more
     /// at each proposal.
     ExtraForce,
@@ -82,7 +78,7 @@ pub enum EffectKind {
 
 impl EffectKind {
     /// Every effect of the library.
-    pub const ALL: [EffectKind; 14] = [
+    pub const ALL: [EffectKind; 12] = [
         EffectKind::MassError,
         EffectKind::CoulombFriction,
         EffectKind::ViscousFriction,
@@ -94,8 +90,6 @@ impl EffectKind {
         EffectKind::Leakage,
         EffectKind::HeatTransfer,
         EffectKind::PortRestriction,
-        EffectKind::PressureOffset,
-        EffectKind::PressureGain,
         EffectKind::ExtraForce,
     ];
 
@@ -132,8 +126,6 @@ impl EffectKind {
             EffectKind::Leakage => "leakage",
             EffectKind::HeatTransfer => "heat_transfer",
             EffectKind::PortRestriction => "port_restriction",
-            EffectKind::PressureOffset => "pressure_offset",
-            EffectKind::PressureGain => "pressure_gain",
             EffectKind::ExtraForce => "extra_force",
         }
     }
@@ -153,8 +145,6 @@ impl EffectKind {
             EffectKind::MassError
             | EffectKind::CoulombFriction
             | EffectKind::ViscousFriction
-            | EffectKind::PressureOffset
-            | EffectKind::PressureGain
             | EffectKind::ExtraForce => return None,
         })
     }
@@ -171,11 +161,9 @@ impl EffectKind {
             | EffectKind::ExtraForce => ChannelId::Force,
             EffectKind::SlaveLag => ChannelId::SlaveForce,
             EffectKind::EncoderPitchError => ChannelId::Encoder,
-            EffectKind::Leakage
-            | EffectKind::HeatTransfer
-            | EffectKind::PortRestriction
-            | EffectKind::PressureOffset
-            | EffectKind::PressureGain => ChannelId::Pressure,
+            EffectKind::Leakage | EffectKind::HeatTransfer | EffectKind::PortRestriction => {
+                ChannelId::Pressure
+            }
         }
     }
 }

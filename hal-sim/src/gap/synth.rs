@@ -18,7 +18,6 @@ use crate::plant::dynamics::{Plant, PlantParams};
 use crate::plant::kinematic::CycleDrive;
 use crate::plant::model::MachineModel;
 use crate::plant::noise::Noise;
-use crate::plant::sensing::Transducer;
 use crate::runlog::{RunLog, REQUIRED};
 
 /// Sample time of the synthetic runs, s (the simulator's 20 kHz).
@@ -169,7 +168,7 @@ fn prescribed(
     let calibration = PressureCalibration::reference();
     let mut noise = Noise::new(seed);
     let lag = pressure.lag(dt);
-    let transducers = pressure.transducers();
+    let offsets = pressure.offsets_pa();
     let laws = truth.piston_laws();
     let r = truth.friction_radius_m();
     let mut cols = REQUIRED.to_vec();
@@ -216,11 +215,8 @@ fn prescribed(
                 lag.step(l, p);
                 *l
             });
-            let t = transducers.get(i).copied().unwrap_or(Transducer {
-                offset_pa: 0.0,
-                gain: 1.0,
-            });
-            let code = calibration.code_for(pressure.noisy_reading_pa(l, t, noise) as f32);
+            let offset = offsets.get(i).copied().unwrap_or(0.0);
+            let code = calibration.code_for(pressure.noisy_reading_pa(l, offset, noise) as f32);
             f64::from(calibration.convert(code).pressure_pa)
         };
         let p_a = read(0, pa, &mut noise);
