@@ -193,6 +193,8 @@ pub trait EventLog {
     fn limit_active(&mut self, limits: crate::safety::supervisor::LimitFlags);
     /// The operating mode changed (defmt `info`).
     fn mode_changed(&mut self, mode: crate::status::ModeKind);
+    /// The parts absent since boot changed (defmt `warn`; empty: every part is there).
+    fn absent_changed(&mut self, absent: crate::safety::absent::Absent);
     /// A calibration record was saved to flash, or the save failed (defmt `info` / `error`).
     fn calibration_saved(&mut self, result: Result<(), SaveError>);
 }

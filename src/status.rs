@@ -2,6 +2,7 @@
 //! snapshot. Below the control logic, so the port traits, the shared state and telemetry
 //! can name them without depending on the controller.
 
+use crate::safety::absent::Absent;
 use crate::safety::faults::FaultSet;
 use crate::safety::supervisor::LimitFlags;
 use crate::units::Ticks;
@@ -81,6 +82,8 @@ pub struct Status {
     pub faults: FaultSet,
     /// Limits active this cycle.
     pub limits: LimitFlags,
+    /// The parts absent since boot (empty once the outputs have been enabled).
+    pub absent: Absent,
 }
 
 impl Status {
@@ -107,5 +110,6 @@ impl Status {
             voltage: false,
             envelope: false,
         },
+        absent: Absent::NONE,
     };
 }

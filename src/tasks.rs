@@ -207,7 +207,8 @@ pub fn serve_commands<M: RawMutex>(step: &mut ControlStep, shared: &Shared<M>) {
 /// every task has checked in since the last feed, so a hung task resets the board; reads the
 /// power-good input for the control task (a supply loss is found within a period, which
 /// the DC link outlasts by far: `docs/firmware.md`); and reports what an operator must know
-/// — a fault latched, a limit that became active, a mode change — to `log` (the 20 kHz
+/// — a fault latched, a limit that became active, a mode change, the parts absent since
+/// boot — to `log` (the 20 kHz
 /// path never logs).
 pub async fn supervision_run<M, L, K, W, G, U>(
     mut sleep: L,
@@ -248,6 +249,9 @@ where
         }
         if now.mode != seen.mode {
             log.mode_changed(now.mode);
+        }
+        if now.absent != seen.absent {
+            log.absent_changed(now.absent);
         }
         seen = now;
     }

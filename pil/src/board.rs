@@ -75,6 +75,9 @@ pub struct Board {
     pub dma_writes: Vec<(u32, u32, u32)>,
     /// The duties in force from the last update event.
     duties: PerSection<PhaseDuties>,
+    /// A bare bench: nothing connected to the board but the probe — the DC link off (PB5
+    /// low), the encoders' inputs flat at mid-scale, the pressure inputs at 0 V.
+    pub bare: bool,
     /// An injected over-current, if any.
     pub current_step: Option<CurrentStep>,
 }
@@ -86,6 +89,7 @@ impl Board {
             world,
             dma_writes: Vec::new(),
             duties: PerSection::default(),
+            bare: false,
             current_step: None,
         }
     }
@@ -183,6 +187,12 @@ impl Board {
             (2, 5) => return self.current_code(1, 2),
             _ => {}
         }
+        if self.bare {
+            return match (adc, ch) {
+                (1, 4) | (2, 11) | (1, 12) | (2, 12) => 2048,
+                _ => 0,
+            };
+        }
         let i = self.world.cycle_inputs();
         let c = match (adc, ch) {
             (1, 4) => i.encoders.master.sin,
@@ -199,9 +209,10 @@ impl Board {
     }
 
     /// What the DC link's power-good comparator drives onto PB5: high while the link is
-    /// above its threshold (always, unless a scenario cuts the plant's mains).
+    /// above its threshold (always, unless a scenario cuts the plant's mains or the bench is
+    /// bare).
     pub fn power_good(&self) -> bool {
-        self.world.plant.supply.power_good()
+        !self.bare && self.world.plant.supply.power_good()
     }
 
     /// The servo encoder's count (TIM4 CNT).

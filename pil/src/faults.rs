@@ -18,14 +18,17 @@
 //! | [`Scenario::FactoryBrownOut`] | option bytes as shipped: BOR_LEV = 0 (≈ 1.7 V) |
 //! | [`Scenario::SupplyLoss`] | the mains stops while stroking: the board runs on the plant's DC link, PB5 (power good) falls with it |
 //! | [`Scenario::Overcurrent`] | section 1's phase U current steps to 120 A while stroking (the comparator trips at 85 A) |
+//! | [`Scenario::BareBench`] | nothing connected for 2 s after reset (PB5 low, the encoders' inputs flat, the pressure inputs at 0 V), then the DC link and the sensors appear |
 //! | [`Scenario::BusyLink`] | no fault at first: telemetry every control cycle (20 kHz) with the scope armed (recording, never fired) while stroking; then the over-current for 2 ms, and `ClearFaults` once it is gone |
 
 use fpc::control::calibration::Routine;
-use fpc::control::command::Command;
+use fpc::control::command::{Command, Refusal};
 use fpc::link::scope::Trigger;
 use fpc::link::settings::LinkRequest;
 use fpc::link::telemetry::ChannelSet;
+use fpc::safety::absent::Absent;
 use fpc::status::ModeKind;
+use fpc::units::DacCode;
 use hal_sim::plant::chambers::PortMode;
 use hal_sim::run::RunOptions;
 
@@ -74,11 +77,15 @@ pub enum Scenario {
     /// over-current, then `ClearFaults`: the control period's deadline under the most the
     /// link asks of the firmware.
     BusyLink,
+    /// The first power-up on the bench: nothing connected but the probe for 2 s (the DC
+    /// link off, the encoders and the pressure sensors absent), then they appear and the
+    /// machine is calibrated, homed and started.
+    BareBench,
 }
 
 impl Scenario {
     /// Every scenario.
-    pub const ALL: [Scenario; 14] = [
+    pub const ALL: [Scenario; 15] = [
         Scenario::BootWindow,
         Scenario::HungControl,
         Scenario::FaultPath,
@@ -93,6 +100,7 @@ impl Scenario {
         Scenario::SupplyLoss,
         Scenario::Overcurrent,
         Scenario::BusyLink,
+        Scenario::BareBench,
     ];
 
     /// Its name on the command line.
@@ -112,6 +120,7 @@ impl Scenario {
             Scenario::SupplyLoss => "supply-loss",
             Scenario::Overcurrent => "overcurrent",
             Scenario::BusyLink => "busy-link",
+            Scenario::BareBench => "bare-bench",
         }
     }
 }
@@ -160,6 +169,34 @@ pub struct Report {
     /// Every sample's duties against their update event, over the whole scenario
     /// ([`crate::chip::deadline`]).
     pub deadline: crate::chip::DeadlineFigures,
+    /// What [`Scenario::BareBench`] showed.
+    pub bare: Option<BareBench>,
+}
+
+/// What the bare bench showed ([`Scenario::BareBench`]).
+#[derive(Clone, Debug, Default)]
+pub struct BareBench {
+    /// PWM periods with nothing connected.
+    pub periods: u64,
+    /// Of them, periods in which a bridge's gates switched, as TIM1's and TIM8's output
+    /// stages drive them from their registers (MOE, OSSI/OSSR, OISx, CCxE/CCxNE, the modes).
+    pub gates_on: u64,
+    /// Of them, periods in which the servo's DAC was not at zero torque.
+    pub servo_driven: u64,
+    /// The parts the last telemetry frame with nothing connected reported absent.
+    pub absent: Absent,
+    /// The faults seen with nothing connected (frames and log).
+    pub faults: Vec<String>,
+    /// The commands refused with nothing connected (`ClearFaults`, `Calibrate`), and why.
+    pub refused: Vec<(Command, Refusal)>,
+    /// Once the parts appeared: the frames reported none absent, s after they appeared.
+    pub present_after_s: Option<f64>,
+    /// Then: `Calibrate current_sense` ran and ended without a fault.
+    pub calibrated: bool,
+    /// Then homed and started: the mode of the last frame, 1 s after `Start`.
+    pub mode_at_end: Option<ModeKind>,
+    /// The commands refused after the parts appeared.
+    pub refused_after: Vec<(Command, Refusal)>,
 }
 
 impl Report {
@@ -339,6 +376,7 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
         speed: run_opts.peak_speed_mps() as f32,
         switched_after_break: 0,
     };
+    let mut bare = None;
     match scenario {
         Scenario::BootWindow => {
             r.s.chip.soc().adc_dead = true;
@@ -357,6 +395,7 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
         Scenario::TornSaveInMotion => torn_save_in_motion(&mut r)?,
         Scenario::SaveError | Scenario::EraseError => save_error(&mut r, scenario)?,
         Scenario::BusyLink => busy_link(&mut r)?,
+        Scenario::BareBench => bare = Some(bare_bench(&mut r)?),
     }
     let soc = r.s.chip.soc_ref();
     Ok(Report {
@@ -379,7 +418,67 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
         deadline: crate::chip::DeadlineFigures::of(&soc.samples),
         telemetry_frames: r.s.frames,
         answers: r.s.answers_seen,
+        bare,
     })
+}
+
+/// How long [`Scenario::BareBench`] keeps the bench bare after reset, s.
+const BARE_S: f64 = 2.0;
+
+/// [`Scenario::BareBench`]: nothing connected for [`BARE_S`] after reset, the outputs and the
+/// servo watched every period; at 1 s the host sends `ClearFaults` and `Calibrate
+/// current_sense`. Then the DC link and the sensors appear: once the frames report nothing
+/// absent, `Calibrate current_sense`, `Home`, `Start`, and 1 s of strokes.
+fn bare_bench(r: &mut Run) -> Result<BareBench, String> {
+    r.s.chip.soc().board.bare = true;
+    let mut b = BareBench::default();
+    let mut asked = false;
+    while r.s.chip.time_s() < BARE_S {
+        r.step()?;
+        let w = &r.s.chip.soc_ref().board.world;
+        b.periods += 1;
+        b.gates_on += u64::from(w.enabled);
+        b.servo_driven += u64::from(w.servo_code != DacCode::MID);
+        if !asked && r.s.chip.time_s() >= 1.0 {
+            asked = r.s.send(Command::ClearFaults)
+                && r.s.send(Command::Calibrate {
+                    routine: Routine::CurrentSense,
+                });
+        }
+    }
+    b.absent = r.s.status.absent;
+    b.faults = r.s.faults.iter().map(|f| f.name().to_string()).collect();
+    b.refused = r.s.refused.clone();
+    r.s.chip.soc().board.bare = false;
+    r.injected_at = Some(r.s.chip.time_s());
+    let appeared = r.s.chip.time_s();
+    while b.present_after_s.is_none() && r.s.chip.time_s() < appeared + 0.5 {
+        r.step()?;
+        if r.s.fresh && r.s.status.absent.is_empty() {
+            b.present_after_s = Some(r.s.chip.time_s() - appeared);
+        }
+    }
+    r.s.send(Command::Calibrate {
+        routine: Routine::CurrentSense,
+    });
+    let deadline = r.s.chip.time_s() + 2.0;
+    let mut began = false;
+    while r.s.chip.time_s() < deadline {
+        r.step()?;
+        began |= r.s.status.mode == ModeKind::Calibrating;
+        if began && r.s.status.mode != ModeKind::Calibrating {
+            break;
+        }
+    }
+    b.calibrated = began && r.s.status.faults.is_empty();
+    let refused_before = r.s.refused.len();
+    r.home()?;
+    r.start_strokes();
+    let t = r.s.chip.time_s() + 1.0;
+    r.until(t)?;
+    b.mode_at_end = Some(r.s.status.mode);
+    b.refused_after = r.s.refused[refused_before..].to_vec();
+    Ok(b)
 }
 
 /// [`Scenario::BusyLink`]: homes, asks for every channel at every control cycle and arms

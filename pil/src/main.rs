@@ -296,6 +296,23 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
         r.final_mode
     );
     println!("  {}", r.deadline);
+    if let Some(b) = &r.bare {
+        println!(
+            "  bare bench: {} periods, gates switching in {}, servo off zero torque in {}; absent [{}]; refused {:?}",
+            b.periods,
+            b.gates_on,
+            b.servo_driven,
+            b.absent.iter().map(|p| p.name()).collect::<Vec<_>>().join(", "),
+            b.refused
+                .iter()
+                .map(|(c, why)| format!("{c:?}: {}", why.reason()))
+                .collect::<Vec<_>>()
+        );
+        println!(
+            "  then: present after {:?} s, calibrated {}, mode 1 s after start {:?}, refused {:?}",
+            b.present_after_s, b.calibrated, b.mode_at_end, b.refused_after
+        );
+    }
     for (t, line) in &r.log {
         println!("  {t:.4} {line}");
     }

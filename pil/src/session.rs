@@ -4,7 +4,7 @@
 
 use std::collections::VecDeque;
 
-use fpc::control::command::Command;
+use fpc::control::command::{Command, Refusal};
 use fpc::link::commands::{encode_command, MAX_COMMAND_WIRE};
 use fpc::link::settings::{encode_link_request, LinkRequest};
 use fpc::link::telemetry::{ChannelSet, Ports};
@@ -42,6 +42,8 @@ pub struct Session {
     pub answers_seen: (u32, u32),
     /// Faults seen in frames or logged, in order.
     pub faults: FaultSet,
+    /// The commands refused, with the refusal, in order.
+    pub refused: Vec<(Command, Refusal)>,
     outbox: VecDeque<u8>,
     resets_seen: usize,
     buf: Vec<u8>,
@@ -89,6 +91,7 @@ pub fn status_of(frame: &Frame, faults: FaultSet) -> Status {
         pressure_a_pa: frame.p_a_pa,
         pressure_b_pa: frame.p_b_pa,
         faults,
+        absent: frame.absent,
         ..Status::INIT
     }
 }
@@ -114,6 +117,7 @@ impl Session {
             frames: 0,
             answers_seen: (0, 0),
             faults: FaultSet::new(),
+            refused: Vec::new(),
             outbox: VecDeque::new(),
             resets_seen: 0,
             buf: Vec::new(),
@@ -208,6 +212,9 @@ impl Session {
         for answer in self.answers.push(&self.buf) {
             match answer {
                 Ok(fpc::link::commands::Answer::Reply(r)) if r.result.is_err() => {
+                    if let Err(refusal) = r.result {
+                        self.refused.push((r.command, refusal));
+                    }
                     self.answers_seen.1 += 1
                 }
                 Ok(_) => self.answers_seen.0 += 1,

@@ -498,6 +498,79 @@ fn a_link_at_its_busiest_keeps_the_duties_on_time() {
     );
 }
 
+/// The first day on the bench: 2 s after reset with nothing connected — PB5 low, the
+/// encoders' inputs flat, the pressure inputs at 0 V. The gates are never on (TIM1's and
+/// TIM8's output stages, from their registers), the servo stays at zero torque, nothing is
+/// latched, the three parts are reported absent, and `ClearFaults` and `Calibrate` are
+/// answered with the supply named. Then the link rises and the sensors appear in the same
+/// run: calibrate, home and start succeed, and the strokes keep their clearance.
+#[test]
+fn a_bare_bench_boots_safe_and_runs_once_the_parts_appear() {
+    use fpc::control::calibration::Routine;
+    use fpc::control::command::{Command, Refusal};
+    use fpc::safety::absent::Part;
+    use fpc::status::ModeKind;
+    let r = scenario(Scenario::BareBench);
+    let b = r.bare.as_ref().expect("the bare bench's figures");
+    println!(
+        "bare bench: {} periods, gates on in {}, servo driven in {}, absent {:?}, refused {:?}; present after {:?} s; then {:?}, min clearance {:.3} mm",
+        b.periods,
+        b.gates_on,
+        b.servo_driven,
+        b.absent,
+        b.refused,
+        b.present_after_s,
+        b.mode_at_end,
+        r.min_clearance_m * 1e3
+    );
+    assert!(b.periods >= 39_000, "{} periods", b.periods);
+    assert_eq!(b.gates_on, 0, "a bridge switched with nothing connected");
+    assert_eq!(
+        b.servo_driven, 0,
+        "the servo was driven with nothing connected"
+    );
+    assert!(b.faults.is_empty(), "latched: {:?}", b.faults);
+    assert_eq!(
+        b.absent.iter().collect::<Vec<_>>(),
+        [Part::Supply, Part::Encoders, Part::Pressures]
+    );
+    assert_eq!(
+        b.refused,
+        [
+            (Command::ClearFaults, Refusal::SupplyAbsent),
+            (
+                Command::Calibrate {
+                    routine: Routine::CurrentSense
+                },
+                Refusal::SupplyAbsent
+            )
+        ]
+    );
+    assert!(r.resets.is_empty(), "resets: {:?}", r.resets);
+    assert!(
+        b.present_after_s.is_some_and(|t| t < 0.05),
+        "{:?}",
+        b.present_after_s
+    );
+    assert!(
+        b.calibrated,
+        "the current-sense calibration did not end cleanly"
+    );
+    assert!(b.refused_after.is_empty(), "{:?}", b.refused_after);
+    assert_eq!(b.mode_at_end, Some(ModeKind::Running));
+    assert!(r.faults.is_empty(), "{:?}", r.faults);
+    assert!(
+        r.min_clearance_m >= 0.6e-3,
+        "{:.3} mm",
+        r.min_clearance_m * 1e3
+    );
+    assert!(
+        !r.lines("absent since boot: supply, encoders, pressures")
+            .is_empty(),
+        "not logged"
+    );
+}
+
 /// #42: a phase current stepped above the hardware trip's threshold mid-stroke. The
 /// comparator and the timer's break switch section 1's bridge off in the peripheral model
 /// at the plant step that carries the current — no instruction executed in between — within

@@ -169,6 +169,9 @@ impl fpc::ports::EventLog for DefmtEvents {
     fn mode_changed(&mut self, mode: fpc::status::ModeKind) {
         defmt::info!("mode: {}", mode.name());
     }
+    fn absent_changed(&mut self, absent: fpc::safety::absent::Absent) {
+        defmt::warn!("absent since boot: {=str}", absent.names());
+    }
     fn calibration_saved(
         &mut self,
         result: Result<(), fpc::control::calibration::store::SaveError>,

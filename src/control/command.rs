@@ -140,6 +140,12 @@ pub enum Refusal {
     BadRecord,
     /// The scope is not armed with the host's trigger (`fire` needs `arm --trigger command`).
     NotArmed,
+    /// The DC link has not been up since boot (power-good low): nothing can be driven.
+    SupplyAbsent,
+    /// An encoder's signal is absent since boot: nothing tells where the piston is.
+    EncodersAbsent,
+    /// A chamber pressure sensor reads absent since boot.
+    PressuresAbsent,
 }
 
 impl Refusal {
@@ -165,6 +171,15 @@ impl Refusal {
                 "not a valid calibration record (magic, version or CRC): nothing changed"
             }
             Refusal::NotArmed => "the scope is not armed with the command trigger: arm it first",
+            Refusal::SupplyAbsent => {
+                "the DC link is not up (power-good low since boot): switch the bus supply on"
+            }
+            Refusal::EncodersAbsent => {
+                "an encoder reads no signal since boot: connect the encoders and check their supply"
+            }
+            Refusal::PressuresAbsent => {
+                "a chamber pressure sensor reads absent since boot: connect the transducers"
+            }
         }
     }
 }

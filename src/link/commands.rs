@@ -246,6 +246,9 @@ pub const fn refusal_code(refusal: Refusal) -> u8 {
         Refusal::ChunkOutOfOrder => 9,
         Refusal::BadRecord => 10,
         Refusal::NotArmed => 11,
+        Refusal::SupplyAbsent => 12,
+        Refusal::EncodersAbsent => 13,
+        Refusal::PressuresAbsent => 14,
     }
 }
 
@@ -263,6 +266,9 @@ pub fn refusal_from_code(code: u8) -> Option<Refusal> {
         Refusal::ChunkOutOfOrder,
         Refusal::BadRecord,
         Refusal::NotArmed,
+        Refusal::SupplyAbsent,
+        Refusal::EncodersAbsent,
+        Refusal::PressuresAbsent,
     ]
     .into_iter()
     .find(|r| refusal_code(*r) == code)

@@ -35,6 +35,7 @@
 
 use crate::link::frame::{encode_frame, f32_at, BufferTooSmall, Deframer, FrameError, LinkStats};
 use crate::link::frame::{max_wire_len, KIND_TELEMETRY};
+use crate::safety::absent::Absent;
 use crate::status::{ModeKind, Status};
 use crate::units::{Ticks, CONTROL_PERIOD_US as PERIOD_US};
 
@@ -190,6 +191,8 @@ pub struct Frame {
     pub ports: Ports,
     /// Number of the first latched fault, 0 = none (`faults.rs`).
     pub fault: u8,
+    /// The parts absent since boot ([`Absent`]).
+    pub absent: Absent,
     /// Frames lost so far (queue full or sink full), saturating.
     pub dropped: u16,
     /// The channels the frame carries on the wire (the values of the others are not sent;
@@ -258,6 +261,7 @@ impl Frame {
             homed: s.homed,
             ports: Ports::Timed,
             fault: s.faults.first().map_or(0, |f| f as u8),
+            absent: s.absent,
             dropped,
             channels: ChannelSet::ALL,
             x_m: s.position_m,
@@ -306,7 +310,7 @@ impl Frame {
             t2,
             t3,
             mode_code(self.mode),
-            u8::from(self.homed) | (self.ports.code() << 1),
+            u8::from(self.homed) | (self.ports.code() << 1) | (self.absent.bits() << 3),
             self.fault,
             d0,
             d1,
@@ -354,10 +358,10 @@ impl Frame {
         if p.len() != HEADER_BYTES + 4 * channels.len() {
             return Err(FrameError::BadLength);
         }
-        if flags & !0b111 != 0 {
+        if flags & !0b11_1111 != 0 {
             return Err(FrameError::BadValue);
         }
-        let ports = Ports::from_code(flags >> 1).ok_or(FrameError::BadValue)?;
+        let ports = Ports::from_code(flags >> 1 & 0b11).ok_or(FrameError::BadValue)?;
         let mut values = [f32::NAN; CHANNEL_COUNT];
         let mut at = HEADER_BYTES;
         for (i, v) in values.iter_mut().enumerate() {
@@ -375,6 +379,7 @@ impl Frame {
             homed: flags & 1 != 0,
             ports,
             fault,
+            absent: Absent::from_bits(flags >> 3),
             dropped: u16::from_le_bytes([d0, d1]),
             channels,
             x_m,
@@ -449,6 +454,7 @@ mod tests {
             homed: seed.is_multiple_of(2),
             ports: Ports::ALL[(seed % 3) as usize],
             fault: (seed % 15) as u8,
+            absent: Absent::from_bits((seed >> 5) as u8),
             dropped: (seed >> 3) as u16,
             channels: ChannelSet::ALL,
             x_m: 0.1,
@@ -544,12 +550,13 @@ mod tests {
         fn every_frame_round_trips_bit_for_bit(
             seq in any::<u16>(), t in any::<u32>(), mode in 0u8..7, homed in any::<bool>(),
             ports in 0usize..3, fault in any::<u8>(), dropped in any::<u16>(),
-            set in 1u16..1024, bits in proptest::array::uniform10(any::<u32>()),
+            set in 1u16..1024, bits in proptest::array::uniform10(any::<u32>()), absent in 0u8..8,
         ) {
             let v = bits.map(f32::from_bits);
             let f = Frame {
                 seq, t: Ticks(t), mode: mode_from_code(mode).unwrap(), homed,
-                ports: Ports::ALL[ports], fault, dropped, channels: ChannelSet(set),
+                ports: Ports::ALL[ports], fault, absent: Absent::from_bits(absent), dropped,
+                channels: ChannelSet(set),
                 x_m: v[0], x_slave_m: v[1], theta_rad: v[2], f_master_n: v[3], f_slave_n: v[4],
                 p_a_pa: v[5], p_b_pa: v[6], x_ref_m: v[7], theta_ref_rad: v[8], v_mps: v[9],
             };

@@ -4,5 +4,6 @@
 //! envelope and the limit flags ([`supervisor`]). Depends only on the scalar helpers, so
 //! every layer above may report into it.
 
+pub mod absent;
 pub mod faults;
 pub mod supervisor;

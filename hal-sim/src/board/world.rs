@@ -453,6 +453,8 @@ pub enum Event {
     LimitActive(u64, fpc::safety::supervisor::LimitFlags),
     /// The mode changed.
     ModeChanged(u64, fpc::status::ModeKind),
+    /// The parts absent since boot changed.
+    AbsentChanged(u64, fpc::safety::absent::Absent),
     /// A calibration record was saved (or the save failed).
     CalibrationSaved(u64, Result<(), fpc::control::calibration::store::SaveError>),
 }
@@ -477,6 +479,11 @@ impl fpc::ports::EventLog for SimEventLog {
         let mut w = self.world.borrow_mut();
         let t = w.time_us();
         w.events.push(Event::ModeChanged(t, mode));
+    }
+    fn absent_changed(&mut self, absent: fpc::safety::absent::Absent) {
+        let mut w = self.world.borrow_mut();
+        let t = w.time_us();
+        w.events.push(Event::AbsentChanged(t, absent));
     }
     fn calibration_saved(
         &mut self,

@@ -112,6 +112,8 @@ pub struct Batch {
     pub homed: bool,
     /// The first latched fault's name, if one is latched.
     pub fault: Option<String>,
+    /// The parts absent since boot (`supply`, `encoders`, `pressures`): the board waits.
+    pub absent: Vec<String>,
     /// The ports as declared.
     pub ports: String,
     /// Frames the firmware could not send so far.

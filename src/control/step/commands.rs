@@ -13,6 +13,7 @@ use crate::motion::stroke::StrokeGenerator;
 use crate::motion::synchroniser::Rotation;
 use crate::motion::trajectory::PointToPoint;
 use crate::motion::volume_ratio::RatioTarget;
+use crate::safety::absent::{Absent, Part};
 use crate::safety::faults::FaultSet;
 use crate::sensing::homing::Homing;
 
@@ -35,6 +36,8 @@ pub(super) struct MachineView<'a> {
     pub sensing: &'a Sensing,
     /// The power-good input as last read.
     pub supply_good: bool,
+    /// The parts absent since boot (empty once the outputs were enabled).
+    pub absent: Absent,
     /// What the faulted state does with the outputs.
     pub brake: FaultedBrake,
     /// The strokes' dead-point correction gain in use.
@@ -74,6 +77,7 @@ pub(super) fn check(command: Command, m: &MachineView) -> Result<Change, Refusal
     match command {
         Command::Heartbeat => Ok(Change::Heartbeat),
         Command::Home => {
+            present(m)?;
             if !m.faults.is_empty() {
                 return Err(Refusal::FaultActive);
             }
@@ -138,6 +142,7 @@ fn move_to(m: &MachineView, position_m: f32, peak_speed_mps: f32) -> Result<Chan
     if !((lo..=hi).contains(&position_m) && speed_ok) {
         return Err(Refusal::OutOfRange);
     }
+    present(m)?;
     if !m.faults.is_empty() {
         return Err(Refusal::FaultActive);
     }
@@ -156,6 +161,7 @@ fn move_to(m: &MachineView, position_m: f32, peak_speed_mps: f32) -> Result<Chan
 
 fn start(m: &MachineView, peak_speed_mps: f32) -> Result<Change, Refusal> {
     speed(m.config, peak_speed_mps)?;
+    present(m)?;
     if !m.faults.is_empty() {
         return Err(Refusal::FaultActive);
     }
@@ -176,6 +182,7 @@ fn start(m: &MachineView, peak_speed_mps: f32) -> Result<Change, Refusal> {
 }
 
 fn calibrate(m: &MachineView, routine: Routine) -> Result<Change, Refusal> {
+    present(m)?;
     if !m.faults.is_empty() {
         return Err(Refusal::FaultActive);
     }
@@ -197,6 +204,8 @@ fn calibrate(m: &MachineView, routine: Routine) -> Result<Change, Refusal> {
 
 fn clear_faults(m: &MachineView) -> Result<Change, Refusal> {
     if m.faults.is_empty() {
+        // Nothing latched: a part absent since boot is what keeps the machine waiting.
+        present(m)?;
         return Ok(Change::Nothing);
     }
     // A controlled stop ends on its own (outputs off once holding the piston needs no
@@ -214,6 +223,16 @@ fn clear_faults(m: &MachineView) -> Result<Change, Refusal> {
         return Err(Refusal::CausePersists);
     }
     Ok(Change::ClearFaults)
+}
+
+/// Refuses what would enable the outputs while a part is absent since boot, naming the first.
+fn present(m: &MachineView) -> Result<(), Refusal> {
+    match m.absent.first() {
+        Some(Part::Supply) => Err(Refusal::SupplyAbsent),
+        Some(Part::Encoders) => Err(Refusal::EncodersAbsent),
+        Some(Part::Pressures) => Err(Refusal::PressuresAbsent),
+        None => Ok(()),
+    }
 }
 
 /// Refuses to switch the outputs on while the phase currents read a current with the

@@ -49,6 +49,7 @@ use crate::control::config::{ConfigError, ControlConfig};
 use crate::motion::stroke::DeadPoint;
 use crate::motion::trajectory::Setpoint;
 use crate::ports::{EncoderCodes, PhaseCurrentCodes, PressureCodes};
+use crate::safety::absent::{Absent, Part};
 use crate::safety::faults::{Fault, Reaction, ResetCause, Trip};
 use crate::safety::supervisor::{LimitFlags, Observation};
 use crate::sensing::differentiator::{Derivatives, SavitzkyGolay, SgConfig};
@@ -63,6 +64,10 @@ use rotate::RotaryAxis;
 use safe_state::SafeState;
 use sense::{EncoderLoss, Sensed, Sensing};
 use supervise::Supervision;
+
+/// Above this speed with the encoders present, m/s, a piston found moving before the outputs
+/// were ever enabled means the machine is live (a reset in motion): parts lost are faults.
+const MOVING_AT_BOOT_MPS: f32 = 0.05;
 
 /// One burst of samples.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -178,6 +183,50 @@ impl ControlStep {
         }
     }
 
+    /// Before the outputs are first enabled: which parts are absent now
+    /// ([`crate::safety::absent`]). Encoders back after being absent have their filters
+    /// reset (nothing was homed: no zero to lose). A piston found moving means the machine
+    /// is live after all (a reset in motion): from then on a part lost is its fault.
+    #[cold]
+    #[inline(never)]
+    fn watch_absent(&mut self, s: &Sensed) {
+        let encoders_absent = self.sensing.encoders_absent();
+        if !encoders_absent && self.sensing.encoder_trouble(&s.master, &s.slave) {
+            self.sensing.clear_faults(true);
+        }
+        // The velocity is judged once the differentiator's window holds only samples of
+        // encoders present (twice its length: no step from a flat input left in it).
+        let present = &mut self.supervision.encoders_present_cycles;
+        *present = if encoders_absent {
+            0
+        } else {
+            present.saturating_add(1)
+        };
+        let settled = usize::from(*present) >= 2 * self.config.sg_window;
+        if settled && s.derivatives.velocity_mps.abs() > MOVING_AT_BOOT_MPS {
+            self.supervision.energised = true;
+            self.publish.absent = Absent::NONE;
+            if !self.supervision.supply_good {
+                self.supply_lost();
+            }
+            return;
+        }
+        let mut absent = Absent::NONE;
+        absent.set(Part::Supply, !self.supervision.supply_good);
+        absent.set(Part::Encoders, encoders_absent);
+        absent.set(Part::Pressures, self.sensing.pressures.bad_cycles > 0);
+        self.publish.absent = absent;
+    }
+
+    /// Whether `fault` only reports a part absent since boot (no reaction: nothing moves).
+    fn absent_at_boot(&self, fault: Fault) -> bool {
+        !self.supervision.energised
+            && matches!(
+                fault,
+                Fault::SupplyLoss | Fault::EncoderSignal | Fault::PressureSensor
+            )
+    }
+
     #[cold]
     #[inline(never)]
     fn supply_lost(&mut self) {
@@ -201,6 +250,8 @@ impl ControlStep {
     /// until homing; the fault stays latched.
     pub fn boot(&mut self, cause: ResetCause) {
         if cause == ResetCause::Watchdog {
+            // The piston may be moving: a part lost is a fault from the first cycle.
+            self.supervision.energised = true;
             // Its reaction waits for the velocity, then brakes (`Reaction::BrakeAfterReset`).
             self.react(Trip::of(Fault::WatchdogReset));
             self.publish.faults = self.safe.faults;
@@ -386,6 +437,9 @@ impl ControlStep {
                 if let Some(fault) = planned.fault {
                     self.react(Trip::of(fault));
                 }
+                if !self.supervision.energised {
+                    self.watch_absent(&s);
+                }
                 let shorted = self.plan.stop.shorted();
                 self.publish.previous.outputs_off();
                 self.drive.outputs_off(&inputs.currents, shorted)
@@ -544,6 +598,9 @@ impl ControlStep {
     #[cold]
     #[inline(never)]
     fn react(&mut self, trip: Trip) {
+        if self.absent_at_boot(trip.fault) {
+            return;
+        }
         let new = self.safe.latch(&trip);
         let homed = self.sensing.zero_raw_m.is_some();
         let trusted_and_homed = trip.reaction.position_trusted() && homed;
@@ -744,6 +801,7 @@ impl ControlStep {
             sense_monitor: &self.drive.sense_monitor,
             sensing: &self.sensing,
             supply_good: self.supervision.supply_good,
+            absent: self.publish.absent,
             brake: self.plan.stop.brake,
             dead_point_gain: self.plan.dead_point_gain,
         };
@@ -752,14 +810,24 @@ impl ControlStep {
         Ok(())
     }
 
+    /// The outputs are about to be enabled: from now on a part lost is its fault.
+    fn energise(&mut self) {
+        self.supervision.energised = true;
+        self.publish.absent = Absent::NONE;
+    }
+
     /// Applies an accepted command's change.
     fn apply(&mut self, change: Change) {
         match change {
             Change::Nothing => {}
             Change::Heartbeat => self.supervision.heartbeat(),
-            Change::Mode(mode) => self.plan.mode = mode,
+            Change::Mode(mode) => {
+                self.plan.mode = mode;
+                self.energise();
+            }
             Change::Home(homing) => {
                 self.plan.mode = Mode::Homing(homing);
+                self.energise();
                 self.sensing.zero_raw_m = None;
             }
             Change::Start(mut generator) => {
@@ -776,6 +844,7 @@ impl ControlStep {
                     modes::begin_half(&mut self.rotary, half, &self.config, last_pa);
                 }
                 self.plan.mode = Mode::Running(generator);
+                self.energise();
                 // The plausibility of the chamber pressures is judged over running strokes.
                 self.sensing.pressures.restart_stroke_watch();
             }
@@ -942,9 +1011,142 @@ mod tests {
         }
     }
 
+    /// A burst at cycle `n` on a bench with the encoders at electrical angle 0.3 rad and the
+    /// chambers at 1 bar if `connected`; otherwise the encoders' inputs flat at mid-scale
+    /// and the pressure inputs at 0 V. The phase currents read zero.
+    fn bench_inputs(config: &ControlConfig, n: u32, connected: bool) -> CycleInputs {
+        moving_inputs(config, n, connected, 0.0)
+    }
+
+    /// [`bench_inputs`] with the piston moving at `speed_mps` (encoders connected).
+    fn moving_inputs(
+        config: &ControlConfig,
+        n: u32,
+        connected: bool,
+        speed_mps: f32,
+    ) -> CycleInputs {
+        let x_m = speed_mps * n as f32 * config.sample_time_s;
+        let sincos = |e: &crate::sensing::encoder::EncoderConfig| {
+            let angle = 0.3 + core::f32::consts::TAU * x_m / e.period_m;
+            let (s, c) = if connected {
+                e.calibration.codes_at(angle)
+            } else {
+                (2048.0, 2048.0)
+            };
+            crate::ports::SinCosCodes {
+                sin: crate::units::AdcCode(s.round() as u16),
+                cos: crate::units::AdcCode(c.round() as u16),
+            }
+        };
+        let p = if connected {
+            config.pressure.code_for(1.0e5)
+        } else {
+            crate::units::AdcCode(0)
+        };
+        CycleInputs {
+            t: Ticks(n * 50),
+            encoders: EncoderCodes {
+                master: sincos(&config.encoder_master),
+                slave: sincos(&config.encoder_slave),
+            },
+            currents: PerSection {
+                master: [crate::units::AdcCode::MID; 3],
+                slave: [crate::units::AdcCode::MID; 3],
+            },
+            quadrature: 0,
+            pressures: PressureCodes {
+                chamber_a: p,
+                chamber_b: p,
+                suction: p,
+                discharge: p,
+            },
+        }
+    }
+
+    #[test]
+    fn a_bare_bench_waits_with_the_outputs_off_and_names_what_is_absent_until_it_appears() {
+        let config = ControlConfig::reference();
+        let mut step = ControlStep::new(config.clone()).unwrap();
+        step.boot(ResetCause::PowerOn);
+        let mut n = 0;
+        let mut run = |step: &mut ControlStep, supply: bool, connected: bool, cycles: u32| {
+            for _ in 0..cycles {
+                step.supply(supply);
+                let out = step.step(&bench_inputs(&config, n, connected));
+                n += 1;
+                assert_eq!(out.pwm, None, "the outputs stay off (cycle {n})");
+                assert_eq!(out.servo, step.rotary.servo.command(0.0), "zero torque");
+            }
+        };
+        run(&mut step, false, false, 200);
+        let s = step.status();
+        assert!(s.faults.is_empty(), "absent is not a fault: {:?}", s.faults);
+        assert_eq!(s.mode, crate::status::ModeKind::Idle);
+        assert_eq!(
+            s.absent.iter().collect::<Vec<_>>(),
+            [Part::Supply, Part::Encoders, Part::Pressures]
+        );
+        for command in [
+            Command::ClearFaults,
+            Command::Home,
+            Command::Calibrate {
+                routine: Routine::CurrentSense,
+            },
+            Command::Start {
+                peak_speed_mps: 2.0,
+            },
+        ] {
+            assert_eq!(
+                step.command(command),
+                Err(Refusal::SupplyAbsent),
+                "{command:?}"
+            );
+        }
+        // The link comes up: the sensors are named next, one by one.
+        run(&mut step, true, false, 10);
+        assert_eq!(step.command(Command::Home), Err(Refusal::EncodersAbsent));
+        // The sensors appear: the encoders' filters recover within their limit's samples.
+        run(&mut step, true, true, 200);
+        assert_eq!(step.status().absent, Absent::NONE);
+        assert!(step.status().faults.is_empty());
+        assert_eq!(step.command(Command::ClearFaults), Ok(()));
+        assert_eq!(step.command(Command::Home), Ok(()));
+        // Energised: the supply lost now is the fault it always was.
+        step.supply(false);
+        assert!(step.safe.faults.contains(Fault::SupplyLoss));
+        assert_eq!(step.status().absent, Absent::NONE);
+    }
+
+    #[test]
+    fn a_piston_found_moving_at_boot_without_the_supply_is_braked_as_a_supply_loss() {
+        let config = ControlConfig::reference();
+        let mut step = ControlStep::new(config.clone()).unwrap();
+        step.boot(ResetCause::PowerOn);
+        let mut braked_at = None;
+        for n in 0..200 {
+            step.supply(false);
+            step.step(&moving_inputs(&config, n, true, 0.5));
+            if braked_at.is_none() && step.safe.faults.contains(Fault::SupplyLoss) {
+                braked_at = Some(n);
+            }
+        }
+        // Judged once the differentiator's window holds only samples of encoders present.
+        let n = braked_at.expect("a moving piston with the supply low is a supply loss");
+        assert!(
+            n as usize + 1 >= 2 * config.sg_window && n < 60,
+            "at cycle {n}"
+        );
+        assert_eq!(step.status().absent, Absent::NONE);
+        // Its reaction as before: the windings shorted (zero duties, the outputs on).
+        step.supply(false);
+        let out = step.step(&moving_inputs(&config, 200, true, 0.5));
+        assert!(out.pwm.is_some(), "{out:?}");
+    }
+
     #[test]
     fn a_supply_loss_latches_once_and_is_cleared_only_once_the_supply_is_back() {
         let mut step = ControlStep::new(ControlConfig::reference()).unwrap();
+        step.energise();
         step.supply(true);
         assert!(step.safe.faults.is_empty());
         step.supply(false);

@@ -2,6 +2,7 @@
 //! outside reads ([`Status`], assembled from both parts). The stages read `Previous`, never
 //! the published status.
 
+use crate::safety::absent::Absent;
 use crate::safety::faults::FaultSet;
 use crate::safety::supervisor::LimitFlags;
 use crate::status::{ModeKind, Status};
@@ -80,6 +81,9 @@ pub(super) struct Publish {
     pub faults: FaultSet,
     /// Limits active in the cycle.
     pub limits: LimitFlags,
+    /// The parts absent since boot, as last watched (written only while the outputs have
+    /// never been enabled).
+    pub absent: Absent,
 }
 
 impl Publish {
@@ -94,6 +98,7 @@ impl Publish {
         force_slave_n: 0.0,
         faults: FaultSet::new(),
         limits: Status::INIT.limits,
+        absent: Absent::NONE,
     };
 
     /// The snapshot the outside reads (telemetry, the run log, the shared state). The
@@ -119,6 +124,7 @@ impl Publish {
             pressure_b_pa: p.pressure_b_pa,
             faults: self.faults,
             limits: self.limits,
+            absent: self.absent,
         }
     }
 }

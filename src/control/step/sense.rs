@@ -455,6 +455,12 @@ impl Sensing {
         self.pressures.trusted = true;
     }
 
+    /// Whether an encoder's signal is absent now (its error-rate filter above half its
+    /// limit).
+    pub(super) fn encoders_absent(&self) -> bool {
+        self.encoders.master.cause_present() || self.encoders.slave.cause_present()
+    }
+
     /// Whether a cause of a latched fault is still present: an encoder's, or an invalid
     /// chamber pressure.
     pub(super) fn cause_present(&self) -> bool {

@@ -17,6 +17,12 @@ pub(super) struct Supervision {
     pub heartbeat_timeout_s: f32,
     /// The power-good input as the supervision task last read it.
     pub supply_good: bool,
+    /// The outputs have been enabled since boot (or may be live: a watchdog reset, a piston
+    /// found moving). Until then a part absent is a state, not a fault
+    /// ([`crate::safety::absent`]).
+    pub energised: bool,
+    /// Consecutive cycles with both encoders present, while not energised (saturating).
+    pub encoders_present_cycles: u16,
     pub supervisor: Supervisor,
 }
 
@@ -26,6 +32,8 @@ impl Supervision {
             heartbeat_s: None,
             heartbeat_timeout_s,
             supply_good: true,
+            energised: false,
+            encoders_present_cycles: 0,
             supervisor: Supervisor::new(),
         }
     }

@@ -259,6 +259,7 @@ impl Host {
             Fault::from_code(f.fault)
                 .map_or_else(|| format!("fault {}", f.fault), |x| x.name().to_string())
         });
+        b.absent = f.absent.iter().map(|p| p.name().to_string()).collect();
         b.ports = f.ports.name().to_string();
         b.dropped = f.dropped;
         b.frames += 1;
@@ -384,6 +385,7 @@ impl Host {
             mode: self.batch.mode.clone(),
             homed: self.batch.homed,
             fault: self.batch.fault.clone(),
+            absent: self.batch.absent.clone(),
             ports: self.batch.ports.clone(),
             dropped: self.batch.dropped,
             frames: self.batch.frames,

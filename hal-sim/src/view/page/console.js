@@ -107,6 +107,9 @@ function onFrames(b) {
   if (b.fault) {
     fault.textContent = "FAULT: " + b.fault + " — the machine is in its safe state; clear faults once the cause is gone";
     fault.hidden = false;
+  } else if (b.absent && b.absent.length) {
+    fault.textContent = "WAITING: " + b.absent.join(", ") + " absent since boot — nothing is driven until they appear";
+    fault.hidden = false;
   } else {
     fault.hidden = true;
   }
