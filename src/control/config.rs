@@ -350,3 +350,64 @@ impl CalibrationConfig {
         }
     }
 }
+
+impl ControlConfig {
+    /// Refuses a configuration whose physical parameters are not finite and positive, or whose
+    /// gains and capabilities are outside their ranges.
+    pub fn check(&self) -> Result<(), ConfigError> {
+        let config = self;
+        for (name, v) in [
+            ("sample_time_s", config.sample_time_s),
+            ("travel_m", config.travel_m),
+            ("moving_mass_kg", config.moving_mass_kg),
+            ("force_limit_n", config.force_limit_n),
+            (
+                "motor.force_constant_n_per_a",
+                config.motor.force_constant_n_per_a,
+            ),
+            ("motor.bus_voltage_v", config.motor.bus_voltage_v),
+            ("max_speed_mps", config.max_speed_mps),
+            (
+                "supervisor.brake_deceleration_mps2",
+                config.supervisor.brake_deceleration_mps2,
+            ),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(ConfigError::NotPositive(name));
+            }
+        }
+        // The observer's gains per cycle must stay within [0, 0.5] (a well damped update; NaN
+        // fails too), its threshold non-negative.
+        for (name, k) in [
+            (
+                "disturbance_bandwidth_rad_s",
+                config.disturbance_bandwidth_rad_s,
+            ),
+            ("disturbance_slow_rad_s", config.disturbance_slow_rad_s),
+        ] {
+            if !(k >= 0.0 && k * config.sample_time_s <= 0.5) {
+                return Err(ConfigError::OutOfRange(name));
+            }
+        }
+        // The allocation relies on capabilities within [0, 1] (NaN fails too).
+        for (name, c) in [
+            (
+                "allocation.capability.master",
+                config.allocation.capability.master,
+            ),
+            (
+                "allocation.capability.slave",
+                config.allocation.capability.slave,
+            ),
+        ] {
+            if !(0.0..=1.0).contains(&c) {
+                return Err(ConfigError::OutOfRange(name));
+            }
+        }
+        let threshold = config.disturbance_threshold_n;
+        if threshold.is_nan() || threshold < 0.0 {
+            return Err(ConfigError::OutOfRange("disturbance_threshold_n"));
+        }
+        Ok(())
+    }
+}
