@@ -55,7 +55,7 @@ use crate::safety::supervisor::{LimitFlags, Observation};
 use crate::sensing::differentiator::{Derivatives, SavitzkyGolay, SgConfig};
 use crate::sensing::encoder::{EncoderReading, PositionCounts, SinCosDecoder};
 use crate::status::Status;
-use crate::units::{DacCode, PerSection, PhaseDuties, Ticks};
+use crate::units::{DacCode, PerSection, PhaseDuties, Ticks, CONTROL_PERIOD_US};
 use actuate::Drive;
 use commands::{Change, MachineView};
 use modes::{AfterStop, Mode, Plan, PlanInputs};
@@ -365,9 +365,7 @@ impl ControlStep {
         // Sense. A missed cycle: the decoders are caught up on what the last velocity
         // predicts.
         if let Some(gap_us) = self.sensing.overrun_us(inputs.t) {
-            self.react(Trip::of(Fault::Deadline));
-            let previous = &self.publish.previous;
-            self.sensing.catch_up(gap_us, &self.config, previous);
+            self.missed_cycles(gap_us);
         }
         let (master, slave) = self.sensing.decode(&inputs.encoders);
         let mut positions = (master.position, slave.position);
@@ -467,6 +465,27 @@ impl ControlStep {
             sections,
             servo,
         }
+    }
+
+    /// Cycles were missed (`gap_us` since the last sample, µs): the deadline fault. A gap the
+    /// decoders can be caught up over ([`sense::CATCH_UP_SAMPLES`]) stops the piston on its
+    /// extrapolated position (SS1); a longer one — a stall, a debugger's halt, in which the
+    /// motor timers may have frozen with their outputs off — leaves nothing to say where the
+    /// piston went: it is braked as without position.
+    #[cold]
+    #[inline(never)]
+    fn missed_cycles(&mut self, gap_us: i32) {
+        let period = CONTROL_PERIOD_US as i32;
+        if gap_us > (sense::CATCH_UP_SAMPLES as i32 + 1) * period + period / 2 {
+            self.react(Trip {
+                reaction: Reaction::BrakeWithoutPosition,
+                ..Trip::of(Fault::Deadline)
+            });
+        } else {
+            self.react(Trip::of(Fault::Deadline));
+        }
+        let previous = &self.publish.previous;
+        self.sensing.catch_up(gap_us, &self.config, previous);
     }
 
     /// The rotate stage: a new half cycle's rotation started, then the servo's command
@@ -1083,6 +1102,27 @@ mod tests {
         step.supply(false);
         let out = step.step(&moving_inputs(&config, 200, true, 0.5));
         assert!(out.pwm.is_some(), "{out:?}");
+    }
+
+    #[test]
+    fn a_gap_longer_than_the_catch_up_brakes_without_position_a_short_one_stops_on_it() {
+        let config = ControlConfig::reference();
+        for (gap, blind) in [(3, false), (41, false), (42, true), (400, true)] {
+            let mut step = ControlStep::new(config.clone()).unwrap();
+            step.supply(true);
+            for n in 0..100 {
+                step.step(&bench_inputs(&config, n, true));
+            }
+            assert!(step.safe.faults.is_empty());
+            step.step(&bench_inputs(&config, 99 + gap, true));
+            assert!(step.safe.faults.contains(Fault::Deadline), "gap {gap}");
+            assert_eq!(
+                matches!(step.plan.stop.brake, FaultedBrake::Blind { .. }),
+                blind,
+                "gap {gap}: {:?}",
+                step.plan.stop.brake
+            );
+        }
     }
 
     #[test]

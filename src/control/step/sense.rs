@@ -70,7 +70,7 @@ impl Sensing {
     pub(super) fn catch_up(&mut self, gap_us: i32, config: &ControlConfig, previous: &Previous) {
         let status = previous;
         let period = CONTROL_PERIOD_US as i32;
-        let missed = ((gap_us + period / 2) / period - 1).clamp(0, 40) as u32;
+        let missed = ((gap_us + period / 2) / period - 1).clamp(0, CATCH_UP_SAMPLES as i32) as u32;
         let v = status.velocity_mps;
         let zero = self.zero_raw_m.unwrap_or(0.0);
         for section in Section::ALL {
@@ -108,6 +108,10 @@ impl Sensing {
         }
     }
 }
+
+/// The most missed samples the decoders are caught up over (2 ms): beyond it the
+/// extrapolation means nothing.
+pub(super) const CATCH_UP_SAMPLES: u32 = 40;
 
 /// The chamber and line pressures as last seen valid, and whether they may still be used.
 #[derive(Clone, Debug)]
