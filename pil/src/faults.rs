@@ -18,6 +18,7 @@
 //! | [`Scenario::FactoryBrownOut`] | option bytes as shipped: BOR_LEV = 0 (≈ 1.7 V) |
 //! | [`Scenario::SupplyLoss`] | the mains stops while stroking: the board runs on the plant's DC link, PB5 (power good) falls with it |
 //! | [`Scenario::Overcurrent`] | section 1's phase U current steps to 120 A while stroking (the comparator trips at 85 A) |
+//! | [`Scenario::DebugHalt`] | a debugger halts the core while stroking, for [`Options::halt_s`] (DBGMCU's freezes as the firmware set them) |
 //! | [`Scenario::BareBench`] | nothing connected for 2 s after reset (PB5 low, the encoders' inputs flat, the pressure inputs at 0 V), then the DC link and the sensors appear |
 //! | [`Scenario::BusyLink`] | no fault at first: telemetry every control cycle (20 kHz) with the scope armed (recording, never fired) while stroking; then the over-current for 2 ms, and `ClearFaults` once it is gone |
 
@@ -81,11 +82,13 @@ pub enum Scenario {
     /// link off, the encoders and the pressure sensors absent), then they appear and the
     /// machine is calibrated, homed and started.
     BareBench,
+    /// A debugger halts the core while stroking ([`Options::halt_s`]), then resumes it.
+    DebugHalt,
 }
 
 impl Scenario {
     /// Every scenario.
-    pub const ALL: [Scenario; 15] = [
+    pub const ALL: [Scenario; 16] = [
         Scenario::BootWindow,
         Scenario::HungControl,
         Scenario::FaultPath,
@@ -101,6 +104,7 @@ impl Scenario {
         Scenario::Overcurrent,
         Scenario::BusyLink,
         Scenario::BareBench,
+        Scenario::DebugHalt,
     ];
 
     /// Its name on the command line.
@@ -121,6 +125,7 @@ impl Scenario {
             Scenario::Overcurrent => "overcurrent",
             Scenario::BusyLink => "busy-link",
             Scenario::BareBench => "bare-bench",
+            Scenario::DebugHalt => "debug-halt",
         }
     }
 }
@@ -171,6 +176,8 @@ pub struct Report {
     pub deadline: crate::chip::DeadlineFigures,
     /// What [`Scenario::BareBench`] showed.
     pub bare: Option<BareBench>,
+    /// Halts of the core (a debugger's), since power-on.
+    pub halts: u32,
 }
 
 /// What the bare bench showed ([`Scenario::BareBench`]).
@@ -223,6 +230,8 @@ pub struct Options {
     /// `None` (the default): emulated time runs on the counted cycles; `Some(cpi)`: at this
     /// CPI ([`ChipOptions::cpi`]).
     pub cpi: Option<f64>,
+    /// How long [`Scenario::DebugHalt`] halts the core, s.
+    pub halt_s: f64,
 }
 
 impl Default for Options {
@@ -231,6 +240,7 @@ impl Default for Options {
             inject_after_start_s: 0.25,
             pressure_ratio: RunOptions::reference().pressure_ratio,
             cpi: None,
+            halt_s: 0.005,
         }
     }
 }
@@ -390,6 +400,7 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
         | Scenario::FaultPath
         | Scenario::PanicOnStop
         | Scenario::SupplyLoss
+        | Scenario::DebugHalt
         | Scenario::Overcurrent => stroke_then_inject(&mut r, scenario, opts)?,
         Scenario::TornSave | Scenario::TornSaveStaleFlag => torn_save(&mut r, scenario)?,
         Scenario::TornSaveInMotion => torn_save_in_motion(&mut r)?,
@@ -419,6 +430,7 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
         telemetry_frames: r.s.frames,
         answers: r.s.answers_seen,
         bare,
+        halts: soc.halts,
     })
 }
 
@@ -525,6 +537,10 @@ fn stroke_then_inject(r: &mut Run, scenario: Scenario, opts: &Options) -> Result
         Scenario::HungControl => r.s.chip.soc().hang_pending = true,
         Scenario::FaultPath => r.s.chip.soc().bus_fault_pending = true,
         Scenario::SupplyLoss => r.s.chip.soc().board.world.plant.supply.cut(),
+        Scenario::DebugHalt => {
+            let units = (opts.halt_s * 1e6) as u64 * crate::time::UNITS_PER_US;
+            r.s.chip.soc().halt_for(units);
+        }
         Scenario::Overcurrent => {
             r.s.chip.soc().board.current_step = Some(crate::board::CurrentStep {
                 section: 0,

@@ -82,6 +82,9 @@ struct FaultArgs {
     /// Scenarios that stroke: inject this long after the Start command, s.
     #[arg(long, default_value_t = 0.25)]
     at: f64,
+    /// `debug-halt`: how long the debugger halts the core, ms.
+    #[arg(long, default_value_t = 5.0)]
+    halt_ms: f64,
     /// Scenarios that stroke: the pressure ratio (the peak speed follows it).
     #[arg(long, default_value_t = 3.1)]
     pressure_ratio: f64,
@@ -263,11 +266,18 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
     if !(args.at.is_finite() && (0.0..=10.0).contains(&args.at)) {
         return Err(format!("--at {}: must be within [0, 10] s", args.at));
     }
+    if !(args.halt_ms.is_finite() && (0.0..=1000.0).contains(&args.halt_ms)) {
+        return Err(format!(
+            "--halt-ms {}: must be within [0, 1000] ms",
+            args.halt_ms
+        ));
+    }
     let cpi = timeline(args.cpi)?;
     let opts = fpc_pil::faults::Options {
         inject_after_start_s: args.at,
         pressure_ratio: args.pressure_ratio,
         cpi,
+        halt_s: args.halt_ms * 1e-3,
     };
     let r = run_with(&image, scenario, &opts)?;
     println!(
@@ -295,7 +305,7 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
         r.faults.join(", "),
         r.final_mode
     );
-    println!("  {}", r.deadline);
+    println!("  {}; core halted {} times", r.deadline, r.halts);
     if let Some(b) = &r.bare {
         println!(
             "  bare bench: {} periods, gates switching in {}, servo off zero torque in {}; absent [{}]; refused {:?}",

@@ -248,6 +248,74 @@ fn a_hang_or_a_fault_at_any_phase_of_a_stroke_keeps_the_head_clearance() {
     assert!(worst >= 0.3e-3, "{:.3} mm", worst * 1e3);
 }
 
+/// A debugger halts the core while the piston strokes — 1, 5 and 20 ms at 24 phases of the
+/// stroke cycle (≈ 0.33 s at 2.3 m/s) — with DBGMCU's freezes as the firmware sets them
+/// (TIM1/TIM8 stopped with their outputs off, the watchdog stopped, TIM2 running on). On
+/// resume the firmware finds the missed cycles (`deadline`) and brakes — without position
+/// beyond the 2 ms its decoders can be caught up over; the piston never comes nearer a head
+/// than 0.3 mm, and the chip does not reset.
+#[test]
+fn a_debug_halt_in_motion_is_found_on_resume_and_the_piston_stopped() {
+    let image = image();
+    let mut cases = Vec::new();
+    for halt_ms in [1.0, 5.0, 20.0] {
+        for k in 0..24 {
+            cases.push((halt_ms, 0.2 + 0.33 * f64::from(k) / 24.0));
+        }
+    }
+    // Two at a time (CI's two cores).
+    let results: Vec<(f64, f64, Report)> = cases
+        .chunks(2)
+        .flat_map(|pair| {
+            std::thread::scope(|scope| {
+                let handles: Vec<_> = pair
+                    .iter()
+                    .map(|&(halt_ms, at)| {
+                        let image = &image;
+                        scope.spawn(move || {
+                            let opts = Options {
+                                inject_after_start_s: at,
+                                halt_s: halt_ms * 1e-3,
+                                ..Options::default()
+                            };
+                            let r = run_with(image, Scenario::DebugHalt, &opts)
+                                .unwrap_or_else(|e| panic!("debug-halt: {e}"));
+                            (halt_ms, at, r)
+                        })
+                    })
+                    .collect();
+                handles
+                    .into_iter()
+                    .map(|h| h.join().expect("scenario thread"))
+                    .collect::<Vec<_>>()
+            })
+        })
+        .collect();
+    let mut worst = f64::INFINITY;
+    for (halt_ms, at, r) in &results {
+        println!(
+            "halt {halt_ms} ms {at:.3} s after Start: faults {:?}, min head clearance from then {:.3} mm",
+            r.faults,
+            r.min_clearance_after_m * 1e3
+        );
+        assert_eq!(r.halts, 1);
+        assert!(r.resets.is_empty(), "{:?}", r.resets);
+        assert!(r.faults.iter().any(|f| f == "deadline"), "{:?}", r.faults);
+        // Stopped: the stop (SS1 after a short halt) or its end, the faulted state.
+        assert!(
+            matches!(
+                r.final_mode,
+                Some(fpc::status::ModeKind::Faulted | fpc::status::ModeKind::Stopping)
+            ),
+            "{:?}",
+            r.final_mode
+        );
+        worst = worst.min(r.min_clearance_after_m);
+    }
+    println!("debug halts: worst clearance {:.3} mm", worst * 1e3);
+    assert!(worst >= 0.3e-3, "{:.3} mm", worst * 1e3);
+}
+
 /// A hung control task: the watchdog resets within its ≈ 2 ms running window, and the
 /// next boot brakes (fault watchdog_reset latched, the stroke stopped); the boot took no
 /// longer than the simulator's model of it.

@@ -528,6 +528,12 @@ pub fn run_until_plant_step(chip: &mut Chip) -> Result<(), ChipError> {
             fault(&mut chip.uc, (1 << 9) | (1 << 15), Some(0x4000_F000))?;
             continue;
         }
+        if soc.halted() {
+            // Halted by a debugger: no instruction runs; the peripherals not frozen go on.
+            let until = soc.halt.map_or(soc.time, |h| h.until);
+            soc.time = soc.next_event().min(until).max(soc.time);
+            continue;
+        }
         if soc.locked_up {
             // Nothing runs but the peripherals (the watchdog among them).
             soc.time = soc.time.max(soc.next_event());

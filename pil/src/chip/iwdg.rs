@@ -83,6 +83,20 @@ impl Iwdg {
         (n as f64 * UNITS_PER_S as f64 / self.lsi_hz).ceil() as u64
     }
 
+    /// A debugger's freeze (DBGMCU DBG_IWDG_STOP) for `units`: the countdown and the writes
+    /// on their way to the LSI domain end that much later.
+    pub fn delay(&mut self, units: u64) {
+        if let Some((v, at)) = self.counting {
+            self.counting = Some((v, at + units));
+        }
+        for lands in [&mut self.pr_lands, &mut self.rlr_lands]
+            .into_iter()
+            .flatten()
+        {
+            *lands += units;
+        }
+    }
+
     /// Whether the watchdog has been started.
     pub fn running(&self) -> bool {
         self.counting.is_some()

@@ -42,6 +42,7 @@ pub mod dma;
 mod emulator;
 mod events;
 pub mod flash;
+pub mod halt;
 pub mod iwdg;
 mod load;
 pub mod nvic;
@@ -263,6 +264,10 @@ pub struct Soc {
     pub samples: Vec<SampleTiming>,
     /// An interrupt path is open (handler mode entered from thread mode).
     path_open: bool,
+    /// A debugger's halt in progress ([`halt`]).
+    pub halt: Option<halt::Halt>,
+    /// Halts of the core since power-on (a debugger's; the host's link must make none).
+    pub halts: u32,
     /// The core is in lockup (a fault while entering HardFault, or in it): it executes
     /// nothing until a reset (ARMv7-M B1.5.15).
     pub locked_up: bool,
@@ -429,6 +434,8 @@ impl Soc {
             samples: Vec::new(),
             path_open: false,
             stall_until: None,
+            halt: None,
+            halts: 0,
             locked_up: false,
             lockups: Vec::new(),
             hang_pending: false,

@@ -171,7 +171,14 @@ impl super::Soc {
         let clock_ns = self.timer_clock() / (crate::time::UNITS_PER_US as f64 / 1000.0);
         let mut out = [Bridge::Off; 2];
         for (i, t) in [&self.tim1, &self.tim8].into_iter().enumerate() {
-            let b = bridge(t);
+            let b = if self.outputs_frozen(i) {
+                // Frozen by a debugger's halt: the outputs disabled as with MOE = 0.
+                let mut off = t.clone();
+                off.regs[(reg::BDTR / 4) as usize] &= !bdtr::MOE;
+                bridge(&off)
+            } else {
+                bridge(t)
+            };
             let name = ["TIM1 (section 1)", "TIM8 (section 2)"][i];
             match b {
                 Bridge::Unsafe(why) => {

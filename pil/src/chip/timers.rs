@@ -106,6 +106,10 @@ pub struct Timer {
     matches_done: [u64; 4],
     /// Counter value while stopped.
     stopped_cnt: u32,
+    /// Stopped by a debugger's freeze (DBGMCU), to go on at its end.
+    frozen: bool,
+    /// It froze counting down (centre-aligned, after the peak).
+    frozen_down: bool,
     /// Counter bits (16 or 32).
     pub width_mask: u32,
     /// The break input is active (advanced timers): MOE cannot be set.
@@ -182,6 +186,8 @@ impl Timer {
             boundaries_done: 0,
             matches_done: [0; 4],
             stopped_cnt: 0,
+            frozen: false,
+            frozen_down: false,
             width_mask,
             break_active: false,
         };
@@ -251,6 +257,44 @@ impl Timer {
         self.origin = Some((origin.max(0.0) as u64, per_tick));
         self.boundaries_done = self.ticks_at(now) / self.boundary_ticks();
         self.matches_done = [self.ticks_at(now) / self.period_ticks(); 4];
+    }
+
+    /// A debugger's freeze (DBGMCU): the counter stops at its value at `now`.
+    pub fn freeze(&mut self, now: u64) {
+        if self.origin.is_some() {
+            // Events due but not yet handled (the run loop handles them lazily) happened
+            // before the freeze: it stops the counter just before the first of them, which
+            // comes at the thaw.
+            let due = [self.next_boundary(), self.next_oc4_rise()]
+                .into_iter()
+                .flatten()
+                .min()
+                .unwrap_or(u64::MAX);
+            let at = now.min(due.saturating_sub(1));
+            self.stopped_cnt = self.cnt(at);
+            self.frozen_down = self.counting_down(at);
+            self.origin = None;
+            self.frozen = true;
+        }
+    }
+
+    /// The freeze ends at `now`: the counter goes on from where it stopped, in the direction
+    /// it counted.
+    pub fn thaw(&mut self, now: u64, units_per_clock: f64) {
+        if std::mem::take(&mut self.frozen) {
+            self.start(now, units_per_clock);
+            if self.frozen_down {
+                // `start` puts the count on the way up; a centre-aligned counter that froze
+                // counting down resumes at the mirror point of the period.
+                let per_tick = units_per_clock * f64::from(self.active_psc + 1);
+                let back = (self.period_ticks() - 2 * u64::from(self.stopped_cnt)) as f64;
+                if let Some((o, t)) = self.origin {
+                    self.origin = Some(((o as f64 - back * per_tick).max(0.0) as u64, t));
+                }
+                self.boundaries_done = self.ticks_at(now) / self.boundary_ticks();
+                self.matches_done = [self.ticks_at(now) / self.period_ticks(); 4];
+            }
+        }
     }
 
     /// Ticks between boundaries: ARR (centre-aligned: peak, trough, ...) or ARR + 1.
