@@ -32,7 +32,8 @@ use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
 use super::fit::correlation;
 use super::judge::{
-    judge, judge_joint, outdone_by_basis, BasisFits, Judged, MAX_EFFECTS, MIN_DELTA_BIC,
+    judge, judge_joint, outdone_by_basis, sensor_reading_holds, BasisFits, Judged, MAX_EFFECTS,
+    MIN_DELTA_BIC,
 };
 use super::reconsider::{prune_terms, reconsider_terms};
 use super::residuals::{channel_raw, full_of_raw, residual, Residual};
@@ -54,6 +55,14 @@ pub struct Selection {
     /// Warnings (collinear candidates).
     pub warnings: Vec<String>,
 }
+
+/// Most rounds of back-fitting per selection step ([`backfit`]): effects sharing a channel
+/// are refitted in turn until they stop improving it, so that they stand at their joint
+/// optimum before the next candidate is judged on what they leave.
+pub const BACKFIT_ROUNDS: usize = 6;
+
+/// Share of its channel's residual sum of squares a refit must remove for another round.
+pub const BACKFIT_GAIN: f64 = 0.01;
 
 /// Judgements kept per candidate ([`remember`]).
 const CACHED_PER_CANDIDATE: usize = 4;
@@ -261,7 +270,14 @@ fn judge_candidates(
         if !hit {
             remember(cache, kind, before, &j);
         }
-        if j.significant() {
+        let physical: Vec<&Judged> = judged
+            .iter()
+            .filter(|p: &&Judged| {
+                let k = p.proposal.kind;
+                k.named() && !k.sensor() && k.channel() == kind.channel()
+            })
+            .collect();
+        if j.significant() && (!kind.sensor() || sensor_reading_holds(ctx, doc, &j, &physical)) {
             if !kind.named() {
                 best_extra = Some(j.clone());
             } else if best.as_ref().is_none_or(|b| j.delta_bic > b.delta_bic)
@@ -395,22 +411,43 @@ fn backfit(
     added: &mut [Judged],
     cache: &mut Cache,
 ) -> Result<ModelDoc, String> {
-    for a in added.iter_mut() {
-        let kind = a.proposal.kind;
-        if !kind.named() {
-            // The discovered terms: refitted jointly once (never one more term here).
-            continue;
-        }
-        let model = doc.model()?;
-        let Some(before) = residual(ctx.data, ctx.band, &model, kind.channel()) else {
-            continue;
+    for round in 0..BACKFIT_ROUNDS {
+        // After the first round only the channels holding two named effects or more: one
+        // effect alone on its channel is at its optimum after one refit.
+        let kinds: Vec<EffectKind> = added.iter().map(|a| a.proposal.kind).collect();
+        let shared = |kind: EffectKind| {
+            kinds
+                .iter()
+                .filter(|k| k.named() && k.channel() == kind.channel())
+                .count()
+                > 1
         };
-        if let Some(j) = cached_judge(ctx, &doc, kind, &before, &[], cache) {
-            if j.rss_after < j.rss_before {
-                doc = doc.with(&j.proposal.edits);
-                a.proposal.params = j.proposal.params;
-                a.proposal.edits = j.proposal.edits;
+        let mut improved = false;
+        for i in 0..added.len() {
+            let Some(kind) = added.get(i).map(|a| a.proposal.kind) else {
+                continue;
+            };
+            if !kind.named() || (round > 0 && !shared(kind)) {
+                // The discovered terms: refitted jointly once (never one more term here).
+                continue;
             }
+            let model = doc.model()?;
+            let Some(before) = residual(ctx.data, ctx.band, &model, kind.channel()) else {
+                continue;
+            };
+            if let Some(j) = cached_judge(ctx, &doc, kind, &before, &[], cache) {
+                if j.rss_after < j.rss_before {
+                    improved |= j.rss_after < (1.0 - BACKFIT_GAIN) * j.rss_before;
+                    doc = doc.with(&j.proposal.edits);
+                    if let Some(a) = added.get_mut(i) {
+                        a.proposal.params = j.proposal.params;
+                        a.proposal.edits = j.proposal.edits;
+                    }
+                }
+            }
+        }
+        if !improved {
+            break;
         }
     }
     if added.iter().any(|a| !a.proposal.kind.named()) {
