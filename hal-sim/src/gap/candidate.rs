@@ -99,6 +99,12 @@ impl EffectKind {
         EffectKind::ExtraForce,
     ];
 
+    /// Whether it is an error of a sensor's reading, not of the machine
+    /// ([`super::judge::sensor_reading_holds`]).
+    pub fn sensor(self) -> bool {
+        matches!(self, EffectKind::PressureOffset | EffectKind::PressureGain)
+    }
+
     /// Whether it is a named effect of the library (not the discovered terms).
     pub fn named(self) -> bool {
         self != EffectKind::ExtraForce
