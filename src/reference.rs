@@ -208,6 +208,10 @@ pub mod sensors {
     }
     /// `[sensors.pressure]`.
     pub mod pressure {
+        /// `sensors.pressure.gain_a`.
+        pub const GAIN_A: f64 = 1.0;
+        /// `sensors.pressure.gain_b`.
+        pub const GAIN_B: f64 = 1.0;
         /// `sensors.pressure.noise_pa`.
         pub const NOISE_PA: f64 = 500.0;
         /// `sensors.pressure.offset_a_pa`.

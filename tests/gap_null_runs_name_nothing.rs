@@ -122,7 +122,13 @@ fn gap_names_nothing_on_20_pressure_seeds() {
 /// count; the piston follows through the spline's play). Issue #18: with `ports = open`
 /// alone gap named leakage, port restriction and heat transfer (28 kPa).
 /// Effects of the pressure channel (what the ports metadata is for).
-const PRESSURE_EFFECTS: [&str; 3] = ["leakage", "heat_transfer", "port_restriction"];
+const PRESSURE_EFFECTS: [&str; 5] = [
+    "leakage",
+    "heat_transfer",
+    "port_restriction",
+    "pressure_offset",
+    "pressure_gain",
+];
 
 /// `only_pressure`: only the pressure channel's effects count (the sweep below; see its note).
 fn own_run_null(

@@ -15,6 +15,7 @@ use crate::plant::model::{
     CurrentSensor, EncoderSensor, MachineModel, PitchErrorEffect, PressureSensor,
 };
 use crate::plant::noise::Noise;
+use crate::plant::sensing::Transducer;
 
 /// A 12-bit ADC conversion of a value in codes (rounded, clamped to the range; NaN reads 0).
 #[inline]
@@ -97,11 +98,10 @@ pub struct PressureSensors {
 }
 
 impl PressureSensors {
-    /// The code a sensor gives with its lag at `lagged_pa` and its offset `offset_pa`, noise
-    /// drawn from `noise`.
+    /// The code transducer `t` gives with its lag at `lagged_pa`, noise drawn from `noise`.
     #[inline]
-    pub fn code(&self, lagged_pa: f64, offset_pa: f64, noise: &mut Noise) -> AdcCode {
-        let reading = self.sensor.noisy_reading_pa(lagged_pa, offset_pa, noise);
+    pub fn code(&self, lagged_pa: f64, t: Transducer, noise: &mut Noise) -> AdcCode {
+        let reading = self.sensor.noisy_reading_pa(lagged_pa, t, noise);
         self.calibration.code_for(reading as f32)
     }
 }

@@ -264,14 +264,14 @@ impl World {
         let p = &s.pressure;
         let truth = true_pressures(plant);
         let mut codes = [adc(0.0); PRESSURE_CHANNELS];
-        for (((code, lagged), t), off) in codes
+        for (((code, lagged), t), transducer) in codes
             .iter_mut()
             .zip(self.pressure_lagged_pa.iter_mut())
             .zip(truth)
-            .zip(p.sensor.offsets_pa())
+            .zip(p.sensor.transducers())
         {
             self.pressure_lag.step(lagged, t);
-            *code = p.code(*lagged, off, noise);
+            *code = p.code(*lagged, transducer, noise);
         }
         let [chamber_a, chamber_b, suction, discharge] = codes;
         self.burst = Burst {

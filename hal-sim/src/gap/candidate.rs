@@ -71,6 +71,10 @@ pub enum EffectKind {
     HeatTransfer,
     /// Ports passing less than designed.
     PortRestriction,
+    /// The chamber pressure transducers read offset.
+    PressureOffset,
+    /// The chamber pressure transducers read with a gain other than 1.
+    PressureGain,
     /// Not a named effect: terms of the discovery basis ([`super::discover`]), one more
     /// at each proposal.
     ExtraForce,
@@ -78,7 +82,7 @@ pub enum EffectKind {
 
 impl EffectKind {
     /// Every effect of the library.
-    pub const ALL: [EffectKind; 12] = [
+    pub const ALL: [EffectKind; 14] = [
         EffectKind::MassError,
         EffectKind::CoulombFriction,
         EffectKind::ViscousFriction,
@@ -90,8 +94,16 @@ impl EffectKind {
         EffectKind::Leakage,
         EffectKind::HeatTransfer,
         EffectKind::PortRestriction,
+        EffectKind::PressureOffset,
+        EffectKind::PressureGain,
         EffectKind::ExtraForce,
     ];
+
+    /// Whether it is an error of a sensor's reading, not of the machine
+    /// ([`super::judge::sensor_reading_holds`]).
+    pub fn sensor(self) -> bool {
+        matches!(self, EffectKind::PressureOffset | EffectKind::PressureGain)
+    }
 
     /// Whether it is a named effect of the library (not the discovered terms).
     pub fn named(self) -> bool {
@@ -126,6 +138,8 @@ impl EffectKind {
             EffectKind::Leakage => "leakage",
             EffectKind::HeatTransfer => "heat_transfer",
             EffectKind::PortRestriction => "port_restriction",
+            EffectKind::PressureOffset => "pressure_offset",
+            EffectKind::PressureGain => "pressure_gain",
             EffectKind::ExtraForce => "extra_force",
         }
     }
@@ -145,6 +159,8 @@ impl EffectKind {
             EffectKind::MassError
             | EffectKind::CoulombFriction
             | EffectKind::ViscousFriction
+            | EffectKind::PressureOffset
+            | EffectKind::PressureGain
             | EffectKind::ExtraForce => return None,
         })
     }
@@ -161,9 +177,11 @@ impl EffectKind {
             | EffectKind::ExtraForce => ChannelId::Force,
             EffectKind::SlaveLag => ChannelId::SlaveForce,
             EffectKind::EncoderPitchError => ChannelId::Encoder,
-            EffectKind::Leakage | EffectKind::HeatTransfer | EffectKind::PortRestriction => {
-                ChannelId::Pressure
-            }
+            EffectKind::Leakage
+            | EffectKind::HeatTransfer
+            | EffectKind::PortRestriction
+            | EffectKind::PressureOffset
+            | EffectKind::PressureGain => ChannelId::Pressure,
         }
     }
 }

@@ -1,7 +1,16 @@
 //! Beyond the library (`docs/formats.md`, "Beyond the library — discovered terms"): the force the
 //! model lacks, when no named effect describes it, as a sparse sum over a fixed basis
-//! ([`Term`]) — `1`, `x`, `x^2`, `v`, `v|v|`, `sgn(v)`, `a`, `f_motor`, `p_a-p_b`, `t`,
-//! `t*sgn(v)` and `sin, cos(2πx/p)` with `p` fitted.
+//! ([`Term`]) — `1`, `x`, `x^2`, `x^3`, `v`, `v|v|`, `sgn(v)`, `x*sgn(v)`, `a`, `f_motor`,
+//! `p_a-p_b`, `t`, `t*sgn(v)` and `sin, cos(2πx/p)` with `p` one of the machine's own
+//! periods ([`machine_periods`]).
+//!
+//! **Only periods the machine can produce.** A sine in x fitted at any period is a
+//! curve-fitting device: over a stroke a few periods long it bends to any smooth force (a
+//! cubic spring read as "periodic in x at 56 mm"). The periodic pair is therefore offered
+//! only at the pole pitch and the encoder period of the model, their harmonics (½, ⅓, ¼)
+//! and the magnetic period of a pole pair (twice the pitch, with its ⅔), each refined by at
+//! most [`PERIOD_REFINE`] either way: a force periodic in x comes from the magnets or the
+//! scale, or it is not a periodic force.
 //!
 //! The terms are a candidate of the forward selection like any named effect
 //! ([`super::candidate::EffectKind::ExtraForce`]): each proposal adds the one term (or the
@@ -31,13 +40,43 @@ use super::candidate::{kept_span, kept_x, Ctx, EffectKind, Proposal};
 use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
 use super::fit::{lstsq, minimise_1d_par};
-use super::residuals::{extra_states, force_raw};
+use super::residuals::{basis_key, extra_states, force_raw};
 
 /// Shortest period of the periodic pair searched, m.
 pub const MIN_PERIOD_M: f64 = 2e-3;
 
-/// Grid points of the period search (log-spaced), before the golden section.
-pub const PERIOD_GRID: usize = 48;
+/// How far either way of a machine period ([`machine_periods`]) the periodic pair's period
+/// is refined, as a share of it.
+pub const PERIOD_REFINE: f64 = 0.02;
+
+/// Grid points of the refinement around the best machine period, before the golden section.
+pub const PERIOD_GRID: usize = 5;
+
+/// The periods the machine can produce a force at, m (module header): the pole pitch and
+/// the encoder period of `model`, each with its harmonics ½, ⅓, ¼ and the sub-harmonics
+/// 2 and ⅔ (a pole pair's period and its third harmonic), at least [`MIN_PERIOD_M`],
+/// ascending, each once.
+pub fn machine_periods(model: &MachineModel) -> Vec<f64> {
+    let mut out: Vec<f64> = Vec::new();
+    for base in [model.motor.pole_pitch_m, model.encoder.period_m] {
+        for (m, n) in [
+            (1.0, 1.0),
+            (1.0, 2.0),
+            (1.0, 3.0),
+            (1.0, 4.0),
+            (2.0, 1.0),
+            (2.0, 3.0),
+        ] {
+            let p = base * m / n;
+            let known = out.iter().any(|q| (q / p - 1.0).abs() < 1e-9);
+            if p.is_finite() && p >= MIN_PERIOD_M && !known {
+                out.push(p);
+            }
+        }
+    }
+    out.sort_by(f64::total_cmp);
+    out
+}
 
 /// The non-periodic terms, in the order of [`Term::ALL`].
 fn plain_terms() -> impl Iterator<Item = Term> {
@@ -60,6 +99,8 @@ struct Basis<'a> {
     ctx: &'a Ctx<'a>,
     states: Vec<ExtraState>,
     span_m: f64,
+    /// The periods the periodic pair may take ([`machine_periods`]).
+    periods: Vec<f64>,
     /// The band-filtered columns of the non-periodic terms, computed once.
     plain: Vec<(Term, Vec<f64>)>,
 }
@@ -72,12 +113,22 @@ impl<'a> Basis<'a> {
             ctx,
             states,
             span_m: kept_span(&xk),
+            periods: machine_periods(model),
             plain: Vec::new(),
         };
+        // The columns depend on the log, and `f_motor`'s on the actuator lag: the band keeps
+        // them for every later proposal, refit and competition.
         b.plain = plain_terms()
             .collect::<Vec<_>>()
             .par_iter()
-            .map(|&t| (t, b.filtered(t, 1.0)))
+            .map(|&t| {
+                let key = basis_key(t, ctx.data, model);
+                let kept = ctx
+                    .band
+                    .basis_columns
+                    .get_or_make(key, || vec![b.filtered(t, 1.0)]);
+                (t, kept.first().cloned().unwrap_or_default())
+            })
             .collect();
         b
     }
@@ -153,13 +204,11 @@ impl<'a> Basis<'a> {
         })
     }
 
-    /// The best period for the periodic pair on top of `fixed` columns: a log-spaced grid
-    /// from [`MIN_PERIOD_M`] to half the span of x, then golden section on ln p.
+    /// The best period for the periodic pair on top of `fixed` columns: each machine period
+    /// ([`machine_periods`]) no longer than half the span of x, the best refined within
+    /// [`PERIOD_REFINE`] of it by a grid and golden section on ln p.
     fn periodic(&self, fixed: &[(Term, Vec<f64>)], y: &[f64]) -> Option<TermFit> {
         let hi = 0.5 * self.span_m;
-        if hi <= MIN_PERIOD_M {
-            return None;
-        }
         let with = |p: f64| -> Option<TermFit> {
             let mut cols = fixed.to_vec();
             let pair = self.periodic_pair(p);
@@ -171,15 +220,31 @@ impl<'a> Basis<'a> {
             cols.push((Term::Cos, cos));
             Basis::fit(&cols, y, Some(p))
         };
-        let (lnp, _) = minimise_1d_par(MIN_PERIOD_M.ln(), hi.ln(), PERIOD_GRID, 12, |lnp| {
+        let candidates: Vec<f64> = self.periods.iter().copied().filter(|p| *p <= hi).collect();
+        let scan: Vec<Option<(f64, f64)>> = candidates
+            .par_iter()
+            .map(|&p| with(p).map(|f| (p, f.rss)))
+            .collect();
+        let mut best: Option<(f64, f64)> = None;
+        for (p, rss) in scan.into_iter().flatten() {
+            if best.is_none_or(|b| rss < b.1) {
+                best = Some((p, rss));
+            }
+        }
+        let (p0, _) = best?;
+        let (lo, up) = (
+            (p0 * (1.0 - PERIOD_REFINE)).ln(),
+            (p0 * (1.0 + PERIOD_REFINE)).ln(),
+        );
+        let (lnp, _) = minimise_1d_par(lo, up, PERIOD_GRID, 10, |lnp| {
             with(lnp.exp()).map(|f| f.rss)
         })?;
         with(lnp.exp())
     }
 
     /// The best fit of `present` (refitted) plus one more term, or one more term with the
-    /// constant, or the periodic pair, on `y`; `None` if nothing fits. Returns the fit and
-    /// the number of new parameters. A term comes with the constant because most forms are
+    /// constant, or a whole polynomial in x of degree 2 or 3, or the periodic pair, on `y`;
+    /// `None` if nothing fits. Returns the fit and the number of new parameters. A term comes with the constant because most forms are
     /// about an origin of their own (a spring about its rest point x0): alone, `x` cannot
     /// fit `−k·(x − x0)` over a stroke far from x = 0. Candidates of different sizes are
     /// ranked by `n·ln(RSS₀/RSS) − k·ln n`; whether the chosen one is significant is the
@@ -219,6 +284,25 @@ impl<'a> Basis<'a> {
             if !has_one && t != Term::One {
                 cols.push((Term::One, self.column(Term::One, 1.0)));
                 consider(Basis::fit(&cols, y, period_m), 2);
+            }
+        }
+        // A polynomial in x about a point of its own (a hardening spring −k₃·(x − x₀)³) is
+        // one form: its expansion's terms are only worth anything together, and one at a
+        // time the first (x³ alone) would bend to fit what the others should.
+        for degree in [Term::X2, Term::X3] {
+            let mut cols = present.to_vec();
+            let mut new = 0usize;
+            for t in [Term::One, Term::X, Term::X2, Term::X3] {
+                if !cols.iter().any(|(p, _)| *p == t) {
+                    cols.push((t, self.column(t, 1.0)));
+                    new += 1;
+                }
+                if t == degree {
+                    break;
+                }
+            }
+            if new > 2 {
+                consider(Basis::fit(&cols, y, period_m), new);
             }
         }
         if !present.iter().any(|(p, _)| p.periodic()) {
@@ -402,21 +486,34 @@ pub fn basis_rss(ctx: &Ctx<'_>, doc: &ModelDoc, y: &[f64], k: usize) -> Option<(
 pub fn reading(terms: &[(Term, f64)], period_m: Option<f64>) -> String {
     let c = |t: Term| terms.iter().find(|(p, _)| *p == t).map(|(_, c)| *c);
     let mut parts = Vec::new();
-    match (c(Term::X), c(Term::One)) {
-        (Some(kx), one) if kx != 0.0 => {
+    let cubic = c(Term::X3).filter(|k| *k != 0.0);
+    match (cubic, c(Term::X), c(Term::One)) {
+        (Some(k3), kx, one) => parts.push(cubic_reading(
+            k3,
+            c(Term::X2).unwrap_or(0.0),
+            kx.unwrap_or(0.0),
+            one.unwrap_or(0.0),
+        )),
+        (None, Some(kx), one) if kx != 0.0 => {
             let x0 = -one.unwrap_or(0.0) / kx;
             parts.push(format!(
                 "linear in x: a spring of {:.0} N/m about x = {:.3} m",
                 -kx, x0
             ));
         }
-        (_, Some(one)) => parts.push(format!("a constant force of {one:.1} N toward +x")),
+        (None, _, Some(one)) => parts.push(format!("a constant force of {one:.1} N toward +x")),
         _ => {}
     }
     for &(t, v) in terms {
         let s = match t {
-            Term::One | Term::X | Term::Cos => continue,
+            Term::One | Term::X | Term::X3 | Term::Cos => continue,
+            Term::X2 if cubic.is_some() => continue,
             Term::X2 => format!("quadratic in x: {v:.1} N/m²"),
+            Term::XSgnV => format!(
+                "∝ x·sgn(v): a friction against the motion that {} by {:.0} N per m of x",
+                if v < 0.0 { "grows" } else { "shrinks" },
+                v.abs()
+            ),
             Term::V => format!("∝ v: a viscous force of {:.2} N·s/m", -v),
             Term::VAbsV => format!("∝ v|v|: a quadratic drag of {:.2} N·s²/m²", -v),
             Term::SgnV => format!("∝ sgn(v): a friction of {:.1} N against the motion", -v),
@@ -446,6 +543,25 @@ pub fn reading(terms: &[(Term, f64)], period_m: Option<f64>) -> String {
     parts.join("; ")
 }
 
+/// The reading of the cubic `k3·x³ + k2·x² + k1·x + k0`, N, about its point of
+/// inflection `x0 = −k2/(3·k3)`: `k3·(x − x0)³ + k·(x − x0) + F0`, a spring that hardens
+/// (`k3 < 0`: the restoring force grows faster than linearly) or softens.
+fn cubic_reading(k3: f64, k2: f64, k1: f64, k0: f64) -> String {
+    let x0 = -k2 / (3.0 * k3);
+    let k = k1 - 3.0 * k3 * x0 * x0;
+    let f0 = ((k3 * x0 + k2) * x0 + k1) * x0 + k0;
+    format!(
+        "cubic in x: a {} spring of {:.3e} N/m³ about x = {:.3} m, with {:.0} N/m linear and \
+         {:.1} N toward +x there",
+        if k3 < 0.0 { "hardening" } else { "softening" },
+        -k3,
+        x0,
+        // Rounded first, so that a tiny negative reads 0 rather than −0.
+        (-k).round() + 0.0,
+        (10.0 * f0).round() / 10.0 + 0.0
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -460,5 +576,22 @@ mod tests {
         assert!(r.contains("rising 5.40 N/s"), "{r}");
         let r = reading(&[(Term::VAbsV, -9.0)], None);
         assert!(r.contains("9.00 N·s²/m²"), "{r}");
+        // −9e5·(x − 0.095)³ expanded: a hardening spring about 0.095 m, nothing linear.
+        let r = reading(
+            &[
+                (Term::X3, -9e5),
+                (Term::X2, 256_500.0),
+                (Term::X, -24_367.5),
+                (Term::One, 771.6375),
+            ],
+            None,
+        );
+        assert!(
+            r.contains("hardening spring of 9.000e5 N/m³ about x = 0.095 m")
+                && r.contains("with 0 N/m linear and 0.0 N"),
+            "{r}"
+        );
+        let r = reading(&[(Term::XSgnV, -700.0), (Term::SgnV, 63.0)], None);
+        assert!(r.contains("grows by 700 N per m of x"), "{r}");
     }
 }

@@ -37,6 +37,16 @@
 //! "Where it acts" is where the change exceeds a tenth of its 98th percentile
 //! ([`robust_peak`]), not of its largest value.
 //!
+//! **A sensor's error is the last reading, not a remainder.** An offset or a gain of a
+//! transducer is a constant of the reading: it cannot produce a pattern the gas's physics
+//! leaves half explained, yet fitted on top of physical effects it absorbs part of what they
+//! leave (a chamber replay off by a few percent, read through a shifted sensor). A sensor
+//! effect is named only if it reads the channel better than every physical candidate judged
+//! at the same step (each fitted with the physical effects already named, refitted around
+//! it), and if what it leaves is noise: no structure, and an RMS above the channel's noise
+//! floor by less than the channel resolves (in quadrature, `√(rms² − floor²) <`
+//! [`resolution`]) ([`sensor_reading_holds`]).
+//!
 
 use std::cell::RefCell;
 
@@ -44,7 +54,7 @@ use super::candidate::{Ctx, EffectKind, Proposal};
 use super::channel::{resolution, sample_resolution, ChannelId};
 use super::doc::{Edit, ModelDoc};
 use super::effects::propose;
-use super::residuals::{residual, Residual};
+use super::residuals::{channel_raw, full_of_raw, residual, Residual};
 use crate::plant::model::extra_force::Term;
 
 /// Smallest BIC improvement that adds an effect ("very strong" evidence on Kass and
@@ -332,4 +342,31 @@ pub(super) fn outdone_by_basis(
     rss_basis > 0.0
         && j.rss_after > 0.0
         && j.n_eff * (j.rss_after / rss_basis).ln() >= MIN_DELTA_BIC
+}
+
+/// Whether the significant sensor candidate `j` (on top of `doc`) is the channel's reading
+/// (module header): its residual below that of every candidate of `physical` (the step's
+/// judgements of the physical effects of its channel), and what it leaves at the noise floor.
+pub(super) fn sensor_reading_holds(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    j: &Judged,
+    physical: &[&Judged],
+) -> bool {
+    let ch = j.proposal.kind.channel();
+    if physical.iter().any(|p| p.rss_after <= j.rss_after) {
+        return false;
+    }
+    let Ok(model) = doc.with(&j.proposal.edits).model() else {
+        return false;
+    };
+    let Some(raw) = channel_raw(ctx.data, &model, ch) else {
+        return false;
+    };
+    let after = full_of_raw(ctx.data, ctx.band, ch, &raw);
+    let u = super::unexplained::judge(ctx.data, ctx.band, &model, ch, &after, &after);
+    let excess = (u.json.rms.powi(2) - u.json.noise_floor.powi(2))
+        .max(0.0)
+        .sqrt();
+    !u.json.structured && excess < resolution(ch, &model)
 }

@@ -35,7 +35,11 @@ pub(super) fn prune_terms(ctx: &Ctx<'_>, mut doc: ModelDoc) -> ModelDoc {
             return doc;
         };
         let mut worst: Option<(f64, ModelDoc)> = None;
-        for (term, _) in &terms {
+        let present: Vec<Term> = terms.iter().map(|(t, _)| *t).collect();
+        for (term, _) in terms
+            .iter()
+            .filter(|(t, _)| !below_a_higher_power(*t, &present))
+        {
             let Some((without, back)) = super::discover::without_term(ctx, &doc, *term) else {
                 continue;
             };
@@ -58,6 +62,21 @@ pub(super) fn prune_terms(ctx: &Ctx<'_>, mut doc: ModelDoc) -> ModelDoc {
             None => return doc,
         }
     }
+}
+
+/// Whether `term` is a lower power of x than one of `present`: a polynomial in x about a
+/// point of its own (a spring about its rest point) is one form, whose lower terms are its
+/// origin's expansion and nothing alone. Refitted without one of them, the others bend to
+/// stand in for it over a stroke, so each would fail as if added last, and the form would be
+/// dropped a term at a time. It is pruned from its highest power down.
+fn below_a_higher_power(term: Term, present: &[Term]) -> bool {
+    let power = |t: Term| match t {
+        Term::X => Some(1),
+        Term::X2 => Some(2),
+        Term::X3 => Some(3),
+        _ => None,
+    };
+    power(term).is_some_and(|p| present.iter().any(|t| power(*t).is_some_and(|q| q > p)))
 }
 
 /// The named force effects a discovered term can be judged against at the end of selection:

@@ -17,8 +17,9 @@ use fpc::physics::balance::{PistonForces, PistonState};
 
 use crate::plant::chambers::{Chambers, Lines, PortMode};
 use crate::plant::dynamics::PlantParams;
-use crate::plant::model::extra_force::ExtraState;
+use crate::plant::model::extra_force::{ExtraState, Term};
 use crate::plant::model::MachineModel;
+use crate::plant::sensing::Transducer;
 use crate::plant::servo::through_play;
 use crate::signal::delayed;
 
@@ -71,6 +72,9 @@ pub struct Band {
     pub idx_inner: Vec<usize>,
     /// Columns of this band's searches, kept for the next selection step.
     pub columns: ColumnCache,
+    /// The discovery basis's plain columns at the force channel's kept samples, by term and
+    /// by what they depend on beyond the log ([`basis_key`]).
+    pub basis_columns: ColumnCache<(Term, u64, u64)>,
 }
 
 /// `mask` eroded by `half` samples on each side: 1 only where every sample within `half`
@@ -134,6 +138,7 @@ impl Band {
             mask_force,
             mask_inner,
             columns: ColumnCache::default(),
+            basis_columns: ColumnCache::default(),
         })
     }
 
@@ -287,6 +292,21 @@ pub fn shifted(x: &[f64], samples: f64) -> Vec<f64> {
         .collect()
 }
 
+/// The key of the discovery basis's plain column of `term` on `data` with `model` in
+/// [`Band::basis_columns`]: the term, and for `f_motor` (the motor forces as they act) the
+/// model's actuator lag and the log's force alignment, bit for bit; every other term is the
+/// log's alone.
+pub fn basis_key(term: Term, data: &Measured, model: &MachineModel) -> (Term, u64, u64) {
+    match term {
+        Term::FMotor => (
+            term,
+            actuator_delay_s(model).to_bits(),
+            data.force_align_s.to_bits(),
+        ),
+        _ => (term, 0, 0),
+    }
+}
+
 /// The model's actuator lag, s (0 without `[effects.actuator_lag]`).
 fn actuator_delay_s(model: &MachineModel) -> f64 {
     model
@@ -330,8 +350,9 @@ pub fn force_terms(data: &Measured, model: &MachineModel) -> Vec<PistonForces<f6
     let acting = acting_motor_force_n(data, actuator_delay_s(model));
     let laws = model.piston_laws();
     let tang = tangential_mps(data, model);
-    // The gas force acts with the chambers' true pressures: the readings less the model's
-    // sensor offsets, with the sensors' first-order lag undone (p = p_read + τ·ṗ_read).
+    // The gas force acts with the chambers' true pressures: the readings through the model's
+    // sensor offsets and gains, the sensors' first-order lag undone
+    // (p = (p_read − offset + τ·ṗ_read)/gain).
     // Left in, the lag reads as friction (it follows the stroke direction) or as an actuator
     // lag (it follows the force's rate).
     let sensor = &model.sensors.pressure;
@@ -345,12 +366,12 @@ pub fn force_terms(data: &Measured, model: &MachineModel) -> Vec<PistonForces<f6
                 pressure_a_pa: sensor.true_pressure_pa(
                     g(&data.p_a_pa),
                     g(&data.dp_a_pa_per_s),
-                    sensor.offset_a_pa,
+                    sensor.chamber_a(),
                 ),
                 pressure_b_pa: sensor.true_pressure_pa(
                     g(&data.p_b_pa),
                     g(&data.dp_b_pa_per_s),
-                    sensor.offset_b_pa,
+                    sensor.chamber_b(),
                 ),
                 motor_n: g(&acting),
             })
@@ -452,7 +473,7 @@ pub const MAX_REPLAY_SUBSTEPS: usize = 16;
 /// pressure sensors would read them: (p_A, p_B), Pa. `None` without `# ports`.
 ///
 /// The replay starts from what the sensors read while the piston still rests (up to
-/// 20 ms), less their offsets, at the wall temperature: the log is taken to start in
+/// 20 ms), through their offsets and gains, at the wall temperature: the log is taken to start in
 /// equilibrium. Sealed chambers never forget that start, so its noise (0.4 kPa over 20 ms
 /// is ±30 Pa) comes back multiplied by the compression ratio at every stroke, a pattern the
 /// leak and heat candidates would gladly explain. For a log sealed from its first row the
@@ -571,9 +592,10 @@ fn replay_pressures_anew(
         .count()
         .max(1);
     let mean = |p: &[f64]| p.iter().take(rest).sum::<f64>() / rest as f64;
+    let true_at_rest = |p: &[f64], t: Transducer| (mean(p) - t.offset_pa) / t.gain;
     let start = (
-        mean(&data.p_a_pa) - sensor.offset_a_pa,
-        mean(&data.p_b_pa) - sensor.offset_b_pa,
+        true_at_rest(&data.p_a_pa, sensor.chamber_a()),
+        true_at_rest(&data.p_b_pa, sensor.chamber_b()),
     );
     let (pa, pb) = replay_from(data, model, mode, start, angle_rad);
     if mode != PortMode::Closed || data.ports_from_s.is_some() {
@@ -692,8 +714,8 @@ fn replay_from(
                 sensor_lag.step(&mut lb, ch.b.pressure_pa);
             }
         }
-        pa.push(sensor.reading_pa(la, sensor.offset_a_pa));
-        pb.push(sensor.reading_pa(lb, sensor.offset_b_pa));
+        pa.push(sensor.reading_pa(la, sensor.chamber_a()));
+        pb.push(sensor.reading_pa(lb, sensor.chamber_b()));
     }
     (pa, pb)
 }

@@ -32,10 +32,11 @@ use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
 use super::fit::correlation;
 use super::judge::{
-    judge, judge_joint, outdone_by_basis, BasisFits, Judged, MAX_EFFECTS, MIN_DELTA_BIC,
+    judge, judge_joint, outdone_by_basis, sensor_reading_holds, BasisFits, Judged, MAX_EFFECTS,
+    MIN_DELTA_BIC,
 };
 use super::reconsider::{prune_terms, reconsider_terms};
-use super::residuals::{residual, Residual};
+use super::residuals::{channel_raw, full_of_raw, residual, Residual};
 
 /// Correlation above which two candidates are reported as collinear.
 pub const COLLINEAR: f64 = 0.9;
@@ -54,6 +55,17 @@ pub struct Selection {
     /// Warnings (collinear candidates).
     pub warnings: Vec<String>,
 }
+
+/// Most rounds of back-fitting per selection step ([`backfit`]): effects sharing a channel
+/// are refitted in turn until they stop improving it, so that they stand at their joint
+/// optimum before the next candidate is judged on what they leave.
+pub const BACKFIT_ROUNDS: usize = 6;
+
+/// Share of its channel's residual sum of squares a refit must remove for another round.
+pub const BACKFIT_GAIN: f64 = 0.01;
+
+/// Judgements kept per candidate ([`remember`]).
+const CACHED_PER_CANDIDATE: usize = 4;
 
 /// Judgements by candidate, with the channel residual they were made on.
 type Cache = Vec<(EffectKind, Vec<f64>, Judged)>;
@@ -83,7 +95,15 @@ fn uncached_judge(
 
 /// Keeps `j` as the judgement of `kind` on the residual `before`.
 fn remember(cache: &mut Cache, kind: EffectKind, before: &Residual, j: &Judged) {
-    cache.retain(|(k, _, _)| *k != kind);
+    cache.retain(|(k, kept, _)| *k != kind || *kept != before.kept);
+    // The last few residuals per candidate: the library-only pass repeats the first
+    // pass's early steps.
+    let mine = cache.iter().filter(|(k, _, _)| *k == kind).count();
+    if mine >= CACHED_PER_CANDIDATE {
+        if let Some(oldest) = cache.iter().position(|(k, _, _)| *k == kind) {
+            cache.remove(oldest);
+        }
+    }
     cache.push((kind, before.kept.clone(), j.clone()));
 }
 
@@ -105,16 +125,51 @@ fn cached_judge(
 }
 
 /// Runs the forward selection from `doc` over the channels this log has.
+///
+/// **A formula only where it is a clean reading.** Discovered terms are kept only if the
+/// force they leave is not structured ([`reading_is_clean`]): terms that describe part of a
+/// force of another form (friction growing with |x − x₀| read as `x*sgn(v)`) are a curve
+/// fit, not a description. Then the selection runs again with the library alone, and what
+/// is left is reported as unexplained and structured ([`super::unexplained`]).
 pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
+    // A candidate's fit depends only on its own channel: while that channel's residual is
+    // unchanged (an effect was added elsewhere, or the library-only pass repeats a step of
+    // the first), its last judgement stands. The pressure candidates replay the chambers
+    // tens of times each; this keeps the steps cheap.
+    let mut cache: Cache = Vec::new();
+    match select_from(ctx, doc, true, &mut cache)? {
+        Some(s) => Ok(s),
+        None => {
+            select_from(ctx, doc, false, &mut cache)?.ok_or_else(|| "selection failed".to_string())
+        }
+    }
+}
+
+/// Whether the force residual `doc` leaves is free of structure (what
+/// [`super::unexplained::judge`] reports as not structured).
+fn reading_is_clean(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<bool, String> {
+    let model = doc.model()?;
+    let Some(raw) = channel_raw(ctx.data, &model, ChannelId::Force) else {
+        return Ok(true);
+    };
+    let after = full_of_raw(ctx.data, ctx.band, ChannelId::Force, &raw);
+    let u = super::unexplained::judge(ctx.data, ctx.band, &model, ChannelId::Force, &after, &after);
+    Ok(!u.json.structured)
+}
+
+/// [`select`] with the discovery basis as a candidate (`with_terms`) or the library alone;
+/// `None` when the terms it discovered are not a clean reading ([`reading_is_clean`]).
+fn select_from(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    with_terms: bool,
+    cache: &mut Cache,
+) -> Result<Option<Selection>, String> {
     let input = doc.clone();
     let mut doc = doc.clone();
     let mut added: Vec<Judged> = Vec::new();
     let mut steps: Vec<(ModelDoc, ModelDoc)> = Vec::new();
     let mut first_step: Vec<Judged> = Vec::new();
-    // A candidate's fit depends only on its own channel: while that channel's residual is
-    // unchanged (an effect was added elsewhere), its last judgement stands. The pressure
-    // candidates replay the chambers tens of times each; this keeps the steps cheap.
-    let mut cache: Cache = Vec::new();
     for step in 0..MAX_EFFECTS {
         let model = doc.model()?;
         // Each channel's residual on its own core (the pressure replay is the long one).
@@ -124,7 +179,7 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
             .collect();
         let fits = RefCell::new(BasisFits::new());
         let (judged, best, best_extra) =
-            judge_candidates(ctx, &doc, &befores, &added, &mut cache, &fits);
+            judge_candidates(ctx, &doc, &befores, &added, cache, &fits, with_terms);
         let best = preferred(ctx, &doc, &befores, &judged, best, best_extra, &fits);
         if step == 0 {
             first_step = judged;
@@ -138,24 +193,27 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
         // so that one fitted while another was still missing is corrected before the next
         // step looks at what is left.
         if added.len() > 1 {
-            doc = backfit(ctx, doc, &mut added, &mut cache)?;
+            doc = backfit(ctx, doc, &mut added, cache)?;
         }
         if added.iter().any(|a| !a.proposal.kind.named()) {
             doc = prune_terms(ctx, doc);
         }
     }
     if added.iter().any(|a| !a.proposal.kind.named()) {
+        if !reading_is_clean(ctx, &doc)? {
+            return Ok(None);
+        }
         doc = reconsider_terms(ctx, &input, doc, &mut added, &mut steps);
     }
     final_parameters(&doc, &mut added);
     let warnings = collinear_warnings(&added, &first_step);
-    Ok(Selection {
+    Ok(Some(Selection {
         doc,
         added,
         steps,
         first_step,
         warnings,
-    })
+    }))
 }
 
 /// Every candidate not yet added (a named effect once, the discovered terms at every step)
@@ -169,6 +227,7 @@ fn judge_candidates(
     added: &[Judged],
     cache: &mut Cache,
     fits: &RefCell<BasisFits>,
+    with_terms: bool,
 ) -> (Vec<Judged>, Option<Judged>, Option<Judged>) {
     let mut best: Option<Judged> = None;
     let mut judged = Vec::new();
@@ -177,7 +236,9 @@ fn judge_candidates(
     // ones reused), then taken in the library's order, as one thread would.
     let mut jobs: Vec<(EffectKind, &Residual, Vec<EffectKind>)> = Vec::new();
     for kind in EffectKind::ALL {
-        if kind.named() && added.iter().any(|a| a.proposal.kind == kind) {
+        if (kind.named() && added.iter().any(|a| a.proposal.kind == kind))
+            || (!kind.named() && !with_terms)
+        {
             continue;
         }
         let Some((_, before)) = befores.iter().find(|(c, _)| *c == kind.channel()) else {
@@ -209,7 +270,14 @@ fn judge_candidates(
         if !hit {
             remember(cache, kind, before, &j);
         }
-        if j.significant() {
+        let physical: Vec<&Judged> = judged
+            .iter()
+            .filter(|p: &&Judged| {
+                let k = p.proposal.kind;
+                k.named() && !k.sensor() && k.channel() == kind.channel()
+            })
+            .collect();
+        if j.significant() && (!kind.sensor() || sensor_reading_holds(ctx, doc, &j, &physical)) {
             if !kind.named() {
                 best_extra = Some(j.clone());
             } else if best.as_ref().is_none_or(|b| j.delta_bic > b.delta_bic)
@@ -343,22 +411,43 @@ fn backfit(
     added: &mut [Judged],
     cache: &mut Cache,
 ) -> Result<ModelDoc, String> {
-    for a in added.iter_mut() {
-        let kind = a.proposal.kind;
-        if !kind.named() {
-            // The discovered terms: refitted jointly once (never one more term here).
-            continue;
-        }
-        let model = doc.model()?;
-        let Some(before) = residual(ctx.data, ctx.band, &model, kind.channel()) else {
-            continue;
+    for round in 0..BACKFIT_ROUNDS {
+        // After the first round only the channels holding two named effects or more: one
+        // effect alone on its channel is at its optimum after one refit.
+        let kinds: Vec<EffectKind> = added.iter().map(|a| a.proposal.kind).collect();
+        let shared = |kind: EffectKind| {
+            kinds
+                .iter()
+                .filter(|k| k.named() && k.channel() == kind.channel())
+                .count()
+                > 1
         };
-        if let Some(j) = cached_judge(ctx, &doc, kind, &before, &[], cache) {
-            if j.rss_after < j.rss_before {
-                doc = doc.with(&j.proposal.edits);
-                a.proposal.params = j.proposal.params;
-                a.proposal.edits = j.proposal.edits;
+        let mut improved = false;
+        for i in 0..added.len() {
+            let Some(kind) = added.get(i).map(|a| a.proposal.kind) else {
+                continue;
+            };
+            if !kind.named() || (round > 0 && !shared(kind)) {
+                // The discovered terms: refitted jointly once (never one more term here).
+                continue;
             }
+            let model = doc.model()?;
+            let Some(before) = residual(ctx.data, ctx.band, &model, kind.channel()) else {
+                continue;
+            };
+            if let Some(j) = cached_judge(ctx, &doc, kind, &before, &[], cache) {
+                if j.rss_after < j.rss_before {
+                    improved |= j.rss_after < (1.0 - BACKFIT_GAIN) * j.rss_before;
+                    doc = doc.with(&j.proposal.edits);
+                    if let Some(a) = added.get_mut(i) {
+                        a.proposal.params = j.proposal.params;
+                        a.proposal.edits = j.proposal.edits;
+                    }
+                }
+            }
+        }
+        if !improved {
+            break;
         }
     }
     if added.iter().any(|a| !a.proposal.kind.named()) {

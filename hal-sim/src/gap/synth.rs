@@ -18,6 +18,7 @@ use crate::plant::dynamics::{Plant, PlantParams};
 use crate::plant::kinematic::CycleDrive;
 use crate::plant::model::MachineModel;
 use crate::plant::noise::Noise;
+use crate::plant::sensing::Transducer;
 use crate::runlog::{RunLog, REQUIRED};
 
 /// Sample time of the synthetic runs, s (the simulator's 20 kHz).
@@ -168,7 +169,7 @@ fn prescribed(
     let calibration = PressureCalibration::reference();
     let mut noise = Noise::new(seed);
     let lag = pressure.lag(dt);
-    let offsets = pressure.offsets_pa();
+    let transducers = pressure.transducers();
     let laws = truth.piston_laws();
     let r = truth.friction_radius_m();
     let mut cols = REQUIRED.to_vec();
@@ -215,8 +216,11 @@ fn prescribed(
                 lag.step(l, p);
                 *l
             });
-            let offset = offsets.get(i).copied().unwrap_or(0.0);
-            let code = calibration.code_for(pressure.noisy_reading_pa(l, offset, noise) as f32);
+            let t = transducers.get(i).copied().unwrap_or(Transducer {
+                offset_pa: 0.0,
+                gain: 1.0,
+            });
+            let code = calibration.code_for(pressure.noisy_reading_pa(l, t, noise) as f32);
             f64::from(calibration.convert(code).pressure_pa)
         };
         let p_a = read(0, pa, &mut noise);

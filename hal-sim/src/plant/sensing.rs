@@ -3,10 +3,12 @@
 //! board's sensors (`board::sensors`, `board::world`), the synthetic runs and the model-gap
 //! workflow, which inverts them (`gap::residuals`).
 //!
-//! - **Pressure transducers** (`[sensors.pressure]`): a first-order lag `τ·ṙ = p − r`, an
-//!   offset and noise, `reading = r + offset + n` (noise from [`crate::plant::noise`]). Over a step `h` with `p` held the lag is exact,
-//!   `r ← r + (1 − e^{−h/τ})·(p − r)` ([`FirstOrderLag`]); its inverse from a reading and its
-//!   rate is `p = reading − offset + τ·ṙ` ([`PressureSensor::true_pressure_pa`]).
+//! - **Pressure transducers** (`[sensors.pressure]`): a first-order lag `τ·ṙ = p − r`, a
+//!   gain, an offset and noise, `reading = gain·r + offset + n` (noise from
+//!   [`crate::plant::noise`]; the gain is the chambers' transducers', 1 for the lines'). Over
+//!   a step `h` with `p` held the lag is exact, `r ← r + (1 − e^{−h/τ})·(p − r)`
+//!   ([`FirstOrderLag`]); its inverse from a reading and its rate is
+//!   `p = (reading − offset + τ·ṙ)/gain` ([`PressureSensor::true_pressure_pa`]).
 //! - **Pitch error of the slave scale** (`[effects.encoder_pitch_error]`): what it reads at a
 //!   true position ([`PitchErrorEffect::reading_m`]), the pattern the section documents.
 
@@ -40,8 +42,17 @@ impl FirstOrderLag {
     }
 }
 
-/// The pressure channels of [`PressureSensor::offsets_pa`], in order.
+/// The pressure channels of [`PressureSensor::transducers`], in order.
 pub const PRESSURE_CHANNELS: usize = 4;
+
+/// One pressure transducer's static error: `reading = gain·p + offset_pa`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Transducer {
+    /// Offset, Pa.
+    pub offset_pa: f64,
+    /// Gain (1: exact).
+    pub gain: f64,
+}
 
 impl PressureSensor {
     /// The transducers' lag stepped every `step_s`.
@@ -49,34 +60,55 @@ impl PressureSensor {
         FirstOrderLag::new(self.time_constant_s, step_s)
     }
 
-    /// The offsets of the four channels, Pa: chamber A, chamber B, suction, discharge.
-    pub fn offsets_pa(&self) -> [f64; PRESSURE_CHANNELS] {
+    /// Chamber A's transducer.
+    pub fn chamber_a(&self) -> Transducer {
+        Transducer {
+            offset_pa: self.offset_a_pa,
+            gain: self.gain_a,
+        }
+    }
+
+    /// Chamber B's transducer.
+    pub fn chamber_b(&self) -> Transducer {
+        Transducer {
+            offset_pa: self.offset_b_pa,
+            gain: self.gain_b,
+        }
+    }
+
+    /// The four channels' transducers: chamber A, chamber B, suction, discharge (the lines'
+    /// with their offsets, at gain 1).
+    pub fn transducers(&self) -> [Transducer; PRESSURE_CHANNELS] {
+        let line = |offset_pa| Transducer {
+            offset_pa,
+            gain: 1.0,
+        };
         [
-            self.offset_a_pa,
-            self.offset_b_pa,
-            self.offset_suction_pa,
-            self.offset_discharge_pa,
+            self.chamber_a(),
+            self.chamber_b(),
+            line(self.offset_suction_pa),
+            line(self.offset_discharge_pa),
         ]
     }
 
-    /// What a transducer with `offset_pa` reads with its lag at `lagged_pa` (noise aside).
+    /// What transducer `t` reads with its lag at `lagged_pa` (noise aside), Pa.
     #[inline]
-    pub fn reading_pa(&self, lagged_pa: f64, offset_pa: f64) -> f64 {
-        lagged_pa + offset_pa
+    pub fn reading_pa(&self, lagged_pa: f64, t: Transducer) -> f64 {
+        t.gain * lagged_pa + t.offset_pa
     }
 
-    /// What a transducer with `offset_pa` reads with its lag at `lagged_pa`, its noise
-    /// (`noise_pa` RMS) drawn from `noise`, Pa.
+    /// What transducer `t` reads with its lag at `lagged_pa`, its noise (`noise_pa` RMS)
+    /// drawn from `noise`, Pa.
     #[inline]
-    pub fn noisy_reading_pa(&self, lagged_pa: f64, offset_pa: f64, noise: &mut Noise) -> f64 {
-        self.reading_pa(lagged_pa, offset_pa) + noise.scaled(self.noise_pa)
+    pub fn noisy_reading_pa(&self, lagged_pa: f64, t: Transducer, noise: &mut Noise) -> f64 {
+        self.reading_pa(lagged_pa, t) + noise.scaled(self.noise_pa)
     }
 
-    /// The true pressure behind a reading, the lag undone: `reading − offset + τ·ṙ`, Pa
-    /// (`rate_pa_per_s` the reading's rate).
+    /// The true pressure behind a reading of transducer `t`, the lag undone:
+    /// `(reading − offset + τ·ṙ)/gain`, Pa (`rate_pa_per_s` the reading's rate).
     #[inline]
-    pub fn true_pressure_pa(&self, reading_pa: f64, rate_pa_per_s: f64, offset_pa: f64) -> f64 {
-        reading_pa - offset_pa + self.time_constant_s * rate_pa_per_s
+    pub fn true_pressure_pa(&self, reading_pa: f64, rate_pa_per_s: f64, t: Transducer) -> f64 {
+        (reading_pa - t.offset_pa + self.time_constant_s * rate_pa_per_s) / t.gain
     }
 }
 
@@ -117,11 +149,13 @@ mod tests {
 
     #[test]
     fn the_lag_steps_exactly_and_its_inverse_recovers_the_pressure() {
-        // A ramp through a 1 ms lag stepped at 50 µs: after the transient the reading trails
-        // by τ·slope, and p = r + τ·ṙ recovers the ramp.
+        // A ramp through a 1 ms lag stepped at 50 µs, read 5 % high and 250 Pa up: after the
+        // transient the reading trails by τ·slope, and p = (r − offset + τ·ṙ)/gain recovers
+        // the ramp.
         let sensor = PressureSensor {
             time_constant_s: 1e-3,
             offset_a_pa: 250.0,
+            gain_a: 1.05,
             ..PressureSensor::default()
         };
         let (h, slope) = (50e-6, 2e6);
@@ -131,11 +165,11 @@ mod tests {
         let mut readings = Vec::new();
         for k in 0..400 {
             lag.step(&mut r, 1e5 + slope * k as f64 * h);
-            readings.push(sensor.reading_pa(r, sensor.offset_a_pa));
+            readings.push(sensor.reading_pa(r, sensor.chamber_a()));
         }
         let k = 399;
         let rate = (readings[k] - readings[k - 1]) / h;
-        let p = sensor.true_pressure_pa(readings[k], rate, sensor.offset_a_pa);
+        let p = sensor.true_pressure_pa(readings[k], rate, sensor.chamber_a());
         // The discrete lag trails by τ − h/2 (zero-order hold): within h/2·slope = 50 Pa.
         assert!((p - (1e5 + slope * k as f64 * h)).abs() < 60.0, "{p}");
         assert_eq!(FirstOrderLag::new(0.0, h).alpha, 1.0);

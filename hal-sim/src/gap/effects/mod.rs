@@ -1,7 +1,7 @@
 //! The library of named candidate effects (`docs/formats.md` §3, `docs/machine.md` "Signatures of
 //! missing effects"): for each, the channel it shows in, how it is fitted from the residual,
 //! and the model edits that add it — one module per channel ([`force`], [`slave_force`],
-//! [`encoder`], [`pressure`]), each edit a typed key of the model
+//! [`encoder`], [`pressure`]) and one for the sensors' own errors ([`sensor`]), each edit a typed key of the model
 //! ([`crate::plant::model::model_key!`]).
 //!
 //! | effect | channel | regressor or sub-model | fit |
@@ -17,6 +17,8 @@
 //! | `leakage` | pressure | chamber replay with clearance leaks | damped Gauss–Newton on gap³ (piston and rod seals) |
 //! | `heat_transfer` | pressure | chamber replay with wall heat transfer | grid + golden section on log UA |
 //! | `port_restriction` | pressure (open ports) | chamber replay with scaled port areas | grid + golden section on log scale |
+//! | `pressure_offset` | pressure | chamber replay read through transducers offset per chamber | damped Gauss–Newton on the two offsets |
+//! | `pressure_gain` | pressure | chamber replay read through transducers of gain per chamber | damped Gauss–Newton on the two gains |
 //!
 //! Every fit starts from the current model with the effect itself removed (or, for the
 //! corrections of mass and friction levels, from the current value), so fitting again after
@@ -33,6 +35,7 @@ use super::doc::ModelDoc;
 mod encoder;
 mod force;
 mod pressure;
+mod sensor;
 mod slave_force;
 
 pub use force::{acting_force_lag, MAX_ACTUATOR_LAG_S};
@@ -55,6 +58,8 @@ pub fn propose(kind: EffectKind, ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Propos
         EffectKind::Leakage => pressure::leakage(ctx, doc),
         EffectKind::HeatTransfer => pressure::heat_transfer(ctx, doc),
         EffectKind::PortRestriction => pressure::port_restriction(ctx, doc),
+        EffectKind::PressureOffset => sensor::pressure_offset(ctx, doc),
+        EffectKind::PressureGain => sensor::pressure_gain(ctx, doc),
         EffectKind::ExtraForce => discover::next_term(ctx, doc),
     }
 }

@@ -58,7 +58,7 @@ fn search_s(data: &Measured) -> f64 {
 /// The data and band the pressure searches run on: the first [`search_s`] (of a
 /// closed-port log with `# ports_from_s`: from [`PRESSURE_SEARCH_LEAD_S`] before it) of the
 /// log, or the whole log if it is shorter (then `None`: use `ctx` itself).
-fn pressure_search(ctx: &Ctx<'_>) -> Option<(Measured, Band)> {
+pub(super) fn pressure_search(ctx: &Ctx<'_>) -> Option<(Measured, Band)> {
     let n = (search_s(ctx.data) / ctx.data.dt_s).round() as usize;
     // A closed-port campaign's leak and heat transfer show only while the chambers are
     // sealed: its search begins where the sealing does (a bench log starts with the homing,
@@ -89,7 +89,7 @@ fn pressure_search(ctx: &Ctx<'_>) -> Option<(Measured, Band)> {
 pub const PRESSURE_SEARCH_LEAD_S: f64 = 0.1;
 
 /// The pressure residual of `doc` at the kept samples.
-fn pressure_kept(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Vec<f64>> {
+pub(super) fn pressure_kept(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Vec<f64>> {
     let model = doc.model().ok()?;
     let raw = channel_raw(ctx.data, &model, ChannelId::Pressure)?;
     Some(kept_of_raw(ctx.data, ctx.band, ChannelId::Pressure, &raw))

@@ -20,12 +20,16 @@ pub enum Term {
     X,
     /// `x^2`, N/m².
     X2,
+    /// `x^3`: a hardening (or softening) spring's cubic part, N/m³.
+    X3,
     /// `v`: linear in velocity, N·s/m.
     V,
     /// `v|v|`: quadratic drag, N·s²/m².
     VAbsV,
     /// `sgn(v)`: a constant force along the motion, N.
     SgnV,
+    /// `x*sgn(v)`: a force along the motion growing linearly with position, N/m.
+    XSgnV,
     /// `a`: proportional to the acceleration, kg.
     A,
     /// `f_motor`: proportional to the logged motor force of both sections (dimensionless).
@@ -44,13 +48,15 @@ pub enum Term {
 
 impl Term {
     /// Every term, in the order of `docs/formats.md`.
-    pub const ALL: [Term; 13] = [
+    pub const ALL: [Term; 15] = [
         Term::One,
         Term::X,
         Term::X2,
+        Term::X3,
         Term::V,
         Term::VAbsV,
         Term::SgnV,
+        Term::XSgnV,
         Term::A,
         Term::FMotor,
         Term::DeltaP,
@@ -66,9 +72,11 @@ impl Term {
             Term::One => "1",
             Term::X => "x",
             Term::X2 => "x^2",
+            Term::X3 => "x^3",
             Term::V => "v",
             Term::VAbsV => "v|v|",
             Term::SgnV => "sgn(v)",
+            Term::XSgnV => "x*sgn(v)",
             Term::A => "a",
             Term::FMotor => "f_motor",
             Term::DeltaP => "p_a-p_b",
@@ -103,9 +111,11 @@ impl Term {
             Term::One => 1.0,
             Term::X => s.x_m,
             Term::X2 => s.x_m * s.x_m,
+            Term::X3 => s.x_m * s.x_m * s.x_m,
             Term::V => s.v_mps,
             Term::VAbsV => s.v_mps * s.v_mps.abs(),
             Term::SgnV => sgn,
+            Term::XSgnV => s.x_m * sgn,
             Term::A => s.a_mps2,
             Term::FMotor => s.f_motor_n,
             Term::DeltaP => s.dp_pa,

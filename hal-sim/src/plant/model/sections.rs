@@ -461,6 +461,10 @@ pub struct PressureSensor {
     pub offset_suction_pa: f64,
     /// Offset of the discharge-line sensor, Pa.
     pub offset_discharge_pa: f64,
+    /// Gain of the chamber-A sensor: its reading per pascal of (lagged) pressure.
+    pub gain_a: f64,
+    /// Gain of the chamber-B sensor.
+    pub gain_b: f64,
 }
 
 checks!(PressureSensor {
@@ -470,6 +474,8 @@ checks!(PressureSensor {
     offset_b_pa: Finite, -1e5, 1e5, "Pa";
     offset_suction_pa: Finite, -1e5, 1e5, "Pa";
     offset_discharge_pa: Finite, -1e5, 1e5, "Pa";
+    gain_a: Positive, 0.5, 2.0, "";
+    gain_b: Positive, 0.5, 2.0, "";
 });
 
 impl Default for PressureSensor {
@@ -481,6 +487,8 @@ impl Default for PressureSensor {
             offset_b_pa: 0.0,
             offset_suction_pa: 0.0,
             offset_discharge_pa: 0.0,
+            gain_a: 1.0,
+            gain_b: 1.0,
         }
     }
 }
