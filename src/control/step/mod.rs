@@ -27,6 +27,7 @@
 //! checked into a change (`commands`) that [`ControlStep::command`] applies. The
 //! configuration changes only when a calibration is loaded.
 
+mod absent;
 mod actuate;
 mod calibrate;
 mod commands;
@@ -49,7 +50,6 @@ use crate::control::config::{ConfigError, ControlConfig};
 use crate::motion::stroke::DeadPoint;
 use crate::motion::trajectory::Setpoint;
 use crate::ports::{EncoderCodes, PhaseCurrentCodes, PressureCodes};
-use crate::safety::absent::{Absent, Part};
 use crate::safety::faults::{Fault, Reaction, ResetCause, Trip};
 use crate::safety::supervisor::{LimitFlags, Observation};
 use crate::sensing::differentiator::{Derivatives, SavitzkyGolay, SgConfig};
@@ -64,10 +64,6 @@ use rotate::RotaryAxis;
 use safe_state::SafeState;
 use sense::{EncoderLoss, Sensed, Sensing};
 use supervise::Supervision;
-
-/// Above this speed with the encoders present, m/s, a piston found moving before the outputs
-/// were ever enabled means the machine is live (a reset in motion): parts lost are faults.
-const MOVING_AT_BOOT_MPS: f32 = 0.05;
 
 /// One burst of samples.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -181,50 +177,6 @@ impl ControlStep {
             }
             None => self.safe.rearm(),
         }
-    }
-
-    /// Before the outputs are first enabled: which parts are absent now
-    /// ([`crate::safety::absent`]). Encoders back after being absent have their filters
-    /// reset (nothing was homed: no zero to lose). A piston found moving means the machine
-    /// is live after all (a reset in motion): from then on a part lost is its fault.
-    #[cold]
-    #[inline(never)]
-    fn watch_absent(&mut self, s: &Sensed) {
-        let encoders_absent = self.sensing.encoders_absent();
-        if !encoders_absent && self.sensing.encoder_trouble(&s.master, &s.slave) {
-            self.sensing.clear_faults(true);
-        }
-        // The velocity is judged once the differentiator's window holds only samples of
-        // encoders present (twice its length: no step from a flat input left in it).
-        let present = &mut self.supervision.encoders_present_cycles;
-        *present = if encoders_absent {
-            0
-        } else {
-            present.saturating_add(1)
-        };
-        let settled = usize::from(*present) >= 2 * self.config.sg_window;
-        if settled && s.derivatives.velocity_mps.abs() > MOVING_AT_BOOT_MPS {
-            self.supervision.energised = true;
-            self.publish.absent = Absent::NONE;
-            if !self.supervision.supply_good {
-                self.supply_lost();
-            }
-            return;
-        }
-        let mut absent = Absent::NONE;
-        absent.set(Part::Supply, !self.supervision.supply_good);
-        absent.set(Part::Encoders, encoders_absent);
-        absent.set(Part::Pressures, self.sensing.pressures.bad_cycles > 0);
-        self.publish.absent = absent;
-    }
-
-    /// Whether `fault` only reports a part absent since boot (no reaction: nothing moves).
-    fn absent_at_boot(&self, fault: Fault) -> bool {
-        !self.supervision.energised
-            && matches!(
-                fault,
-                Fault::SupplyLoss | Fault::EncoderSignal | Fault::PressureSensor
-            )
     }
 
     #[cold]
@@ -829,12 +781,6 @@ impl ControlStep {
         Ok(())
     }
 
-    /// The outputs are about to be enabled: from now on a part lost is its fault.
-    fn energise(&mut self) {
-        self.supervision.energised = true;
-        self.publish.absent = Absent::NONE;
-    }
-
     /// Applies an accepted command's change.
     fn apply(&mut self, change: Change) {
         match change {
@@ -904,6 +850,7 @@ mod tests {
     use super::safe_state::FaultedBrake;
     use super::*;
     use crate::control::calibration::Routine;
+    use crate::safety::absent::{Absent, Part};
 
     #[test]
     fn the_hold_after_a_watchdog_reset_ends_on_clear_faults_not_the_braking_before_it() {
