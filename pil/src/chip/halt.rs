@@ -47,15 +47,30 @@ impl Soc {
             iwdg_frozen: apb1 >> 12 & 1 == 1,
         };
         if h.pwm_frozen[0] {
-            self.tim1.freeze(now);
+            // TIM1's events still to handle: its boundary, and OC4's rise (the ADC trigger).
+            let oc4 = self
+                .tim1
+                .next_oc4_rise()
+                .filter(|_| self.tim1_trgo2_is_oc4());
+            let due = [self.tim1.next_boundary(), oc4].into_iter().flatten().min();
+            self.tim1.freeze(now, due);
             // The plant goes on in 50 µs steps without the PWM timer's updates.
             self.plant_next = now + 50 * crate::time::UNITS_PER_US;
         }
         if h.pwm_frozen[1] {
-            self.tim8.freeze(now);
+            let due = self.tim8.next_boundary();
+            self.tim8.freeze(now, due);
         }
         if h.tim2_frozen {
-            self.tim2.freeze(now);
+            let due = [
+                self.tim2.next_boundary(),
+                self.tim2.next_match(0),
+                self.tim2.next_match(1),
+            ]
+            .into_iter()
+            .flatten()
+            .min();
+            self.tim2.freeze(now, due);
         }
         if h.iwdg_frozen {
             // The countdown stops for the halt's length: it ends that much later.
@@ -110,7 +125,8 @@ mod tests {
         t.write(reg::CR1, 1, 0, 1.0);
         let before = t.cnt(500);
         assert_eq!(before, 500);
-        t.freeze(500);
+        let due = t.next_boundary();
+        t.freeze(500, due);
         assert_eq!(t.cnt(10_000), before);
         assert!(!t.running() && t.next_boundary().is_none());
         t.thaw(10_000, 1.0);

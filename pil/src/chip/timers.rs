@@ -259,18 +259,12 @@ impl Timer {
         self.matches_done = [self.ticks_at(now) / self.period_ticks(); 4];
     }
 
-    /// A debugger's freeze (DBGMCU): the counter stops at its value at `now`.
-    pub fn freeze(&mut self, now: u64) {
+    /// A debugger's freeze (DBGMCU): the counter stops at its value at `now` — or, if the
+    /// run loop has an event of it still to handle (`due`: the first, at or before `now`),
+    /// just before that event, which then comes at the thaw.
+    pub fn freeze(&mut self, now: u64, due: Option<u64>) {
         if self.origin.is_some() {
-            // Events due but not yet handled (the run loop handles them lazily) happened
-            // before the freeze: it stops the counter just before the first of them, which
-            // comes at the thaw.
-            let due = [self.next_boundary(), self.next_oc4_rise()]
-                .into_iter()
-                .flatten()
-                .min()
-                .unwrap_or(u64::MAX);
-            let at = now.min(due.saturating_sub(1));
+            let at = now.min(due.map_or(now, |d| d.saturating_sub(1)));
             self.stopped_cnt = self.cnt(at);
             self.frozen_down = self.counting_down(at);
             self.origin = None;
