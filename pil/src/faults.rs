@@ -20,6 +20,8 @@
 //! | [`Scenario::Overcurrent`] | section 1's phase U current steps to 120 A while stroking (the comparator trips at 85 A) |
 //! | [`Scenario::DebugHalt`] | a debugger halts the core while stroking, for [`Options::halt_s`] (DBGMCU's freezes as the firmware set them) |
 //! | [`Scenario::BareBench`] | nothing connected for 2 s after reset (PB5 low, the encoders' inputs flat, the pressure inputs at 0 V), then the DC link and the sensors appear |
+//! | [`Scenario::ProbeCapture`] | no fault: while stroking, the host captures the link for [`Options::capture_s`] through a probe on the emulated SWD port, as `fpc-sim link` attaches (the memory access port alone) |
+//! | [`Scenario::ProbeSession`] | the same through a `probe_rs::Session`, as probe-rs's tools attach: the witness that the chip sees a halting attach |
 //! | [`Scenario::BusyLink`] | no fault at first: telemetry every control cycle (20 kHz) with the scope armed (recording, never fired) while stroking; then the over-current for 2 ms, and `ClearFaults` once it is gone |
 
 use fpc::control::calibration::Routine;
@@ -84,11 +86,15 @@ pub enum Scenario {
     BareBench,
     /// A debugger halts the core while stroking ([`Options::halt_s`]), then resumes it.
     DebugHalt,
+    /// No fault: a capture through the host's probe link while stroking.
+    ProbeCapture,
+    /// The witness: the same through a `probe_rs::Session`.
+    ProbeSession,
 }
 
 impl Scenario {
     /// Every scenario.
-    pub const ALL: [Scenario; 16] = [
+    pub const ALL: [Scenario; 18] = [
         Scenario::BootWindow,
         Scenario::HungControl,
         Scenario::FaultPath,
@@ -105,6 +111,8 @@ impl Scenario {
         Scenario::BusyLink,
         Scenario::BareBench,
         Scenario::DebugHalt,
+        Scenario::ProbeCapture,
+        Scenario::ProbeSession,
     ];
 
     /// Its name on the command line.
@@ -126,6 +134,8 @@ impl Scenario {
             Scenario::BusyLink => "busy-link",
             Scenario::BareBench => "bare-bench",
             Scenario::DebugHalt => "debug-halt",
+            Scenario::ProbeCapture => "probe-capture",
+            Scenario::ProbeSession => "probe-session",
         }
     }
 }
@@ -178,6 +188,8 @@ pub struct Report {
     pub bare: Option<BareBench>,
     /// Halts of the core (a debugger's), since power-on.
     pub halts: u32,
+    /// What [`Scenario::ProbeCapture`] or [`Scenario::ProbeSession`] showed.
+    pub capture: Option<crate::capture::ProbeCapture>,
 }
 
 /// What the bare bench showed ([`Scenario::BareBench`]).
@@ -232,6 +244,8 @@ pub struct Options {
     pub cpi: Option<f64>,
     /// How long [`Scenario::DebugHalt`] halts the core, s.
     pub halt_s: f64,
+    /// How long [`Scenario::ProbeCapture`] and [`Scenario::ProbeSession`] capture, s.
+    pub capture_s: f64,
 }
 
 impl Default for Options {
@@ -241,6 +255,7 @@ impl Default for Options {
             pressure_ratio: RunOptions::reference().pressure_ratio,
             cpi: None,
             halt_s: 0.005,
+            capture_s: 10.0,
         }
     }
 }
@@ -387,6 +402,7 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
         switched_after_break: 0,
     };
     let mut bare = None;
+    let mut capture = None;
     match scenario {
         Scenario::BootWindow => {
             r.s.chip.soc().adc_dead = true;
@@ -407,6 +423,16 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
         Scenario::SaveError | Scenario::EraseError => save_error(&mut r, scenario)?,
         Scenario::BusyLink => busy_link(&mut r)?,
         Scenario::BareBench => bare = Some(bare_bench(&mut r)?),
+        Scenario::ProbeCapture => {
+            let how = crate::capture::Attach::Link;
+            let figures = probe_capture(&mut r, &image.bytes, how, opts.capture_s)?;
+            capture = Some(figures);
+        }
+        Scenario::ProbeSession => {
+            let how = crate::capture::Attach::Session;
+            let figures = probe_capture(&mut r, &image.bytes, how, opts.capture_s)?;
+            capture = Some(figures);
+        }
     }
     let soc = r.s.chip.soc_ref();
     Ok(Report {
@@ -431,6 +457,7 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
         answers: r.s.answers_seen,
         bare,
         halts: soc.halts,
+        capture,
     })
 }
 
@@ -680,4 +707,74 @@ fn save_error_step() -> u64 {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(4)
+}
+
+/// The host polls every this many PWM periods (1 ms, as `fpc-sim link capture` does).
+const POLL_PERIODS: u64 = 20;
+
+/// A dead point: the clearance turns from falling to rising below this, m.
+const DEAD_POINT_BELOW_M: f64 = 0.01;
+
+/// [`Scenario::ProbeCapture`], [`Scenario::ProbeSession`]: homes, starts the strokes and, 0.3 s on, hands the channels from the in-process host
+/// to the host's thread, which attaches as `how` and captures for `seconds`; the machine
+/// strokes on throughout.
+fn probe_capture(
+    r: &mut Run,
+    elf: &[u8],
+    how: crate::capture::Attach,
+    seconds: f64,
+) -> Result<crate::capture::ProbeCapture, String> {
+    r.home()?;
+    r.start_strokes();
+    let t = r.s.chip.time_s() + 0.3;
+    r.until(t)?;
+    r.s.host_detached = true;
+    let halts_before = r.s.chip.soc_ref().halts;
+    let host = crate::capture::Host::start(how, elf.to_vec());
+    let end = r.s.chip.time_s() + seconds;
+    let mut polls = 0u64;
+    let mut periods = 0u64;
+    let mut dead_points = 0u64;
+    let (mut last, mut falling) = (f64::INFINITY, false);
+    let mut alive = host.turn(&mut r.s.chip, crate::probe::Turn::Go);
+    while alive && r.s.chip.time_s() < end {
+        r.step()?;
+        periods += 1;
+        let c = r.s.chip.soc_ref().board.world.plant.head_clearance_m();
+        if falling && c > last && last < DEAD_POINT_BELOW_M {
+            dead_points += 1;
+        }
+        falling = c < last;
+        last = c;
+        if periods.is_multiple_of(POLL_PERIODS) {
+            alive = host.turn(&mut r.s.chip, crate::probe::Turn::Go);
+            polls += 1;
+        }
+    }
+    if alive {
+        host.turn(&mut r.s.chip, crate::probe::Turn::Last);
+    }
+    let soc = r.s.chip.soc_ref();
+    let mut figures = crate::capture::ProbeCapture {
+        seconds,
+        polls,
+        dead_points,
+        halts: soc.halts - halts_before,
+        debug_register_touches: soc
+            .dap
+            .touches
+            .iter()
+            .map(|t| (t.address, t.written))
+            .collect(),
+        transfers: soc.dap.transfers,
+        ..crate::capture::ProbeCapture::default()
+    };
+    match host.join() {
+        Ok((counters, rows)) => {
+            figures.counters = counters;
+            figures.rows = rows;
+        }
+        Err(e) => figures.error = Some(e),
+    }
+    Ok(figures)
 }

@@ -21,11 +21,13 @@
 #![warn(missing_docs)]
 
 pub mod board;
+pub mod capture;
 pub mod chip;
 pub mod elf;
 pub mod faults;
 pub mod log;
 pub mod mutants;
+pub mod probe;
 pub mod run;
 pub mod save_timing;
 pub mod session;

@@ -85,6 +85,9 @@ struct FaultArgs {
     /// `debug-halt`: how long the debugger halts the core, ms.
     #[arg(long, default_value_t = 5.0)]
     halt_ms: f64,
+    /// `probe-capture`, `probe-session`: how long the host captures through the probe, s.
+    #[arg(long, default_value_t = 10.0)]
+    capture_s: f64,
     /// Scenarios that stroke: the pressure ratio (the peak speed follows it).
     #[arg(long, default_value_t = 3.1)]
     pressure_ratio: f64,
@@ -272,12 +275,19 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
             args.halt_ms
         ));
     }
+    if !(args.capture_s.is_finite() && (0.001..=60.0).contains(&args.capture_s)) {
+        return Err(format!(
+            "--capture-s {}: must be within [0.001, 60] s",
+            args.capture_s
+        ));
+    }
     let cpi = timeline(args.cpi)?;
     let opts = fpc_pil::faults::Options {
         inject_after_start_s: args.at,
         pressure_ratio: args.pressure_ratio,
         cpi,
         halt_s: args.halt_ms * 1e-3,
+        capture_s: args.capture_s,
     };
     let r = run_with(&image, scenario, &opts)?;
     println!(
@@ -321,6 +331,23 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
         println!(
             "  then: present after {:?} s, calibrated {}, mode 1 s after start {:?}, refused {:?}",
             b.present_after_s, b.calibrated, b.mode_at_end, b.refused_after
+        );
+    }
+    if let Some(c) = &r.capture {
+        println!(
+            "  probe capture: {:.1} s, {} polls, {} SWD transfers; core halted {} times; \
+             DHCSR/DEMCR accesses {}; {} dead points; {} run-log rows; {}{}",
+            c.seconds,
+            c.polls,
+            c.transfers,
+            c.halts,
+            c.debug_register_touches.len(),
+            c.dead_points,
+            c.rows,
+            c.counters,
+            c.error
+                .as_ref()
+                .map_or(String::new(), |e| format!("; host failed: {e}"))
         );
     }
     for (t, line) in &r.log {

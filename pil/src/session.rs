@@ -59,6 +59,8 @@ pub struct Session {
     ports: Ports,
     /// The host stops reading up 0 (the defmt log), as a stalled or detached probe does.
     pub defmt_paused: bool,
+    /// The host has detached: another (a probe's, [`crate::capture`]) reads the channels.
+    pub host_detached: bool,
 }
 
 /// A command the host sent over down 0.
@@ -127,6 +129,7 @@ impl Session {
             read_offset: 0,
             ports: Ports::Bypassed,
             defmt_paused: false,
+            host_detached: false,
         })
     }
 
@@ -160,6 +163,9 @@ impl Session {
             self.read_offset = 0;
         }
         self.fresh = false;
+        if self.host_detached {
+            return Ok(());
+        }
         if self.rtt.is_none() {
             // Until the firmware has set its control block up, there is none to find.
             let at = Locate::At(u64::from(self.rtt_base));

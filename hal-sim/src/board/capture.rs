@@ -333,6 +333,12 @@ struct Stretch {
     breaks: usize,
 }
 
+/// How far a frame's time step may stray from the stream's usual step without being a
+/// break, µs: the firmware stamps a frame with the µs time base as its sample's interrupt
+/// runs, and that interrupt's entry latency moves the stamp across a µs boundary now and
+/// then — one either way, two between neighbours.
+const STAMP_JITTER_US: u32 = 2;
+
 /// The [`Stretch`] of `frames`: a break is a frame lost (the step), another rate, other
 /// channels, or the ports declared otherwise — except a bypass closing (bypassed → timed
 /// or sealed), which the log states as `# ports_from_s`.
@@ -351,7 +357,8 @@ fn longest_stretch(frames: &[Frame]) -> Stretch {
         .collect();
     let positive: Vec<u32> = tick_steps.iter().copied().filter(|&t| t > 0).collect();
     let tick_step = mode_of(&positive).unwrap_or(0);
-    // A break: a frame lost (the step), another rate, other channels, or the ports
+    // A break: a frame lost (the step), another rate (a time step more than
+    // [`STAMP_JITTER_US`] off the usual one), other channels, or the ports
     // declared otherwise — except a bypass closing (bypassed → timed or sealed), which the
     // log states as `# ports_from_s`.
     let breaks: Vec<usize> = frames
@@ -360,7 +367,7 @@ fn longest_stretch(frames: &[Frame]) -> Stretch {
         .enumerate()
         .filter(|(_, (w, (&s, &t)))| {
             s != decimation
-                || t != tick_step
+                || t.abs_diff(tick_step) > STAMP_JITTER_US
                 || w[1].channels != w[0].channels
                 || (w[1].ports != w[0].ports && w[0].ports != Ports::Bypassed)
         })
@@ -430,6 +437,23 @@ mod tests {
         assert!(t.windows(2).all(|w| ((w[1] - w[0]) - 50e-6).abs() < 1e-9));
         assert_eq!(d.log.column("x_m").unwrap()[0], f64::from(41f32 * 1e-3));
         assert_eq!(d.log.column("mode").unwrap()[0], 3.0);
+    }
+
+    #[test]
+    fn a_stamp_a_microsecond_off_is_no_break_but_another_rate_is() {
+        // Stamps jittering by ±1 µs around 500 µs steps, then the rate halves.
+        let list: Vec<Frame> = (0..300)
+            .map(|i| {
+                let mut f = at(i, Ports::Timed, ChannelSet::ALL);
+                let jitter = [0, 1, 0, u32::MAX][i as usize % 4];
+                let slow = if i >= 200 { (i - 200) * 500 } else { 0 };
+                f.t = Ticks(f.t.0.wrapping_add(jitter).wrapping_add(slow));
+                f
+            })
+            .collect();
+        let d = decode_capture(&frames(&list), |_| {}).unwrap();
+        // Frames 0..=200 are one stretch; each of the 99 steps at the other rate breaks.
+        assert_eq!((d.gaps, d.log.len()), (99, 201));
     }
 
     fn frames(list: &[Frame]) -> Vec<u8> {

@@ -97,6 +97,19 @@ impl Iwdg {
         }
     }
 
+    /// The reverse of [`Iwdg::delay`]: a freeze that ended `units` sooner than planned.
+    pub fn advance(&mut self, units: u64) {
+        if let Some((v, at)) = self.counting {
+            self.counting = Some((v, at.saturating_sub(units)));
+        }
+        for lands in [&mut self.pr_lands, &mut self.rlr_lands]
+            .into_iter()
+            .flatten()
+        {
+            *lands = lands.saturating_sub(units);
+        }
+    }
+
     /// Whether the watchdog has been started.
     pub fn running(&self) -> bool {
         self.counting.is_some()

@@ -37,6 +37,7 @@ pub mod art;
 mod bus;
 pub mod comp;
 pub mod cpu;
+pub mod dap;
 pub mod deadline;
 pub mod dma;
 mod emulator;
@@ -268,6 +269,8 @@ pub struct Soc {
     pub halt: Option<halt::Halt>,
     /// Halts of the core since power-on (a debugger's; the host's link must make none).
     pub halts: u32,
+    /// The debug port as a probe reaches it ([`dap`]).
+    pub dap: dap::DebugPort,
     /// The core is in lockup (a fault while entering HardFault, or in it): it executes
     /// nothing until a reset (ARMv7-M B1.5.15).
     pub locked_up: bool,
@@ -436,6 +439,7 @@ impl Soc {
             stall_until: None,
             halt: None,
             halts: 0,
+            dap: dap::DebugPort::default(),
             locked_up: false,
             lockups: Vec::new(),
             hang_pending: false,
