@@ -52,6 +52,8 @@ pub struct ProbeCapture {
     pub debug_register_touches: Vec<(u32, Option<u32>)>,
     /// DP and AP transfers the probe made.
     pub transfers: u64,
+    /// `fpc-sim link flash`'s refusal (without `--force`) at the end, from the last frame.
+    pub flash_refused: Option<String>,
     /// The host's error, if it failed.
     pub error: Option<String>,
 }
@@ -64,7 +66,7 @@ fn host(
     elf: &[u8],
     turns: &Receiver<Turn>,
     done: &Sender<ToChip>,
-) -> Result<(Counters, usize), String> {
+) -> Result<HostEnd, String> {
     if turns.recv().is_err() {
         return Err("the emulator ended before the host's first turn".into());
     }
@@ -97,13 +99,30 @@ fn host(
             drop(channels);
             let _ = done.send(ToChip::Done);
             polled.map_err(|e| e.to_string())?;
+            // What `fpc-sim link flash` would answer now, from the machine's mode.
+            let mode = session.last_frame().map(|f| f.mode);
+            let flash = hal_sim::link::session::halting_allowed("flashing", mode, false).err();
             let counters = session.counters();
             let rows = session.into_telemetry().finish()?.log.len();
-            return Ok((counters, rows));
+            return Ok(HostEnd {
+                counters,
+                rows,
+                flash_refused: flash,
+            });
         }
         let _ = done.send(ToChip::Done);
         polled.map_err(|e| format!("the link failed: {e}"))?;
     }
+}
+
+/// What the host had at its detach.
+pub struct HostEnd {
+    /// The link's counters.
+    pub counters: Counters,
+    /// Rows of the run log decoded from the capture.
+    pub rows: usize,
+    /// The refusal `fpc-sim link flash` (without `--force`) gives on the last frame's mode.
+    pub flash_refused: Option<String>,
 }
 
 /// The channels between the emulator and the host's thread.
@@ -111,7 +130,7 @@ pub struct Host {
     turns: Sender<Turn>,
     requests: Receiver<ToChip>,
     answers: Sender<Answer>,
-    thread: std::thread::JoinHandle<Result<(Counters, usize), String>>,
+    thread: std::thread::JoinHandle<Result<HostEnd, String>>,
 }
 
 impl Host {
@@ -136,8 +155,8 @@ impl Host {
         serve(chip, turn, &self.turns, &self.requests, &self.answers)
     }
 
-    /// Waits for the host's thread: its counters and the run log's rows.
-    pub fn join(self) -> Result<(Counters, usize), String> {
+    /// Waits for the host's thread: what it had at its detach.
+    pub fn join(self) -> Result<HostEnd, String> {
         drop(self.turns);
         self.thread
             .join()

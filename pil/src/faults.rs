@@ -770,9 +770,10 @@ fn probe_capture(
         ..crate::capture::ProbeCapture::default()
     };
     match host.join() {
-        Ok((counters, rows)) => {
-            figures.counters = counters;
-            figures.rows = rows;
+        Ok(end) => {
+            figures.counters = end.counters;
+            figures.rows = end.rows;
+            figures.flash_refused = end.flash_refused;
         }
         Err(e) => figures.error = Some(e),
     }

@@ -70,6 +70,10 @@ fn a_ten_second_capture_through_the_probe_never_halts_the_stroking_machine() {
     assert_eq!(r.final_mode, Some(ModeKind::Running));
     assert!(r.resets.is_empty());
     assert!(r.min_clearance_m >= 0.6e-3, "{} m", r.min_clearance_m);
+    // And `fpc-sim link flash` would refuse to halt it.
+    let refusal = c.flash_refused.unwrap_or_default();
+    println!("fpc-sim link flash: {refusal}");
+    assert!(refusal.contains("the machine is running"), "{refusal}");
 }
 
 /// The witness: the emulated port sees what probe-rs 0.32's `Session` does — it halts the

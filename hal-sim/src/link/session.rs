@@ -27,6 +27,7 @@ use fpc::link::tag::{self, TransferId};
 use fpc::link::telemetry::{ChannelSet, Ports, CHANNELS};
 use fpc::motion::synchroniser::Rotation;
 use fpc::motion::volume_ratio::RatioTarget;
+use fpc::status::ModeKind;
 
 use super::defmt::DefmtLog;
 use super::scope::{trigger_text, ScopeCollector};
@@ -244,6 +245,51 @@ impl CaptureSession {
     /// The telemetry collected, for the run log ([`FrameCollector::finish`]).
     pub fn into_telemetry(self) -> FrameCollector {
         self.telemetry
+    }
+}
+
+/// How long [`machine_mode`] listens for a telemetry frame: a frame comes every 0.5 ms at
+/// the firmware's default rate, every 50 ms at the slowest the link sets (20 Hz).
+pub const MODE_WAIT: Duration = Duration::from_millis(300);
+
+/// The machine's mode, from the first telemetry frame that comes on up 1 within `wait`
+/// (`None`: none came — telemetry switched off, or no fpc firmware running). Reads the
+/// up-channels as a capture does (what else they hold is dropped).
+pub fn machine_mode<C: Channels + ?Sized>(
+    channels: &mut C,
+    wait: Duration,
+) -> io::Result<Option<ModeKind>> {
+    let mut session = CaptureSession::new(DefmtLog::hex());
+    let (mut a, mut b, mut c) = (io::sink(), io::sink(), io::sink());
+    let started = Instant::now();
+    loop {
+        let mut raw: [&mut dyn Write; 3] = [&mut a, &mut b, &mut c];
+        let (n, _) = session.poll(channels, &mut raw)?;
+        if let Some(frame) = session.last_frame() {
+            return Ok(Some(frame.mode));
+        }
+        if session.ended() || started.elapsed() >= wait {
+            return Ok(None);
+        }
+        if n == 0 {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+}
+
+/// Whether `what`, which halts or resets the core, may go ahead with the machine in `mode`
+/// (from [`machine_mode`]): only while the machine is idle — its outputs off, nothing
+/// commanded to move — or when no firmware answers; in any other mode only with `force`. A
+/// halt freezes the bridges' timers with their outputs off and a reset drops every output:
+/// a moving piston is then left to coast into a head.
+pub fn halting_allowed(what: &str, mode: Option<ModeKind>, force: bool) -> Result<(), String> {
+    match mode {
+        Some(m) if m != ModeKind::Idle && !force => Err(format!(
+            "{what} halts or resets the core, and the machine is {}: stop it first \
+             (`fpc-sim link send stop`, then wait for idle), or give --force",
+            m.name()
+        )),
+        _ => Ok(()),
     }
 }
 
@@ -703,6 +749,36 @@ mod tests {
         let mut out = [0u8; fpc::link::commands::MAX_REPLY_WIRE];
         let n = encode_reply(reply, &mut out).unwrap();
         out[..n].to_vec()
+    }
+
+    #[test]
+    fn only_an_idle_or_silent_machine_may_be_halted_without_force() {
+        assert!(halting_allowed("flashing", None, false).is_ok());
+        assert!(halting_allowed("flashing", Some(ModeKind::Idle), false).is_ok());
+        let e = halting_allowed("flashing", Some(ModeKind::Running), false).unwrap_err();
+        assert!(
+            e.contains("the machine is running") && e.contains("--force"),
+            "{e}"
+        );
+        assert!(halting_allowed("flashing", Some(ModeKind::Faulted), false).is_err());
+        assert!(halting_allowed("flashing", Some(ModeKind::Running), true).is_ok());
+    }
+
+    #[test]
+    fn the_machines_mode_is_read_from_the_first_frame_or_none() {
+        let status = fpc::status::Status {
+            mode: ModeKind::Holding,
+            ..fpc::status::Status::INIT
+        };
+        let mut buf = [0u8; fpc::link::telemetry::WIRE_BYTES];
+        let n = fpc::link::telemetry::Frame::from_status(0, 0, &status)
+            .encode(&mut buf)
+            .unwrap();
+        let mut replay = Replay::new(vec![Vec::new(), buf[..n].to_vec(), Vec::new()]);
+        let mode = machine_mode(&mut replay, MODE_WAIT).unwrap();
+        assert_eq!(mode, Some(ModeKind::Holding));
+        let mut silent = Replay::new(vec![Vec::new(), Vec::new(), Vec::new()]);
+        assert_eq!(machine_mode(&mut silent, MODE_WAIT).unwrap(), None);
     }
 
     #[test]

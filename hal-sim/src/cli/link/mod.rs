@@ -407,7 +407,7 @@ pub fn main(args: LinkArgs) -> CmdResult {
         Action::Telemetry(a) => telemetry(a),
         Action::Ports(a) => ports(a),
         Action::Scope(a) => scope(a),
-        Action::Flash(a) => flash(&a.target, &a.image),
+        Action::Flash(a) => flash(&a.target, &a.image, a.force),
     }
 }
 
@@ -432,9 +432,31 @@ fn probe_options(target: &Target) -> crate::link::probe::ProbeOptions {
 
 #[cfg(feature = "probe")]
 fn open_probe(target: &Target) -> Result<Box<dyn Channels>, Failure> {
+    if target.connect_under_reset {
+        // A board that answers without the reset line needs none: never reset a moving one.
+        check_idle("--connect-under-reset", target)?;
+    }
     crate::link::probe::attach(&probe_options(target), target.elf.as_deref())
         .map(|p| Box::new(p) as Box<dyn Channels>)
         .map_err(Failure::runtime)
+}
+
+/// Refuses `what` (which halts or resets the core) unless the board, reached without
+/// halting or resetting it, reports the machine idle or does not answer
+/// ([`crate::link::session::halting_allowed`]).
+#[cfg(feature = "probe")]
+fn check_idle(what: &str, target: &Target) -> CmdResult {
+    let opts = crate::link::probe::ProbeOptions {
+        connect_under_reset: false,
+        ..probe_options(target)
+    };
+    let Ok(mut channels) = crate::link::probe::attach(&opts, target.elf.as_deref()) else {
+        // No fpc firmware answers: nothing here is known to run.
+        return Ok(());
+    };
+    let mode = crate::link::session::machine_mode(&mut channels, crate::link::session::MODE_WAIT)
+        .unwrap_or(None);
+    crate::link::session::halting_allowed(what, mode, false).map_err(Failure::runtime)
 }
 
 #[cfg(not(feature = "probe"))]

@@ -134,6 +134,10 @@ pub(super) struct FlashArgs {
     /// The firmware ELF (`cargo fw` builds target/thumbv7em-none-eabihf/release/fpc).
     #[arg(value_name = "ELF")]
     pub(super) image: PathBuf,
+    /// Flash even though the machine is not idle (flashing halts and resets the core: the
+    /// outputs drop and a moving piston coasts).
+    #[arg(long)]
+    pub(super) force: bool,
 }
 
 /// `fpc-sim link ports`.
@@ -275,11 +279,14 @@ pub(super) fn request(target: &Target, request: LinkRequest, timeout_ms: u64) ->
 }
 
 #[cfg(feature = "probe")]
-pub(super) fn flash(target: &Target, image: &Path) -> CmdResult {
+pub(super) fn flash(target: &Target, image: &Path, force: bool) -> CmdResult {
     if target.replay.is_some() {
         return Err(Failure::bad_input(
             "--replay: a recording cannot be flashed",
         ));
+    }
+    if !force {
+        super::check_idle("flashing", target)?;
     }
     let line = crate::link::probe::flash(&super::probe_options(target), image)
         .map_err(Failure::runtime)?;
@@ -287,7 +294,7 @@ pub(super) fn flash(target: &Target, image: &Path) -> CmdResult {
 }
 
 #[cfg(not(feature = "probe"))]
-pub(super) fn flash(_target: &Target, _image: &Path) -> CmdResult {
+pub(super) fn flash(_target: &Target, _image: &Path, _force: bool) -> CmdResult {
     Err(Failure::bad_input(
         "this fpc-sim was built without the `probe` feature, so it cannot flash a board \
          (rebuild: cargo install --path hal-sim --features probe); or with probe-rs: \
