@@ -54,7 +54,7 @@ use super::candidate::{Ctx, EffectKind, Proposal};
 use super::channel::{resolution, sample_resolution, ChannelId};
 use super::doc::{Edit, ModelDoc};
 use super::effects::propose;
-use super::residuals::{channel_raw, full_of_raw, residual, Residual};
+use super::residuals::{band_raw, full_of_raw, residual, Residual};
 use crate::plant::model::extra_force::Term;
 
 /// Smallest BIC improvement that adds an effect ("very strong" evidence on Kass and
@@ -360,7 +360,7 @@ pub(super) fn sensor_reading_holds(
     let Ok(model) = doc.with(&j.proposal.edits).model() else {
         return false;
     };
-    let Some(raw) = channel_raw(ctx.data, &model, ch) else {
+    let Some(raw) = band_raw(ctx.data, ctx.band, &model, ch) else {
         return false;
     };
     let after = full_of_raw(ctx.data, ctx.band, ch, &raw);

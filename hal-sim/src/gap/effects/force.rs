@@ -13,14 +13,14 @@ use super::super::channel::ChannelId;
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::{lstsq, minimise_1d_par};
 use super::super::residuals::{
-    acting_motor_force_n, force_raw, force_terms, motor_sum_n, shifted, tangential_mps,
+    acting_motor_force_n, band_force_raw, band_motor_needed_n, motor_sum_n, shifted, tangential_mps,
 };
 use super::{harmonics, MAX_LAG_S};
 
 /// The force residual of `doc` at the kept samples.
 fn force_kept(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Vec<f64>> {
     let model = doc.model().ok()?;
-    let raw = force_raw(ctx.data, &model);
+    let raw = band_force_raw(ctx.data, ctx.band, &model);
     Some(ctx.band.kept(ctx.data, ChannelId::Force, &raw))
 }
 
@@ -117,6 +117,25 @@ pub(super) fn viscous(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     ))
 }
 
+/// [`super::super::residuals::Band::search_columns`]'s tag of the Stribeck regressors.
+const STRIBECK_SEARCH: u8 = 1;
+
+/// [`super::super::residuals::Band::search_columns`]'s tag of the cogging regressors.
+const COGGING_SEARCH: u8 = 2;
+
+/// A 64-bit hash of the bits of `columns` (the same values give the same hash).
+fn fingerprint(columns: &[&[f64]]) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    for c in columns {
+        c.len().hash(&mut h);
+        for v in *c {
+            v.to_bits().hash(&mut h);
+        }
+    }
+    h.finish()
+}
+
 /// Stribeck velocities searched, m/s (log-spaced).
 const STRIBECK_RANGE_MPS: (f64, f64) = (1e-3, 0.3);
 
@@ -128,17 +147,23 @@ pub(super) fn stribeck(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let coulomb = base.number(model_key!(friction / coulomb_n))?;
     let y = force_kept(ctx, &base)?;
     let (slip, dir) = friction_direction(ctx, &base)?;
+    // The regressors depend on the sliding speed and direction, not on the residual: kept
+    // by them for the next selection step.
+    let of_motion = fingerprint(&[&slip, &dir]);
     let fit = |log_vs: f64, zeta: f64| -> Option<(f64, f64)> {
-        let vs = log_vs.exp();
-        // The law's Stribeck shape along the friction's direction (more dip than modelled
-        // leaves −ΔF·S·d in the residual).
-        let raw: Vec<f64> = slip
-            .iter()
-            .zip(&dir)
-            .map(|(s, d)| -stribeck_shape(*s, vs, zeta) * d)
-            .collect();
-        let reg = ctx.band.kept(ctx.data, ChannelId::Force, &raw);
-        let (th, rss) = lstsq(&[reg], &y)?;
+        let key = (STRIBECK_SEARCH, log_vs.to_bits(), zeta.to_bits(), of_motion);
+        let reg = ctx.band.search_columns.get_or_make(key, || {
+            let vs = log_vs.exp();
+            // The law's Stribeck shape along the friction's direction (more dip than
+            // modelled leaves −ΔF·S·d in the residual).
+            let raw: Vec<f64> = slip
+                .iter()
+                .zip(&dir)
+                .map(|(s, d)| -stribeck_shape(*s, vs, zeta) * d)
+                .collect();
+            vec![ctx.band.kept(ctx.data, ChannelId::Force, &raw)]
+        });
+        let (th, rss) = lstsq(&reg, &y)?;
         let dip = th.first().copied()?;
         (dip > 0.0).then_some((dip, rss))
     };
@@ -215,12 +240,18 @@ pub(super) fn cogging(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
         (0..=steps).map(|i| f_lo + df * i as f64),
         false,
     )?;
-    // Refine with the regressors filtered exactly as the residual is.
+    // Refine with the regressors filtered exactly as the residual is (they depend on x
+    // alone: kept for the next selection step).
     let fitf = |f: f64| -> Option<(Vec<f64>, f64)> {
-        let cols: Vec<Vec<f64>> = harmonics(&ctx.data.x_m, f, false)
-            .iter()
-            .map(|h| ctx.band.kept(ctx.data, ChannelId::Force, h))
-            .collect();
+        let cols = ctx
+            .band
+            .search_columns
+            .get_or_make((COGGING_SEARCH, f.to_bits(), 0, 0), || {
+                harmonics(&ctx.data.x_m, f, false)
+                    .iter()
+                    .map(|h| ctx.band.kept(ctx.data, ChannelId::Force, h))
+                    .collect()
+            });
         lstsq(&cols, &y)
     };
     let (f, _) = minimise_1d_par(f0 - df, f0 + df, 5, 16, |f| fitf(f).map(|r| r.1))?;
@@ -247,11 +278,7 @@ pub fn acting_force_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<crate::signal::
     let d = ctx.data;
     let motors = acting_motor_force_n(d, 0.0);
     // The motor force that closes the balance with every other modelled force.
-    let acting: Vec<f64> = force_terms(d, &model)
-        .iter()
-        .zip(&d.d2x_mps2)
-        .map(|(f, a)| f.motor_needed_n(model.piston.mass_kg, *a))
-        .collect();
+    let acting = band_motor_needed_n(d, ctx.band, &model);
     let reported = ctx.band.full(d, ChannelId::Force, &motors);
     let acting = ctx.band.full(d, ChannelId::Force, &acting);
     let max = (MAX_LAG_S / d.dt_s).round() as usize;
@@ -266,11 +293,7 @@ pub(super) fn actuator_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let model = base.model().ok()?;
     let d = ctx.data;
     // Everything but the motor forces, once: r(d) = m·Δ²x − others − motors acting at d.
-    let fixed: Vec<f64> = force_terms(d, &model)
-        .iter()
-        .zip(&d.d2x_mps2)
-        .map(|(f, a)| f.motor_needed_n(model.piston.mass_kg, *a))
-        .collect();
+    let fixed = band_motor_needed_n(d, ctx.band, &model);
     // The motor forces summed once; each delay only shifts them.
     let motors = motor_sum_n(d);
     let rss = |delay: f64| -> Option<f64> {
