@@ -12,6 +12,7 @@ use std::sync::{Arc, Mutex};
 
 use fpc::physics::balance::PistonForces;
 
+use crate::plant::model::extra_force::ExtraForceEffect;
 use crate::plant::model::MachineModel;
 
 /// Gas, cogging and friction force at every row, N (as [`PistonForces`] has them).
@@ -83,7 +84,13 @@ impl Loads {
 #[derive(Default)]
 pub struct LoadCache {
     entries: Mutex<Vec<(MachineModel, Arc<Loads>)>>,
+    extras: Mutex<Vec<(ExtraKey, Arc<Vec<f64>>)>>,
 }
+
+/// What an extra force at every row depends on beyond the log: the effect, and the bits of
+/// the actuator lag and of the log's force alignment (its `f_motor` term is the motor
+/// forces as they act).
+type ExtraKey = (ExtraForceEffect, u64, u64);
 
 impl LoadCache {
     /// Most models kept (the oldest is dropped): a step's model and its candidates' models.
@@ -110,6 +117,36 @@ impl LoadCache {
             }
         }
         loads
+    }
+
+    /// The extra force `effect` at every row with the actuator lag `delay_s` and the force
+    /// alignment `align_s`, N, made by `make` (outside the lock) if not kept.
+    pub fn extra(
+        &self,
+        effect: &ExtraForceEffect,
+        delay_s: f64,
+        align_s: f64,
+        make: impl FnOnce() -> Vec<f64>,
+    ) -> Arc<Vec<f64>> {
+        let key = (effect.clone(), delay_s.to_bits(), align_s.to_bits());
+        let kept = self.extras.lock().ok().and_then(|e| {
+            e.iter()
+                .find(|(k, _)| *k == key)
+                .map(|(_, v)| Arc::clone(v))
+        });
+        if let Some(v) = kept {
+            return v;
+        }
+        let made = Arc::new(make());
+        if let Ok(mut e) = self.extras.lock() {
+            if !e.iter().any(|(k, _)| *k == key) {
+                if e.len() >= Self::CAPACITY {
+                    e.remove(0);
+                }
+                e.push((key, Arc::clone(&made)));
+            }
+        }
+        made
     }
 }
 

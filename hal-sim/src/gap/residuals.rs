@@ -766,13 +766,18 @@ pub fn band_force_raw(data: &Measured, band: &Band, model: &MachineModel) -> Vec
     let loads = band
         .loads
         .of(model, || Loads::of_terms(&force_terms(data, model)));
-    let acting = acting_motor_force_n(data, actuator_delay_s(model));
-    let extra = extra_force_n(data, model);
+    let delay_s = actuator_delay_s(model);
+    let acting = acting_motor_force_n(data, delay_s);
+    let extra = model.effects.extra_force.as_ref().map(|e| {
+        band.loads.extra(e, delay_s, data.force_align_s, || {
+            extra_force_n(data, model).unwrap_or_default()
+        })
+    });
     loads.force_raw(
         model.piston.mass_kg,
         &data.d2x_mps2,
         &acting,
-        extra.as_deref(),
+        extra.as_deref().map(Vec::as_slice),
     )
 }
 

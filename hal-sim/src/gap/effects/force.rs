@@ -16,6 +16,8 @@ use super::super::residuals::{
     acting_motor_force_n, band_force_raw, band_motor_needed_n, motor_sum_n, shifted, tangential_mps,
 };
 use super::{harmonics, MAX_LAG_S};
+use crate::plant::fastmath::sin_cos;
+use std::f64::consts::TAU;
 
 /// The force residual of `doc` at the kept samples.
 fn force_kept(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Vec<f64>> {
@@ -194,32 +196,39 @@ pub(super) fn stribeck(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     Some(p)
 }
 
-/// Spatial periodogram: for each spatial frequency (1/m) of `freqs`, the residual sum of
-/// squares of `y` against `base` columns plus sin/cos at that frequency (and at twice it
-/// when `second`) evaluated at the positions `x` (unfiltered: a quick scan). Returns the
-/// best frequency.
-fn periodogram(
-    y: &[f64],
-    x: &[f64],
-    base: &[Vec<f64>],
-    freqs: impl Iterator<Item = f64>,
-    second: bool,
-) -> Option<f64> {
+/// Spatial periodogram: for each spatial frequency (1/m) of `freqs`, how much of `y`'s sum
+/// of squares sin and cos at that frequency, evaluated at the positions `x` (unfiltered: a
+/// quick scan), explain by least squares. Returns the frequency that explains most (the
+/// least residual sum of squares).
+///
+/// The explained sum `θᵀ·Xᵀy` of the two-column normal equations is summed in one pass over
+/// the samples, no design matrix made: it ranks the frequencies as the residual does, without
+/// the residual's cancellation against `yᵀy`.
+fn periodogram(y: &[f64], x: &[f64], freqs: impl Iterator<Item = f64>) -> Option<f64> {
     // Every frequency on every core, then scanned in order (the first of equal ones wins,
     // as one thread would find it).
     let freqs: Vec<f64> = freqs.collect();
     let scan: Vec<Option<(f64, f64)>> = freqs
         .par_iter()
         .map(|&f| {
-            let mut cols = base.to_vec();
-            cols.extend(harmonics(x, f, second));
-            lstsq(&cols, y).map(|(_, rss)| (f, rss))
+            let (mut ss, mut cc, mut sc, mut sy, mut cy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            for (xi, yi) in x.iter().zip(y) {
+                let (s, c) = sin_cos(TAU * f * xi);
+                ss += s * s;
+                cc += c * c;
+                sc += s * c;
+                sy += s * yi;
+                cy += c * yi;
+            }
+            let det = ss * cc - sc * sc;
+            let explained = (cc * sy * sy - 2.0 * sc * sy * cy + ss * cy * cy) / det;
+            (det > 0.0 && explained.is_finite()).then_some((f, explained))
         })
         .collect();
     let mut best: Option<(f64, f64)> = None;
-    for (f, rss) in scan.into_iter().flatten() {
-        if best.is_none_or(|b| rss < b.1) {
-            best = Some((f, rss));
+    for (f, explained) in scan.into_iter().flatten() {
+        if best.is_none_or(|b| explained > b.1) {
+            best = Some((f, explained));
         }
     }
     best.map(|b| b.0)
@@ -233,13 +242,7 @@ pub(super) fn cogging(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let (f_lo, f_hi) = (1.0 / (2.5 * pole), 1.0 / (0.4 * pole));
     let df = 1.0 / (8.0 * kept_span(&xk));
     let steps = ((f_hi - f_lo) / df).ceil().min(4000.0) as usize;
-    let f0 = periodogram(
-        &y,
-        &xk,
-        &[],
-        (0..=steps).map(|i| f_lo + df * i as f64),
-        false,
-    )?;
+    let f0 = periodogram(&y, &xk, (0..=steps).map(|i| f_lo + df * i as f64))?;
     // Refine with the regressors filtered exactly as the residual is (they depend on x
     // alone: kept for the next selection step).
     let fitf = |f: f64| -> Option<(Vec<f64>, f64)> {
