@@ -93,30 +93,14 @@ pub struct LoadCache {
 type ExtraKey = (ExtraForceEffect, u64, u64);
 
 impl LoadCache {
-    /// Most models kept (the oldest is dropped): a step's model and its candidates' models.
-    pub const CAPACITY: usize = 8;
+    /// Most models (and extra forces) kept, the least recently used dropped first: a step's
+    /// model and the candidates being judged on it. Each is three (one) columns of the log's
+    /// length.
+    pub const CAPACITY: usize = 4;
 
     /// The loads of `model`, made by `make` (outside the lock) if not kept.
     pub fn of(&self, model: &MachineModel, make: impl FnOnce() -> Loads) -> Arc<Loads> {
-        let key = load_key(model);
-        let kept = self.entries.lock().ok().and_then(|e| {
-            e.iter()
-                .find(|(k, _)| *k == key)
-                .map(|(_, l)| Arc::clone(l))
-        });
-        if let Some(l) = kept {
-            return l;
-        }
-        let loads = Arc::new(make());
-        if let Ok(mut e) = self.entries.lock() {
-            if !e.iter().any(|(k, _)| *k == key) {
-                if e.len() >= Self::CAPACITY {
-                    e.remove(0);
-                }
-                e.push((key, Arc::clone(&loads)));
-            }
-        }
-        loads
+        kept_or_made(&self.entries, load_key(model), make)
     }
 
     /// The extra force `effect` at every row with the actuator lag `delay_s` and the force
@@ -129,25 +113,36 @@ impl LoadCache {
         make: impl FnOnce() -> Vec<f64>,
     ) -> Arc<Vec<f64>> {
         let key = (effect.clone(), delay_s.to_bits(), align_s.to_bits());
-        let kept = self.extras.lock().ok().and_then(|e| {
-            e.iter()
-                .find(|(k, _)| *k == key)
-                .map(|(_, v)| Arc::clone(v))
-        });
-        if let Some(v) = kept {
+        kept_or_made(&self.extras, key, make)
+    }
+}
+
+/// The value kept under `key` in `entries` (then the most recently used), or made by `make`
+/// outside the lock and kept, the least recently used dropped beyond
+/// [`LoadCache::CAPACITY`].
+fn kept_or_made<K: PartialEq, V>(
+    entries: &Mutex<Vec<(K, Arc<V>)>>,
+    key: K,
+    make: impl FnOnce() -> V,
+) -> Arc<V> {
+    if let Ok(mut e) = entries.lock() {
+        if let Some(i) = e.iter().position(|(k, _)| *k == key) {
+            let hit = e.remove(i);
+            let v = Arc::clone(&hit.1);
+            e.push(hit);
             return v;
         }
-        let made = Arc::new(make());
-        if let Ok(mut e) = self.extras.lock() {
-            if !e.iter().any(|(k, _)| *k == key) {
-                if e.len() >= Self::CAPACITY {
-                    e.remove(0);
-                }
-                e.push((key, Arc::clone(&made)));
-            }
-        }
-        made
     }
+    let made = Arc::new(make());
+    if let Ok(mut e) = entries.lock() {
+        if !e.iter().any(|(k, _)| *k == key) {
+            if e.len() >= LoadCache::CAPACITY {
+                e.remove(0);
+            }
+            e.push((key, Arc::clone(&made)));
+        }
+    }
+    made
 }
 
 impl Clone for LoadCache {
