@@ -8,7 +8,7 @@
 #   - each field log d01–d11 (tests/data/field-logs, gzipped as delivered, with its model),
 # end to end (parsing, the analysis, the report and plots). Prints per log the best of N runs'
 # wall time of each binary and their ratio (this tree over the reference) against the 0.40
-# that issue #45 asks for, and this tree's CPU time (user + sys, from its rusage) and what it
+# asked for, and this tree's CPU time (user + sys, from its rusage) and what it
 # named. Machines differ by more than the code does, hence the pairing. The ratios are
 # figures, not checks (a shared machine's timing is noise): the script fails only if a run
 # fails.
