@@ -21,7 +21,7 @@ use crate::plant::model::MachineModel;
 use super::channel::ChannelId;
 use super::data::{Measured, ALIGN_WINDOW_SAMPLES, UNDECLARED_ALIGN_SAMPLES};
 use super::fit::{minimise_1d, sumsq};
-use super::residuals::{force_raw, Band};
+use super::residuals::{band_force_raw, Band};
 
 /// What the alignment fit found.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -41,7 +41,7 @@ pub fn estimate(data: &Measured, band: &Band, model: &MachineModel) -> Option<Al
     let (lo, hi) = (-ALIGN_WINDOW_SAMPLES, ALIGN_WINDOW_SAMPLES);
     let (samples, _) = minimise_1d(lo, hi, 13, 18, |s| {
         probe.force_align_s = s * dt;
-        let raw = force_raw(&probe, model);
+        let raw = band_force_raw(&probe, band, model);
         Some(sumsq(&band.kept(&probe, ChannelId::Force, &raw)))
     })?;
     let at_edge = samples <= lo + 0.05 || samples >= hi - 0.05;

@@ -40,7 +40,7 @@ use super::candidate::{kept_span, kept_x, Ctx, EffectKind, Proposal};
 use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
 use super::fit::{lstsq, minimise_1d_par};
-use super::residuals::{basis_key, extra_states, force_raw};
+use super::residuals::{band_force_raw, basis_key, extra_states};
 
 /// Shortest period of the periodic pair searched, m.
 pub const MIN_PERIOD_M: f64 = 2e-3;
@@ -317,7 +317,7 @@ impl<'a> Basis<'a> {
 fn residual_without_extra(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<(Vec<f64>, MachineModel)> {
     let base = doc.with(&[Edit::RemoveSection(model_section!(effects.extra_force))]);
     let model = base.model().ok()?;
-    let raw = force_raw(ctx.data, &model);
+    let raw = band_force_raw(ctx.data, ctx.band, &model);
     Some((ctx.band.kept(ctx.data, ChannelId::Force, &raw), model))
 }
 

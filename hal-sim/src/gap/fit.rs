@@ -227,7 +227,7 @@ pub fn gauss_newton_nonneg(
     mut u: Vec<f64>,
     steps: &[f64],
     iters: usize,
-    mut r: impl FnMut(&[f64]) -> Option<Vec<f64>>,
+    r: impl Fn(&[f64]) -> Option<Vec<f64>> + Sync,
 ) -> Option<(Vec<f64>, f64)> {
     let mut res = r(&u).filter(|v| all_finite(v))?;
     let mut cost = sumsq(&res);
@@ -236,20 +236,24 @@ pub fn gauss_newton_nonneg(
     }
     let mut damping = 1e-3;
     for _ in 0..iters {
-        let mut cols = Vec::with_capacity(u.len());
-        for (j, h) in steps.iter().enumerate() {
-            let mut up = u.clone();
-            if let Some(v) = up.get_mut(j) {
-                *v += h;
-            }
-            let rp = r(&up)?;
-            cols.push(
-                rp.iter()
-                    .zip(&res)
-                    .map(|(a, b)| (a - b) / h)
-                    .collect::<Vec<f64>>(),
-            );
-        }
+        // The finite differences are independent evaluations: on every core, in order.
+        let cols: Vec<Vec<f64>> = steps
+            .par_iter()
+            .enumerate()
+            .map(|(j, h)| {
+                let mut up = u.clone();
+                if let Some(v) = up.get_mut(j) {
+                    *v += h;
+                }
+                let rp = r(&up)?;
+                Some(
+                    rp.iter()
+                        .zip(&res)
+                        .map(|(a, b)| (a - b) / h)
+                        .collect::<Vec<f64>>(),
+                )
+            })
+            .collect::<Option<Vec<Vec<f64>>>>()?;
         let k = cols.len();
         let jtj = DMatrix::from_fn(k, k, |a, b| dot(&cols[a], &cols[b]));
         let jtr = DVector::from_fn(k, |a, _| dot(&cols[a], &res));

@@ -54,7 +54,7 @@ use super::candidate::{Ctx, EffectKind, Proposal};
 use super::channel::{resolution, sample_resolution, ChannelId};
 use super::doc::{Edit, ModelDoc};
 use super::effects::propose;
-use super::residuals::{channel_raw, full_of_raw, residual, Residual};
+use super::residuals::{band_raw, full_of_raw, residual, Residual};
 use crate::plant::model::extra_force::Term;
 
 /// Smallest BIC improvement that adds an effect ("very strong" evidence on Kass and
@@ -141,9 +141,28 @@ pub(super) fn judge_joint(
     joint: &[EffectKind],
     before: &Residual,
 ) -> Option<Judged> {
-    let simple = judge(ctx, doc, kind, before);
-    // Fitted afresh: the candidate on the model without the channel's earlier effects, then
-    // they on top of it, then it once more.
+    // The candidate on the model as it is, and fitted afresh (independent: side by side).
+    // Nothing is judged where the fit afresh cannot be made.
+    let (simple, fresh) = rayon::join(
+        || judge(ctx, doc, kind, before),
+        || judge_afresh(ctx, doc, kind, joint, before),
+    );
+    match (simple, fresh?) {
+        (Some(a), Some(b)) => Some(if b.rss_after < a.rss_after { b } else { a }),
+        (a, b) => a.or(b),
+    }
+}
+
+/// [`judge_joint`]'s candidate fitted afresh: on the model without the channel's earlier
+/// effects `joint`, then they on top of it, then it once more, judged together (the outer
+/// `None`: the candidate could not be fitted).
+fn judge_afresh(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    kind: EffectKind,
+    joint: &[EffectKind],
+    before: &Residual,
+) -> Option<Option<Judged>> {
     let mut edits: Vec<Edit> = joint
         .iter()
         .filter_map(|k| k.section())
@@ -167,11 +186,7 @@ pub(super) fn judge_joint(
         edits,
         k: last.k,
     };
-    let fresh = judge_proposal(ctx, doc, proposal, before);
-    match (simple, fresh) {
-        (Some(a), Some(b)) => Some(if b.rss_after < a.rss_after { b } else { a }),
-        (a, b) => a.or(b),
-    }
+    Some(judge_proposal(ctx, doc, proposal, before))
 }
 
 /// Judges `proposal` applied on top of `doc`, whose residual of its channel is `before`.
@@ -360,7 +375,7 @@ pub(super) fn sensor_reading_holds(
     let Ok(model) = doc.with(&j.proposal.edits).model() else {
         return false;
     };
-    let Some(raw) = channel_raw(ctx.data, &model, ch) else {
+    let Some(raw) = band_raw(ctx.data, ctx.band, &model, ch) else {
         return false;
     };
     let after = full_of_raw(ctx.data, ctx.band, ch, &raw);

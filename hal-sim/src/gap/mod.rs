@@ -27,6 +27,7 @@ pub mod doc;
 pub mod effects;
 pub mod fit;
 pub mod judge;
+pub mod loads;
 pub mod offset;
 pub mod page;
 mod reconsider;
@@ -50,7 +51,7 @@ use candidate::{Ctx, EffectKind};
 use channel::ChannelId;
 use data::Measured;
 use doc::ModelDoc;
-use residuals::{channel_raw, full_of_raw, full_rms, rms_of_full, Band};
+use residuals::{band_raw, full_of_raw, full_rms, rms_of_full, Band};
 use select::{select, Selection};
 
 /// Default upper edge of the analysis band, Hz: above the cogging frequency at 4 m/s
@@ -402,8 +403,8 @@ fn filtered_residuals(
         .par_iter()
         .filter_map(|&ch| {
             let (b, a) = rayon::join(
-                || channel_raw(measured, model, ch),
-                || channel_raw(measured, after_model, ch),
+                || band_raw(measured, band, model, ch),
+                || band_raw(measured, band, after_model, ch),
             );
             let (b, a) = (b?, a?);
             let (before, after) = rayon::join(
@@ -433,8 +434,8 @@ fn effect_rows(
             continue;
         }
         let ch = kind.channel();
-        let raw_b = channel_raw(ctx.data, &before.model()?, ch).unwrap_or_default();
-        let raw_a = channel_raw(ctx.data, &after.model()?, ch).unwrap_or_default();
+        let raw_b = band_raw(ctx.data, ctx.band, &before.model()?, ch).unwrap_or_default();
+        let raw_a = band_raw(ctx.data, ctx.band, &after.model()?, ch).unwrap_or_default();
         let (region_rms_before, region_rms_after) = if kind == EffectKind::StribeckFriction {
             let vs = a
                 .proposal
@@ -492,13 +493,13 @@ fn discovered_rows(ctx: &Ctx<'_>, selection: &Selection) -> Result<Vec<Discovere
         ctx.data,
         ctx.band,
         ch,
-        &channel_raw(ctx.data, &without, ch).unwrap_or_default(),
+        &band_raw(ctx.data, ctx.band, &without, ch).unwrap_or_default(),
     );
     let after = full_rms(
         ctx.data,
         ctx.band,
         ch,
-        &channel_raw(ctx.data, &model, ch).unwrap_or_default(),
+        &band_raw(ctx.data, ctx.band, &model, ch).unwrap_or_default(),
     );
     Ok(vec![DiscoveredJson {
         channel: ch.name().into(),

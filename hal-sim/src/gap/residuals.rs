@@ -28,6 +28,7 @@ use super::channel::{sample_resolution, ChannelId};
 use super::data::{
     count_quantum, count_spans_rows, Measured, PortsMeta, ThetaSource, PORTS_ANGLE_SPAN_S,
 };
+use super::loads::{LoadCache, Loads};
 
 /// The analysis band and the sample sets the statistics use.
 ///
@@ -75,6 +76,12 @@ pub struct Band {
     /// The discovery basis's plain columns at the force channel's kept samples, by term and
     /// by what they depend on beyond the log ([`basis_key`]).
     pub basis_columns: ColumnCache<(Term, u64, u64)>,
+    /// The force balance's loads of the models of this log's analysis ([`LoadCache`]).
+    pub loads: LoadCache,
+    /// The named force candidates' band-filtered regressors at the kept samples, by search
+    /// and the bits of what they depend on ([`super::effects`]): their grids are visited
+    /// again at every selection step.
+    pub search_columns: ColumnCache<(u8, u64, u64, u64)>,
 }
 
 /// `mask` eroded by `half` samples on each side: 1 only where every sample within `half`
@@ -139,6 +146,8 @@ impl Band {
             mask_inner,
             columns: ColumnCache::default(),
             basis_columns: ColumnCache::default(),
+            loads: LoadCache::default(),
+            search_columns: ColumnCache::default(),
         })
     }
 
@@ -751,6 +760,49 @@ pub fn channel_raw(data: &Measured, model: &MachineModel, ch: ChannelId) -> Opti
     }
 }
 
+/// [`force_raw`] on the log of `band`, with the loads it keeps ([`Band::loads`]): the same,
+/// bit for bit.
+pub fn band_force_raw(data: &Measured, band: &Band, model: &MachineModel) -> Vec<f64> {
+    let loads = band
+        .loads
+        .of(model, || Loads::of_terms(&force_terms(data, model)));
+    let delay_s = actuator_delay_s(model);
+    let acting = acting_motor_force_n(data, delay_s);
+    let extra = model.effects.extra_force.as_ref().map(|e| {
+        band.loads.extra(e, delay_s, data.force_align_s, || {
+            extra_force_n(data, model).unwrap_or_default()
+        })
+    });
+    loads.force_raw(
+        model.piston.mass_kg,
+        &data.d2x_mps2,
+        &acting,
+        extra.as_deref().map(Vec::as_slice),
+    )
+}
+
+/// The motor force that closes the balance of `model` at every row, N
+/// ([`PistonForces::motor_needed_n`]), with the loads `band` keeps.
+pub fn band_motor_needed_n(data: &Measured, band: &Band, model: &MachineModel) -> Vec<f64> {
+    band.loads
+        .of(model, || Loads::of_terms(&force_terms(data, model)))
+        .motor_needed_n(model.piston.mass_kg, &data.d2x_mps2)
+}
+
+/// [`channel_raw`] on the log of `band`, the force channel from the loads it keeps
+/// ([`Band::loads`]).
+pub fn band_raw(
+    data: &Measured,
+    band: &Band,
+    model: &MachineModel,
+    ch: ChannelId,
+) -> Option<Vec<f64>> {
+    match ch {
+        ChannelId::Force => Some(band_force_raw(data, band, model)),
+        _ => channel_raw(data, model, ch),
+    }
+}
+
 /// The residual of `ch` for `model`.
 pub fn residual(
     data: &Measured,
@@ -758,7 +810,7 @@ pub fn residual(
     model: &MachineModel,
     ch: ChannelId,
 ) -> Option<Residual> {
-    let raw = channel_raw(data, model, ch)?;
+    let raw = band_raw(data, band, model, ch)?;
     let kept = kept_of_raw(data, band, ch, &raw);
     Some(Residual {
         channel: ch,

@@ -36,7 +36,7 @@ use super::judge::{
     MIN_DELTA_BIC,
 };
 use super::reconsider::{prune_terms, reconsider_terms};
-use super::residuals::{channel_raw, full_of_raw, residual, Residual};
+use super::residuals::{band_raw, full_of_raw, residual, Residual};
 
 /// Correlation above which two candidates are reported as collinear.
 pub const COLLINEAR: f64 = 0.9;
@@ -149,7 +149,7 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
 /// [`super::unexplained::judge`] reports as not structured).
 fn reading_is_clean(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<bool, String> {
     let model = doc.model()?;
-    let Some(raw) = channel_raw(ctx.data, &model, ChannelId::Force) else {
+    let Some(raw) = band_raw(ctx.data, ctx.band, &model, ChannelId::Force) else {
         return Ok(true);
     };
     let after = full_of_raw(ctx.data, ctx.band, ChannelId::Force, &raw);

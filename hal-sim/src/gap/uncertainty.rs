@@ -20,7 +20,7 @@ use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
 use super::fit::{standard_errors, sumsq};
 use super::judge::effective_n;
-use super::residuals::{channel_raw, kept_of_raw};
+use super::residuals::{band_raw, kept_of_raw};
 use super::select::Selection;
 
 /// Central-difference step, relative to the parameter's value.
@@ -139,7 +139,7 @@ pub fn annotated(
 /// cannot be formed).
 fn kept(ctx: &Ctx<'_>, doc: &ModelDoc, ch: ChannelId) -> Option<Vec<f64>> {
     let model = doc.model().ok()?;
-    let raw = channel_raw(ctx.data, &model, ch)?;
+    let raw = band_raw(ctx.data, ctx.band, &model, ch)?;
     Some(kept_of_raw(ctx.data, ctx.band, ch, &raw))
 }
 

@@ -13,14 +13,16 @@ use super::super::channel::ChannelId;
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::{lstsq, minimise_1d_par};
 use super::super::residuals::{
-    acting_motor_force_n, force_raw, force_terms, motor_sum_n, shifted, tangential_mps,
+    acting_motor_force_n, band_force_raw, band_motor_needed_n, motor_sum_n, shifted, tangential_mps,
 };
 use super::{harmonics, MAX_LAG_S};
+use crate::plant::fastmath::sin_cos;
+use std::f64::consts::TAU;
 
 /// The force residual of `doc` at the kept samples.
 fn force_kept(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Vec<f64>> {
     let model = doc.model().ok()?;
-    let raw = force_raw(ctx.data, &model);
+    let raw = band_force_raw(ctx.data, ctx.band, &model);
     Some(ctx.band.kept(ctx.data, ChannelId::Force, &raw))
 }
 
@@ -117,6 +119,25 @@ pub(super) fn viscous(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     ))
 }
 
+/// [`super::super::residuals::Band::search_columns`]'s tag of the Stribeck regressors.
+const STRIBECK_SEARCH: u8 = 1;
+
+/// [`super::super::residuals::Band::search_columns`]'s tag of the cogging regressors.
+const COGGING_SEARCH: u8 = 2;
+
+/// A 64-bit hash of the bits of `columns` (the same values give the same hash).
+fn fingerprint(columns: &[&[f64]]) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    for c in columns {
+        c.len().hash(&mut h);
+        for v in *c {
+            v.to_bits().hash(&mut h);
+        }
+    }
+    h.finish()
+}
+
 /// Stribeck velocities searched, m/s (log-spaced).
 const STRIBECK_RANGE_MPS: (f64, f64) = (1e-3, 0.3);
 
@@ -128,17 +149,23 @@ pub(super) fn stribeck(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let coulomb = base.number(model_key!(friction / coulomb_n))?;
     let y = force_kept(ctx, &base)?;
     let (slip, dir) = friction_direction(ctx, &base)?;
+    // The regressors depend on the sliding speed and direction, not on the residual: kept
+    // by them for the next selection step.
+    let of_motion = fingerprint(&[&slip, &dir]);
     let fit = |log_vs: f64, zeta: f64| -> Option<(f64, f64)> {
-        let vs = log_vs.exp();
-        // The law's Stribeck shape along the friction's direction (more dip than modelled
-        // leaves −ΔF·S·d in the residual).
-        let raw: Vec<f64> = slip
-            .iter()
-            .zip(&dir)
-            .map(|(s, d)| -stribeck_shape(*s, vs, zeta) * d)
-            .collect();
-        let reg = ctx.band.kept(ctx.data, ChannelId::Force, &raw);
-        let (th, rss) = lstsq(&[reg], &y)?;
+        let key = (STRIBECK_SEARCH, log_vs.to_bits(), zeta.to_bits(), of_motion);
+        let reg = ctx.band.search_columns.get_or_make(key, || {
+            let vs = log_vs.exp();
+            // The law's Stribeck shape along the friction's direction (more dip than
+            // modelled leaves −ΔF·S·d in the residual).
+            let raw: Vec<f64> = slip
+                .iter()
+                .zip(&dir)
+                .map(|(s, d)| -stribeck_shape(*s, vs, zeta) * d)
+                .collect();
+            vec![ctx.band.kept(ctx.data, ChannelId::Force, &raw)]
+        });
+        let (th, rss) = lstsq(&reg, &y)?;
         let dip = th.first().copied()?;
         (dip > 0.0).then_some((dip, rss))
     };
@@ -169,32 +196,39 @@ pub(super) fn stribeck(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     Some(p)
 }
 
-/// Spatial periodogram: for each spatial frequency (1/m) of `freqs`, the residual sum of
-/// squares of `y` against `base` columns plus sin/cos at that frequency (and at twice it
-/// when `second`) evaluated at the positions `x` (unfiltered: a quick scan). Returns the
-/// best frequency.
-fn periodogram(
-    y: &[f64],
-    x: &[f64],
-    base: &[Vec<f64>],
-    freqs: impl Iterator<Item = f64>,
-    second: bool,
-) -> Option<f64> {
+/// Spatial periodogram: for each spatial frequency (1/m) of `freqs`, how much of `y`'s sum
+/// of squares sin and cos at that frequency, evaluated at the positions `x` (unfiltered: a
+/// quick scan), explain by least squares. Returns the frequency that explains most (the
+/// least residual sum of squares).
+///
+/// The explained sum `θᵀ·Xᵀy` of the two-column normal equations is summed in one pass over
+/// the samples, no design matrix made: it ranks the frequencies as the residual does, without
+/// the residual's cancellation against `yᵀy`.
+fn periodogram(y: &[f64], x: &[f64], freqs: impl Iterator<Item = f64>) -> Option<f64> {
     // Every frequency on every core, then scanned in order (the first of equal ones wins,
     // as one thread would find it).
     let freqs: Vec<f64> = freqs.collect();
     let scan: Vec<Option<(f64, f64)>> = freqs
         .par_iter()
         .map(|&f| {
-            let mut cols = base.to_vec();
-            cols.extend(harmonics(x, f, second));
-            lstsq(&cols, y).map(|(_, rss)| (f, rss))
+            let (mut ss, mut cc, mut sc, mut sy, mut cy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            for (xi, yi) in x.iter().zip(y) {
+                let (s, c) = sin_cos(TAU * f * xi);
+                ss += s * s;
+                cc += c * c;
+                sc += s * c;
+                sy += s * yi;
+                cy += c * yi;
+            }
+            let det = ss * cc - sc * sc;
+            let explained = (cc * sy * sy - 2.0 * sc * sy * cy + ss * cy * cy) / det;
+            (det > 0.0 && explained.is_finite()).then_some((f, explained))
         })
         .collect();
     let mut best: Option<(f64, f64)> = None;
-    for (f, rss) in scan.into_iter().flatten() {
-        if best.is_none_or(|b| rss < b.1) {
-            best = Some((f, rss));
+    for (f, explained) in scan.into_iter().flatten() {
+        if best.is_none_or(|b| explained > b.1) {
+            best = Some((f, explained));
         }
     }
     best.map(|b| b.0)
@@ -208,19 +242,19 @@ pub(super) fn cogging(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let (f_lo, f_hi) = (1.0 / (2.5 * pole), 1.0 / (0.4 * pole));
     let df = 1.0 / (8.0 * kept_span(&xk));
     let steps = ((f_hi - f_lo) / df).ceil().min(4000.0) as usize;
-    let f0 = periodogram(
-        &y,
-        &xk,
-        &[],
-        (0..=steps).map(|i| f_lo + df * i as f64),
-        false,
-    )?;
-    // Refine with the regressors filtered exactly as the residual is.
+    let f0 = periodogram(&y, &xk, (0..=steps).map(|i| f_lo + df * i as f64))?;
+    // Refine with the regressors filtered exactly as the residual is (they depend on x
+    // alone: kept for the next selection step).
     let fitf = |f: f64| -> Option<(Vec<f64>, f64)> {
-        let cols: Vec<Vec<f64>> = harmonics(&ctx.data.x_m, f, false)
-            .iter()
-            .map(|h| ctx.band.kept(ctx.data, ChannelId::Force, h))
-            .collect();
+        let cols = ctx
+            .band
+            .search_columns
+            .get_or_make((COGGING_SEARCH, f.to_bits(), 0, 0), || {
+                harmonics(&ctx.data.x_m, f, false)
+                    .iter()
+                    .map(|h| ctx.band.kept(ctx.data, ChannelId::Force, h))
+                    .collect()
+            });
         lstsq(&cols, &y)
     };
     let (f, _) = minimise_1d_par(f0 - df, f0 + df, 5, 16, |f| fitf(f).map(|r| r.1))?;
@@ -247,11 +281,7 @@ pub fn acting_force_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<crate::signal::
     let d = ctx.data;
     let motors = acting_motor_force_n(d, 0.0);
     // The motor force that closes the balance with every other modelled force.
-    let acting: Vec<f64> = force_terms(d, &model)
-        .iter()
-        .zip(&d.d2x_mps2)
-        .map(|(f, a)| f.motor_needed_n(model.piston.mass_kg, *a))
-        .collect();
+    let acting = band_motor_needed_n(d, ctx.band, &model);
     let reported = ctx.band.full(d, ChannelId::Force, &motors);
     let acting = ctx.band.full(d, ChannelId::Force, &acting);
     let max = (MAX_LAG_S / d.dt_s).round() as usize;
@@ -266,11 +296,7 @@ pub(super) fn actuator_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let model = base.model().ok()?;
     let d = ctx.data;
     // Everything but the motor forces, once: r(d) = m·Δ²x − others − motors acting at d.
-    let fixed: Vec<f64> = force_terms(d, &model)
-        .iter()
-        .zip(&d.d2x_mps2)
-        .map(|(f, a)| f.motor_needed_n(model.piston.mass_kg, *a))
-        .collect();
+    let fixed = band_motor_needed_n(d, ctx.band, &model);
     // The motor forces summed once; each delay only shifts them.
     let motors = motor_sum_n(d);
     let rss = |delay: f64| -> Option<f64> {

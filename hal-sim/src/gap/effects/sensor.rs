@@ -35,7 +35,7 @@ fn fit_pair(
     kind: EffectKind,
     keys: [Key; 2],
     step: f64,
-    to_key: impl Fn(f64) -> f64,
+    to_key: impl Fn(f64) -> f64 + Sync,
     from_key: impl Fn(f64) -> f64,
 ) -> Option<Proposal> {
     let search = pressure_search(ctx);
