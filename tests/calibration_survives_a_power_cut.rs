@@ -46,6 +46,7 @@ fn record(k: f32) -> CalibrationRecord {
                 encoder_offset_m: -2e-6 * k,
             }),
             cogging: Some(map),
+            commission: None,
             last_error: None,
         },
         sin_cos: PerSection {

@@ -7,6 +7,7 @@
 //! | [`Routine::Alignment`] | encoder angle ↔ magnets, per section | a current vector at a forced angle, one section at a time, approached from both sides at 8 angles over a period | `angle_offset.*` |
 //! | [`Routine::Misalignment`] | the slave's frame against the master's (Eq. 4's sine error) | the master alone holds the position on constant-velocity sweeps while the slave carries a d-current of ±I: the master's force changes by `2·K_f·I·sin ε` | `angle_offset.slave`; reports `D_dif` and the master−slave encoder offset |
 //! | [`Routine::Cogging`] | detent force over the pitch | constant-velocity sweeps both ways under position control, `−(F_motors + F_gas)` fitted by harmonics; the two directions' average cancels friction | `allocation.cogging` |
+//! | [`Routine::Commission`] | phase order, encoder direction, pitch, per section (a new or rewired machine, before alignment) | a current vector at a forced angle turned a period forward and back, both encoders read at rest ([`commission`]) | nothing: reports [`Commissioning`] |
 //! | [`Routine::EncoderMap`] | the slave encoder's difference from the master's (paper §4.2, Fig. 6) | constant-velocity sweeps both ways at two speeds; the difference binned over the master's period, fitted as a saw stepping once a pitch, a part per direction and a velocity coefficient ([`encoder_map`]) | `encoder_map` (the slave's reading corrected) |
 //!
 //! Each routine is a state machine. While one runs, the controller calls
@@ -64,17 +65,21 @@ pub enum Routine {
     /// The slave encoder's difference from the master's, mapped and corrected (homed;
     /// optional: the machine runs without it).
     EncoderMap = 4,
+    /// Phase order, encoder direction and pitch of both sections (forced current vector;
+    /// works before homing; loads nothing).
+    Commission = 5,
 }
 
 impl Routine {
     /// Every routine, in number order (and in the order a new machine runs them, homing
     /// between alignment and misalignment).
-    pub const ALL: [Routine; 5] = [
+    pub const ALL: [Routine; 6] = [
         Routine::CurrentSense,
         Routine::Alignment,
         Routine::Misalignment,
         Routine::Cogging,
         Routine::EncoderMap,
+        Routine::Commission,
     ];
 
     /// Stable snake_case name.
@@ -85,6 +90,7 @@ impl Routine {
             Routine::Misalignment => "misalignment",
             Routine::Cogging => "cogging",
             Routine::EncoderMap => "encoder_map",
+            Routine::Commission => "commission",
         }
     }
 
@@ -180,6 +186,8 @@ pub enum Outcome {
     Cogging(HarmonicMap),
     /// The encoder-difference map.
     EncoderMap(EncoderMap),
+    /// The wiring's findings (nothing to load).
+    Commission(Commissioning),
 }
 
 impl Outcome {
@@ -194,6 +202,7 @@ impl Outcome {
             Outcome::Misalignment(m) => config.angle_offset.slave = m.slave_angle_offset,
             Outcome::Cogging(map) => config.allocation.cogging = *map,
             Outcome::EncoderMap(map) => config.encoder_map = Some(*map),
+            Outcome::Commission(_) => {}
         }
     }
 }
@@ -224,6 +233,16 @@ pub enum CalibrationError {
     /// The encoder map's sweeps left part of the period without a sample: the piston did not
     /// move as commanded. Check that it is free to move, then map again.
     MapIncomplete,
+    /// The piston did not follow the section's turning vector (less than half the turn on
+    /// an encoder, or not back): check the section's three phases are connected, the
+    /// piston is free and away from the heads, and both encoders' signals.
+    NoMotion {
+        /// The section.
+        section: Section,
+    },
+    /// The encoders' signs fit no wiring (one encoder read the sections' turns one way, the
+    /// other differently): an encoder miscounts; check its signals.
+    EncoderSigns,
 }
 
 impl core::fmt::Display for CalibrationError {
@@ -258,6 +277,16 @@ impl core::fmt::Display for CalibrationError {
                 "the encoder map's sweeps left part of the period without a sample: check that \
                  the piston is free to move, then map again",
             ),
+            CalibrationError::NoMotion { section: s } => write!(
+                f,
+                "the piston did not follow the {} section's turning vector: check its three \
+                 phases are connected, the piston is free and away from the heads, and both \
+                 encoders' signals",
+                section(s)
+            ),
+            CalibrationError::EncoderSigns => f.write_str(
+                "the encoders' signs fit no wiring: an encoder miscounts; check its signals",
+            ),
         }
     }
 }
@@ -273,6 +302,9 @@ pub struct Calibrated {
     pub misalignment: Option<Misalignment>,
     /// The cogging map.
     pub cogging: Option<HarmonicMap>,
+    /// The last commissioning's findings (not stored: the wiring is checked again after a
+    /// power cut).
+    pub commission: Option<Commissioning>,
     /// The last routine that failed, and why.
     pub last_error: Option<(Routine, CalibrationError)>,
 }
@@ -293,6 +325,7 @@ impl Calibrated {
             // record: a record is copied whole at every boot and save, and the map is not
             // stored in flash (mapped again after a power cut).
             Ok(Outcome::EncoderMap(_)) => {}
+            Ok(Outcome::Commission(found)) => self.commission = Some(found),
             Err(e) => self.last_error = Some((routine, e)),
         }
     }
@@ -325,6 +358,7 @@ enum State {
     Alignment(Aligner),
     Sweeps(Sweeps),
     EncoderMap(EncoderMapper),
+    Commission(Commissioner),
 }
 
 impl Calibration {
@@ -355,6 +389,14 @@ impl Calibration {
                 }
                 State::Alignment(Aligner::new(config))
             }
+            (Routine::Commission, at) => {
+                // The mover may go the reach either way (the wiring decides which).
+                let reach = Commissioner::reach_periods(config) * lambda;
+                if !at.is_none_or(|x| x - reach >= near && x + reach <= config.travel_m - near) {
+                    return Err(CalibrationError::NoRoom);
+                }
+                State::Commission(Commissioner::new())
+            }
             (_, None) => return Err(CalibrationError::NoRoom),
             (Routine::Misalignment | Routine::Cogging, Some(position_m)) => {
                 State::Sweeps(Sweeps::new(config, position_m, routine)?)
@@ -378,6 +420,7 @@ impl Calibration {
             State::Alignment(a) => a.step(config, m),
             State::Sweeps(s) => s.step(config, m, self.routine),
             State::EncoderMap(e) => e.step(config, m),
+            State::Commission(c) => c.step(config, m),
         }
     }
 }
@@ -397,6 +440,7 @@ fn cycles(s: f32, dt: f32) -> u32 {
 }
 
 mod align;
+pub mod commission;
 pub mod encoder_map;
 pub mod record;
 mod sense;
@@ -404,6 +448,8 @@ pub mod store;
 mod sweeps;
 
 use align::Aligner;
+use commission::Commissioner;
+pub use commission::Commissioning;
 pub use encoder_map::EncoderMap;
 use encoder_map::EncoderMapper;
 use sense::SenseAverage;

@@ -117,6 +117,7 @@ impl CalibrationRecord {
                     encoder_offset_m: -2e-6,
                 }),
                 cogging: Some(map),
+                commission: None,
                 last_error: None,
             },
             sin_cos: PerSection {
@@ -136,6 +137,7 @@ impl CalibrationRecord {
     pub fn of(calibrated: &Calibrated, config: &ControlConfig) -> Self {
         CalibrationRecord {
             calibrated: Calibrated {
+                commission: None,
                 last_error: None,
                 ..*calibrated
             },
@@ -289,6 +291,7 @@ impl CalibrationRecord {
                 alignment: has(Routine::Alignment).then_some(align),
                 misalignment: has(Routine::Misalignment).then_some(mis),
                 cogging: has(Routine::Cogging).then_some(map),
+                commission: None,
                 last_error: None,
             },
             sin_cos: PerSection { master, slave },

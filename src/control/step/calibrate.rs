@@ -46,7 +46,8 @@ impl CalibrationState {
         result: Result<Outcome, CalibrationError>,
         config: &ControlConfig,
     ) {
-        if result.is_ok() {
+        // The commissioning loads nothing: no record to save.
+        if result.is_ok() && routine != Routine::Commission {
             self.unsaved = true;
         }
         self.calibrated.record(routine, result);
