@@ -6,7 +6,8 @@
 //! RTT channels the tasks write and read ([`channels`]), the telemetry capture
 //! ([`capture`]), the calibration's NOR flash with an injectable power cut
 //! ([`flash`]), the RAM a probe reads, with the firmware's RTT channels ([`ram`]), and
-//! in-memory ports for running one task body alone ([`loopback`]). It drives the
+//! in-memory ports for running one task body alone ([`loopback`]), and the wiring faults
+//! between the board and the machine ([`wiring`]). It drives the
 //! [`crate::plant::dynamics`]; it knows neither the fault injector nor the runner.
 
 pub mod capture;
@@ -17,4 +18,5 @@ pub mod flash;
 pub mod loopback;
 pub mod ram;
 pub mod sensors;
+pub mod wiring;
 pub mod world;

@@ -75,6 +75,9 @@ pub struct World {
     /// Sensor faults injected into every burst right after sampling (`fpc-sim run --fault`;
     /// none by default).
     pub corruption: crate::board::corruption::SensorCorruption,
+    /// Wiring faults between the board and the machine (`fpc-sim calibrate --swap-phases`,
+    /// `--reverse-encoder`; none by default).
+    pub wiring: crate::board::wiring::Wiring,
     /// What the firmware's telemetry task sent up the (simulated) RTT channel.
     pub telemetry: crate::board::capture::TelemetryCapture,
     /// The board's RAM: the firmware's RTT control block and channels, set up at each boot.
@@ -118,6 +121,7 @@ impl World {
             watchdog_fed_since_boot: false,
             events: Vec::new(),
             corruption: Default::default(),
+            wiring: Default::default(),
             telemetry: Default::default(),
             ram: crate::board::ram::SimRam::new(),
             noise: Noise::new(seed),
@@ -137,6 +141,13 @@ impl World {
     ) -> Self {
         let plant = Plant::new(PlantParams::from_model(model), start_position_m);
         World::new(plant, Sensors::from_model(model), seed, start_us)
+    }
+
+    /// Wires the board to the machine as `wiring` says, from the next sample on (the
+    /// present burst sampled again, so the firmware never sees the rewiring as a jump).
+    pub fn set_wiring(&mut self, wiring: crate::board::wiring::Wiring) {
+        self.wiring = wiring;
+        self.sample();
     }
 
     /// Control cycles simulated so far.
@@ -190,7 +201,8 @@ impl World {
     /// in force while its outputs are on, and the servo torque the DAC code commands.
     pub fn drive(&self) -> Drive {
         let on = |s: Section| {
-            (self.enabled && *self.sections_on.get(s)).then(|| *self.duties_in_force.get(s))
+            (self.enabled && *self.sections_on.get(s))
+                .then(|| self.wiring.to_windings(s, *self.duties_in_force.get(s)))
         };
         Drive {
             duties: PerSection {
@@ -253,9 +265,10 @@ impl World {
             }
             codes
         };
+        let w = self.wiring;
         let currents = PerSection {
-            master: current(Section::Master),
-            slave: current(Section::Slave),
+            master: w.to_legs(Section::Master, current(Section::Master)),
+            slave: w.to_legs(Section::Slave, current(Section::Slave)),
         };
 
         let counts =
@@ -275,7 +288,10 @@ impl World {
         }
         let [chamber_a, chamber_b, suction, discharge] = codes;
         self.burst = Burst {
-            encoders: EncoderCodes { master, slave },
+            encoders: EncoderCodes {
+                master: w.encoder(Section::Master, master),
+                slave: w.encoder(Section::Slave, slave),
+            },
             currents,
             // The hardware counter wraps at 16 bits.
             quadrature: floor_i64(counts) as u16,
