@@ -1,6 +1,7 @@
 //! Calibration files: the firmware's calibration record as TOML a person can read and diff,
-//! the simulated commissioning that produces one (`fpc-sim calibrate`), and the simulated
-//! board's flash holding one (`fpc-sim run --calibration`).
+//! the simulated commissioning that produces one (`fpc-sim calibrate`), the wiring check
+//! (`fpc-sim calibrate --check-wiring`, the firmware's `commission` routine) and the
+//! simulated board's flash holding one (`fpc-sim run --calibration`).
 //!
 //! The file carries exactly what [`CalibrationRecord`] does, in the units an operator reads:
 //! angle offsets in electrical degrees (converted exactly: a wrapping u32 angle is a whole
@@ -10,9 +11,11 @@
 
 use std::path::Path;
 
+use fpc::control::calibration::commission::wiring;
 use fpc::control::calibration::record::CalibrationRecord;
-use fpc::control::calibration::{Calibrated, Misalignment, Routine};
+use fpc::control::calibration::{Calibrated, Commissioning, Misalignment, Routine};
 use fpc::control::command::Command;
+use fpc::control::config::ControlConfig;
 use fpc::control::step::{ControlStep, CycleInputs};
 use fpc::physics::cogging::{HarmonicMap, MAP_HARMONICS};
 use fpc::ports::{
@@ -23,6 +26,7 @@ use fpc::status::ModeKind;
 use fpc::units::{PerSection, Section};
 use serde::{Deserialize, Serialize};
 
+use crate::board::wiring::Wiring;
 use crate::board::world::peripherals;
 use crate::plant::model::MachineModel;
 
@@ -266,6 +270,7 @@ pub fn parse(text: &str) -> Result<CalibrationRecord, String> {
                 encoder_offset_m: finite("misalignment.encoder_offset_m", m.encoder_offset_m)?,
             }),
             cogging: Some(map),
+            commission: None,
             last_error: None,
         },
         sin_cos: PerSection {
@@ -325,7 +330,7 @@ pub fn commission(
         ("misalignment", calibrate(Routine::Misalignment)),
         ("cogging", calibrate(Routine::Cogging)),
     ];
-    let (_, record, stages) = run_plan(model, config, seed, &plan)?;
+    let (_, record, stages) = run_plan(model, config, seed, &plan, &Wiring::default(), 0.05)?;
     let record = record.ok_or("no routine handed a record to save")?;
     if !record.is_complete() {
         return Err("the commissioning left the record incomplete".into());
@@ -344,25 +349,126 @@ pub fn map_encoders(
         ("home", Command::Home),
         ("encoder_map", calibrate(Routine::EncoderMap)),
     ];
-    let (step, _, _) = run_plan(model, crate::run::control_config(model), seed, &plan)?;
+    let config = crate::run::control_config(model);
+    let (step, _, _) = run_plan(model, config, seed, &plan, &Wiring::default(), 0.05)?;
     step.config()
         .encoder_map
         .ok_or_else(|| "the encoder map routine loaded no map".to_string())
 }
 
+/// Checks the wiring of the simulated `model`, wired as `wiring` says, with the piston
+/// resting at `start_m`: the firmware's current-sense and commissioning routines, the
+/// controller configured with the model's machine parameters (as `fpc-sim run` configures
+/// it). What the commissioning found, and the stages' durations.
+pub fn check_wiring(
+    model: &MachineModel,
+    wiring: &Wiring,
+    seed: u64,
+    start_m: f64,
+) -> Result<(Commissioning, Vec<Stage>), String> {
+    let plan = [
+        ("current_sense", calibrate(Routine::CurrentSense)),
+        ("commission", calibrate(Routine::Commission)),
+    ];
+    let config = crate::run::control_config(model);
+    let (step, _, stages) = run_plan(model, config, seed, &plan, wiring, start_m)?;
+    let found = step
+        .calibrated()
+        .commission
+        .ok_or("the commissioning reported nothing")?;
+    Ok((found, stages))
+}
+
+/// What the commissioning found, a line each, as the host prints them: each section's
+/// phase order and each encoder's direction (or the two explanations that cannot be told
+/// apart), then each section's pitch against `config`'s electrical period.
+pub fn commission_lines(found: &Commissioning, config: &ControlConfig) -> Vec<String> {
+    let name = |s: Section| match s {
+        Section::Master => "master",
+        Section::Slave => "slave",
+    };
+    let phases = |s: Section| match s {
+        Section::Master => wiring::MASTER_PHASES,
+        Section::Slave => wiring::SLAVE_PHASES,
+    };
+    let encoder = |s: Section| match s {
+        Section::Master => wiring::MASTER_ENCODER,
+        Section::Slave => wiring::SLAVE_ENCODER,
+    };
+    let faults = |set: u8| {
+        let mut parts = Vec::new();
+        for s in Section::ALL {
+            if set & phases(s) != 0 {
+                parts.push(format!("phases swapped in section {}", name(s)));
+            }
+        }
+        for s in Section::ALL {
+            if set & encoder(s) != 0 {
+                parts.push(format!("{} encoder reversed", name(s)));
+            }
+        }
+        parts.join(" and ")
+    };
+    let mut lines = Vec::new();
+    if found.ambiguous {
+        lines.push(format!(
+            "ambiguous: {}, or {}: the signs cannot tell these apart; correct one of them \
+             and commission again",
+            faults(found.reversed),
+            faults(wiring::ALL ^ found.reversed)
+        ));
+    } else {
+        for s in Section::ALL {
+            lines.push(if found.reversed & phases(s) != 0 {
+                format!("phases swapped in section {}", name(s))
+            } else {
+                format!("phases in order in section {}", name(s))
+            });
+        }
+        for s in Section::ALL {
+            lines.push(if found.reversed & encoder(s) != 0 {
+                format!("{} encoder reversed", name(s))
+            } else {
+                format!("{} encoder counts with the motion", name(s))
+            });
+        }
+    }
+    let expected_mm = config.motor.electrical_period_m * 1e3;
+    let tolerance = config.calibration.commission_pitch_tolerance * 100.0;
+    for s in Section::ALL {
+        let verdict = if *found.pitch_ok.get(s) {
+            "ok".to_string()
+        } else {
+            format!(
+                "off by more than {tolerance:.0} %: check the motor's and the encoder's \
+                 periods in the configuration"
+            )
+        };
+        lines.push(format!(
+            "N-N pitch in section {} {:.2} mm, expected {expected_mm:.2} mm: {verdict}",
+            name(s),
+            found.pitch_m.get(s) * 1e3
+        ));
+    }
+    lines
+}
+
 /// Runs the firmware's control step, configured with `config`, on the simulated `model`
-/// through `plan` (each command run until the machine leaves its mode and returns); the
-/// step, the last record it handed for saving, and the stages' durations.
+/// wired as `wiring` says, with the piston resting at `start_m`, through `plan` (each
+/// command run until the machine leaves its mode and returns); the step, the last record it
+/// handed for saving, and the stages' durations.
 fn run_plan(
     model: &MachineModel,
-    config: fpc::control::config::ControlConfig,
+    config: ControlConfig,
     seed: u64,
     plan: &[(&'static str, Command)],
+    wiring: &Wiring,
+    start_m: f64,
 ) -> Result<(ControlStep, Option<CalibrationRecord>, Vec<Stage>), String> {
     let mut step = ControlStep::new(config).map_err(|e| format!("configuration: {e:?}"))?;
-    let world = std::rc::Rc::new(std::cell::RefCell::new(crate::run::world(
-        model, seed, 0, 0.05,
-    )));
+    let mut world = crate::run::world(model, seed, 0, start_m);
+    world.set_wiring(*wiring);
+    let world = std::rc::Rc::new(std::cell::RefCell::new(world));
     let mut io = peripherals(&world);
     let mut enabled = false;
     let mut stages = Vec::new();

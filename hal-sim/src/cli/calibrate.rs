@@ -2,14 +2,19 @@
 //! control step runs its Calibrate routines (current sense, alignment, homing, misalignment,
 //! cogging) on the model's plant, knowing only its machine parameters — and writes the
 //! record the firmware would save to flash, as a calibration file (TOML, readable and
-//! diffable) that `fpc-sim run --calibration` loads.
+//! diffable) that `fpc-sim run --calibration` loads. `--check-wiring` runs the
+//! commissioning alone (current sense, then phase order, encoder direction and pitch of
+//! each section) on a machine wired as `--swap-phases` and `--reverse-encoder` say, and
+//! prints what it found.
 
 use std::path::PathBuf;
 
-use clap::Args;
+use clap::{Args, ValueEnum};
+use fpc::units::Section;
 use serde::Serialize;
 
-use crate::calibration::{commission, to_toml, Stage};
+use crate::board::wiring::Wiring;
+use crate::calibration::{check_wiring, commission, commission_lines, to_toml, Stage};
 use crate::failure::{CmdResult, Failure};
 use crate::output::{show, OutFile};
 use crate::plant::model::MachineModel;
@@ -22,8 +27,20 @@ pub struct CalibrateArgs {
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// The calibration file to write.
-    #[arg(long, value_name = "FILE")]
-    pub out: PathBuf,
+    #[arg(long, value_name = "FILE", required_unless_present = "check_wiring")]
+    pub out: Option<PathBuf>,
+    /// Check the wiring only: current sense, then the `commission` routine (phase order,
+    /// encoder direction, pitch of each section) with the piston at mid-travel; prints what
+    /// it found and writes no file.
+    #[arg(long, conflicts_with_all = ["out", "json", "force"])]
+    pub check_wiring: bool,
+    /// Wire this section's motor leads b and c swapped (with --check-wiring; repeatable).
+    #[arg(long, value_enum, value_name = "SECTION", requires = "check_wiring")]
+    pub swap_phases: Vec<SectionArg>,
+    /// Wire this section's encoder with sin and cos swapped, so it reads backwards (with
+    /// --check-wiring; repeatable).
+    #[arg(long, value_enum, value_name = "SECTION", requires = "check_wiring")]
+    pub reverse_encoder: Vec<SectionArg>,
     /// Noise seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -33,6 +50,24 @@ pub struct CalibrateArgs {
     /// Print a JSON summary on stdout.
     #[arg(long)]
     pub json: bool,
+}
+
+/// A motor section, as typed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum SectionArg {
+    /// The master section (and its encoder).
+    Master,
+    /// The slave section (and its encoder).
+    Slave,
+}
+
+impl SectionArg {
+    fn section(self) -> Section {
+        match self {
+            SectionArg::Master => Section::Master,
+            SectionArg::Slave => Section::Slave,
+        }
+    }
 }
 
 #[derive(Serialize)]
@@ -51,8 +86,14 @@ pub fn main(args: CalibrateArgs) -> CmdResult {
         ),
         None => (MachineModel::reference(), "reference".to_string()),
     };
+    if args.check_wiring {
+        return wiring(&args, &model);
+    }
+    let Some(out_path) = &args.out else {
+        return Err(Failure::bad_input("give --out FILE (or --check-wiring)"));
+    };
     let inputs: Vec<&std::path::Path> = args.model.iter().map(PathBuf::as_path).collect();
-    let out = OutFile::prepare(&args.out, args.force, &inputs)?;
+    let out = OutFile::prepare(out_path, args.force, &inputs)?;
     let (record, stages) = commission(&model, args.seed).map_err(Failure::runtime)?;
     let text = to_toml(
         &record,
@@ -86,5 +127,31 @@ pub fn main(args: CalibrateArgs) -> CmdResult {
             serde_json::to_string_pretty(&summary).map_err(|e| Failure::runtime(e.to_string()))?;
         outln!("{text}")?;
     }
+    Ok(())
+}
+
+/// `--check-wiring`: the commissioning on the machine wired as the flags say; its findings
+/// on stdout, a line each.
+fn wiring(args: &CalibrateArgs, model: &MachineModel) -> CmdResult {
+    let mut wiring = Wiring::default();
+    for s in &args.swap_phases {
+        *wiring.swapped_phases.get_mut(s.section()) = true;
+    }
+    for s in &args.reverse_encoder {
+        *wiring.reversed_encoder.get_mut(s.section()) = true;
+    }
+    let start_m = 0.5 * model.piston.travel_m;
+    let (found, stages) =
+        check_wiring(model, &wiring, args.seed, start_m).map_err(Failure::runtime)?;
+    let config = crate::run::control_config(model);
+    for line in commission_lines(&found, &config) {
+        outln!("{line}")?;
+    }
+    let each = stages
+        .iter()
+        .map(|s| format!("{} {:.2} s", s.name, s.duration_s))
+        .collect::<Vec<_>>()
+        .join(", ");
+    errln!("fpc-sim calibrate: {each} (simulated)")?;
     Ok(())
 }

@@ -654,12 +654,13 @@ pub fn describe(command: &Command) -> String {
 }
 
 /// Operator names of the calibration routines, by wire number.
-pub const ROUTINES: [&str; 5] = [
+pub const ROUTINES: [&str; 6] = [
     "current-sense",
     "alignment",
     "misalignment",
     "cogging",
     "encoder-map",
+    "commission",
 ];
 /// Operator names of the parameters, by wire number (from 1).
 pub const PARAMETERS: [&str; 5] = [

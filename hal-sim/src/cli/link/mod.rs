@@ -330,6 +330,7 @@ enum RoutineArg {
     Misalignment,
     Cogging,
     EncoderMap,
+    Commission,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -382,6 +383,7 @@ impl CommandArg {
                     RoutineArg::Misalignment => Routine::Misalignment,
                     RoutineArg::Cogging => Routine::Cogging,
                     RoutineArg::EncoderMap => Routine::EncoderMap,
+                    RoutineArg::Commission => Routine::Commission,
                 },
             },
             CommandArg::SetParameter { name, value } => Command::SetParameter {
