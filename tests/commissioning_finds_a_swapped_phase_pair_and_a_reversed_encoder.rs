@@ -241,6 +241,9 @@ fn the_bring_up_guide_shows_what_the_host_prints() {
         let argv: Vec<&str> = command.split_whitespace().collect();
         let (code, printed) = hal_sim::console::captured(|| hal_sim::cli::execute(argv));
         assert_eq!(code, 0, "{command}: {printed}");
-        assert_eq!(printed, documented, "`{command}` prints otherwise than bring-up.md");
+        assert_eq!(
+            printed, documented,
+            "`{command}` prints otherwise than bring-up.md"
+        );
     }
 }

@@ -310,7 +310,9 @@ pub struct Calibrated {
 }
 
 impl Calibrated {
-    /// Records a routine's result.
+    /// Records a routine's result. Out of line (in flash, not the 20 kHz path's CCM SRAM):
+    /// it runs once at the end of a routine.
+    #[inline(never)]
     pub fn record(&mut self, routine: Routine, result: Result<Outcome, CalibrationError>) {
         match result {
             Ok(Outcome::CurrentSense(o)) => self.current_sense = Some(o),
