@@ -2,8 +2,9 @@
 //! the simulated machine wired as a new or rewired machine may be (`hal_sim::board::wiring`:
 //! a section's motor leads b and c swapped, an encoder's sin and cos swapped), finds the
 //! wiring: all in order when it is, each single fault named, two faults that read alike
-//! reported as ambiguous, the N–N pitch against the configured electrical period; and it
-//! refuses to start with the homed piston too close to a head.
+//! reported as ambiguous, the N–N pitch against the configured electrical period; it
+//! refuses to start with the homed piston too close to a head or with a fault latched; and
+//! `docs/bring-up.md` shows what the host prints.
 
 mod support;
 
@@ -246,4 +247,24 @@ fn the_bring_up_guide_shows_what_the_host_prints() {
             "`{command}` prints otherwise than bring-up.md"
         );
     }
+}
+
+#[test]
+fn a_latched_fault_refuses_the_commissioning_until_cleared() {
+    use hal_sim::board::corruption::PressureHold;
+    let model = MachineModel::reference();
+    let mut bench = Bench::new(&model, uncalibrated_config(&model), SEED, 0.1);
+    calibrate(&mut bench, Routine::CurrentSense);
+    // Chamber A's transducer goes open circuit: `pressure_sensor` latches.
+    bench.world_mut().corruption.chambers[0] = PressureHold::Code(0);
+    assert!(bench.run_until(1.0, |_, s| !s.faults.is_empty()));
+    let commission = Command::Calibrate {
+        routine: Routine::Commission,
+    };
+    assert_eq!(bench.command(commission), Err(Refusal::FaultActive));
+    bench.world_mut().corruption.chambers[0] = PressureHold::Live;
+    bench.run_until(0.1, |_, _| false);
+    assert_eq!(bench.command(Command::ClearFaults), Ok(()));
+    bench.cycle();
+    assert_eq!(bench.command(commission), Ok(()));
 }
