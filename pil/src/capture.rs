@@ -14,6 +14,7 @@ use std::sync::mpsc::{channel, Receiver, Sender};
 
 use hal_sim::link::defmt::DefmtLog;
 use hal_sim::link::memory::TargetMemory;
+use hal_sim::link::probe::chain;
 use hal_sim::link::rtt::RttChannels;
 use hal_sim::link::session::{CaptureSession, Counters};
 use probe_rs::probe::Probe;
@@ -56,6 +57,29 @@ pub struct ProbeCapture {
     pub flash_refused: Option<String>,
     /// The host's error, if it failed.
     pub error: Option<String>,
+}
+
+impl std::fmt::Display for ProbeCapture {
+    /// The figures in words, as `fpc-pil` and the PIL's tests print them.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{:.1} s, {} polls, {} SWD transfers; core halted {} times; DHCSR/DEMCR accesses \
+             {}; {} dead points; {} run-log rows; {}",
+            self.seconds,
+            self.polls,
+            self.transfers,
+            self.halts,
+            self.debug_register_touches.len(),
+            self.dead_points,
+            self.rows,
+            self.counters,
+        )?;
+        if let Some(e) = &self.error {
+            write!(f, "; host failed: {e}")?;
+        }
+        Ok(())
+    }
 }
 
 /// The host's side, on its thread: waits for its first turn, attaches as `how` says,
@@ -162,18 +186,6 @@ impl Host {
             .join()
             .map_err(|_| "the host's thread panicked".to_string())?
     }
-}
-
-/// `e` with its causes, on one line.
-fn chain(e: &dyn std::error::Error) -> String {
-    let mut text = e.to_string();
-    let mut cause = e.source();
-    while let Some(c) = cause {
-        text.push_str(": ");
-        text.push_str(&c.to_string());
-        cause = c.source();
-    }
-    text
 }
 
 /// A `probe_rs::Session`'s view of memory (core 0's), for the witness.

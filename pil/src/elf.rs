@@ -29,6 +29,20 @@ impl Image {
         Image::parse(bytes).map_err(|e| format!("--elf {}: {e}", path.display()))
     }
 
+    /// The ELF the environment variable `var` names, else `default` (a path from the
+    /// repository's root, where CI builds it): the PIL's tests' way to find their firmware.
+    /// A missing file panics with `hint`, how to build it.
+    pub fn built(var: &str, default: &str, hint: &str) -> Image {
+        let path = std::env::var_os(var)
+            .map(std::path::PathBuf::from)
+            .unwrap_or_else(|| {
+                Path::new(env!("CARGO_MANIFEST_DIR"))
+                    .join("..")
+                    .join(default)
+            });
+        Image::read(&path).unwrap_or_else(|e| panic!("{e} ({hint}, or set {var})"))
+    }
+
     /// Parses an ELF already read.
     pub fn parse(bytes: Vec<u8>) -> Result<Image, String> {
         let file = object::File::parse(&*bytes).map_err(|e| format!("not an ELF file: {e}"))?;

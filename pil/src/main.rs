@@ -334,21 +334,7 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
         );
     }
     if let Some(c) = &r.capture {
-        println!(
-            "  probe capture: {:.1} s, {} polls, {} SWD transfers; core halted {} times; \
-             DHCSR/DEMCR accesses {}; {} dead points; {} run-log rows; {}{}",
-            c.seconds,
-            c.polls,
-            c.transfers,
-            c.halts,
-            c.debug_register_touches.len(),
-            c.dead_points,
-            c.rows,
-            c.counters,
-            c.error
-                .as_ref()
-                .map_or(String::new(), |e| format!("; host failed: {e}"))
-        );
+        println!("  probe capture: {c}");
     }
     for (t, line) in &r.log {
         println!("  {t:.4} {line}");

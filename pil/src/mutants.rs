@@ -15,10 +15,9 @@
 use std::path::Path;
 
 use fpc::control::command::Command;
-use hal_sim::run::RunOptions;
 
-use crate::board::{Board, CurrentStep};
-use crate::chip::{ChipOptions, DeadlineFigures, ResetKind};
+use crate::board::CurrentStep;
+use crate::chip::{DeadlineFigures, ResetKind};
 use crate::elf::Image;
 use crate::faults::{self, Scenario};
 use crate::session::Session;
@@ -57,25 +56,6 @@ pub const MUTATIONS: [(&str, Check); 14] = [
     ("late-duties", Check::Deadline),
     ("control-critical-section", Check::Deadline),
 ];
-
-/// A session at rest on the reference machine, `image` flashed with a calibration.
-fn session(image: &Image) -> Result<Session, String> {
-    let opts = RunOptions::reference();
-    let record = crate::run::commissioned(&opts)?;
-    let store = hal_sim::board::flash::holding(&record)?;
-    let world = hal_sim::run::world(&opts.model, opts.seed, 0, 1e-3);
-    let mut s = Session::new(image.clone(), Board::new(world), ChipOptions::default())?;
-    s.chip.soc().flash.load_image(store.image());
-    Ok(s)
-}
-
-/// Steps `s` until emulated time `t`, s; an emulation error is the result.
-fn until(s: &mut Session, t: f64) -> Result<(), String> {
-    while s.chip.time_s() < t {
-        s.step()?;
-    }
-    Ok(())
-}
 
 /// What the boot must not show: `Err` names what it showed.
 fn boot_is_clean(s: &Session) -> Result<(), String> {
@@ -133,20 +113,20 @@ fn regular_codes_in_ram(s: &Session) -> Result<(), String> {
 pub fn run(image: &Image, check: Check) -> Result<(), String> {
     match check {
         Check::Boot => {
-            let mut s = session(image)?;
-            until(&mut s, 0.06).map_err(|e| format!("emulation: {e}"))?;
+            let mut s = crate::run::at_rest(image)?;
+            s.run_until(0.06).map_err(|e| format!("emulation: {e}"))?;
             boot_is_clean(&s)
         }
         Check::TripAtRest => {
-            let mut s = session(image)?;
-            until(&mut s, 0.06)?;
+            let mut s = crate::run::at_rest(image)?;
+            s.run_until(0.06)?;
             let at = s.chip.time_s();
             s.chip.soc().board.current_step = Some(CurrentStep {
                 section: 0,
                 phase: 0,
                 amps: 120.0,
             });
-            until(&mut s, at + 100e-6)?;
+            s.run_until(at + 100e-6)?;
             match s.chip.soc_ref().breaks.iter().find(|b| b.timer == 0) {
                 Some(b) if b.crossed_at_s >= at => Ok(()),
                 Some(b) => Err(format!(
@@ -157,11 +137,11 @@ pub fn run(image: &Image, check: Check) -> Result<(), String> {
             }
         }
         Check::HangAtRest => {
-            let mut s = session(image)?;
-            until(&mut s, 0.1)?;
+            let mut s = crate::run::at_rest(image)?;
+            s.run_until(0.1)?;
             let at = s.chip.time_s();
             s.chip.soc().hang_pending = true;
-            until(&mut s, at + 0.03)?;
+            s.run_until(at + 0.03)?;
             let reset = s
                 .chip
                 .soc_ref()
@@ -192,14 +172,14 @@ pub fn run(image: &Image, check: Check) -> Result<(), String> {
             }
         }
         Check::Deadline => {
-            let mut s = session(image)?;
-            until(&mut s, 0.02)?;
+            let mut s = crate::run::at_rest(image)?;
+            s.run_until(0.02)?;
             s.chip.soc().recording = true;
             while !s.send(Command::Home) {
                 s.step()?;
             }
             let t = s.chip.time_s() + 0.1;
-            until(&mut s, t)?;
+            s.run_until(t)?;
             let d = DeadlineFigures::of(&s.chip.soc_ref().samples);
             let entries = crate::run::read_symbol_word(&s.chip, "CONTROL_LEVEL_ENTRIES");
             if entries != Some(0) {

@@ -585,3 +585,15 @@ pub fn position_rms_diff(pil_m: &[f64], host_m: &[f64], from: u64) -> Option<f64
     }
     (n >= 1000).then(|| (sum / n as f64).sqrt())
 }
+
+/// A session at rest on the reference machine, `image` flashed with the calibration the
+/// reference run commissions.
+pub fn at_rest(image: &Image) -> Result<Session, String> {
+    let opts = RunOptions::reference();
+    let record = commissioned(&opts)?;
+    let store = hal_sim::board::flash::holding(&record)?;
+    let world = hal_sim::run::world(&opts.model, opts.seed, 0, 1e-3);
+    let mut s = Session::new(image.clone(), Board::new(world), ChipOptions::default())?;
+    s.chip.soc().flash.load_image(store.image());
+    Ok(s)
+}

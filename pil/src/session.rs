@@ -133,6 +133,14 @@ impl Session {
         })
     }
 
+    /// Steps until emulated time `t`, s.
+    pub fn run_until(&mut self, t: f64) -> Result<(), String> {
+        while self.chip.time_s() < t {
+            self.step()?;
+        }
+        Ok(())
+    }
+
     /// Runs one period (to the next plant step), then reads the channels and writes what
     /// is waiting for down 0.
     pub fn step(&mut self) -> Result<(), String> {

@@ -6,34 +6,27 @@
 //!
 //! The ELF is `FPC_ELF` if set, else the `cargo fw` output; build it first (CI does).
 
-use std::path::PathBuf;
-
 use fpc_pil::chip::{DeadlineFigures, Milestone, ResetKind};
 use fpc_pil::elf::Image;
 use fpc_pil::faults::{run, run_with, Options, Report, Scenario};
 
 fn image() -> Image {
-    let path = std::env::var_os("FPC_ELF")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-                .join("../target/thumbv7em-none-eabihf/release/fpc")
-        });
-    Image::read(&path).unwrap_or_else(|e| panic!("{e}"))
+    Image::built(
+        "FPC_ELF",
+        "target/thumbv7em-none-eabihf/release/fpc",
+        "build it: cargo fw",
+    )
 }
 
 /// The `test-panic-on-stop` test build: `FPC_PANIC_ELF` if set, else where CI puts it
 /// (`cargo build --release --target thumbv7em-none-eabihf --bin fpc --features
 /// test-panic-on-stop`, copied to `target/fpc-test-panic-on-stop`).
 fn panic_image() -> Image {
-    let path = std::env::var_os("FPC_PANIC_ELF")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/fpc-test-panic-on-stop")
-        });
-    Image::read(&path).unwrap_or_else(|e| {
-        panic!("{e} (build it: see the panic test's documentation, or set FPC_PANIC_ELF)")
-    })
+    Image::built(
+        "FPC_PANIC_ELF",
+        "target/fpc-test-panic-on-stop",
+        "build it: bash scripts/fw-test-elf.sh test-panic-on-stop",
+    )
 }
 
 /// Runs scenario `s` on the release ELF; every scenario that boots keeps its stack within

@@ -6,21 +6,17 @@
 //!
 //! The ELF is `FPC_ELF` if set, else the `cargo fw` output; build it first (CI does).
 
-use std::path::PathBuf;
-
 use fpc::status::ModeKind;
 use fpc_pil::chip::dap::DHCSR;
 use fpc_pil::elf::Image;
 use fpc_pil::faults::{run_with, Options, Scenario};
 
 fn image() -> Image {
-    let path = std::env::var_os("FPC_ELF")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-                .join("../target/thumbv7em-none-eabihf/release/fpc")
-        });
-    Image::read(&path).unwrap_or_else(|e| panic!("{e}"))
+    Image::built(
+        "FPC_ELF",
+        "target/thumbv7em-none-eabihf/release/fpc",
+        "build it: cargo fw",
+    )
 }
 
 /// Telemetry frames per second at the default decimation (one frame per 10 control cycles
@@ -33,16 +29,7 @@ fn a_ten_second_capture_through_the_probe_never_halts_the_stroking_machine() {
     let r = run_with(&image(), Scenario::ProbeCapture, &opts).unwrap();
     let c = r.capture.clone().unwrap();
     println!(
-        "probe capture: {:.1} s, {} polls, {} SWD transfers, core halted {} times, \
-         {} DHCSR/DEMCR accesses; {} dead points; run log {} rows; {}; min clearance {:.3} mm",
-        c.seconds,
-        c.polls,
-        c.transfers,
-        c.halts,
-        c.debug_register_touches.len(),
-        c.dead_points,
-        c.rows,
-        c.counters,
+        "probe capture: {c}; min clearance {:.3} mm",
         r.min_clearance_m * 1e3
     );
     assert_eq!(c.error, None);
@@ -87,12 +74,7 @@ fn a_probe_rs_session_on_the_same_port_is_seen_halting_the_core() {
     };
     let r = run_with(&image(), Scenario::ProbeSession, &opts).unwrap();
     let c = r.capture.unwrap();
-    println!(
-        "probe-rs session: core halted {} times; {} DHCSR/DEMCR accesses; {}",
-        c.halts,
-        c.debug_register_touches.len(),
-        c.counters
-    );
+    println!("probe-rs session: {c}");
     assert_eq!(c.error, None);
     // Two halts: the attach's and the drop's.
     assert_eq!(c.halts, 2, "{c:?}");

@@ -100,11 +100,20 @@ pub fn timing_init() {
 }
 
 /// `test-timing`: the end-of-burst interrupt begins (PA5 high, the count starts).
+///
+/// TRCENA and CYCCNTENA are set again first, before each count: a debugger's detach may
+/// write DEMCR = 0 (probe-rs's generic ARMv7-M sequence does; its STM32 one does not), and
+/// the counter then stands still (ARMv7-M ARM §C1.6.5), every step reading 0 cycles.
 #[inline(always)]
 pub fn burst_begins() {
     #[cfg(feature = "test-timing")]
     {
         use core::sync::atomic::Ordering;
+        // SAFETY: only this build's timing uses DCB/DWT, from this interrupt; both writes
+        // are read-modify-writes that set one enable bit each.
+        let mut core = unsafe { cortex_m::Peripherals::steal() };
+        core.DCB.enable_trace();
+        core.DWT.enable_cycle_counter();
         STEP_START.store(cortex_m::peripheral::DWT::cycle_count(), Ordering::Relaxed);
         embassy_stm32::pac::GPIOA
             .bsrr()

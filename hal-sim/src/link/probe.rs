@@ -51,7 +51,7 @@ fn other(e: impl std::fmt::Display) -> io::Error {
 
 /// `e` with its causes, on one line (probe-rs's top-level messages are vague: "An error with
 /// the usage of the probe occurred" hides "the selected debug probe was not found").
-fn chain(e: &dyn std::error::Error) -> String {
+pub fn chain(e: &dyn std::error::Error) -> String {
     let mut parts = vec![e.to_string()];
     let mut cause = e.source();
     while let Some(c) = cause {

@@ -42,15 +42,22 @@ const C_HALT: u32 = 1 << 1;
 const S_REGRDY: u32 = 1 << 16;
 const S_HALT: u32 = 1 << 17;
 
-/// CTRL/STAT bits (ADIv5.2 §B2.2.2).
-mod ctrl {
+pub mod ctrl {
+    //! CTRL/STAT bits (ADIv5.2 §B2.2.2).
+    /// ORUNDETECT: overrun detection on.
     pub const ORUNDETECT: u32 = 1;
+    /// STICKYORUN: an overrun was detected.
     pub const STICKYORUN: u32 = 1 << 1;
+    /// STICKYCMP: a pushed compare matched.
     pub const STICKYCMP: u32 = 1 << 4;
+    /// STICKYERR: an AP transaction failed.
     pub const STICKYERR: u32 = 1 << 5;
+    /// WDATAERR: a write's data was corrupt.
     pub const WDATAERR: u32 = 1 << 7;
-    /// The ACKs (bits 29, 31) follow these REQs one bit up.
+    /// CDBGPWRUPREQ: debug power requested (the ACKs, bits 29 and 31, follow the REQs one
+    /// bit up).
     pub const CDBGPWRUPREQ: u32 = 1 << 28;
+    /// CSYSPWRUPREQ: system power requested.
     pub const CSYSPWRUPREQ: u32 = 1 << 30;
 }
 

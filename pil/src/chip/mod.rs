@@ -230,7 +230,10 @@ pub struct Soc {
     dac_cr: u32,
     dac_mcr: u32,
     dwt_ctrl: u32,
+    /// While the cycle counter counts: the time its count was 0 (counted back).
     dwt_base: u64,
+    /// While it does not: the count it holds.
+    dwt_held: u32,
     /// The ADC burst in flight: (injected end, regular end), time units.
     burst: Option<(u64, u64)>,
     /// The PCB and the plant.
@@ -420,6 +423,7 @@ impl Soc {
             dac_mcr: 0,
             dwt_ctrl: 0,
             dwt_base: 0,
+            dwt_held: 0,
             burst: None,
             board,
             plant_next: 50 * UNITS_PER_US,

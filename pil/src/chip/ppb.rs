@@ -1,7 +1,15 @@
 //! The private peripheral bus (0xE000_0000): the NVIC's and SCB's registers, DWT's cycle
 //! counter, DBGMCU's IDCODE (ARMv7-M ARM §B3; RM0440 §47).
+//!
+//! The cycle counter counts while DWT_CTRL.CYCCNTENA and DEMCR.TRCENA are both set, and
+//! holds its value otherwise (ARMv7-M ARM §C1.6.5: TRCENA is the DWT's global enable;
+//! §C1.8.7: CYCCNTENA): a debugger that writes DEMCR = 0 on detach stops it.
 
+use super::dap::DEMCR;
 use super::*;
+
+/// DEMCR.TRCENA: the DWT and ITM enabled.
+const TRCENA: u32 = 1 << 24;
 
 impl Soc {
     /// A CPU read of the private peripheral bus.
@@ -31,19 +39,43 @@ impl Soc {
             0xE000_ED2C => self.nvic.hfsr,
             0xE000_ED38 => self.nvic.bfar,
             0xE000_1000 => self.dwt_ctrl,
-            0xE000_1004 => {
-                if self.dwt_ctrl & 1 != 0 {
-                    ((self.time - self.dwt_base) as f64 / self.units_per_cycle) as u64 as u32
-                } else {
-                    0
-                }
-            }
+            0xE000_1004 => self.cyccnt(),
             0xE004_2000 => 0x1000_6469, // DBGMCU_IDCODE: STM32G47x/48x, rev Z
             a => self.reg(a),
         }
     }
 
     pub(super) fn ppb_write(&mut self, addr: u32, value: u32, mask: u32) {
+        let (counting, count) = (self.dwt_counting(), self.cyccnt());
+        self.ppb_store(addr, value, mask);
+        match (counting, self.dwt_counting()) {
+            (true, false) => self.dwt_held = count,
+            (false, true) => self.dwt_base = self.cycles_back(self.dwt_held),
+            _ => {}
+        }
+    }
+
+    /// Whether the cycle counter counts: DWT_CTRL.CYCCNTENA and DEMCR.TRCENA.
+    fn dwt_counting(&self) -> bool {
+        self.dwt_ctrl & 1 != 0 && self.reg(DEMCR) & TRCENA != 0
+    }
+
+    /// The cycle counter's value now.
+    fn cyccnt(&self) -> u32 {
+        if self.dwt_counting() {
+            ((self.time - self.dwt_base) as f64 / self.units_per_cycle) as u64 as u32
+        } else {
+            self.dwt_held
+        }
+    }
+
+    /// The time `cycles` core clocks ago (not before 0).
+    fn cycles_back(&self, cycles: u32) -> u64 {
+        self.time
+            .saturating_sub((f64::from(cycles) * self.units_per_cycle) as u64)
+    }
+
+    fn ppb_store(&mut self, addr: u32, value: u32, mask: u32) {
         match addr & !3 {
             a @ 0xE000_E100..=0xE000_E4EF => self.nvic.write(a - 0xE000_E100, value, mask),
             0xE000_EF00 => self.nvic.write(0xE00, value, mask),
@@ -83,22 +115,62 @@ impl Soc {
             0xE000_ED24 => self.nvic.shcsr = value,
             0xE000_ED28 => self.nvic.cfsr &= !value,
             0xE000_ED2C => self.nvic.hfsr &= !value,
-            0xE000_1000 => {
-                if value & 1 != 0 && self.dwt_ctrl & 1 == 0 {
-                    self.dwt_base = self.time;
-                }
-                self.dwt_ctrl = value;
-            }
+            0xE000_1000 => self.dwt_ctrl = value,
             0xE000_1004 => {
-                // CYCCNT written: count on from that value.
-                self.dwt_base = self
-                    .time
-                    .saturating_sub((f64::from(value) * self.units_per_cycle) as u64);
+                // CYCCNT written: count on (or hold) from that value.
+                self.dwt_held = value;
+                self.dwt_base = self.cycles_back(value);
             }
             a => {
                 let old = self.reg(a);
                 self.regs.insert(a, (old & !mask) | (value & mask));
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::dap::DEMCR;
+    use super::super::{ChipOptions, Soc};
+    use super::TRCENA;
+    use crate::board::Board;
+
+    const DWT_CTRL: u32 = 0xE000_1000;
+    const CYCCNT: u32 = 0xE000_1004;
+
+    fn soc() -> Soc {
+        let opts = hal_sim::run::RunOptions::reference();
+        let world = hal_sim::run::world(&opts.model, opts.seed, 0, 1e-3);
+        Soc::new(&ChipOptions::default(), Board::new(world))
+    }
+
+    /// ARMv7-M ARM §C1.6.5, §C1.8.7: CYCCNT counts only with TRCENA and CYCCNTENA both set,
+    /// holds its value while either is clear, and counts on from it.
+    #[test]
+    fn the_cycle_counter_counts_only_with_trcena_and_cyccntena() {
+        let mut s = soc();
+        let cycles = |s: &Soc, n: u32| (f64::from(n) * s.units_per_cycle) as u64;
+        s.ppb_write(DWT_CTRL, 1, u32::MAX);
+        s.time += cycles(&s, 1_000);
+        assert_eq!(s.ppb_read(CYCCNT), 0, "CYCCNTENA without TRCENA");
+        s.ppb_write(DEMCR, TRCENA, u32::MAX);
+        s.time += cycles(&s, 1_000);
+        assert_eq!(s.ppb_read(CYCCNT), 1_000);
+        // A debugger's detach writing DEMCR = 0 stops it where it is.
+        s.ppb_write(DEMCR, 0, u32::MAX);
+        s.time += cycles(&s, 5_000);
+        assert_eq!(s.ppb_read(CYCCNT), 1_000);
+        s.ppb_write(DEMCR, TRCENA, u32::MAX);
+        s.time += cycles(&s, 500);
+        assert_eq!(s.ppb_read(CYCCNT), 1_500);
+        // CYCCNTENA cleared: held too; a written value is where it goes on from.
+        s.ppb_write(DWT_CTRL, 0, u32::MAX);
+        s.ppb_write(CYCCNT, 7, u32::MAX);
+        s.time += cycles(&s, 500);
+        assert_eq!(s.ppb_read(CYCCNT), 7);
+        s.ppb_write(DWT_CTRL, 1, u32::MAX);
+        s.time += cycles(&s, 3);
+        assert_eq!(s.ppb_read(CYCCNT), 10);
     }
 }

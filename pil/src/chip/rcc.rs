@@ -59,6 +59,7 @@ impl Soc {
         self.dac_cr = 0;
         self.dac_mcr = 0;
         self.dwt_ctrl = 0;
+        self.dwt_held = 0;
         self.burst = None;
         self.plant_next = self.time + 50 * UNITS_PER_US;
         self.reset_pending = None;
