@@ -14,6 +14,7 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::channel::Channel;
 
 use crate::control::calibration::record::CalibrationRecord;
+use crate::control::calibration::report::RoutineReport;
 use crate::control::command::{Command, Refusal, Reply};
 use crate::link::scope::{Recording, Scope, SAMPLE_BYTES};
 use crate::link::settings::LinkRequest;
@@ -72,6 +73,9 @@ pub struct Shared<M: RawMutex> {
     /// task → control task), and the controller's verdict back.
     calibration_to_load: Channel<M, CalibrationRecord, 1>,
     calibration_loaded: Channel<M, Result<(), Refusal>, 1>,
+    /// The last routine's report, each time it changes (control task → command task, the
+    /// newest replaces an unread one).
+    routine_report: Channel<M, RoutineReport, 1>,
 }
 
 impl<M: RawMutex> Default for Shared<M> {
@@ -101,6 +105,7 @@ impl<M: RawMutex> Shared<M> {
             current_calibration: Channel::new(),
             calibration_to_load: Channel::new(),
             calibration_loaded: Channel::new(),
+            routine_report: Channel::new(),
         }
     }
 
@@ -250,6 +255,8 @@ impl<M: RawMutex> Shared<M> {
                 self.with_scope(|s| s.arm(trigger, pre, &now))
             }
             LinkRequest::ScopeFire => self.with_scope(Scope::fire),
+            // Answered by the command task from the report it keeps: nothing to apply.
+            LinkRequest::RoutineReport => Ok(()),
             LinkRequest::ScopeDisarm => {
                 self.with_scope(Scope::disarm);
                 Ok(())
@@ -337,15 +344,25 @@ impl<M: RawMutex> Shared<M> {
         self.calibration_loaded.try_receive().ok()
     }
 
+    /// Control task: a routine started or ended ([`RoutineReport`]).
+    pub fn post_routine_report(&self, report: RoutineReport) {
+        replace(&self.routine_report, report);
+    }
+
+    /// Command task: the last routine's report, if it changed since the last call.
+    pub fn take_routine_report(&self) -> Option<RoutineReport> {
+        self.routine_report.try_receive().ok()
+    }
+
     /// Storage task: waits for the next record to save.
     pub async fn calibration_to_save(&self) -> CalibrationRecord {
         self.calibration.receive().await
     }
 }
 
-/// Sends `record` into a one-slot channel that only one task sends to, replacing a record
+/// Sends `record` into a one-slot channel that only one task sends to, replacing a value
 /// not yet taken (never waits).
-fn replace<M: RawMutex>(channel: &Channel<M, CalibrationRecord, 1>, record: CalibrationRecord) {
+fn replace<M: RawMutex, T>(channel: &Channel<M, T, 1>, record: T) {
     if let Err(embassy_sync::channel::TrySendError::Full(record)) = channel.try_send(record) {
         // Only one task sends: after taking the older one the slot is free.
         let _ = channel.try_receive();

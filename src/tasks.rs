@@ -18,9 +18,11 @@ use crate::link::commands::{
     encode_rejection, encode_reply, encode_transfer_reply, Request, RequestReader, Transfer,
     TransferReply, TransferState, TransferStep, MAX_REPLY_WIRE,
 };
+use crate::link::report::{encode_report, ReportAnswer, MAX_REPORT_WIRE};
 use crate::link::scope::{
     encode_chunk, encode_header, CHUNK_SAMPLES, MAX_SCOPE_WIRE, SAMPLE_BYTES,
 };
+use crate::link::settings::LinkRequest;
 use crate::link::telemetry::WIRE_BYTES;
 use crate::ports::{
     ByteSource, Clock, ControlPorts, CurrentInput, CycleTrigger, EncoderInput, EventLog, FrameSink,
@@ -28,6 +30,7 @@ use crate::ports::{
 };
 use crate::safety::faults::ResetCause;
 use crate::shared::{task_bits, Shared};
+use crate::status::ModeKind;
 use crate::units::{DacCode, PerSection, PhaseDuties, Section};
 
 /// Period of the supervision task, µs.
@@ -154,11 +157,25 @@ pub fn control_cycle<M, T, E, C, P, Q, S, R>(
     if let Some(record) = step.take_calibration_to_save() {
         shared.post_calibration(record);
     }
+    // Before the status: a host that reads the mode no longer `calibrating` finds the
+    // routine's end reported.
+    if step.routine_report_changed() {
+        post_routine_report(step, shared);
+    }
     let status = step.status();
     shared.publish(status);
     shared.queue_telemetry(&status);
     shared.record_scope(&status);
     shared.check_in(task_bits::CONTROL);
+}
+
+/// Hands the last routine's report to the command task. Out of line (in flash, not the
+/// control cycle's CCM SRAM): it runs twice a routine.
+#[inline(never)]
+fn post_routine_report<M: RawMutex>(step: &mut ControlStep, shared: &Shared<M>) {
+    if let Some(report) = step.take_routine_report() {
+        shared.post_routine_report(report);
+    }
 }
 
 /// Writes both sections' duties (`None`: all outputs off) and switches the bridges of
@@ -339,13 +356,21 @@ where
     }
 }
 
+/// Longest answer the command task writes, bytes.
+const ANSWER_WIRE: usize = if MAX_REPORT_WIRE > MAX_REPLY_WIRE {
+    MAX_REPORT_WIRE
+} else {
+    MAX_REPLY_WIRE
+};
+
 /// Period of the command task, µs: the RTT down-channel is polled at 1 kHz.
 pub const COMMAND_POLL_US: u32 = 1000;
 
 /// The command task (thread mode): reads the down-channel, decodes and validates frames
 /// ([`RequestReader`]), answers calibration reads and writes itself ([`TransferState`]; a
 /// checked commit goes to the control task, [`serve_commands`]), applies link requests
-/// (telemetry, ports, scope: [`Shared::apply`]), posts the commands for the control task and
+/// (telemetry, ports, scope: [`Shared::apply`]; the last routine's report it answers from
+/// what the control task posted, [`ReportAnswer`]), posts the commands for the control task and
 /// writes every answer to `replies` — the control task's accept/refuse reply for each command,
 /// a `Busy` refusal when the mailbox is full, and a rejection (with its reason) for each
 /// malformed frame. A finished scope recording goes to `replies` too, header then chunks,
@@ -370,7 +395,9 @@ where
     // The commit the controller is loading (answered once its verdict comes back).
     let mut committing: Option<Transfer> = None;
     let mut input = [0u8; 64];
-    let mut out = [0u8; MAX_REPLY_WIRE];
+    let mut out = [0u8; ANSWER_WIRE];
+    // The last routine's report (the control task posts each change).
+    let mut report = None;
     let mut scope = ScopeSender::default();
     let mut next = clock.now();
     loop {
@@ -398,6 +425,15 @@ where
                         }
                     };
                     encode_transfer_reply(&reply, &mut out)
+                }
+                Some(Ok(Request::Link(LinkRequest::RoutineReport))) => {
+                    // The mode before the report: a routine's end is posted before the
+                    // status that leaves `calibrating`.
+                    let calibrating = shared.status().mode == ModeKind::Calibrating;
+                    if let Some(r) = shared.take_routine_report() {
+                        report = Some(r);
+                    }
+                    encode_report(&ReportAnswer::of(report, calibrating), &mut out)
                 }
                 Some(Ok(Request::Link(request))) => encode_transfer_reply(
                     &TransferReply::Verdict {

@@ -383,6 +383,21 @@ pub fn check_wiring(
 /// phase order and each encoder's direction (or the two explanations that cannot be told
 /// apart), then each section's pitch against `config`'s electrical period.
 pub fn commission_lines(found: &Commissioning, config: &ControlConfig) -> Vec<String> {
+    findings_lines(
+        found,
+        config.motor.electrical_period_m,
+        config.calibration.commission_pitch_tolerance,
+    )
+}
+
+/// [`commission_lines`] against an electrical period (`expected_pitch_m`, m) and a pitch
+/// tolerance (fraction of it) as given: the simulator's configuration, or the board's
+/// report read over the link.
+pub fn findings_lines(
+    found: &Commissioning,
+    expected_pitch_m: f32,
+    pitch_tolerance: f32,
+) -> Vec<String> {
     let name = |s: Section| match s {
         Section::Master => "master",
         Section::Slave => "slave",
@@ -433,8 +448,8 @@ pub fn commission_lines(found: &Commissioning, config: &ControlConfig) -> Vec<St
             });
         }
     }
-    let expected_mm = config.motor.electrical_period_m * 1e3;
-    let tolerance = config.calibration.commission_pitch_tolerance * 100.0;
+    let expected_mm = expected_pitch_m * 1e3;
+    let tolerance = pitch_tolerance * 100.0;
     for s in Section::ALL {
         let verdict = if *found.pitch_ok.get(s) {
             "ok".to_string()

@@ -43,6 +43,7 @@
 //! | `0x03` | command frame rejected | `reason: u8` ([`FrameError`] as number) |
 //! | `0x04` | [`TransferReply`] | `0` ‖ `0x1B` ‖ `offset: u8` ‖ the bytes (an accepted read), else `result: u8` ‖ the request's tag ‖ `offset` or `crc` (a link request: its `arg`) as u32 |
 //! | `0x06`, `0x07` | scope recording | see [`crate::link::scope`] |
+//! | `0x08` | the last routine's report | see [`crate::link::report`] |
 
 use crate::control::calibration::record::RECORD_BYTES;
 use crate::control::calibration::Routine;
@@ -305,9 +306,11 @@ pub enum Answer {
     Rejected(FrameError),
     /// The command task's answer to a calibration transfer.
     Calibration(TransferReply),
+    /// The last calibration routine's report ([`super::report`]).
+    Report(super::report::ReportAnswer),
 }
 
-/// Decodes a reply or rejection payload (kinds `0x02`, `0x03`).
+/// Decodes an answer payload (kinds `0x02`, `0x03`, `0x04`, `0x08`).
 pub fn decode_answer(payload: &[u8]) -> Result<Answer, FrameError> {
     match payload {
         [KIND_REPLY, result, command @ ..] => {
@@ -324,6 +327,9 @@ pub fn decode_answer(payload: &[u8]) -> Result<Answer, FrameError> {
             FrameError::from_code(*reason).ok_or(FrameError::BadValue)?,
         )),
         [KIND_CALIBRATION, rest @ ..] => decode_transfer_reply(rest).map(Answer::Calibration),
+        [super::report::KIND_ROUTINE_REPORT, ..] => super::report::decode_report(payload)
+            .unwrap_or(Err(FrameError::UnknownKind))
+            .map(Answer::Report),
         [KIND_REPLY] | [KIND_REJECTED, ..] => Err(FrameError::BadLength),
         [] => Err(FrameError::TooShort),
         _ => Err(FrameError::UnknownKind),

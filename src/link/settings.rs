@@ -11,6 +11,7 @@
 //! | `0x20` | [`LinkRequest::ScopeArm`] | `trigger: u8`, `arg: u16` ([`Trigger`] as number), `pre: u16` samples | `trigger ‖ arg << 8` |
 //! | `0x21` | [`LinkRequest::ScopeFire`] | — | 0 |
 //! | `0x22` | [`LinkRequest::ScopeDisarm`] | — | 0 |
+//! | `0x23` | [`LinkRequest::RoutineReport`] | — | answered with a report, kind `0x08` ([`crate::link::report`]), not a verdict |
 //!
 //! The codec checks the form; the values are checked where they are applied
 //! (`Shared::apply`): a decimation above [`MAX_DECIMATION`] or an empty
@@ -45,6 +46,8 @@ pub enum LinkRequest {
     ScopeFire,
     /// Disarm the scope, dropping a recording in progress or unsent.
     ScopeDisarm,
+    /// Read the last calibration routine's report.
+    RoutineReport,
 }
 
 impl LinkRequest {
@@ -65,6 +68,7 @@ impl LinkRequest {
             }
             LinkRequest::ScopeFire => (tag::SCOPE_FIRE, 0),
             LinkRequest::ScopeDisarm => (tag::SCOPE_DISARM, 0),
+            LinkRequest::RoutineReport => (tag::ROUTINE_REPORT, 0),
         };
         TransferId { tag: t, arg }
     }
@@ -90,6 +94,7 @@ pub const fn is_link_tag(t: u8) -> bool {
             | tag::SCOPE_ARM
             | tag::SCOPE_FIRE
             | tag::SCOPE_DISARM
+            | tag::ROUTINE_REPORT
     )
 }
 
@@ -118,6 +123,7 @@ pub fn encode_link_request(request: &LinkRequest, out: &mut [u8]) -> Result<usiz
         }
         LinkRequest::ScopeFire => fill(&mut p, &[tag::SCOPE_FIRE]),
         LinkRequest::ScopeDisarm => fill(&mut p, &[tag::SCOPE_DISARM]),
+        LinkRequest::RoutineReport => fill(&mut p, &[tag::ROUTINE_REPORT]),
     };
     encode_frame(p.get(..n).ok_or(BufferTooSmall)?, out)
 }
@@ -153,6 +159,7 @@ pub(crate) fn decode_link_request(payload: &[u8]) -> Option<Result<LinkRequest, 
         }
         (tag::SCOPE_FIRE, []) => Ok(LinkRequest::ScopeFire),
         (tag::SCOPE_DISARM, []) => Ok(LinkRequest::ScopeDisarm),
+        (tag::ROUTINE_REPORT, []) => Ok(LinkRequest::RoutineReport),
         _ => Err(FrameError::BadLength),
     })
 }
@@ -163,7 +170,7 @@ mod tests {
     use crate::link::commands::{decode_request, Request, MAX_COMMAND_WIRE};
     use crate::link::frame::Deframer;
 
-    fn all() -> [LinkRequest; 6] {
+    fn all() -> [LinkRequest; 7] {
         [
             LinkRequest::SetTelemetry {
                 decimation: 10,
@@ -180,6 +187,7 @@ mod tests {
             },
             LinkRequest::ScopeFire,
             LinkRequest::ScopeDisarm,
+            LinkRequest::RoutineReport,
         ]
     }
 

@@ -41,6 +41,8 @@ pub const SCOPE_ARM: u8 = 0x20;
 pub const SCOPE_FIRE: u8 = 0x21;
 /// [`crate::link::settings::LinkRequest::ScopeDisarm`].
 pub const SCOPE_DISARM: u8 = 0x22;
+/// [`crate::link::settings::LinkRequest::RoutineReport`].
+pub const ROUTINE_REPORT: u8 = 0x23;
 
 /// Which request a verdict answers: its tag and its offset (read, write) or CRC (commit).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

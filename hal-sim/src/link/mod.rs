@@ -1,6 +1,7 @@
 //! The host link to the running board: the RTT channels as a [`Channels`] transport, and the
 //! session logic `fpc-sim link` runs on them — telemetry from up 1 into a capture and a run
-//! log, commands out on down 0 with their answers from up 2, defmt from up 0.
+//! log, commands out on down 0 with their answers from up 2, defmt from up 0, and a
+//! calibration routine awaited and its report printed ([`report`]).
 //!
 //! | channel | direction | carries |
 //! |---|---|---|
@@ -21,6 +22,7 @@ pub mod memory;
 #[cfg(feature = "probe")]
 pub mod probe;
 pub mod replay;
+pub mod report;
 pub mod rtt;
 pub mod scope;
 pub mod session;
@@ -43,6 +45,11 @@ pub trait Channels {
     fn read_up(&mut self, channel: usize, buf: &mut [u8]) -> std::io::Result<usize>;
     /// Writes as many of `bytes` as down-channel `channel` has room for; returns how many.
     fn write_down(&mut self, channel: usize, bytes: &[u8]) -> std::io::Result<usize>;
+    /// Lets the board run for `d` while the host waits: a live board runs by itself (the
+    /// host sleeps); an emulated one is run for it.
+    fn pause(&mut self, d: std::time::Duration) {
+        std::thread::sleep(d);
+    }
 }
 
 impl<C: Channels + ?Sized> Channels for Box<C> {
@@ -52,6 +59,10 @@ impl<C: Channels + ?Sized> Channels for Box<C> {
 
     fn write_down(&mut self, channel: usize, bytes: &[u8]) -> std::io::Result<usize> {
         (**self).write_down(channel, bytes)
+    }
+
+    fn pause(&mut self, d: std::time::Duration) {
+        (**self).pause(d);
     }
 }
 

@@ -14,12 +14,14 @@ use std::io::{self, Write};
 use std::time::{Duration, Instant};
 
 use fpc::control::calibration::record::RECORD_BYTES;
+use fpc::control::calibration::report::RoutineState;
 use fpc::control::command::{Command, Refusal, Reply};
 use fpc::link::commands::{
     decode_answer, encode_command, encode_transfer, Answer, Chunk, Transfer, TransferReply,
     CHUNK_BYTES, MAX_COMMAND_WIRE,
 };
 use fpc::link::frame::{Deframer, FrameError, LinkStats};
+use fpc::link::report::ReportAnswer;
 use fpc::link::scope::Trigger;
 use fpc::link::scope::{decode_scope, MAX_SCOPE_WIRE};
 use fpc::link::settings::{encode_link_request, LinkRequest};
@@ -272,7 +274,7 @@ pub fn machine_mode<C: Channels + ?Sized>(
             return Ok(None);
         }
         if n == 0 {
-            std::thread::sleep(Duration::from_millis(1));
+            channels.pause(Duration::from_millis(1));
         }
     }
 }
@@ -331,7 +333,7 @@ pub fn send_command<C: Channels + ?Sized>(
 
 /// Requests on down 0 and their answers on up 2, one after the other: the answers are read
 /// by one reader, so an answer that arrives in the same piece as the one before is kept.
-struct Exchange<'c, C: ?Sized, O> {
+pub(super) struct Exchange<'c, C: ?Sized, O> {
     channels: &'c mut C,
     reader: AnswerReader,
     pending: VecDeque<Result<Answer, FrameError>>,
@@ -340,7 +342,7 @@ struct Exchange<'c, C: ?Sized, O> {
 }
 
 impl<'c, C: Channels + ?Sized, O: FnMut(String)> Exchange<'c, C, O> {
-    fn new(channels: &'c mut C, timeout: Duration, other: O) -> Self {
+    pub(super) fn new(channels: &'c mut C, timeout: Duration, other: O) -> Self {
         Exchange {
             channels,
             reader: AnswerReader::new(),
@@ -352,7 +354,7 @@ impl<'c, C: Channels + ?Sized, O: FnMut(String)> Exchange<'c, C, O> {
 
     /// Sends `wire` and waits for the answer `pick` recognises (or a rejection); answers it
     /// does not recognise go to `other`. `what` names the request in errors.
-    fn ask<T>(
+    pub(super) fn ask<T>(
         &mut self,
         wire: &[u8],
         what: &str,
@@ -375,7 +377,7 @@ impl<'c, C: Channels + ?Sized, O: FnMut(String)> Exchange<'c, C, O> {
                         self.timeout.as_millis()
                     ));
                 }
-                std::thread::sleep(Duration::from_millis(1));
+                self.channels.pause(Duration::from_millis(1));
             }
         }
         let mut buf = [0u8; 256];
@@ -412,7 +414,7 @@ impl<'c, C: Channels + ?Sized, O: FnMut(String)> Exchange<'c, C, O> {
                         self.timeout.as_millis()
                     ));
                 }
-                std::thread::sleep(Duration::from_millis(1));
+                self.channels.pause(Duration::from_millis(1));
             }
         }
     }
@@ -540,6 +542,7 @@ pub fn transfer_text(id: TransferId) -> String {
         ),
         tag::SCOPE_FIRE => "scope fire".into(),
         tag::SCOPE_DISARM => "scope disarm".into(),
+        tag::ROUTINE_REPORT => "routine report".into(),
         other => format!("request {other:#04x}"),
     }
 }
@@ -715,6 +718,20 @@ pub fn answer_text(answer: &Answer) -> String {
             transfer_text(*transfer),
             refusal.reason()
         ),
+        Answer::Report(report) => report_text(report),
+    }
+}
+
+/// A report as one line of text.
+pub fn report_text(answer: &ReportAnswer) -> String {
+    match answer {
+        ReportAnswer::Nothing => "report: no routine since boot".into(),
+        ReportAnswer::Left(r) => format!("report: {} left before it ended", r.name()),
+        ReportAnswer::Report(r) => match r.state {
+            RoutineState::Running => format!("report: {} running", r.routine.name()),
+            RoutineState::Succeeded(_) => format!("report: {} done", r.routine.name()),
+            RoutineState::Failed(e) => format!("report: {} failed: {e}", r.routine.name()),
+        },
     }
 }
 

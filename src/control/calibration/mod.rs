@@ -445,6 +445,7 @@ mod align;
 pub mod commission;
 pub mod encoder_map;
 pub mod record;
+pub mod report;
 mod sense;
 pub mod store;
 mod sweeps;

@@ -5,6 +5,7 @@
 
 use super::publish::Previous;
 use crate::control::calibration::record::{CalibrationRecord, CalibrationStatus};
+use crate::control::calibration::report::RoutineReport;
 use crate::control::calibration::{
     Calibrated, CalibrationError, Forced, Measurements, Outcome, Routine,
 };
@@ -23,6 +24,10 @@ pub(super) struct CalibrationState {
     pub status: CalibrationStatus,
     /// A routine has finished since the record was last taken for saving.
     pub unsaved: bool,
+    /// The last routine started since boot, and how it stands.
+    pub report: Option<RoutineReport>,
+    /// The report changed since it was last taken for the link.
+    pub report_changed: bool,
 }
 
 impl CalibrationState {
@@ -34,7 +39,38 @@ impl CalibrationState {
             // (`ControlStep::load_calibration`).
             status: CalibrationStatus::Calibrated,
             unsaved: false,
+            report: None,
+            report_changed: false,
         }
+    }
+
+    /// A routine was accepted: reported running. Out of line (in flash): it runs once a
+    /// routine, and the command handling it would be inlined into is in CCM SRAM.
+    #[inline(never)]
+    pub(super) fn start(&mut self, routine: Routine, config: &ControlConfig) {
+        self.report = Some(RoutineReport::start(routine, config));
+        self.report_changed = true;
+    }
+
+    /// A routine ended with `result`: reported. Out of line, as [`CalibrationState::start`].
+    #[inline(never)]
+    fn report_end(
+        &mut self,
+        routine: Routine,
+        result: &Result<Outcome, CalibrationError>,
+        config: &ControlConfig,
+    ) {
+        self.report = Some(RoutineReport::end(routine, result, config));
+        self.report_changed = true;
+    }
+
+    /// The report, once after each change.
+    pub(super) fn take_report(&mut self) -> Option<RoutineReport> {
+        if !self.report_changed {
+            return None;
+        }
+        self.report_changed = false;
+        self.report
     }
 
     /// A routine ended with `result`, its outcome already loaded into `config` when it
@@ -50,6 +86,7 @@ impl CalibrationState {
         if result.is_ok() && routine != Routine::Commission {
             self.unsaved = true;
         }
+        self.report_end(routine, &result, config);
         self.calibrated.record(routine, result);
         if self.status != CalibrationStatus::Calibrated {
             self.status = if CalibrationRecord::of(&self.calibrated, config).is_complete() {

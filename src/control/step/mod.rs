@@ -43,6 +43,7 @@ pub use estimate::DOB_TIME_S;
 pub use safe_state::HOLD_RELEASE_S;
 
 use crate::control::calibration::record::{CalibrationRecord, CalibrationStatus};
+use crate::control::calibration::report::RoutineReport;
 use crate::control::calibration::store::LoadError;
 use crate::control::calibration::{encoder_map, Calibrated, Demand, Outcome};
 use crate::control::command::{Command, Parameter, Refusal};
@@ -265,6 +266,19 @@ impl ControlStep {
     /// it to the storage task; nothing of the save runs in the step).
     pub fn take_calibration_to_save(&mut self) -> Option<CalibrationRecord> {
         self.plan.calibration.take_to_save(&self.config)
+    }
+
+    /// The last routine's report, once after each change (a routine accepted or ended): the
+    /// control task hands it to the command task, which answers the host's request for it.
+    pub fn take_routine_report(&mut self) -> Option<RoutineReport> {
+        self.plan.calibration.take_report()
+    }
+
+    /// Whether the last routine's report changed since it was last taken (one load: the
+    /// control cycle's test).
+    #[inline(always)]
+    pub fn routine_report_changed(&self) -> bool {
+        self.plan.calibration.report_changed
     }
 
     /// The configuration in use.
@@ -787,6 +801,9 @@ impl ControlStep {
             Change::Nothing => {}
             Change::Heartbeat => self.supervision.heartbeat(),
             Change::Mode(mode) => {
+                if let Mode::Calibrating(c) = &mode {
+                    self.plan.calibration.start(c.routine(), &self.config);
+                }
                 self.plan.mode = mode;
                 self.energise();
             }

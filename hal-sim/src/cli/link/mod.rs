@@ -300,7 +300,9 @@ enum CommandArg {
         #[arg(long, value_name = "RATIO", allow_negative_numbers = true)]
         ratio: Option<f32>,
     },
-    /// Run a calibration routine and load its result.
+    /// Run a calibration routine and wait for it to end: prints its acceptance, then what it
+    /// found (the commissioning's findings, as `fpc-sim calibrate --check-wiring` prints
+    /// them; `ROUTINE done` for the others) or why it failed (exit 1).
     Calibrate {
         /// The routine.
         #[arg(value_enum)]
@@ -700,6 +702,28 @@ fn send(args: SendArgs) -> CmdResult {
     let command = args.command.command();
     let mut channels = open(&args.target)?;
     let mut earlier = Vec::new();
+    if let Command::Calibrate { routine } = command {
+        let done = crate::link::report::calibrate(
+            &mut channels,
+            routine,
+            Duration::from_millis(args.timeout_ms),
+            |line| earlier.push(line),
+        );
+        for line in earlier {
+            outln!("{line}")?;
+        }
+        let (lines, error) = match done {
+            Ok(lines) => (lines, None),
+            Err((lines, e)) => (lines, Some(e)),
+        };
+        for line in lines {
+            outln!("{line}")?;
+        }
+        return match error {
+            None => Ok(()),
+            Some(e) => Err(Failure::runtime(e)),
+        };
+    }
     let outcome = send_command(
         &mut channels,
         &command,
