@@ -10,6 +10,7 @@
 //! | [`elf`] | the firmware image |
 //! | [`session`] | the host attached as a probe: RTT (hal-sim's reader over the chip's memory), defmt, telemetry |
 //! | [`run`], [`faults`] | the main job's scenario and the fault scenarios |
+//! | [`commission`] | the motor's commissioning, as the host runs it over the link |
 //! | [`mutants`] | the mutation tests: each deliberate mistake caught |
 //! | [`save_timing`] | the control period while a save erases and programs flash |
 //! | [`log`] | the defmt log of up 0 |
@@ -23,6 +24,7 @@
 pub mod board;
 pub mod capture;
 pub mod chip;
+pub mod commission;
 pub mod elf;
 pub mod faults;
 pub mod log;

@@ -308,6 +308,11 @@ impl Session {
         }
     }
 
+    /// The firmware's RTT control block, once the host has found it.
+    pub fn rtt(&self) -> Option<ControlBlock> {
+        self.rtt.clone()
+    }
+
     /// Queues the link request `request` for down 0; false until the firmware's channels
     /// are up.
     pub fn request(&mut self, request: &LinkRequest) -> bool {
