@@ -132,3 +132,138 @@ fn ended(
     }
     Ok(lines)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fpc::control::calibration::{CalibrationError, Commissioning};
+    use fpc::control::command::{Refusal, Reply};
+    use fpc::link::commands::{encode_reply, MAX_REPLY_WIRE};
+    use fpc::link::report::{encode_report, MAX_REPORT_WIRE};
+    use fpc::units::{PerSection, Section};
+    use std::collections::VecDeque;
+
+    /// A board that answers each frame written to down 0 with the next scripted answer.
+    struct Scripted {
+        answers: VecDeque<Vec<u8>>,
+        up: Vec<u8>,
+    }
+
+    impl Channels for Scripted {
+        fn read_up(&mut self, _: usize, buf: &mut [u8]) -> std::io::Result<usize> {
+            let n = buf.len().min(self.up.len());
+            buf[..n].copy_from_slice(&self.up[..n]);
+            self.up.drain(..n);
+            Ok(n)
+        }
+
+        fn write_down(&mut self, _: usize, bytes: &[u8]) -> std::io::Result<usize> {
+            if let Some(a) = self.answers.pop_front() {
+                self.up.extend(a);
+            }
+            Ok(bytes.len())
+        }
+
+        fn pause(&mut self, _: Duration) {}
+    }
+
+    fn reply(result: Result<(), Refusal>) -> Vec<u8> {
+        let command = Command::Calibrate {
+            routine: Routine::Commission,
+        };
+        let mut out = [0u8; MAX_REPLY_WIRE];
+        let n = encode_reply(&Reply { command, result }, &mut out).unwrap();
+        out[..n].to_vec()
+    }
+
+    fn report(answer: ReportAnswer) -> Vec<u8> {
+        let mut out = [0u8; MAX_REPORT_WIRE];
+        let n = encode_report(&answer, &mut out).unwrap();
+        out[..n].to_vec()
+    }
+
+    fn commission(state: RoutineState) -> Vec<u8> {
+        report(ReportAnswer::Report(RoutineReport {
+            state,
+            ..RoutineReport::started(Routine::Commission, 0.024, 0.02)
+        }))
+    }
+
+    fn run(answers: Vec<Vec<u8>>) -> Result<Vec<String>, (Vec<String>, String)> {
+        let mut board = Scripted {
+            answers: answers.into(),
+            up: Vec::new(),
+        };
+        let other = |l: String| panic!("unexpected answer {l}");
+        calibrate(
+            &mut board,
+            Routine::Commission,
+            Duration::from_secs(1),
+            other,
+        )
+    }
+
+    #[test]
+    fn the_findings_are_printed_once_the_routine_has_ended() {
+        let found = Commissioning {
+            reversed: 4,
+            ambiguous: false,
+            pitch_m: PerSection {
+                master: 0.02409,
+                slave: 0.02408,
+            },
+            pitch_ok: PerSection {
+                master: true,
+                slave: true,
+            },
+        };
+        let lines = run(vec![
+            reply(Ok(())),
+            commission(RoutineState::Running),
+            commission(RoutineState::Running),
+            commission(RoutineState::Succeeded(Some(found))),
+        ])
+        .unwrap();
+        assert_eq!(lines[0], "accepted: calibrate commission");
+        assert_eq!(lines[3], "master encoder reversed");
+        assert_eq!(
+            lines[5],
+            "N-N pitch in section master 24.09 mm, expected 24.00 mm: ok"
+        );
+        assert_eq!(lines.len(), 7);
+    }
+
+    #[test]
+    fn a_refusal_a_failure_and_a_routine_left_are_errors_after_what_was_printed() {
+        let refused = run(vec![reply(Err(Refusal::FaultActive))]).unwrap_err();
+        assert!(refused.0.is_empty());
+        assert!(
+            refused.1.starts_with("refused: calibrate commission: "),
+            "{}",
+            refused.1
+        );
+        let no_motion = CalibrationError::NoMotion {
+            section: Section::Master,
+        };
+        let failed = run(vec![
+            reply(Ok(())),
+            commission(RoutineState::Failed(no_motion)),
+        ])
+        .unwrap_err();
+        assert_eq!(failed.0, ["accepted: calibrate commission"]);
+        assert!(
+            failed
+                .1
+                .starts_with("commission failed: the piston did not follow the master section's"),
+            "{}",
+            failed.1
+        );
+        let left = run(vec![
+            reply(Ok(())),
+            commission(RoutineState::Running),
+            report(ReportAnswer::Left(Routine::Commission)),
+        ])
+        .unwrap_err();
+        assert!(left.1.contains("left before it ended"), "{}", left.1);
+    }
+}
