@@ -1,18 +1,27 @@
-//! The motor's commissioning on the release ELF in the emulated STM32G474: the reference
+//! The motor's commissioning on the bench build's ELF in the emulated STM32G474: the reference
 //! machine wired correctly, with a swapped phase pair in the slave section, and with a
 //! reversed master encoder; each found and named in the lines the host prints
 //! (`fpc-sim link send calibrate …`'s code over the emulated board's RTT channels), which are
 //! `docs/bring-up.md` §10's board blocks, byte for byte, and the control period kept its
-//! deadline throughout.
+//! deadline throughout. The release ELF refuses the commissioning and says why.
 //!
-//! The ELF is `FPC_ELF` if set, else the `cargo fw` output; build it first (CI does).
+//! The bench ELF is `FPC_BENCH_ELF` if set, else `target/fpc-bench`; the release ELF `FPC_ELF`,
+//! else the `cargo fw` output. Build them first (CI does).
 
 use fpc::units::PerSection;
 use fpc_pil::commission::commission;
 use fpc_pil::elf::Image;
 use hal_sim::board::wiring::Wiring;
 
-fn image() -> Image {
+fn bench_image() -> Image {
+    Image::built(
+        "FPC_BENCH_ELF",
+        "target/fpc-bench",
+        "build it: bash scripts/fw-test-elf.sh bench",
+    )
+}
+
+fn release_image() -> Image {
     Image::built(
         "FPC_ELF",
         "target/thumbv7em-none-eabihf/release/fpc",
@@ -74,7 +83,7 @@ fn the_board_finds_and_names_each_wiring_fault_as_the_bring_up_guide_shows() {
     ];
     let mut printed_all = Vec::new();
     for (wiring, named) in cases {
-        let r = commission(&image(), wiring).unwrap_or_else(|e| panic!("{wiring:?}: {e}"));
+        let r = commission(&bench_image(), wiring).unwrap_or_else(|e| panic!("{wiring:?}: {e}"));
         println!("{wiring:?}: {:.2} s emulated; {}", r.end_s, r.deadline);
         let printed = session(&r.lines);
         print!("{printed}");
@@ -104,4 +113,22 @@ fn the_board_finds_and_names_each_wiring_fault_as_the_bring_up_guide_shows() {
         "bring-up.md §10's board blocks: the correct wiring, the slave's phases, the master \
          encoder"
     );
+}
+
+#[test]
+fn the_release_firmware_refuses_the_commissioning_and_names_the_bench_build() {
+    let r = commission(&release_image(), Wiring::default()).unwrap_or_else(|e| panic!("{e}"));
+    print!("{}", session(&r.lines));
+    let error = r.error.unwrap_or_default();
+    assert!(
+        error.contains("flash the bench build"),
+        "{error:?} after {:?}",
+        r.lines
+    );
+    assert!(
+        r.lines.iter().any(|l| l == "current_sense done"),
+        "{:?}",
+        r.lines
+    );
+    assert_eq!(r.deadline.missed_updates, 0, "{:?}", r.deadline);
 }

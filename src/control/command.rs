@@ -146,6 +146,9 @@ pub enum Refusal {
     EncodersAbsent,
     /// A chamber pressure sensor reads absent since boot.
     PressuresAbsent,
+    /// A bench routine (the commissioning) asked of a firmware built without them: flash the
+    /// `bench` build (`docs/bring-up.md` §10).
+    BenchBuildOnly,
 }
 
 impl Refusal {
@@ -179,6 +182,9 @@ impl Refusal {
             }
             Refusal::PressuresAbsent => {
                 "a chamber pressure sensor reads absent since boot: connect the transducers"
+            }
+            Refusal::BenchBuildOnly => {
+                "a bench routine: this firmware is built without them; flash the bench build"
             }
         }
     }

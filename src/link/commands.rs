@@ -250,6 +250,7 @@ pub const fn refusal_code(refusal: Refusal) -> u8 {
         Refusal::SupplyAbsent => 12,
         Refusal::EncodersAbsent => 13,
         Refusal::PressuresAbsent => 14,
+        Refusal::BenchBuildOnly => 15,
     }
 }
 
@@ -270,6 +271,7 @@ pub fn refusal_from_code(code: u8) -> Option<Refusal> {
         Refusal::SupplyAbsent,
         Refusal::EncodersAbsent,
         Refusal::PressuresAbsent,
+        Refusal::BenchBuildOnly,
     ]
     .into_iter()
     .find(|r| refusal_code(*r) == code)
@@ -1053,7 +1055,7 @@ pub(crate) mod tests {
         }
 
         #[test]
-        fn replies_round_trip(ci in 0usize..64, res in 0u8..11, p in any::<u32>()) {
+        fn replies_round_trip(ci in 0usize..64, res in 0u8..16, p in any::<u32>()) {
             let all = all_commands();
             let mut command = all[ci % all.len()];
             if let Command::MoveTo { position_m, .. } = &mut command {

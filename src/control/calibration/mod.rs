@@ -99,6 +99,12 @@ impl Routine {
         Routine::ALL.iter().copied().find(|r| *r as u8 == code)
     }
 
+    /// Whether this build runs the routine: the commissioning only on the host and in the
+    /// firmware's `bench` build (Cargo.toml).
+    pub const fn in_this_build(self) -> bool {
+        !matches!(self, Routine::Commission) || cfg!(feature = "bench")
+    }
+
     /// Whether the routine moves the piston under position control (it needs the zero).
     pub const fn needs_homing(self) -> bool {
         matches!(
@@ -360,6 +366,7 @@ enum State {
     Alignment(Aligner),
     Sweeps(Sweeps),
     EncoderMap(EncoderMapper),
+    #[cfg(feature = "bench")]
     Commission(Commissioner),
 }
 
@@ -391,6 +398,7 @@ impl Calibration {
                 }
                 State::Alignment(Aligner::new(config))
             }
+            #[cfg(feature = "bench")]
             (Routine::Commission, at) => {
                 // The mover may go the reach either way (the wiring decides which).
                 let reach = Commissioner::reach_periods(config) * lambda;
@@ -399,6 +407,9 @@ impl Calibration {
                 }
                 State::Commission(Commissioner::new())
             }
+            // Refused before it gets here (`Refusal::BenchBuildOnly`).
+            #[cfg(not(feature = "bench"))]
+            (Routine::Commission, _) => return Err(CalibrationError::NoRoom),
             (_, None) => return Err(CalibrationError::NoRoom),
             (Routine::Misalignment | Routine::Cogging, Some(position_m)) => {
                 State::Sweeps(Sweeps::new(config, position_m, routine)?)
@@ -422,6 +433,7 @@ impl Calibration {
             State::Alignment(a) => a.step(config, m),
             State::Sweeps(s) => s.step(config, m, self.routine),
             State::EncoderMap(e) => e.step(config, m),
+            #[cfg(feature = "bench")]
             State::Commission(c) => c.step(config, m),
         }
     }
@@ -451,6 +463,7 @@ pub mod store;
 mod sweeps;
 
 use align::Aligner;
+#[cfg(feature = "bench")]
 use commission::Commissioner;
 pub use commission::Commissioning;
 pub use encoder_map::EncoderMap;

@@ -182,6 +182,9 @@ fn start(m: &MachineView, peak_speed_mps: f32) -> Result<Change, Refusal> {
 }
 
 fn calibrate(m: &MachineView, routine: Routine) -> Result<Change, Refusal> {
+    if !routine.in_this_build() {
+        return Err(Refusal::BenchBuildOnly);
+    }
     present(m)?;
     if !m.faults.is_empty() {
         return Err(Refusal::FaultActive);
