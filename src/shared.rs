@@ -14,6 +14,7 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::channel::Channel;
 
 use crate::control::calibration::record::CalibrationRecord;
+#[cfg(feature = "bench")]
 use crate::control::calibration::report::RoutineReport;
 use crate::control::command::{Command, Refusal, Reply};
 use crate::link::scope::{Recording, Scope, SAMPLE_BYTES};
@@ -74,7 +75,8 @@ pub struct Shared<M: RawMutex> {
     calibration_to_load: Channel<M, CalibrationRecord, 1>,
     calibration_loaded: Channel<M, Result<(), Refusal>, 1>,
     /// The last routine's report, each time it changes (control task → command task, the
-    /// newest replaces an unread one).
+    /// newest replaces an unread one). The bench build's.
+    #[cfg(feature = "bench")]
     routine_report: Channel<M, RoutineReport, 1>,
 }
 
@@ -105,6 +107,7 @@ impl<M: RawMutex> Shared<M> {
             current_calibration: Channel::new(),
             calibration_to_load: Channel::new(),
             calibration_loaded: Channel::new(),
+            #[cfg(feature = "bench")]
             routine_report: Channel::new(),
         }
     }
@@ -345,11 +348,13 @@ impl<M: RawMutex> Shared<M> {
     }
 
     /// Control task: a routine started or ended ([`RoutineReport`]).
+    #[cfg(feature = "bench")]
     pub fn post_routine_report(&self, report: RoutineReport) {
         replace(&self.routine_report, report);
     }
 
     /// Command task: the last routine's report, if it changed since the last call.
+    #[cfg(feature = "bench")]
     pub fn take_routine_report(&self) -> Option<RoutineReport> {
         self.routine_report.try_receive().ok()
     }

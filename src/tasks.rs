@@ -18,10 +18,12 @@ use crate::link::commands::{
     encode_rejection, encode_reply, encode_transfer_reply, Request, RequestReader, Transfer,
     TransferReply, TransferState, TransferStep, MAX_REPLY_WIRE,
 };
+#[cfg(feature = "bench")]
 use crate::link::report::{encode_report, ReportAnswer, MAX_REPORT_WIRE};
 use crate::link::scope::{
     encode_chunk, encode_header, CHUNK_SAMPLES, MAX_SCOPE_WIRE, SAMPLE_BYTES,
 };
+#[cfg(feature = "bench")]
 use crate::link::settings::LinkRequest;
 use crate::link::telemetry::WIRE_BYTES;
 use crate::ports::{
@@ -30,6 +32,7 @@ use crate::ports::{
 };
 use crate::safety::faults::ResetCause;
 use crate::shared::{task_bits, Shared};
+#[cfg(feature = "bench")]
 use crate::status::ModeKind;
 use crate::units::{DacCode, PerSection, PhaseDuties, Section};
 
@@ -159,6 +162,7 @@ pub fn control_cycle<M, T, E, C, P, Q, S, R>(
     }
     // Before the status: a host that reads the mode no longer `calibrating` finds the
     // routine's end reported.
+    #[cfg(feature = "bench")]
     if step.routine_report_changed() {
         post_routine_report(step, shared);
     }
@@ -170,7 +174,8 @@ pub fn control_cycle<M, T, E, C, P, Q, S, R>(
 }
 
 /// Hands the last routine's report to the command task. Out of line (in flash, not the
-/// control cycle's CCM SRAM): it runs twice a routine.
+/// control cycle's CCM SRAM): it runs twice a routine. The bench build's.
+#[cfg(feature = "bench")]
 #[inline(never)]
 fn post_routine_report<M: RawMutex>(step: &mut ControlStep, shared: &Shared<M>) {
     if let Some(report) = step.take_routine_report() {
@@ -356,7 +361,11 @@ where
     }
 }
 
-/// Longest answer the command task writes, bytes.
+/// Longest answer the command task writes, bytes (the bench build's routine report).
+#[cfg(not(feature = "bench"))]
+const ANSWER_WIRE: usize = MAX_REPLY_WIRE;
+/// Longest answer the command task writes, bytes (the bench build's routine report).
+#[cfg(feature = "bench")]
 const ANSWER_WIRE: usize = if MAX_REPORT_WIRE > MAX_REPLY_WIRE {
     MAX_REPORT_WIRE
 } else {
@@ -397,6 +406,7 @@ where
     let mut input = [0u8; 64];
     let mut out = [0u8; ANSWER_WIRE];
     // The last routine's report (the control task posts each change).
+    #[cfg(feature = "bench")]
     let mut report = None;
     let mut scope = ScopeSender::default();
     let mut next = clock.now();
@@ -426,6 +436,7 @@ where
                     };
                     encode_transfer_reply(&reply, &mut out)
                 }
+                #[cfg(feature = "bench")]
                 Some(Ok(Request::Link(LinkRequest::RoutineReport))) => {
                     // The mode before the report: a routine's end is posted before the
                     // status that leaves `calibrating`.

@@ -2,7 +2,9 @@
 //! command, then the routine's report (link request `0x23`, answered with kind `0x08`:
 //! `fpc::link::report`) asked for every [`POLL`] until the routine is no longer running,
 //! and what it found in the lines `fpc-sim calibrate --check-wiring` prints (one formatter,
-//! [`crate::calibration::findings_lines`]).
+//! [`crate::calibration::findings_lines`]). Only the firmware's bench build answers `0x23`;
+//! the release firmware rejects it as an unknown tag, and the routine's acceptance is then
+//! all there is to print ([`NO_REPORT`]).
 
 use std::time::Duration;
 
@@ -10,6 +12,7 @@ use fpc::control::calibration::report::{RoutineReport, RoutineState};
 use fpc::control::calibration::Routine;
 use fpc::control::command::Command;
 use fpc::link::commands::{Answer, MAX_COMMAND_WIRE};
+use fpc::link::frame::FrameError;
 use fpc::link::report::ReportAnswer;
 use fpc::link::settings::{encode_link_request, LinkRequest};
 
@@ -25,13 +28,20 @@ pub const POLL: Duration = Duration::from_millis(100);
 /// on the reference machine).
 pub const MAX_POLLS: u32 = 600;
 
+/// What follows the acceptance when the firmware reports no routine's end (the release
+/// build rejects link request `0x23`).
+pub const NO_REPORT: &str = "this firmware reports no routine's end (the bench build does): \
+                             its results are in the calibration record (fpc-sim link \
+                             calibration read)";
+
 /// Asks for the last routine's report and waits up to `timeout` for it on up 2. Answers to
-/// earlier requests go to `other`, as text. An error is one line.
+/// earlier requests go to `other`, as text. `None`: the firmware does not know the request
+/// (the release build). An error is one line.
 pub fn read_report<C: Channels + ?Sized>(
     channels: &mut C,
     timeout: Duration,
     other: impl FnMut(String),
-) -> Result<ReportAnswer, String> {
+) -> Result<Option<ReportAnswer>, String> {
     let mut wire = [0u8; MAX_COMMAND_WIRE];
     let n = encode_link_request(&LinkRequest::RoutineReport, &mut wire)
         .map_err(|_| "the request does not fit a frame".to_string())?;
@@ -44,12 +54,14 @@ pub fn read_report<C: Channels + ?Sized>(
             _ => None,
         },
     )?;
-    got.map_err(|reason| {
-        format!(
+    match got {
+        Ok(answer) => Ok(Some(answer)),
+        Err(FrameError::UnknownKind) => Ok(None),
+        Err(reason) => Err(format!(
             "rejected by the firmware: the `routine report` frame {}",
             frame_error_text(reason)
-        )
-    })
+        )),
+    }
 }
 
 /// Sends `Calibrate { routine }`, and once it is accepted, waits for the routine to end
@@ -71,10 +83,14 @@ pub fn calibrate<C: Channels + ?Sized>(
         Outcome::Reply(r) if r.result.is_ok() => {}
         _ => return Err((Vec::new(), outcome_text(&outcome))),
     }
-    let lines = vec![outcome_text(&outcome)];
+    let mut lines = vec![outcome_text(&outcome)];
     for _ in 0..MAX_POLLS {
         let answer = match read_report(channels, timeout, &mut other) {
-            Ok(a) => a,
+            Ok(Some(a)) => a,
+            Ok(None) => {
+                lines.push(format!("{} accepted; {NO_REPORT}", routine.name()));
+                return Ok(lines);
+            }
             Err(e) => return Err((lines, e)),
         };
         match answer {
@@ -265,5 +281,24 @@ mod tests {
         ])
         .unwrap_err();
         assert!(left.1.contains("left before it ended"), "{}", left.1);
+    }
+
+    #[test]
+    fn a_firmware_without_the_report_gets_the_acceptance_and_where_the_results_are() {
+        use fpc::link::commands::encode_rejection;
+        let mut rejected = [0u8; MAX_REPLY_WIRE];
+        let n = encode_rejection(FrameError::UnknownKind, &mut rejected).unwrap();
+        let lines = run(vec![reply(Ok(())), rejected[..n].to_vec()]).unwrap();
+        assert_eq!(
+            lines,
+            [
+                "accepted: calibrate commission".to_string(),
+                format!("commission accepted; {NO_REPORT}")
+            ]
+        );
+        // Any other rejection of the request is an error.
+        let n = encode_rejection(FrameError::Crc, &mut rejected).unwrap();
+        let crc = run(vec![reply(Ok(())), rejected[..n].to_vec()]).unwrap_err();
+        assert!(crc.1.contains("failed its CRC"), "{}", crc.1);
     }
 }

@@ -309,16 +309,18 @@ pub struct Calibrated {
     /// The cogging map.
     pub cogging: Option<HarmonicMap>,
     /// The last commissioning's findings (not stored: the wiring is checked again after a
-    /// power cut).
+    /// power cut). The bench build's.
+    #[cfg(feature = "bench")]
     pub commission: Option<Commissioning>,
     /// The last routine that failed, and why.
     pub last_error: Option<(Routine, CalibrationError)>,
 }
 
 impl Calibrated {
-    /// Records a routine's result. Out of line (in flash, not the 20 kHz path's CCM SRAM):
-    /// it runs once at the end of a routine.
-    #[inline(never)]
+    /// Records a routine's result. Out of line in the bench build (in flash, not the 20 kHz
+    /// path's CCM SRAM, which its commissioning arm would grow): it runs once at the end of a
+    /// routine.
+    #[cfg_attr(feature = "bench", inline(never))]
     pub fn record(&mut self, routine: Routine, result: Result<Outcome, CalibrationError>) {
         match result {
             Ok(Outcome::CurrentSense(o)) => self.current_sense = Some(o),
@@ -333,7 +335,10 @@ impl Calibrated {
             // record: a record is copied whole at every boot and save, and the map is not
             // stored in flash (mapped again after a power cut).
             Ok(Outcome::EncoderMap(_)) => {}
+            #[cfg(feature = "bench")]
             Ok(Outcome::Commission(found)) => self.commission = Some(found),
+            #[cfg(not(feature = "bench"))]
+            Ok(Outcome::Commission(_)) => {}
             Err(e) => self.last_error = Some((routine, e)),
         }
     }

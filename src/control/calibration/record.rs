@@ -117,6 +117,7 @@ impl CalibrationRecord {
                     encoder_offset_m: -2e-6,
                 }),
                 cogging: Some(map),
+                #[cfg(feature = "bench")]
                 commission: None,
                 last_error: None,
             },
@@ -137,6 +138,7 @@ impl CalibrationRecord {
     pub fn of(calibrated: &Calibrated, config: &ControlConfig) -> Self {
         CalibrationRecord {
             calibrated: Calibrated {
+                #[cfg(feature = "bench")]
                 commission: None,
                 last_error: None,
                 ..*calibrated
@@ -291,6 +293,7 @@ impl CalibrationRecord {
                 alignment: has(Routine::Alignment).then_some(align),
                 misalignment: has(Routine::Misalignment).then_some(mis),
                 cogging: has(Routine::Cogging).then_some(map),
+                #[cfg(feature = "bench")]
                 commission: None,
                 last_error: None,
             },

@@ -5,6 +5,7 @@
 
 use super::publish::Previous;
 use crate::control::calibration::record::{CalibrationRecord, CalibrationStatus};
+#[cfg(feature = "bench")]
 use crate::control::calibration::report::RoutineReport;
 use crate::control::calibration::{
     Calibrated, CalibrationError, Forced, Measurements, Outcome, Routine,
@@ -24,9 +25,12 @@ pub(super) struct CalibrationState {
     pub status: CalibrationStatus,
     /// A routine has finished since the record was last taken for saving.
     pub unsaved: bool,
-    /// The last routine started since boot, and how it stands.
+    /// The last routine started since boot, and how it stands (the bench build's: the
+    /// release firmware reports no routine, so its 20 kHz path carries none of this).
+    #[cfg(feature = "bench")]
     pub report: Option<RoutineReport>,
     /// The report changed since it was last taken for the link.
+    #[cfg(feature = "bench")]
     pub report_changed: bool,
 }
 
@@ -39,13 +43,16 @@ impl CalibrationState {
             // (`ControlStep::load_calibration`).
             status: CalibrationStatus::Calibrated,
             unsaved: false,
+            #[cfg(feature = "bench")]
             report: None,
+            #[cfg(feature = "bench")]
             report_changed: false,
         }
     }
 
     /// A routine was accepted: reported running. Out of line (in flash): it runs once a
     /// routine, and the command handling it would be inlined into is in CCM SRAM.
+    #[cfg(feature = "bench")]
     #[inline(never)]
     pub(super) fn start(&mut self, routine: Routine, config: &ControlConfig) {
         self.report = Some(RoutineReport::start(routine, config));
@@ -53,6 +60,7 @@ impl CalibrationState {
     }
 
     /// A routine ended with `result`: reported. Out of line, as [`CalibrationState::start`].
+    #[cfg(feature = "bench")]
     #[inline(never)]
     fn report_end(
         &mut self,
@@ -65,6 +73,7 @@ impl CalibrationState {
     }
 
     /// The report, once after each change.
+    #[cfg(feature = "bench")]
     pub(super) fn take_report(&mut self) -> Option<RoutineReport> {
         if !self.report_changed {
             return None;
@@ -86,6 +95,7 @@ impl CalibrationState {
         if result.is_ok() && routine != Routine::Commission {
             self.unsaved = true;
         }
+        #[cfg(feature = "bench")]
         self.report_end(routine, &result, config);
         self.calibrated.record(routine, result);
         if self.status != CalibrationStatus::Calibrated {

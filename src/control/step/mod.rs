@@ -43,6 +43,7 @@ pub use estimate::DOB_TIME_S;
 pub use safe_state::HOLD_RELEASE_S;
 
 use crate::control::calibration::record::{CalibrationRecord, CalibrationStatus};
+#[cfg(feature = "bench")]
 use crate::control::calibration::report::RoutineReport;
 use crate::control::calibration::store::LoadError;
 use crate::control::calibration::{encoder_map, Calibrated, Demand, Outcome};
@@ -270,12 +271,15 @@ impl ControlStep {
 
     /// The last routine's report, once after each change (a routine accepted or ended): the
     /// control task hands it to the command task, which answers the host's request for it.
+    /// The bench build's (Cargo.toml, `bench`).
+    #[cfg(feature = "bench")]
     pub fn take_routine_report(&mut self) -> Option<RoutineReport> {
         self.plan.calibration.take_report()
     }
 
     /// Whether the last routine's report changed since it was last taken (one load: the
     /// control cycle's test).
+    #[cfg(feature = "bench")]
     #[inline(always)]
     pub fn routine_report_changed(&self) -> bool {
         self.plan.calibration.report_changed
@@ -801,6 +805,7 @@ impl ControlStep {
             Change::Nothing => {}
             Change::Heartbeat => self.supervision.heartbeat(),
             Change::Mode(mode) => {
+                #[cfg(feature = "bench")]
                 if let Mode::Calibrating(c) = &mode {
                     self.plan.calibration.start(c.routine(), &self.config);
                 }
