@@ -313,14 +313,19 @@ pub struct CalibrationConfig {
     /// Speed over which the mapped direction part blends between its two values, m/s.
     pub map_blend_mps: f32,
     /// Electrical periods the commissioning turns each section's forced vector forward and
-    /// back (the alignment's current, rate and waits).
+    /// back (the alignment's current, rate and waits). The commissioning's three fields are
+    /// the bench build's: in the release firmware they would move the fields after them
+    /// in the step's state.
+    #[cfg(feature = "bench")]
     pub commission_periods: f32,
     /// Wait after the commissioning's first pull, undamped (friction alone settles the
     /// mover), s.
+    #[cfg(feature = "bench")]
     pub commission_first_settle_s: f32,
     /// Largest relative difference of the measured displacement per electrical period from
     /// the configured period that passes (static friction alone may take 2·F_s/k off a
     /// one-period turn: 0.28 mm of 24 mm, 1.2 %, at 20 A on the reference machine).
+    #[cfg(feature = "bench")]
     pub commission_pitch_tolerance: f32,
 }
 
@@ -357,8 +362,11 @@ impl CalibrationConfig {
             map_accel_mps2: 10.0,
             map_periods: 4,
             map_blend_mps: 5e-3,
+            #[cfg(feature = "bench")]
             commission_periods: 1.0,
+            #[cfg(feature = "bench")]
             commission_first_settle_s: 0.6,
+            #[cfg(feature = "bench")]
             commission_pitch_tolerance: 0.02,
         }
     }

@@ -4,6 +4,7 @@
 //! record holds (the commissioning's findings, a failure's cause).
 
 use super::{CalibrationError, Commissioning, Outcome, Routine};
+#[cfg(feature = "bench")]
 use crate::control::config::ControlConfig;
 
 /// How the last routine stands.
@@ -45,6 +46,7 @@ impl RoutineReport {
     /// `routine` has just been accepted, on the machine configured as `config`. Out of line
     /// (in flash): it runs once a routine, and the step's calibration code is in CCM SRAM.
     #[inline(never)]
+    #[cfg(feature = "bench")]
     pub fn start(routine: Routine, config: &ControlConfig) -> Self {
         let c = &config.calibration;
         let period = config.motor.electrical_period_m;
@@ -54,6 +56,7 @@ impl RoutineReport {
     /// `routine` has just ended with `result` ([`RoutineReport::start`]'s, then
     /// [`RoutineReport::ended`]). Out of line, as `start`.
     #[inline(never)]
+    #[cfg(feature = "bench")]
     pub fn end(
         routine: Routine,
         result: &Result<Outcome, CalibrationError>,
