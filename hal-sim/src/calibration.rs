@@ -11,7 +11,6 @@
 
 use std::path::Path;
 
-use fpc::control::calibration::commission::wiring;
 use fpc::control::calibration::record::CalibrationRecord;
 use fpc::control::calibration::{Calibrated, Commissioning, Misalignment, Routine};
 use fpc::control::command::Command;
@@ -383,89 +382,11 @@ pub fn check_wiring(
 /// phase order and each encoder's direction (or the two explanations that cannot be told
 /// apart), then each section's pitch against `config`'s electrical period.
 pub fn commission_lines(found: &Commissioning, config: &ControlConfig) -> Vec<String> {
-    findings_lines(
+    crate::link::report::findings_lines(
         found,
         config.motor.electrical_period_m,
         config.calibration.commission_pitch_tolerance,
     )
-}
-
-/// [`commission_lines`] against an electrical period (`expected_pitch_m`, m) and a pitch
-/// tolerance (fraction of it) as given: the simulator's configuration, or the board's
-/// report read over the link.
-pub fn findings_lines(
-    found: &Commissioning,
-    expected_pitch_m: f32,
-    pitch_tolerance: f32,
-) -> Vec<String> {
-    let name = |s: Section| match s {
-        Section::Master => "master",
-        Section::Slave => "slave",
-    };
-    let phases = |s: Section| match s {
-        Section::Master => wiring::MASTER_PHASES,
-        Section::Slave => wiring::SLAVE_PHASES,
-    };
-    let encoder = |s: Section| match s {
-        Section::Master => wiring::MASTER_ENCODER,
-        Section::Slave => wiring::SLAVE_ENCODER,
-    };
-    let faults = |set: u8| {
-        let mut parts = Vec::new();
-        for s in Section::ALL {
-            if set & phases(s) != 0 {
-                parts.push(format!("phases swapped in section {}", name(s)));
-            }
-        }
-        for s in Section::ALL {
-            if set & encoder(s) != 0 {
-                parts.push(format!("{} encoder reversed", name(s)));
-            }
-        }
-        parts.join(" and ")
-    };
-    let mut lines = Vec::new();
-    if found.ambiguous {
-        lines.push(format!(
-            "ambiguous: {}, or {}: the signs cannot tell these apart; correct one of them \
-             and commission again",
-            faults(found.reversed),
-            faults(wiring::ALL ^ found.reversed)
-        ));
-    } else {
-        for s in Section::ALL {
-            lines.push(if found.reversed & phases(s) != 0 {
-                format!("phases swapped in section {}", name(s))
-            } else {
-                format!("phases in order in section {}", name(s))
-            });
-        }
-        for s in Section::ALL {
-            lines.push(if found.reversed & encoder(s) != 0 {
-                format!("{} encoder reversed", name(s))
-            } else {
-                format!("{} encoder counts with the motion", name(s))
-            });
-        }
-    }
-    let expected_mm = expected_pitch_m * 1e3;
-    let tolerance = pitch_tolerance * 100.0;
-    for s in Section::ALL {
-        let verdict = if *found.pitch_ok.get(s) {
-            "ok".to_string()
-        } else {
-            format!(
-                "off by more than {tolerance:.0} %: check the motor's and the encoder's \
-                 periods in the configuration"
-            )
-        };
-        lines.push(format!(
-            "N-N pitch in section {} {:.2} mm, expected {expected_mm:.2} mm: {verdict}",
-            name(s),
-            found.pitch_m.get(s) * 1e3
-        ));
-    }
-    lines
 }
 
 /// Runs the firmware's control step, configured with `config`, on the simulated `model`

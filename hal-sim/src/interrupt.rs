@@ -1,6 +1,6 @@
 //! Ctrl-C (SIGINT): what an interrupted `fpc-sim` leaves behind.
 //!
-//! Every command stages its outputs in a hidden directory ([`crate::output`]) that registers
+//! Every command stages its outputs in a hidden directory (the `output` module's) that registers
 //! itself here while it exists. At Ctrl-C the process removes every registered staging
 //! directory and ends with exit code 130 (128 + SIGINT), so nothing half-written is left
 //! in the user's folder — unless the command said it finishes an interrupted run itself

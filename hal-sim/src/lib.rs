@@ -22,6 +22,7 @@ pub mod interrupt;
 pub mod link;
 pub mod logmeta;
 pub mod output;
+pub mod paper;
 pub mod plant;
 pub mod plot;
 pub mod published;

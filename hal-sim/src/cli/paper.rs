@@ -1,6 +1,6 @@
 //! `fpc-sim paper`: the paper's Figs. 3–9 redrawn from the simulator, the published rig's
 //! controller and ours side by side, with the electrical cost of both at the Fig. 3 points
-//! ([`crate::published::paper`]; what each figure shows: `docs/paper.md`).
+//! ([`crate::paper`]; what each figure shows: `docs/paper.md`).
 
 use clap::Args;
 
@@ -8,7 +8,7 @@ use crate::console::Num;
 use crate::failure::{CmdResult, Failure};
 use crate::outln;
 use crate::output::OutDir;
-use crate::published::paper::{paper_runs, write_figures, PaperFigures, FIGURES};
+use crate::paper::{paper_runs, write_figures, PaperFigures, FIGURES};
 
 /// The paper's figures from the simulator (Figs. 3–9) and both controllers' electrical cost.
 #[derive(Args, Debug)]

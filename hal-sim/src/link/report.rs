@@ -2,19 +2,21 @@
 //! command, then the routine's report (link request `0x23`, answered with kind `0x08`:
 //! `fpc::link::report`) asked for every [`POLL`] until the routine is no longer running,
 //! and what it found in the lines `fpc-sim calibrate --check-wiring` prints (one formatter,
-//! [`crate::calibration::findings_lines`]). Only the firmware's bench build answers `0x23`;
+//! [`findings_lines`]). Only the firmware's bench build answers `0x23`;
 //! the release firmware rejects it as an unknown tag, and the routine's acceptance is then
 //! all there is to print ([`NO_REPORT`]).
 
 use std::time::Duration;
 
+use fpc::control::calibration::commission::wiring;
 use fpc::control::calibration::report::{RoutineReport, RoutineState};
-use fpc::control::calibration::Routine;
+use fpc::control::calibration::{Commissioning, Routine};
 use fpc::control::command::Command;
 use fpc::link::commands::{Answer, MAX_COMMAND_WIRE};
 use fpc::link::frame::FrameError;
 use fpc::link::report::ReportAnswer;
 use fpc::link::settings::{encode_link_request, LinkRequest};
+use fpc::units::Section;
 
 use super::session::{
     frame_error_text, outcome_text, report_text, send_command, Exchange, Outcome,
@@ -137,7 +139,7 @@ fn ended(
         }
     };
     match report.state {
-        RoutineState::Succeeded(Some(found)) => lines.extend(crate::calibration::findings_lines(
+        RoutineState::Succeeded(Some(found)) => lines.extend(findings_lines(
             &found,
             report.expected_pitch_m,
             report.pitch_tolerance,
@@ -147,6 +149,86 @@ fn ended(
         RoutineState::Running => return Err((lines, format!("{name} is still running"))),
     }
     Ok(lines)
+}
+
+/// What the commissioning found, a line each, as the host prints it: each section's phase
+/// order and each encoder's direction (or the two explanations that cannot be told apart),
+/// then each section's pitch against an electrical period (`expected_pitch_m`, m) and a pitch
+/// tolerance (fraction of it) as given: the board's report read over the link, or the
+/// simulator's configuration (`fpc-sim calibrate --check-wiring`).
+pub fn findings_lines(
+    found: &Commissioning,
+    expected_pitch_m: f32,
+    pitch_tolerance: f32,
+) -> Vec<String> {
+    let name = |s: Section| match s {
+        Section::Master => "master",
+        Section::Slave => "slave",
+    };
+    let phases = |s: Section| match s {
+        Section::Master => wiring::MASTER_PHASES,
+        Section::Slave => wiring::SLAVE_PHASES,
+    };
+    let encoder = |s: Section| match s {
+        Section::Master => wiring::MASTER_ENCODER,
+        Section::Slave => wiring::SLAVE_ENCODER,
+    };
+    let faults = |set: u8| {
+        let mut parts = Vec::new();
+        for s in Section::ALL {
+            if set & phases(s) != 0 {
+                parts.push(format!("phases swapped in section {}", name(s)));
+            }
+        }
+        for s in Section::ALL {
+            if set & encoder(s) != 0 {
+                parts.push(format!("{} encoder reversed", name(s)));
+            }
+        }
+        parts.join(" and ")
+    };
+    let mut lines = Vec::new();
+    if found.ambiguous {
+        lines.push(format!(
+            "ambiguous: {}, or {}: the signs cannot tell these apart; correct one of them \
+             and commission again",
+            faults(found.reversed),
+            faults(wiring::ALL ^ found.reversed)
+        ));
+    } else {
+        for s in Section::ALL {
+            lines.push(if found.reversed & phases(s) != 0 {
+                format!("phases swapped in section {}", name(s))
+            } else {
+                format!("phases in order in section {}", name(s))
+            });
+        }
+        for s in Section::ALL {
+            lines.push(if found.reversed & encoder(s) != 0 {
+                format!("{} encoder reversed", name(s))
+            } else {
+                format!("{} encoder counts with the motion", name(s))
+            });
+        }
+    }
+    let expected_mm = expected_pitch_m * 1e3;
+    let tolerance = pitch_tolerance * 100.0;
+    for s in Section::ALL {
+        let verdict = if *found.pitch_ok.get(s) {
+            "ok".to_string()
+        } else {
+            format!(
+                "off by more than {tolerance:.0} %: check the motor's and the encoder's \
+                 periods in the configuration"
+            )
+        };
+        lines.push(format!(
+            "N-N pitch in section {} {:.2} mm, expected {expected_mm:.2} mm: {verdict}",
+            name(s),
+            found.pitch_m.get(s) * 1e3
+        ));
+    }
+    lines
 }
 
 #[cfg(test)]

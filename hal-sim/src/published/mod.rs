@@ -23,7 +23,6 @@
 //! published drives had none of this project's fault reactions, so `--fault` is refused.
 
 pub mod drive;
-pub mod paper;
 pub mod profile;
 
 use std::f64::consts::TAU;

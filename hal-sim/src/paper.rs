@@ -1,5 +1,5 @@
 //! The paper's figures redrawn from the simulator (`fpc-sim paper`): Figs. 3–9 of Gusev et
-//! al. on their own quantities and units, the published rig's controller ([`super::Rig`])
+//! al. on their own quantities and units, the published rig's controller ([`crate::published::Rig`])
 //! and ours on the same plant side by side, the paper's stated values drawn as dashed
 //! reference lines; and the electrical cost of both at the Fig. 3 points.
 //!
@@ -33,7 +33,7 @@ use crate::signal::{
 pub const FIG3_RATIOS: [f64; 4] = [3.1, 3.7, 4.3, 5.1];
 
 /// The reference machine with the published rig's encoders (`docs/studies/paper-rig.toml`).
-pub const PAPER_RIG_TOML: &str = include_str!("../../../docs/studies/paper-rig.toml");
+pub const PAPER_RIG_TOML: &str = include_str!("../../docs/studies/paper-rig.toml");
 
 /// The SVG files [`write_figures`] writes, in figure order.
 pub const FIGURES: [&str; 7] = [
