@@ -29,6 +29,8 @@
 //!   update at the peak) are checked in [`MotorPwm::start`].
 //! - TIM8 starts a few timer clocks (≈ 20 ns) after TIM1: the trigger is resynchronised.
 
+use core::mem::ManuallyDrop;
+
 use embassy_stm32::pac;
 use embassy_stm32::pac::timer::vals::{Ckd, Cms, Dir, Mms, Mms2, Ocm, Ossi, Ossr, Sms, Ts};
 use embassy_stm32::pac::timer::TimAdv;
@@ -171,15 +173,19 @@ impl IdleBridges {
 
         MotorPwm {
             _timers: (self.tim1, self.tim8),
-            _pins: (section1, section2),
+            _pins: ManuallyDrop::new((section1, section2)),
         }
     }
 }
 
 /// [`PwmOutput`] for both sections. Owns the timers and the gate pins.
+///
+/// The pins are never dropped: a dropped pin returns to an analog input, which would leave
+/// its gate driver's input floating instead of driven low by the timer's idle state. The
+/// control task owns them for the program's life, so no drop code exists for them.
 pub struct MotorPwm {
     _timers: (Peri<'static, TIM1>, Peri<'static, TIM8>),
-    _pins: (SectionPins<TIM1>, SectionPins<TIM8>),
+    _pins: ManuallyDrop<(SectionPins<TIM1>, SectionPins<TIM8>)>,
 }
 
 /// Verifies at boot what the timing rests on: TIM8 was started by TIM1's TRGO (the ITR

@@ -1,5 +1,7 @@
 //! The rotation servo: its quadrature encoder on TIM4 and its analog torque command on DAC1.
 
+use core::mem::ManuallyDrop;
+
 use embassy_stm32::gpio::Flex;
 use embassy_stm32::pac;
 use embassy_stm32::pac::dac::vals::Mode;
@@ -25,7 +27,10 @@ pub const ENCODER_FILTER: FilterValue = FilterValue::FDTS_DIV16_N8;
 /// counting noise; they are far too weak for an open-collector encoder (≈ 4 µs rise with
 /// 100 pF of cable, against 2.44 µs between edges at 100 rev/s), which needs external
 /// pull-ups of about 1 kΩ.
-pub struct ServoEncoder(Qei<'static, TIM4>);
+///
+/// Never dropped (the control task owns it for the program's life): a dropped encoder would
+/// return its pins to analog inputs and stop the count the rotation's position rests on.
+pub struct ServoEncoder(ManuallyDrop<Qei<'static, TIM4>>);
 
 impl ServoEncoder {
     /// Wraps an encoder-mode timer and sets its input filter ([`ENCODER_FILTER`]) with the
@@ -41,7 +46,7 @@ impl ServoEncoder {
         });
         tim.cnt().write(|w| w.set_cnt(0));
         tim.cr1().modify(|w| w.set_cen(true));
-        ServoEncoder(qei)
+        ServoEncoder(ManuallyDrop::new(qei))
     }
 }
 
@@ -56,9 +61,12 @@ impl QuadratureInput for ServoEncoder {
 /// Written through the PAC rather than embassy's `DacChannel`, whose constructor enables
 /// the channel with the data register still at its reset value 0 (full negative torque)
 /// before the caller can write mid-scale.
+///
+/// The pin is never dropped (the control task owns it for the program's life): a dropped pin
+/// would leave the analog mode the DAC's output needs.
 pub struct ServoTorque {
     _dac: Peri<'static, DAC1>,
-    _pin: Flex<'static>,
+    _pin: ManuallyDrop<Flex<'static>>,
 }
 
 impl ServoTorque {
@@ -79,7 +87,7 @@ impl ServoTorque {
         regs.cr().modify(|w| w.set_en(0, true));
         ServoTorque {
             _dac: dac,
-            _pin: pin,
+            _pin: ManuallyDrop::new(pin),
         }
     }
 }
