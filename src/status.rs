@@ -27,6 +27,9 @@ pub enum ModeKind {
     Faulted,
     /// Running a calibration routine.
     Calibrating,
+    /// A bench operation of the bring-up (the bench build's).
+    #[cfg(feature = "bench")]
+    Bench,
 }
 
 impl ModeKind {
@@ -41,6 +44,8 @@ impl ModeKind {
             ModeKind::Stopping => "stopping",
             ModeKind::Faulted => "faulted",
             ModeKind::Calibrating => "calibrating",
+            #[cfg(feature = "bench")]
+            ModeKind::Bench => "bench",
         }
     }
 }

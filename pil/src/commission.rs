@@ -33,15 +33,15 @@ pub struct Commissioned {
 
 /// The host's channels on the emulated chip: read and written in its RAM, the chip run while
 /// the host waits.
-struct Attached<'a> {
-    s: &'a mut Session,
-    block: ControlBlock,
+pub(crate) struct Attached<'a> {
+    pub(crate) s: &'a mut Session,
+    pub(crate) block: ControlBlock,
     /// The emulation's error, once it stopped.
-    stopped: Option<String>,
+    pub(crate) stopped: Option<String>,
 }
 
 impl Attached<'_> {
-    fn check(&self) -> io::Result<()> {
+    pub(crate) fn check(&self) -> io::Result<()> {
         match &self.stopped {
             Some(e) => Err(io::Error::other(e.clone())),
             None => Ok(()),

@@ -11,6 +11,7 @@
 //! | [`session`] | the host attached as a probe: RTT (hal-sim's reader over the chip's memory), defmt, telemetry |
 //! | [`run`], [`faults`] | the main job's scenario and the fault scenarios |
 //! | [`commission`] | the motor's commissioning, as the host runs it over the link |
+//! | [`bench`] | the bring-up's bench operations (a fixed duty, a servo torque) over the link |
 //! | [`mutants`] | the mutation tests: each deliberate mistake caught |
 //! | [`save_timing`] | the control period while a save erases and programs flash |
 //! | [`log`] | the defmt log of up 0 |
@@ -21,6 +22,7 @@
 //! workspace so that nothing else in the repository links it (see `pil/README.md`).
 #![warn(missing_docs)]
 
+pub mod bench;
 pub mod board;
 pub mod capture;
 pub mod chip;

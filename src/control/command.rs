@@ -62,6 +62,60 @@ pub enum Command {
         /// The routine.
         routine: Routine,
     },
+    /// A bench operation of the bring-up (`docs/bring-up.md` §2, §9) for `seconds`; the
+    /// bench build's. Ends early on `Stop` or any fault.
+    #[cfg(feature = "bench")]
+    Bench {
+        /// What to drive.
+        op: BenchOp,
+        /// How long, s (within [`BENCH_MAX_SECONDS`]).
+        seconds: f32,
+    },
+}
+
+/// The longest bench operation, s.
+#[cfg(feature = "bench")]
+pub const BENCH_MAX_SECONDS: f32 = 60.0;
+
+/// The fixed duties a bench operation accepts (the gate drivers' bootstrap capacitors need
+/// a low-side pulse every period; the dead time needs room at both ends).
+#[cfg(feature = "bench")]
+pub const BENCH_DUTY_RANGE: (f32, f32) = (0.05, 0.95);
+
+/// The largest servo torque a bench operation commands, as a fraction of the DAC's full
+/// scale (`servo.torque_full_scale_nm`): a quarter, 5 N·m on the reference drive, above the
+/// piston seal's breakaway torque (its static friction at the bore's radius, ≈ 2.7 N·m).
+#[cfg(feature = "bench")]
+pub const BENCH_SERVO_FRACTION: f32 = 0.25;
+
+/// How far a bench servo torque turns the shaft before it ends, rad (a quarter turn): with
+/// no position loop the drive accelerates as long as it pushes.
+#[cfg(feature = "bench")]
+pub const BENCH_SERVO_TURN_RAD: f32 = core::f32::consts::FRAC_PI_2;
+
+/// What a bench operation drives (the bench build's).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg(feature = "bench")]
+pub enum BenchOp {
+    /// One phase of one section at a fixed duty, the section's other two phases and the
+    /// other section's three at 50 % (no line voltage between them): every gate pair
+    /// switching, on the low-voltage bench supply only (power-good low).
+    FixedDuty {
+        /// The section.
+        section: crate::units::Section,
+        /// The phase (0 = u, 1 = v, 2 = w).
+        phase: u8,
+        /// Its duty, fraction of the period (within [`BENCH_DUTY_RANGE`]).
+        duty: f32,
+    },
+    /// A torque command to the servo drive, N·m (positive: the machine's positive
+    /// direction; within [`BENCH_SERVO_FRACTION`] of full scale), until the shaft has
+    /// turned [`BENCH_SERVO_TURN_RAD`]; the motor's outputs off.
+    ServoTorque {
+        /// The torque, N·m.
+        torque_nm: f32,
+    },
 }
 
 /// The parameters the host may set at run time, with stable numbers (the command codec
@@ -149,6 +203,10 @@ pub enum Refusal {
     /// A bench routine (the commissioning) asked of a firmware built without them: flash the
     /// `bench` build (`docs/bring-up.md` §10).
     BenchBuildOnly,
+    /// A fixed duty asked with the DC link up: it runs on the low-voltage bench supply only,
+    /// with power-good low (the bench build's).
+    #[cfg(feature = "bench")]
+    SupplyUp,
 }
 
 impl Refusal {
@@ -185,6 +243,11 @@ impl Refusal {
             }
             Refusal::BenchBuildOnly => {
                 "a bench routine: this firmware is built without them; flash the bench build"
+            }
+            #[cfg(feature = "bench")]
+            Refusal::SupplyUp => {
+                "the DC link is up (power-good high): a fixed duty runs on the low-voltage \
+                 bench supply only; switch the bus supply off"
             }
         }
     }

@@ -18,6 +18,7 @@
 //! | `0x1C` | [`Transfer::Write`] | `offset: u8` ‖ 1..=[`CHUNK_BYTES`] record bytes |
 //! | `0x1D` | [`Transfer::Commit`] | `crc: u32` (the record's own CRC-32, its last 4 bytes) |
 //! | `0x1E`..`0x22` | [`LinkRequest`] | see [`crate::link::settings`] |
+//! | `0x24` | `Command::Bench` (the bench build's; the release firmware rejects the tag as unknown) | `0` ‖ `section: u8` ‖ `phase: u8` ‖ `duty: f32` (a fixed duty), or `1` ‖ `torque_nm: f32` (a servo torque); then `seconds: f32` |
 //!
 //! The calibration transfer (`0x1B`..`0x1D`) is the command task's, not the controller's:
 //! the record ([`crate::control::calibration::record`], [`RECORD_BYTES`] bytes) moves in
@@ -47,6 +48,8 @@
 
 use crate::control::calibration::record::RECORD_BYTES;
 use crate::control::calibration::Routine;
+#[cfg(feature = "bench")]
+use crate::control::command::BenchOp;
 use crate::control::command::Reply;
 use crate::control::command::{Command, Parameter, Refusal};
 use crate::motion::synchroniser::Rotation;
@@ -145,6 +148,27 @@ fn command_payload(command: &Command, out: &mut [u8; MAX_COMMAND_PAYLOAD]) -> us
             w.byte(parameter as u8);
             w.f32(value);
         }
+        #[cfg(feature = "bench")]
+        Command::Bench { op, seconds } => {
+            w.byte(tag::BENCH);
+            match op {
+                BenchOp::FixedDuty {
+                    section,
+                    phase,
+                    duty,
+                } => {
+                    w.byte(0);
+                    w.byte(section as u8);
+                    w.byte(phase);
+                    w.f32(duty);
+                }
+                BenchOp::ServoTorque { torque_nm } => {
+                    w.byte(1);
+                    w.f32(torque_nm);
+                }
+            }
+            w.f32(seconds);
+        }
     }
     w.len
 }
@@ -229,8 +253,39 @@ pub fn decode_command(payload: &[u8]) -> Result<Command, FrameError> {
                 }),
             _ => Err(FrameError::BadLength),
         },
+        #[cfg(feature = "bench")]
+        tag::BENCH => decode_bench(fields),
         _ => Err(FrameError::UnknownKind),
     }
+}
+
+/// A bench command's fields: `0 ‖ section: u8 ‖ phase: u8 ‖ duty: f32` or
+/// `1 ‖ torque_nm: f32`, then `seconds: f32`.
+#[cfg(feature = "bench")]
+fn decode_bench(fields: &[u8]) -> Result<Command, FrameError> {
+    use crate::units::Section;
+    let (op, seconds) = match fields {
+        [0, section, phase, rest @ ..] if rest.len() == 8 => {
+            let section = *Section::ALL
+                .get(usize::from(*section))
+                .ok_or(FrameError::BadValue)?;
+            let op = BenchOp::FixedDuty {
+                section,
+                phase: *phase,
+                duty: f32_at(rest, 0)?,
+            };
+            (op, f32_at(rest, 4)?)
+        }
+        [1, rest @ ..] if rest.len() == 8 => {
+            let op = BenchOp::ServoTorque {
+                torque_nm: f32_at(rest, 0)?,
+            };
+            (op, f32_at(rest, 4)?)
+        }
+        [0 | 1, ..] | [] => return Err(FrameError::BadLength),
+        _ => return Err(FrameError::BadValue),
+    };
+    Ok(Command::Bench { op, seconds })
 }
 
 /// Stable number of a refusal on the wire (0 is "accepted").
@@ -251,11 +306,17 @@ pub const fn refusal_code(refusal: Refusal) -> u8 {
         Refusal::EncodersAbsent => 13,
         Refusal::PressuresAbsent => 14,
         Refusal::BenchBuildOnly => 15,
+        #[cfg(feature = "bench")]
+        Refusal::SupplyUp => 16,
     }
 }
 
 /// The refusal with wire number `code`.
 pub fn refusal_from_code(code: u8) -> Option<Refusal> {
+    #[cfg(feature = "bench")]
+    if code == refusal_code(Refusal::SupplyUp) {
+        return Some(Refusal::SupplyUp);
+    }
     [
         Refusal::NotFinite,
         Refusal::OutOfRange,

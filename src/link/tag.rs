@@ -43,6 +43,8 @@ pub const SCOPE_FIRE: u8 = 0x21;
 pub const SCOPE_DISARM: u8 = 0x22;
 /// [`crate::link::settings::LinkRequest::RoutineReport`].
 pub const ROUTINE_REPORT: u8 = 0x23;
+/// `Command::Bench` (the bench build's; the release firmware rejects it as an unknown tag).
+pub const BENCH: u8 = 0x24;
 
 /// Which request a verdict answers: its tag and its offset (read, write) or CRC (commit).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -231,11 +231,17 @@ pub const fn mode_code(mode: ModeKind) -> u8 {
         ModeKind::Faulted => 5,
         ModeKind::Running => 6,
         ModeKind::Calibrating => 7,
+        #[cfg(feature = "bench")]
+        ModeKind::Bench => 8,
     }
 }
 
 /// The mode with wire number `code`.
 pub fn mode_from_code(code: u8) -> Option<ModeKind> {
+    #[cfg(feature = "bench")]
+    if code == mode_code(ModeKind::Bench) {
+        return Some(ModeKind::Bench);
+    }
     [
         ModeKind::Idle,
         ModeKind::Homing,
@@ -542,7 +548,9 @@ mod tests {
                 assert_eq!(mode_code(m), c);
             }
         }
-        assert_eq!((0..=255u8).filter_map(mode_from_code).count(), 8);
+        // The bench build adds `bench`.
+        let modes = if cfg!(feature = "bench") { 9 } else { 8 };
+        assert_eq!((0..=255u8).filter_map(mode_from_code).count(), modes);
     }
 
     proptest! {

@@ -17,6 +17,7 @@
 //! sessions in the tests. [`Replay`] plays recorded channel contents. [`probe`] (cargo feature `probe`, off by
 //! default) attaches to the board with the `probe-rs` library.
 
+pub mod bench;
 pub mod defmt;
 pub mod memory;
 #[cfg(feature = "probe")]

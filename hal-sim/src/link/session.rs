@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use fpc::control::calibration::record::RECORD_BYTES;
 use fpc::control::calibration::report::RoutineState;
-use fpc::control::command::{Command, Refusal, Reply};
+use fpc::control::command::{BenchOp, Command, Refusal, Reply};
 use fpc::link::commands::{
     decode_answer, encode_command, encode_transfer, Answer, Chunk, Transfer, TransferReply,
     CHUNK_BYTES, MAX_COMMAND_WIRE,
@@ -653,6 +653,23 @@ pub fn describe(command: &Command) -> String {
         Command::SetParameter { parameter, value } => {
             format!("set-parameter {} {value}", parameter_name(parameter as u8))
         }
+        Command::Bench { op, seconds } => match op {
+            BenchOp::FixedDuty {
+                section,
+                phase,
+                duty,
+            } => format!(
+                "bench fixed-duty --section {} --phase {} --duty {duty} --seconds {seconds}",
+                match section {
+                    fpc::units::Section::Master => "master",
+                    fpc::units::Section::Slave => "slave",
+                },
+                ["u", "v", "w"].get(usize::from(phase)).unwrap_or(&"?"),
+            ),
+            BenchOp::ServoTorque { torque_nm } => {
+                format!("bench servo-torque --torque {torque_nm} --seconds {seconds}")
+            }
+        },
     }
 }
 

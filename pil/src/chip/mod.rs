@@ -361,6 +361,18 @@ pub enum Milestone {
 }
 
 impl Soc {
+    /// TIM1's (`timer` 0) or TIM8's (1) register at offset `off` ([`timers::reg`]) as last
+    /// written (CCRx, CCER, BDTR: the registers the output stage reads); 0 elsewhere.
+    pub fn timer_register(&self, timer: usize, off: u32) -> u32 {
+        let t = if timer == 0 { &self.tim1 } else { &self.tim8 };
+        t.regs.get((off / 4) as usize).copied().unwrap_or(0)
+    }
+
+    /// DAC1 channel 1's output code (DHR12R1 as transferred to the output).
+    pub fn dac_code(&self) -> u16 {
+        (self.dac_dhr & 0xFFF) as u16
+    }
+
     /// DMA1 channel `c`'s memory address (CMAR): where the firmware asked its transfers to go.
     pub fn dma_memory_address(&self, c: usize) -> u32 {
         self.dma.ch.get(c).map_or(0, |ch| ch[3])

@@ -31,6 +31,10 @@ impl ControlStep {
             present.saturating_add(1)
         };
         let settled = usize::from(*present) >= 2 * self.config.sg_window;
+        // A bench operation moves the piston itself (a phase's current pulls it; a turn of
+        // the rotation breaks the seal's grip and the cogging moves it).
+        #[cfg(feature = "bench")]
+        let settled = settled && !self.supervision.bench_since_boot;
         if settled && s.derivatives.velocity_mps.abs() > MOVING_AT_BOOT_MPS {
             self.supervision.energised = true;
             self.publish.absent = Absent::NONE;

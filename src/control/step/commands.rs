@@ -7,6 +7,8 @@ use super::safe_state::FaultedBrake;
 use super::sense::Sensing;
 use crate::control::calibration::record::CalibrationStatus;
 use crate::control::calibration::{Calibration, Routine, SenseMonitor};
+#[cfg(feature = "bench")]
+use crate::control::command::{BenchOp, BENCH_DUTY_RANGE, BENCH_MAX_SECONDS, BENCH_SERVO_FRACTION};
 use crate::control::command::{Command, Parameter, Refusal};
 use crate::control::config::ControlConfig;
 use crate::motion::stroke::StrokeGenerator;
@@ -128,6 +130,9 @@ pub(super) fn check(command: Command, m: &MachineView) -> Result<Change, Refusal
         Command::Stop => Ok(Change::Stop),
         Command::Calibrate { routine } => calibrate(m, routine),
         Command::ClearFaults => clear_faults(m),
+        // Checked and started out of line, before this (`ControlStep::bench_command`).
+        #[cfg(feature = "bench")]
+        Command::Bench { op, seconds } => check_bench(m, op, seconds).map(|_| Change::Nothing),
     }
 }
 
@@ -257,4 +262,51 @@ fn speed(c: &ControlConfig, peak_speed_mps: f32) -> Result<(), Refusal> {
         return Err(Refusal::OutOfRange);
     }
     Ok(())
+}
+
+/// Checks a bench command (the bench build's) against the machine: the operation to run and
+/// its cycles, or why not. Refused with a value out of its range (a phase beyond w among
+/// them), a fault latched, the machine not idle; a fixed duty also with the DC link up, and
+/// once homed closer to a head than half an electrical period (how far a phase's DC current
+/// may pull the mover) plus the routines' margins.
+#[cfg(feature = "bench")]
+pub(super) fn check_bench(
+    m: &MachineView,
+    op: BenchOp,
+    seconds: f32,
+) -> Result<(BenchOp, u32), Refusal> {
+    let c = m.config;
+    let (value, in_range) = match op {
+        BenchOp::FixedDuty { phase, duty, .. } => (
+            duty,
+            phase < 3 && (BENCH_DUTY_RANGE.0..=BENCH_DUTY_RANGE.1).contains(&duty),
+        ),
+        BenchOp::ServoTorque { torque_nm } => (
+            torque_nm,
+            torque_nm.abs() <= BENCH_SERVO_FRACTION * c.servo.torque_full_scale_nm,
+        ),
+    };
+    if !(value.is_finite() && seconds.is_finite()) {
+        return Err(Refusal::NotFinite);
+    }
+    if !(in_range && seconds > 0.0 && seconds <= BENCH_MAX_SECONDS) {
+        return Err(Refusal::OutOfRange);
+    }
+    if !m.faults.is_empty() {
+        return Err(Refusal::FaultActive);
+    }
+    if !matches!(m.mode, Mode::Idle) {
+        return Err(Refusal::Busy);
+    }
+    if let BenchOp::FixedDuty { .. } = op {
+        if m.supply_good {
+            return Err(Refusal::SupplyUp);
+        }
+        let near =
+            c.target_clearance_m + c.calibration.sweep_margin_m + 0.5 * c.motor.electrical_period_m;
+        if m.homed && !(near..=c.travel_m - near).contains(&m.position_m) {
+            return Err(Refusal::OutOfRange);
+        }
+    }
+    Ok((op, (seconds / c.sample_time_s) as u32))
 }

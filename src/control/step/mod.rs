@@ -29,6 +29,8 @@
 
 mod absent;
 mod actuate;
+#[cfg(feature = "bench")]
+mod bench;
 mod calibrate;
 mod commands;
 mod estimate;
@@ -401,6 +403,9 @@ impl ControlStep {
             }
             // A calibration drives the outputs itself, at the end of the step.
             None if matches!(self.plan.mode, Mode::Calibrating(_)) => None,
+            // So does a bench operation.
+            #[cfg(feature = "bench")]
+            None if matches!(self.plan.mode, Mode::Bench(_)) => None,
             None => {
                 if let Some(fault) = planned.fault {
                     self.react(Trip::of(fault));
@@ -416,6 +421,8 @@ impl ControlStep {
 
         let sections = self.safe.sections_in_service();
         let calibrating = matches!(self.plan.mode, Mode::Calibrating(_));
+        #[cfg(feature = "bench")]
+        let calibrating = calibrating || matches!(self.plan.mode, Mode::Bench(_));
         if !calibrating {
             out(pwm.as_ref(), sections);
         }
@@ -429,6 +436,12 @@ impl ControlStep {
             self.calibration_cycle(&inputs.currents)
         } else {
             pwm
+        };
+        #[cfg(feature = "bench")]
+        let servo = if calibrating {
+            self.bench_servo(servo)
+        } else {
+            servo
         };
         CycleOutputs {
             pwm,
@@ -660,6 +673,10 @@ impl ControlStep {
         &mut self,
         currents: &PerSection<PhaseCurrentCodes>,
     ) -> Option<PerSection<PhaseDuties>> {
+        #[cfg(feature = "bench")]
+        if let Mode::Bench(_) = self.plan.mode {
+            return self.bench_cycle(currents);
+        }
         let now = self.publish.previous;
         let forces = PerSection {
             master: self.publish.force_master_n,
@@ -778,8 +795,20 @@ impl ControlStep {
     /// Handles a host command: checked into the change it makes ([`commands::check`]), which
     /// is applied here; a refused command changes nothing.
     pub fn command(&mut self, command: Command) -> Result<(), Refusal> {
+        #[cfg(feature = "bench")]
+        if let Command::Bench { op, seconds } = command {
+            return self.bench_command(op, seconds);
+        }
+        let change = commands::check(command, &self.view())?;
+        self.apply(change);
+        Ok(())
+    }
+
+    /// The machine as the command checks see it.
+    #[inline(always)]
+    fn view(&self) -> MachineView<'_> {
         let previous = &self.publish.previous;
-        let view = MachineView {
+        MachineView {
             config: &self.config,
             mode: &self.plan.mode,
             faults: &self.safe.faults,
@@ -793,10 +822,7 @@ impl ControlStep {
             absent: self.publish.absent,
             brake: self.plan.stop.brake,
             dead_point_gain: self.plan.dead_point_gain,
-        };
-        let change = commands::check(command, &view)?;
-        self.apply(change);
-        Ok(())
+        }
     }
 
     /// Applies an accepted command's change.
@@ -991,6 +1017,110 @@ mod tests {
                 discharge: p,
             },
         }
+    }
+
+    /// The bench operations on a bench with the bus at 12 V (power-good low since boot)
+    /// and the sensors connected: a fixed duty drives its phase and 50 % elsewhere without
+    /// energising (the supply stays absent, not a fault), ends on `Stop`, at its time and the
+    /// cycle power-good rises; a servo torque drives the DAC with the outputs off. Each is
+    /// refused out of range, with a fault latched or the machine busy, the fixed duty with
+    /// the link up.
+    #[test]
+    fn bench_operations_drive_one_phase_or_the_servo_and_end_on_stop_time_or_the_link() {
+        use crate::control::command::BenchOp;
+        use crate::units::{DacCode, Duty, Section};
+        let config = ControlConfig::reference();
+        let mut step = ControlStep::new(config.clone()).unwrap();
+        step.boot(ResetCause::PowerOn);
+        let mut n = 0;
+        let mut cycle = |step: &mut ControlStep, supply: bool| {
+            step.supply(supply);
+            n += 1;
+            step.step(&bench_inputs(&config, n, true))
+        };
+        for _ in 0..200 {
+            cycle(&mut step, false);
+        }
+        let fixed = |duty: f32| BenchOp::FixedDuty {
+            section: Section::Slave,
+            phase: 2,
+            duty,
+        };
+        let bench = |op, seconds| Command::Bench { op, seconds };
+        let torque = |torque_nm| BenchOp::ServoTorque { torque_nm };
+        for (command, refusal) in [
+            (bench(fixed(0.99), 1.0), Refusal::OutOfRange),
+            (bench(fixed(0.04), 1.0), Refusal::OutOfRange),
+            (bench(fixed(0.3), 61.0), Refusal::OutOfRange),
+            (bench(fixed(0.3), 0.0), Refusal::OutOfRange),
+            (bench(fixed(f32::NAN), 1.0), Refusal::NotFinite),
+            (bench(torque(5.01), 1.0), Refusal::OutOfRange),
+            (bench(torque(-5.01), 1.0), Refusal::OutOfRange),
+            (bench(torque(0.5), f32::INFINITY), Refusal::NotFinite),
+        ] {
+            assert_eq!(step.command(command), Err(refusal), "{command:?}");
+        }
+        assert_eq!(step.command(bench(fixed(0.3), 1.0)), Ok(()));
+        assert_eq!(
+            step.command(bench(torque(0.5), 1.0)),
+            Err(Refusal::Busy),
+            "one at a time"
+        );
+        let half = [Duty::HALF; 3];
+        let mut slave = half;
+        slave[2] = Duty::from_fraction(0.3);
+        for _ in 0..100 {
+            let out = cycle(&mut step, false);
+            let duties = PerSection {
+                master: half,
+                slave,
+            };
+            assert_eq!(out.pwm, Some(duties));
+            assert_eq!(
+                out.sections,
+                PerSection {
+                    master: true,
+                    slave: true
+                }
+            );
+        }
+        let s = step.status();
+        assert_eq!(s.mode, crate::status::ModeKind::Bench);
+        assert!(s.faults.is_empty(), "{:?}", s.faults);
+        assert!(
+            !step.supervision.energised,
+            "the supply stays absent, not lost"
+        );
+        // Stop ends it at once; the machine is idle, the outputs off.
+        assert_eq!(step.command(Command::Stop), Ok(()));
+        assert_eq!(cycle(&mut step, false).pwm, None);
+        assert_eq!(step.status().mode, crate::status::ModeKind::Idle);
+        // Its time: 1 ms is 20 cycles.
+        assert_eq!(step.command(bench(fixed(0.6), 0.001)), Ok(()));
+        let driven = (0..30).filter(|_| cycle(&mut step, false).pwm.is_some());
+        assert_eq!(driven.count(), 19);
+        // Power-good rising ends a fixed duty the same cycle; with the link up it is refused.
+        assert_eq!(step.command(bench(fixed(0.6), 1.0)), Ok(()));
+        assert!(cycle(&mut step, false).pwm.is_some());
+        assert_eq!(cycle(&mut step, true).pwm, None);
+        assert_eq!(step.status().mode, crate::status::ModeKind::Idle);
+        assert_eq!(step.command(bench(fixed(0.6), 1.0)), Err(Refusal::SupplyUp));
+        // The servo torque: its DAC code, the outputs off; zero torque after.
+        assert_eq!(step.command(bench(torque(0.5), 0.01)), Ok(()));
+        let code = crate::drive::servo::ServoController::new(config.servo).command(0.5);
+        assert_eq!(code, DacCode(2099));
+        for _ in 0..199 {
+            let out = cycle(&mut step, true);
+            assert_eq!((out.pwm, out.servo), (None, code));
+        }
+        let out = cycle(&mut step, true);
+        assert_eq!(out.servo, step.rotary.servo.command(0.0));
+        // A fault latched: refused.
+        step.react(Trip::of(Fault::Overspeed));
+        assert_eq!(
+            step.command(bench(torque(0.5), 1.0)),
+            Err(Refusal::FaultActive)
+        );
     }
 
     #[test]

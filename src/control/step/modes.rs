@@ -36,11 +36,31 @@ pub(super) enum Mode {
     Idle,
     Homing(Homing),
     Holding(Setpoint),
-    Moving { path: PointToPoint, elapsed_s: f32 },
+    Moving {
+        path: PointToPoint,
+        elapsed_s: f32,
+    },
     Running(StrokeGenerator),
-    Stopping { setpoint: Setpoint, then: AfterStop },
+    Stopping {
+        setpoint: Setpoint,
+        then: AfterStop,
+    },
     Faulted,
     Calibrating(Calibration),
+    /// A bench operation of the bring-up (the bench build's).
+    #[cfg(feature = "bench")]
+    Bench(BenchRun),
+}
+
+/// A bench operation under way (the bench build's).
+#[cfg(feature = "bench")]
+#[derive(Clone, Copy, Debug)]
+pub(super) struct BenchRun {
+    pub op: crate::control::command::BenchOp,
+    /// The servo's angle when the operation started, rad.
+    pub servo_from_rad: f32,
+    /// Control cycles left.
+    pub cycles_left: u32,
 }
 
 /// The plan stage's state: the mode, the stops', the last dead point, what a host may tune
@@ -144,6 +164,8 @@ impl Plan {
             Mode::Stopping { .. } => ModeKind::Stopping,
             Mode::Faulted => ModeKind::Faulted,
             Mode::Calibrating(_) => ModeKind::Calibrating,
+            #[cfg(feature = "bench")]
+            Mode::Bench(_) => ModeKind::Bench,
         }
     }
 
@@ -175,6 +197,9 @@ impl Plan {
             }
             // Calibration drives the outputs itself (after the rest of the step).
             Mode::Idle | Mode::Calibrating(_) => None,
+            // A bench operation drives the outputs itself.
+            #[cfg(feature = "bench")]
+            Mode::Bench(_) => None,
             Mode::Homing(h) => match h.step(s.raw_m, measured_force_n, dt) {
                 HomingStep::Creep {
                     reference_m,
@@ -366,6 +391,11 @@ impl Plan {
     /// velocity (`previous`, not the reference: after a fault the piston may be far from
     /// it). Without outputs on there is nothing to stop: the mode goes straight to its end.
     pub(super) fn begin_stop(&mut self, then: AfterStop, x: &PlanInputs, homed: bool) {
+        // A bench operation's outputs hold nothing in place.
+        #[cfg(feature = "bench")]
+        if matches!(self.mode, Mode::Bench(_)) {
+            self.mode = Mode::Idle;
+        }
         if matches!(self.mode, Mode::Idle | Mode::Homing(_) | Mode::Faulted) {
             self.mode = match then {
                 AfterStop::Off => Mode::Faulted,

@@ -23,6 +23,10 @@ pub(super) struct Supervision {
     pub energised: bool,
     /// Consecutive cycles with both encoders present, while not energised (saturating).
     pub encoders_present_cycles: u16,
+    /// A bench operation has run since boot: a piston found moving is its doing, not a
+    /// reset in motion (the bench build's).
+    #[cfg(feature = "bench")]
+    pub bench_since_boot: bool,
     pub supervisor: Supervisor,
 }
 
@@ -34,6 +38,8 @@ impl Supervision {
             supply_good: true,
             energised: false,
             encoders_present_cycles: 0,
+            #[cfg(feature = "bench")]
+            bench_since_boot: false,
             supervisor: Supervisor::new(),
         }
     }

@@ -16,9 +16,10 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, Subcommand, ValueEnum};
 use fpc::control::calibration::Routine;
-use fpc::control::command::{Command, Parameter};
+use fpc::control::command::{BenchOp, Command, Parameter};
 use fpc::motion::synchroniser::Rotation;
 use fpc::motion::volume_ratio::RatioTarget;
+use fpc::units::Section;
 
 use crate::calibration::to_toml;
 use crate::cli::decode::{counts, mostly_unusable, report_written};
@@ -317,6 +318,68 @@ enum CommandArg {
         #[arg(allow_negative_numbers = true)]
         value: f32,
     },
+    /// A bench operation of the bring-up (the bench build only: `cargo fw-bench`): prints
+    /// what the board drives and what to measure (docs/bring-up.md §2, §9.3).
+    Bench {
+        #[command(subcommand)]
+        op: BenchArg,
+    },
+}
+
+/// The bench operations, as typed.
+#[derive(Subcommand, Debug)]
+enum BenchArg {
+    /// One phase of one section at a fixed duty, every other phase at 50 %: the gate
+    /// pairs switching on the low-voltage bench supply (power-good low; refused with the DC
+    /// link up).
+    FixedDuty {
+        /// The section (master: TIM1, slave: TIM8).
+        #[arg(long, value_enum)]
+        section: SectionArg,
+        /// The phase.
+        #[arg(long, value_enum)]
+        phase: PhaseArg,
+        /// Its duty, fraction of the period (0.05 to 0.95).
+        #[arg(long, value_name = "FRACTION", allow_negative_numbers = true)]
+        duty: f32,
+        /// How long, s (at most 60; `stop` ends it sooner).
+        #[arg(
+            long,
+            value_name = "S",
+            default_value_t = 10.0,
+            allow_negative_numbers = true
+        )]
+        seconds: f32,
+    },
+    /// A torque command to the servo drive until the shaft has turned a quarter turn, the
+    /// motor's outputs off.
+    ServoTorque {
+        /// The torque, N·m (positive: the machine's positive direction; at most a quarter of
+        /// the drive's full scale, above the piston seal's breakaway torque).
+        #[arg(long, value_name = "NM", allow_negative_numbers = true)]
+        torque: f32,
+        /// How long, s (at most 60; `stop` ends it sooner).
+        #[arg(
+            long,
+            value_name = "S",
+            default_value_t = 5.0,
+            allow_negative_numbers = true
+        )]
+        seconds: f32,
+    },
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum SectionArg {
+    Master,
+    Slave,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum PhaseArg {
+    U,
+    V,
+    W,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -397,6 +460,28 @@ impl CommandArg {
                     ParameterArg::DeadPointGain => Parameter::DeadPointGain,
                 },
                 value,
+            },
+            CommandArg::Bench { ref op } => match *op {
+                BenchArg::FixedDuty {
+                    section,
+                    phase,
+                    duty,
+                    seconds,
+                } => Command::Bench {
+                    op: BenchOp::FixedDuty {
+                        section: match section {
+                            SectionArg::Master => Section::Master,
+                            SectionArg::Slave => Section::Slave,
+                        },
+                        phase: phase as u8,
+                        duty,
+                    },
+                    seconds,
+                },
+                BenchArg::ServoTorque { torque, seconds } => Command::Bench {
+                    op: BenchOp::ServoTorque { torque_nm: torque },
+                    seconds,
+                },
             },
         }
     }
@@ -702,6 +787,22 @@ fn send(args: SendArgs) -> CmdResult {
     let command = args.command.command();
     let mut channels = open(&args.target)?;
     let mut earlier = Vec::new();
+    if let Command::Bench { op, seconds } = command {
+        let done = crate::link::bench::run(
+            &mut channels,
+            op,
+            seconds,
+            Duration::from_millis(args.timeout_ms),
+            |line| earlier.push(line),
+        );
+        for line in earlier {
+            outln!("{line}")?;
+        }
+        for line in done.map_err(Failure::runtime)? {
+            outln!("{line}")?;
+        }
+        return Ok(());
+    }
     if let Command::Calibrate { routine } = command {
         let done = crate::link::report::calibrate(
             &mut channels,
