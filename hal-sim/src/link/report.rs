@@ -19,7 +19,7 @@ use fpc::link::settings::{encode_link_request, LinkRequest};
 use fpc::units::Section;
 
 use super::session::{
-    frame_error_text, outcome_text, report_text, send_command, Exchange, Outcome,
+    frame_error_text, outcome_text, report_text, section_name, send_command, Exchange, Outcome,
 };
 use super::Channels;
 
@@ -161,10 +161,6 @@ pub fn findings_lines(
     expected_pitch_m: f32,
     pitch_tolerance: f32,
 ) -> Vec<String> {
-    let name = |s: Section| match s {
-        Section::Master => "master",
-        Section::Slave => "slave",
-    };
     let phases = |s: Section| match s {
         Section::Master => wiring::MASTER_PHASES,
         Section::Slave => wiring::SLAVE_PHASES,
@@ -177,12 +173,12 @@ pub fn findings_lines(
         let mut parts = Vec::new();
         for s in Section::ALL {
             if set & phases(s) != 0 {
-                parts.push(format!("phases swapped in section {}", name(s)));
+                parts.push(format!("phases swapped in section {}", section_name(s)));
             }
         }
         for s in Section::ALL {
             if set & encoder(s) != 0 {
-                parts.push(format!("{} encoder reversed", name(s)));
+                parts.push(format!("{} encoder reversed", section_name(s)));
             }
         }
         parts.join(" and ")
@@ -198,16 +194,16 @@ pub fn findings_lines(
     } else {
         for s in Section::ALL {
             lines.push(if found.reversed & phases(s) != 0 {
-                format!("phases swapped in section {}", name(s))
+                format!("phases swapped in section {}", section_name(s))
             } else {
-                format!("phases in order in section {}", name(s))
+                format!("phases in order in section {}", section_name(s))
             });
         }
         for s in Section::ALL {
             lines.push(if found.reversed & encoder(s) != 0 {
-                format!("{} encoder reversed", name(s))
+                format!("{} encoder reversed", section_name(s))
             } else {
-                format!("{} encoder counts with the motion", name(s))
+                format!("{} encoder counts with the motion", section_name(s))
             });
         }
     }
@@ -224,7 +220,7 @@ pub fn findings_lines(
         };
         lines.push(format!(
             "N-N pitch in section {} {:.2} mm, expected {expected_mm:.2} mm: {verdict}",
-            name(s),
+            section_name(s),
             found.pitch_m.get(s) * 1e3
         ));
     }

@@ -623,6 +623,14 @@ fn same_command(a: &Command, b: &Command) -> bool {
     }
 }
 
+/// A section's name as the host's commands and printouts spell it.
+pub fn section_name(section: fpc::units::Section) -> &'static str {
+    match section {
+        fpc::units::Section::Master => "master",
+        fpc::units::Section::Slave => "slave",
+    }
+}
+
 /// A command as the operator types it after `fpc-sim link send`.
 pub fn describe(command: &Command) -> String {
     match *command {
@@ -660,10 +668,7 @@ pub fn describe(command: &Command) -> String {
                 duty,
             } => format!(
                 "bench fixed-duty --section {} --phase {} --duty {duty} --seconds {seconds}",
-                match section {
-                    fpc::units::Section::Master => "master",
-                    fpc::units::Section::Slave => "slave",
-                },
+                section_name(section),
                 ["u", "v", "w"].get(usize::from(phase)).unwrap_or(&"?"),
             ),
             BenchOp::ServoTorque { torque_nm } => {
