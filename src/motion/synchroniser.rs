@@ -60,15 +60,57 @@ pub struct Synchroniser {
     inv_stroke: f32,
     theta_start_rad: f32,
     theta_end_rad: f32,
-    /// Cam knots: edge at (u_edge, f_edge); tangents at 0, edge, 1.
+    /// Stroke progress of the timed edge: the knot between the cam's two segments.
     u_edge: f32,
-    f_edge: f32,
-    tangents: [f32; 3],
-    /// 1/h of the two cam segments.
-    inv_h: [f32; 2],
+    /// The cam's two segments as rotation angle against stroke progress, set once per half
+    /// cycle so that a cycle evaluates three short polynomials.
+    segments: [CamSegment; 2],
     edge: TimedEdge,
     /// The edge was crossed by the measured rotation in this half.
     edge_crossed: bool,
+}
+
+/// One segment of the cam, `θ(u) = a₀ + a₁·w + a₂·w² + a₃·w³` with `w = u − u₀` (rad, `u`
+/// the stroke progress), with the coefficients of its first two derivatives.
+#[derive(Clone, Copy, Debug)]
+struct CamSegment {
+    /// Progress at the segment's start.
+    u0: f32,
+    /// `a₀..a₃`, rad.
+    a: [f32; 4],
+    /// `2·a₂`, `3·a₃`, `6·a₃`: dθ/du = a₁ + w·(2a₂ + 3a₃·w), d²θ/du² = 2a₂ + 6a₃·w.
+    derivative: [f32; 3],
+}
+
+impl CamSegment {
+    /// The segment from `(u0, y0)` to `(u0 + h, y1)` with slopes `t0`, `t1` (fractions of the
+    /// half revolution per unit progress), scaled by `span` rad and offset by `theta0` rad.
+    fn hermite(
+        u0: f32,
+        h: f32,
+        y0: f32,
+        y1: f32,
+        t0: f32,
+        t1: f32,
+        span: f32,
+        theta0: f32,
+    ) -> Self {
+        let inv_h = 1.0 / h;
+        let secant = (y1 - y0) * inv_h;
+        // Power basis of the cubic Hermite segment in w = u − u0.
+        let c2 = (3.0 * secant - 2.0 * t0 - t1) * inv_h;
+        let c3 = (t0 + t1 - 2.0 * secant) * inv_h * inv_h;
+        let a = [theta0 + span * y0, span * t0, span * c2, span * c3];
+        CamSegment {
+            u0,
+            a,
+            derivative: [2.0 * a[2], 3.0 * a[3], 6.0 * a[3]],
+        }
+    }
+
+    fn rebase(&mut self, d: f32) {
+        self.a[0] -= d;
+    }
 }
 
 impl Synchroniser {
@@ -83,9 +125,10 @@ impl Synchroniser {
             theta_start_rad: theta_rad,
             theta_end_rad: theta_rad,
             u_edge: 0.5,
-            f_edge: 0.5,
-            tangents: [1.0; 3],
-            inv_h: [2.0; 2],
+            segments: [
+                CamSegment::hermite(0.0, 0.5, 0.0, 0.5, 1.0, 1.0, 0.0, theta_rad),
+                CamSegment::hermite(0.5, 0.5, 0.5, 1.0, 1.0, 1.0, 0.0, theta_rad),
+            ],
             edge: TimedEdge {
                 chamber: Chamber::B,
                 rotation: Rotation::Compressor,
@@ -172,13 +215,16 @@ impl Synchroniser {
             0.0
         };
         self.u_edge = u_edge;
-        self.f_edge = f_edge;
         // Fritsch–Carlson: secant slopes, harmonic mean at the inner knot, secants at the ends
         // (within [0, 3·secant], so the cubic stays monotone).
         let d0 = f_edge / u_edge;
         let d1 = (1.0 - f_edge) / (1.0 - u_edge);
-        self.tangents = [d0, 2.0 * d0 * d1 / (d0 + d1), d1];
-        self.inv_h = [1.0 / u_edge, 1.0 / (1.0 - u_edge)];
+        let me = 2.0 * d0 * d1 / (d0 + d1);
+        let theta0 = self.theta_start_rad;
+        self.segments = [
+            CamSegment::hermite(0.0, u_edge, 0.0, f_edge, d0, me, span, theta0),
+            CamSegment::hermite(u_edge, 1.0 - u_edge, f_edge, 1.0, me, d1, span, theta0),
+        ];
         self.edge = TimedEdge {
             chamber,
             rotation,
@@ -193,12 +239,14 @@ impl Synchroniser {
         self.theta_start_rad -= d;
         self.theta_end_rad -= d;
         self.edge.angle_rad -= d;
+        for segment in &mut self.segments {
+            segment.rebase(d);
+        }
     }
 
     /// The rotation setpoint for the measured position `x_m`, with feed-forward from the
     /// linear reference velocity and acceleration.
     pub fn setpoint(&self, x_m: f32, velocity_mps: f32, acceleration_mps2: f32) -> RotarySetpoint {
-        let span = self.theta_end_rad - self.theta_start_rad;
         if self.inv_stroke == 0.0 {
             return RotarySetpoint {
                 angle_rad: self.theta_end_rad,
@@ -206,13 +254,22 @@ impl Synchroniser {
             };
         }
         let u = clamp_f32((x_m - self.x_start_m) * self.inv_stroke, 0.0, 1.0);
-        let (f, df, ddf) = self.cam(u);
+        let segment = if u <= self.u_edge {
+            &self.segments[0]
+        } else {
+            &self.segments[1]
+        };
+        let w = u - segment.u0;
+        let [a0, a1, a2, a3] = segment.a;
+        let [b2, b3, c3] = segment.derivative;
+        let slope = a1 + w * (b2 + w * b3);
+        let curvature = b2 + w * c3;
         let du = velocity_mps * self.inv_stroke;
         let ddu = acceleration_mps2 * self.inv_stroke;
         RotarySetpoint {
-            angle_rad: self.theta_start_rad + span * f,
-            velocity_rad_s: span * df * du,
-            acceleration_rad_s2: span * (ddf * du * du + df * ddu),
+            angle_rad: a0 + w * (a1 + w * (a2 + w * a3)),
+            velocity_rad_s: slope * du,
+            acceleration_rad_s2: curvature * du * du + slope * ddu,
         }
     }
 
@@ -231,44 +288,6 @@ impl Synchroniser {
         } else {
             None
         }
-    }
-
-    /// The cam: fraction of the half revolution and its first two derivatives at `u`.
-    fn cam(&self, u: f32) -> (f32, f32, f32) {
-        let [m0, me, m1] = self.tangents;
-        let [inv_h0, inv_h1] = self.inv_h;
-        let (u0, y0, t0, h, inv_h, y1, t1) = if u <= self.u_edge {
-            (0.0, 0.0, m0, self.u_edge, inv_h0, self.f_edge, me)
-        } else {
-            (
-                self.u_edge,
-                self.f_edge,
-                me,
-                1.0 - self.u_edge,
-                inv_h1,
-                1.0,
-                m1,
-            )
-        };
-        let t = (u - u0) * inv_h;
-        let t2 = t * t;
-        let t3 = t2 * t;
-        // Cubic Hermite basis and its derivatives in t.
-        let f = (2.0 * t3 - 3.0 * t2 + 1.0) * y0
-            + (t3 - 2.0 * t2 + t) * h * t0
-            + (-2.0 * t3 + 3.0 * t2) * y1
-            + (t3 - t2) * h * t1;
-        let df = ((6.0 * t2 - 6.0 * t) * y0
-            + (3.0 * t2 - 4.0 * t + 1.0) * h * t0
-            + (-6.0 * t2 + 6.0 * t) * y1
-            + (3.0 * t2 - 2.0 * t) * h * t1)
-            * inv_h;
-        let ddf = ((12.0 * t - 6.0) * y0
-            + (6.0 * t - 4.0) * h * t0
-            + (-12.0 * t + 6.0) * y1
-            + (6.0 * t - 2.0) * h * t1)
-            * (inv_h * inv_h);
-        (f, df, ddf)
     }
 }
 
@@ -315,6 +334,70 @@ mod tests {
                 < 1e-3
         );
         assert!((s.setpoint(0.001, 0.0, 0.0).angle_rad - TAU).abs() < 1e-4);
+    }
+
+    /// The cubic Hermite segment through (u0, y0), (u0 + h, y1) with slopes t0, t1, and its
+    /// first two derivatives, in f64 (the textbook form, evaluated directly).
+    fn hermite(u: f64, u0: f64, h: f64, y: [f64; 2], t: [f64; 2]) -> [f64; 3] {
+        let s = (u - u0) / h;
+        let (s2, s3) = (s * s, s * s * s);
+        let f = (2.0 * s3 - 3.0 * s2 + 1.0) * y[0]
+            + (s3 - 2.0 * s2 + s) * h * t[0]
+            + (-2.0 * s3 + 3.0 * s2) * y[1]
+            + (s3 - s2) * h * t[1];
+        let df = ((6.0 * s2 - 6.0 * s) * y[0]
+            + (3.0 * s2 - 4.0 * s + 1.0) * h * t[0]
+            + (-6.0 * s2 + 6.0 * s) * y[1]
+            + (3.0 * s2 - 2.0 * s) * h * t[1])
+            / h;
+        let ddf = ((12.0 * s - 6.0) * y[0]
+            + (6.0 * s - 4.0) * h * t[0]
+            + (-12.0 * s + 6.0) * y[1]
+            + (6.0 * s - 2.0) * h * t[1])
+            / (h * h);
+        [f, df, ddf]
+    }
+
+    #[test]
+    fn the_cam_is_the_fritsch_carlson_cubic_through_the_edge() {
+        // Progress u_edge = (0.15 − 0.001)/0.203, the rotation to B's discharge edge f_edge;
+        // tangents: secants at the ends, their harmonic mean at the edge.
+        let mut s = sync();
+        let (x0, x1, xe) = (0.001f32, 0.204f32, 0.15f32);
+        s.begin_half(Direction::TowardB, Rotation::Compressor, x0, x1, xe, 0.0);
+        let geometry = PortGeometry::<f32>::reference();
+        let ue = f64::from((xe - x0) / (x1 - x0));
+        let fe = f64::from(geometry.half_open_rad(Port::DischargeB)) / core::f64::consts::PI;
+        let (d0, d1) = (fe / ue, (1.0 - fe) / (1.0 - ue));
+        let me = 2.0 * d0 * d1 / (d0 + d1);
+        let (v, a) = (1.5f32, -40.0f32);
+        let stroke = f64::from(x1 - x0);
+        let (du, ddu) = (f64::from(v) / stroke, f64::from(a) / stroke);
+        for i in 0..=1000 {
+            let u = f64::from(i) / 1000.0;
+            let [f, df, ddf] = if u <= ue {
+                hermite(u, 0.0, ue, [0.0, fe], [d0, me])
+            } else {
+                hermite(u, ue, 1.0 - ue, [fe, 1.0], [me, d1])
+            };
+            let x = x0 + (u * stroke) as f32;
+            let sp = s.setpoint(x, v, a);
+            let pi = core::f64::consts::PI;
+            let want = [pi * f, pi * df * du, pi * (ddf * du * du + df * ddu)];
+            let got = [sp.angle_rad, sp.velocity_rad_s, sp.acceleration_rad_s2].map(f64::from);
+            assert!(
+                (got[0] - want[0]).abs() < 2e-5,
+                "u {u}: angle {got:?} vs {want:?}"
+            );
+            assert!(
+                (got[1] - want[1]).abs() < 1e-4 * want[1].abs().max(1.0),
+                "u {u}: {got:?} vs {want:?}"
+            );
+            assert!(
+                (got[2] - want[2]).abs() < 1e-3 * want[2].abs().max(10.0),
+                "u {u}: {got:?} vs {want:?}"
+            );
+        }
     }
 
     #[test]
