@@ -85,6 +85,13 @@ impl Duty {
         if f.is_nan() {
             return Duty::HALF;
         }
+        Duty::from_number(f)
+    }
+
+    /// From a fraction in [0, 1] known not to be NaN (a NaN would give 0 %); out-of-range
+    /// saturates. For callers that have tested for NaN once for several duties.
+    #[inline]
+    pub fn from_number(f: f32) -> Duty {
         // `as u32` is one VCVT on the Cortex-M4 (it saturates: negative → 0, above 2³² − 1 →
         // 2³² − 1) and the cap at 65535 one integer compare; the same result as `as u16`,
         // which compares the float against both ends instead.

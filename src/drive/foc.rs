@@ -179,7 +179,13 @@ impl CurrentController {
             peak_phase_a: max_f32(max_f32(a.abs(), b.abs()), c.abs()),
             voltage_limited: limited,
         };
-        modulate_inv(
+        // One NaN test for the three duties: the vector is finite or NaN here (finite below
+        // the limit; scaled by k < 1 above it) and the table's sin/cos are finite, so a phase
+        // voltage is NaN only if the vector is. A NaN vector gives 50 % on every phase.
+        if (v.d + v.q).is_nan() {
+            return [Duty::HALF; 3];
+        }
+        modulate_number(
             inverse_clarke(inverse_park(v, sin, cos)),
             self.inv_bus_voltage,
         )
@@ -211,6 +217,18 @@ fn modulate_inv(v: [f32; 3], inv: f32) -> PhaseDuties {
     ]
 }
 
+/// [`modulate_inv`] for phase voltages known not to be NaN.
+#[inline(always)]
+fn modulate_number(v: [f32; 3], inv: f32) -> PhaseDuties {
+    let [a, b, c] = v;
+    let offset = -0.5 * (max_f32(max_f32(a, b), c) + min_f32(min_f32(a, b), c));
+    [
+        Duty::from_number(0.5 + (a + offset) * inv),
+        Duty::from_number(0.5 + (b + offset) * inv),
+        Duty::from_number(0.5 + (c + offset) * inv),
+    ]
+}
+
 /// The average phase voltages (V, zero common mode) the duties apply on a bus of `bus_v`:
 /// the inverse of [`modulate`] inside the linear range.
 #[inline]
@@ -223,6 +241,32 @@ pub fn phase_voltages<T: crate::real::Real>(duties: &PhaseDuties, bus_v: T) -> [
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_nan_current_gives_half_duty_on_every_phase_and_a_finite_one_a_duty_in_range() {
+        let motor = MotorParams::reference();
+        let gains = CurrentLoopGains::for_bandwidth(&motor, 2000.0);
+        let mut c = CurrentController::new(&motor, gains, 50e-6);
+        let nan = c.step([f32::NAN, 1.0, -1.0], 0, Dq { d: 0.0, q: 10.0 }, 0.0);
+        assert_eq!(nan, [Duty::HALF; 3]);
+        let mut c = CurrentController::new(&motor, gains, 50e-6);
+        // Far past the voltage limit: scaled back onto it, a vector that is not zero.
+        let big = c.step([0.0; 3], 0x4000_0000, Dq { d: 0.0, q: 1e5 }, 3.0);
+        assert!(c.state().voltage_limited);
+        assert!(big.iter().any(|d| d.0 != Duty::HALF.0), "{big:?}");
+        let mut c = CurrentController::new(&motor, gains, 50e-6);
+        // An infinite reference: the vector is NaN (∞·0), and a NaN vector gives 50 %.
+        let inf = c.step(
+            [0.0; 3],
+            0,
+            Dq {
+                d: f32::INFINITY,
+                q: 0.0,
+            },
+            0.0,
+        );
+        assert_eq!(inf, [Duty::HALF; 3]);
+    }
 
     #[test]
     fn modulation_reproduces_the_voltage_vector() {
