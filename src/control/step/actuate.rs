@@ -100,11 +100,16 @@ impl Drive {
         running: bool,
     ) -> Actuation {
         let model = model_forces(c, sp, s.gas_force_n);
-        let load_n = self.load.observe(c, s, &model, limit);
-        // Cancelled while running strokes only: homing pushes on its end stop on purpose, a
-        // controlled stop has its own observer, and holding and moves keep the behaviour
-        // they were tuned with.
-        let cancel_n = if running { load_n } else { 0.0 };
+        // Observed and cancelled while running strokes only: homing pushes on its end stop
+        // on purpose, a controlled stop has its own observer, and holding and moves keep the
+        // behaviour they were tuned with. Outside them the observer waits reset, and starts
+        // again with the first running cycle (the wait before the first stroke).
+        let cancel_n = if running {
+            self.load.observe(c, s, &model, limit)
+        } else {
+            self.load.reset();
+            0.0
+        };
         let force_n =
             self.position_loop(c, sp, s.position_m, &s.derivatives, &model, cancel_n, limit);
         let force_limited = force_n.abs() >= limit;
