@@ -67,6 +67,10 @@ pub struct ServoController {
     config: ServoConfig,
     /// The configuration's [`ServoConfig::rad_per_count`], rad.
     rad_per_count: f32,
+    /// The same per sample time: a count step's velocity, rad/s.
+    rad_s_per_count: f32,
+    /// DAC codes per N·m of torque: 2047 / full scale.
+    codes_per_nm: f32,
     /// The velocity filter's gain per sample, Ts / (τ + Ts), in (0, 1].
     velocity_alpha: f32,
     last_count: Option<i64>,
@@ -83,6 +87,8 @@ impl ServoController {
         ServoController {
             config,
             rad_per_count: config.rad_per_count(),
+            rad_s_per_count: config.rad_per_count() / config.sample_time_s,
+            codes_per_nm: 2047.0 / config.torque_full_scale_nm,
             velocity_alpha: config.sample_time_s
                 / (config.velocity_filter_s + config.sample_time_s),
             last_count: None,
@@ -117,7 +123,6 @@ impl ServoController {
 
     /// Updates the measurement from the wide count without commanding (outputs off).
     pub fn observe(&mut self, count: i64) {
-        let c = &self.config;
         // Wrapping differences: two i64 instructions on the M4 where saturating ones take a
         // dozen. Exact for every count a quadrature counter makes (it moves by at most 2¹⁵ a
         // cycle and stays within ±2⁶³ for centuries of turning at any speed).
@@ -129,7 +134,7 @@ impl ServoController {
         // twice per cycle (exact either way for the few turns the angle spans).
         // The configuration's constants are taken once, at construction.
         self.angle_rad = i64_to_f32(count.wrapping_sub(self.count_base)) * self.rad_per_count;
-        let raw_velocity = i64_to_f32(step) * self.rad_per_count / c.sample_time_s;
+        let raw_velocity = i64_to_f32(step) * self.rad_s_per_count;
         self.velocity_rad_s += self.velocity_alpha * (raw_velocity - self.velocity_rad_s);
     }
 
@@ -160,7 +165,7 @@ impl ServoController {
         // The float→int cast saturates; t is within ±fs, so the code is within 1..=4095.
         // Through u32 (one VCVT) and an integer cap: the same code as `as u16`, which
         // compares the float against both ends instead.
-        let code = (2048.0 + t / fs * 2047.0 + 0.5) as u32;
+        let code = (2048.0 + t * self.codes_per_nm + 0.5) as u32;
         DacCode(code.min(u32::from(u16::MAX)) as u16)
     }
 }

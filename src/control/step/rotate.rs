@@ -96,13 +96,17 @@ impl RotaryAxis {
             self.reference_rad = self.servo.angle_rad();
             self.servo.command(0.0)
         };
-        // Keep the rotation angles within a few turns of zero (f32 resolution).
-        let turns = (self.reference_rad / core::f32::consts::TAU) as i32;
-        if turns.abs() >= 2 {
-            self.servo.rebase(turns);
-            self.synchroniser.rebase(turns);
-            self.reference_rad -= turns as f32 * core::f32::consts::TAU;
-            self.turns = self.turns.saturating_add(turns);
+        // Keep the rotation angles within a few turns of zero (f32 resolution): re-based from
+        // two whole turns on. The division is taken only past 12 rad (just under two turns,
+        // 4π = 12.57 rad), so the decision is the one the quotient alone would make.
+        if self.reference_rad.abs() >= 12.0 {
+            let turns = (self.reference_rad / core::f32::consts::TAU) as i32;
+            if turns.abs() >= 2 {
+                self.servo.rebase(turns);
+                self.synchroniser.rebase(turns);
+                self.reference_rad -= turns as f32 * core::f32::consts::TAU;
+                self.turns = self.turns.saturating_add(turns);
+            }
         }
         servo
     }
