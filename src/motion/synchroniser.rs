@@ -88,10 +88,8 @@ impl CamSegment {
     fn hermite(
         u0: f32,
         h: f32,
-        y0: f32,
-        y1: f32,
-        t0: f32,
-        t1: f32,
+        [y0, y1]: [f32; 2],
+        [t0, t1]: [f32; 2],
         span: f32,
         theta0: f32,
     ) -> Self {
@@ -126,8 +124,8 @@ impl Synchroniser {
             theta_end_rad: theta_rad,
             u_edge: 0.5,
             segments: [
-                CamSegment::hermite(0.0, 0.5, 0.0, 0.5, 1.0, 1.0, 0.0, theta_rad),
-                CamSegment::hermite(0.5, 0.5, 0.5, 1.0, 1.0, 1.0, 0.0, theta_rad),
+                CamSegment::hermite(0.0, 0.5, [0.0, 0.5], [1.0, 1.0], 0.0, theta_rad),
+                CamSegment::hermite(0.5, 0.5, [0.5, 1.0], [1.0, 1.0], 0.0, theta_rad),
             ],
             edge: TimedEdge {
                 chamber: Chamber::B,
@@ -222,8 +220,8 @@ impl Synchroniser {
         let me = 2.0 * d0 * d1 / (d0 + d1);
         let theta0 = self.theta_start_rad;
         self.segments = [
-            CamSegment::hermite(0.0, u_edge, 0.0, f_edge, d0, me, span, theta0),
-            CamSegment::hermite(u_edge, 1.0 - u_edge, f_edge, 1.0, me, d1, span, theta0),
+            CamSegment::hermite(0.0, u_edge, [0.0, f_edge], [d0, me], span, theta0),
+            CamSegment::hermite(u_edge, 1.0 - u_edge, [f_edge, 1.0], [me, d1], span, theta0),
         ];
         self.edge = TimedEdge {
             chamber,
