@@ -185,9 +185,10 @@ impl CurrentController {
         if (v.d + v.q).is_nan() {
             return [Duty::HALF; 3];
         }
-        modulate_number(
+        modulate_inv(
             inverse_clarke(inverse_park(v, sin, cos)),
             self.inv_bus_voltage,
+            Duty::from_number,
         )
     }
 }
@@ -202,30 +203,19 @@ pub fn angle_sin_cos(angle: u32) -> (f32, f32) {
 /// `bus_v`. Saturates at 0 and 100 %.
 #[inline]
 pub fn modulate(v: [f32; 3], bus_v: f32) -> PhaseDuties {
-    modulate_inv(v, 1.0 / bus_v)
+    modulate_inv(v, 1.0 / bus_v, Duty::from_fraction)
 }
 
-/// [`modulate`] with the reciprocal of the bus voltage given.
-#[inline]
-fn modulate_inv(v: [f32; 3], inv: f32) -> PhaseDuties {
-    let [a, b, c] = v;
-    let offset = -0.5 * (max_f32(max_f32(a, b), c) + min_f32(min_f32(a, b), c));
-    [
-        Duty::from_fraction(0.5 + (a + offset) * inv),
-        Duty::from_fraction(0.5 + (b + offset) * inv),
-        Duty::from_fraction(0.5 + (c + offset) * inv),
-    ]
-}
-
-/// [`modulate_inv`] for phase voltages known not to be NaN.
+/// [`modulate`] with the reciprocal of the bus voltage given and each fraction made a duty
+/// by `duty` ([`Duty::from_fraction`], or [`Duty::from_number`] where NaN is excluded).
 #[inline(always)]
-fn modulate_number(v: [f32; 3], inv: f32) -> PhaseDuties {
+fn modulate_inv(v: [f32; 3], inv: f32, duty: impl Fn(f32) -> Duty) -> PhaseDuties {
     let [a, b, c] = v;
     let offset = -0.5 * (max_f32(max_f32(a, b), c) + min_f32(min_f32(a, b), c));
     [
-        Duty::from_number(0.5 + (a + offset) * inv),
-        Duty::from_number(0.5 + (b + offset) * inv),
-        Duty::from_number(0.5 + (c + offset) * inv),
+        duty(0.5 + (a + offset) * inv),
+        duty(0.5 + (b + offset) * inv),
+        duty(0.5 + (c + offset) * inv),
     ]
 }
 

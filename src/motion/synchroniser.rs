@@ -58,7 +58,6 @@ pub struct Synchroniser {
     x_end_m: f32,
     /// 1/(x_end − x_start), 0 for a degenerate stroke (precomputed: no division per cycle).
     inv_stroke: f32,
-    theta_start_rad: f32,
     theta_end_rad: f32,
     /// Stroke progress of the timed edge: the knot between the cam's two segments.
     u_edge: f32,
@@ -120,7 +119,6 @@ impl Synchroniser {
             x_start_m: 0.0,
             x_end_m: 1.0,
             inv_stroke: 1.0,
-            theta_start_rad: theta_rad,
             theta_end_rad: theta_rad,
             u_edge: 0.5,
             segments: [
@@ -189,12 +187,12 @@ impl Synchroniser {
         let to_edge = wrap_rad(sign * (edge_phase - start_phase));
         // The nominal start is the dead-point phase nearest to where the rotation is now.
         let theta_nominal = theta_now_rad - wrap_signed_rad(theta_now_rad - start_phase);
-        self.theta_start_rad = theta_now_rad;
+        let theta_start = theta_now_rad;
         self.theta_end_rad = theta_nominal + sign * PI;
         let theta_edge = theta_nominal + sign * to_edge;
-        let span = self.theta_end_rad - self.theta_start_rad;
+        let span = self.theta_end_rad - theta_start;
         let f_edge = if span.abs() > 1e-6 {
-            clamp_f32((theta_edge - self.theta_start_rad) / span, 0.02, 0.98)
+            clamp_f32((theta_edge - theta_start) / span, 0.02, 0.98)
         } else {
             0.5
         };
@@ -218,15 +216,21 @@ impl Synchroniser {
         let d0 = f_edge / u_edge;
         let d1 = (1.0 - f_edge) / (1.0 - u_edge);
         let me = 2.0 * d0 * d1 / (d0 + d1);
-        let theta0 = self.theta_start_rad;
         self.segments = [
-            CamSegment::hermite(0.0, u_edge, [0.0, f_edge], [d0, me], span, theta0),
-            CamSegment::hermite(u_edge, 1.0 - u_edge, [f_edge, 1.0], [me, d1], span, theta0),
+            CamSegment::hermite(0.0, u_edge, [0.0, f_edge], [d0, me], span, theta_start),
+            CamSegment::hermite(
+                u_edge,
+                1.0 - u_edge,
+                [f_edge, 1.0],
+                [me, d1],
+                span,
+                theta_start,
+            ),
         ];
         self.edge = TimedEdge {
             chamber,
             rotation,
-            angle_rad: self.theta_start_rad + span * f_edge,
+            angle_rad: theta_start + span * f_edge,
         };
         self.edge_crossed = false;
     }
@@ -234,7 +238,6 @@ impl Synchroniser {
     /// Moves the angle base by whole turns (the servo's count base moves with it).
     pub fn rebase(&mut self, turns: i32) {
         let d = turns as f32 * TAU;
-        self.theta_start_rad -= d;
         self.theta_end_rad -= d;
         self.edge.angle_rad -= d;
         for segment in &mut self.segments {
