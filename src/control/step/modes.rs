@@ -373,7 +373,7 @@ impl Plan {
         let decel = stop_deceleration(
             x.config,
             x.safe.in_service,
-            &x.pressures.last_pa,
+            &x.pressures.last_pa(&x.config.pressure),
             homed,
             position_m,
             0.0,
@@ -419,7 +419,7 @@ impl Plan {
         let decel = stop_deceleration(
             x.config,
             x.safe.in_service,
-            &x.pressures.last_pa,
+            &x.pressures.last_pa(&x.config.pressure),
             homed,
             setpoint.position_m,
             setpoint.velocity_mps,
