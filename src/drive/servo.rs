@@ -123,18 +123,21 @@ impl ServoController {
 
     /// Updates the measurement from the wide count without commanding (outputs off).
     pub fn observe(&mut self, count: i64) {
-        // Wrapping differences: two i64 instructions on the M4 where saturating ones take a
-        // dozen. Exact for every count a quadrature counter makes (it moves by at most 2¹⁵ a
-        // cycle and stays within ±2⁶³ for centuries of turning at any speed).
-        let step = self.last_count.map_or(0, |l| count.wrapping_sub(l));
+        // The step as a wrapping difference of the low 32 bits: exact for every step below
+        // 2³¹ counts (a quadrature counter moves by at most 2¹⁵ a cycle), one instruction
+        // and an i32 → f32 conversion where an i64 difference converts by halves.
+        let step = self
+            .last_count
+            .map_or(0, |l| (count as i32).wrapping_sub(l as i32));
         self.last_count = Some(count);
         // Relative to the base, the count stays within a few turns (the controller re-bases by
         // whole turns), so the f32 angle keeps its full resolution however long it runs.
-        // i64 → f32 by halves: `as f32` is a library call of ~35 instructions on the M4,
-        // twice per cycle (exact either way for the few turns the angle spans).
+        // i64 → f32 by halves: `as f32` is a library call of ~35 instructions on the M4
+        // (exact either way for the few turns the angle spans). The base's wrapping
+        // difference stays within ±2⁶³ for centuries of turning at any speed.
         // The configuration's constants are taken once, at construction.
         self.angle_rad = i64_to_f32(count.wrapping_sub(self.count_base)) * self.rad_per_count;
-        let raw_velocity = i64_to_f32(step) * self.rad_s_per_count;
+        let raw_velocity = step as f32 * self.rad_s_per_count;
         self.velocity_rad_s += self.velocity_alpha * (raw_velocity - self.velocity_rad_s);
     }
 
@@ -191,5 +194,33 @@ mod tests {
         }
         assert_eq!(s.command(100.0), DacCode(4095));
         assert_eq!(s.command(f32::NAN), DacCode(2048));
+    }
+
+    /// The velocity of a step is the same wherever the count is: across the low word's wrap,
+    /// at the i64 range's ends, and for the largest steps a quadrature counter makes.
+    #[test]
+    fn a_count_step_gives_the_same_velocity_wherever_the_count_is() {
+        let config = ServoConfig::reference();
+        let per_count = config.rad_per_count() / config.sample_time_s;
+        for start in [
+            0i64,
+            (1 << 32) - 3,
+            -(1 << 32) + 2,
+            i64::MAX - 40_000,
+            i64::MIN + 5,
+        ] {
+            for step in [0i64, 1, -1, 32_767, -32_768] {
+                let mut s = ServoController::new(config);
+                s.velocity_alpha = 1.0;
+                s.observe(start);
+                s.observe(start.wrapping_add(step));
+                let want = step as f32 * per_count;
+                let got = s.velocity_rad_s();
+                assert!(
+                    (got - want).abs() <= want.abs() * 1e-6,
+                    "{start} + {step}: {got} vs {want}"
+                );
+            }
+        }
     }
 }
