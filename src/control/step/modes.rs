@@ -30,8 +30,10 @@ pub(super) enum AfterStop {
     Park,
 }
 
-/// What the position loop is doing.
+/// What the position loop is doing. `repr(u8)`: an explicit tag byte, which a test of the
+/// mode reads and compares in two instructions (a niche in a variant's data takes four).
 #[derive(Clone, Debug)]
+#[repr(u8)]
 pub(super) enum Mode {
     Idle,
     Homing(Homing),
