@@ -63,7 +63,7 @@ impl Drive {
         let current =
             || CurrentController::new(&config.motor, config.current_gains, config.sample_time_s);
         Drive {
-            load: LoadObserver::new(),
+            load: LoadObserver::new(config),
             kp_n_per_m: config.position_kp_n_per_m,
             kd_ns_per_m: config.position_kd_ns_per_m,
             currents: PerSection {
@@ -105,7 +105,7 @@ impl Drive {
         // behaviour they were tuned with. Outside them the observer waits reset, and starts
         // again with the first running cycle (the wait before the first stroke).
         let cancel_n = if running {
-            self.load.observe(c, s, &model, limit)
+            self.load.observe(s, &model, limit)
         } else {
             self.load.reset();
             0.0

@@ -71,13 +71,25 @@ pub(super) struct LoadObserver {
     pub state: f32,
     /// The estimate as cancelled, N.
     pub n: f32,
+    /// The configuration's products, taken at construction: the bandwidth K times the
+    /// sample time T (1), K times the moving mass (kg/s), the slow follow's rate times T (1).
+    gain: f32,
+    k_mass_kg_s: f32,
+    slow_gain: f32,
+    /// `disturbance_threshold_n`, N.
+    threshold_n: f32,
 }
 
 impl LoadObserver {
-    pub(super) fn new() -> Self {
+    pub(super) fn new(c: &ControlConfig) -> Self {
+        let k = c.disturbance_bandwidth_rad_s;
         LoadObserver {
             state: f32::NAN,
             n: 0.0,
+            gain: k * c.sample_time_s,
+            k_mass_kg_s: k * c.moving_mass_kg,
+            slow_gain: c.disturbance_slow_rad_s * c.sample_time_s,
+            threshold_n: c.disturbance_threshold_n,
         }
     }
 
@@ -124,16 +136,9 @@ impl LoadObserver {
     /// of 0 and the observer restarts from the next cycle; outputs off reset it the same
     /// way (`w` NaN, the estimate 0). State: `w = K·p̂` and the cancelled estimate, both N.
     #[inline(always)]
-    pub(super) fn observe(
-        &mut self,
-        c: &ControlConfig,
-        s: &Sensed,
-        model: &PistonForces<f32>,
-        limit: f32,
-    ) -> f32 {
-        let k = c.disturbance_bandwidth_rad_s;
-        let gain = k * c.sample_time_s;
-        let momentum = k * c.moving_mass_kg * s.derivatives.velocity_mps;
+    pub(super) fn observe(&mut self, s: &Sensed, model: &PistonForces<f32>, limit: f32) -> f32 {
+        let gain = self.gain;
+        let momentum = self.k_mass_kg_s * s.derivatives.velocity_mps;
         let raw = momentum - self.state;
         // Limited to ±limit, NaN to 0 (clamp_f32 would give −limit).
         let d = if raw > -limit {
@@ -154,10 +159,10 @@ impl LoadObserver {
         .net_n();
         self.state = momentum - d + gain * (known_n + d);
         let gap = d - self.n;
-        let follow = if gap.abs() > c.disturbance_threshold_n {
+        let follow = if gap.abs() > self.threshold_n {
             gain
         } else {
-            c.disturbance_slow_rad_s * c.sample_time_s
+            self.slow_gain
         };
         self.n += follow * gap;
         self.n
@@ -192,10 +197,10 @@ mod tests {
 
     /// `cycles` of a piston at constant speed whose motor pushes `motor_n` (the load is
     /// then `−motor_n`); the last estimate cancelled.
-    fn hold(e: &mut LoadObserver, c: &ControlConfig, motor_n: f32, cycles: usize) -> f32 {
+    fn hold(e: &mut LoadObserver, motor_n: f32, cycles: usize) -> f32 {
         let mut d = 0.0;
         for _ in 0..cycles {
-            d = e.observe(c, &sensed(1.0, motor_n), &PistonForces::default(), 10_000.0);
+            d = e.observe(&sensed(1.0, motor_n), &PistonForces::default(), 10_000.0);
         }
         d
     }
@@ -203,37 +208,36 @@ mod tests {
     #[test]
     fn the_observer_finds_a_steady_load_saturates_at_the_limit_and_recovers() {
         let c = ControlConfig::reference();
-        let mut e = LoadObserver::new();
+        let mut e = LoadObserver::new(&c);
         // A 3 kN load toward +x the motor holds: cancelled to within the 300 N threshold in
         // 2 ms (40 cycles), to 1 % in 20 ms.
-        let d = hold(&mut e, &c, -3000.0, 40);
+        let d = hold(&mut e, -3000.0, 40);
         assert!((d - 3000.0).abs() <= 300.0, "{d}");
-        let d = hold(&mut e, &c, -3000.0, 360);
+        let d = hold(&mut e, -3000.0, 360);
         assert!((d - 3000.0).abs() < 30.0, "{d}");
         // 20 kN: the estimate stops at the 10 kN force limit...
-        let d = hold(&mut e, &c, -20_000.0, 200);
+        let d = hold(&mut e, -20_000.0, 200);
         assert!(d <= 10_000.0 && d > 9_900.0, "{d}");
         // ...without winding up: the load gone, it follows down at once (within the 300 N
         // threshold in 2 ms) and settles on zero.
-        let d = hold(&mut e, &c, 0.0, 40);
+        let d = hold(&mut e, 0.0, 40);
         assert!(d.abs() <= 300.0, "{d}");
-        let d = hold(&mut e, &c, 0.0, 2000);
+        let d = hold(&mut e, 0.0, 2000);
         assert!(d.abs() < 1.0, "{d}");
     }
 
     #[test]
     fn a_nan_input_gives_no_force_and_the_observer_restarts() {
         let c = ControlConfig::reference();
-        let mut e = LoadObserver::new();
-        hold(&mut e, &c, -3000.0, 40);
+        let mut e = LoadObserver::new(&c);
+        hold(&mut e, -3000.0, 40);
         let d = e.observe(
-            &c,
             &sensed(f32::NAN, -3000.0),
             &PistonForces::default(),
             10_000.0,
         );
         assert!(d.is_finite(), "{d}");
-        let d = hold(&mut e, &c, -3000.0, 400);
+        let d = hold(&mut e, -3000.0, 400);
         assert!((d - 3000.0).abs() < 30.0, "{d}");
     }
 
@@ -241,7 +245,7 @@ mod tests {
     fn switched_off_it_estimates_nothing() {
         let mut config = ControlConfig::reference();
         config.disturbance_bandwidth_rad_s = 0.0;
-        assert_eq!(hold(&mut LoadObserver::new(), &config, -3000.0, 100), 0.0);
+        assert_eq!(hold(&mut LoadObserver::new(&config), -3000.0, 100), 0.0);
     }
 
     #[test]
