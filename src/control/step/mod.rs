@@ -642,7 +642,7 @@ impl ControlStep {
     /// cycle on the Cortex-M4 (`scripts/bench-cm4.sh`).
     #[inline(never)]
     fn publish(&mut self, t: Ticks, s: &Sensed, limits: LimitFlags) {
-        let turn_rad = self.rotary.turns as f32 * core::f32::consts::TAU;
+        let turn_rad = self.rotary.turns_rad;
         let p = &mut self.publish;
         p.t = t;
         p.mode = self.plan.mode_kind();

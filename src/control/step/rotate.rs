@@ -39,6 +39,8 @@ pub(super) struct RotaryAxis {
     pub direction: Rotation,
     /// Whole turns the rotation base has moved (status angles are unwrapped with it).
     pub turns: i32,
+    /// The same as an angle, `turns·2π`, rad (kept with it: the status reads it every cycle).
+    pub turns_rad: f32,
     /// The rotation reference, rad (within the current turn base).
     pub reference_rad: f32,
     /// Speed of the rotation reference, rad/s.
@@ -55,6 +57,7 @@ impl RotaryAxis {
             volume_ratio: VolumeRatio::new(config.volume_ratio),
             direction: Rotation::Compressor,
             turns: 0,
+            turns_rad: 0.0,
             reference_rad: 0.0,
             reference_speed_rad_s: 0.0,
             planned_discharge_pa: f32::NAN,
@@ -106,6 +109,7 @@ impl RotaryAxis {
                 self.synchroniser.rebase(turns);
                 self.reference_rad -= turns as f32 * core::f32::consts::TAU;
                 self.turns = self.turns.saturating_add(turns);
+                self.turns_rad = self.turns as f32 * core::f32::consts::TAU;
             }
         }
         servo
