@@ -476,8 +476,8 @@ impl ControlStep {
     #[inline(always)]
     fn rotate_stage(&mut self, s: &Sensed, planned: &modes::Planned, outputs_on: bool) -> DacCode {
         if let Some(half) = planned.half {
-            let last_pa = self.sensing.pressures.last_pa(&self.config.pressure);
-            modes::begin_half(&mut self.rotary, half, &self.config, &last_pa);
+            let last_pa = &self.sensing.pressures.last_pa;
+            modes::begin_half(&mut self.rotary, half, &self.config, last_pa);
         }
         let stroke = match (&self.plan.mode, &planned.setpoint) {
             (Mode::Running(g), Some((sp, _))) if !g.waiting() => Some(sp),
@@ -488,7 +488,7 @@ impl ControlStep {
             stroke,
             outputs_on,
             &self.config.gas,
-            &self.sensing.pressures.chamber_pa,
+            &self.sensing.pressures.last_pa,
         )
     }
 
@@ -688,7 +688,7 @@ impl ControlStep {
             forces,
             self.sensing.zero_raw_m.unwrap_or(0.0),
             self.sensing.zero_slave_raw_m,
-            &self.sensing.pressures.last_pa(&self.config.pressure),
+            &self.sensing.pressures.last_pa,
             currents,
         );
         let Mode::Calibrating(calibration) = &mut self.plan.mode else {
@@ -852,9 +852,9 @@ impl ControlStep {
                 if turn_rad.abs() > core::f32::consts::FRAC_PI_2 {
                     generator.wait(rotate::START_TURN_TIME_S);
                 } else {
-                    let last_pa = self.sensing.pressures.last_pa(&self.config.pressure);
+                    let last_pa = &self.sensing.pressures.last_pa;
                     let half = modes::HalfStart::of(&generator);
-                    modes::begin_half(&mut self.rotary, half, &self.config, &last_pa);
+                    modes::begin_half(&mut self.rotary, half, &self.config, last_pa);
                 }
                 self.plan.mode = Mode::Running(generator);
                 self.energise();

@@ -375,7 +375,7 @@ impl Plan {
         let decel = stop_deceleration(
             x.config,
             x.safe.in_service,
-            &x.pressures.last_pa(&x.config.pressure),
+            &x.pressures.last_pa,
             homed,
             position_m,
             0.0,
@@ -421,7 +421,7 @@ impl Plan {
         let decel = stop_deceleration(
             x.config,
             x.safe.in_service,
-            &x.pressures.last_pa(&x.config.pressure),
+            &x.pressures.last_pa,
             homed,
             setpoint.position_m,
             setpoint.velocity_mps,

@@ -68,15 +68,15 @@ impl RotaryAxis {
     /// synchroniser's, locked to `stroke`, the running stroke's setpoint; `None` in every
     /// other mode), the timed port edge is watched, and the angles are kept within a few
     /// turns of zero. `position_m`: the master position, m; `outputs_on`: the servo may
-    /// move (otherwise its reference follows the measured angle); `gas` and `chamber_pa` (the
-    /// last valid chamber pressures, A and B, Pa) judge a discharge opening.
+    /// move (otherwise its reference follows the measured angle); `gas` and `last_pa` (the
+    /// last valid pressures, chamber A, B, suction, discharge, Pa) judge a discharge opening.
     pub(super) fn rotate(
         &mut self,
         position_m: f32,
         stroke: Option<&Setpoint>,
         outputs_on: bool,
         gas: &GasProperties<f32>,
-        chamber_pa: &[f32; 2],
+        last_pa: &[f32; 4],
     ) -> DacCode {
         let servo = if outputs_on {
             let rotary = match stroke {
@@ -92,7 +92,7 @@ impl RotaryAxis {
             self.reference_rad = rotary.angle_rad;
             self.reference_speed_rad_s = rotary.velocity_rad_s;
             if let Some(edge) = self.synchroniser.crossed(self.servo.angle_rad()) {
-                self.edge_crossed(edge.chamber, edge.rotation, gas, chamber_pa);
+                self.edge_crossed(edge.chamber, edge.rotation, gas, last_pa);
             }
             self.servo.control(&rotary)
         } else {
@@ -149,7 +149,7 @@ impl RotaryAxis {
     }
 
     /// The measured rotation crossed the timed edge: in compressor mode the discharge of
-    /// `chamber` just opened, and its pressure (from `chamber_pa`) now says whether it opened
+    /// `chamber` just opened, and its pressure (from `last_pa`) now says whether it opened
     /// on time.
     #[cold]
     #[inline(never)]
@@ -158,14 +158,14 @@ impl RotaryAxis {
         chamber: Chamber,
         rotation: Rotation,
         gas: &GasProperties<f32>,
-        chamber_pa: &[f32; 2],
+        last_pa: &[f32; 4],
     ) {
         if rotation != Rotation::Compressor {
             return;
         }
         let p = match chamber {
-            Chamber::A => chamber_pa[0],
-            Chamber::B => chamber_pa[1],
+            Chamber::A => last_pa[0],
+            Chamber::B => last_pa[1],
         };
         self.volume_ratio
             .observe_opening(gas, chamber, p, self.planned_discharge_pa);

@@ -9,7 +9,7 @@ use crate::ports::{EncoderCodes, PressureCodes};
 use crate::real::clamp_f32;
 use crate::sensing::differentiator::{Derivatives, SavitzkyGolay};
 use crate::sensing::encoder::{EncoderReading, PositionCounts, SinCosDecoder};
-use crate::sensing::pressure::{PressureCalibration, PressureSample, StuckConfig, StuckMonitor};
+use crate::sensing::pressure::{PressureSample, StuckConfig, StuckMonitor};
 use crate::sensing::quadrature::QuadratureCounter;
 use crate::units::{AdcCode, PerSection, Section, Ticks, CONTROL_PERIOD_US};
 
@@ -116,11 +116,8 @@ pub(super) const CATCH_UP_SAMPLES: u32 = 40;
 /// The chamber and line pressures as last seen valid, and whether they may still be used.
 #[derive(Clone, Debug)]
 pub(super) struct PressureMonitor {
-    /// Last valid chamber pressures: chamber A, chamber B, Pa (NaN: none yet).
-    pub chamber_pa: [f32; 2],
-    /// Last valid line codes: suction, discharge (`None`: none yet). Kept as codes and
-    /// converted at use ([`Self::last_pa`]): only a new stroke and a stop's plan read them.
-    pub line_codes: [Option<AdcCode>; 2],
+    /// Last valid pressures: chamber A, chamber B, suction, discharge, Pa (NaN: none yet).
+    pub last_pa: [f32; 4],
     /// Consecutive cycles with an invalid chamber-pressure sample.
     pub bad_cycles: u8,
     /// Chamber A and B readings watched for following the volume while running (a stuck
@@ -135,8 +132,7 @@ pub(super) struct PressureMonitor {
 impl PressureMonitor {
     fn new() -> Self {
         PressureMonitor {
-            chamber_pa: [f32::NAN; 2],
-            line_codes: [None; 2],
+            last_pa: [f32::NAN; 4],
             bad_cycles: 0,
             stuck: [StuckMonitor::new(StuckConfig::reference()); 2],
             stuck_cycles: 0,
@@ -149,34 +145,15 @@ impl PressureMonitor {
         self.trusted && self.bad_cycles == 0
     }
 
-    /// One cycle's samples: the converted chambers' (A, B) and the line codes (suction,
-    /// discharge) classified by `cal`; the valid ones become the last seen.
+    /// One cycle's converted samples (chamber A, chamber B, suction, discharge): the valid
+    /// ones become the last seen.
     #[inline]
-    pub(super) fn remember(
-        &mut self,
-        chambers: [PressureSample; 2],
-        lines: [AdcCode; 2],
-        cal: &PressureCalibration,
-    ) {
-        for (slot, sample) in self.chamber_pa.iter_mut().zip(chambers) {
+    pub(super) fn remember(&mut self, samples: [PressureSample; 4]) {
+        for (slot, sample) in self.last_pa.iter_mut().zip(samples) {
             if let Some(p) = sample.valid() {
                 *slot = p;
             }
         }
-        for (slot, code) in self.line_codes.iter_mut().zip(lines) {
-            if cal.convert(code).valid().is_some() {
-                *slot = Some(code);
-            }
-        }
-    }
-
-    /// Last valid pressures: chamber A, chamber B, suction, discharge, Pa (NaN: none yet);
-    /// the line codes converted by `cal`.
-    pub(super) fn last_pa(&self, cal: &PressureCalibration) -> [f32; 4] {
-        let line = |code: Option<AdcCode>| code.map_or(f32::NAN, |c| cal.convert(c).pressure_pa);
-        let [a, b] = self.chamber_pa;
-        let [suction, discharge] = self.line_codes;
-        [a, b, line(suction), line(discharge)]
     }
 
     /// Counts a cycle whose chamber samples were not both valid (`chambers_valid` false).
@@ -345,8 +322,9 @@ impl Sensing {
             _ => 0.0,
         };
 
-        let lines = [pressures.suction, pressures.discharge];
-        self.pressures.remember([pa, pb], lines, &cal);
+        let ps = cal.convert(pressures.suction);
+        let pd = cal.convert(pressures.discharge);
+        self.pressures.remember([pa, pb, ps, pd]);
 
         // Measured section forces (before this cycle's FOC step: last cycle's state).
         let kf = c.motor.force_constant_n_per_a;
