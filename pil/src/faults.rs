@@ -190,6 +190,11 @@ pub struct Report {
     pub halts: u32,
     /// What [`Scenario::ProbeCapture`] or [`Scenario::ProbeSession`] showed.
     pub capture: Option<crate::capture::ProbeCapture>,
+    /// With [`Options::profile_periods`]: the periods with the most cycles, most first.
+    pub profile: Vec<crate::run::PeriodProfile>,
+    /// The samples that missed their update: (their burst's end, emulated s; the write,
+    /// cycles after it).
+    pub missed: Vec<(f64, Option<u64>)>,
 }
 
 /// What the bare bench showed ([`Scenario::BareBench`]).
@@ -246,6 +251,9 @@ pub struct Options {
     pub halt_s: f64,
     /// How long [`Scenario::ProbeCapture`] and [`Scenario::ProbeSession`] capture, s.
     pub capture_s: f64,
+    /// Profile this many of the periods whose interrupt path took the most cycles, over the
+    /// whole scenario ([`Report::profile`]; 0: none).
+    pub profile_periods: usize,
 }
 
 impl Default for Options {
@@ -256,6 +264,7 @@ impl Default for Options {
             cpi: None,
             halt_s: 0.005,
             capture_s: 10.0,
+            profile_periods: 0,
         }
     }
 }
@@ -393,6 +402,10 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
     let mut s = Session::new(image.clone(), Board::new(world), chip)?;
     s.chip.soc().flash.load_image(store.image());
     s.chip.soc().recording = true;
+    if opts.profile_periods > 0 {
+        s.chip.soc().profile = true;
+        s.chip.soc().profile_keep = opts.profile_periods;
+    }
     let mut r = Run {
         s,
         clearance: Clearance::NONE,
@@ -458,6 +471,13 @@ pub fn run_with(image: &Image, scenario: Scenario, opts: &Options) -> Result<Rep
         bare,
         halts: soc.halts,
         capture,
+        profile: crate::run::period_profiles(image, &soc.profile_top),
+        missed: soc
+            .samples
+            .iter()
+            .filter(|s| s.missed)
+            .map(|s| (crate::time::seconds(s.end), s.write_cycles))
+            .collect(),
     })
 }
 

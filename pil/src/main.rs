@@ -95,6 +95,17 @@ struct FaultArgs {
     /// counted per instruction (the default).
     #[arg(long)]
     cpi: Option<f64>,
+    /// Print, on stderr, where the periods whose interrupt path took the most cycles spent
+    /// them (by function and by block of code, whether from flash or CCM SRAM), each with
+    /// its time since the last reset.
+    #[arg(long)]
+    profile: bool,
+    /// With `--profile`: how many of those periods.
+    #[arg(long, default_value_t = 3)]
+    profile_periods: usize,
+    /// With `--profile`: how many of each period's heaviest blocks of code to list.
+    #[arg(long, default_value_t = 12)]
+    profile_blocks: usize,
 }
 
 #[derive(clap::Args)]
@@ -288,6 +299,11 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
         cpi,
         halt_s: args.halt_ms * 1e-3,
         capture_s: args.capture_s,
+        profile_periods: if args.profile {
+            args.profile_periods.max(1)
+        } else {
+            0
+        },
     };
     let r = run_with(&image, scenario, &opts)?;
     println!(
@@ -316,6 +332,12 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
         r.final_mode
     );
     println!("  {}; core halted {} times", r.deadline, r.halts);
+    for (t, write) in &r.missed {
+        println!(
+            "  missed: the sample of the burst ending at {t:.6} s, last write {} cycles after it",
+            write.map_or("-".into(), |w| w.to_string())
+        );
+    }
     if let Some(b) = &r.bare {
         println!(
             "  bare bench: {} periods, gates switching in {}, servo off zero torque in {}; absent [{}]; refused {:?}",
@@ -338,6 +360,29 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
     }
     for (t, line) in &r.log {
         println!("  {t:.4} {line}");
+    }
+    for p in &r.profile {
+        let reset = r
+            .milestones
+            .iter()
+            .filter(|(t, m)| *m == fpc_pil::chip::Milestone::Reset && *t <= p.end_s)
+            .map(|(t, _)| *t)
+            .fold(0.0, f64::max);
+        print_profile(
+            &format!(
+                "the period ending at {:.6} s ({:.3} ms after the last reset)",
+                p.end_s,
+                (p.end_s - reset) * 1e3
+            ),
+            &p.rows,
+        );
+        eprintln!("  its heaviest blocks:");
+        for b in p.blocks.iter().take(args.profile_blocks) {
+            eprintln!(
+                "  {:#010x} {:>6} cycles {:>5} instructions  {}",
+                b.address, b.cycles, b.instructions, b.function
+            );
+        }
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -125,11 +125,65 @@ pub struct ProfileRow {
     pub cycles: u64,
 }
 
-/// The worst period's profile, by function, most cycles first.
-pub(crate) fn profile_rows(
+/// One of the periods with the most cycles, profiled ([`crate::faults::Options::profile_periods`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct PeriodProfile {
+    /// When the period ended, emulated s.
+    pub end_s: f64,
+    /// Its interrupt path's cycles.
+    pub path_cycles: u64,
+    /// By function, most cycles first.
+    pub rows: Vec<ProfileRow>,
+    /// By block of code (the emulator's translated blocks: a run of instructions up to a
+    /// branch), most cycles first: where inside a function the cycles went.
+    pub blocks: Vec<BlockRow>,
+}
+
+/// One block of code's part of a profiled period.
+#[derive(Clone, Debug, Serialize)]
+pub struct BlockRow {
+    /// The block's first instruction.
+    pub address: u32,
+    /// The function it is in (the nearest symbol at or below it; mangled).
+    pub function: String,
+    /// Instructions it executed in the period.
+    pub instructions: u64,
+    /// Cycles (wait states included).
+    pub cycles: u64,
+}
+
+/// The periods `top` by function and by block.
+pub(crate) fn period_profiles(
     image: &Image,
-    blocks: &std::collections::HashMap<u32, (u64, u64)>,
-) -> Vec<ProfileRow> {
+    top: &[crate::chip::ProfiledPeriod],
+) -> Vec<PeriodProfile> {
+    let syms = symbol_table(image);
+    top.iter()
+        .map(|p| {
+            let mut blocks: Vec<BlockRow> = p
+                .blocks
+                .iter()
+                .map(|(&address, &(instructions, cycles))| BlockRow {
+                    address,
+                    function: symbol_at(&syms, address).1.to_string(),
+                    instructions,
+                    cycles,
+                })
+                .collect();
+            blocks.sort_by_key(|b| (std::cmp::Reverse(b.cycles), b.address));
+            PeriodProfile {
+                end_s: p.end_s,
+                path_cycles: p.path_cycles,
+                rows: profile_rows(image, &p.blocks),
+                blocks,
+            }
+        })
+        .collect()
+}
+
+/// The image's function symbols by address (thumb bit cleared), linker markers of a region's
+/// start or end first where they share an address with a function.
+fn symbol_table(image: &Image) -> Vec<(u32, &str)> {
     let mut syms: Vec<(u32, &str)> = image
         .symbols
         .iter()
@@ -140,11 +194,28 @@ pub(crate) fn profile_rows(
     // (`__sccmram`, `__eccmram_early`) is named by the function: markers sort first.
     let marker = |n: &str| n.starts_with("__s") || n.starts_with("__e");
     syms.sort_unstable_by_key(|&(a, n)| (a, !marker(n), n));
+    syms
+}
+
+/// The nearest symbol at or below `addr` ((0, "?") below every symbol).
+fn symbol_at<'a>(syms: &[(u32, &'a str)], addr: u32) -> (u32, &'a str) {
+    let i = syms.partition_point(|(a, _)| *a <= addr);
+    if i == 0 {
+        (0, "?")
+    } else {
+        syms[i - 1]
+    }
+}
+
+/// The worst period's profile, by function, most cycles first.
+pub(crate) fn profile_rows(
+    image: &Image,
+    blocks: &std::collections::HashMap<u32, (u64, u64)>,
+) -> Vec<ProfileRow> {
+    let syms = symbol_table(image);
     let mut rows: std::collections::HashMap<(u32, &str), (u64, u64)> = Default::default();
     for (&addr, &(n, c)) in blocks {
-        let i = syms.partition_point(|(a, _)| *a <= addr);
-        let key = if i == 0 { (0, "?") } else { syms[i - 1] };
-        let e = rows.entry(key).or_default();
+        let e = rows.entry(symbol_at(&syms, addr)).or_default();
         e.0 += n;
         e.1 += c;
     }

@@ -47,19 +47,13 @@ fn scenario(s: Scenario) -> Report {
     r
 }
 
-/// [`meets_the_update_deadline`], but for the brake after a reset in motion, held where it
-/// is until it is fixed: the brake's first steps without a position overrun the 50 µs
-/// period (≈ 13,300 cycles; the blind brake runs from flash) and their duties apply a period
-/// late (`docs/benchmarks.md`).
+/// [`meets_the_update_deadline`] for every scenario, a reset in it or not (the brake after a
+/// reset in motion refills the velocity estimate's window inside a control period).
 fn deadline_held(name: &str, r: &Report) {
-    if r.resets.is_empty() {
-        meets_the_update_deadline(name, &r.deadline);
-        return;
+    if !r.resets.is_empty() {
+        println!("{name} (a reset in it):");
     }
-    let d = &r.deadline;
-    println!("{name} (a reset in it): {d}");
-    assert!(d.missed_updates <= 6, "{name}: {d:?}");
-    assert!(d.worst_cycle_cycles <= 14_000, "{name}: {d:?}");
+    meets_the_update_deadline(name, &r.deadline);
 }
 
 /// Every sample's duties reached TIM1/TIM8's compare registers before the update event that

@@ -104,6 +104,27 @@ const _: () = assert!(RING.is_power_of_two() && RING >= MAX_WINDOW);
 /// Integer moments of K+1 orders (index q = 0..=K).
 type Moments = [i64; MAX_ORDER + 1];
 
+/// A straight line through the window ([`SavitzkyGolay::restart_on_line`]): `at_newest` and
+/// `slope` in counts (per sample) relative to the raw count `base`.
+#[derive(Clone, Copy, Debug)]
+struct Line {
+    base: i32,
+    at_newest: f32,
+    slope: f32,
+}
+
+impl Line {
+    /// The i-th value of a window of `n` (oldest first) in the raw count's frame (wrapping),
+    /// to the nearest count.
+    #[inline(always)]
+    fn at(self, i: usize, n: usize) -> i32 {
+        let offset = self.at_newest - self.slope * (n - 1 - i) as f32;
+        // To the nearest count (`as` truncates toward zero).
+        let half = if offset < 0.0 { -0.5 } else { 0.5 };
+        self.base.wrapping_add((offset + half) as i32)
+    }
+}
+
 /// The differentiator's state: its constants and the sliding moments.
 #[derive(Clone, Debug)]
 pub struct SavitzkyGolay {
@@ -254,8 +275,10 @@ impl SavitzkyGolay {
     /// `σ_v = (σ_x/T)·√(12/(m(m²−1)))` (m = 6: 0.24·σ_x/T, against the full window's
     /// [`SavitzkyGolay::new`] figure), and a bias of `a·T·(m−1)/2` under an acceleration a.
     ///
-    /// `samples` is clamped to 2..=N; before a start this is a no-op (zero output). Costs
-    /// N−1 slides of the window and one output: a cold path, once.
+    /// `samples` is clamped to 2..=N; before a start this is a no-op (zero output). The state
+    /// it leaves is, to the bit, that of a start on the line's oldest value and N−1 pushes of
+    /// the others, built in one pass over the window (N·(K+1) adds, no slides): a cold path,
+    /// once, but inside a control period.
     #[cold]
     #[inline(never)]
     pub fn restart_on_line(&mut self, samples: usize) -> Derivatives {
@@ -281,44 +304,62 @@ impl SavitzkyGolay {
         let mf = m as f32;
         let slope = (mf * sum_jd - sum_j * sum_d) / (mf * sum_jj - sum_j * sum_j);
         let at_newest = (sum_d - slope * sum_j) / mf;
-        // The line in the raw count's frame (wrapping), oldest slot first.
-        let base = self.last_input;
-        let line = |i: usize| {
-            let offset = at_newest - slope * (n - 1 - i) as f32;
-            // To the nearest count (`as` truncates toward zero).
-            let half = if offset < 0.0 { -0.5 } else { 0.5 };
-            base.wrapping_add((offset + half) as i32)
+        let line = Line {
+            base: self.last_input,
+            at_newest,
+            slope,
         };
-        let mut xs = [0i32; MAX_WINDOW];
-        for (i, x) in xs.iter_mut().enumerate().take(n) {
-            *x = line(i);
-        }
-        let (first, rest) = xs.split_at(1);
-        self.start(first.first().copied().unwrap_or(base));
-        let rest = rest.get(..n - 1).unwrap_or_default();
+        self.refill(line);
         match self.order {
-            1 => self.fill::<1>(rest),
-            2 => self.fill::<2>(rest),
-            3 => self.fill::<3>(rest),
-            _ => self.fill::<4>(rest),
+            1 => self.derivatives::<1>(),
+            2 => self.derivatives::<2>(),
+            3 => self.derivatives::<3>(),
+            _ => self.derivatives::<4>(),
         }
     }
 
-    /// Slides `xs` in and returns the derivatives once, at the end: the state and the output
-    /// of as many pushes, without the outputs nobody reads.
-    #[inline(never)]
-    fn fill<const K: usize>(&mut self, xs: &[i32]) -> Derivatives {
-        for &x in xs {
-            self.slide_apart::<K>(x);
+    /// Fills the window with `line` ([`SavitzkyGolay::restart_on_line`]): the ring, the
+    /// moments T₀..T_K, `head` and the unwrapped input as a start on the line's oldest value
+    /// and N−1 slides of the others leave them. The values are unwrapped as
+    /// [`SavitzkyGolay::slide`] unwraps them (from the oldest, sign-extended wrapping steps),
+    /// the oldest goes to slot N−1 (where `head` then points), the i-th (i ≥ 1) to slot i−1.
+    /// The moments `T_q = Σⱼ C(j, q)·X₋ⱼ` grow with the window, oldest first: each value
+    /// added ages the others by one, `T_q ← T_q + T_{q−1}` (Pascal's rule, highest order
+    /// first), and enters at age 0, `T₀ ← T₀ + X`; after N values they are the window's,
+    /// exact mod 2⁶⁴ (adds only). The moments above K stay a constant window's of the oldest
+    /// value, as a start leaves them (no slide touches them).
+    fn refill(&mut self, line: Line) {
+        let n = self.window;
+        let k = self.order.min(MAX_ORDER);
+        let oldest = line.at(0, n);
+        let oldest_u = i64::from(oldest);
+        let mut moments = self.constant.map(|c| c.wrapping_mul(oldest_u));
+        for t in moments.iter_mut().take(k + 1) {
+            *t = 0;
         }
-        self.derivatives::<K>()
-    }
-
-    /// [`SavitzkyGolay::slide`] as a call of its own: `fill`'s loop, unrolled around the
-    /// inlined body, took kilobytes of flash per order for a path that runs once per stop.
-    #[inline(never)]
-    fn slide_apart<const K: usize>(&mut self, x: i32) {
-        self.slide::<K>(x);
+        let (mut x_prev, mut u) = (oldest, oldest_u);
+        for i in 0..n {
+            let x = line.at(i, n);
+            u = u.wrapping_add(i64::from(x.wrapping_sub(x_prev)));
+            x_prev = x;
+            let slot = if i == 0 { n - 1 } else { i - 1 };
+            if let Some(s) = self.ring.get_mut(slot & (RING - 1)) {
+                *s = u;
+            }
+            for q in (1..=k).rev() {
+                let below = moments.get(q - 1).copied().unwrap_or(0);
+                if let Some(t) = moments.get_mut(q) {
+                    *t = t.wrapping_add(below);
+                }
+            }
+            let [t0, ..] = &mut moments;
+            *t0 = t0.wrapping_add(u);
+        }
+        self.moments = moments;
+        self.head = n - 1;
+        self.last_input = x_prev;
+        self.unwrapped = u;
+        self.started = true;
     }
 
     /// Adds the newest position and returns the derivatives at the evaluation point.
@@ -344,6 +385,9 @@ impl SavitzkyGolay {
         }
     }
 
+    /// Out of line: the first sample's, once (inlined, it would take the control path's
+    /// room in CCM SRAM).
+    #[inline(never)]
     fn start(&mut self, x: i32) {
         let xn = i64::from(x);
         self.ring.fill(xn);
@@ -1002,6 +1046,92 @@ mod tests {
             );
             assert!((f64::from(d.acceleration_mps2) - a).abs() < 0.1, "k={k}");
         }
+    }
+
+    /// The refill's one pass leaves the state — ring, moments T₀..T₄, head, the raw and
+    /// unwrapped input — and returns the output that a start on the line's oldest value and
+    /// N−1 slides of the others give, to the bit, for every order and window, lines across
+    /// the i32 wrap and steep ones included; the pushes after it agree too.
+    #[test]
+    fn the_refill_in_one_pass_is_the_start_and_slides_to_the_bit() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(44);
+        for window in [3usize, 5, 7, 21, 25, 41] {
+            for order in 1..=4usize.min(window - 1) {
+                for trial in 0..40 {
+                    let mut sg = SavitzkyGolay::new(cfg(window, order, 0)).unwrap();
+                    let step: i32 = rng.random_range(-20_000..20_000);
+                    let mut x: i32 = if trial % 2 == 0 {
+                        i32::MAX - 5 * step.abs()
+                    } else {
+                        rng.random()
+                    };
+                    let pushed = rng.random_range(1..2 * window);
+                    for _ in 0..pushed {
+                        x = x.wrapping_add(step).wrapping_add(rng.random_range(-50..50));
+                        sg.push(bits(x));
+                    }
+                    let mut reference = sg.clone();
+                    let m = rng.random_range(0..window + 3);
+                    let d = sg.restart_on_line(m);
+                    let d_ref = restart_by_slides(&mut reference, m);
+                    let what = format!("window {window} order {order} trial {trial} m {m}");
+                    assert_eq!(d, d_ref, "{what}");
+                    assert_eq!(sg.moments, reference.moments, "{what}");
+                    assert_eq!(sg.ring[..window], reference.ring[..window], "{what}");
+                    assert_eq!(
+                        (sg.head, sg.last_input, sg.unwrapped, sg.started),
+                        (
+                            reference.head,
+                            reference.last_input,
+                            reference.unwrapped,
+                            reference.started
+                        ),
+                        "{what}"
+                    );
+                    for _ in 0..window + 2 {
+                        x = x.wrapping_add(step);
+                        assert_eq!(sg.push(bits(x)), reference.push(bits(x)), "{what}");
+                    }
+                }
+            }
+        }
+    }
+
+    /// The refill as a start on the line's oldest value and N−1 pushes of the others (their
+    /// outputs unread): the reference [`SavitzkyGolay::restart_on_line`] must equal.
+    fn restart_by_slides(sg: &mut SavitzkyGolay, samples: usize) -> Derivatives {
+        if !sg.started {
+            return Derivatives::default();
+        }
+        let n = sg.window;
+        let m = samples.clamp(2, n);
+        let newest = sg.unwrapped;
+        let (mut sum_j, mut sum_d, mut sum_jj, mut sum_jd) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
+        for k in 0..m {
+            let x = sg.ring[(sg.head + 2 * n - 1 - k) % n];
+            let d = i64_to_f32(x.wrapping_sub(newest));
+            let j = -(k as f32);
+            sum_j += j;
+            sum_d += d;
+            sum_jj += j * j;
+            sum_jd += j * d;
+        }
+        let mf = m as f32;
+        let slope = (mf * sum_jd - sum_j * sum_d) / (mf * sum_jj - sum_j * sum_j);
+        let at_newest = (sum_d - slope * sum_j) / mf;
+        let base = sg.last_input;
+        let line = |i: usize| {
+            let offset = at_newest - slope * (n - 1 - i) as f32;
+            let half = if offset < 0.0 { -0.5 } else { 0.5 };
+            base.wrapping_add((offset + half) as i32)
+        };
+        sg.start(line(0));
+        let mut d = Derivatives::default();
+        for i in 1..n {
+            d = sg.push(bits(line(i)));
+        }
+        d
     }
 
     /// The refill slides the line in without its outputs: the moments and the output are

@@ -28,6 +28,8 @@ const PHASE_CCRS: std::ops::Range<u32> = timers::reg::CCR1..timers::reg::CCR1 + 
 /// One sample's timing against its update event.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SampleTiming {
+    /// When the sample's burst ended, time units.
+    pub end: u64,
     /// SYSCLK cycles from the burst's end to TIM1's next update event (`None`: the sample
     /// closed before one).
     pub deadline_cycles: Option<u64>,
@@ -78,6 +80,7 @@ impl Soc {
             let cycles =
                 |t: u64| (t.saturating_sub(s.end) as f64 / self.units_per_cycle).round() as u64;
             self.samples.push(SampleTiming {
+                end: s.end,
                 deadline_cycles: s.tim1_update.map(cycles),
                 write_cycles: s.last_write.map(cycles),
                 missed: s.missed,
@@ -106,6 +109,7 @@ impl Soc {
             if self.recording {
                 let cycles = (now.saturating_sub(end) as f64 / self.units_per_cycle).round();
                 self.samples.push(SampleTiming {
+                    end,
                     deadline_cycles: None,
                     write_cycles: Some(cycles as u64),
                     missed: true,

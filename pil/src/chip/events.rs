@@ -170,6 +170,35 @@ impl Soc {
         self.board.latch_duties(0, self.tim1.active_ccr, arr);
     }
 
+    /// The period just ended among the worst so far: kept in [`Soc::profile_worst`] and, of
+    /// the [`Soc::profile_keep`] worst, in [`Soc::profile_top`].
+    fn keep_profile(&mut self) {
+        let cycles = self.period.path_cycles;
+        let top = self.profile_keep > 0
+            && (self.profile_top.len() < self.profile_keep
+                || self
+                    .profile_top
+                    .last()
+                    .is_some_and(|p| cycles > p.path_cycles));
+        if top {
+            let at = self
+                .profile_top
+                .partition_point(|p| p.path_cycles >= cycles);
+            self.profile_top.insert(
+                at,
+                ProfiledPeriod {
+                    end_s: crate::time::seconds(self.time),
+                    path_cycles: cycles,
+                    blocks: self.profile_now.clone(),
+                },
+            );
+            self.profile_top.truncate(self.profile_keep);
+        }
+        if cycles > self.profile_worst.0 {
+            self.profile_worst = (cycles, std::mem::take(&mut self.profile_now));
+        }
+    }
+
     pub(super) fn step_plant(&mut self) {
         let dac = if self.dac_cr & 1 != 0 && self.powered {
             self.dac_dhr & 0xFFF
@@ -183,11 +212,8 @@ impl Soc {
             self.period.path_lines = self.path_lines.len() as u32;
             self.period.path_data_lines = self.path_data_lines.len() as u32;
             self.periods.push(self.period);
-            if self.profile && self.period.path_cycles > self.profile_worst.0 {
-                self.profile_worst = (
-                    self.period.path_cycles,
-                    std::mem::take(&mut self.profile_now),
-                );
+            if self.profile {
+                self.keep_profile();
             }
         }
         self.profile_now.clear();

@@ -192,6 +192,11 @@ pub struct Soc {
     /// The profile of the period with the most cycles so far: (its cycles, block address →
     /// (instructions, cycles)).
     pub profile_worst: (u64, HashMap<u32, (u64, u64)>),
+    /// With [`Soc::profile`]: how many of the periods with the most cycles to keep in
+    /// [`Soc::profile_top`] (0: none).
+    pub profile_keep: usize,
+    /// The [`Soc::profile_keep`] periods with the most cycles so far, most first.
+    pub profile_top: Vec<ProfiledPeriod>,
     /// Time units per SYSCLK cycle now.
     units_per_cycle: f64,
     /// SYSCLK, Hz.
@@ -321,6 +326,17 @@ pub struct Soc {
     last_line: u32,
 }
 
+/// One period's interrupt path, block by block ([`Soc::profile_top`]).
+#[derive(Clone, Debug, Default)]
+pub struct ProfiledPeriod {
+    /// When the period ended (the plant's step), emulated s.
+    pub end_s: f64,
+    /// The interrupt path's cycles in it ([`PeriodLoad::path_cycles`]).
+    pub path_cycles: u64,
+    /// Block address → (instructions, cycles).
+    pub blocks: HashMap<u32, (u64, u64)>,
+}
+
 /// A break an advanced timer took from its break input (the hardware switching a bridge
 /// off), and what the core did meanwhile.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -407,6 +423,8 @@ impl Soc {
             profile_now: HashMap::new(),
             profile: false,
             profile_worst: (0, HashMap::new()),
+            profile_keep: 0,
+            profile_top: Vec::new(),
             units_per_cycle: units_per_cycle(16_000_000),
             sysclk_hz: 16_000_000,
             instructions: 0,
