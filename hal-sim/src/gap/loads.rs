@@ -111,6 +111,16 @@ impl LoadCache {
         kept_or_made(&self.entries, load_key(model), make)
     }
 
+    /// Drops every model's loads and extra force (they are made again when asked for).
+    pub fn clear(&self) {
+        if let Ok(mut e) = self.entries.lock() {
+            e.clear();
+        }
+        if let Ok(mut e) = self.extras.lock() {
+            e.clear();
+        }
+    }
+
     /// The extra force `effect` at every row with the actuator lag `delay_s` and the force
     /// alignment `align_s`, N, made by `make` (outside the lock) if not kept.
     pub fn extra(
