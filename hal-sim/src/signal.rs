@@ -193,20 +193,31 @@ impl Coefficient {
             .take(nfft)
             .collect();
         forward.process(&mut z);
-        let mut r: Vec<Complex<f64>> = (0..nfft)
-            .map(|k| {
-                let zk = z.get(k).copied().unwrap_or_default();
-                let zm = z.get((nfft - k) % nfft).copied().unwrap_or_default().conj();
-                let fa = (zk + zm) * 0.5;
-                let fb = (zk - zm) * Complex::new(0.0, -0.5);
-                fa.conj() * fb
-            })
-            .collect();
-        inverse.process(&mut r);
+        // The cross-spectrum in place: bins k and nfft − k read each other, so both are
+        // replaced together (one transform's length held, not two).
+        let cross = |zk: Complex<f64>, zm: Complex<f64>| {
+            let fa = (zk + zm) * 0.5;
+            let fb = (zk - zm) * Complex::new(0.0, -0.5);
+            fa.conj() * fb
+        };
+        for k in 0..=nfft / 2 {
+            let m = (nfft - k) % nfft;
+            let (zk, zm) = (
+                z.get(k).copied().unwrap_or_default(),
+                z.get(m).copied().unwrap_or_default(),
+            );
+            if let Some(v) = z.get_mut(k) {
+                *v = cross(zk, zm.conj());
+            }
+            if let Some(v) = z.get_mut(m) {
+                *v = cross(zm, zk.conj());
+            }
+        }
+        inverse.process(&mut z);
         Coefficient {
             n,
             nfft,
-            products: r,
+            products: z,
             prefix_a: prefix_sums(a),
             prefix_b: prefix_sums(b),
         }
@@ -235,7 +246,8 @@ impl Coefficient {
 
 /// Prefix sums of `x` and `x²` (index i: the sum of the first i samples).
 fn prefix_sums(x: &[f64]) -> Vec<(f64, f64)> {
-    let mut s = vec![(0.0, 0.0)];
+    let mut s = Vec::with_capacity(x.len() + 1);
+    s.push((0.0, 0.0));
     let mut acc = (0.0, 0.0);
     for v in x {
         acc = (acc.0 + v, acc.1 + v * v);

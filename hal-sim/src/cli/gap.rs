@@ -9,7 +9,7 @@ use clap::Args;
 
 use crate::cli::analysis::read_log;
 use crate::failure::{CmdResult, Failure};
-use crate::gap::{analyse, report, GapOptions, DEFAULT_BAND_HZ};
+use crate::gap::{analyse_log, report, GapOptions, DEFAULT_BAND_HZ};
 use crate::output::OutDir;
 use crate::plant::model::MachineModel;
 use crate::{errln, outln};
@@ -102,7 +102,7 @@ pub fn main(args: GapArgs) -> CmdResult {
     let opts = GapOptions {
         band_hz: args.band_hz,
     };
-    let mut outcome = analyse(&text, &log, &opts).map_err(|f| Failure {
+    let mut outcome = analyse_log(&text, log, &opts).map_err(|f| Failure {
         code: f.code,
         message: format!("{}: {}", args.measured.display(), f.message),
     })?;

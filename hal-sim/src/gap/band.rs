@@ -121,6 +121,13 @@ impl<K: Eq + std::hash::Hash> ColumnCache<K> {
     /// Most entries kept.
     pub const CAPACITY: usize = 1024;
 
+    /// Drops every entry (they are made again when asked for).
+    pub fn clear(&self) {
+        if let Ok(mut m) = self.entries.lock() {
+            m.clear();
+        }
+    }
+
     /// The columns under `key`, computed by `make` (outside the lock) if not kept yet.
     pub fn get_or_make(
         &self,

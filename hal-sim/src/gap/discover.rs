@@ -33,7 +33,7 @@
 use rayon::prelude::*;
 
 use crate::plant::fastmath::sin_cos;
-use crate::plant::model::extra_force::{ExtraState, Term};
+use crate::plant::model::extra_force::Term;
 use crate::plant::model::{model_section, MachineModel};
 
 use super::candidate::{kept_span, kept_x, Ctx, EffectKind, Proposal};
@@ -94,10 +94,11 @@ pub struct TermFit {
     pub rss: f64,
 }
 
-/// What the basis is evaluated on: the states of every row and the kept samples' x.
+/// What the basis is evaluated on: the states of every row (made from the log and the model
+/// when a column is filtered anew) and the kept samples' x.
 struct Basis<'a> {
     ctx: &'a Ctx<'a>,
-    states: Vec<ExtraState>,
+    model: MachineModel,
     span_m: f64,
     /// The periods the periodic pair may take ([`machine_periods`]).
     periods: Vec<f64>,
@@ -107,11 +108,10 @@ struct Basis<'a> {
 
 impl<'a> Basis<'a> {
     fn new(ctx: &'a Ctx<'a>, model: &MachineModel) -> Self {
-        let states = extra_states(ctx.data, model);
         let xk = kept_x(ctx);
         let mut b = Basis {
             ctx,
-            states,
+            model: model.clone(),
             span_m: kept_span(&xk),
             periods: machine_periods(model),
             plain: Vec::new(),
@@ -148,10 +148,8 @@ impl<'a> Basis<'a> {
 
     /// [`Self::column`], filtered anew.
     fn filtered(&self, term: Term, period_m: f64) -> Vec<f64> {
-        let raw: Vec<f64> = self
-            .states
-            .iter()
-            .map(|s| term.value(s, period_m))
+        let raw: Vec<f64> = extra_states(self.ctx.data, &self.model)
+            .map(|s| term.value(&s, period_m))
             .collect();
         self.ctx.band.kept(self.ctx.data, ChannelId::Force, &raw)
     }
@@ -164,9 +162,11 @@ impl<'a> Basis<'a> {
         let band = self.ctx.band;
         band.columns.get_or_make(period_m.to_bits(), || {
             let (sin, cos): (Vec<f64>, Vec<f64>) = self
-                .states
+                .ctx
+                .data
+                .x_m
                 .iter()
-                .map(|s| sin_cos(std::f64::consts::TAU * s.x_m / period_m))
+                .map(|x| sin_cos(std::f64::consts::TAU * x / period_m))
                 .unzip();
             let filter = |raw: &[f64]| band.kept(self.ctx.data, ChannelId::Force, raw);
             let (s, c) = rayon::join(|| filter(&sin), || filter(&cos));

@@ -24,13 +24,21 @@ pub struct Loads {
 }
 
 impl Loads {
-    /// The loads of `terms` (the forces of the balance at every row).
-    pub fn of_terms(terms: &[PistonForces<f64>]) -> Self {
-        Loads {
-            gas_n: terms.iter().map(|f| f.gas_n).collect(),
-            cogging_n: terms.iter().map(|f| f.cogging_n).collect(),
-            friction_n: terms.iter().map(|f| f.friction_n).collect(),
+    /// The loads of `terms` (the forces of the balance at every row), taken one row at a
+    /// time: only the three columns are ever held.
+    pub fn of_terms(terms: impl ExactSizeIterator<Item = PistonForces<f64>>) -> Self {
+        let n = terms.len();
+        let mut loads = Loads {
+            gas_n: Vec::with_capacity(n),
+            cogging_n: Vec::with_capacity(n),
+            friction_n: Vec::with_capacity(n),
+        };
+        for f in terms {
+            loads.gas_n.push(f.gas_n);
+            loads.cogging_n.push(f.cogging_n);
+            loads.friction_n.push(f.friction_n);
         }
+        loads
     }
 
     /// The forces at row `i` with the motors' `motor_n` acting (none beyond the log).
@@ -101,6 +109,16 @@ impl LoadCache {
     /// The loads of `model`, made by `make` (outside the lock) if not kept.
     pub fn of(&self, model: &MachineModel, make: impl FnOnce() -> Loads) -> Arc<Loads> {
         kept_or_made(&self.entries, load_key(model), make)
+    }
+
+    /// Drops every model's loads and extra force (they are made again when asked for).
+    pub fn clear(&self) {
+        if let Ok(mut e) = self.entries.lock() {
+            e.clear();
+        }
+        if let Ok(mut e) = self.extras.lock() {
+            e.clear();
+        }
     }
 
     /// The extra force `effect` at every row with the actuator lag `delay_s` and the force

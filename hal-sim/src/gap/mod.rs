@@ -201,7 +201,29 @@ pub struct ChannelResiduals {
 /// Runs the workflow on a validated log and model text. Bad input (a model or a log the
 /// workflow cannot use) is exit 2; the rest is exit 1.
 pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapOutcome, Failure> {
-    let (input, model, mut measured) = checked_inputs(model_text, log, opts)?;
+    let (input, model, measured) = checked_inputs(model_text, log, opts)?;
+    analyse_measured(input, model, measured, opts)
+}
+
+/// [`analyse`] taking the log, which is dropped as soon as the measured run is made from it:
+/// the analysis never holds the log's columns beside its own.
+pub fn analyse_log(
+    model_text: &str,
+    log: RunLog,
+    opts: &GapOptions,
+) -> Result<GapOutcome, Failure> {
+    let (input, model, measured) = checked_inputs(model_text, &log, opts)?;
+    drop(log);
+    analyse_measured(input, model, measured, opts)
+}
+
+/// [`analyse`] from the checked inputs ([`checked_inputs`]).
+fn analyse_measured(
+    input: ModelDoc,
+    model: MachineModel,
+    mut measured: Measured,
+    opts: &GapOptions,
+) -> Result<GapOutcome, Failure> {
     offset::set_position_offset(&mut measured, &model, opts.band_hz);
     let band = Band::new(&measured, opts.band_hz).map_err(Failure::runtime)?;
     let (selection, fitted_alignment) = aligned_selection(&mut measured, &band, &model, &input)?;
@@ -211,6 +233,10 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
     };
     // Each fitted value is written whole, with its uncertainty beside it as a comment.
     let sigma = uncertainty::of_selection(&ctx, &selection);
+    // The searches are over: their columns (at the kept samples) are not read again.
+    band.columns.clear();
+    band.basis_columns.clear();
+    band.search_columns.clear();
     let model_text = augmented_text(&selection, &sigma)?;
     // Re-run the comparison with the model exactly as written.
     let after_model = MachineModel::parse(&model_text)
@@ -248,6 +274,9 @@ pub fn analyse(model_text: &str, log: &RunLog, opts: &GapOptions) -> Result<GapO
         .collect();
     let effects = effect_rows(&ctx, &selection, sigma).map_err(Failure::runtime)?;
     let discovered = discovered_rows(&ctx, &selection).map_err(Failure::runtime)?;
+    // Every force residual is made: the report reads the ones kept in `filtered`, so the
+    // models' loads (three columns of the log's length each) go.
+    band.loads.clear();
     Ok(GapOutcome {
         json: GapJson {
             channels,

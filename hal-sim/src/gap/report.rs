@@ -14,7 +14,7 @@ use super::candidate::Ctx;
 use super::channel::ChannelId;
 use super::effects::{acting_force_lag, slave_force_lag};
 use super::page::Block;
-use super::residuals::replay_pressures;
+use super::residuals::kept_replay;
 use super::uncertainty::{fitted, key_unit};
 use super::{ChannelResiduals, GapOutcome};
 
@@ -738,40 +738,35 @@ fn pv_replay(dir: &Path, out: &GapOutcome) -> Result<Vec<Block>, String> {
     let d = &out.measured;
     let before = out.input.model()?;
     let after = out.selection.doc.model()?;
-    let (Some((pa0, pb0)), Some((pa1, pb1))) = rayon::join(
-        || replay_pressures(d, &before),
-        || replay_pressures(d, &after),
-    ) else {
+    let (Some(kept0), Some(kept1)) =
+        rayon::join(|| kept_replay(d, &before), || kept_replay(d, &after))
+    else {
+        return Ok(Vec::new());
+    };
+    let ([pa0, pb0], [pa1, pb1]) = (kept0.as_slice(), kept1.as_slice()) else {
         return Ok(Vec::new());
     };
     let cyl = after.cylinder();
     let k = |v: &[f64], k: f64| -> Vec<f64> { v.iter().map(|v| v * k).collect() };
-    let va = k(
-        &d.x_m
-            .iter()
-            .map(|&x| cyl.volume_a_m3(x))
-            .collect::<Vec<_>>(),
-        1e6,
-    );
-    let vb = k(
-        &d.x_m
-            .iter()
-            .map(|&x| cyl.volume_b_m3(x))
-            .collect::<Vec<_>>(),
-        1e6,
-    );
+    let va: Vec<f64> = d.x_m.iter().map(|&x| cyl.volume_a_m3(x) * 1e6).collect();
+    let vb: Vec<f64> = d.x_m.iter().map(|&x| cyl.volume_b_m3(x) * 1e6).collect();
     let differ = pa0 != pa1 || pb0 != pb1;
     let miss = |m: &[f64], r: &[f64]| -> Vec<f64> {
         m.iter().zip(r).map(|(m, r)| (m - r) * 1e-3).collect()
     };
     let (ma, mb) = (k(&d.p_a_pa, 1e-3), k(&d.p_b_pa, 1e-3));
-    let (ra0, rb0, ra1, rb1) = (k(&pa0, 1e-3), k(&pb0, 1e-3), k(&pa1, 1e-3), k(&pb1, 1e-3));
-    let (ea0, eb0, ea1, eb1) = (
-        miss(&d.p_a_pa, &pa0),
-        miss(&d.p_b_pa, &pb0),
-        miss(&d.p_a_pa, &pa1),
-        miss(&d.p_b_pa, &pb1),
-    );
+    let (ra0, rb0) = (k(pa0, 1e-3), k(pb0, 1e-3));
+    let (ea0, eb0) = (miss(&d.p_a_pa, pa0), miss(&d.p_b_pa, pb0));
+    let (ra1, rb1, ea1, eb1) = if differ {
+        (
+            k(pa1, 1e-3),
+            k(pb1, 1e-3),
+            miss(&d.p_a_pa, pa1),
+            miss(&d.p_b_pa, pb1),
+        )
+    } else {
+        Default::default()
+    };
     let model_label = if differ {
         "input model"
     } else {

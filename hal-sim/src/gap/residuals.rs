@@ -212,13 +212,14 @@ impl Band {
     pub fn full(&self, _data: &Measured, ch: ChannelId, raw: &[f64]) -> Vec<f64> {
         let (k, mask, _) = self.route(ch);
         let judged = |i: usize| mask.get(i).is_some_and(|&w| w > 0.0);
-        let filtered = k.apply(raw);
-        let mut out: Vec<f64> = (0..mask.len())
-            .map(|i| match filtered.get(i) {
-                Some(&v) if judged(i) => v,
-                _ => 0.0,
-            })
-            .collect();
+        // Filtered in place: zero where not judged (or beyond `raw`).
+        let mut out = k.apply(raw);
+        out.resize(mask.len(), 0.0);
+        for (i, o) in out.iter_mut().enumerate() {
+            if !judged(i) {
+                *o = 0.0;
+            }
+        }
         if ch == ChannelId::Force {
             // Near a standstill the force terms pass the two stages with the mask between.
             let edges: Vec<usize> = (0..mask.len())
@@ -239,13 +240,12 @@ impl Band {
     }
 }
 
-/// One channel's residual for one model.
+/// One channel's residual for one model, at the kept samples only (the raw residual at
+/// every row is dropped once filtered: [`band_raw`] makes it again).
 #[derive(Clone, Debug)]
 pub struct Residual {
     /// Which channel.
     pub channel: ChannelId,
-    /// The raw per-sample residual (for `pressure`: chamber A's samples then B's).
-    pub raw: Vec<f64>,
     /// Band-filtered at the kept samples (for `pressure`: A's then B's).
     pub kept: Vec<f64>,
 }
@@ -355,6 +355,15 @@ pub fn tangential_mps(data: &Measured, model: &MachineModel) -> Vec<f64> {
 /// model's actuator lag), the gas force of the chambers' true pressures, cogging at x and
 /// friction along the sliding velocity `(ẋ, ω·r)`.
 pub fn force_terms(data: &Measured, model: &MachineModel) -> Vec<PistonForces<f64>> {
+    force_terms_each(data, model).collect()
+}
+
+/// [`force_terms`] one row at a time, so a caller that keeps only a few of them (or a sum)
+/// never holds the forces of every row at once.
+pub fn force_terms_each<'a>(
+    data: &'a Measured,
+    model: &'a MachineModel,
+) -> impl ExactSizeIterator<Item = PistonForces<f64>> + 'a {
     let n = data.len();
     let acting = acting_motor_force_n(data, actuator_delay_s(model));
     let laws = model.piston_laws();
@@ -365,35 +374,32 @@ pub fn force_terms(data: &Measured, model: &MachineModel) -> Vec<PistonForces<f6
     // Left in, the lag reads as friction (it follows the stroke direction) or as an actuator
     // lag (it follows the force's rate).
     let sensor = &model.sensors.pressure;
-    (0..n)
-        .map(|i| {
-            let g = |v: &[f64]| v.get(i).copied().unwrap_or(0.0);
-            laws.forces(&PistonState {
-                x_m: g(&data.x_m),
-                v_mps: g(&data.v_mps),
-                tangential_mps: g(&tang),
-                pressure_a_pa: sensor.true_pressure_pa(
-                    g(&data.p_a_pa),
-                    g(&data.dp_a_pa_per_s),
-                    sensor.chamber_a(),
-                ),
-                pressure_b_pa: sensor.true_pressure_pa(
-                    g(&data.p_b_pa),
-                    g(&data.dp_b_pa_per_s),
-                    sensor.chamber_b(),
-                ),
-                motor_n: g(&acting),
-            })
+    (0..n).map(move |i| {
+        let g = |v: &[f64]| v.get(i).copied().unwrap_or(0.0);
+        laws.forces(&PistonState {
+            x_m: g(&data.x_m),
+            v_mps: g(&data.v_mps),
+            tangential_mps: g(&tang),
+            pressure_a_pa: sensor.true_pressure_pa(
+                g(&data.p_a_pa),
+                g(&data.dp_a_pa_per_s),
+                sensor.chamber_a(),
+            ),
+            pressure_b_pa: sensor.true_pressure_pa(
+                g(&data.p_b_pa),
+                g(&data.dp_b_pa_per_s),
+                sensor.chamber_b(),
+            ),
+            motor_n: g(&acting),
         })
-        .collect()
+    })
 }
 
 /// Everything the model's force terms add up to at every sample, toward +x (motor forces as
 /// they act, gas, cogging, minus friction, and the extra force), N.
 pub fn model_force_n(data: &Measured, model: &MachineModel) -> Vec<f64> {
     let extra = extra_force_n(data, model);
-    force_terms(data, model)
-        .iter()
+    force_terms_each(data, model)
         .enumerate()
         .map(|(i, f)| f.net_n() + extra.as_ref().and_then(|e| e.get(i)).unwrap_or(&0.0))
         .collect()
@@ -404,8 +410,7 @@ pub fn model_force_n(data: &Measured, model: &MachineModel) -> Vec<f64> {
 pub fn force_raw(data: &Measured, model: &MachineModel) -> Vec<f64> {
     let m = model.piston.mass_kg;
     let extra = extra_force_n(data, model);
-    force_terms(data, model)
-        .iter()
+    force_terms_each(data, model)
         .zip(&data.d2x_mps2)
         .enumerate()
         .map(|(i, (f, a))| {
@@ -414,37 +419,33 @@ pub fn force_raw(data: &Measured, model: &MachineModel) -> Vec<f64> {
         .collect()
 }
 
-/// The states the discovery basis is evaluated at, one per row: measured x, the
+/// The states the discovery basis is evaluated at, one per row as it is read: measured x, the
 /// differentiator's velocity, the raw second difference (as the mass term of the balance),
 /// the motor forces as they act (realigned, late by the model's actuator lag), the logged
 /// pressure difference and the time from the first row.
-pub fn extra_states(data: &Measured, model: &MachineModel) -> Vec<ExtraState> {
+pub fn extra_states<'a>(
+    data: &'a Measured,
+    model: &MachineModel,
+) -> impl Iterator<Item = ExtraState> + 'a {
     let acting = acting_motor_force_n(data, actuator_delay_s(model));
     let t0 = data.t_s.first().copied().unwrap_or(0.0);
-    (0..data.len())
-        .map(|i| {
-            let g = |v: &[f64]| v.get(i).copied().unwrap_or(0.0);
-            ExtraState {
-                x_m: g(&data.x_m),
-                v_mps: g(&data.v_mps),
-                a_mps2: g(&data.d2x_mps2),
-                f_motor_n: g(&acting),
-                dp_pa: g(&data.p_a_pa) - g(&data.p_b_pa),
-                t_s: g(&data.t_s) - t0,
-            }
-        })
-        .collect()
+    (0..data.len()).map(move |i| {
+        let g = |v: &[f64]| v.get(i).copied().unwrap_or(0.0);
+        ExtraState {
+            x_m: g(&data.x_m),
+            v_mps: g(&data.v_mps),
+            a_mps2: g(&data.d2x_mps2),
+            f_motor_n: g(&acting),
+            dp_pa: g(&data.p_a_pa) - g(&data.p_b_pa),
+            t_s: g(&data.t_s) - t0,
+        }
+    })
 }
 
 /// The model's `[effects.extra_force]` at every row, N (`None`: the model has none).
 pub fn extra_force_n(data: &Measured, model: &MachineModel) -> Option<Vec<f64>> {
     let e = model.effects.extra_force.as_ref()?;
-    Some(
-        extra_states(data, model)
-            .iter()
-            .map(|s| e.force_n(s))
-            .collect(),
-    )
+    Some(extra_states(data, model).map(|s| e.force_n(&s)).collect())
 }
 
 /// The slave force the model predicts from the master's, N.
@@ -490,6 +491,15 @@ pub const MAX_REPLAY_SUBSTEPS: usize = 16;
 /// least-squares scale against the measured pressures corrects the start, and the chambers
 /// are replayed once more from there. Open or timed ports forget the start within a cycle.
 pub fn replay_pressures(data: &Measured, model: &MachineModel) -> Option<(Vec<f64>, Vec<f64>)> {
+    let kept = kept_replay(data, model)?;
+    match kept.as_slice() {
+        [a, b] => Some((a.clone(), b.clone())),
+        _ => None,
+    }
+}
+
+/// [`replay_pressures`] as the log keeps it, `[p_A, p_B]`, without a copy.
+pub fn kept_replay(data: &Measured, model: &MachineModel) -> Option<std::sync::Arc<Vec<Vec<f64>>>> {
     if data.ports == PortsMeta::Unknown {
         return None;
     }
@@ -508,10 +518,7 @@ pub fn replay_pressures(data: &Measured, model: &MachineModel) -> Option<(Vec<f6
         replay_pressures_anew(data, model, &data.ports_angle_rad)
             .map_or_else(Vec::new, |(a, b)| vec![a, b])
     });
-    match kept.as_slice() {
-        [a, b] => Some((a.clone(), b.clone())),
-        _ => None,
-    }
+    (kept.len() == 2).then_some(kept)
 }
 
 /// Where the pressure channel may be judged on a log whose ports are timed by a servo's
@@ -752,9 +759,12 @@ pub fn channel_raw(data: &Measured, model: &MachineModel, ch: ChannelId) -> Opti
             Some(data.demean_segments(&diff))
         }
         ChannelId::Pressure => {
-            let (pa, pb) = replay_pressures(data, model)?;
-            let ra = data.p_a_pa.iter().zip(&pa).map(|(m, p)| m - p);
-            let rb = data.p_b_pa.iter().zip(&pb).map(|(m, p)| m - p);
+            let kept = kept_replay(data, model)?;
+            let [pa, pb] = kept.as_slice() else {
+                return None;
+            };
+            let ra = data.p_a_pa.iter().zip(pa).map(|(m, p)| m - p);
+            let rb = data.p_b_pa.iter().zip(pb).map(|(m, p)| m - p);
             Some(ra.chain(rb).collect())
         }
     }
@@ -765,7 +775,7 @@ pub fn channel_raw(data: &Measured, model: &MachineModel, ch: ChannelId) -> Opti
 pub fn band_force_raw(data: &Measured, band: &Band, model: &MachineModel) -> Vec<f64> {
     let loads = band
         .loads
-        .of(model, || Loads::of_terms(&force_terms(data, model)));
+        .of(model, || Loads::of_terms(force_terms_each(data, model)));
     let delay_s = actuator_delay_s(model);
     let acting = acting_motor_force_n(data, delay_s);
     let extra = model.effects.extra_force.as_ref().map(|e| {
@@ -785,7 +795,7 @@ pub fn band_force_raw(data: &Measured, band: &Band, model: &MachineModel) -> Vec
 /// ([`PistonForces::motor_needed_n`]), with the loads `band` keeps.
 pub fn band_motor_needed_n(data: &Measured, band: &Band, model: &MachineModel) -> Vec<f64> {
     band.loads
-        .of(model, || Loads::of_terms(&force_terms(data, model)))
+        .of(model, || Loads::of_terms(force_terms_each(data, model)))
         .motor_needed_n(model.piston.mass_kg, &data.d2x_mps2)
 }
 
@@ -812,11 +822,7 @@ pub fn residual(
 ) -> Option<Residual> {
     let raw = band_raw(data, band, model, ch)?;
     let kept = kept_of_raw(data, band, ch, &raw);
-    Some(Residual {
-        channel: ch,
-        raw,
-        kept,
-    })
+    Some(Residual { channel: ch, kept })
 }
 
 /// Band-filters a raw residual (or regressor) of `ch` at the kept samples; the pressure
