@@ -361,6 +361,13 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
     for (t, line) in &r.log {
         println!("  {t:.4} {line}");
     }
+    print_fault_profiles(&r, args.profile_blocks);
+    Ok(ExitCode::SUCCESS)
+}
+
+/// A fault scenario's heaviest periods (`fpc-pil fault --profile`): by function, then the
+/// `blocks` heaviest blocks of code, each period timed from the last reset before it.
+fn print_fault_profiles(r: &fpc_pil::faults::Report, blocks: usize) {
     for p in &r.profile {
         let reset = r
             .milestones
@@ -377,14 +384,13 @@ fn fault_cmd(args: FaultArgs) -> Result<ExitCode, String> {
             &p.rows,
         );
         eprintln!("  its heaviest blocks:");
-        for b in p.blocks.iter().take(args.profile_blocks) {
+        for b in p.blocks.iter().take(blocks) {
             eprintln!(
                 "  {:#010x} {:>6} cycles {:>5} instructions  {}",
                 b.address, b.cycles, b.instructions, b.function
             );
         }
     }
-    Ok(ExitCode::SUCCESS)
 }
 
 fn mutants_cmd(args: MutantsArgs) -> Result<ExitCode, String> {
