@@ -174,7 +174,7 @@ pub(crate) fn period_profiles(
             PeriodProfile {
                 end_s: p.end_s,
                 path_cycles: p.path_cycles,
-                rows: profile_rows(image, &p.blocks),
+                rows: profile_rows(&syms, &p.blocks),
                 blocks,
             }
         })
@@ -207,15 +207,23 @@ fn symbol_at<'a>(syms: &[(u32, &'a str)], addr: u32) -> (u32, &'a str) {
     }
 }
 
-/// The worst period's profile, by function, most cycles first.
-pub(crate) fn profile_rows(
-    image: &Image,
+/// The worst period's profile ([`crate::chip::Soc::profile_top`]'s first), by function,
+/// most cycles first (empty when nothing was profiled).
+pub(crate) fn worst_profile_rows(image: &Image, soc: &crate::chip::Soc) -> Vec<ProfileRow> {
+    soc.profile_top
+        .first()
+        .map(|p| profile_rows(&symbol_table(image), &p.blocks))
+        .unwrap_or_default()
+}
+
+/// A period's profile by function (the blocks at their symbol in `syms`), most cycles first.
+fn profile_rows(
+    syms: &[(u32, &str)],
     blocks: &std::collections::HashMap<u32, (u64, u64)>,
 ) -> Vec<ProfileRow> {
-    let syms = symbol_table(image);
     let mut rows: std::collections::HashMap<(u32, &str), (u64, u64)> = Default::default();
     for (&addr, &(n, c)) in blocks {
-        let e = rows.entry(symbol_at(&syms, addr)).or_default();
+        let e = rows.entry(symbol_at(syms, addr)).or_default();
         e.0 += n;
         e.1 += c;
     }
@@ -254,7 +262,7 @@ pub fn run(opts: &PilOptions, csv: Option<&mut dyn Write>) -> Result<PilOutcome,
     let deadline = DeadlineFigures::of(&std::mem::take(&mut soc.samples));
     let resets = soc.resets.len();
     let first_control_us = first_control_us(soc);
-    let profile = profile_rows(&opts.image, &soc.profile_worst.1);
+    let profile = worst_profile_rows(&opts.image, soc);
     let world = soc.board.world.clone();
     let outcome = driver.finish(world, Default::default())?;
     let load = PathLoad::of(&periods);

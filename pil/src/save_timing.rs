@@ -36,7 +36,7 @@ use serde::Serialize;
 use crate::board::Board;
 use crate::chip::{ChipOptions, DeadlineFigures, PeriodLoad};
 use crate::elf::Image;
-use crate::run::{profile_rows, ProfileRow, SYSCLK_HZ};
+use crate::run::{worst_profile_rows, ProfileRow, SYSCLK_HZ};
 use crate::session::Session;
 
 /// Flash wait states the firmware programs at 170 MHz (FLASH_ACR.LATENCY = 4, RM0440
@@ -168,7 +168,7 @@ pub fn run(image: &Image) -> Result<SaveTiming, String> {
     let soc = s.chip.soc();
     soc.recording = false;
     soc.profile = false;
-    let calibration_profile = profile_rows(image, &soc.profile_worst.1);
+    let calibration_profile = worst_profile_rows(image, soc);
     let periods = std::mem::take(&mut soc.periods);
     let deadline_calibrating = DeadlineFigures::of(&std::mem::take(&mut soc.samples));
     let acr = soc.flash.acr_during_ops.clone();

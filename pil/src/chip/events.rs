@@ -170,8 +170,8 @@ impl Soc {
         self.board.latch_duties(0, self.tim1.active_ccr, arr);
     }
 
-    /// The period just ended among the worst so far: kept in [`Soc::profile_worst`] and, of
-    /// the [`Soc::profile_keep`] worst, in [`Soc::profile_top`].
+    /// The period just ended, if among the [`Soc::profile_keep`] worst so far: kept in
+    /// [`Soc::profile_top`] (of equal ones, the first).
     fn keep_profile(&mut self) {
         let cycles = self.period.path_cycles;
         let top = self.profile_keep > 0
@@ -189,13 +189,10 @@ impl Soc {
                 ProfiledPeriod {
                     end_s: crate::time::seconds(self.time),
                     path_cycles: cycles,
-                    blocks: self.profile_now.clone(),
+                    blocks: std::mem::take(&mut self.profile_now),
                 },
             );
             self.profile_top.truncate(self.profile_keep);
-        }
-        if cycles > self.profile_worst.0 {
-            self.profile_worst = (cycles, std::mem::take(&mut self.profile_now));
         }
     }
 

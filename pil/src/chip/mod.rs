@@ -189,11 +189,8 @@ pub struct Soc {
     /// Record, per block address, the instructions and cycles of each period's interrupt
     /// path, and keep those of the period with the most cycles.
     pub profile: bool,
-    /// The profile of the period with the most cycles so far: (its cycles, block address →
-    /// (instructions, cycles)).
-    pub profile_worst: (u64, HashMap<u32, (u64, u64)>),
     /// With [`Soc::profile`]: how many of the periods with the most cycles to keep in
-    /// [`Soc::profile_top`] (0: none).
+    /// [`Soc::profile_top`] (1 unless set: the worst).
     pub profile_keep: usize,
     /// The [`Soc::profile_keep`] periods with the most cycles so far, most first.
     pub profile_top: Vec<ProfiledPeriod>,
@@ -422,8 +419,7 @@ impl Soc {
             dcache: art::LineCache::data(),
             profile_now: HashMap::new(),
             profile: false,
-            profile_worst: (0, HashMap::new()),
-            profile_keep: 0,
+            profile_keep: 1,
             profile_top: Vec::new(),
             units_per_cycle: units_per_cycle(16_000_000),
             sysclk_hz: 16_000_000,
