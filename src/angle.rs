@@ -70,15 +70,17 @@ pub fn sin_cos_turns(angle: u32) -> (f32, f32) {
 /// cycle). The result is the exact truncation of `fraction`'s fractional part times 2³².
 #[inline]
 pub fn turns(fraction: f32) -> u32 {
-    if fraction.is_nan() || fraction.abs() >= 8_388_608.0 {
-        return 0;
-    }
-    // |fraction| < 2²³: the i32 holds its integer part, which an f32 holds exactly.
-    let part = (fraction - fraction as i32 as f32) * 4_294_967_296.0; // in (-2³², 2³²), exact
-    if part >= 0.0 {
-        part as u32
+    // One compare for both: NaN fails it.
+    if fraction.abs() < 8_388_608.0 {
+        // |fraction| < 2²³: the i32 holds its integer part, which an f32 holds exactly.
+        let part = (fraction - fraction as i32 as f32) * 4_294_967_296.0; // in (-2³², 2³²), exact
+        if part >= 0.0 {
+            part as u32
+        } else {
+            (-part as u32).wrapping_neg()
+        }
     } else {
-        (-part as u32).wrapping_neg()
+        0
     }
 }
 
