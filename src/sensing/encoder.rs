@@ -603,25 +603,27 @@ pub fn angle_from(s: f32, c: f32) -> u32 {
     let (ax, ay) = (c.abs(), s.abs());
     let swapped = ay > ax;
     let (num, den) = if swapped { (ax, ay) } else { (ay, ax) };
-    if den.is_nan() || den <= 0.0 {
-        return 0;
+    // One compare: NaN fails it.
+    if den > 0.0 {
+        let z = num / den; // 0..=1
+        let z2 = z * z;
+        let [k1, k3, k5, k7, k9, k11] = ATAN_TURNS_2_32;
+        let p = ((((k11 * z2 + k9) * z2 + k7) * z2 + k5) * z2 + k3) * z2 + k1;
+        // 0..=2²⁹ (π/4), the cast saturates.
+        let mut a = (z * p) as u32;
+        if swapped {
+            a = (1u32 << 30).wrapping_sub(a);
+        }
+        if c < 0.0 {
+            a = (1u32 << 31).wrapping_sub(a);
+        }
+        if s < 0.0 {
+            a = a.wrapping_neg();
+        }
+        a
+    } else {
+        0
     }
-    let z = num / den; // 0..=1
-    let z2 = z * z;
-    let [k1, k3, k5, k7, k9, k11] = ATAN_TURNS_2_32;
-    let p = ((((k11 * z2 + k9) * z2 + k7) * z2 + k5) * z2 + k3) * z2 + k1;
-    // 0..=2²⁹ (π/4), the cast saturates.
-    let mut a = (z * p) as u32;
-    if swapped {
-        a = (1u32 << 30).wrapping_sub(a);
-    }
-    if c < 0.0 {
-        a = (1u32 << 31).wrapping_sub(a);
-    }
-    if s < 0.0 {
-        a = a.wrapping_neg();
-    }
-    a
 }
 
 #[cfg(test)]
