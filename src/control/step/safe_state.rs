@@ -39,7 +39,12 @@ pub const RESET_ZEROING_MPS: f32 = 0.05;
 #[repr(C)]
 pub(super) struct SafeState {
     /// Each section's capability in the allocation, within [0, 1] (0: out of service).
+    /// Changed only through [`SafeState::latch`] and [`SafeState::clear`], which keep
+    /// `switching` with it.
     pub in_service: PerSection<f32>,
+    /// The sections with a capability above 0, whose bridges switch while the outputs are
+    /// on: kept where `in_service` changes, not compared every cycle.
+    switching: PerSection<bool>,
     /// The latched faults.
     pub faults: FaultSet,
     /// Sections whose bridge the hardware over-current trip switched off (their timer's
@@ -52,6 +57,7 @@ impl SafeState {
     pub(super) fn new(config: &ControlConfig) -> Self {
         SafeState {
             in_service: config.allocation.capability,
+            switching: switching(config.allocation.capability),
             faults: FaultSet::new(),
             tripped: PerSection {
                 master: false,
@@ -69,12 +75,14 @@ impl SafeState {
         if trip.drop.slave {
             self.in_service.slave = 0.0;
         }
+        self.switching = switching(self.in_service);
         self.faults.latch(trip.fault)
     }
 
     /// Faults cleared: every section back in service at its configured capability.
     pub(super) fn clear(&mut self, config: &ControlConfig) {
         self.in_service = config.allocation.capability;
+        self.switching = switching(self.in_service);
         self.faults.clear();
     }
 
@@ -116,10 +124,15 @@ impl SafeState {
     /// The sections whose bridges switch while the outputs are on.
     #[inline(always)]
     pub(super) fn sections_in_service(&self) -> PerSection<bool> {
-        PerSection {
-            master: self.in_service.master > 0.0,
-            slave: self.in_service.slave > 0.0,
-        }
+        self.switching
+    }
+}
+
+/// The sections whose capability `in_service` is above 0.
+fn switching(in_service: PerSection<f32>) -> PerSection<bool> {
+    PerSection {
+        master: in_service.master > 0.0,
+        slave: in_service.slave > 0.0,
     }
 }
 
