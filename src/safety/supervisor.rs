@@ -186,47 +186,14 @@ impl Supervisor {
     /// reaction its kind asks for and the sections to drop — a section found lost (whatever
     /// fault came first), the one with the larger phase current on an overcurrent.
     pub fn check(&mut self, c: &SupervisorConfig, o: &Observation) -> Option<Trip> {
-        let mut fault = None;
-        let mut drop = PerSection::<bool>::default();
-        let trip = |f: Fault, fault: &mut Option<Fault>| {
-            if fault.is_none() {
-                *fault = Some(f);
-            }
-        };
-        // NaN-safe in one compare: a NaN current is not within the limit, and trips.
-        let within = max_f32(o.peak_phase_a.master, o.peak_phase_a.slave) <= c.overcurrent_a;
-        if !within {
-            trip(Fault::Overcurrent, &mut fault);
-            let hotter = if o.peak_phase_a.master >= o.peak_phase_a.slave {
-                Section::Master
-            } else {
-                Section::Slave
-            };
-            *drop.get_mut(hotter) = true;
-        }
-        if o.homed {
-            if (o.position_m - o.slave_position_m).abs() > c.encoder_mismatch_m {
-                trip(Fault::EncoderMismatch, &mut fault);
-            }
-            if o.velocity_mps.abs() > c.overspeed_mps {
-                trip(Fault::Overspeed, &mut fault);
-            }
-            if c.envelope_violated(o.position_m, o.velocity_mps) {
-                trip(Fault::BrakingEnvelope, &mut fault);
-            }
-        }
-        if o.driving && o.homed {
-            self.following_s = persist(
-                self.following_s,
-                (o.reference_m - o.position_m).abs() > c.following_error_m,
-                o.dt_s,
-            );
-            if self.following_s >= c.following_error_time_s {
-                trip(Fault::FollowingError, &mut fault);
-            }
-        } else {
-            self.following_s = 0.0;
-        }
+        // The persistence timers first: they advance whatever fault this cycle finds.
+        let following = o.driving && o.homed;
+        self.following_s = persist(
+            self.following_s,
+            following && (o.reference_m - o.position_m).abs() > c.following_error_m,
+            o.dt_s,
+        );
+        let mut lost = None;
         if o.driving {
             // A section that delivers far less than asked, in the asked direction. The
             // delivered force along the command, `got·sgn(cmd)`, by a sign flip on the
@@ -241,17 +208,13 @@ impl Supervisor {
             timers.master = persist(timers.master, short(cmd.master, got.master), o.dt_s);
             timers.slave = persist(timers.slave, short(cmd.slave, got.slave), o.dt_s);
             // One section found lost a cycle, the master first.
-            let lost = if timers.master >= c.section_time_s {
+            lost = if timers.master >= c.section_time_s {
                 Some(Section::Master)
             } else if timers.slave >= c.section_time_s {
                 Some(Section::Slave)
             } else {
                 None
             };
-            if let Some(section) = lost {
-                *drop.get_mut(section) = true;
-                trip(Fault::SectionFault, &mut fault);
-            }
             let error = o.rotation_error_rad.abs();
             // A blocked rotation: the reference moves on, the rotation does not — caught at a
             // smaller error than a rotation that merely lags.
@@ -261,17 +224,52 @@ impl Supervisor {
                 error > c.rotation_error_rad || stalled,
                 o.dt_s,
             );
-            if self.rotation_s >= c.rotation_time_s {
-                trip(Fault::RotationSync, &mut fault);
-            }
         } else {
             self.section_s = PerSection::default();
             self.rotation_s = 0.0;
         }
-        fault.map(|f| Trip {
-            drop,
-            ..Trip::of(f)
-        })
+        // Then the checks in the order of their precedence, the first that fails named.
+        // NaN-safe in one compare: a NaN current is not within the limit, and trips.
+        let within = max_f32(o.peak_phase_a.master, o.peak_phase_a.slave) <= c.overcurrent_a;
+        let fault = if !within {
+            Fault::Overcurrent
+        } else if o.homed && (o.position_m - o.slave_position_m).abs() > c.encoder_mismatch_m {
+            Fault::EncoderMismatch
+        } else if o.homed && o.velocity_mps.abs() > c.overspeed_mps {
+            Fault::Overspeed
+        } else if o.homed && c.envelope_violated(o.position_m, o.velocity_mps) {
+            Fault::BrakingEnvelope
+        } else if following && self.following_s >= c.following_error_time_s {
+            Fault::FollowingError
+        } else if lost.is_some() {
+            Fault::SectionFault
+        } else if o.driving && self.rotation_s >= c.rotation_time_s {
+            Fault::RotationSync
+        } else {
+            return None;
+        };
+        Some(trip(fault, lost, o.peak_phase_a))
+    }
+}
+
+/// The supervisor's trip for `fault`: the section found `lost` dropped whatever the fault,
+/// and on an overcurrent the section with the larger phase current (`peak_phase_a`, A; the
+/// master on a tie) as well. Out of line: a healthy cycle never builds one.
+#[cold]
+#[inline(never)]
+fn trip(fault: Fault, lost: Option<Section>, peak_phase_a: PerSection<f32>) -> Trip {
+    let mut trip = Trip::of(fault);
+    if fault == Fault::Overcurrent {
+        let hotter = if peak_phase_a.master >= peak_phase_a.slave {
+            Section::Master
+        } else {
+            Section::Slave
+        };
+        trip = trip.dropping(hotter);
+    }
+    match lost {
+        Some(section) => trip.dropping(section),
+        None => trip,
     }
 }
 
