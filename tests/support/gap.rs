@@ -179,10 +179,14 @@ pub fn show(label: &str, j: &GapJson) {
         })
         .collect();
     eprintln!(
-        "{label}: [{}] effects [{}] {:?}",
+        "{label}: [{}] effects [{}] {:?} discovered {:?}",
         ch.join(", "),
         ef.join("; "),
-        j.warnings
+        j.warnings,
+        j.discovered
+            .iter()
+            .map(|d| (&d.terms, d.rms_after))
+            .collect::<Vec<_>>()
     );
 }
 

@@ -1,7 +1,7 @@
 //! Sensor models of the simulated board: the two sin/cos encoders (offsets, gain and phase
 //! errors, noise, 12-bit quantisation, the slave's pitch error), the phase-current sensing
-//! (offsets, noise), the four pressure sensors (first-order lag, offset, noise) and the
-//! servo's quadrature counter. Each holds its model section as it is; the laws of the
+//! (offsets, noise), the four pressure sensors (first-order lag, offset, noise), the
+//! sections' force readings as logged (gain, offset) and the servo's quadrature counter. Each holds its model section as it is; the laws of the
 //! transducers and the scale (lag, offset, noise, pitch error) are `plant::sensing`'s, the
 //! seeded noise they draw from `plant::noise`'s. What is the board's own here is the
 //! converters: the ADC's quantisation and the firmware's calibration of the codes.
@@ -12,7 +12,7 @@ use fpc::units::{AdcCode, Section};
 
 use crate::plant::fastmath::sin_cos;
 use crate::plant::model::{
-    CurrentSensor, EncoderSensor, MachineModel, PitchErrorEffect, PressureSensor,
+    CurrentSensor, EncoderSensor, ForceSensor, MachineModel, PitchErrorEffect, PressureSensor,
 };
 use crate::plant::noise::Noise;
 use crate::plant::sensing::Transducer;
@@ -131,6 +131,8 @@ pub struct Sensors {
     pub current_sensor: CurrentSensor,
     /// Pressure sensors.
     pub pressure: PressureSensors,
+    /// What each section's force reading reports to the log.
+    pub force: ForceSensor,
     /// Servo encoder counts per revolution.
     pub counts_per_rev: u32,
 }
@@ -148,6 +150,7 @@ impl Sensors {
                 calibration: PressureCalibration::reference(),
                 sensor: PressureSensor::default(),
             },
+            force: ForceSensor::default(),
             counts_per_rev: 4096,
         }
     }
@@ -165,6 +168,7 @@ impl Sensors {
                 calibration: PressureCalibration::reference(),
                 sensor: s.pressure.clone(),
             },
+            force: s.force,
             counts_per_rev: model.servo.counts_per_rev,
         }
     }

@@ -75,6 +75,10 @@ pub enum EffectKind {
     PressureOffset,
     /// The chamber pressure transducers read with a gain other than 1.
     PressureGain,
+    /// The sections' force readings are offset.
+    ForceOffset,
+    /// The sections' force readings have a gain other than 1.
+    ForceGain,
     /// Not a named effect: terms of the discovery basis ([`super::discover`]), one more
     /// at each proposal.
     ExtraForce,
@@ -82,7 +86,7 @@ pub enum EffectKind {
 
 impl EffectKind {
     /// Every effect of the library.
-    pub const ALL: [EffectKind; 14] = [
+    pub const ALL: [EffectKind; 16] = [
         EffectKind::MassError,
         EffectKind::CoulombFriction,
         EffectKind::ViscousFriction,
@@ -96,13 +100,21 @@ impl EffectKind {
         EffectKind::PortRestriction,
         EffectKind::PressureOffset,
         EffectKind::PressureGain,
+        EffectKind::ForceOffset,
+        EffectKind::ForceGain,
         EffectKind::ExtraForce,
     ];
 
     /// Whether it is an error of a sensor's reading, not of the machine
     /// ([`super::judge::sensor_reading_holds`]).
     pub fn sensor(self) -> bool {
-        matches!(self, EffectKind::PressureOffset | EffectKind::PressureGain)
+        matches!(
+            self,
+            EffectKind::PressureOffset
+                | EffectKind::PressureGain
+                | EffectKind::ForceOffset
+                | EffectKind::ForceGain
+        )
     }
 
     /// Whether it is a named effect of the library (not the discovered terms).
@@ -120,6 +132,8 @@ impl EffectKind {
             EffectKind::ViscousFriction => &[Term::V],
             EffectKind::MassError => &[Term::A],
             EffectKind::Cogging => &[Term::Sin, Term::Cos],
+            EffectKind::ForceOffset => &[Term::One],
+            EffectKind::ForceGain => &[Term::FMotor],
             _ => &[],
         }
     }
@@ -140,6 +154,8 @@ impl EffectKind {
             EffectKind::PortRestriction => "port_restriction",
             EffectKind::PressureOffset => "pressure_offset",
             EffectKind::PressureGain => "pressure_gain",
+            EffectKind::ForceOffset => "force_offset",
+            EffectKind::ForceGain => "force_gain",
             EffectKind::ExtraForce => "extra_force",
         }
     }
@@ -161,6 +177,8 @@ impl EffectKind {
             | EffectKind::ViscousFriction
             | EffectKind::PressureOffset
             | EffectKind::PressureGain
+            | EffectKind::ForceOffset
+            | EffectKind::ForceGain
             | EffectKind::ExtraForce => return None,
         })
     }
@@ -174,6 +192,8 @@ impl EffectKind {
             | EffectKind::StribeckFriction
             | EffectKind::Cogging
             | EffectKind::ActuatorLag
+            | EffectKind::ForceOffset
+            | EffectKind::ForceGain
             | EffectKind::ExtraForce => ChannelId::Force,
             EffectKind::SlaveLag => ChannelId::SlaveForce,
             EffectKind::EncoderPitchError => ChannelId::Encoder,

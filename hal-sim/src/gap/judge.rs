@@ -45,7 +45,10 @@
 //! at the same step (each fitted with the physical effects already named, refitted around
 //! it), and if what it leaves is noise: no structure, and an RMS above the channel's noise
 //! floor by less than the channel resolves (in quadrature, `√(rms² − floor²) <`
-//! [`resolution`]) ([`sensor_reading_holds`]).
+//! [`resolution`]) ([`sensor_reading_holds`]). A force reading's error is judged on the force
+//! channel against the physical force effects, and read where one reading is compared with
+//! another: it must pass these rules on the slave-force channel too and leave noise there
+//! ([`reading_channel`]). A force on the piston leaves both readings alike and fails there.
 //!
 
 use std::cell::RefCell;
@@ -196,9 +199,20 @@ pub(super) fn judge_proposal(
     proposal: Proposal,
     before: &Residual,
 ) -> Option<Judged> {
-    let kind = proposal.kind;
+    let ch = proposal.kind.channel();
+    judge_on(ctx, doc, proposal, before, ch)
+}
+
+/// [`judge_proposal`] on the channel `ch`, whose residual on `doc` is `before`.
+fn judge_on(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    proposal: Proposal,
+    before: &Residual,
+    ch: ChannelId,
+) -> Option<Judged> {
     let model = doc.with(&proposal.edits).model().ok()?;
-    let after = residual(ctx.data, ctx.band, &model, kind.channel())?;
+    let after = residual(ctx.data, ctx.band, &model, ch)?;
     let model = doc.model().ok()?;
     let n = before.kept.len().min(after.kept.len());
     if n < 2 {
@@ -222,8 +236,8 @@ pub(super) fn judge_proposal(
             support += 1;
         }
     }
-    let res = resolution(kind.channel(), &model);
-    let sample_res = sample_resolution(kind.channel(), &model);
+    let res = resolution(ch, &model);
+    let sample_res = sample_resolution(ch, &model);
     let explained = if s0 > 0.0 { (s0 - s1) / s0 } else { 0.0 };
     let nf = effective_n(&after.kept);
     let delta_bic = if rss_after > 0.0 && rss_before > 0.0 {
@@ -330,7 +344,14 @@ pub(super) fn outdone_by_basis(
     before: &Residual,
     fits: &RefCell<BasisFits>,
 ) -> bool {
-    let k = j.proposal.k;
+    // A force reading's error is one number on the force channel, which reads the sections'
+    // sum (a constant force, a share of the motor force); its second is the readings'
+    // difference, fitted on the slave-force channel, which no basis term sees.
+    let k = if j.proposal.kind.sensor() {
+        1
+    } else {
+        j.proposal.k
+    };
     if j.proposal.kind.channel() != ChannelId::Force || k == 0 {
         return false;
     }
@@ -361,16 +382,33 @@ pub(super) fn outdone_by_basis(
 
 /// Whether the significant sensor candidate `j` (on top of `doc`) is the channel's reading
 /// (module header): its residual below that of every candidate of `physical` (the step's
-/// judgements of the physical effects of its channel), and what it leaves at the noise floor.
+/// judgements of the physical effects of its channel), and what it leaves on the channel
+/// that compares the readings themselves ([`reading_channel`]) at the noise floor. Where
+/// that channel is another than its own (a force reading's, on the slave-force channel),
+/// the candidate must also pass the selection's rules there: a reading error shows where
+/// one reading is compared with another, a force on the piston does not.
 pub(super) fn sensor_reading_holds(
     ctx: &Ctx<'_>,
     doc: &ModelDoc,
     j: &Judged,
     physical: &[&Judged],
 ) -> bool {
-    let ch = j.proposal.kind.channel();
     if physical.iter().any(|p| p.rss_after <= j.rss_after) {
         return false;
+    }
+    let ch = reading_channel(j.proposal.kind);
+    if ch != j.proposal.kind.channel() {
+        let Some(before) = doc
+            .model()
+            .ok()
+            .and_then(|m| residual(ctx.data, ctx.band, &m, ch))
+        else {
+            return false;
+        };
+        let seen = judge_on(ctx, doc, j.proposal.clone(), &before, ch);
+        if !seen.is_some_and(|r| r.significant()) {
+            return false;
+        }
     }
     let Ok(model) = doc.with(&j.proposal.edits).model() else {
         return false;
@@ -384,4 +422,17 @@ pub(super) fn sensor_reading_holds(
         .max(0.0)
         .sqrt();
     !u.json.structured && excess < resolution(ch, &model)
+}
+
+/// The channel on which a sensor effect's readings are compared with each other: the
+/// pressure transducers' on the pressure channel (read against the chambers' replay), the
+/// force readings' on the slave-force channel (the slave section's reading against the
+/// master's, which the slave follows). The force balance reads both sections' sum, so there
+/// an offset is a constant force and a gain a share of the motor force; only the readings'
+/// difference tells the sensor from the piston.
+pub(super) fn reading_channel(kind: EffectKind) -> ChannelId {
+    match kind {
+        EffectKind::ForceOffset | EffectKind::ForceGain => ChannelId::SlaveForce,
+        _ => kind.channel(),
+    }
 }

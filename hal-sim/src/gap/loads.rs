@@ -13,7 +13,7 @@ use std::sync::{Arc, Mutex};
 use fpc::physics::balance::PistonForces;
 
 use crate::plant::model::extra_force::ExtraForceEffect;
-use crate::plant::model::MachineModel;
+use crate::plant::model::{ForceSensor, MachineModel};
 
 /// Gas, cogging and friction force at every row, N (as [`PistonForces`] has them).
 #[derive(Debug)]
@@ -95,10 +95,10 @@ pub struct LoadCache {
     extras: Mutex<Vec<(ExtraKey, Arc<Vec<f64>>)>>,
 }
 
-/// What an extra force at every row depends on beyond the log: the effect, and the bits of
-/// the actuator lag and of the log's force alignment (its `f_motor` term is the motor
-/// forces as they act).
-type ExtraKey = (ExtraForceEffect, u64, u64);
+/// What an extra force at every row depends on beyond the log: the effect, the bits of the
+/// actuator lag and of the log's force alignment, and the force readings (its `f_motor` term
+/// is the motor forces as they act).
+type ExtraKey = (ExtraForceEffect, u64, u64, ForceSensor);
 
 impl LoadCache {
     /// Most models (and extra forces) kept, the least recently used dropped first: a step's
@@ -121,16 +121,22 @@ impl LoadCache {
         }
     }
 
-    /// The extra force `effect` at every row with the actuator lag `delay_s` and the force
-    /// alignment `align_s`, N, made by `make` (outside the lock) if not kept.
+    /// The extra force `effect` at every row with the actuator lag `delay_s`, the force
+    /// alignment `align_s` and the force readings `sensor`, N, made by `make` (outside the
+    /// lock) if not kept.
     pub fn extra(
         &self,
         effect: &ExtraForceEffect,
-        delay_s: f64,
-        align_s: f64,
+        (delay_s, align_s): (f64, f64),
+        sensor: &ForceSensor,
         make: impl FnOnce() -> Vec<f64>,
     ) -> Arc<Vec<f64>> {
-        let key = (effect.clone(), delay_s.to_bits(), align_s.to_bits());
+        let key = (
+            effect.clone(),
+            delay_s.to_bits(),
+            align_s.to_bits(),
+            *sensor,
+        );
         kept_or_made(&self.extras, key, make)
     }
 }
@@ -177,10 +183,11 @@ impl std::fmt::Debug for LoadCache {
 }
 
 /// What the loads depend on: the model less the parameters they do not read (the mass, the
-/// actuator lag and the extra force enter the residual beside them).
+/// force readings, the actuator lag and the extra force enter the residual beside them).
 fn load_key(model: &MachineModel) -> MachineModel {
     let mut k = model.clone();
     k.piston.mass_kg = 0.0;
+    k.sensors.force = ForceSensor::default();
     k.effects.actuator_lag = None;
     k.effects.extra_force = None;
     k

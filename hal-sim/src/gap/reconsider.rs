@@ -13,7 +13,8 @@ use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
 use super::effects::propose;
 use super::judge::{
-    effective_n, judge_proposal, outdone_by_basis, Judged, MAX_EFFECTS, MIN_DELTA_BIC,
+    effective_n, judge_proposal, outdone_by_basis, sensor_reading_holds, Judged, MAX_EFFECTS,
+    MIN_DELTA_BIC,
 };
 use super::residuals::residual;
 use crate::plant::model::extra_force::Term;
@@ -109,7 +110,12 @@ fn without_named(
         .edits
         .iter()
         .filter_map(|e| match e {
-            Edit::Set(k, _) => Some(Edit::Set(*k, input.number(*k)?)),
+            // A key the input file does not give takes its default again.
+            Edit::Set(k, _) => Some(
+                input
+                    .number(*k)
+                    .map_or(Edit::RemoveKey(*k), |v| Edit::Set(*k, v)),
+            ),
             _ => None,
         })
         .collect();
@@ -168,6 +174,10 @@ fn swap_term(
     let p = propose(kind, ctx, &base)?;
     let j = judge_proposal(ctx, &base, p, &before)?;
     if outdone_by_basis(ctx, &base, &j, &before, &RefCell::new(Vec::new())) {
+        return None;
+    }
+    // A sensor's error is named only where its reading shows it, as in selection.
+    if kind.sensor() && j.significant() && !sensor_reading_holds(ctx, &base, &j, &[]) {
         return None;
     }
     if !j.significant() {

@@ -3,7 +3,7 @@
 //!
 //! | channel | residual (sample-wise, before the band filter) |
 //! |---|---|
-//! | `force` | `m·Δ²x − (F_master + F_slave [realigned to the row's time, delayed by the actuator lag] + (p_A − p_B)·A_eff − F_fr(v, ω) + F_cog(x))`, smoothed by the force kernel: the force no model term explains, toward +x |
+//! | `force` | `m·Δ²x − (F_master + F_slave [behind their readings, realigned to the row's time, delayed by the actuator lag] + (p_A − p_B)·A_eff − F_fr(v, ω) + F_cog(x))`, smoothed by the force kernel: the force no model term explains, toward +x |
 //! | `slave_force` | `F_slave − F_master` delayed by the model's slave lag (none: not delayed), judged while moving |
 //! | `encoder` | `x_slave − x_master` minus the model's pitch error, judged while moving, mean removed per stretch of motion (a constant offset between the encoders is a zero, not an effect, and homing may set it anew at each standstill) |
 //! | `pressure` | `p_A, p_B` minus the chambers replayed along the measured x(t) (and rotation, with open ports) through the model's chambers and pressure sensors |
@@ -14,11 +14,12 @@
 
 use fpc::angle::wrap_rad;
 use fpc::physics::balance::{PistonForces, PistonState};
+use fpc::units::Section;
 
 use crate::plant::chambers::{Chambers, Lines, PortMode};
 use crate::plant::dynamics::PlantParams;
 use crate::plant::model::extra_force::{ExtraState, Term};
-use crate::plant::model::MachineModel;
+use crate::plant::model::{ForceSensor, MachineModel};
 use crate::plant::sensing::Transducer;
 use crate::plant::servo::through_play;
 use crate::signal::delayed;
@@ -75,7 +76,7 @@ pub struct Band {
     pub columns: ColumnCache,
     /// The discovery basis's plain columns at the force channel's kept samples, by term and
     /// by what they depend on beyond the log ([`basis_key`]).
-    pub basis_columns: ColumnCache<(Term, u64, u64)>,
+    pub basis_columns: ColumnCache<BasisKey>,
     /// The force balance's loads of the models of this log's analysis ([`LoadCache`]).
     pub loads: LoadCache,
     /// The named force candidates' band-filtered regressors at the kept samples, by search
@@ -303,18 +304,31 @@ pub fn shifted(x: &[f64], samples: f64) -> Vec<f64> {
 
 /// The key of the discovery basis's plain column of `term` on `data` with `model` in
 /// [`Band::basis_columns`]: the term, and for `f_motor` (the motor forces as they act) the
-/// model's actuator lag and the log's force alignment, bit for bit; every other term is the
-/// log's alone.
-pub fn basis_key(term: Term, data: &Measured, model: &MachineModel) -> (Term, u64, u64) {
+/// model's actuator lag, the log's force alignment and the force readings' offsets and gains,
+/// bit for bit; every other term is the log's alone.
+pub fn basis_key(term: Term, data: &Measured, model: &MachineModel) -> BasisKey {
     match term {
-        Term::FMotor => (
-            term,
-            actuator_delay_s(model).to_bits(),
-            data.force_align_s.to_bits(),
-        ),
-        _ => (term, 0, 0),
+        Term::FMotor => {
+            let f = &model.sensors.force;
+            let sensor = [
+                f.offset_master_n,
+                f.offset_slave_n,
+                f.gain_master,
+                f.gain_slave,
+            ];
+            (
+                term,
+                actuator_delay_s(model).to_bits(),
+                data.force_align_s.to_bits(),
+                sensor.map(f64::to_bits),
+            )
+        }
+        _ => (term, 0, 0, [0; 4]),
     }
 }
+
+/// What a discovery basis column depends on ([`basis_key`]).
+pub type BasisKey = (Term, u64, u64, [u64; 4]);
 
 /// The model's actuator lag, s (0 without `[effects.actuator_lag]`).
 fn actuator_delay_s(model: &MachineModel) -> f64 {
@@ -325,22 +339,23 @@ fn actuator_delay_s(model: &MachineModel) -> f64 {
         .map_or(0.0, |l| l.delay_s)
 }
 
-/// The motor forces as they act on the piston at each row, N: the reported forces
-/// realigned by the log's convention (`data.force_align_s`) and late by the model's
-/// actuator lag `delay_s`.
-pub fn acting_motor_force_n(data: &Measured, delay_s: f64) -> Vec<f64> {
+/// The motor forces as they act on the piston at each row, N: the forces behind the
+/// readings (`sensor`), realigned by the log's convention (`data.force_align_s`) and late
+/// by the model's actuator lag `delay_s`.
+pub fn acting_motor_force_n(data: &Measured, sensor: &ForceSensor, delay_s: f64) -> Vec<f64> {
     shifted(
-        &motor_sum_n(data),
+        &motor_sum_n(data, sensor),
         (delay_s + data.force_align_s) / data.dt_s,
     )
 }
 
-/// Both sections' reported forces summed at each row, N (as logged, not realigned).
-pub fn motor_sum_n(data: &Measured) -> Vec<f64> {
-    data.f_master_n
-        .iter()
-        .zip(&data.f_slave_n)
-        .map(|(a, b)| a + b)
+/// Both sections' forces behind their readings through `sensor` summed at each row, N (not
+/// realigned).
+pub fn motor_sum_n(data: &Measured, sensor: &ForceSensor) -> Vec<f64> {
+    let exact = sensor.exact();
+    let force = |s: Section, r: f64| if exact { r } else { sensor.force_n(s, r) };
+    let both = data.f_master_n.iter().zip(&data.f_slave_n);
+    both.map(|(a, b)| force(Section::Master, *a) + force(Section::Slave, *b))
         .collect()
 }
 
@@ -365,7 +380,7 @@ pub fn force_terms_each<'a>(
     model: &'a MachineModel,
 ) -> impl ExactSizeIterator<Item = PistonForces<f64>> + 'a {
     let n = data.len();
-    let acting = acting_motor_force_n(data, actuator_delay_s(model));
+    let acting = acting_motor_force_n(data, &model.sensors.force, actuator_delay_s(model));
     let laws = model.piston_laws();
     let tang = tangential_mps(data, model);
     // The gas force acts with the chambers' true pressures: the readings through the model's
@@ -427,7 +442,7 @@ pub fn extra_states<'a>(
     data: &'a Measured,
     model: &MachineModel,
 ) -> impl Iterator<Item = ExtraState> + 'a {
-    let acting = acting_motor_force_n(data, actuator_delay_s(model));
+    let acting = acting_motor_force_n(data, &model.sensors.force, actuator_delay_s(model));
     let t0 = data.t_s.first().copied().unwrap_or(0.0);
     (0..data.len()).map(move |i| {
         let g = |v: &[f64]| v.get(i).copied().unwrap_or(0.0);
@@ -448,12 +463,16 @@ pub fn extra_force_n(data: &Measured, model: &MachineModel) -> Option<Vec<f64>> 
     Some(extra_states(data, model).map(|s| e.force_n(&s)).collect())
 }
 
-/// The slave force the model predicts from the master's, N.
+/// The slave force reading the model predicts from the master's, N: the master's force
+/// behind its reading, late by the model's slave lag, read through the slave's reading.
 pub fn slave_force_prediction(data: &Measured, model: &MachineModel) -> Vec<f64> {
-    match model.slave_lag_s() {
-        Some(d) if d > 0.0 => delayed(&data.f_master_n, d / data.dt_s),
-        _ => data.f_master_n.clone(),
-    }
+    let sensor = &model.sensors.force;
+    let master = sensor.forces_n(Section::Master, data.f_master_n.clone());
+    let slave = match model.slave_lag_s() {
+        Some(d) if d > 0.0 => delayed(&master, d / data.dt_s),
+        _ => master,
+    };
+    sensor.readings_n(Section::Slave, slave)
 }
 
 /// What the model says the slave encoder reads minus the master's, m.
@@ -777,9 +796,10 @@ pub fn band_force_raw(data: &Measured, band: &Band, model: &MachineModel) -> Vec
         .loads
         .of(model, || Loads::of_terms(force_terms_each(data, model)));
     let delay_s = actuator_delay_s(model);
-    let acting = acting_motor_force_n(data, delay_s);
+    let acting = acting_motor_force_n(data, &model.sensors.force, delay_s);
     let extra = model.effects.extra_force.as_ref().map(|e| {
-        band.loads.extra(e, delay_s, data.force_align_s, || {
+        let timing = (delay_s, data.force_align_s);
+        band.loads.extra(e, timing, &model.sensors.force, || {
             extra_force_n(data, model).unwrap_or_default()
         })
     });

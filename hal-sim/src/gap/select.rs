@@ -37,6 +37,7 @@ use super::judge::{
 };
 use super::reconsider::{prune_terms, reconsider_terms};
 use super::residuals::{band_raw, full_of_raw, residual, Residual};
+use crate::plant::model::extra_force::Term;
 
 /// Correlation above which two candidates are reported as collinear.
 pub const COLLINEAR: f64 = 0.9;
@@ -312,9 +313,10 @@ fn preferred(
         if added.is_empty() {
             return None;
         }
+        // A sensor's error takes its form's place only once its readings confirm it (below).
         judged
             .iter()
-            .filter(|n| n.proposal.kind.named() && n.significant())
+            .filter(|n| n.proposal.kind.named() && !n.proposal.kind.sensor() && n.significant())
             .filter(|n| {
                 let form = n.proposal.kind.basis_form();
                 added.iter().all(|t| form.contains(t))
@@ -328,8 +330,22 @@ fn preferred(
             })
             .cloned()
     };
+    // A sensor's error that its own readings confirm ([`sensor_reading_holds`]) is preferred
+    // to terms that hold its form (a constant, `f_motor`): the terms' evidence is then the
+    // sensor's, and whatever else they add is judged on top of it at the next step.
+    let holds_its_form = |n: &Judged, e: &Judged| {
+        let form = n.proposal.kind.basis_form();
+        n.proposal.kind.sensor()
+            && n.proposal.kind.channel() == ChannelId::Force
+            && e.proposal
+                .params
+                .iter()
+                .filter_map(|(name, _)| Term::parse(name))
+                .any(|t| form.contains(&t))
+    };
     match (best, best_extra) {
         (Some(n), Some(e)) if e.delta_bic < n.delta_bic + MIN_DELTA_BIC => Some(n),
+        (Some(n), Some(e)) if holds_its_form(&n, &e) => Some(n),
         (_, Some(e)) => own_form_of(&e).or(Some(e)),
         (n, None) => n,
     }

@@ -19,7 +19,7 @@ use super::candidate::{Ctx, EffectKind};
 use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
 use super::fit::{standard_errors, sumsq};
-use super::judge::effective_n;
+use super::judge::{effective_n, reading_channel, Judged};
 use super::residuals::{band_raw, kept_of_raw};
 use super::select::Selection;
 
@@ -57,43 +57,38 @@ pub fn key_unit(key: &str) -> &'static str {
 
 /// One standard deviation of each fitted parameter of each added named effect, by effect and
 /// key (SI, as the parameters). A parameter held at zero, one the residual does not move, or a
-/// channel whose parameters the log cannot separate, has none.
+/// channel whose parameters the log cannot separate, has none. A force reading's pair is
+/// taken on the force and slave-force residuals together, as it is fitted
+/// ([`reading_channel`]): the force channel alone sees only the sections' sum.
 pub fn of_selection(
     ctx: &Ctx<'_>,
     selection: &Selection,
 ) -> BTreeMap<EffectKind, BTreeMap<String, f64>> {
+    let named: Vec<&Judged> = selection
+        .added
+        .iter()
+        .filter(|a| a.proposal.kind.named())
+        .collect();
+    let read_apart = |k: EffectKind| reading_channel(k) != k.channel();
+    // Every channel's named effects together, then each force reading on its own channels.
+    let mut groups: Vec<(Vec<ChannelId>, Vec<&Judged>)> = ChannelId::ALL
+        .iter()
+        .map(|&ch| {
+            let on = |a: &&&Judged| a.proposal.kind.channel() == ch && !read_apart(a.proposal.kind);
+            (vec![ch], named.iter().filter(on).copied().collect())
+        })
+        .collect();
+    for a in named.iter().filter(|a| read_apart(a.proposal.kind)) {
+        let k = a.proposal.kind;
+        groups.push((vec![k.channel(), reading_channel(k)], vec![*a]));
+    }
     let mut out: BTreeMap<EffectKind, BTreeMap<String, f64>> = BTreeMap::new();
-    for ch in ChannelId::ALL {
-        // Every fitted parameter of a named effect on this channel, with its key.
-        let params: Vec<(EffectKind, Key, f64)> = selection
-            .added
-            .iter()
-            .filter(|a| a.proposal.kind.named() && a.proposal.kind.channel() == ch)
-            .flat_map(|a| {
-                let kind = a.proposal.kind;
-                a.proposal
-                    .params
-                    .iter()
-                    .filter_map(move |(name, _)| {
-                        if !fitted(name) {
-                            return None;
-                        }
-                        a.proposal.edits.iter().find_map(|e| match e {
-                            Edit::Set(key, _) if key.name == *name => Some(*key),
-                            _ => None,
-                        })
-                    })
-                    .filter_map(move |key| {
-                        // A parameter held at zero (a bound) has no spread to give.
-                        let v = selection.doc.number(key).filter(|v| *v != 0.0)?;
-                        Some((kind, key, v))
-                    })
-            })
-            .collect();
+    for (chs, effects) in groups {
+        let params = fitted_params(selection, &effects);
         if params.is_empty() {
             continue;
         }
-        let Some(se) = channel_errors(ctx, &selection.doc, ch, &params) else {
+        let Some(se) = channel_errors(ctx, &selection.doc, &chs, &params) else {
             continue;
         };
         for ((kind, key, _), s) in params.iter().zip(se) {
@@ -103,6 +98,33 @@ pub fn of_selection(
         }
     }
     out
+}
+
+/// Every fitted parameter of `effects` with its key and its value in the final model.
+fn fitted_params(selection: &Selection, effects: &[&Judged]) -> Vec<(EffectKind, Key, f64)> {
+    effects
+        .iter()
+        .flat_map(|a| {
+            let kind = a.proposal.kind;
+            a.proposal
+                .params
+                .iter()
+                .filter_map(move |(name, _)| {
+                    if !fitted(name) {
+                        return None;
+                    }
+                    a.proposal.edits.iter().find_map(|e| match e {
+                        Edit::Set(key, _) if key.name == *name => Some(*key),
+                        _ => None,
+                    })
+                })
+                .filter_map(move |key| {
+                    // A parameter held at zero (a bound) has no spread to give.
+                    let v = selection.doc.number(key).filter(|v| *v != 0.0)?;
+                    Some((kind, key, v))
+                })
+        })
+        .collect()
 }
 
 /// `doc` with each fitted parameter of `sigma` commented with its value rounded to its
@@ -135,29 +157,34 @@ pub fn annotated(
     out
 }
 
-/// The kept residual of `ch` for `doc` (`None`: the model does not load or the channel
-/// cannot be formed).
-fn kept(ctx: &Ctx<'_>, doc: &ModelDoc, ch: ChannelId) -> Option<Vec<f64>> {
+/// The kept residuals of `chs` for `doc`, one after the other (`None`: the model does not
+/// load or a channel cannot be formed).
+fn kept(ctx: &Ctx<'_>, doc: &ModelDoc, chs: &[ChannelId]) -> Option<Vec<f64>> {
     let model = doc.model().ok()?;
-    let raw = band_raw(ctx.data, ctx.band, &model, ch)?;
-    Some(kept_of_raw(ctx.data, ctx.band, ch, &raw))
+    let mut out = Vec::new();
+    for &ch in chs {
+        let raw = band_raw(ctx.data, ctx.band, &model, ch)?;
+        out.extend(kept_of_raw(ctx.data, ctx.band, ch, &raw));
+    }
+    Some(out)
 }
 
-/// Standard errors of `params` (at their values in `doc`) jointly, from `ch`'s residual.
+/// Standard errors of `params` (at their values in `doc`) jointly, from the residuals of
+/// `chs`.
 fn channel_errors(
     ctx: &Ctx<'_>,
     doc: &ModelDoc,
-    ch: ChannelId,
+    chs: &[ChannelId],
     params: &[(EffectKind, Key, f64)],
 ) -> Option<Vec<f64>> {
-    let r0 = kept(ctx, doc, ch)?;
+    let r0 = kept(ctx, doc, chs)?;
     let cols: Vec<Vec<f64>> = params
         .par_iter()
         .map(|&(_, key, v)| {
             let h = REL_STEP * v.abs();
             let (up, down) = rayon::join(
-                || kept(ctx, &doc.with(&[Edit::Set(key, v + h)]), ch),
-                || kept(ctx, &doc.with(&[Edit::Set(key, v - h)]), ch),
+                || kept(ctx, &doc.with(&[Edit::Set(key, v + h)]), chs),
+                || kept(ctx, &doc.with(&[Edit::Set(key, v - h)]), chs),
             );
             let (up, down) = (up?, down?);
             (up.len() == r0.len() && down.len() == r0.len()).then(|| {

@@ -9,11 +9,16 @@
 //!   a step `h` with `p` held the lag is exact, `r ← r + (1 − e^{−h/τ})·(p − r)`
 //!   ([`FirstOrderLag`]); its inverse from a reading and its rate is
 //!   `p = (reading − offset + τ·ṙ)/gain` ([`PressureSensor::true_pressure_pa`]).
+//! - **Force readings** (`[sensors.force]`): each section reports `gain·F + offset` of the
+//!   force its drive makes from its currents ([`ForceSensor::reading_n`]); inverted,
+//!   `F = (reading − offset)/gain` ([`ForceSensor::force_n`]).
 //! - **Pitch error of the slave scale** (`[effects.encoder_pitch_error]`): what it reads at a
 //!   true position ([`PitchErrorEffect::reading_m`]), the pattern the section documents.
 
+use fpc::units::Section;
+
 use crate::plant::fastmath::sin_cos;
-use crate::plant::model::{PitchErrorEffect, PressureSensor};
+use crate::plant::model::{ForceSensor, PitchErrorEffect, PressureSensor};
 use crate::plant::noise::Noise;
 
 /// A first-order lag stepped exactly over a fixed step with its input held.
@@ -109,6 +114,58 @@ impl PressureSensor {
     #[inline]
     pub fn true_pressure_pa(&self, reading_pa: f64, rate_pa_per_s: f64, t: Transducer) -> f64 {
         (reading_pa - t.offset_pa + self.time_constant_s * rate_pa_per_s) / t.gain
+    }
+}
+
+impl ForceSensor {
+    /// `(offset, gain)` of `section`'s reading, N and N/N.
+    fn of(&self, section: Section) -> (f64, f64) {
+        match section {
+            Section::Master => (self.offset_master_n, self.gain_master),
+            Section::Slave => (self.offset_slave_n, self.gain_slave),
+        }
+    }
+
+    /// Whether both readings are exact (offset 0, gain 1): then a reading is the force itself,
+    /// bit for bit.
+    pub fn exact(&self) -> bool {
+        *self == ForceSensor::default()
+    }
+
+    /// What `section` reports of the force `force_n` its drive makes, N: `gain·F + offset`.
+    #[inline]
+    pub fn reading_n(&self, section: Section, force_n: f64) -> f64 {
+        let (offset, gain) = self.of(section);
+        gain * force_n + offset
+    }
+
+    /// The force behind `section`'s reading `reading_n`, N: `(reading − offset)/gain`.
+    #[inline]
+    pub fn force_n(&self, section: Section, reading_n: f64) -> f64 {
+        let (offset, gain) = self.of(section);
+        (reading_n - offset) / gain
+    }
+
+    /// [`ForceSensor::force_n`] of every reading of `readings_n` (exact readings as they are).
+    pub fn forces_n(&self, section: Section, readings_n: Vec<f64>) -> Vec<f64> {
+        if self.exact() {
+            return readings_n;
+        }
+        readings_n
+            .into_iter()
+            .map(|r| self.force_n(section, r))
+            .collect()
+    }
+
+    /// [`ForceSensor::reading_n`] of every force of `forces_n` (exact readings as they are).
+    pub fn readings_n(&self, section: Section, forces_n: Vec<f64>) -> Vec<f64> {
+        if self.exact() {
+            return forces_n;
+        }
+        forces_n
+            .into_iter()
+            .map(|f| self.reading_n(section, f))
+            .collect()
     }
 }
 

@@ -279,7 +279,7 @@ pub fn acting_force_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<crate::signal::
     let base = doc.with(&[Edit::RemoveSection(model_section!(effects.actuator_lag))]);
     let model = base.model().ok()?;
     let d = ctx.data;
-    let motors = acting_motor_force_n(d, 0.0);
+    let motors = acting_motor_force_n(d, &model.sensors.force, 0.0);
     // The motor force that closes the balance with every other modelled force.
     let acting = band_motor_needed_n(d, ctx.band, &model);
     let reported = ctx.band.full(d, ChannelId::Force, &motors);
@@ -298,7 +298,7 @@ pub(super) fn actuator_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     // Everything but the motor forces, once: r(d) = m·Δ²x − others − motors acting at d.
     let fixed = band_motor_needed_n(d, ctx.band, &model);
     // The motor forces summed once; each delay only shifts them.
-    let motors = motor_sum_n(d);
+    let motors = motor_sum_n(d, &model.sensors.force);
     let rss = |delay: f64| -> Option<f64> {
         let mut raw = shifted(&motors, (delay.max(0.0) + d.force_align_s) / d.dt_s);
         for (r, f) in raw.iter_mut().zip(&fixed) {

@@ -19,6 +19,8 @@
 //! | `port_restriction` | pressure (open ports) | chamber replay with scaled port areas | grid + golden section on log scale |
 //! | `pressure_offset` | pressure | chamber replay read through transducers offset per chamber | damped Gauss–Newton on the two offsets |
 //! | `pressure_gain` | pressure | chamber replay read through transducers of gain per chamber | damped Gauss–Newton on the two gains |
+//! | `force_offset` | force (and slave_force) | each section's force reading `F + offset` | damped Gauss–Newton on the two offsets, force and slave-force residuals together |
+//! | `force_gain` | force (and slave_force) | each section's force reading `gain·F` | damped Gauss–Newton on the two gains, force and slave-force residuals together |
 //!
 //! Every fit starts from the current model with the effect itself removed (or, for the
 //! corrections of mass and friction levels, from the current value), so fitting again after
@@ -60,6 +62,8 @@ pub fn propose(kind: EffectKind, ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Propos
         EffectKind::PortRestriction => pressure::port_restriction(ctx, doc),
         EffectKind::PressureOffset => sensor::pressure_offset(ctx, doc),
         EffectKind::PressureGain => sensor::pressure_gain(ctx, doc),
+        EffectKind::ForceOffset => sensor::force_offset(ctx, doc),
+        EffectKind::ForceGain => sensor::force_gain(ctx, doc),
         EffectKind::ExtraForce => discover::next_term(ctx, doc),
     }
 }

@@ -498,6 +498,21 @@ mod tests {
     }
 
     #[test]
+    fn a_force_reading_out_of_its_range_is_refused_naming_its_key() {
+        let read = |body: &str| format!("{MINIMAL}\n[sensors.force]\n{body}\n");
+        let m = MachineModel::parse(&read("offset_slave_n = -30.0\ngain_master = 1.05")).unwrap();
+        let f = m.sensors.force;
+        assert_eq!((f.offset_master_n, f.offset_slave_n), (0.0, -30.0));
+        assert_eq!((f.gain_master, f.gain_slave), (1.05, 1.0));
+        assert!(
+            refused(&read("offset_master_n = 1500.0")).contains("sensors.force.offset_master_n")
+        );
+        assert!(refused(&read("gain_slave = 0.0")).contains("sensors.force.gain_slave"));
+        assert!(refused(&read("gain_slave = 2.5")).contains("sensors.force.gain_slave"));
+        assert!(refused(&read("offset_n = 1.0")).contains("offset_n"));
+    }
+
+    #[test]
     fn a_partial_project_section_keeps_the_other_reference_values() {
         let m = MachineModel::parse(&format!("{MINIMAL}\n[servo]\ninertia_kgm2 = 3e-3\n")).unwrap();
         assert_eq!(m.servo.inertia_kgm2, 3e-3);

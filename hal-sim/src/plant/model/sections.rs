@@ -493,6 +493,40 @@ impl Default for PressureSensor {
     }
 }
 
+/// `[sensors.force]`: the force each section reports to the log, `gain·F + offset` of the
+/// force its drive makes from the measured currents (`plant::sensing`). The drives and the
+/// controller act on the currents: an error of the reported value, not of the force applied.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct ForceSensor {
+    /// Offset of the master section's force reading, N.
+    pub offset_master_n: f64,
+    /// Offset of the slave section's force reading, N.
+    pub offset_slave_n: f64,
+    /// Gain of the master section's force reading: reported newtons per newton.
+    pub gain_master: f64,
+    /// Gain of the slave section's force reading.
+    pub gain_slave: f64,
+}
+
+checks!(ForceSensor {
+    offset_master_n: Finite, -1000.0, 1000.0, "N";
+    offset_slave_n: Finite, -1000.0, 1000.0, "N";
+    gain_master: Positive, 0.5, 2.0, "";
+    gain_slave: Positive, 0.5, 2.0, "";
+});
+
+impl Default for ForceSensor {
+    fn default() -> Self {
+        ForceSensor {
+            offset_master_n: 0.0,
+            offset_slave_n: 0.0,
+            gain_master: 1.0,
+            gain_slave: 1.0,
+        }
+    }
+}
+
 /// `[sensors]`.
 #[derive(Clone, Debug, Default, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
@@ -505,6 +539,8 @@ pub struct SensorsSection {
     pub current: CurrentSensor,
     /// Pressure sensing.
     pub pressure: PressureSensor,
+    /// The sections' force readings.
+    pub force: ForceSensor,
 }
 
 /// `[limits]`: what the controller must respect (its configuration takes them from here).

@@ -248,6 +248,7 @@ impl MachineModel {
             section!(m, sensors.encoder_slave),
             section!(m, sensors.current),
             section!(m, sensors.pressure),
+            section!(m, sensors.force),
             section!(m, limits),
             section!(m, simulation),
             section!(m, effects.cogging),

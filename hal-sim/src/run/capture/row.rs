@@ -2,6 +2,7 @@
 //! columns.
 
 use fpc::status::Status;
+use fpc::units::Section;
 
 use crate::board::world::World;
 use crate::runlog::RunLog;
@@ -18,17 +19,26 @@ pub struct CapturedRow {
 }
 
 impl CapturedRow {
-    /// The row of `status` and the plant's chambers in `w`, now.
+    /// The row of `status` and the plant's chambers in `w`, now; each section's force as its
+    /// reading reports it (`[sensors.force]`).
     #[inline]
     pub fn new(status: &Status, w: &World) -> Self {
         let c = &w.plant.chambers;
+        let force = &w.sensors.force;
+        let reported = |section: Section, f: f32| -> f32 {
+            if force.exact() {
+                f
+            } else {
+                force.reading_n(section, f64::from(f)) as f32
+            }
+        };
         CapturedRow {
             status: [
                 status.position_m,
                 status.slave_position_m,
                 status.theta_rad,
-                status.force_master_n,
-                status.force_slave_n,
+                reported(Section::Master, status.force_master_n),
+                reported(Section::Slave, status.force_slave_n),
                 status.pressure_a_pa,
                 status.pressure_b_pa,
                 status.reference_m,
