@@ -13,7 +13,9 @@ use crate::control::calibration::{
 use crate::control::config::ControlConfig;
 use crate::physics::motor::Dq;
 use crate::ports::PhaseCurrentCodes;
-use crate::units::PerSection;
+use crate::units::{DacCode, PerSection};
+
+use super::{ControlStep, CycleOutputs};
 
 /// The calibration's bookkeeping: what the routines loaded, whether the machine may start on
 /// it, whether a result waits to be saved.
@@ -194,5 +196,28 @@ pub(super) fn tracking_frames(
                 q: shares.slave * inv_kf,
             },
         ),
+    }
+}
+
+impl ControlStep {
+    /// The outputs of a cycle that calibrates (or, in the bench build, runs a bench
+    /// operation): the routine's duties, after the rest of the step, and the servo's command
+    /// (a bench operation's torque, else the rotate stage's `servo`).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn calibrating_outputs(
+        &mut self,
+        currents: &PerSection<PhaseCurrentCodes>,
+        sections: PerSection<bool>,
+        servo: DacCode,
+    ) -> CycleOutputs {
+        let pwm = self.calibration_cycle(currents);
+        #[cfg(feature = "bench")]
+        let servo = self.bench_servo(servo);
+        CycleOutputs {
+            pwm,
+            sections,
+            servo,
+        }
     }
 }

@@ -432,17 +432,9 @@ impl ControlStep {
 
         // Publish.
         self.publish(inputs.t, &s, limits);
-        let pwm = if calibrating {
-            self.calibration_cycle(&inputs.currents)
-        } else {
-            pwm
-        };
-        #[cfg(feature = "bench")]
-        let servo = if calibrating {
-            self.bench_servo(servo)
-        } else {
-            servo
-        };
+        if calibrating {
+            return self.calibrating_outputs(&inputs.currents, sections, servo);
+        }
         CycleOutputs {
             pwm,
             sections,
