@@ -206,6 +206,17 @@ pub mod sensors {
         /// `sensors.encoder_slave.sin_offset_codes`.
         pub const SIN_OFFSET_CODES: f64 = 0.0;
     }
+    /// `[sensors.force]`.
+    pub mod force {
+        /// `sensors.force.gain_master`.
+        pub const GAIN_MASTER: f64 = 1.0;
+        /// `sensors.force.gain_slave`.
+        pub const GAIN_SLAVE: f64 = 1.0;
+        /// `sensors.force.offset_master_n`.
+        pub const OFFSET_MASTER_N: f64 = 0.0;
+        /// `sensors.force.offset_slave_n`.
+        pub const OFFSET_SLAVE_N: f64 = 0.0;
+    }
     /// `[sensors.pressure]`.
     pub mod pressure {
         /// `sensors.pressure.gain_a`.
