@@ -76,8 +76,9 @@ pub struct StrokeGenerator {
     /// Commanded end points (targets + corrections), m.
     command_a_m: f32,
     command_b_m: f32,
-    /// Measured extreme in the current stroke, m.
-    extreme_m: Option<f32>,
+    /// Measured extreme in the current stroke, m (NaN until the stroke's first sample: the
+    /// comparisons of [`max_f32`] and [`min_f32`] then take the sample).
+    extreme_m: f32,
     half_cycles: u32,
     stop_requested: bool,
 }
@@ -101,7 +102,7 @@ impl StrokeGenerator {
             elapsed_s: 0.0,
             command_a_m: config.dead_a_m,
             command_b_m: config.dead_b_m,
-            extreme_m: None,
+            extreme_m: f32::NAN,
             half_cycles: 0,
             stop_requested: false,
         }
@@ -168,11 +169,10 @@ impl StrokeGenerator {
     /// Advances by `dt_s` with the measured position; returns the setpoint and, at the end
     /// of a stroke, the dead point just reached.
     pub fn step(&mut self, dt_s: f32, measured_m: f32) -> (Setpoint, Option<DeadPoint>) {
-        self.extreme_m = Some(match (self.extreme_m, self.direction) {
-            (None, _) => measured_m,
-            (Some(e), Direction::TowardB) => max_f32(e, measured_m),
-            (Some(e), Direction::TowardA) => min_f32(e, measured_m),
-        });
+        self.extreme_m = match self.direction {
+            Direction::TowardB => max_f32(self.extreme_m, measured_m),
+            Direction::TowardA => min_f32(self.extreme_m, measured_m),
+        };
         self.elapsed_s += dt_s;
         let mut reached = None;
         if self.elapsed_s >= self.path.duration_s() && !self.stop_requested {
@@ -187,7 +187,12 @@ impl StrokeGenerator {
             Direction::TowardB => (self.config.dead_b_m, &mut self.command_b_m),
             Direction::TowardA => (self.config.dead_a_m, &mut self.command_a_m),
         };
-        let reached = self.extreme_m.unwrap_or(*command);
+        // No sample measured (or none a number): the command stands as reached.
+        let reached = if self.extreme_m.is_nan() {
+            *command
+        } else {
+            self.extreme_m
+        };
         let error = reached - target;
         let max = self.config.max_correction_m;
         // Integral correction of the commanded end point, bounded around the target.
@@ -214,7 +219,7 @@ impl StrokeGenerator {
         };
         self.path = PointToPoint::new(here, next, self.config.peak_speed_mps);
         self.elapsed_s = carry_s;
-        self.extreme_m = None;
+        self.extreme_m = f32::NAN;
         self.half_cycles = self.half_cycles.saturating_add(1);
         dead
     }
