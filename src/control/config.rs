@@ -390,7 +390,19 @@ impl ControlConfig {
             ("max_speed_mps", config.max_speed_mps),
             (
                 "supervisor.brake_deceleration_mps2",
-                config.supervisor.brake_deceleration_mps2,
+                config.supervisor.brake_deceleration_mps2(),
+            ),
+            (
+                "supervisor.following_error_time_s",
+                config.supervisor.following_error_time_s,
+            ),
+            (
+                "supervisor.section_time_s",
+                config.supervisor.section_time_s,
+            ),
+            (
+                "supervisor.rotation_time_s",
+                config.supervisor.rotation_time_s,
             ),
         ] {
             if !(v.is_finite() && v > 0.0) {
@@ -425,10 +437,45 @@ impl ControlConfig {
                 return Err(ConfigError::OutOfRange(name));
             }
         }
+        // The pressure channels' live band must have its ends in order (its check is one
+        // compare of the distance from the bottom).
+        if config.pressure.open_below > config.pressure.short_above {
+            return Err(ConfigError::OutOfRange("pressure.open_below"));
+        }
         let threshold = config.disturbance_threshold_n;
         if threshold.is_nan() || threshold < 0.0 {
             return Err(ConfigError::OutOfRange("disturbance_threshold_n"));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_configuration_the_step_cannot_hold_to_is_refused_by_name() {
+        assert_eq!(ControlConfig::reference().check(), Ok(()));
+        let mut c = ControlConfig::reference();
+        c.supervisor.rotation_time_s = 0.0;
+        assert_eq!(
+            c.check(),
+            Err(ConfigError::NotPositive("supervisor.rotation_time_s"))
+        );
+        let mut c = ControlConfig::reference();
+        c.supervisor.following_error_time_s = f32::NAN;
+        assert_eq!(
+            c.check(),
+            Err(ConfigError::NotPositive(
+                "supervisor.following_error_time_s"
+            ))
+        );
+        let mut c = ControlConfig::reference();
+        (c.pressure.open_below, c.pressure.short_above) = (3890, 205);
+        assert_eq!(
+            c.check(),
+            Err(ConfigError::OutOfRange("pressure.open_below"))
+        );
     }
 }

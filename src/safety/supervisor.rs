@@ -19,6 +19,9 @@ use crate::real::{max_f32, sqrt_f32};
 use crate::safety::faults::{Fault, Trip};
 use crate::units::{PerSection, Section};
 
+/// The reference machine's `a_brake`, m/s² ([`SupervisorConfig::reference`]).
+const BRAKE_DECELERATION_MPS2: f32 = 150.0;
+
 /// Limits of the supervisor, SI.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SupervisorConfig {
@@ -26,8 +29,12 @@ pub struct SupervisorConfig {
     pub travel_m: f32,
     /// Clearance never to be crossed, m (0.3 mm).
     pub min_clearance_m: f32,
-    /// Deceleration one section alone guarantees, m/s² (the envelope's `a_brake`).
-    pub brake_deceleration_mps2: f32,
+    /// Deceleration one section alone guarantees, m/s² (the envelope's `a_brake`; fixed at
+    /// construction with the envelope's constant below).
+    brake_deceleration_mps2: f32,
+    /// The envelope's squared speed per metre of margin with its 5 % on the speed,
+    /// `1.05²·2·a_brake`, m/s² (the root-free check's factor, taken where `a_brake` is set).
+    envelope_mps2: f32,
     /// Speed above which `Overspeed` trips, m/s (1.2 × the largest commanded speed).
     pub overspeed_mps: f32,
     /// Phase-current magnitude that trips `Overcurrent`, A.
@@ -63,7 +70,8 @@ impl SupervisorConfig {
         SupervisorConfig {
             travel_m: crate::reference::piston::TRAVEL_M as f32,
             min_clearance_m: crate::reference::limits::MIN_HEAD_CLEARANCE_M as f32,
-            brake_deceleration_mps2: 150.0,
+            brake_deceleration_mps2: BRAKE_DECELERATION_MPS2,
+            envelope_mps2: 1.05 * 1.05 * 2.0 * BRAKE_DECELERATION_MPS2,
             overspeed_mps: 5.4,
             overcurrent_a: 70.0,
             encoder_mismatch_m: 2.0e-3,
@@ -75,6 +83,12 @@ impl SupervisorConfig {
             rotation_stall_error_rad: 0.1,
             rotation_time_s: 1e-3,
         }
+    }
+
+    /// Deceleration one section alone guarantees, m/s² (the envelope's `a_brake`).
+    #[inline(always)]
+    pub fn brake_deceleration_mps2(&self) -> f32 {
+        self.brake_deceleration_mps2
     }
 
     /// The largest speed the envelope allows at `position_m` moving with sign of `velocity`
@@ -109,7 +123,7 @@ impl SupervisorConfig {
         };
         let margin = max_f32(distance - self.min_clearance_m, 0.0);
         let excess = velocity_mps.abs() - 0.02;
-        excess > 0.0 && excess * excess > 1.05 * 1.05 * 2.0 * self.brake_deceleration_mps2 * margin
+        excess > 0.0 && excess * excess > self.envelope_mps2 * margin
     }
 }
 
@@ -228,7 +242,9 @@ impl Supervisor {
             self.section_s = PerSection::default();
             self.rotation_s = 0.0;
         }
-        // Then the checks in the order of their precedence, the first that fails named.
+        // Then the checks in the order of their precedence, the first that fails named. A
+        // timer is 0 while its check does not apply, and every persistence time is positive
+        // (`ControlConfig::check`): a timer at its time needs no test of the mode.
         // NaN-safe in one compare: a NaN current is not within the limit, and trips.
         let within = max_f32(o.peak_phase_a.master, o.peak_phase_a.slave) <= c.overcurrent_a;
         let fault = if !within {
@@ -239,11 +255,11 @@ impl Supervisor {
             Fault::Overspeed
         } else if o.homed && c.envelope_violated(o.position_m, o.velocity_mps) {
             Fault::BrakingEnvelope
-        } else if following && self.following_s >= c.following_error_time_s {
+        } else if self.following_s >= c.following_error_time_s {
             Fault::FollowingError
         } else if lost.is_some() {
             Fault::SectionFault
-        } else if o.driving && self.rotation_s >= c.rotation_time_s {
+        } else if self.rotation_s >= c.rotation_time_s {
             Fault::RotationSync
         } else {
             return None;

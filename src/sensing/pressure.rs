@@ -54,12 +54,16 @@ impl PressureCalibration {
     /// Converts a code, classifying it.
     #[inline]
     pub fn convert(&self, code: AdcCode) -> PressureSample {
-        let status = if code.0 < self.open_below {
-            PressureStatus::Open
-        } else if code.0 > self.short_above {
-            PressureStatus::Short
-        } else {
+        // In the live band by one unsigned compare of the distance from its bottom (a code
+        // below it wraps to far above the band's width); the band's ends are in order
+        // (`open_below ≤ short_above`, refused otherwise by `ControlConfig::check`).
+        let (code16, open, short) = (code.0, self.open_below, self.short_above);
+        let status = if code16.wrapping_sub(open) <= short.wrapping_sub(open) {
             PressureStatus::Valid
+        } else if code16 < open {
+            PressureStatus::Open
+        } else {
+            PressureStatus::Short
         };
         PressureSample {
             pressure_pa: (f32::from(code.0) - self.zero_code) * self.pa_per_code,
@@ -209,6 +213,15 @@ mod tests {
         }
         assert_eq!(cal.convert(AdcCode(0)).status, PressureStatus::Open);
         assert_eq!(cal.convert(AdcCode(4095)).status, PressureStatus::Short);
+        // The band's ends are live, the codes just outside are not.
+        for (code, status) in [
+            (204, PressureStatus::Open),
+            (205, PressureStatus::Valid),
+            (3890, PressureStatus::Valid),
+            (3891, PressureStatus::Short),
+        ] {
+            assert_eq!(cal.convert(AdcCode(code)).status, status, "code {code}");
+        }
         assert_eq!(cal.convert(AdcCode(0)).valid(), None);
     }
 

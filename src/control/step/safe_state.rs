@@ -205,7 +205,7 @@ pub(super) enum FaultedBrake {
 impl Stop {
     pub(super) fn new(config: &ControlConfig) -> Self {
         Stop {
-            decel_mps2: config.supervisor.brake_deceleration_mps2,
+            decel_mps2: config.supervisor.brake_deceleration_mps2(),
             observer: StopObserver::new(),
             hold_s: 0.0,
             hold_motor_ns: 0.0,
@@ -687,7 +687,7 @@ pub(super) fn stop_deceleration(
 ) -> f32 {
     let c = &config.supervisor;
     let sections = clamp_f32(in_service.master, 0.0, 1.0) + clamp_f32(in_service.slave, 0.0, 1.0);
-    let mut a_max = c.brake_deceleration_mps2 * max_f32(sections, 1.0);
+    let mut a_max = c.brake_deceleration_mps2() * max_f32(sections, 1.0);
     let [_, _, suction, discharge] = *last_pa;
     // (Arguments in this order: a NaN pressure gives a NaN push.)
     let gas_n = max_f32(0.0, discharge - suction) * config.cylinder.area_m2;
@@ -710,5 +710,5 @@ pub(super) fn stop_deceleration(
     } else {
         a_max
     };
-    clamp_f32(needed, c.brake_deceleration_mps2, a_max)
+    clamp_f32(needed, c.brake_deceleration_mps2(), a_max)
 }
