@@ -212,10 +212,13 @@ impl Supervisor {
             // A section that delivers far less than asked, in the asked direction. The
             // delivered force along the command, `got·sgn(cmd)`, by a sign flip on the
             // command's sign bit (the same for every non-NaN `cmd`; a NaN one is never
-            // short: its `abs()` compares false).
+            // short: its margin compares false). The margin `|cmd| − shortfall` is positive
+            // exactly when `|cmd|` exceeds the shortfall (a float difference of two finite
+            // values is positive iff the first is larger).
             let short = |cmd: f32, got: f32| {
+                let margin = cmd.abs() - c.section_shortfall_n;
                 let along = if cmd.is_sign_negative() { -got } else { got };
-                cmd.abs() > c.section_shortfall_n && along < cmd.abs() - c.section_shortfall_n
+                margin > 0.0 && along < margin
             };
             // Written out per section (a loop indexes every field by section).
             let (cmd, got, timers) = (&o.commanded_n, &o.delivered_n, &mut self.section_s);
