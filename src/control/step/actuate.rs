@@ -36,8 +36,9 @@ pub(super) struct Drive {
 /// What the drive did in one cycle with the outputs on.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Actuation {
-    /// Both sections' duties.
-    pub duties: PerSection<PhaseDuties>,
+    /// Both sections' duties (always `Some`: the form the step's outputs carry them in, built
+    /// where they are made).
+    pub duties: Option<PerSection<PhaseDuties>>,
     /// The total force commanded, N.
     pub force_n: f32,
     /// The force commanded to each section, N.
@@ -179,7 +180,8 @@ impl Drive {
 
     /// Both sections' current loops in this cycle: each in its `frames` (the electrical
     /// angle it commutates on and its d/q current reference, A) on its phase currents
-    /// `codes`, at the piston's `velocity_mps` (back-EMF feed-forward).
+    /// `codes`, at the piston's `velocity_mps` (back-EMF feed-forward). The duties come as the
+    /// step's outputs carry them (`Some`), written once where the caller keeps them.
     ///
     /// Out of line, with both current loops inlined in it: the loops then have the
     /// registers to themselves (inlined in the step, they would spill its values; called
@@ -191,7 +193,7 @@ impl Drive {
         codes: &PerSection<PhaseCurrentCodes>,
         frames: PerSection<(u32, Dq<f32>)>,
         velocity_mps: f32,
-    ) -> PerSection<PhaseDuties> {
+    ) -> Option<PerSection<PhaseDuties>> {
         // Written out per section, not looped: a loop over the sections keeps the current
         // loop's body once and indexes every field by section.
         let (currents, sense) = (&mut self.currents, &c.current_sense);
@@ -208,7 +210,7 @@ impl Drive {
             reference_s,
             velocity_mps,
         );
-        PerSection { master, slave }
+        Some(PerSection { master, slave })
     }
 
     /// The outputs with no setpoint (not calibrating): off — the current loops and the load

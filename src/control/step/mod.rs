@@ -399,7 +399,7 @@ impl ControlStep {
                 self.publish.previous.force_command_n = a.force_n;
                 self.publish.previous.shares = a.shares;
                 limits = a.limits;
-                Some(a.duties)
+                a.duties
             }
             // A calibration drives the outputs itself, at the end of the step.
             None if matches!(self.plan.mode, Mode::Calibrating(_)) => None,
@@ -740,7 +740,7 @@ impl ControlStep {
             .drive
             .drive_sections(&self.config, currents, frames, now.velocity_mps);
         self.publish.limits.voltage = self.drive.voltage_limited();
-        Some(duties)
+        duties
     }
 
     /// A routine's position control on `setpoint` from `now` (the cycle just published):
