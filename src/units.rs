@@ -92,11 +92,17 @@ impl Duty {
     /// saturates. For callers that have tested for NaN once for several duties.
     #[inline]
     pub fn from_number(f: f32) -> Duty {
+        Duty::from_code_number(f * 65535.0 + 0.5)
+    }
+
+    /// From a code number, 0..=65535 plus the 0.5 that rounds it (truncated), known not to
+    /// be NaN (a NaN would give 0 %); out-of-range saturates.
+    #[inline(always)]
+    pub fn from_code_number(code: f32) -> Duty {
         // `as u32` is one VCVT on the Cortex-M4 (it saturates: negative → 0, above 2³² − 1 →
         // 2³² − 1) and the cap at 65535 one integer compare; the same result as `as u16`,
         // which compares the float against both ends instead.
-        let code = (f * 65535.0 + 0.5) as u32;
-        Duty(code.min(u32::from(u16::MAX)) as u16)
+        Duty((code as u32).min(u32::from(u16::MAX)) as u16)
     }
 
     /// The duty as a fraction in [0, 1].

@@ -85,11 +85,15 @@ pub struct CurrentController {
     /// products the step would otherwise form every cycle, taken once (the same values).
     ki_dt_v_per_a: f32,
     back_emf_v_per_mps: f32,
+    /// The motional cross-coupling per unit velocity, `ω_e·L/v = 2π·L/λ`, Ω·s/m (V per A
+    /// per m/s; no division per cycle).
+    coupling_h_per_m: f32,
     voltage_limit_v: f32,
     /// The voltage limit squared, V² (the step compares squares).
     voltage_limit_sq_v2: f32,
-    /// 1/V_dc, precomputed (a division per cycle saved).
-    inv_bus_voltage: f32,
+    /// Duty codes per volt of phase voltage, 65535/V_dc, precomputed (a division per cycle
+    /// saved).
+    codes_per_volt: f32,
     integral: Dq<f32>,
     state: FocState,
 }
@@ -102,9 +106,10 @@ impl CurrentController {
             motor: *motor,
             ki_dt_v_per_a: gains.ki_v_per_as * sample_time_s,
             back_emf_v_per_mps: motor.back_emf_v_per_mps(),
+            coupling_h_per_m: motor.electrical_speed(1.0) * motor.inductance_h,
             voltage_limit_v: motor.voltage_limit_v(),
             voltage_limit_sq_v2: motor.voltage_limit_v() * motor.voltage_limit_v(),
-            inv_bus_voltage: 1.0 / motor.bus_voltage_v,
+            codes_per_volt: 65_535.0 / motor.bus_voltage_v,
             integral: Dq::default(),
             state: FocState::default(),
         }
@@ -144,7 +149,7 @@ impl CurrentController {
             q: reference.q - i.q,
         };
         let m = &self.motor;
-        let we_l = m.electrical_speed(velocity_mps) * m.inductance_h;
+        let we_l = self.coupling_h_per_m * velocity_mps;
         let ff = Dq {
             d: m.resistance_ohm * reference.d - we_l * reference.q,
             q: m.resistance_ohm * reference.q
@@ -185,10 +190,9 @@ impl CurrentController {
         if (v.d + v.q).is_nan() {
             return [Duty::HALF; 3];
         }
-        modulate_inv(
+        modulate_codes(
             inverse_clarke(inverse_park(v, sin, cos)),
-            self.inv_bus_voltage,
-            Duty::from_number,
+            self.codes_per_volt,
         )
     }
 }
@@ -206,8 +210,22 @@ pub fn modulate(v: [f32; 3], bus_v: f32) -> PhaseDuties {
     modulate_inv(v, 1.0 / bus_v, Duty::from_fraction)
 }
 
+/// [`modulate`] of finite phase voltages `v` (V) with `codes_per_volt` = 65535/V_dc given,
+/// straight to duty codes: the fraction `0.5 + (v + offset)/V_dc` as a code, rounded to
+/// nearest, is `(v + offset)·codes_per_volt + 32768` truncated (the same duties to within
+/// one code where the two roundings straddle a code boundary): the common-mode offset's
+/// share `32768 + offset·codes_per_volt` taken once for the three phases, each phase one
+/// multiply-add. Saturates at 0 and 100 %.
+#[inline(always)]
+fn modulate_codes(v: [f32; 3], codes_per_volt: f32) -> PhaseDuties {
+    let [a, b, c] = v;
+    let offset = -0.5 * (max_f32(max_f32(a, b), c) + min_f32(min_f32(a, b), c));
+    let base = 32_768.0 + offset * codes_per_volt;
+    [a, b, c].map(|phase| Duty::from_code_number(base + phase * codes_per_volt))
+}
+
 /// [`modulate`] with the reciprocal of the bus voltage given and each fraction made a duty
-/// by `duty` ([`Duty::from_fraction`], or [`Duty::from_number`] where NaN is excluded).
+/// by `duty` ([`Duty::from_fraction`]: NaN → 50 %).
 #[inline(always)]
 fn modulate_inv(v: [f32; 3], inv: f32, duty: impl Fn(f32) -> Duty) -> PhaseDuties {
     let [a, b, c] = v;
@@ -266,5 +284,30 @@ mod tests {
         for (x, y) in back.iter().zip(v) {
             assert!((x - y).abs() < 0.05, "{back:?}");
         }
+    }
+
+    #[test]
+    fn the_current_loops_codes_are_the_modulations_duties_within_one_code() {
+        // Every phase voltage vector within the bus and beyond it (saturating), on a grid
+        // fine enough to land next to code boundaries.
+        let bus = 560.0f32;
+        let per_volt = 65_535.0 / bus;
+        let (mut worst, mut differ) = (0i32, 0u32);
+        for i in -400..=400 {
+            for j in -60..=60 {
+                let v = [i as f32 * 0.73, j as f32 * 3.1 - 0.013 * i as f32, 0.0];
+                let v = [v[0], v[1], -v[0] - v[1]];
+                let by_fraction = modulate(v, bus);
+                let by_code = modulate_codes(v, per_volt);
+                for (f, c) in by_fraction.iter().zip(&by_code) {
+                    let d = i32::from(f.0) - i32::from(c.0);
+                    worst = worst.max(d.abs());
+                    differ += u32::from(d != 0);
+                }
+            }
+        }
+        assert!(worst <= 1, "{worst} codes apart");
+        // Rare: only where the two roundings straddle a code boundary.
+        assert!(differ < 3 * 801 * 121 / 50, "{differ} duties differ");
     }
 }
