@@ -34,8 +34,12 @@ pub struct PointToPoint {
     from_m: f32,
     distance_m: f32,
     duration_s: f32,
-    /// 1/T (0 for a zero-length move), precomputed: [`PointToPoint::sample`] runs per cycle.
+    /// 1/T (0 for a zero-length move), and the velocity's and acceleration's scales
+    /// `30·D/T`, m/s, and `60·D/T²`, m/s², precomputed: [`PointToPoint::sample`] runs per
+    /// cycle.
     inv_duration: f32,
+    velocity_scale_mps: f32,
+    acceleration_scale_mps2: f32,
 }
 
 impl PointToPoint {
@@ -49,15 +53,18 @@ impl PointToPoint {
             1e-3
         };
         let duration_s = 1.875 * distance_m.abs() / speed;
+        let inv_duration = if duration_s > 0.0 {
+            1.0 / duration_s
+        } else {
+            0.0
+        };
         PointToPoint {
             from_m,
             distance_m,
             duration_s,
-            inv_duration: if duration_s > 0.0 {
-                1.0 / duration_s
-            } else {
-                0.0
-            },
+            inv_duration,
+            velocity_scale_mps: 30.0 * distance_m * inv_duration,
+            acceleration_scale_mps2: 60.0 * distance_m * inv_duration * inv_duration,
         }
     }
 
@@ -88,17 +95,16 @@ impl PointToPoint {
         if t_s <= 0.0 {
             return Setpoint::at_rest(self.from_m);
         }
-        let inv_t = self.inv_duration;
-        let s = t_s * inv_t;
+        let s = t_s * self.inv_duration;
         let s2 = s * s;
         let s3 = s2 * s;
         let pos = s3 * (10.0 - 15.0 * s + 6.0 * s2);
-        let vel = 30.0 * s2 * (1.0 - 2.0 * s + s2);
-        let acc = 60.0 * s * (1.0 - 3.0 * s + 2.0 * s2);
+        let vel = s2 * (1.0 - 2.0 * s + s2);
+        let acc = s * (1.0 - 3.0 * s + 2.0 * s2);
         Setpoint {
             position_m: self.from_m + self.distance_m * pos,
-            velocity_mps: self.distance_m * vel * inv_t,
-            acceleration_mps2: self.distance_m * acc * inv_t * inv_t,
+            velocity_mps: self.velocity_scale_mps * vel,
+            acceleration_mps2: self.acceleration_scale_mps2 * acc,
         }
     }
 }
