@@ -38,30 +38,75 @@ impl AllocationConfig {
     }
 }
 
+/// How the total force is split this cycle: each section's fraction of it and the force it
+/// may be given, N. Taken where the sections in service change ([`Split::of`]), not formed
+/// every cycle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Split {
+    /// Each section's fraction of the total, `c/(c_master + c_slave)` (0 for both when no
+    /// section is in service).
+    pub fraction: PerSection<f32>,
+    /// Each section's limit, `section_limit_n·c`, N.
+    pub limit_n: PerSection<f32>,
+}
+
+impl Split {
+    /// The split in proportion to `capability` (each section's, within [0, 1]: 0 out of
+    /// service) of sections that can each deliver `section_limit_n`, N. No section in
+    /// service (or a NaN capability): nothing to anyone.
+    pub fn of(section_limit_n: f32, capability: PerSection<f32>) -> Split {
+        let (cm, cs) = (capability.master, capability.slave);
+        let total = cm + cs;
+        if total.is_nan() || total <= 0.0 {
+            return Split {
+                fraction: PerSection::default(),
+                limit_n: PerSection::default(),
+            };
+        }
+        Split {
+            fraction: PerSection {
+                master: cm / total,
+                slave: cs / total,
+            },
+            limit_n: PerSection {
+                master: section_limit_n * cm,
+                slave: section_limit_n * cs,
+            },
+        }
+    }
+}
+
 /// The forces to command, per section, for a total `force_n` at position `x_m`, shared in
 /// proportion to `capability` (each section's, within [0, 1]: 0 out of service). NaN in, zero
-/// out; each share saturates at its section's limit. Always inlined: it is part of the
-/// control step (the calibration calls it too).
-#[inline(always)]
+/// out; each share saturates at its section's limit.
 pub fn allocate(
     config: &AllocationConfig,
     capability: PerSection<f32>,
     force_n: f32,
     x_m: f32,
 ) -> PerSection<f32> {
-    let wanted = force_n - config.cogging.force_n(x_m);
-    let (cm, cs) = (capability.master, capability.slave);
-    let total = cm + cs;
-    if wanted.is_nan() || total.is_nan() || total <= 0.0 {
+    let split = Split::of(config.section_limit_n, capability);
+    allocate_split(&config.cogging, &split, force_n, x_m)
+}
+
+/// [`allocate`] with the split taken ([`Split::of`]): the total `force_n` less the cogging
+/// `cogging` predicts at `x_m`, times each section's fraction, within its limit. NaN in,
+/// zero out. Always inlined: it is part of the control step.
+#[inline(always)]
+pub fn allocate_split(
+    cogging: &HarmonicMap,
+    split: &Split,
+    force_n: f32,
+    x_m: f32,
+) -> PerSection<f32> {
+    let wanted = force_n - cogging.force_n(x_m);
+    if wanted.is_nan() {
         return PerSection::default();
     }
-    let share = |c: f32| {
-        let limit = config.section_limit_n * c;
-        clamp_f32(wanted * c / total, -limit, limit)
-    };
+    let share = |fraction: f32, limit: f32| clamp_f32(wanted * fraction, -limit, limit);
     PerSection {
-        master: share(cm),
-        slave: share(cs),
+        master: share(split.fraction.master, split.limit_n.master),
+        slave: share(split.fraction.slave, split.limit_n.slave),
     }
 }
 

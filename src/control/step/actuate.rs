@@ -7,7 +7,7 @@ use super::estimate::LoadObserver;
 use super::sense::Sensed;
 use crate::control::calibration::SenseMonitor;
 use crate::control::config::ControlConfig;
-use crate::drive::allocation::allocate;
+use crate::drive::allocation::{allocate_split, Split};
 use crate::drive::foc::CurrentController;
 use crate::motion::trajectory::Setpoint;
 use crate::physics::balance::PistonForces;
@@ -86,7 +86,7 @@ impl Drive {
 
     /// The drive stage with the outputs on: the position loop's force toward `sp` (within
     /// `limit`, N) with the load observer's estimate cancelled while `running` strokes,
-    /// split over the sections in proportion to `in_service`, and both current loops run
+    /// split over the sections in service by `split`, and both current loops run
     /// on the phase currents `codes`.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
@@ -97,7 +97,7 @@ impl Drive {
         s: &Sensed,
         sp: &Setpoint,
         limit: f32,
-        in_service: PerSection<f32>,
+        split: &Split,
         running: bool,
     ) -> Actuation {
         let model = model_forces(c, sp, s.gas_force_n);
@@ -114,7 +114,7 @@ impl Drive {
         let force_n =
             self.position_loop(c, sp, s.position_m, &s.derivatives, &model, cancel_n, limit);
         let force_limited = force_n.abs() >= limit;
-        let shares = allocate(&c.allocation, in_service, force_n, s.position_m);
+        let shares = allocate_split(&c.allocation.cogging, split, force_n, s.position_m);
         let inv_kf = 1.0 / c.motor.force_constant_n_per_a;
         let frame = |section: Section, angle: u32| {
             let reference = Dq {

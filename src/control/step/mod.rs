@@ -393,7 +393,7 @@ impl ControlStep {
                     &s,
                     &sp,
                     limit,
-                    self.safe.in_service,
+                    &self.safe.split,
                     self.plan.running(),
                 );
                 self.publish.previous.force_command_n = a.force_n;

@@ -12,6 +12,7 @@ use super::rotate::VENT_SPEED_RAD_S;
 use super::sense::Sensed;
 use crate::angle::{wrap_rad_cold, wrap_signed_rad_cold};
 use crate::control::config::ControlConfig;
+use crate::drive::allocation::Split;
 use crate::motion::trajectory::Setpoint;
 use crate::real::{clamp_f32, max_f32, min_f32};
 use crate::safety::faults::{Fault, FaultSet, Trip};
@@ -40,11 +41,15 @@ pub const RESET_ZEROING_MPS: f32 = 0.05;
 pub(super) struct SafeState {
     /// Each section's capability in the allocation, within [0, 1] (0: out of service).
     /// Changed only through [`SafeState::latch`] and [`SafeState::clear`], which keep
-    /// `switching` with it.
+    /// `switching` and `split` with it.
     pub in_service: PerSection<f32>,
     /// The sections with a capability above 0, whose bridges switch while the outputs are
     /// on: kept where `in_service` changes, not compared every cycle.
     switching: PerSection<bool>,
+    /// The total force's split over the sections in service, likewise kept.
+    pub split: Split,
+    /// The force one nominal section can deliver, N (the configuration's).
+    section_limit_n: f32,
     /// The latched faults.
     pub faults: FaultSet,
     /// Sections whose bridge the hardware over-current trip switched off (their timer's
@@ -58,6 +63,11 @@ impl SafeState {
         SafeState {
             in_service: config.allocation.capability,
             switching: switching(config.allocation.capability),
+            split: Split::of(
+                config.allocation.section_limit_n,
+                config.allocation.capability,
+            ),
+            section_limit_n: config.allocation.section_limit_n,
             faults: FaultSet::new(),
             tripped: PerSection {
                 master: false,
@@ -76,6 +86,7 @@ impl SafeState {
             self.in_service.slave = 0.0;
         }
         self.switching = switching(self.in_service);
+        self.split = Split::of(self.section_limit_n, self.in_service);
         self.faults.latch(trip.fault)
     }
 
@@ -83,6 +94,8 @@ impl SafeState {
     pub(super) fn clear(&mut self, config: &ControlConfig) {
         self.in_service = config.allocation.capability;
         self.switching = switching(self.in_service);
+        self.section_limit_n = config.allocation.section_limit_n;
+        self.split = Split::of(self.section_limit_n, self.in_service);
         self.faults.clear();
     }
 
