@@ -105,6 +105,15 @@ impl CamSegment {
         }
     }
 
+    /// A segment that holds `theta` rad whatever the progress.
+    fn held(theta: f32) -> Self {
+        CamSegment {
+            u0: 0.0,
+            a: [theta, 0.0, 0.0, 0.0],
+            derivative: [0.0; 3],
+        }
+    }
+
     fn rebase(&mut self, d: f32) {
         self.a[0] -= d;
     }
@@ -211,22 +220,28 @@ impl Synchroniser {
             0.0
         };
         self.u_edge = u_edge;
-        // Fritsch–Carlson: secant slopes, harmonic mean at the inner knot, secants at the ends
-        // (within [0, 3·secant], so the cubic stays monotone).
-        let d0 = f_edge / u_edge;
-        let d1 = (1.0 - f_edge) / (1.0 - u_edge);
-        let me = 2.0 * d0 * d1 / (d0 + d1);
-        self.segments = [
-            CamSegment::hermite(0.0, u_edge, [0.0, f_edge], [d0, me], span, theta_start),
-            CamSegment::hermite(
-                u_edge,
-                1.0 - u_edge,
-                [f_edge, 1.0],
-                [me, d1],
-                span,
-                theta_start,
-            ),
-        ];
+        self.segments = if self.inv_stroke == 0.0 {
+            // A degenerate stroke: the rotation holds at the half's end (every position reads
+            // as progress 0, on a segment that does not move).
+            [CamSegment::held(self.theta_end_rad); 2]
+        } else {
+            // Fritsch–Carlson: secant slopes, harmonic mean at the inner knot, secants at the
+            // ends (within [0, 3·secant], so the cubic stays monotone).
+            let d0 = f_edge / u_edge;
+            let d1 = (1.0 - f_edge) / (1.0 - u_edge);
+            let me = 2.0 * d0 * d1 / (d0 + d1);
+            [
+                CamSegment::hermite(0.0, u_edge, [0.0, f_edge], [d0, me], span, theta_start),
+                CamSegment::hermite(
+                    u_edge,
+                    1.0 - u_edge,
+                    [f_edge, 1.0],
+                    [me, d1],
+                    span,
+                    theta_start,
+                ),
+            ]
+        };
         self.edge = TimedEdge {
             chamber,
             rotation,
@@ -248,12 +263,8 @@ impl Synchroniser {
     /// The rotation setpoint for the measured position `x_m`, with feed-forward from the
     /// linear reference velocity and acceleration.
     pub fn setpoint(&self, x_m: f32, velocity_mps: f32, acceleration_mps2: f32) -> RotarySetpoint {
-        if self.inv_stroke == 0.0 {
-            return RotarySetpoint {
-                angle_rad: self.theta_end_rad,
-                ..RotarySetpoint::default()
-            };
-        }
+        // A degenerate stroke (`inv_stroke` 0) reads every position as progress 0 on a held
+        // segment: its end angle, at rest.
         let u = clamp_f32((x_m - self.x_start_m) * self.inv_stroke, 0.0, 1.0);
         let segment = if u <= self.u_edge {
             &self.segments[0]
@@ -298,6 +309,24 @@ mod tests {
 
     fn sync() -> Synchroniser {
         Synchroniser::new(PortGeometry::reference(), 0.0)
+    }
+
+    #[test]
+    fn a_stroke_of_no_length_holds_the_rotation_at_the_halfs_end() {
+        let mut s = sync();
+        s.begin_half(
+            Direction::TowardB,
+            Rotation::Compressor,
+            0.1,
+            0.1,
+            0.1,
+            0.0,
+        );
+        for x in [-1.0, 0.0, 0.1, 0.3, f32::NAN, f32::INFINITY] {
+            let sp = s.setpoint(x, 2.0, -30.0);
+            assert_eq!(sp.angle_rad, PI, "x {x}");
+            assert_eq!((sp.velocity_rad_s, sp.acceleration_rad_s2), (0.0, 0.0), "x {x}");
+        }
     }
 
     #[test]
