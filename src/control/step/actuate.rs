@@ -28,6 +28,9 @@ pub(super) struct Drive {
     /// sets others).
     pub kp_n_per_m: f32,
     pub kd_ns_per_m: f32,
+    /// q-current per newton of a section's share, 1/K_f, A/N (the motor's force constant
+    /// is fixed: taken at construction, not divided out every cycle).
+    amps_per_newton: f32,
     pub currents: PerSection<CurrentController>,
     /// The phase currents while the outputs are off (current-sense offset detection).
     pub sense_monitor: SenseMonitor,
@@ -67,6 +70,7 @@ impl Drive {
             load: LoadObserver::new(config),
             kp_n_per_m: config.position_kp_n_per_m,
             kd_ns_per_m: config.position_kd_ns_per_m,
+            amps_per_newton: 1.0 / config.motor.force_constant_n_per_a,
             currents: PerSection {
                 master: current(),
                 slave: current(),
@@ -115,7 +119,7 @@ impl Drive {
             self.position_loop(c, sp, s.position_m, &s.derivatives, &model, cancel_n, limit);
         let force_limited = force_n.abs() >= limit;
         let shares = allocate_split(&c.allocation.cogging, split, force_n, s.position_m);
-        let inv_kf = 1.0 / c.motor.force_constant_n_per_a;
+        let inv_kf = self.amps_per_newton;
         let frame = |section: Section, angle: u32| {
             let reference = Dq {
                 d: 0.0,
