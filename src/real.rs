@@ -55,6 +55,24 @@ pub fn clamp_f32(x: f32, lo: f32, hi: f32) -> f32 {
     }
 }
 
+/// `x` limited to `[lo, hi]`, NaN to 0, by one comparison with `lo` (whose flags tell
+/// above, at-or-below and unordered apart) and one with `hi`: a saturated command that a NaN
+/// must not drive to either end.
+#[inline(always)]
+pub fn clamp_or_zero_f32(x: f32, lo: f32, hi: f32) -> f32 {
+    if x > lo {
+        if x < hi {
+            x
+        } else {
+            hi
+        }
+    } else if x <= lo {
+        lo
+    } else {
+        0.0
+    }
+}
+
 /// `x % y` (C's `fmodf`: the exact remainder, with the sign of `x`), by the shift-and-subtract
 /// loop on the significands (musl's `fmodf`). The same result as `%` for every input — the
 /// remainder is exact, so there is only one right answer — without the library routine the
@@ -335,6 +353,38 @@ impl Real for f64 {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn clamp_or_zero_is_the_clamp_with_nan_to_zero() {
+        use super::{clamp_f32, clamp_or_zero_f32};
+        let specials = [
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            0.0,
+            -0.0,
+            1e-30,
+            -1e-30,
+        ];
+        let limits = [0.0f32, 1.0, 400.0, 5000.0, f32::INFINITY];
+        let mut x = -7000.0f32;
+        let mut values = specials.to_vec();
+        while x < 7000.0 {
+            values.push(x);
+            x += 13.37;
+        }
+        for limit in limits {
+            for &v in values.iter().chain(&[limit, -limit]) {
+                let want = if v.is_nan() {
+                    0.0
+                } else {
+                    clamp_f32(v, -limit, limit)
+                };
+                let got = clamp_or_zero_f32(v, -limit, limit);
+                assert_eq!(got.to_bits(), want.to_bits(), "{v} within ±{limit}");
+            }
+        }
+    }
+
     #[test]
     fn fmod_f32_is_bit_identical_to_the_remainder_operator() {
         use super::fmod_f32;

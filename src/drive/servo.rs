@@ -5,7 +5,7 @@
 //! servo drive runs in torque mode; its analog input is ±full-scale torque around DAC
 //! mid-scale.
 
-use crate::real::{clamp_f32, i64_to_f32};
+use crate::real::{clamp_or_zero_f32, i64_to_f32};
 use crate::units::DacCode;
 
 /// Servo configuration (reference values **A**: J 2e-3 kg·m², ≈ 30 Hz bandwidth).
@@ -159,11 +159,7 @@ impl ServoController {
     /// Converts a torque to the DAC code, saturating at full scale (NaN → zero torque).
     pub fn command(&mut self, torque_nm: f32) -> DacCode {
         let fs = self.config.torque_full_scale_nm;
-        let t = if torque_nm.is_nan() {
-            0.0
-        } else {
-            clamp_f32(torque_nm, -fs, fs)
-        };
+        let t = clamp_or_zero_f32(torque_nm, -fs, fs);
         self.torque_nm = t;
         // The float→int cast saturates; t is within ±fs, so the code is within 1..=4095.
         // Through u32 (one VCVT) and an integer cap: the same code as `as u16`, which

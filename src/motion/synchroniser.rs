@@ -314,18 +314,15 @@ mod tests {
     #[test]
     fn a_stroke_of_no_length_holds_the_rotation_at_the_halfs_end() {
         let mut s = sync();
-        s.begin_half(
-            Direction::TowardB,
-            Rotation::Compressor,
-            0.1,
-            0.1,
-            0.1,
-            0.0,
-        );
+        s.begin_half(Direction::TowardB, Rotation::Compressor, 0.1, 0.1, 0.1, 0.0);
         for x in [-1.0, 0.0, 0.1, 0.3, f32::NAN, f32::INFINITY] {
             let sp = s.setpoint(x, 2.0, -30.0);
             assert_eq!(sp.angle_rad, PI, "x {x}");
-            assert_eq!((sp.velocity_rad_s, sp.acceleration_rad_s2), (0.0, 0.0), "x {x}");
+            assert_eq!(
+                (sp.velocity_rad_s, sp.acceleration_rad_s2),
+                (0.0, 0.0),
+                "x {x}"
+            );
         }
     }
 

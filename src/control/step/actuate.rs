@@ -13,7 +13,7 @@ use crate::motion::trajectory::Setpoint;
 use crate::physics::balance::PistonForces;
 use crate::physics::motor::Dq;
 use crate::ports::PhaseCurrentCodes;
-use crate::real::clamp_f32;
+use crate::real::clamp_or_zero_f32;
 use crate::safety::supervisor::LimitFlags;
 use crate::sensing::differentiator::Derivatives;
 use crate::units::{PerSection, PhaseDuties, Section};
@@ -175,11 +175,7 @@ impl Drive {
         let feedback = self.kp_n_per_m * (sp.position_m - position_m)
             + self.kd_ns_per_m * (sp.velocity_mps - d.velocity_mps);
         let f = feed_forward + feedback - cancel_n;
-        if f.is_nan() {
-            0.0
-        } else {
-            clamp_f32(f, -limit, limit)
-        }
+        clamp_or_zero_f32(f, -limit, limit)
     }
 
     /// Both sections' current loops in this cycle: each in its `frames` (the electrical

@@ -7,7 +7,7 @@ use super::publish::Previous;
 use super::sense::Sensed;
 use crate::control::config::ControlConfig;
 use crate::physics::balance::PistonForces;
-use crate::real::clamp_f32;
+use crate::real::{clamp_f32, clamp_or_zero_f32};
 
 /// Time constant of the controlled stop's disturbance observer, s: 2 ms, longer than the
 /// differentiator's 1.25 ms window (its acceleration is the noisiest input) and still fast
@@ -141,17 +141,7 @@ impl LoadObserver {
         let momentum = self.k_mass_kg_s * s.derivatives.velocity_mps;
         let raw = momentum - self.state;
         // Limited to ±limit, NaN to 0 (clamp_f32 would give −limit).
-        let d = if raw > -limit {
-            if raw < limit {
-                raw
-            } else {
-                limit
-            }
-        } else if raw <= -limit {
-            -limit
-        } else {
-            0.0
-        };
+        let d = clamp_or_zero_f32(raw, -limit, limit);
         let known_n = PistonForces {
             motor_n: s.force_master_n + s.force_slave_n,
             ..*model
