@@ -21,6 +21,14 @@
 //! slave's force by whole samples, so the lag is known to one sample from the columns
 //! ([`distance_to_logged_lags`]).
 //!
+//! The field logs' forms (friction growing along the bore, a hardening spring, a pressure
+//! transducer's or a force reading's offset or gain, three library effects at once) are
+//! judged as `tests/gap_names_effects_in_foreign_field_logs.rs` holds d08–d11
+//! (`support::forms::Want`): right in ≥ 95 % of each form's cases, a library effect named
+//! falsely in ≤ 2 % (asserted but for the forms measured short of it,
+//! `support::forms::SHORT_OF_ACCEPTANCE`, whose figures are printed); one case per form by
+//! default, 20 per form in the ignored full run.
+//!
 //! A slice of 24 cases runs by default; the full benchmark (520 cases: 160 null, 20 of each
 //! effect alone, 10 of each of 15 pairs) is one command:
 //! `cargo test --profile slow-tests --test gap_generalises_to_a_foreign_plant -- --ignored --nocapture`.
@@ -32,12 +40,14 @@ mod foreign_plant;
 mod support;
 
 use foreign_plant::{
-    draw_case, draw_form_case, generate, CaseKind, Chambers, Effect, Hidden, Machine, Profile,
-    Segment, Shape, Trajectory, Truth, AMBIENT_PA, DEAD_LENGTH_M, FORMS, GAMMA, TRAVEL_M,
+    draw_case, draw_field_case, draw_form_case, generate, CaseKind, Chambers, Effect, Form, Hidden,
+    Machine, Profile, Segment, SensorError, Shape, Trajectory, Truth, AMBIENT_PA, DEAD_LENGTH_M,
+    FIELD_FORMS, FORMS, GAMMA, TRAVEL_M,
 };
 use hal_sim::runlog::RunLog;
 use std::collections::BTreeMap;
 use std::time::Instant;
+use support::forms::{field_form_cases, judge, score_field_forms, Check, FieldCase, Want};
 use support::gap::{
     bench_cases, classify_form, form_cases, form_seed_runs, name_effects, par_map, score,
     score_forms, Acceptance, BenchCase, FormCase, FormOutcome, ParamError, ParamRule,
@@ -121,6 +131,7 @@ fn plain_case(seed: u64, rate_hz: f64, chambers: Chambers, segments: Vec<Segment
         },
         hidden: vec![],
         form: None,
+        sensor: None,
         loop_hz: 30.0,
         loop_damping: 0.7,
         velocity_filter_hz: 300.0,
@@ -718,4 +729,178 @@ fn replay() {
         dir.display()
     );
     println!("truth: {truth:?}");
+}
+
+// ---------------------------------------------------------------------------------------
+// The field logs' forms: friction along the bore, a hardening spring, sensors, triples.
+// ---------------------------------------------------------------------------------------
+
+/// A sensor's two keys in `name`: the one in error within 10 % of its error `v − exact`,
+/// the other within 10 % of that error of `exact`.
+fn sensor_pair(
+    name: &'static str,
+    keys: [&'static str; 2],
+    second: bool,
+    exact: f64,
+    v: f64,
+) -> Want {
+    let tol = 0.1 * (v - exact).abs();
+    let (bad, good) = if second {
+        (keys[1], keys[0])
+    } else {
+        (keys[0], keys[1])
+    };
+    Want::Named {
+        effects: vec![name],
+        checks: vec![
+            Check::within(name, bad, v, tol),
+            Check::within(name, good, exact, tol),
+        ],
+    }
+}
+
+/// The checks of a triple's parameters: mass within 3 %, Coulomb level within 10 %, cogging
+/// period within 2 %, lags within 0.05 ms (the slave lag of the interval the log carries,
+/// [`distance_to_logged_lags`]); the other effects by name.
+fn triple_checks(hidden: &[Hidden], rate_hz: f64) -> Vec<Check> {
+    let mut out = Vec::new();
+    for h in hidden {
+        match *h {
+            Hidden::MassError { mass_kg } => {
+                out.push(Check::within(
+                    "mass_error",
+                    "mass_kg",
+                    mass_kg,
+                    0.03 * mass_kg,
+                ));
+            }
+            Hidden::CoulombFriction { coulomb_n } => out.push(Check::within(
+                "coulomb_friction",
+                "coulomb_n",
+                coulomb_n,
+                0.1 * coulomb_n,
+            )),
+            Hidden::Cogging { period_m, .. } => {
+                out.push(Check::within(
+                    "cogging",
+                    "period_m",
+                    period_m,
+                    0.02 * period_m,
+                ));
+            }
+            Hidden::ActuatorLag { delay_s } => {
+                out.push(Check::within("actuator_lag", "delay_s", delay_s, 0.05e-3));
+            }
+            Hidden::SlaveLag { delay_s } => {
+                let k = (delay_s * rate_hz - 1e-9).ceil();
+                out.push(Check {
+                    effect: "slave_lag",
+                    key: "delay_s",
+                    truth: delay_s,
+                    lo: (k - 1.0) / rate_hz - 0.05e-3,
+                    hi: k / rate_hz + 0.05e-3,
+                });
+            }
+            _ => {}
+        }
+    }
+    out
+}
+
+/// What a right answer is for `case`.
+fn want_of(case: &Case) -> Want {
+    if let Some(s) = case.sensor {
+        return match s {
+            SensorError::PressureOffset {
+                chamber_b,
+                offset_pa,
+            } => sensor_pair(
+                "pressure_offset",
+                ["offset_a_pa", "offset_b_pa"],
+                chamber_b,
+                0.0,
+                offset_pa,
+            ),
+            SensorError::PressureGain { chamber_b, gain } => {
+                sensor_pair("pressure_gain", ["gain_a", "gain_b"], chamber_b, 1.0, gain)
+            }
+            SensorError::ForceOffset { slave, offset_n } => sensor_pair(
+                "force_offset",
+                ["offset_master_n", "offset_slave_n"],
+                slave,
+                0.0,
+                offset_n,
+            ),
+            SensorError::ForceGain { slave, gain } => sensor_pair(
+                "force_gain",
+                ["gain_master", "gain_slave"],
+                slave,
+                1.0,
+                gain,
+            ),
+        };
+    }
+    match case.form {
+        Some(Form::PositionFriction { .. }) => Want::LeftByPosition,
+        Some(f) => Want::Terms(f.discovered_terms()),
+        None => Want::Named {
+            effects: case.hidden.iter().map(|h| h.effect().name()).collect(),
+            checks: triple_checks(&case.hidden, case.rate_hz),
+        },
+    }
+}
+
+/// Case `k` of the field-log form `form` (seed `seed`), generated, analysed and judged.
+fn run_field_case(seed: u64, form: &str, k: u64) -> FieldCase {
+    let Some(case) = draw_field_case(seed, form, k as usize) else {
+        return FieldCase {
+            form: form.into(),
+            right: false,
+            false_name: false,
+            detail: format!("{form}: not a form of this plant"),
+        };
+    };
+    let want = want_of(&case);
+    let g = generate(&case);
+    let label = format!(
+        "seed {seed} {form} ({} kHz, {}, {:?}) truth {:?}{:?}{:?}",
+        case.rate_hz / 1e3,
+        if matches!(case.chambers, Chambers::Sealed { .. }) {
+            "sealed"
+        } else {
+            "vented"
+        },
+        case.trajectory.shape,
+        case.form,
+        case.sensor,
+        case.hidden
+    );
+    judge(form, &g.csv, &g.model_toml, &want, &label)
+}
+
+/// Runs `per_form` cases of each field-log form and returns what misses the acceptance.
+fn score_field_forms_here(per_form: u64) -> Vec<String> {
+    let plan: Vec<(u64, &str, u64)> = FIELD_FORMS
+        .iter()
+        .enumerate()
+        .flat_map(|(i, f)| (0..per_form).map(move |k| (37_000 + 100 * i as u64 + k, *f, k)))
+        .filter(|(seed, _, _)| form_seed_runs(*seed))
+        .collect();
+    let results = par_map(plan.len(), |i| {
+        run_field_case(plan[i].0, plan[i].1, plan[i].2)
+    });
+    score_field_forms("foreign plant", &FIELD_FORMS, &results)
+}
+
+#[test]
+fn gap_meets_the_field_logs_forms_on_the_foreign_plant_slice() {
+    let problems = score_field_forms_here(1);
+    assert!(problems.is_empty(), "{problems:#?}");
+}
+
+#[test]
+#[ignore = "slow: 140 cases of the field logs' forms (FPC_FIELD_FORM_CASES per form, 20)"]
+fn gap_meets_the_field_logs_forms_on_the_foreign_plant_in_140_cases() {
+    let problems = score_field_forms_here(field_form_cases());
+    assert!(problems.is_empty(), "{problems:#?}");
 }

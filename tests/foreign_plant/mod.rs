@@ -321,6 +321,8 @@ pub enum CaseKind {
     One(Effect),
     /// Two effects.
     Two(Effect, Effect),
+    /// Three effects.
+    Three(Effect, Effect, Effect),
 }
 
 impl CaseKind {
@@ -330,6 +332,7 @@ impl CaseKind {
             CaseKind::Null => Vec::new(),
             CaseKind::One(a) => vec![a],
             CaseKind::Two(a, b) => vec![a, b],
+            CaseKind::Three(a, b, c) => vec![a, b, c],
         }
     }
 }
@@ -366,6 +369,21 @@ pub enum Form {
         /// N/s
         rate_n_per_s: f64,
     },
+    /// Friction growing with the distance from `centre_m`, against the motion (a bore worn
+    /// toward its ends): `F = −slope·|x − centre|·sgn(v)`. Outside the discovery basis too.
+    PositionFriction {
+        /// N/m
+        slope_n_per_m: f64,
+        /// Where it vanishes, m.
+        centre_m: f64,
+    },
+    /// A hardening spring, `F = −k₃·(x − x_rest)³`.
+    CubicSpring {
+        /// k₃, N/m³
+        k3_n_per_m3: f64,
+        /// Where it is relaxed, m.
+        rest_m: f64,
+    },
 }
 
 /// The forms outside the library, by name, in a fixed order.
@@ -386,6 +404,8 @@ impl Form {
             Form::QuadraticDrag { .. } => "quadratic_drag",
             Form::ForceConstant { .. } => "force_constant_error",
             Form::DriftingFriction { .. } => "drifting_friction",
+            Form::PositionFriction { .. } => "position_friction",
+            Form::CubicSpring { .. } => "cubic_spring",
         }
     }
 
@@ -402,6 +422,18 @@ impl Form {
             // The level rises as rate·t and acts against the motion (this plant smooths
             // sgn(v) over 1 mm/s, far below the strokes' speeds).
             Form::DriftingFriction { rate_n_per_s } => vec![("t*sgn(v)", -rate_n_per_s)],
+            // Not a sum of the basis's terms: |x − centre| has a corner.
+            Form::PositionFriction { .. } => vec![],
+            // −k₃·(x − x_rest)³ expanded in powers of x.
+            Form::CubicSpring {
+                k3_n_per_m3,
+                rest_m,
+            } => vec![
+                ("x^3", -k3_n_per_m3),
+                ("x^2", 3.0 * k3_n_per_m3 * rest_m),
+                ("x", -3.0 * k3_n_per_m3 * rest_m * rest_m),
+                ("1", k3_n_per_m3 * rest_m.powi(3)),
+            ],
         };
         terms.into_iter().collect()
     }
@@ -416,7 +448,9 @@ impl Form {
     /// Draws the form `name` at a magnitude a rig shows (well above the 3 N of force noise):
     /// springs of 0.8–3 kN/m relaxed within 3 cm of mid travel, 30–120 N of bias either way,
     /// 5–20 N·s²/m² of drag, a motor constant 4–12 % off either way, friction rising
-    /// 3–12 N/s. `None` for an unknown name.
+    /// 3–12 N/s; friction growing 400–1200 N/m away from a point within 3 cm of mid travel,
+    /// a hardening spring of 3·10⁵–1.5·10⁶ N/m³ relaxed within 2 cm of it. `None` for an
+    /// unknown name.
     fn draw(rng: &mut ChaCha8Rng, name: &str) -> Option<Form> {
         Some(match name {
             "spring" => Form::Spring {
@@ -435,8 +469,144 @@ impl Form {
             "drifting_friction" => Form::DriftingFriction {
                 rate_n_per_s: uniform(rng, 3.0, 12.0),
             },
+            "position_friction" => Form::PositionFriction {
+                slope_n_per_m: uniform(rng, 400.0, 1200.0),
+                centre_m: 0.5 * TRAVEL_M + uniform(rng, -0.03, 0.03),
+            },
+            "cubic_spring" => Form::CubicSpring {
+                k3_n_per_m3: uniform(rng, 3e5, 1.5e6),
+                rest_m: 0.5 * TRAVEL_M + uniform(rng, -0.02, 0.02),
+            },
             _ => return None,
         })
+    }
+}
+
+/// The forms of the field logs d08–d11, by name, in a fixed order: friction growing along
+/// the bore, a hardening spring, a pressure transducer's or a force reading's offset or gain
+/// ([`SensorError`]), and three library effects at once ([`TRIPLES`]).
+pub const FIELD_FORMS: [&str; 7] = [
+    "position_friction",
+    "cubic_spring",
+    "pressure_offset",
+    "pressure_gain",
+    "force_offset",
+    "force_gain",
+    "triple",
+];
+
+/// The triples of library effects hidden together.
+pub const TRIPLES: [(Effect, Effect, Effect); 5] = [
+    (Effect::MassError, Effect::CoulombFriction, Effect::SlaveLag),
+    (Effect::Cogging, Effect::SlaveLag, Effect::EncoderPitchError),
+    (
+        Effect::MassError,
+        Effect::Cogging,
+        Effect::EncoderPitchError,
+    ),
+    (
+        Effect::ViscousFriction,
+        Effect::ActuatorLag,
+        Effect::EncoderPitchError,
+    ),
+    (Effect::Leakage, Effect::HeatTransfer, Effect::SlaveLag),
+];
+
+/// A sensor that reads wrong (`docs/formats.md` §3's `pressure_offset`, `pressure_gain`,
+/// `force_offset`, `force_gain`): one chamber's transducer or one section's force reading.
+/// A reading is `gain·value + offset`; the controller works from the readings as the logger
+/// writes them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SensorError {
+    /// Chamber A's (`chamber_b`: B's) transducer reads `p + offset_pa`.
+    PressureOffset {
+        /// Which chamber.
+        chamber_b: bool,
+        /// Pa
+        offset_pa: f64,
+    },
+    /// Chamber A's (`chamber_b`: B's) transducer reads `gain·p`.
+    PressureGain {
+        /// Which chamber.
+        chamber_b: bool,
+        /// 1
+        gain: f64,
+    },
+    /// The master's (`slave`: the slave's) force reading is `F + offset_n`.
+    ForceOffset {
+        /// Which section.
+        slave: bool,
+        /// N
+        offset_n: f64,
+    },
+    /// The master's (`slave`: the slave's) force reading is `gain·F`.
+    ForceGain {
+        /// Which section.
+        slave: bool,
+        /// 1
+        gain: f64,
+    },
+}
+
+impl SensorError {
+    /// Whether `name` is a pressure transducer's error (it needs the pressure channel, so
+    /// sealed chambers).
+    fn on_pressure(name: &str) -> bool {
+        matches!(name, "pressure_offset" | "pressure_gain")
+    }
+
+    /// Draws the error `name` on one chamber or section chosen at random: a transducer
+    /// 1–5 kPa off or its gain 1.5–6 % off, a force reading 15–60 N off or its gain 3–10 %
+    /// off, either way. `None` for another name.
+    fn draw(rng: &mut ChaCha8Rng, name: &str) -> Option<SensorError> {
+        // No draw at all for another name: the other cases' streams stay as they were.
+        if !matches!(
+            name,
+            "pressure_offset" | "pressure_gain" | "force_offset" | "force_gain"
+        ) {
+            return None;
+        }
+        let which = rng.random::<bool>();
+        Some(match name {
+            "pressure_offset" => SensorError::PressureOffset {
+                chamber_b: which,
+                offset_pa: sign(rng) * uniform(rng, 1000.0, 5000.0),
+            },
+            "pressure_gain" => SensorError::PressureGain {
+                chamber_b: which,
+                gain: 1.0 + sign(rng) * uniform(rng, 0.015, 0.06),
+            },
+            "force_offset" => SensorError::ForceOffset {
+                slave: which,
+                offset_n: sign(rng) * uniform(rng, 15.0, 60.0),
+            },
+            "force_gain" => SensorError::ForceGain {
+                slave: which,
+                gain: 1.0 + sign(rng) * uniform(rng, 0.03, 0.10),
+            },
+            _ => return None,
+        })
+    }
+
+    /// Chamber A's and B's transducers, then the master's and the slave's readings, each as
+    /// (gain, offset).
+    fn readings(this: Option<SensorError>) -> [(f64, f64); 4] {
+        let mut r = [(1.0, 0.0); 4];
+        match this {
+            Some(SensorError::PressureOffset {
+                chamber_b,
+                offset_pa,
+            }) => r[usize::from(chamber_b)].1 = offset_pa,
+            Some(SensorError::PressureGain { chamber_b, gain }) => {
+                r[usize::from(chamber_b)].0 = gain;
+            }
+            Some(SensorError::ForceOffset { slave, offset_n }) => {
+                r[2 + usize::from(slave)].1 = offset_n;
+            }
+            Some(SensorError::ForceGain { slave, gain }) => r[2 + usize::from(slave)].0 = gain,
+            None => {}
+        }
+        r
     }
 }
 
@@ -656,6 +826,8 @@ pub struct Case {
     pub hidden: Vec<Hidden>,
     /// A force outside the library, if the case hides one (then `kind` is `Null`).
     pub form: Option<Form>,
+    /// A sensor that reads wrong, if the case hides one (then `kind` is `Null`).
+    pub sensor: Option<SensorError>,
     /// Position-loop bandwidth, Hz.
     pub loop_hz: f64,
     /// Position-loop damping ratio.
@@ -929,6 +1101,21 @@ pub fn draw_form_case(seed: u64, form: &str) -> Option<Case> {
         .then(|| draw(seed, CaseKind::Null, Some(form)))
 }
 
+/// Draws case `k` of the field-log form `form` (one of [`FIELD_FORMS`]): for `"triple"`,
+/// the `k`-th of [`TRIPLES`] in turn; else the form or sensor error alone. `None` for an
+/// unknown name.
+pub fn draw_field_case(seed: u64, form: &str, k: usize) -> Option<Case> {
+    if !FIELD_FORMS.contains(&form) {
+        return None;
+    }
+    Some(if form == "triple" {
+        let (a, b, c) = TRIPLES[k % TRIPLES.len()];
+        draw(seed, CaseKind::Three(a, b, c), None)
+    } else {
+        draw(seed, CaseKind::Null, Some(form))
+    })
+}
+
 fn draw(seed: u64, kind: CaseKind, form: Option<&str>) -> Case {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let effects = kind.effects();
@@ -943,7 +1130,9 @@ fn draw(seed: u64, kind: CaseKind, form: Option<&str>) -> Case {
         viscous_ns_per_m: round(uniform(&mut rng, 15.0, 35.0), 0.01),
     };
     let rate_hz = [5_000.0, 10_000.0, 20_000.0][rng.random_range(0..3usize)];
-    let sealed = effects.iter().any(|e| e.sealed_only()) || rng.random_range(0..3u32) == 0;
+    let sealed = effects.iter().any(|e| e.sealed_only())
+        || form.is_some_and(SensorError::on_pressure)
+        || rng.random_range(0..3u32) == 0;
     let chambers = if sealed {
         let start_pa = if rng.random_range(0..3u32) == 0 {
             uniform(&mut rng, 1.5e5, 2.2e5)
@@ -998,6 +1187,7 @@ fn draw(seed: u64, kind: CaseKind, form: Option<&str>) -> Case {
     let loop_damping = uniform(&mut rng, 0.6, 0.8);
     let velocity_filter_hz = uniform(&mut rng, 250.0, 400.0);
     // Drawn last, so that the library's cases are the same with or without forms.
+    let sensor = form.and_then(|name| SensorError::draw(&mut rng, name));
     let form = form.and_then(|name| Form::draw(&mut rng, name));
     Case {
         seed,
@@ -1008,6 +1198,7 @@ fn draw(seed: u64, kind: CaseKind, form: Option<&str>) -> Case {
         nominal,
         hidden,
         form,
+        sensor,
         loop_hz,
         loop_damping,
         velocity_filter_hz,
@@ -1039,6 +1230,10 @@ struct Physics {
     bias_n: f64,
     /// Drag coefficient of a form, N·s²/m².
     drag: f64,
+    /// Friction growing along the bore of a form, (slope N/m, centre m).
+    position_friction: Option<(f64, f64)>,
+    /// Hardening spring of a form, (k₃ N/m³, x_rest m).
+    cubic: Option<(f64, f64)>,
 }
 
 impl Physics {
@@ -1066,6 +1261,8 @@ impl Physics {
             spring: None,
             bias_n: 0.0,
             drag: 0.0,
+            position_friction: None,
+            cubic: None,
         };
         match case.form {
             Some(Form::Spring {
@@ -1074,6 +1271,14 @@ impl Physics {
             }) => p.spring = Some((stiffness_n_per_m, rest_m)),
             Some(Form::Bias { force_n }) => p.bias_n = force_n,
             Some(Form::QuadraticDrag { coefficient }) => p.drag = coefficient,
+            Some(Form::PositionFriction {
+                slope_n_per_m,
+                centre_m,
+            }) => p.position_friction = Some((slope_n_per_m, centre_m)),
+            Some(Form::CubicSpring {
+                k3_n_per_m3,
+                rest_m,
+            }) => p.cubic = Some((k3_n_per_m3, rest_m)),
             // Applied where the drives act and where time passes (`generate`).
             Some(Form::ForceConstant { .. } | Form::DriftingFriction { .. }) | None => {}
         }
@@ -1145,10 +1350,16 @@ impl Physics {
         }
     }
 
-    /// The force of a spring, bias or drag form, toward +x.
+    /// The force of a spring, bias, drag, bore-friction or cubic-spring form, toward +x.
     fn extra(&self, x: f64, v: f64) -> f64 {
         let spring = self.spring.map_or(0.0, |(k, rest)| -k * (x - rest));
-        spring + self.bias_n - self.drag * v * v.abs()
+        let bore = self.position_friction.map_or(0.0, |(slope, centre)| {
+            -slope * (x - centre).abs() * (v / FRICTION_SMOOTHING_MPS).tanh()
+        });
+        let cubic = self
+            .cubic
+            .map_or(0.0, |(k3, rest)| -k3 * (x - rest).powi(3));
+        spring + self.bias_n - self.drag * v * v.abs() + bore + cubic
     }
 
     fn vented_pressures(k: f64, v: f64) -> (f64, f64) {
@@ -1285,6 +1496,7 @@ pub fn generate(case: &Case) -> Generated {
         _ => (1.0, 0.0),
     };
     let coulomb_at_start = phys.coulomb_n;
+    let [(ga, oa), (gb, ob), (gm, om), (gs, os)] = SensorError::readings(case.sensor);
     let timed = case.trajectory.resolve();
     let total_s = timed.iter().map(|s| s.dur).sum::<f64>();
     let rows = (total_s * case.rate_hz).floor() as usize;
@@ -1353,8 +1565,8 @@ pub fn generate(case: &Case) -> Generated {
         }
         let x_slave = quantise(x_slave, 1e-6);
         let (pa, pb) = phys.pressures(&s);
-        let pa_meas = pa + PRESSURE_NOISE_PA * gauss(&mut rng);
-        let pb_meas = pb + PRESSURE_NOISE_PA * gauss(&mut rng);
+        let pa_meas = ga * pa + oa + PRESSURE_NOISE_PA * gauss(&mut rng);
+        let pb_meas = gb * pb + ob + PRESSURE_NOISE_PA * gauss(&mut rng);
 
         // Reference.
         while seg_i + 1 < timed.len() && t >= timed[seg_i].t0 + timed[seg_i].dur {
@@ -1381,8 +1593,8 @@ pub fn generate(case: &Case) -> Generated {
             k,
             slave_log_shift.whole + usize::from(slave_log_shift.rest_s > 0.0),
         );
-        let f_master = per_section + FORCE_NOISE_N * gauss(&mut rng);
-        let f_slave = slave_logged + FORCE_NOISE_N * gauss(&mut rng);
+        let f_master = gm * per_section + om + FORCE_NOISE_N * gauss(&mut rng);
+        let f_slave = gs * slave_logged + os + FORCE_NOISE_N * gauss(&mut rng);
         let _ = writeln!(
             csv,
             "{:.6},{:.6},{:.6},0.0000,{:.2},{:.2},{:.1},{:.1}",

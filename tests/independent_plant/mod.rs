@@ -102,6 +102,19 @@ pub enum Hidden {
     ForceConstant { error: f64 },
     /// Outside the library: Coulomb friction rising `rate` N every second of the run.
     DriftingFriction { rate_n_per_s: f64 },
+    /// Outside the library and the discovery basis: friction growing `k` N per metre away
+    /// from `x0`, against the motion (a bore worn or tapered toward its ends).
+    PositionFriction { k_n_per_m: f64, x0_m: f64 },
+    /// Outside the library: a hardening spring `−k3·(x − x0)³`, N/m³ about `x0`.
+    CubicSpring { k_n_per_m3: f64, x0_m: f64 },
+    /// Chamber A's (or, `chamber_b`, B's) transducer reads `p + offset_pa`.
+    PressureOffset { chamber_b: bool, offset_pa: f64 },
+    /// Chamber A's (or, `chamber_b`, B's) transducer reads `gain·p`.
+    PressureGain { chamber_b: bool, gain: f64 },
+    /// The master's (or, `slave`, the slave's) force reading is `F + offset_n`.
+    ForceOffset { slave: bool, offset_n: f64 },
+    /// The master's (or, `slave`, the slave's) force reading is `gain·F`.
+    ForceGain { slave: bool, gain: f64 },
 }
 
 impl Hidden {
@@ -123,6 +136,12 @@ impl Hidden {
             Hidden::QuadraticDrag { .. } => "quadratic_drag",
             Hidden::ForceConstant { .. } => "force_constant_error",
             Hidden::DriftingFriction { .. } => "drifting_friction",
+            Hidden::PositionFriction { .. } => "position_friction",
+            Hidden::CubicSpring { .. } => "cubic_spring",
+            Hidden::PressureOffset { .. } => "pressure_offset",
+            Hidden::PressureGain { .. } => "pressure_gain",
+            Hidden::ForceOffset { .. } => "force_offset",
+            Hidden::ForceGain { .. } => "force_gain",
         }
     }
 
@@ -135,6 +154,13 @@ impl Hidden {
             Hidden::QuadraticDrag { c_ns2_per_m2 } => vec![("v|v|", -c_ns2_per_m2)],
             Hidden::ForceConstant { error } => vec![("f_motor", error)],
             Hidden::DriftingFriction { rate_n_per_s } => vec![("t*sgn(v)", -rate_n_per_s)],
+            // −k3·(x − x0)³ expanded in powers of x.
+            Hidden::CubicSpring { k_n_per_m3, x0_m } => vec![
+                ("x^3", -k_n_per_m3),
+                ("x^2", 3.0 * k_n_per_m3 * x0_m),
+                ("x", -3.0 * k_n_per_m3 * x0_m * x0_m),
+                ("1", k_n_per_m3 * x0_m.powi(3)),
+            ],
             _ => return None,
         };
         Some(terms.into_iter().collect())
@@ -148,6 +174,29 @@ pub const FORMS: [&str; 5] = [
     "quadratic_drag",
     "force_constant_error",
     "drifting_friction",
+];
+
+/// The forms of the field logs d08–d11 the plant can hide, in a fixed order: friction growing
+/// along the bore, a hardening spring, a pressure transducer's or a force reading's offset or
+/// gain, and three library effects at once ([`TRIPLES`]).
+pub const FIELD_FORMS: [&str; 7] = [
+    "position_friction",
+    "cubic_spring",
+    "pressure_offset",
+    "pressure_gain",
+    "force_offset",
+    "force_gain",
+    "triple",
+];
+
+/// The triples of library effects hidden together, compatible in their chamber and
+/// trajectory needs.
+pub const TRIPLES: [[&str; 3]; 5] = [
+    ["mass_error", "coulomb_friction", "slave_lag"],
+    ["cogging", "slave_lag", "encoder_pitch_error"],
+    ["mass_error", "cogging", "encoder_pitch_error"],
+    ["viscous_friction", "actuator_lag", "encoder_pitch_error"],
+    ["leakage", "heat_transfer", "slave_lag"],
 ];
 
 /// Every name [`Hidden`] can take, in a fixed order.
@@ -240,6 +289,8 @@ pub fn needs(effect: &str) -> (Option<Chambers>, Option<Trajectory>) {
     match effect {
         "leakage" | "heat_transfer" => (Some(Chambers::Sealed), Some(Trajectory::HoldsAndMoves)),
         "stribeck_friction" => (Some(Chambers::Vented), Some(Trajectory::HoldsAndMoves)),
+        // The pressure channel is compared only where the log says how the ports were.
+        "pressure_offset" | "pressure_gain" => (Some(Chambers::Sealed), None),
         _ => (None, None),
     }
 }
@@ -316,6 +367,34 @@ pub fn draw_effect(effect: &str, nominal: &Nominal, rng: &mut ChaCha8Rng) -> Hid
         },
         "drifting_friction" => Hidden::DriftingFriction {
             rate_n_per_s: rng.random_range(3.0..12.0),
+        },
+        // The field logs' forms: friction growing 400–1200 N/m away from a point within 3 cm
+        // of mid travel, a hardening spring of 3·10⁵–1.5·10⁶ N/m³ about a point within 2 cm
+        // of it, a transducer 1–5 kPa off or its gain 1.5–6 % off, a force reading 15–60 N
+        // off or its gain 3–10 % off, each on one chamber or section drawn at random.
+        "position_friction" => Hidden::PositionFriction {
+            k_n_per_m: rng.random_range(400.0..1200.0),
+            x0_m: 0.5 * nominal.travel_m + rng.random_range(-0.03..0.03),
+        },
+        "cubic_spring" => Hidden::CubicSpring {
+            k_n_per_m3: rng.random_range(3e5..1.5e6),
+            x0_m: 0.5 * nominal.travel_m + rng.random_range(-0.02..0.02),
+        },
+        "pressure_offset" => Hidden::PressureOffset {
+            chamber_b: rng.random_bool(0.5),
+            offset_pa: sign(rng) * rng.random_range(1000.0..5000.0),
+        },
+        "pressure_gain" => Hidden::PressureGain {
+            chamber_b: rng.random_bool(0.5),
+            gain: 1.0 + sign(rng) * rng.random_range(0.015..0.06),
+        },
+        "force_offset" => Hidden::ForceOffset {
+            slave: rng.random_bool(0.5),
+            offset_n: sign(rng) * rng.random_range(15.0..60.0),
+        },
+        "force_gain" => Hidden::ForceGain {
+            slave: rng.random_bool(0.5),
+            gain: 1.0 + sign(rng) * rng.random_range(0.03..0.10),
         },
         _ => Hidden::HeatTransfer {
             ua_w_per_k: rng.random_range(1.0..20.0),
@@ -411,6 +490,12 @@ struct Truth {
     drag: f64,
     motor_gain: f64,
     drift: f64,
+    position_friction: Option<(f64, f64)>,
+    cubic: Option<(f64, f64)>,
+    /// Chamber A's and B's transducers: (gain, offset Pa).
+    transducers: [(f64, f64); 2],
+    /// The master's and the slave's force readings: (gain, offset N).
+    readings: [(f64, f64); 2],
 }
 
 impl Truth {
@@ -421,6 +506,8 @@ impl Truth {
             coulomb: n.coulomb_n,
             viscous: n.viscous,
             motor_gain: 1.0,
+            transducers: [(1.0, 0.0); 2],
+            readings: [(1.0, 0.0); 2],
             ..Truth::default()
         };
         for h in &case.hidden {
@@ -453,16 +540,35 @@ impl Truth {
                 Hidden::QuadraticDrag { c_ns2_per_m2 } => t.drag = c_ns2_per_m2,
                 Hidden::ForceConstant { error } => t.motor_gain = 1.0 + error,
                 Hidden::DriftingFriction { rate_n_per_s } => t.drift = rate_n_per_s,
+                Hidden::PositionFriction { k_n_per_m, x0_m } => {
+                    t.position_friction = Some((k_n_per_m, x0_m));
+                }
+                Hidden::CubicSpring { k_n_per_m3, x0_m } => t.cubic = Some((k_n_per_m3, x0_m)),
+                Hidden::PressureOffset {
+                    chamber_b,
+                    offset_pa,
+                } => t.transducers[usize::from(chamber_b)].1 = offset_pa,
+                Hidden::PressureGain { chamber_b, gain } => {
+                    t.transducers[usize::from(chamber_b)].0 = gain;
+                }
+                Hidden::ForceOffset { slave, offset_n } => {
+                    t.readings[usize::from(slave)].1 = offset_n;
+                }
+                Hidden::ForceGain { slave, gain } => t.readings[usize::from(slave)].0 = gain,
             }
         }
         t
     }
 
-    /// Friction against the motion at `t` s into the run.
-    fn friction(&self, v: f64, t: f64) -> f64 {
+    /// Friction against the motion at `x` m and `t` s into the run.
+    fn friction(&self, x: f64, v: f64, t: f64) -> f64 {
         let s = (v / SIGN_SMOOTHING).tanh();
-        let mut f =
-            (self.coulomb + self.drift * t) * s + self.viscous * v + self.drag * v * v.abs();
+        let level = self.coulomb
+            + self.drift * t
+            + self
+                .position_friction
+                .map_or(0.0, |(k, x0)| k * (x - x0).abs());
+        let mut f = level * s + self.viscous * v + self.drag * v * v.abs();
         if let Some((excess, vs, z)) = self.stribeck {
             f += excess * (-(v.abs() / vs).powf(z)).exp() * s;
         }
@@ -685,9 +791,13 @@ fn derivative(s: &State, f_motor: f64, t: f64, truth: &Truth, case: &Case) -> St
     let mut d = [0.0; 6];
     d[0] = v;
     let (pa, pb) = pressures(s, case);
-    let mut f = truth.motor_gain * f_motor + (pa - pb) * area - truth.friction(v, t) + truth.bias;
+    let mut f =
+        truth.motor_gain * f_motor + (pa - pb) * area - truth.friction(x, v, t) + truth.bias;
     if let Some((k, x0)) = truth.spring {
         f -= k * (x - x0);
+    }
+    if let Some((k3, x0)) = truth.cubic {
+        f -= k3 * (x - x0).powi(3);
     }
     if let Some((a, p, ph)) = truth.cogging {
         f += a * (TAU * x / p + ph).sin();
@@ -788,7 +898,13 @@ pub fn generate(case: &Case) -> Generated {
         // Sense.
         let x_meas = s[0] + pos_noise.sample(&mut rng);
         let (pa, pb) = pressures(&s, case);
-        let (pa_m, pb_m) = (pa + p_noise.sample(&mut rng), pb + p_noise.sample(&mut rng));
+        // Each chamber read through its transducer (`gain·p + offset`), as the controller
+        // and the logger see it.
+        let [(ga, oa), (gb, ob)] = truth.transducers;
+        let (pa_m, pb_m) = (
+            ga * pa + oa + p_noise.sample(&mut rng),
+            gb * pb + ob + p_noise.sample(&mut rng),
+        );
         let raw_v = if k == 0 { 0.0 } else { (x_meas - x_prev) / dt };
         v_filt = alpha * v_filt + (1.0 - alpha) * raw_v;
         x_prev = x_meas;
@@ -802,8 +918,10 @@ pub fn generate(case: &Case) -> Generated {
             - (pa_m - pb_m) * area;
         cmd.push(u.clamp(-10_000.0, 10_000.0));
         // Log: both drives report their command; the slave's is the master's, late.
-        let master = 0.5 * held(&cmd, t);
-        let slave = 0.5 * held(&cmd, t - truth.slave_lag);
+        // Each through its reading, `gain·F + offset`.
+        let [(gm, om), (gs, os)] = truth.readings;
+        let master = gm * 0.5 * held(&cmd, t) + om;
+        let slave = gs * 0.5 * held(&cmd, t - truth.slave_lag) + os;
         let x_slave = match truth.pitch {
             Some((a, p, ph, scale)) => s[0] + a * (TAU * s[0] / p + ph).sin() + scale * s[0],
             None => s[0],

@@ -8,7 +8,7 @@ use crate::plant::model::extra_force::Term;
 use crate::plant::model::{model_section, Key, SectionKey};
 
 use super::channel::ChannelId;
-use super::data::Measured;
+use super::data::{Measured, PortsMeta};
 use super::doc::Edit;
 use super::residuals::Band;
 
@@ -202,6 +202,22 @@ impl EffectKind {
             | EffectKind::PortRestriction
             | EffectKind::PressureOffset
             | EffectKind::PressureGain => ChannelId::Pressure,
+        }
+    }
+
+    /// The channel its evidence is judged on in the log `data`: its own ([`Self::channel`]),
+    /// except a pressure transducer's gain on sealed chambers. Their replay starts from the
+    /// chambers' reading at rest (`residuals::replay_pressures`), so a reading `gain·p`
+    /// replays as a charge `gain` times the true one and the pressure channel reads it
+    /// exactly: the gain leaves no trace there. The force balance reads the chambers
+    /// through the same transducers, and there `(gain − 1)·p·A` is a force following the
+    /// chamber's pressure: the gain is fitted and judged on the force channel, its own
+    /// channel being where its reading must leave noise ([`super::judge::reading_channel`]).
+    pub fn judged_on(self, data: &Measured) -> ChannelId {
+        if self == EffectKind::PressureGain && data.ports == PortsMeta::Closed {
+            ChannelId::Force
+        } else {
+            self.channel()
         }
     }
 }

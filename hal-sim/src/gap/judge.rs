@@ -199,7 +199,7 @@ pub(super) fn judge_proposal(
     proposal: Proposal,
     before: &Residual,
 ) -> Option<Judged> {
-    let ch = proposal.kind.channel();
+    let ch = proposal.kind.judged_on(ctx.data);
     judge_on(ctx, doc, proposal, before, ch)
 }
 

@@ -462,7 +462,8 @@ fn effect_rows(
         if !kind.named() {
             continue;
         }
-        let ch = kind.channel();
+        // The channel its evidence was judged on (a sealed chamber's transducer gain: the force).
+        let ch = kind.judged_on(ctx.data);
         let raw_b = band_raw(ctx.data, ctx.band, &before.model()?, ch).unwrap_or_default();
         let raw_a = band_raw(ctx.data, ctx.band, &after.model()?, ch).unwrap_or_default();
         let (region_rms_before, region_rms_after) = if kind == EffectKind::StribeckFriction {

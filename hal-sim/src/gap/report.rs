@@ -503,7 +503,8 @@ fn candidates_and_lags(ctx: &Ctx<'_>, out: &GapOutcome) -> Vec<Block> {
                 .collect();
             vec![
                 j.proposal.kind.name().into(),
-                j.proposal.kind.channel().name().into(),
+                // The channel it was judged on (a sealed chamber's transducer gain: the force).
+                j.proposal.kind.judged_on(ctx.data).name().into(),
                 fitted.join(", "),
                 format!("{:.1}", Num(j.delta_bic)),
                 format!("{:.1} %", Num(100.0 * j.explained_total)),

@@ -242,12 +242,13 @@ fn judge_candidates(
         {
             continue;
         }
-        let Some((_, before)) = befores.iter().find(|(c, _)| *c == kind.channel()) else {
+        let on = kind.judged_on(ctx.data);
+        let Some((_, before)) = befores.iter().find(|(c, _)| *c == on) else {
             continue;
         };
         // Pressure candidates are judged with the pressure effects already added
         // refitted around them (`judge_joint`).
-        let joint: Vec<EffectKind> = if kind.channel() == ChannelId::Pressure {
+        let joint: Vec<EffectKind> = if on == ChannelId::Pressure {
             added
                 .iter()
                 .map(|a| a.proposal.kind)
@@ -275,7 +276,7 @@ fn judge_candidates(
             .iter()
             .filter(|p: &&Judged| {
                 let k = p.proposal.kind;
-                k.named() && !k.sensor() && k.channel() == kind.channel()
+                k.named() && !k.sensor() && k.judged_on(ctx.data) == kind.judged_on(ctx.data)
             })
             .collect();
         if j.significant() && (!kind.sensor() || sensor_reading_holds(ctx, doc, &j, &physical)) {
@@ -434,7 +435,7 @@ fn backfit(
         let shared = |kind: EffectKind| {
             kinds
                 .iter()
-                .filter(|k| k.named() && k.channel() == kind.channel())
+                .filter(|k| k.named() && k.judged_on(ctx.data) == kind.judged_on(ctx.data))
                 .count()
                 > 1
         };
@@ -448,7 +449,8 @@ fn backfit(
                 continue;
             }
             let model = doc.model()?;
-            let Some(before) = residual(ctx.data, ctx.band, &model, kind.channel()) else {
+            let on = kind.judged_on(ctx.data);
+            let Some(before) = residual(ctx.data, ctx.band, &model, on) else {
                 continue;
             };
             if let Some(j) = cached_judge(ctx, &doc, kind, &before, &[], cache) {

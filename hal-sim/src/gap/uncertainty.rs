@@ -74,7 +74,9 @@ pub fn of_selection(
     let mut groups: Vec<(Vec<ChannelId>, Vec<&Judged>)> = ChannelId::ALL
         .iter()
         .map(|&ch| {
-            let on = |a: &&&Judged| a.proposal.kind.channel() == ch && !read_apart(a.proposal.kind);
+            let on = |a: &&&Judged| {
+                a.proposal.kind.judged_on(ctx.data) == ch && !read_apart(a.proposal.kind)
+            };
             (vec![ch], named.iter().filter(on).copied().collect())
         })
         .collect();

@@ -3,7 +3,10 @@
 //! channel by replaying the chambers through the transducers (a reading is
 //! `gain·p + offset`, `plant::sensing`), and each section's force reading's offset and gain
 //! (`[sensors.force] offset_master_n, offset_slave_n, gain_master, gain_slave`, a reading is
-//! `gain·F + offset`), fitted on the force and slave-force channels together. The force
+//! `gain·F + offset`), fitted on the force and slave-force channels together. A transducer's
+//! gain on sealed chambers leaves the pressure channel as it is (the replay starts from the
+//! reading at rest) and is fitted on the force channel instead
+//! ([`EffectKind::judged_on`]). The force
 //! balance reads the chambers through the same transducers and the sections' forces through
 //! their readings ([`super::super::residuals::force_terms`]), so a sensor's error the force
 //! channel showed as a constant, pressure-shaped or motor-shaped force is gone with it: a
@@ -156,17 +159,25 @@ pub(super) fn pressure_gain(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
         to_key: |u| u,
         from_key: |v| v,
     };
-    pressure_pair(ctx, doc, pair)
+    // Where the pressure channel cannot see a gain (sealed chambers, `EffectKind::judged_on`),
+    // it is fitted where it shows: the force balance, which reads the chambers through it.
+    match EffectKind::PressureGain.judged_on(ctx.data) {
+        ChannelId::Pressure => pressure_pair(ctx, doc, pair),
+        ch => fit_pair(doc, pair, |d| channel_kept(ctx, d, ch)),
+    }
+}
+
+/// The channel `ch`'s kept residual for `doc`.
+fn channel_kept(ctx: &Ctx<'_>, doc: &ModelDoc, ch: ChannelId) -> Option<Vec<f64>> {
+    let model = doc.model().ok()?;
+    let raw = band_raw(ctx.data, ctx.band, &model, ch)?;
+    Some(kept_of_raw(ctx.data, ctx.band, ch, &raw))
 }
 
 /// The force channel's kept residual followed by the slave-force channel's, for `doc`.
 fn force_readings_kept(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Vec<f64>> {
-    let model = doc.model().ok()?;
-    let mut out = Vec::new();
-    for ch in [ChannelId::Force, ChannelId::SlaveForce] {
-        let raw = band_raw(ctx.data, ctx.band, &model, ch)?;
-        out.extend(kept_of_raw(ctx.data, ctx.band, ch, &raw));
-    }
+    let mut out = channel_kept(ctx, doc, ChannelId::Force)?;
+    out.extend(channel_kept(ctx, doc, ChannelId::SlaveForce)?);
     Some(out)
 }
 
