@@ -176,21 +176,31 @@ fn describe(j: &GapJson) -> String {
 }
 
 /// The forms measured short of the acceptance on both plants (`docs/gap.md`, "The field
-/// logs' forms on both plants"): their figures are printed with the others, their misses
-/// reported but not asserted, so that the suite holds the forms that meet it.
+/// logs' forms on both plants"): their figures are printed with the others and their misses
+/// against the acceptance reported; a run of at least [`FLOOR_CASES`] per form holds them to
+/// the level measured ([`SHORT_FLOOR`]), so that they cannot get worse unseen.
 pub const SHORT_OF_ACCEPTANCE: [&str; 2] = ["position_friction", "triple"];
+
+/// The floor of a form short of the acceptance: right in at least this share of its cases and
+/// a library effect named falsely in at most this share (measured at 20 per form: 75–90 %
+/// right, 10–15 % false names).
+pub const SHORT_FLOOR: (f64, f64) = (0.70, 0.15);
+
+/// Cases per form from which a short form's floor is asserted (a slice's one to three cases
+/// are too few for a share).
+pub const FLOOR_CASES: usize = 10;
 
 /// Prints the per-form table of `plant` (right, false names) and the cases that went wrong;
 /// returns what misses the acceptance — each form right in ≥ 95 % of its cases, a library
 /// effect named falsely in ≤ 2 % — for the forms not in [`SHORT_OF_ACCEPTANCE`] (theirs are
-/// printed).
+/// printed), and a short form below its floor.
 pub fn score_field_forms(plant: &str, forms: &[&str], results: &[FieldCase]) -> Vec<String> {
     println!("\n{plant}: the field logs' forms, {} cases", results.len());
     println!(
         "{:<20} {:>6} {:>7} {:>8} {:>12}",
         "form", "cases", "right", "right %", "false names"
     );
-    let mut problems = Vec::new();
+    let (mut problems, mut floors) = (Vec::new(), Vec::new());
     for &form in forms {
         let of: Vec<_> = results.iter().filter(|r| r.form == form).collect();
         let right = of.iter().filter(|r| r.right).count();
@@ -207,6 +217,15 @@ pub fn score_field_forms(plant: &str, forms: &[&str], results: &[FieldCase]) -> 
                 problems.push(format!("{form}: no case ran"));
             }
             continue;
+        }
+        if SHORT_OF_ACCEPTANCE.contains(&form) && of.len() >= FLOOR_CASES {
+            let (least_right, most_false) = SHORT_FLOOR;
+            if (right as f64) < least_right * n || (false_names as f64) > most_false * n {
+                floors.push(format!(
+                    "{form}: below its floor: right in {right} of {}, {false_names} false names",
+                    of.len()
+                ));
+            }
         }
         if (right as f64) < 0.95 * n {
             problems.push(format!("{form}: right in {right} of {}", of.len()));
@@ -227,7 +246,7 @@ pub fn score_field_forms(plant: &str, forms: &[&str], results: &[FieldCase]) -> 
             .any(|f| p.starts_with(&format!("{f}:")))
     });
     for p in &short {
-        println!("short of the acceptance (docs/gap.md, not asserted): {p}");
+        println!("short of the acceptance (docs/gap.md; held to its floor from {FLOOR_CASES} cases): {p}");
     }
-    held
+    held.into_iter().chain(floors).collect()
 }
