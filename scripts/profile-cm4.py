@@ -10,9 +10,11 @@ The bench calls the step in a fixed order (bench/cm4/src/main.rs): settling into
 CALLS holding, 2 x CALLS to get a stroke going, 4 x CALLS running. The last 4 x CALLS calls are
 the running regime, the CALLS before the 2 x CALLS the holding one.
 
-Usage: profile-cm4.py ELF TRACE [--depth N] [--top N]
+Usage: profile-cm4.py ELF TRACE [--depth N] [--top N] [--lines N]
 Prints, per regime, the mean instructions per step (the bench's figure less its call
-overhead) and the inlined stages under the step, `depth` frames deep, most expensive first.
+overhead) and the inlined stages under the step, `depth` frames deep, most expensive first;
+with --lines, also the N source lines (of the innermost function inlined at each address)
+that execute the most instructions, running beside holding.
 """
 
 import argparse
@@ -97,12 +99,30 @@ def report(name, selected, chains, depth, top):
         print(f"  {k / n:7.1f}  {key}")
 
 
+def report_lines(running, holding, chains, top):
+    """The source lines executing the most instructions per step, running and holding."""
+    per = {}
+    for name, selected in (("running", running), ("holding", holding)):
+        total = collections.Counter()
+        for c in selected:
+            total.update(c)
+        lines = collections.Counter()
+        for pc, k in total.items():
+            line = chains.get(pc, ["?@?"])[-1].split("@")[-1]
+            lines[line] += k / len(selected)
+        per[name] = lines
+    print(f"source lines, instructions per step (running, holding), top {top}:")
+    for line, k in per["running"].most_common(top):
+        print(f"  {k:7.1f} {per['holding'][line]:7.1f}  {line}")
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("elf")
     ap.add_argument("trace")
     ap.add_argument("--depth", type=int, default=4)
     ap.add_argument("--top", type=int, default=25)
+    ap.add_argument("--lines", type=int, default=0)
     a = ap.parse_args()
     entry = step_symbol(a.elf)
     every = calls(a.trace, entry)
@@ -114,6 +134,8 @@ def main():
     chains = inline_chains(a.elf, pcs)
     report("control_step_holding", holding, chains, a.depth, a.top)
     report("control_step_running", running, chains, a.depth, a.top)
+    if a.lines:
+        report_lines(running, holding, chains, a.lines)
 
 
 if __name__ == "__main__":

@@ -5,7 +5,7 @@
 # instruction per translation block and every executed block logged, and attributes each
 # executed instruction of the step's calls to the functions inlined at its address
 # (scripts/profile-cm4.py). Exact, like the bench: the figures are instruction counts.
-# About 2 minutes. Extra arguments go to the Python part (--depth N, --top N).
+# About 2 minutes. Extra arguments go to the Python part (--depth N, --top N, --lines N).
 #
 # Needs: what bench-cm4.sh needs, python3, binutils (nm, addr2line).
 set -uo pipefail
