@@ -85,13 +85,6 @@ impl Duty {
         if f.is_nan() {
             return Duty::HALF;
         }
-        Duty::from_number(f)
-    }
-
-    /// From a fraction in [0, 1] known not to be NaN (a NaN would give 0 %); out-of-range
-    /// saturates. For callers that have tested for NaN once for several duties.
-    #[inline]
-    pub fn from_number(f: f32) -> Duty {
         Duty::from_code_number(f * 65535.0 + 0.5)
     }
 

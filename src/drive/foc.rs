@@ -207,7 +207,16 @@ pub fn angle_sin_cos(angle: u32) -> (f32, f32) {
 /// `bus_v`. Saturates at 0 and 100 %.
 #[inline]
 pub fn modulate(v: [f32; 3], bus_v: f32) -> PhaseDuties {
-    modulate_inv(v, 1.0 / bus_v, Duty::from_fraction)
+    let inv = 1.0 / bus_v;
+    let offset = common_mode_offset(v);
+    v.map(|phase| Duty::from_fraction(0.5 + (phase + offset) * inv))
+}
+
+/// The min–max injection's common-mode voltage added to every phase of `v`, V: centres the
+/// largest and the smallest phase on the bus.
+#[inline(always)]
+fn common_mode_offset([a, b, c]: [f32; 3]) -> f32 {
+    -0.5 * (max_f32(max_f32(a, b), c) + min_f32(min_f32(a, b), c))
 }
 
 /// [`modulate`] of finite phase voltages `v` (V) with `codes_per_volt` = 65535/V_dc given,
@@ -218,23 +227,8 @@ pub fn modulate(v: [f32; 3], bus_v: f32) -> PhaseDuties {
 /// multiply-add. Saturates at 0 and 100 %.
 #[inline(always)]
 fn modulate_codes(v: [f32; 3], codes_per_volt: f32) -> PhaseDuties {
-    let [a, b, c] = v;
-    let offset = -0.5 * (max_f32(max_f32(a, b), c) + min_f32(min_f32(a, b), c));
-    let base = 32_768.0 + offset * codes_per_volt;
-    [a, b, c].map(|phase| Duty::from_code_number(base + phase * codes_per_volt))
-}
-
-/// [`modulate`] with the reciprocal of the bus voltage given and each fraction made a duty
-/// by `duty` ([`Duty::from_fraction`]: NaN → 50 %).
-#[inline(always)]
-fn modulate_inv(v: [f32; 3], inv: f32, duty: impl Fn(f32) -> Duty) -> PhaseDuties {
-    let [a, b, c] = v;
-    let offset = -0.5 * (max_f32(max_f32(a, b), c) + min_f32(min_f32(a, b), c));
-    [
-        duty(0.5 + (a + offset) * inv),
-        duty(0.5 + (b + offset) * inv),
-        duty(0.5 + (c + offset) * inv),
-    ]
+    let base = 32_768.0 + common_mode_offset(v) * codes_per_volt;
+    v.map(|phase| Duty::from_code_number(base + phase * codes_per_volt))
 }
 
 /// The average phase voltages (V, zero common mode) the duties apply on a bus of `bus_v`:
