@@ -42,12 +42,12 @@ mod support;
 use foreign_plant::{
     draw_case, draw_field_case, draw_form_case, generate, CaseKind, Chambers, Effect, Form, Hidden,
     Machine, Profile, Segment, SensorError, Shape, Trajectory, Truth, AMBIENT_PA, DEAD_LENGTH_M,
-    FIELD_FORMS, FORMS, GAMMA, TRAVEL_M,
+    FORMS, GAMMA, TRAVEL_M,
 };
 use hal_sim::runlog::RunLog;
 use std::collections::BTreeMap;
 use std::time::Instant;
-use support::forms::{field_form_cases, judge, score_field_forms, Check, FieldCase, Want};
+use support::forms::{field_form_cases, judge, run_field_forms, Check, FieldCase, Want};
 use support::gap::{
     bench_cases, classify_form, form_cases, form_seed_runs, name_effects, par_map, score,
     score_forms, Acceptance, BenchCase, FormCase, FormOutcome, ParamError, ParamRule,
@@ -880,16 +880,7 @@ fn run_field_case(seed: u64, form: &str, k: u64) -> FieldCase {
 
 /// Runs `per_form` cases of each field-log form and returns what misses the acceptance.
 fn score_field_forms_here(per_form: u64) -> Vec<String> {
-    let plan: Vec<(u64, &str, u64)> = FIELD_FORMS
-        .iter()
-        .enumerate()
-        .flat_map(|(i, f)| (0..per_form).map(move |k| (37_000 + 100 * i as u64 + k, *f, k)))
-        .filter(|(seed, _, _)| form_seed_runs(*seed))
-        .collect();
-    let results = par_map(plan.len(), |i| {
-        run_field_case(plan[i].0, plan[i].1, plan[i].2)
-    });
-    score_field_forms("foreign plant", &FIELD_FORMS, &results)
+    run_field_forms("foreign plant", 37_000, per_form, run_field_case)
 }
 
 #[test]

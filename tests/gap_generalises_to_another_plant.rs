@@ -37,8 +37,8 @@ mod support;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use independent_plant::{draw_case, generate, Case, Hidden, EFFECTS, FIELD_FORMS, FORMS, TRIPLES};
-use support::forms::{field_form_cases, judge, score_field_forms, Check, FieldCase, Want};
+use independent_plant::{draw_case, generate, Case, Hidden, EFFECTS, FORMS, TRIPLES};
+use support::forms::{field_form_cases, judge, run_field_forms, Check, FieldCase, Want};
 use support::gap::{
     bench_cases, classify_form, form_cases, form_seed_runs, name_effects, par_map, score,
     score_forms, Acceptance, BenchCase, FormCase, FormOutcome, ParamError, ParamRule,
@@ -435,16 +435,7 @@ fn run_field_case(seed: u64, form: &str, k: u64) -> FieldCase {
 
 /// Runs `per_form` cases of each field-log form and returns what misses the acceptance.
 fn score_field_forms_here(per_form: u64) -> Vec<String> {
-    let plan: Vec<(u64, &str, u64)> = FIELD_FORMS
-        .iter()
-        .enumerate()
-        .flat_map(|(i, f)| (0..per_form).map(move |k| (27_000 + 100 * i as u64 + k, *f, k)))
-        .filter(|(seed, _, _)| form_seed_runs(*seed))
-        .collect();
-    let results = par_map(plan.len(), |i| {
-        run_field_case(plan[i].0, plan[i].1, plan[i].2)
-    });
-    score_field_forms("independent plant", &FIELD_FORMS, &results)
+    run_field_forms("independent plant", 27_000, per_form, run_field_case)
 }
 
 #[test]

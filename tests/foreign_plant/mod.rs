@@ -482,19 +482,6 @@ impl Form {
     }
 }
 
-/// The forms of the field logs d08–d11, by name, in a fixed order: friction growing along
-/// the bore, a hardening spring, a pressure transducer's or a force reading's offset or gain
-/// ([`SensorError`]), and three library effects at once ([`TRIPLES`]).
-pub const FIELD_FORMS: [&str; 7] = [
-    "position_friction",
-    "cubic_spring",
-    "pressure_offset",
-    "pressure_gain",
-    "force_offset",
-    "force_gain",
-    "triple",
-];
-
 /// The triples of library effects hidden together.
 pub const TRIPLES: [(Effect, Effect, Effect); 5] = [
     (Effect::MassError, Effect::CoulombFriction, Effect::SlaveLag),
@@ -1101,11 +1088,11 @@ pub fn draw_form_case(seed: u64, form: &str) -> Option<Case> {
         .then(|| draw(seed, CaseKind::Null, Some(form)))
 }
 
-/// Draws case `k` of the field-log form `form` (one of [`FIELD_FORMS`]): for `"triple"`,
+/// Draws case `k` of the field-log form `form` (one of [`FIELD_FORMS`](crate::support::forms::FIELD_FORMS)): for `"triple"`,
 /// the `k`-th of [`TRIPLES`] in turn; else the form or sensor error alone. `None` for an
 /// unknown name.
 pub fn draw_field_case(seed: u64, form: &str, k: usize) -> Option<Case> {
-    if !FIELD_FORMS.contains(&form) {
+    if !crate::support::forms::FIELD_FORMS.contains(&form) {
         return None;
     }
     Some(if form == "triple" {

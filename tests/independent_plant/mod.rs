@@ -176,19 +176,6 @@ pub const FORMS: [&str; 5] = [
     "drifting_friction",
 ];
 
-/// The forms of the field logs d08–d11 the plant can hide, in a fixed order: friction growing
-/// along the bore, a hardening spring, a pressure transducer's or a force reading's offset or
-/// gain, and three library effects at once ([`TRIPLES`]).
-pub const FIELD_FORMS: [&str; 7] = [
-    "position_friction",
-    "cubic_spring",
-    "pressure_offset",
-    "pressure_gain",
-    "force_offset",
-    "force_gain",
-    "triple",
-];
-
 /// The triples of library effects hidden together, compatible in their chamber and
 /// trajectory needs.
 pub const TRIPLES: [[&str; 3]; 5] = [

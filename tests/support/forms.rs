@@ -9,7 +9,39 @@ use std::collections::{BTreeMap, BTreeSet};
 use hal_sim::gap::{analyse, GapJson, GapOptions};
 use hal_sim::runlog::RunLog;
 
-use super::gap::terms_match;
+use super::gap::{form_seed_runs, par_map, terms_match};
+
+/// The forms of the field logs d08–d11, by name, in a fixed order: friction growing along
+/// the bore, a hardening spring, a pressure transducer's or a force reading's offset or gain,
+/// and three library effects at once. Both plants hide each of them.
+pub const FIELD_FORMS: [&str; 7] = [
+    "position_friction",
+    "cubic_spring",
+    "pressure_offset",
+    "pressure_gain",
+    "force_offset",
+    "force_gain",
+    "triple",
+];
+
+/// Runs `per_form` cases of each of [`FIELD_FORMS`] on `plant` (`run(seed, form, k)` draws,
+/// generates and judges case `k` of a form; seeds from `base_seed`, 100 apart per form) over
+/// the cores, and returns what misses the acceptance ([`score_field_forms`]).
+pub fn run_field_forms(
+    plant: &str,
+    base_seed: u64,
+    per_form: u64,
+    run: impl Fn(u64, &str, u64) -> FieldCase + Sync,
+) -> Vec<String> {
+    let plan: Vec<(u64, &str, u64)> = FIELD_FORMS
+        .iter()
+        .enumerate()
+        .flat_map(|(i, f)| (0..per_form).map(move |k| (base_seed + 100 * i as u64 + k, *f, k)))
+        .filter(|(seed, _, _)| form_seed_runs(*seed))
+        .collect();
+    let results = par_map(plan.len(), |i| run(plan[i].0, plan[i].1, plan[i].2));
+    score_field_forms(plant, &FIELD_FORMS, &results)
+}
 
 /// Cases per form of the slow benchmarks of these forms: `FPC_FIELD_FORM_CASES` (CI runs a
 /// slice), else 20.
