@@ -103,13 +103,13 @@ pub fn convolve(a: &[f64], b: &[f64]) -> Vec<f64> {
 /// Computed columns kept for reuse, by a key of the caller's (the bits of a period, the
 /// model values a replay reads): the searches of the workflow evaluate the same grid points,
 /// and replay the same chambers, again at every selection step. Shared between threads; a
-/// clone starts empty. Holds at most [`ColumnCache::CAPACITY`] entries (beyond, new columns
-/// are computed and not kept).
-pub struct ColumnCache<K = u64> {
-    entries: std::sync::Mutex<std::collections::HashMap<K, std::sync::Arc<Vec<Vec<f64>>>>>,
+/// clone starts empty. Holds at most [`ColumnCache::CAPACITY`] entries (beyond, new values
+/// are computed and not kept). The value is columns unless `V` says otherwise.
+pub struct ColumnCache<K = u64, V = Vec<Vec<f64>>> {
+    entries: std::sync::Mutex<std::collections::HashMap<K, std::sync::Arc<V>>>,
 }
 
-impl<K> Default for ColumnCache<K> {
+impl<K, V> Default for ColumnCache<K, V> {
     fn default() -> Self {
         ColumnCache {
             entries: std::sync::Mutex::new(std::collections::HashMap::new()),
@@ -117,7 +117,7 @@ impl<K> Default for ColumnCache<K> {
     }
 }
 
-impl<K: Eq + std::hash::Hash> ColumnCache<K> {
+impl<K: Eq + std::hash::Hash, V> ColumnCache<K, V> {
     /// Most entries kept.
     pub const CAPACITY: usize = 1024;
 
@@ -128,12 +128,8 @@ impl<K: Eq + std::hash::Hash> ColumnCache<K> {
         }
     }
 
-    /// The columns under `key`, computed by `make` (outside the lock) if not kept yet.
-    pub fn get_or_make(
-        &self,
-        key: K,
-        make: impl FnOnce() -> Vec<Vec<f64>>,
-    ) -> std::sync::Arc<Vec<Vec<f64>>> {
+    /// The value under `key`, computed by `make` (outside the lock) if not kept yet.
+    pub fn get_or_make(&self, key: K, make: impl FnOnce() -> V) -> std::sync::Arc<V> {
         let kept = self.entries.lock().ok().and_then(|m| m.get(&key).cloned());
         if let Some(c) = kept {
             return c;
@@ -148,13 +144,13 @@ impl<K: Eq + std::hash::Hash> ColumnCache<K> {
     }
 }
 
-impl<K> Clone for ColumnCache<K> {
+impl<K, V> Clone for ColumnCache<K, V> {
     fn clone(&self) -> Self {
         ColumnCache::default()
     }
 }
 
-impl<K> std::fmt::Debug for ColumnCache<K> {
+impl<K, V> std::fmt::Debug for ColumnCache<K, V> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let n = self.entries.lock().map_or(0, |m| m.len());
         write!(f, "ColumnCache({n} entries)")

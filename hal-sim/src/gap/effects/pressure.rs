@@ -2,6 +2,8 @@
 //! restricted ports, each a replay of the chambers along the measured motion with the
 //! effect, fitted on a stretch of the log.
 
+use std::sync::Arc;
+
 use crate::plant::model::{model_key, model_section};
 
 use super::super::candidate::{Ctx, EffectKind, Proposal};
@@ -57,8 +59,9 @@ fn search_s(data: &Measured) -> f64 {
 
 /// The data and band the pressure searches run on: the first [`search_s`] (of a
 /// closed-port log with `# ports_from_s`: from [`PRESSURE_SEARCH_LEAD_S`] before it) of the
-/// log, or the whole log if it is shorter (then `None`: use `ctx` itself).
-pub(super) fn pressure_search(ctx: &Ctx<'_>) -> Option<(Measured, Band)> {
+/// log, or the whole log if it is shorter (then `None`: use `ctx` itself). Cut once per log
+/// and kept with it ([`Measured::searches`]), with the replays made there.
+pub(super) fn pressure_search(ctx: &Ctx<'_>) -> Arc<Option<(Measured, Band)>> {
     let n = (search_s(ctx.data) / ctx.data.dt_s).round() as usize;
     // A closed-port campaign's leak and heat transfer show only while the chambers are
     // sealed: its search begins where the sealing does (a bench log starts with the homing,
@@ -77,11 +80,21 @@ pub(super) fn pressure_search(ctx: &Ctx<'_>) -> Option<(Measured, Band)> {
     };
     let rest = ctx.data.len().saturating_sub(start);
     if start == 0 && rest <= n + n / 4 {
-        return None;
+        return Arc::new(None);
     }
-    let head = ctx.data.window(start, n.min(rest));
-    let band = Band::new(&head, ctx.band.band_hz).ok()?;
-    Some((head, band))
+    let n = n.min(rest);
+    let key = (
+        start,
+        n,
+        ctx.band.band_hz.to_bits(),
+        ctx.data.force_align_s.to_bits(),
+        ctx.data.x_offset_m.to_bits(),
+    );
+    ctx.data.searches.get_or_make(key, || {
+        let head = ctx.data.window(start, n);
+        let band = Band::new(&head, ctx.band.band_hz).ok()?;
+        Some((head, band))
+    })
 }
 
 /// How long before a closed-port log's `# ports_from_s` the pressure searches begin, s: the
@@ -101,7 +114,7 @@ const ROD_SEAL_LENGTH_M: f64 = 0.03;
 
 pub(super) fn leakage(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let search = pressure_search(ctx);
-    let owned = search.as_ref().map(|(data, band)| Ctx { data, band });
+    let owned = (*search).as_ref().map(|(data, band)| Ctx { data, band });
     let ctx = owned.as_ref().unwrap_or(ctx);
     ctx.data.ports.ne(&PortsMeta::Unknown).then_some(())?;
     let seal = doc
@@ -140,7 +153,7 @@ pub(super) fn leakage(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
 
 pub(super) fn heat_transfer(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let search = pressure_search(ctx);
-    let owned = search.as_ref().map(|(data, band)| Ctx { data, band });
+    let owned = (*search).as_ref().map(|(data, band)| Ctx { data, band });
     let ctx = owned.as_ref().unwrap_or(ctx);
     ctx.data.ports.ne(&PortsMeta::Unknown).then_some(())?;
     let base = doc.with(&[Edit::RemoveSection(model_section!(effects.heat_transfer))]);
@@ -172,7 +185,7 @@ pub(super) fn heat_transfer(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
 
 pub(super) fn port_restriction(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     let search = pressure_search(ctx);
-    let owned = search.as_ref().map(|(data, band)| Ctx { data, band });
+    let owned = (*search).as_ref().map(|(data, band)| Ctx { data, band });
     let ctx = owned.as_ref().unwrap_or(ctx);
     (ctx.data.ports == PortsMeta::Open).then_some(())?;
     let base = doc.with(&[Edit::RemoveSection(model_section!(

@@ -113,7 +113,7 @@ where
     G: Fn(f64) -> f64,
 {
     let search = pressure_search(ctx);
-    let owned = search.as_ref().map(|(data, band)| Ctx { data, band });
+    let owned = (*search).as_ref().map(|(data, band)| Ctx { data, band });
     let ctx = owned.as_ref().unwrap_or(ctx);
     fit_pair(doc, pair, |d| pressure_kept(ctx, d))
 }
