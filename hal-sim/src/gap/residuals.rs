@@ -460,7 +460,7 @@ pub fn extra_states<'a>(
 /// The model's `[effects.extra_force]` at every row, N (`None`: the model has none).
 pub fn extra_force_n(data: &Measured, model: &MachineModel) -> Option<Vec<f64>> {
     let e = model.effects.extra_force.as_ref()?;
-    Some(extra_states(data, model).map(|s| e.force_n(&s)).collect())
+    Some(e.forces_n(extra_states(data, model)))
 }
 
 /// The slave force reading the model predicts from the master's, N: the master's force

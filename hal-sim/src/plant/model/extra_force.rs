@@ -206,6 +206,20 @@ impl ExtraForceEffect {
             .sum()
     }
 
+    /// [`Self::force_n`] at each of `states`, N, the terms' names read once: the same sums,
+    /// term by term in the same order.
+    pub fn forces_n(&self, states: impl Iterator<Item = ExtraState>) -> Vec<f64> {
+        let p = self.period_m.unwrap_or(1.0);
+        let terms: Vec<(Term, f64)> = self
+            .terms
+            .iter()
+            .filter_map(|(name, c)| Some((Term::parse(name)?, *c)))
+            .collect();
+        states
+            .map(|s| terms.iter().map(|(t, c)| c * t.value(&s, p)).sum())
+            .collect()
+    }
+
     /// The coefficient of `term`, if present.
     pub fn coefficient(&self, term: Term) -> Option<f64> {
         self.terms.get(term.name()).copied()
@@ -240,6 +254,38 @@ mod tests {
             period_m: None,
         };
         assert!(no_p.parsed().unwrap_err().contains("period_m"));
+    }
+
+    #[test]
+    fn the_forces_at_many_states_are_the_force_at_each() {
+        let e = ExtraForceEffect {
+            terms: Term::ALL
+                .iter()
+                .enumerate()
+                .map(|(i, t)| (t.name().to_string(), 1.5 - 0.37 * i as f64))
+                .chain([("unknown".to_string(), 9.0)])
+                .collect(),
+            period_m: Some(0.031),
+        };
+        let states: Vec<ExtraState> = (0..200)
+            .map(|i| {
+                let k = f64::from(i);
+                ExtraState {
+                    x_m: 0.01 + 1e-3 * k,
+                    v_mps: (0.1 * k).sin(),
+                    a_mps2: 30.0 * (0.05 * k).cos(),
+                    f_motor_n: 5.0 * k - 300.0,
+                    dp_pa: 1e3 * (0.2 * k).sin(),
+                    t_s: 1e-4 * k,
+                }
+            })
+            .collect();
+        let many = e.forces_n(states.iter().copied());
+        let each: Vec<f64> = states.iter().map(|s| e.force_n(s)).collect();
+        assert_eq!(
+            many.iter().map(|f| f.to_bits()).collect::<Vec<_>>(),
+            each.iter().map(|f| f.to_bits()).collect::<Vec<_>>()
+        );
     }
 
     #[test]
