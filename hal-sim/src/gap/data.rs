@@ -194,14 +194,15 @@ pub struct Measured {
     pub replays: super::band::ColumnCache<String>,
     /// The stretches the pressure candidates' searches replay, with their bands
     /// ([`super::effects::pressure`]), by what they are cut with: every candidate at every
-    /// selection step searches the same stretch, and keeps its replays there. A clone starts
-    /// with none; [`Measured::window`] makes none.
+    /// selection step searches the same stretch, and keeps its replays there. Read on the
+    /// pressure channel only: a stretch keeps the force alignment it was cut with. A clone
+    /// starts with none; [`Measured::window`] makes none.
     pub searches: super::band::ColumnCache<SearchKey, Option<(Measured, super::residuals::Band)>>,
 }
 
 /// What a pressure search's stretch is cut with: its first row and length, and the bits of
-/// the band's edge, the force alignment and the position offset in force when it was cut.
-pub type SearchKey = (usize, usize, u64, u64, u64);
+/// the band's edge and of the position offset.
+pub type SearchKey = (usize, usize, u64, u64);
 
 impl Measured {
     /// Number of samples.

@@ -83,11 +83,12 @@ pub(super) fn pressure_search(ctx: &Ctx<'_>) -> Arc<Option<(Measured, Band)>> {
         return Arc::new(None);
     }
     let n = n.min(rest);
+    // The pressure channel never reads the force alignment (which the selection may fit
+    // again): a stretch cut before it moved serves after.
     let key = (
         start,
         n,
         ctx.band.band_hz.to_bits(),
-        ctx.data.force_align_s.to_bits(),
         ctx.data.x_offset_m.to_bits(),
     );
     ctx.data.searches.get_or_make(key, || {
