@@ -17,6 +17,7 @@ use super::judge::{
     MIN_DELTA_BIC,
 };
 use super::residuals::residual;
+use super::select::{BACKFIT_GAIN, BACKFIT_ROUNDS};
 use crate::plant::model::extra_force::Term;
 use crate::plant::model::model_section;
 
@@ -147,24 +148,34 @@ fn swap_term(
     };
     let first = propose(kind, ctx, &without)?;
     let mut alt = without.with(&first.edits);
-    // Back-fitting, as the selection does: each named effect once more with the others in
-    // place, then the discovered terms left refitted — never one more term (`named` holds
-    // `extra_force` too, whose proposal adds one): a term fitted here would be a free
-    // parameter the model with `term` never had, and `f_motor` would lose to its own
-    // decomposition (module header).
-    for k in named.iter().copied().filter(|k| k.named()).chain([kind]) {
-        let Some(p) = propose(k, ctx, &alt) else {
-            continue;
-        };
-        let next = alt.with(&p.edits);
-        if force_rss(&next)? < force_rss(&alt)? {
-            alt = next;
+    // Back-fitting, as the selection does ([`super::select::backfit`]): each named effect
+    // once more with the others in place, then the discovered terms left refitted — never
+    // one more term (`named` holds `extra_force` too, whose proposal adds one): a term
+    // fitted here would be a free parameter the model with `term` never had, and `f_motor`
+    // would lose to its own decomposition (module header). Rounds repeat until one removes
+    // less than [`BACKFIT_GAIN`] of the residual, as in selection: the model with `term`
+    // stood at the joint optimum the selection's back-fitting reached, and one round leaves
+    // the alternative short of its own where its effects overlap (a mass refitted before the
+    // Coulomb level that `f_motor`'s friction share had moved).
+    for _ in 0..BACKFIT_ROUNDS {
+        let start = force_rss(&alt)?;
+        for k in named.iter().copied().filter(|k| k.named()).chain([kind]) {
+            let Some(p) = propose(k, ctx, &alt) else {
+                continue;
+            };
+            let next = alt.with(&p.edits);
+            if force_rss(&next)? < force_rss(&alt)? {
+                alt = next;
+            }
         }
-    }
-    if let Some(p) = super::discover::refit(ctx, &alt) {
-        let next = alt.with(&p.edits);
-        if force_rss(&next)? < force_rss(&alt)? {
-            alt = next;
+        if let Some(p) = super::discover::refit(ctx, &alt) {
+            let next = alt.with(&p.edits);
+            if force_rss(&next)? < force_rss(&alt)? {
+                alt = next;
+            }
+        }
+        if force_rss(&alt)? >= (1.0 - BACKFIT_GAIN) * start {
+            break;
         }
     }
     let alt = prune_terms(ctx, alt);
