@@ -192,17 +192,7 @@ pub struct Measured {
     /// they are made (only the force alignment is, which no replay reads), and a clone starts
     /// with none.
     pub replays: super::band::ColumnCache<String>,
-    /// The stretches the pressure candidates' searches replay, with their bands
-    /// ([`super::effects::pressure`]), by what they are cut with: every candidate at every
-    /// selection step searches the same stretch, and keeps its replays there. Read on the
-    /// pressure channel only: a stretch keeps the force alignment it was cut with. A clone
-    /// starts with none; [`Measured::window`] makes none.
-    pub searches: super::band::ColumnCache<SearchKey, Option<(Measured, super::residuals::Band)>>,
 }
-
-/// What a pressure search's stretch is cut with: its first row and length, and the bits of
-/// the band's edge and of the position offset.
-pub type SearchKey = (usize, usize, u64, u64);
 
 impl Measured {
     /// Number of samples.
@@ -332,7 +322,6 @@ impl Measured {
             inner,
             segments,
             replays: Default::default(),
-            searches: Default::default(),
         })
     }
 
@@ -428,7 +417,6 @@ impl Measured {
             x_offset_m: self.x_offset_m,
             segments,
             replays: Default::default(),
-            searches: Default::default(),
         }
     }
 

@@ -80,6 +80,15 @@ pub const MIN_RESOLVED_SHARE: f64 = 0.01;
 /// Most effects added to one model.
 pub const MAX_EFFECTS: usize = 8;
 
+/// Most rounds of back-fitting per selection step (`select::backfit`) and per swap of a
+/// discovered term (`reconsider`): effects sharing a channel are refitted in turn until they
+/// stop improving it, so that they stand at their joint optimum before the next candidate
+/// is judged on what they leave.
+pub const BACKFIT_ROUNDS: usize = 6;
+
+/// Share of its channel's residual sum of squares a refit must remove for another round.
+pub const BACKFIT_GAIN: f64 = 0.01;
+
 /// One candidate judged at one step.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Judged {

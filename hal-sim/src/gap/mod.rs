@@ -237,7 +237,7 @@ fn analyse_measured(
     band.columns.clear();
     band.basis_columns.clear();
     band.search_columns.clear();
-    measured.searches.clear();
+    band.pressure_searches.clear();
     let model_text = augmented_text(&selection, &sigma)?;
     // Re-run the comparison with the model exactly as written.
     let after_model = MachineModel::parse(&model_text)

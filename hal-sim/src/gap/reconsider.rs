@@ -13,11 +13,10 @@ use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
 use super::effects::propose;
 use super::judge::{
-    effective_n, judge_proposal, outdone_by_basis, sensor_reading_holds, Judged, MAX_EFFECTS,
-    MIN_DELTA_BIC,
+    effective_n, judge_proposal, outdone_by_basis, sensor_reading_holds, Judged, BACKFIT_GAIN,
+    BACKFIT_ROUNDS, MAX_EFFECTS, MIN_DELTA_BIC,
 };
 use super::residuals::residual;
-use super::select::{BACKFIT_GAIN, BACKFIT_ROUNDS};
 use crate::plant::model::extra_force::Term;
 use crate::plant::model::model_section;
 

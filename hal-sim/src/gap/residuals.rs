@@ -83,6 +83,10 @@ pub struct Band {
     /// and the bits of what they depend on ([`super::effects`]): their grids are visited
     /// again at every selection step.
     pub search_columns: ColumnCache<(u8, u64, u64, u64)>,
+    /// The pressure searches' stretches with their bands (`effects::pressure`), kept with
+    /// their replays by first row, length and the bits of the position offset; read on the
+    /// pressure channel only, so a stretch keeps the force alignment it was cut with.
+    pub pressure_searches: ColumnCache<(usize, usize, u64), Option<(Measured, Band)>>,
 }
 
 /// `mask` eroded by `half` samples on each side: 1 only where every sample within `half`
@@ -149,6 +153,7 @@ impl Band {
             basis_columns: ColumnCache::default(),
             loads: LoadCache::default(),
             search_columns: ColumnCache::default(),
+            pressure_searches: ColumnCache::default(),
         })
     }
 

@@ -32,8 +32,8 @@ use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
 use super::fit::correlation;
 use super::judge::{
-    judge, judge_joint, outdone_by_basis, sensor_reading_holds, BasisFits, Judged, MAX_EFFECTS,
-    MIN_DELTA_BIC,
+    judge, judge_joint, outdone_by_basis, sensor_reading_holds, BasisFits, Judged, BACKFIT_GAIN,
+    BACKFIT_ROUNDS, MAX_EFFECTS, MIN_DELTA_BIC,
 };
 use super::reconsider::{prune_terms, reconsider_terms};
 use super::residuals::{band_raw, full_of_raw, residual, Residual};
@@ -56,14 +56,6 @@ pub struct Selection {
     /// Warnings (collinear candidates).
     pub warnings: Vec<String>,
 }
-
-/// Most rounds of back-fitting per selection step ([`backfit`]): effects sharing a channel
-/// are refitted in turn until they stop improving it, so that they stand at their joint
-/// optimum before the next candidate is judged on what they leave.
-pub const BACKFIT_ROUNDS: usize = 6;
-
-/// Share of its channel's residual sum of squares a refit must remove for another round.
-pub const BACKFIT_GAIN: f64 = 0.01;
 
 /// Judgements kept per candidate ([`remember`]).
 const CACHED_PER_CANDIDATE: usize = 4;

@@ -60,7 +60,7 @@ fn search_s(data: &Measured) -> f64 {
 /// The data and band the pressure searches run on: the first [`search_s`] (of a
 /// closed-port log with `# ports_from_s`: from [`PRESSURE_SEARCH_LEAD_S`] before it) of the
 /// log, or the whole log if it is shorter (then `None`: use `ctx` itself). Cut once per log
-/// and kept with it ([`Measured::searches`]), with the replays made there.
+/// and kept with its band ([`Band::pressure_searches`]), with the replays made there.
 pub(super) fn pressure_search(ctx: &Ctx<'_>) -> Arc<Option<(Measured, Band)>> {
     let n = (search_s(ctx.data) / ctx.data.dt_s).round() as usize;
     // A closed-port campaign's leak and heat transfer show only while the chambers are
@@ -85,13 +85,8 @@ pub(super) fn pressure_search(ctx: &Ctx<'_>) -> Arc<Option<(Measured, Band)>> {
     let n = n.min(rest);
     // The pressure channel never reads the force alignment (which the selection may fit
     // again): a stretch cut before it moved serves after.
-    let key = (
-        start,
-        n,
-        ctx.band.band_hz.to_bits(),
-        ctx.data.x_offset_m.to_bits(),
-    );
-    ctx.data.searches.get_or_make(key, || {
+    let key = (start, n, ctx.data.x_offset_m.to_bits());
+    ctx.band.pressure_searches.get_or_make(key, || {
         let head = ctx.data.window(start, n);
         let band = Band::new(&head, ctx.band.band_hz).ok()?;
         Some((head, band))
