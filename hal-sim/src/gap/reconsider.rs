@@ -156,24 +156,27 @@ fn swap_term(
     // stood at the joint optimum the selection's back-fitting reached, and one round leaves
     // the alternative short of its own where its effects overlap (a mass refitted before the
     // Coulomb level that `f_motor`'s friction share had moved).
+    // `alt`'s RSS is kept beside it: each refit is compared with it, not recomputed.
+    let mut alt_rss = force_rss(&alt)?;
     for _ in 0..BACKFIT_ROUNDS {
-        let start = force_rss(&alt)?;
+        let start = alt_rss;
         for k in named.iter().copied().filter(|k| k.named()).chain([kind]) {
-            let Some(p) = propose(k, ctx, &alt) else {
-                continue;
-            };
-            let next = alt.with(&p.edits);
-            if force_rss(&next)? < force_rss(&alt)? {
-                alt = next;
+            if let Some(p) = propose(k, ctx, &alt) {
+                let next = alt.with(&p.edits);
+                let next_rss = force_rss(&next)?;
+                if next_rss < alt_rss {
+                    (alt, alt_rss) = (next, next_rss);
+                }
             }
         }
         if let Some(p) = super::discover::refit(ctx, &alt) {
             let next = alt.with(&p.edits);
-            if force_rss(&next)? < force_rss(&alt)? {
-                alt = next;
+            let next_rss = force_rss(&next)?;
+            if next_rss < alt_rss {
+                (alt, alt_rss) = (next, next_rss);
             }
         }
-        if force_rss(&alt)? >= (1.0 - BACKFIT_GAIN) * start {
+        if alt_rss >= (1.0 - BACKFIT_GAIN) * start {
             break;
         }
     }

@@ -199,25 +199,24 @@ impl ExtraForceEffect {
     /// The force at one state, N (terms that do not parse count as nothing: the model was
     /// validated with [`Self::parsed`]).
     pub fn force_n(&self, s: &ExtraState) -> f64 {
-        let p = self.period_m.unwrap_or(1.0);
-        self.terms
-            .iter()
-            .filter_map(|(name, c)| Some(c * Term::parse(name)?.value(s, p)))
-            .sum()
+        sum_at(self.known_terms(), s, self.period_m.unwrap_or(1.0))
     }
 
     /// [`Self::force_n`] at each of `states`, N, the terms' names read once: the same sums,
     /// term by term in the same order.
     pub fn forces_n(&self, states: impl Iterator<Item = ExtraState>) -> Vec<f64> {
         let p = self.period_m.unwrap_or(1.0);
-        let terms: Vec<(Term, f64)> = self
-            .terms
+        let terms: Vec<(Term, f64)> = self.known_terms().collect();
+        states
+            .map(|s| sum_at(terms.iter().copied(), &s, p))
+            .collect()
+    }
+
+    /// The terms whose names parse, with their coefficients, in the order of their names.
+    fn known_terms(&self) -> impl Iterator<Item = (Term, f64)> + '_ {
+        self.terms
             .iter()
             .filter_map(|(name, c)| Some((Term::parse(name)?, *c)))
-            .collect();
-        states
-            .map(|s| terms.iter().map(|(t, c)| c * t.value(&s, p)).sum())
-            .collect()
     }
 
     /// The coefficient of `term`, if present.
@@ -230,6 +229,11 @@ impl ExtraForceEffect {
     pub fn mass_term_kg(&self) -> Option<f64> {
         self.coefficient(Term::A)
     }
+}
+
+/// `Σ c·term(s)` over `terms`, N (`period_m` for the periodic terms).
+fn sum_at(terms: impl Iterator<Item = (Term, f64)>, s: &ExtraState, period_m: f64) -> f64 {
+    terms.map(|(t, c)| c * t.value(s, period_m)).sum()
 }
 
 #[cfg(test)]
