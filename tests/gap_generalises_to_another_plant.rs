@@ -38,7 +38,9 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use independent_plant::{draw_case, generate, Case, Hidden, EFFECTS, FORMS, TRIPLES};
-use support::forms::{field_form_cases, judge, run_field_forms, Check, FieldCase, Want};
+use support::forms::{
+    field_form_cases, judge, run_field_forms, write_case_if_asked, Check, FieldCase, Want,
+};
 use support::gap::{
     bench_cases, classify_form, form_cases, form_seed_runs, name_effects, par_map, score,
     score_forms, Acceptance, BenchCase, FormCase, FormOutcome, ParamError, ParamRule,
@@ -430,6 +432,7 @@ fn run_field_case(seed: u64, form: &str, k: u64) -> FieldCase {
         "seed {seed} {form} ({} Hz, {:?}, {:?}) truth {:?}",
         case.rate_hz, case.trajectory, case.chambers, case.hidden
     );
+    write_case_if_asked(seed, &g.csv, &g.model_toml);
     judge(form, &g.csv, &g.model_toml, &want, &label)
 }
 
