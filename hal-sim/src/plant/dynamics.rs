@@ -32,7 +32,7 @@ use fpc::units::{PerSection, PhaseDuties, Section, CONTROL_PERIOD_S};
 
 use crate::plant::bridge::{BridgeParams, ElectricalTotals, SectionState};
 use crate::plant::chambers::{ChamberParams, Chambers, Lines, PortMode};
-use crate::plant::model::extra_force::{ExtraForceEffect, ExtraState, Term};
+use crate::plant::model::extra_force::{ExtraForce, ExtraState, Term};
 use crate::plant::model::MachineModel;
 use crate::plant::motor::{SectionParams, Sections};
 use crate::plant::servo::{Rotation, ServoParams};
@@ -58,7 +58,7 @@ pub struct PlantParams {
     /// Cogging, if present.
     pub cogging: Option<CoggingParams<f64>>,
     /// A force no named effect describes (`[effects.extra_force]`), if present.
-    pub extra_force: Option<ExtraForceEffect>,
+    pub extra_force: Option<ExtraForce>,
     /// Chambers, ports, leaks, heat transfer.
     pub chambers: ChamberParams,
     /// Rotation.
@@ -98,7 +98,7 @@ impl PlantParams {
                 actuator_lag_s: model.effects.actuator_lag.as_ref().map(|l| l.delay_s),
             },
             cogging: model.cogging(),
-            extra_force: model.effects.extra_force.clone(),
+            extra_force: model.effects.extra_force.as_ref().map(ExtraForce::from),
             chambers: ChamberParams {
                 cylinder: model.cylinder(),
                 gas: model.gas_properties(),
@@ -492,6 +492,7 @@ impl PlantFaults {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::plant::model::extra_force::ExtraForceEffect;
 
     /// One sub-step from rest of a frictionless plant with the drives off: `v = dt·F/m`.
     fn first_velocity(extra: Option<ExtraForceEffect>) -> (f64, f64) {

@@ -231,6 +231,37 @@ impl ExtraForceEffect {
     }
 }
 
+/// An extra force with its terms read by name once, as the plant evaluates it at every step:
+/// the same sums as [`ExtraForceEffect::force_n`], term by term in the same order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExtraForce {
+    /// The terms whose names parse, with their coefficients (SI), in the order of the names.
+    terms: Vec<(Term, f64)>,
+    /// Period of the periodic terms, m.
+    period_m: f64,
+}
+
+impl ExtraForce {
+    /// The force at one state, N.
+    pub fn force_n(&self, s: &ExtraState) -> f64 {
+        sum_at(self.terms.iter().copied(), s, self.period_m)
+    }
+
+    /// The coefficient of `term`, if present.
+    pub fn coefficient(&self, term: Term) -> Option<f64> {
+        self.terms.iter().find(|(t, _)| *t == term).map(|(_, c)| *c)
+    }
+}
+
+impl From<&ExtraForceEffect> for ExtraForce {
+    fn from(e: &ExtraForceEffect) -> Self {
+        ExtraForce {
+            terms: e.known_terms().collect(),
+            period_m: e.period_m.unwrap_or(1.0),
+        }
+    }
+}
+
 /// `Σ c·term(s)` over `terms`, N (`period_m` for the periodic terms).
 fn sum_at(terms: impl Iterator<Item = (Term, f64)>, s: &ExtraState, period_m: f64) -> f64 {
     terms.map(|(t, c)| c * t.value(s, period_m)).sum()
