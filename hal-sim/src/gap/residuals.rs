@@ -18,7 +18,7 @@ use fpc::units::Section;
 
 use crate::plant::chambers::{Chambers, Lines, PortMode};
 use crate::plant::dynamics::PlantParams;
-use crate::plant::model::extra_force::{ExtraState, Term};
+use crate::plant::model::extra_force::{ExtraForce, ExtraState, Term};
 use crate::plant::model::{ForceSensor, MachineModel};
 use crate::plant::sensing::Transducer;
 use crate::plant::servo::through_play;
@@ -465,7 +465,7 @@ pub fn extra_states<'a>(
 /// The model's `[effects.extra_force]` at every row, N (`None`: the model has none).
 pub fn extra_force_n(data: &Measured, model: &MachineModel) -> Option<Vec<f64>> {
     let e = model.effects.extra_force.as_ref()?;
-    Some(e.forces_n(extra_states(data, model)))
+    Some(ExtraForce::from(e).forces_n(extra_states(data, model)))
 }
 
 /// The slave force reading the model predicts from the master's, N: the master's force

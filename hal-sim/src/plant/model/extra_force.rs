@@ -196,29 +196,6 @@ impl ExtraForceEffect {
         Ok(out)
     }
 
-    /// The force at one state, N (terms that do not parse count as nothing: the model was
-    /// validated with [`Self::parsed`]).
-    pub fn force_n(&self, s: &ExtraState) -> f64 {
-        sum_at(self.known_terms(), s, self.period_m.unwrap_or(1.0))
-    }
-
-    /// [`Self::force_n`] at each of `states`, N, the terms' names read once: the same sums,
-    /// term by term in the same order.
-    pub fn forces_n(&self, states: impl Iterator<Item = ExtraState>) -> Vec<f64> {
-        let p = self.period_m.unwrap_or(1.0);
-        let terms: Vec<(Term, f64)> = self.known_terms().collect();
-        states
-            .map(|s| sum_at(terms.iter().copied(), &s, p))
-            .collect()
-    }
-
-    /// The terms whose names parse, with their coefficients, in the order of their names.
-    fn known_terms(&self) -> impl Iterator<Item = (Term, f64)> + '_ {
-        self.terms
-            .iter()
-            .filter_map(|(name, c)| Some((Term::parse(name)?, *c)))
-    }
-
     /// The coefficient of `term`, if present.
     pub fn coefficient(&self, term: Term) -> Option<f64> {
         self.terms.get(term.name()).copied()
@@ -231,8 +208,8 @@ impl ExtraForceEffect {
     }
 }
 
-/// An extra force with its terms read by name once, as the plant evaluates it at every step:
-/// the same sums as [`ExtraForceEffect::force_n`], term by term in the same order.
+/// An extra force with its terms read by name once: what the plant evaluates at every step
+/// and `gap` at every row.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ExtraForce {
     /// The terms whose names parse, with their coefficients (SI), in the order of the names.
@@ -242,9 +219,17 @@ pub struct ExtraForce {
 }
 
 impl ExtraForce {
-    /// The force at one state, N.
+    /// `Σ c·term(s)`, N, term by term in the order of the terms' names.
     pub fn force_n(&self, s: &ExtraState) -> f64 {
-        sum_at(self.terms.iter().copied(), s, self.period_m)
+        self.terms
+            .iter()
+            .map(|(t, c)| c * t.value(s, self.period_m))
+            .sum()
+    }
+
+    /// [`Self::force_n`] at each of `states`, N.
+    pub fn forces_n(&self, states: impl Iterator<Item = ExtraState>) -> Vec<f64> {
+        states.map(|s| self.force_n(&s)).collect()
     }
 
     /// The coefficient of `term`, if present.
@@ -253,18 +238,19 @@ impl ExtraForce {
     }
 }
 
+/// Terms whose names do not parse count as nothing: the model was validated with
+/// [`ExtraForceEffect::parsed`].
 impl From<&ExtraForceEffect> for ExtraForce {
     fn from(e: &ExtraForceEffect) -> Self {
         ExtraForce {
-            terms: e.known_terms().collect(),
+            terms: e
+                .terms
+                .iter()
+                .filter_map(|(name, c)| Some((Term::parse(name)?, *c)))
+                .collect(),
             period_m: e.period_m.unwrap_or(1.0),
         }
     }
-}
-
-/// `Σ c·term(s)` over `terms`, N (`period_m` for the periodic terms).
-fn sum_at(terms: impl Iterator<Item = (Term, f64)>, s: &ExtraState, period_m: f64) -> f64 {
-    terms.map(|(t, c)| c * t.value(s, period_m)).sum()
 }
 
 #[cfg(test)]
@@ -315,8 +301,9 @@ mod tests {
                 }
             })
             .collect();
-        let many = e.forces_n(states.iter().copied());
-        let each: Vec<f64> = states.iter().map(|s| e.force_n(s)).collect();
+        let f = ExtraForce::from(&e);
+        let many = f.forces_n(states.iter().copied());
+        let each: Vec<f64> = states.iter().map(|s| f.force_n(s)).collect();
         assert_eq!(
             many.iter().map(|f| f.to_bits()).collect::<Vec<_>>(),
             each.iter().map(|f| f.to_bits()).collect::<Vec<_>>()
@@ -336,6 +323,6 @@ mod tests {
             ..ExtraState::default()
         };
         // −k·(x − x0) with k = 1800 N/m, x0 = 0.09 m.
-        assert!((e.force_n(&s) - (-1800.0 * (0.1 - 0.09))).abs() < 1e-9);
+        assert!((ExtraForce::from(&e).force_n(&s) - (-1800.0 * (0.1 - 0.09))).abs() < 1e-9);
     }
 }
