@@ -247,15 +247,17 @@ fn edges(keys: &[f64], bins: usize) -> Vec<f64> {
 
 /// Bin edges of a key signed by the direction of motion ([`Variable::XSgnV`]): half the bins
 /// over each sign's quantiles, split at zero, so that no bin mixes the two directions (their
-/// keys meet at zero, where the residual's means by direction differ most).
-fn signed_edges(keys: &[f64]) -> Vec<f64> {
+/// keys meet at zero, where the residual's means by direction differ most); and the first
+/// bin of the keys at or above zero.
+fn signed_edges(keys: &[f64]) -> (Vec<f64>, usize) {
     let neg: Vec<f64> = keys.iter().copied().filter(|k| *k < 0.0).collect();
     let pos: Vec<f64> = keys.iter().copied().filter(|k| *k > 0.0).collect();
     let mut e = edges(&neg, BINS / 2);
     e.push(0.0);
+    let split = e.len();
     e.extend(edges(&pos, BINS / 2));
     e.dedup();
-    e
+    (e, split)
 }
 
 /// Per-sample bin of each variable, and the bin from which each variable's bins lie on the
@@ -272,9 +274,7 @@ impl Binned {
             .zip(Variable::ALL)
             .map(|(k, var)| {
                 let (e, split) = if var == Variable::XSgnV {
-                    let e = signed_edges(k);
-                    let split = e.partition_point(|x| *x < 0.0) + 1;
-                    (e, split)
+                    signed_edges(k)
                 } else {
                     (edges(k, BINS), 0)
                 };
@@ -303,11 +303,12 @@ fn bin_means(bins: &[usize], r: &[f64], fold: &[usize], f: usize, split: usize) 
     let side = |b: usize| b >= split;
     let mut m = [0.0; BINS];
     for (b, m) in m.iter_mut().enumerate() {
-        let (sum, count) = match c.get(b) {
-            Some(&n) if n > 0 => (s.get(b).copied().unwrap_or(0.0), n),
-            _ => (0..BINS)
+        let (sum, count) = if c[b] > 0 {
+            (s[b], c[b])
+        } else {
+            (0..BINS)
                 .filter(|&o| side(o) == side(b))
-                .fold((0.0, 0), |(a, n), o| (a + s[o], n + c[o])),
+                .fold((0.0, 0), |(a, n), o| (a + s[o], n + c[o]))
         };
         if count > 0 {
             *m = sum / count as f64;
@@ -675,10 +676,9 @@ mod tests {
     #[test]
     fn the_signed_keys_bins_never_mix_the_directions() {
         let keys: Vec<f64> = (0..1000).map(|i| (i as f64 - 300.0) * 1e-4).collect();
-        let e = signed_edges(&keys);
+        let (e, split) = signed_edges(&keys);
         assert!(e.windows(2).all(|w| w[0] < w[1]), "{e:?}");
         assert!(e.len() < BINS, "{e:?}");
-        let split = e.partition_point(|x| *x < 0.0) + 1;
         for k in keys {
             let b = e.partition_point(|x| *x <= k);
             assert_eq!(k < 0.0, b < split, "{k} in bin {b}, split {split}");
