@@ -25,9 +25,9 @@
 //! transducer's or a force reading's offset or gain, three library effects at once) are
 //! judged as `tests/gap_names_effects_in_foreign_field_logs.rs` holds d08–d11
 //! (`support::forms::Want`): right in ≥ 95 % of each form's cases, a library effect named
-//! falsely in ≤ 2 % (asserted but for the forms measured short of it,
-//! `support::forms::SHORT_OF_ACCEPTANCE`, whose figures are printed); one case per form by
-//! default, 20 per form in the ignored full run.
+//! falsely in ≤ 2 % (asserted but for the forms measured short of it on this plant,
+//! [`SHORT_OF_ACCEPTANCE`], whose figures are printed); one case per form by default, 20 per
+//! form in the ignored full run.
 //!
 //! A slice of 24 cases runs by default; the full benchmark (520 cases: 160 null, 20 of each
 //! effect alone, 10 of each of 15 pairs) is one command:
@@ -881,9 +881,18 @@ fn run_field_case(seed: u64, form: &str, k: u64) -> FieldCase {
     judge(form, &g.csv, &g.model_toml, &want, &label)
 }
 
+/// The field-log forms measured short of the acceptance on this plant (`docs/gap.md`).
+const SHORT_OF_ACCEPTANCE: [&str; 1] = ["triple"];
+
 /// Runs `per_form` cases of each field-log form and returns what misses the acceptance.
 fn score_field_forms_here(per_form: u64) -> Vec<String> {
-    run_field_forms("foreign plant", 37_000, per_form, run_field_case)
+    run_field_forms(
+        "foreign plant",
+        37_000,
+        per_form,
+        &SHORT_OF_ACCEPTANCE,
+        run_field_case,
+    )
 }
 
 #[test]

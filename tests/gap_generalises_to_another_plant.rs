@@ -24,7 +24,7 @@
 //! transducer's or a force reading's offset or gain, and three library effects at once.
 //! Each is right as its field log is (`support::forms::Want`); asserted: right in ≥ 95 % of
 //! each form's cases, a library effect named falsely in ≤ 2 %, except for the forms measured
-//! short of it (`support::forms::SHORT_OF_ACCEPTANCE`), whose figures are printed. A slice of
+//! short of it on this plant ([`SHORT_OF_ACCEPTANCE`]), whose figures are printed. A slice of
 //! one case per form by default, the full run (20 per form, `FPC_FIELD_FORM_CASES`) with the
 //! other ignored benchmarks.
 //!
@@ -436,9 +436,18 @@ fn run_field_case(seed: u64, form: &str, k: u64) -> FieldCase {
     judge(form, &g.csv, &g.model_toml, &want, &label)
 }
 
+/// The field-log forms measured short of the acceptance on this plant (`docs/gap.md`).
+const SHORT_OF_ACCEPTANCE: [&str; 2] = ["position_friction", "triple"];
+
 /// Runs `per_form` cases of each field-log form and returns what misses the acceptance.
 fn score_field_forms_here(per_form: u64) -> Vec<String> {
-    run_field_forms("independent plant", 27_000, per_form, run_field_case)
+    run_field_forms(
+        "independent plant",
+        27_000,
+        per_form,
+        &SHORT_OF_ACCEPTANCE,
+        run_field_case,
+    )
 }
 
 #[test]
