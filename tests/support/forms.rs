@@ -287,10 +287,10 @@ pub fn score_field_forms(
     for r in results.iter().filter(|r| !r.right || r.false_name) {
         println!("  {}{}", if r.right { "" } else { "wrong: " }, r.detail);
     }
-    let (short, held): (Vec<String>, Vec<String>) = problems
+    let (short_of_it, held): (Vec<String>, Vec<String>) = problems
         .into_iter()
         .partition(|p| short.iter().any(|f| p.starts_with(&format!("{f}:"))));
-    for p in &short {
+    for p in &short_of_it {
         println!("short of the acceptance (docs/gap.md; held to its floor from {FLOOR_CASES} cases): {p}");
     }
     held.into_iter().chain(floors).collect()
