@@ -1,6 +1,6 @@
 //! The PIL's tests on the firmware ELFs, one test binary: each file of `tests/` is a module
-//! named after what the board does. With the release profile's fat LTO every test binary
-//! links the emulator, the plant and probe-rs whole (≈ 30 s each on a 2-core machine), and
+//! named after what the board does, and is listed here (`.ci/run` fails on a file that is
+//! not). Each test binary is a fat-LTO link of the emulator, the plant and probe-rs, and
 //! one binary's tests share its threads, where binaries run one after another.
 //!
 //!   cargo test --release --target-dir ../target                       # all of them
