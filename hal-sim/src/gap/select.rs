@@ -138,8 +138,17 @@ pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
     }
 }
 
+/// Noise variances a discovered description may leave beyond the noise itself where the
+/// piston moves ([`reading_is_clean`]).
+pub const CLEAN_EXCESS: f64 = 2.0;
+
 /// Whether the force residual `doc` leaves is free of structure (what
-/// [`super::unexplained::judge`] reports as not structured).
+/// [`super::unexplained::judge`] reports as not structured) and, where the piston moves
+/// ([`super::unexplained::moving_rms`]), within `√(1 + CLEAN_EXCESS)` noise floors: a
+/// description that leaves more has described part of a force of another form, whatever
+/// the structure test resolves of the rest (a V about a point near one end of the
+/// strokes, a force along the bore on a log that visits each position in one stretch of
+/// time).
 fn reading_is_clean(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<bool, String> {
     let model = doc.model()?;
     let Some(raw) = band_raw(ctx.data, ctx.band, &model, ChannelId::Force) else {
@@ -147,7 +156,8 @@ fn reading_is_clean(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<bool, String> {
     };
     let after = full_of_raw(ctx.data, ctx.band, ChannelId::Force, &raw);
     let u = super::unexplained::judge(ctx.data, ctx.band, &model, ChannelId::Force, &after, &after);
-    Ok(!u.json.structured)
+    let moving = super::unexplained::moving_rms(ctx.data, ctx.band, &after);
+    Ok(!u.json.structured && moving.powi(2) <= (1.0 + CLEAN_EXCESS) * u.json.noise_floor.powi(2))
 }
 
 /// [`select`] with the discovery basis as a candidate (`with_terms`) or the library alone;
