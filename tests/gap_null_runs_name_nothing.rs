@@ -217,7 +217,7 @@ fn gap_names_nothing_on_the_simulators_own_runs() {
 /// only within the count, and a chamber blowing down through its opening port follows it.
 /// Judged there, the replay missed the plant by about 1 kPa at every dead point and
 /// `leakage` was named on seeds 62 and 63 (rod seals' gap fitted to 0, 69 % and 50 % of the
-/// residual); those samples are no longer judged (`gap::residuals::ports_resolved`). Seed
+/// residual); those samples are no longer judged (`gap::replay::ports_resolved`). Seed
 /// 62 first, so that CI's stride keeps it.
 #[test]
 #[ignore = "slow: three runs of 27 s at 0.3 m/s"]

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use hal_sim::gap::data::Measured;
 use hal_sim::gap::fit::lstsq;
-use hal_sim::gap::residuals::replay_pressures;
+use hal_sim::gap::replay::replay_pressures;
 use hal_sim::gap::{analyse, GapOptions};
 use hal_sim::plant::model::{MachineModel, REFERENCE_TOML};
 use hal_sim::runlog::RunLog;

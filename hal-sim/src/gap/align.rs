@@ -20,8 +20,8 @@ use crate::plant::model::MachineModel;
 
 use super::channel::ChannelId;
 use super::data::{Measured, ALIGN_WINDOW_SAMPLES, UNDECLARED_ALIGN_SAMPLES};
-use super::fit::{minimise_1d, sumsq};
-use super::residuals::{band_force_raw, Band};
+use super::fit::{minimise_1d_par, sumsq};
+use super::residuals::{band_force_raw_aligned, Band};
 
 /// What the alignment fit found.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -37,12 +37,10 @@ pub struct Alignment {
 /// Fits the alignment of `data` (which must not declare one) for `model`.
 pub fn estimate(data: &Measured, band: &Band, model: &MachineModel) -> Option<Alignment> {
     let dt = data.dt_s;
-    let mut probe = data.clone();
     let (lo, hi) = (-ALIGN_WINDOW_SAMPLES, ALIGN_WINDOW_SAMPLES);
-    let (samples, _) = minimise_1d(lo, hi, 13, 18, |s| {
-        probe.force_align_s = s * dt;
-        let raw = band_force_raw(&probe, band, model);
-        Some(sumsq(&band.kept(&probe, ChannelId::Force, &raw)))
+    let (samples, _) = minimise_1d_par(lo, hi, 13, 18, |s| {
+        let raw = band_force_raw_aligned(data, band, model, s * dt);
+        Some(sumsq(&band.kept(data, ChannelId::Force, &raw)))
     })?;
     let at_edge = samples <= lo + 0.05 || samples >= hi - 0.05;
     Some(Alignment {

@@ -207,7 +207,7 @@ impl EffectKind {
 
     /// The channel its evidence is judged on in the log `data`: its own ([`Self::channel`]),
     /// except a pressure transducer's gain on sealed chambers. Their replay starts from the
-    /// chambers' reading at rest (`residuals::replay_pressures`), so a reading `gain·p`
+    /// chambers' reading at rest (`replay::replay_pressures`), so a reading `gain·p`
     /// replays as a charge `gain` times the true one and the pressure channel reads it
     /// exactly: the gain leaves no trace there. The force balance reads the chambers
     /// through the same transducers, and there `(gain − 1)·p·A` is a force following the

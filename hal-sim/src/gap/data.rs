@@ -178,7 +178,7 @@ pub struct Measured {
     pub inner: Vec<f64>,
     /// 1 where the pressure channel may be judged (also `inner`), 0 where the chambers'
     /// replay hinges on a port angle the log does not resolve
-    /// ([`super::residuals::ports_resolved`]); all 1 until the workflow sets it.
+    /// ([`super::replay::ports_resolved`]); all 1 until the workflow sets it.
     pub pressure_judged: Vec<f64>,
     /// How far the logged position reads beyond the chambers' own, m: what the pressure
     /// replay subtracts from `x_m` ([`super::offset::fit_position_offset`], fitted once
@@ -188,7 +188,7 @@ pub struct Measured {
     /// again at a standstill (homing), so each stretch has its own encoder offset.
     pub segments: Vec<std::ops::Range<usize>>,
     /// The chambers' replays of this log, by the model values they read
-    /// ([`super::residuals::replay_pressures`]): the columns above are never changed after
+    /// ([`super::replay::replay_pressures`]): the columns above are never changed after
     /// they are made (only the force alignment is, which no replay reads), and a clone starts
     /// with none.
     pub replays: super::band::ColumnCache<String>,

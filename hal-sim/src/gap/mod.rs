@@ -31,6 +31,7 @@ pub mod loads;
 pub mod offset;
 pub mod page;
 mod reconsider;
+pub mod replay;
 pub mod report;
 pub mod residuals;
 pub mod select;

@@ -6,7 +6,8 @@ use crate::plant::model::MachineModel;
 
 use super::channel::{resolution, ChannelId};
 use super::data::Measured;
-use super::residuals::{ports_resolved, residual, Band};
+use super::replay::ports_resolved;
+use super::residuals::{residual, Band};
 
 /// Widest offset of the logged position from the chambers' own that
 /// [`fit_position_offset`] accepts whatever the model says, m: a homing push's contact and

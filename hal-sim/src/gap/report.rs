@@ -14,7 +14,7 @@ use super::candidate::Ctx;
 use super::channel::ChannelId;
 use super::effects::{acting_force_lag, slave_force_lag};
 use super::page::Block;
-use super::residuals::kept_replay;
+use super::replay::kept_replay;
 use super::uncertainty::{fitted, key_unit};
 use super::{ChannelResiduals, GapOutcome};
 
@@ -588,6 +588,16 @@ fn maps_and_overlays(dir: &Path, ctx: &Ctx<'_>, out: &GapOutcome) -> Result<Vec<
             (c, mb, ma)
         })
         .collect();
+    let map_file =
+        |c: &ChannelResiduals, m: &Map| format!("map_{}_{}.svg", c.channel.name(), m.by.slug());
+    let overlay_file = |c: &ChannelResiduals| format!("overlay_{}.svg", c.channel.name());
+    // Every plot is a file of its own: drawn on every core.
+    computed.par_iter().try_for_each(|(c, mb, ma)| {
+        mb.par_iter()
+            .zip(ma)
+            .try_for_each(|(b, a)| map_plot(&dir.join(map_file(c, b)), c.channel, b, a))?;
+        overlay_plot(&dir.join(overlay_file(c)), ctx.data, c)
+    })?;
     let mut rows = Vec::new();
     let mut images = Vec::new();
     for (c, mb, ma) in &computed {
@@ -599,15 +609,16 @@ fn maps_and_overlays(dir: &Path, ctx: &Ctx<'_>, out: &GapOutcome) -> Result<Vec<
             )
             .collect();
         rows.push(cells);
-        let mut files = Vec::new();
-        for (b, a) in mb.iter().zip(ma) {
-            let file = format!("map_{}_{}.svg", c.channel.name(), b.by.slug());
-            map_plot(&dir.join(&file), c.channel, b, a)?;
-            files.push((format!("{} by {}", c.channel.name(), b.by.label().0), file));
-        }
-        let file = format!("overlay_{}.svg", c.channel.name());
-        overlay_plot(&dir.join(&file), ctx.data, c)?;
-        files.push((format!("{} overlay", c.channel.name()), file));
+        let mut files: Vec<(String, String)> = mb
+            .iter()
+            .map(|b| {
+                (
+                    format!("{} by {}", c.channel.name(), b.by.label().0),
+                    map_file(c, b),
+                )
+            })
+            .collect();
+        files.push((format!("{} overlay", c.channel.name()), overlay_file(c)));
         images.push(files);
     }
     let mut blocks = vec![

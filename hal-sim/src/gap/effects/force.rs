@@ -279,7 +279,7 @@ pub fn acting_force_lag(ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<crate::signal::
     let base = doc.with(&[Edit::RemoveSection(model_section!(effects.actuator_lag))]);
     let model = base.model().ok()?;
     let d = ctx.data;
-    let motors = acting_motor_force_n(d, &model.sensors.force, 0.0);
+    let motors = acting_motor_force_n(d, &model.sensors.force, d.force_align_s);
     // The motor force that closes the balance with every other modelled force.
     let acting = band_motor_needed_n(d, ctx.band, &model);
     let reported = ctx.band.full(d, ChannelId::Force, &motors);

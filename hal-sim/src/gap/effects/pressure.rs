@@ -28,7 +28,7 @@ pub const PRESSURE_SEARCH_S: f64 = 1.5;
 /// half a compression. The piston seal's leak (A↔B) and the rod seals' (to ambient) are
 /// then nearly one direction, and where the search had only the first port opening after
 /// the bypass to tell them apart, it fitted 10.7 and 34.7 µm for 25 and 10 µm once that
-/// opening was no longer judged ([`crate::gap::residuals::ports_resolved`]): `heat_transfer`
+/// opening was no longer judged ([`crate::gap::replay::ports_resolved`]): `heat_transfer`
 /// was named in its place. Over two cycles: 25.0 and 10.2 µm.
 pub const PRESSURE_SEARCH_CYCLES: f64 = 2.0;
 
