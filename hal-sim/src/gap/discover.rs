@@ -148,9 +148,13 @@ impl<'a> Basis<'a> {
 
     /// [`Self::column`], filtered anew.
     fn filtered(&self, term: Term, period_m: f64) -> Vec<f64> {
-        let raw: Vec<f64> = extra_states(self.ctx.data, &self.model, self.ctx.data.force_align_s)
-            .map(|s| term.value(&s, period_m))
-            .collect();
+        let raw: Vec<f64> = extra_states(
+            self.ctx.data,
+            &self.model,
+            (term == Term::FMotor).then_some(self.ctx.data.force_align_s),
+        )
+        .map(|s| term.value(&s, period_m))
+        .collect();
         self.ctx.band.kept(self.ctx.data, ChannelId::Force, &raw)
     }
 

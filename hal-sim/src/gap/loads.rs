@@ -12,7 +12,7 @@ use std::sync::{Arc, Mutex};
 
 use fpc::physics::balance::PistonForces;
 
-use crate::plant::model::extra_force::ExtraForceEffect;
+use crate::plant::model::extra_force::{ExtraForce, ExtraForceEffect};
 use crate::plant::model::{ForceSensor, MachineModel};
 
 /// Gas, cogging and friction force at every row, N (as [`PistonForces`] has them).
@@ -131,12 +131,18 @@ impl LoadCache {
         sensor: &ForceSensor,
         make: impl FnOnce() -> Vec<f64>,
     ) -> Arc<Vec<f64>> {
-        let key = (
-            effect.clone(),
-            delay_s.to_bits(),
-            align_s.to_bits(),
-            *sensor,
-        );
+        // A force that does not read the motor forces is the same for every reading,
+        // alignment and lag.
+        let key = if ExtraForce::from(effect).reads_motor() {
+            (
+                effect.clone(),
+                delay_s.to_bits(),
+                align_s.to_bits(),
+                *sensor,
+            )
+        } else {
+            (effect.clone(), 0, 0, ForceSensor::default())
+        };
         kept_or_made(&self.extras, key, make)
     }
 }

@@ -433,15 +433,18 @@ pub fn force_raw(data: &Measured, model: &MachineModel) -> Vec<f64> {
 
 /// The states the discovery basis is evaluated at, one per row as it is read: measured x, the
 /// differentiator's velocity, the raw second difference (as the mass term of the balance),
-/// the motor forces as they act (aligned by `align_s`, late by the model's actuator lag), the
-/// logged pressure difference and the time from the first row.
+/// the motor forces as they act (aligned by `align_s`, late by the model's actuator lag; with
+/// `None` they are not read and count as 0), the logged pressure difference and the time from
+/// the first row.
 pub fn extra_states<'a>(
     data: &'a Measured,
     model: &MachineModel,
-    align_s: f64,
+    align_s: Option<f64>,
 ) -> impl Iterator<Item = ExtraState> + 'a {
-    let late_s = actuator_delay_s(model) + align_s;
-    let acting = acting_motor_force_n(data, &model.sensors.force, late_s);
+    let late_s = align_s.map(|a| actuator_delay_s(model) + a);
+    let acting = late_s.map_or_else(Vec::new, |l| {
+        acting_motor_force_n(data, &model.sensors.force, l)
+    });
     let t0 = data.t_s.first().copied().unwrap_or(0.0);
     (0..data.len()).map(move |i| {
         let g = |v: &[f64]| v.get(i).copied().unwrap_or(0.0);
@@ -459,8 +462,9 @@ pub fn extra_states<'a>(
 /// The model's `[effects.extra_force]` at every row, N, with the forces aligned by `align_s`
 /// (`None`: the model has none).
 pub fn extra_force_n(data: &Measured, model: &MachineModel, align_s: f64) -> Option<Vec<f64>> {
-    let e = model.effects.extra_force.as_ref()?;
-    Some(ExtraForce::from(e).forces_n(extra_states(data, model, align_s)))
+    let e = ExtraForce::from(model.effects.extra_force.as_ref()?);
+    let align_s = e.reads_motor().then_some(align_s);
+    Some(e.forces_n(extra_states(data, model, align_s)))
 }
 
 /// The slave force reading the model predicts from the master's, N: the master's force

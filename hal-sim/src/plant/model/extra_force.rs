@@ -227,6 +227,12 @@ impl ExtraForce {
             .sum()
     }
 
+    /// Whether a term reads the motor forces (`f_motor`): without one the force does not
+    /// depend on the force readings, their alignment or the actuator lag.
+    pub fn reads_motor(&self) -> bool {
+        self.terms.iter().any(|(t, _)| *t == Term::FMotor)
+    }
+
     /// [`Self::force_n`] at each of `states`, N.
     pub fn forces_n(&self, states: impl Iterator<Item = ExtraState>) -> Vec<f64> {
         states.map(|s| self.force_n(&s)).collect()
