@@ -83,6 +83,31 @@ fn gap_names_cogging_with_its_period_within_2_percent() {
 }
 
 #[test]
+#[ignore = "slow: 15 s at 4 m/s and 20 kHz (≈ 300 000 samples)"]
+fn gap_names_cogging_on_a_log_longer_than_its_searches_see() {
+    // The force candidates' searches see the log's first `SEARCH_MAX_S`; the judgement and
+    // the residual see all of it. Searched whole, this log gave a period of 23.978 mm, an
+    // amplitude of 45.41 N and a phase of 0.686 rad; on its first 10 s, 23.978 mm, 45.39 N
+    // and 0.685 rad.
+    let truth = cogging_truth();
+    let model = without_section(&reference(), "effects.cogging");
+    let log = closed_loop(&truth, 4.0, 70, 19);
+    let t = log.column("t_s").expect("t_s logged");
+    let seconds = t.last().copied().unwrap_or(0.0) - t.first().copied().unwrap_or(0.0);
+    assert!(
+        seconds > 1.25 * hal_sim::gap::effects::SEARCH_MAX_S,
+        "a log of {seconds:.1} s is searched whole"
+    );
+    let j = gap(&model, &log);
+    show("cogging, 15 s", &j);
+    assert_eq!(names(&j), ["cogging"]);
+    assert!(near(param(&j, "cogging", "period_m"), 0.024, 0.02));
+    assert!(near(param(&j, "cogging", "amplitude_n"), 45.0, 0.1));
+    assert!((param(&j, "cogging", "phase_rad") - 0.7).abs() < 0.1);
+    assert!(shrink(&j, "force") >= SHRINK);
+}
+
+#[test]
 fn gap_names_an_actuator_lag_within_0_1_ms() {
     let truth = format!(
         "{}\n[effects.actuator_lag]\ndelay_s = 0.0005\n",

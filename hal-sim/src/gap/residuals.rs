@@ -81,6 +81,9 @@ pub struct Band {
     /// their replays by first row, length and the bits of the position offset; read on the
     /// pressure channel only, so a stretch keeps the force alignment it was cut with.
     pub pressure_searches: ColumnCache<(usize, usize, u64), Option<(Measured, Band)>>,
+    /// The other candidates' search stretch with its band (`effects::search_stretch`), kept
+    /// by length and the bits of the position offset and of the force alignment.
+    pub force_searches: ColumnCache<(usize, u64, u64), Option<(Measured, Band)>>,
 }
 
 /// `mask` eroded by `half` samples on each side: 1 only where every sample within `half`
@@ -148,6 +151,7 @@ impl Band {
             loads: LoadCache::default(),
             search_columns: ColumnCache::default(),
             pressure_searches: ColumnCache::default(),
+            force_searches: ColumnCache::default(),
         })
     }
 

@@ -31,8 +31,11 @@ use std::f64::consts::TAU;
 use crate::plant::fastmath::sin_cos;
 
 use super::candidate::{Ctx, EffectKind, Proposal};
+use super::channel::ChannelId;
+use super::data::Measured;
 use super::discover;
 use super::doc::ModelDoc;
+use super::residuals::Band;
 
 mod encoder;
 mod force;
@@ -47,7 +50,46 @@ pub use slave_force::slave_force_lag;
 /// Fits the effect `kind` to the run on top of the model `doc` (the named ones by this
 /// library's fits, the discovered terms by [`super::discover`]); `None` when it cannot be
 /// fitted here (channel absent, no valid parameter).
+///
+/// A candidate of the force, slave-force or encoder channel is fitted on at most
+/// [`SEARCH_MAX_S`] of the log ([`search_stretch`]); the pressure channel's candidates cut
+/// their own stretch (`pressure::pressure_search`). Every proposal is judged on the whole
+/// log.
 pub fn propose(kind: EffectKind, ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
+    if kind.channel() != ChannelId::Pressure {
+        if let Some((data, band)) = search_stretch(ctx).as_ref() {
+            return propose_on(kind, &Ctx { data, band }, doc);
+        }
+    }
+    propose_on(kind, ctx, doc)
+}
+
+/// Longest stretch of a log that the searches of the force, slave-force and encoder
+/// candidates see, s: 10 s at the rig's speeds is 20–50 strokes, each over the whole travel.
+/// A cogging or pitch period, a lag or a friction level is pinned by the strokes, not by how
+/// many times they repeat: a longer stretch costs in proportion and tells the search little
+/// more. The proposal is then judged on the whole log.
+pub const SEARCH_MAX_S: f64 = 10.0;
+
+/// The first [`SEARCH_MAX_S`] of the log of `ctx` with its band, or `None` where the log is
+/// not a quarter longer than that (the searches then see it all). Cut once per log, force
+/// alignment and position offset, and kept with its band ([`super::residuals::Band`]).
+fn search_stretch(ctx: &Ctx<'_>) -> std::sync::Arc<Option<(Measured, Band)>> {
+    let d = ctx.data;
+    let n = (SEARCH_MAX_S / d.dt_s).round() as usize;
+    if d.len() <= n + n / 4 {
+        return std::sync::Arc::new(None);
+    }
+    let key = (n, d.x_offset_m.to_bits(), d.force_align_s.to_bits());
+    ctx.band.force_searches.get_or_make(key, || {
+        let head = d.window(0, n);
+        let band = Band::new(&head, ctx.band.band_hz).ok()?;
+        Some((head, band))
+    })
+}
+
+/// [`propose`] on the data of `ctx` as it is.
+fn propose_on(kind: EffectKind, ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     match kind {
         EffectKind::MassError => force::mass_error(ctx, doc),
         EffectKind::CoulombFriction => force::coulomb(ctx, doc),
