@@ -85,10 +85,11 @@ fn gap_names_cogging_with_its_period_within_2_percent() {
 #[test]
 #[ignore = "slow: 15 s at 4 m/s and 20 kHz (≈ 300 000 samples)"]
 fn gap_names_cogging_on_a_log_longer_than_its_searches_see() {
-    // The force candidates' searches see the log's first `SEARCH_MAX_S`; the judgement and
-    // the residual see all of it. Searched whole, this log gave a period of 23.978 mm, an
-    // amplitude of 45.41 N and a phase of 0.686 rad; on its first 10 s, 23.978 mm, 45.39 N
-    // and 0.685 rad.
+    // The force candidates' searches see the log's first `SEARCH_MAX_S`; the judgement, the
+    // residual and the values reported (the named effect fitted once more on the whole log)
+    // see all of it. The search on the first 4 s gave a period of 23.978 mm, an amplitude of
+    // 45.29 N and a phase of 0.688 rad; the whole log 23.978 mm, 45.41 N and 0.686 rad, as a
+    // search of the whole log finds them.
     let truth = cogging_truth();
     let model = without_section(&reference(), "effects.cogging");
     let log = closed_loop(&truth, 4.0, 70, 19);

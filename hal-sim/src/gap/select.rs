@@ -12,7 +12,10 @@
 //! ones are in are pruned. Pressure candidates are judged with the channel's earlier effects
 //! refitted around them (`judge_joint`). Once the steps end, each discovered term is judged
 //! again against the named force effects (`reconsider_terms`): a term that took a step from
-//! a named effect it only resembled gives it back.
+//! a named effect it only resembled gives it back. On a log whose force, slave-force and
+//! encoder candidates were searched on a stretch ([`super::effects::SEARCH_MAX_S`]), the
+//! named effects of those channels are then fitted once more on the whole log
+//! (`refit_on_the_whole_log`).
 //!
 //! The rules a candidate must pass to be added (evidence, floors, the sensors' resolution,
 //! the competition with the basis) are [`super::judge`]'s; the discovered terms' pruning and
@@ -30,10 +33,11 @@ use std::cell::RefCell;
 use super::candidate::{Ctx, EffectKind};
 use super::channel::ChannelId;
 use super::doc::{Edit, ModelDoc};
+use super::effects;
 use super::fit::correlation;
 use super::judge::{
-    judge, judge_joint, outdone_by_basis, sensor_reading_holds, BasisFits, Judged, BACKFIT_GAIN,
-    BACKFIT_ROUNDS, MAX_EFFECTS, MIN_DELTA_BIC,
+    judge, judge_joint, judge_proposal, outdone_by_basis, sensor_reading_holds, BasisFits, Judged,
+    BACKFIT_GAIN, BACKFIT_ROUNDS, MAX_EFFECTS, MIN_DELTA_BIC,
 };
 use super::reconsider::{prune_terms, reconsider_terms};
 use super::residuals::{band_raw, full_of_raw, residual, Residual};
@@ -208,6 +212,7 @@ fn select_from(
         }
         doc = reconsider_terms(ctx, &input, doc, &mut added, &mut steps);
     }
+    doc = refit_on_the_whole_log(ctx, doc, &mut added)?;
     final_parameters(&doc, &mut added);
     let warnings = collinear_warnings(&added, &first_step);
     Ok(Some(Selection {
@@ -420,6 +425,42 @@ fn collinear_warnings(added: &[Judged], first_step: &[Judged]) -> Vec<String> {
         }
     }
     warnings
+}
+
+/// Where the force, slave-force and encoder candidates were fitted on a stretch of the log
+/// ([`effects::searches_a_stretch`]), each of those named in `added` fitted once more on the
+/// whole log, on top of `doc` (which holds them all), kept where it lowers its channel's
+/// residual: the selection decides on the stretch's fits, the values it reports are the
+/// whole log's. Returns the updated model.
+fn refit_on_the_whole_log(
+    ctx: &Ctx<'_>,
+    mut doc: ModelDoc,
+    added: &mut [Judged],
+) -> Result<ModelDoc, String> {
+    if !effects::searches_a_stretch(ctx) {
+        return Ok(doc);
+    }
+    for a in added.iter_mut() {
+        let kind = a.proposal.kind;
+        if !kind.named() || kind.channel() == ChannelId::Pressure {
+            continue;
+        }
+        let model = doc.model()?;
+        let Some(before) = residual(ctx.data, ctx.band, &model, kind.judged_on(ctx.data)) else {
+            continue;
+        };
+        let Some(p) = effects::propose_on_the_whole_log(kind, ctx, &doc) else {
+            continue;
+        };
+        if let Some(j) = judge_proposal(ctx, &doc, p, &before) {
+            if j.rss_after < j.rss_before {
+                doc = doc.with(&j.proposal.edits);
+                a.proposal.params = j.proposal.params;
+                a.proposal.edits = j.proposal.edits;
+            }
+        }
+    }
+    Ok(doc)
 }
 
 /// Fits each effect of `added` again on top of `doc` (which holds them all), keeping a refit

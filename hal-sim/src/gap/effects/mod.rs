@@ -64,12 +64,27 @@ pub fn propose(kind: EffectKind, ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Propos
     propose_on(kind, ctx, doc)
 }
 
+/// Whether [`propose`] fits the force, slave-force and encoder candidates on a stretch of
+/// the log of `ctx` rather than on all of it.
+pub fn searches_a_stretch(ctx: &Ctx<'_>) -> bool {
+    search_stretch(ctx).is_some()
+}
+
+/// [`propose`] on the whole log of `ctx`, whatever its length.
+pub fn propose_on_the_whole_log(
+    kind: EffectKind,
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+) -> Option<Proposal> {
+    propose_on(kind, ctx, doc)
+}
+
 /// Longest stretch of a log that the searches of the force, slave-force and encoder
-/// candidates see, s: 10 s at the rig's speeds is 20–50 strokes, each over the whole travel.
+/// candidates see, s: at the rig's speeds 4 s is 2–20 strokes, each over the whole travel.
 /// A cogging or pitch period, a lag or a friction level is pinned by the strokes, not by how
 /// many times they repeat: a longer stretch costs in proportion and tells the search little
 /// more. The proposal is then judged on the whole log.
-pub const SEARCH_MAX_S: f64 = 10.0;
+pub const SEARCH_MAX_S: f64 = 4.0;
 
 /// The first [`SEARCH_MAX_S`] of the log of `ctx` with its band, or `None` where the log is
 /// not a quarter longer than that (the searches then see it all). Cut once per log, force
