@@ -58,25 +58,16 @@ pub use slave_force::slave_force_lag;
 pub fn propose(kind: EffectKind, ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
     if kind.channel() != ChannelId::Pressure {
         if let Some((data, band)) = search_stretch(ctx).as_ref() {
-            return propose_on(kind, &Ctx { data, band }, doc);
+            return propose_on_the_whole_log(kind, &Ctx { data, band }, doc);
         }
     }
-    propose_on(kind, ctx, doc)
+    propose_on_the_whole_log(kind, ctx, doc)
 }
 
 /// Whether [`propose`] fits the force, slave-force and encoder candidates on a stretch of
 /// the log of `ctx` rather than on all of it.
 pub fn searches_a_stretch(ctx: &Ctx<'_>) -> bool {
     search_stretch(ctx).is_some()
-}
-
-/// [`propose`] on the whole log of `ctx`, whatever its length.
-pub fn propose_on_the_whole_log(
-    kind: EffectKind,
-    ctx: &Ctx<'_>,
-    doc: &ModelDoc,
-) -> Option<Proposal> {
-    propose_on(kind, ctx, doc)
 }
 
 /// Longest stretch of a log that the searches of the force, slave-force and encoder
@@ -103,8 +94,12 @@ fn search_stretch(ctx: &Ctx<'_>) -> std::sync::Arc<Option<(Measured, Band)>> {
     })
 }
 
-/// [`propose`] on the data of `ctx` as it is.
-fn propose_on(kind: EffectKind, ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
+/// [`propose`] on the whole log of `ctx`, whatever its length.
+pub fn propose_on_the_whole_log(
+    kind: EffectKind,
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+) -> Option<Proposal> {
     match kind {
         EffectKind::MassError => force::mass_error(ctx, doc),
         EffectKind::CoulombFriction => force::coulomb(ctx, doc),
