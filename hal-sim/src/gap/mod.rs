@@ -53,7 +53,7 @@ use channel::ChannelId;
 use data::Measured;
 use doc::ModelDoc;
 use residuals::{band_raw, full_of_raw, full_rms, rms_of_full, Band};
-use select::{select, Selection};
+use select::{select, Judgements, Selection};
 
 /// Default upper edge of the analysis band, Hz: above the cogging frequency at 4 m/s
 /// (4 m/s / 24 mm = 170 Hz), below the differentiator's noise.
@@ -239,6 +239,7 @@ fn analyse_measured(
     band.basis_columns.clear();
     band.search_columns.clear();
     band.pressure_searches.clear();
+    band.proposals.clear();
     let model_text = augmented_text(&selection, &sigma)?;
     // Re-run the comparison with the model exactly as written.
     let after_model = MachineModel::parse(&model_text)
@@ -344,12 +345,14 @@ fn aligned_selection(
     if let Some(a) = fitted_alignment {
         measured.force_align_s = a.used_s;
     }
+    let mut judgements = Judgements::default();
     let mut selection = select(
         &Ctx {
             data: measured,
             band,
         },
         input,
+        &mut judgements,
     )
     .map_err(Failure::runtime)?;
     // The alignment was fitted with the input model, whose missing effects bias it. Fit it
@@ -381,6 +384,7 @@ fn aligned_selection(
                 band,
             },
             input,
+            &mut judgements,
         )
         .map_err(Failure::runtime)?;
     }

@@ -20,6 +20,7 @@ use crate::plant::model::{ForceSensor, MachineModel};
 use crate::signal::delayed;
 
 use super::band::{force_kernel, lowpass, sg_weights, ColumnCache, Kernel};
+use super::candidate::{EffectKind, Proposal};
 use super::channel::ChannelId;
 use super::data::Measured;
 use super::loads::{LoadCache, Loads};
@@ -84,7 +85,16 @@ pub struct Band {
     /// The other candidates' search stretch with its band (`effects::search_stretch`), kept
     /// by length and the bits of the position offset and of the force alignment.
     pub force_searches: ColumnCache<(usize, u64, u64), Option<(Measured, Band)>>,
+    /// The pressure candidates' fits (`effects::propose`), by effect, the model's text and
+    /// the bits of the position offset and of the force alignment: each replays the chambers
+    /// 15–25 times, and a joint judgement fits a candidate again on a model an earlier step
+    /// fitted it on.
+    pub proposals: ProposalCache,
 }
+
+/// [`Band::proposals`]: a fit by effect, model text and the bits of the position offset and
+/// of the force alignment.
+pub type ProposalCache = ColumnCache<(EffectKind, String, u64, u64), Option<Proposal>>;
 
 /// `mask` eroded by `half` samples on each side: 1 only where every sample within `half`
 /// is 1.
@@ -152,6 +162,7 @@ impl Band {
             search_columns: ColumnCache::default(),
             pressure_searches: ColumnCache::default(),
             force_searches: ColumnCache::default(),
+            proposals: ColumnCache::default(),
         })
     }
 

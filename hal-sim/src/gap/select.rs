@@ -67,6 +67,12 @@ const CACHED_PER_CANDIDATE: usize = 4;
 /// Judgements by candidate, with the channel residual they were made on.
 type Cache = Vec<(EffectKind, Vec<f64>, Judged)>;
 
+/// The judgements of one log's selections, kept from one to the next ([`select`]): a
+/// selection made again with the force alignment fitted anew finds the pressure channel's
+/// residuals as they were, and with them its candidates' judgements.
+#[derive(Default)]
+pub struct Judgements(Cache);
+
 /// The cached judgement of `kind`, if its channel's residual is still `before`.
 fn cached(cache: &Cache, kind: EffectKind, before: &Residual) -> Option<Judged> {
     cache
@@ -128,17 +134,20 @@ fn cached_judge(
 /// force of another form (friction growing with |x − x₀| read as `x*sgn(v)`) are a curve
 /// fit, not a description. Then the selection runs again with the library alone, and what
 /// is left is reported as unexplained and structured ([`super::unexplained`]).
-pub fn select(ctx: &Ctx<'_>, doc: &ModelDoc) -> Result<Selection, String> {
+pub fn select(
+    ctx: &Ctx<'_>,
+    doc: &ModelDoc,
+    judgements: &mut Judgements,
+) -> Result<Selection, String> {
     // A candidate's fit depends only on its own channel: while that channel's residual is
-    // unchanged (an effect was added elsewhere, or the library-only pass repeats a step of
-    // the first), its last judgement stands. The pressure candidates replay the chambers
-    // tens of times each; this keeps the steps cheap.
-    let mut cache: Cache = Vec::new();
-    match select_from(ctx, doc, true, &mut cache)? {
+    // unchanged (an effect was added elsewhere, the library-only pass repeats a step of the
+    // first, or a selection is made again with another force alignment), its last
+    // judgement stands. The pressure candidates replay the chambers tens of times each;
+    // this keeps the steps cheap.
+    let cache = &mut judgements.0;
+    match select_from(ctx, doc, true, cache)? {
         Some(s) => Ok(s),
-        None => {
-            select_from(ctx, doc, false, &mut cache)?.ok_or_else(|| "selection failed".to_string())
-        }
+        None => select_from(ctx, doc, false, cache)?.ok_or_else(|| "selection failed".to_string()),
     }
 }
 

@@ -55,11 +55,29 @@ pub use slave_force::slave_force_lag;
 /// [`SEARCH_MAX_S`] of the log ([`search_stretch`]); the pressure channel's candidates cut
 /// their own stretch (`pressure::pressure_search`). Every proposal is judged on the whole
 /// log.
+///
+/// A pressure candidate's fit is kept with the log's band ([`Band::proposals`]): fitted
+/// again on the same model text, it is the same fit.
 pub fn propose(kind: EffectKind, ctx: &Ctx<'_>, doc: &ModelDoc) -> Option<Proposal> {
-    if kind.channel() != ChannelId::Pressure {
-        if let Some((data, band)) = search_stretch(ctx).as_ref() {
-            return propose_on_the_whole_log(kind, &Ctx { data, band }, doc);
-        }
+    if kind.channel() == ChannelId::Pressure {
+        let Ok(text) = doc.to_text() else {
+            return propose_on_the_whole_log(kind, ctx, doc);
+        };
+        let d = ctx.data;
+        let key = (
+            kind,
+            text,
+            d.x_offset_m.to_bits(),
+            d.force_align_s.to_bits(),
+        );
+        let kept = ctx
+            .band
+            .proposals
+            .get_or_make(key, || propose_on_the_whole_log(kind, ctx, doc));
+        return (*kept).clone();
+    }
+    if let Some((data, band)) = search_stretch(ctx).as_ref() {
+        return propose_on_the_whole_log(kind, &Ctx { data, band }, doc);
     }
     propose_on_the_whole_log(kind, ctx, doc)
 }
