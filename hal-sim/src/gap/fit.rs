@@ -361,6 +361,42 @@ mod tests {
     }
 
     #[test]
+    fn gauss_newton_stops_once_a_step_gains_less_than_its_tolerance() {
+        // A straight line with noise left at its optimum. The damped first step lands within
+        // 1e-3 of it and the steps after gain ever less: the fourth gains less than the
+        // tolerance, and the search stops there instead of spending its 20 iterations, the last of them six
+        // refused trials each, on digits no fit resolves.
+        let x: Vec<f64> = (0..200).map(|i| f64::from(i) / 200.0).collect();
+        let noise = |i: usize| if i.is_multiple_of(3) { 0.01 } else { -0.005 };
+        let y: Vec<f64> = x
+            .iter()
+            .enumerate()
+            .map(|(i, v)| 2.0 * v + 0.5 + noise(i))
+            .collect();
+        let calls = std::sync::atomic::AtomicUsize::new(0);
+        let r = |u: &[f64]| {
+            calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            Some(
+                x.iter()
+                    .zip(&y)
+                    .map(|(v, y)| u[0] * v + u[1] - y)
+                    .collect::<Vec<f64>>(),
+            )
+        };
+        let (u, cost) = gauss_newton_nonneg(vec![1.0, 1.0], &[1e-3, 1e-3], 20, r).unwrap();
+        // The start, then per iteration a difference per parameter and one accepted trial:
+        // four iterations.
+        let n = calls.load(std::sync::atomic::Ordering::Relaxed);
+        assert!(n <= 1 + 4 * 3, "{n} evaluations");
+        let (best, rss) = lstsq(&[x.clone(), vec![1.0; 200]], &y).unwrap();
+        assert!(cost <= rss * (1.0 + GN_TOLERANCE), "{cost} against {rss}");
+        assert!(
+            (u[0] - best[0]).abs() < 1e-4 && (u[1] - best[1]).abs() < 1e-4,
+            "{u:?}"
+        );
+    }
+
+    #[test]
     fn standard_errors_match_the_textbook_line_fit() {
         // y = a + b·x + e, e = ±1 alternating: s² = rss/(n−2), and the slope's variance is
         // s² / Σ(x − x̄)², the intercept's s²·Σx² / (n·Σ(x − x̄)²).
