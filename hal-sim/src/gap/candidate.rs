@@ -1,8 +1,8 @@
 //! What a candidate effect is, shared by the library's fits ([`super::effects`]), the
 //! discovered terms ([`super::discover`]) and the selection that judges them
 //! ([`super::select`]): which effect ([`EffectKind`], with its name, model section, channel
-//! and form among the discovery basis's terms), what every fit is handed ([`Ctx`]) and what
-//! it returns ([`Proposal`]).
+//! and form among the discovery basis's terms), what every fit is handed
+//! ([`super::ctx::Ctx`]) and what it returns ([`Proposal`]).
 
 use crate::plant::model::extra_force::Term;
 use crate::plant::model::{model_section, Key, SectionKey};
@@ -10,15 +10,6 @@ use crate::plant::model::{model_section, Key, SectionKey};
 use super::channel::ChannelId;
 use super::data::{Measured, PortsMeta};
 use super::doc::Edit;
-use super::residuals::Band;
-
-/// What the fits share: the measured run and the band.
-pub struct Ctx<'a> {
-    /// The measured run.
-    pub data: &'a Measured,
-    /// The analysis band.
-    pub band: &'a Band,
-}
 
 /// A fitted effect, ready to be judged and added.
 #[derive(Clone, Debug, PartialEq)]
@@ -220,15 +211,6 @@ impl EffectKind {
             self.channel()
         }
     }
-}
-
-/// The measured position at the force channel's kept samples, m.
-pub(super) fn kept_x(ctx: &Ctx<'_>) -> Vec<f64> {
-    ctx.band
-        .idx_force
-        .iter()
-        .filter_map(|&i| ctx.data.x_m.get(i).copied())
-        .collect()
 }
 
 /// The span of x over a channel's kept samples, m (at least 1 mm).

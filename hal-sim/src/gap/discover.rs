@@ -36,8 +36,9 @@ use crate::plant::fastmath::sin_cos;
 use crate::plant::model::extra_force::Term;
 use crate::plant::model::{model_section, MachineModel};
 
-use super::candidate::{kept_span, kept_x, Ctx, EffectKind, Proposal};
+use super::candidate::{kept_span, EffectKind, Proposal};
 use super::channel::ChannelId;
+use super::ctx::{kept_x, Ctx};
 use super::doc::{Edit, ModelDoc};
 use super::fit::{lstsq, minimise_1d_par};
 use super::residuals::{band_force_raw, basis_key, extra_states};

@@ -53,8 +53,9 @@
 
 use std::cell::RefCell;
 
-use super::candidate::{Ctx, EffectKind, Proposal};
+use super::candidate::{EffectKind, Proposal};
 use super::channel::{resolution, sample_resolution, ChannelId};
+use super::ctx::Ctx;
 use super::doc::{Edit, ModelDoc};
 use super::effects::propose;
 use super::residuals::{band_raw, full_of_raw, residual, Residual};

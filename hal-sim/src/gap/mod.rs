@@ -21,6 +21,7 @@ pub mod align;
 pub mod band;
 pub mod candidate;
 pub mod channel;
+pub mod ctx;
 pub mod data;
 pub mod discover;
 pub mod doc;
@@ -48,8 +49,9 @@ use crate::failure::Failure;
 use crate::plant::model::{model_key, model_section, MachineModel};
 use crate::runlog::RunLog;
 
-use candidate::{Ctx, EffectKind};
+use candidate::EffectKind;
 use channel::ChannelId;
+use ctx::Ctx;
 use data::Measured;
 use doc::ModelDoc;
 use residuals::{band_raw, full_of_raw, full_rms, rms_of_full, Band};

@@ -8,8 +8,9 @@
 use rayon::prelude::*;
 use std::cell::RefCell;
 
-use super::candidate::{Ctx, EffectKind};
+use super::candidate::EffectKind;
 use super::channel::ChannelId;
+use super::ctx::Ctx;
 use super::doc::{Edit, ModelDoc};
 use super::effects::propose;
 use super::judge::{

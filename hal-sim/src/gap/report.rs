@@ -10,8 +10,8 @@ use std::path::Path;
 use crate::plant::model::MachineModel;
 use crate::plot::{lines, panels, Axes, Panel, Series};
 
-use super::candidate::Ctx;
 use super::channel::ChannelId;
+use super::ctx::Ctx;
 use super::effects::{acting_force_lag, slave_force_lag};
 use super::page::Block;
 use super::replay::kept_replay;

@@ -15,8 +15,9 @@ use rayon::prelude::*;
 
 use crate::plant::model::Key;
 
-use super::candidate::{Ctx, EffectKind};
+use super::candidate::EffectKind;
 use super::channel::ChannelId;
+use super::ctx::Ctx;
 use super::doc::{Edit, ModelDoc};
 use super::fit::{standard_errors, sumsq};
 use super::judge::{effective_n, reading_channel, Judged};

@@ -5,8 +5,9 @@ use rayon::prelude::*;
 
 use crate::plant::model::{model_key, model_section};
 
-use super::super::candidate::{kept_span, Ctx, EffectKind, Proposal};
+use super::super::candidate::{kept_span, EffectKind, Proposal};
 use super::super::channel::ChannelId;
+use super::super::ctx::Ctx;
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::{lstsq, minimise_1d_par};
 use super::super::residuals::{channel_raw, kept_of_raw};

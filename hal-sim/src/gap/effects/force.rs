@@ -8,8 +8,9 @@ use rayon::prelude::*;
 use crate::plant::model::{model_key, model_section};
 use crate::signal::xcorr_lag;
 
-use super::super::candidate::{kept_span, kept_x, Ctx, EffectKind, Proposal};
+use super::super::candidate::{kept_span, EffectKind, Proposal};
 use super::super::channel::ChannelId;
+use super::super::ctx::{kept_x, Ctx};
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::{lstsq, minimise_1d_par};
 use super::super::residuals::{

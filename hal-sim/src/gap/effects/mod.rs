@@ -30,8 +30,9 @@ use std::f64::consts::TAU;
 
 use crate::plant::fastmath::sin_cos;
 
-use super::candidate::{Ctx, EffectKind, Proposal};
+use super::candidate::{EffectKind, Proposal};
 use super::channel::ChannelId;
+use super::ctx::Ctx;
 use super::data::Measured;
 use super::discover;
 use super::doc::ModelDoc;

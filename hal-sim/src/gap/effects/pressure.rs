@@ -6,8 +6,9 @@ use std::sync::Arc;
 
 use crate::plant::model::{model_key, model_section};
 
-use super::super::candidate::{Ctx, EffectKind, Proposal};
+use super::super::candidate::{EffectKind, Proposal};
 use super::super::channel::ChannelId;
+use super::super::ctx::Ctx;
 use super::super::data::{Measured, PortsMeta};
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::{gauss_newton_nonneg, minimise_1d_par};

@@ -21,8 +21,9 @@
 
 use crate::plant::model::{model_key, Key};
 
-use super::super::candidate::{Ctx, EffectKind, Proposal};
+use super::super::candidate::{EffectKind, Proposal};
 use super::super::channel::ChannelId;
+use super::super::ctx::Ctx;
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::gauss_newton_nonneg;
 use super::super::residuals::{band_raw, kept_of_raw};

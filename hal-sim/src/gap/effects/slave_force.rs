@@ -4,8 +4,9 @@
 use crate::plant::model::model_key;
 use crate::signal::{delayed, xcorr_lag};
 
-use super::super::candidate::{Ctx, EffectKind, Proposal};
+use super::super::candidate::{EffectKind, Proposal};
 use super::super::channel::ChannelId;
+use super::super::ctx::Ctx;
 use super::super::data::Measured;
 use super::super::doc::{Edit, ModelDoc};
 use super::super::fit::minimise_1d_par;
