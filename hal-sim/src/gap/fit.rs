@@ -364,8 +364,8 @@ mod tests {
     fn gauss_newton_stops_once_a_step_gains_less_than_its_tolerance() {
         // A straight line with noise left at its optimum. The damped first step lands within
         // 1e-3 of it and the steps after gain ever less: the fourth gains less than the
-        // tolerance, and the search stops there instead of spending its 20 iterations, the last of them six
-        // refused trials each, on digits no fit resolves.
+        // tolerance, and the search stops there instead of spending its 20 iterations (the
+        // last ending in six refused trials) on digits no fit resolves.
         let x: Vec<f64> = (0..200).map(|i| f64::from(i) / 200.0).collect();
         let noise = |i: usize| if i.is_multiple_of(3) { 0.01 } else { -0.005 };
         let y: Vec<f64> = x
