@@ -229,9 +229,14 @@ fn pair(evals: &mut impl FnMut(&[f64]) -> Vec<f64>, a: f64, b: f64) -> (f64, f64
 pub const GN_TOLERANCE: f64 = 1e-9;
 
 /// Damped Gauss–Newton on non-negative parameters `u` minimising ‖r(u)‖², with forward
-/// differences of step `steps[j]`, for at most `iters` iterations, ending early once a step
-/// lowers the cost by less than [`GN_TOLERANCE`] of it. `r` returns the residual vector
-/// (`None`: invalid point).
+/// differences of step `steps[j]`, for at most `iters` iterations. It ends early once a
+/// step lowers the cost by less than [`GN_TOLERANCE`] of it, or once the linearised
+/// residual promises no more than that of the next step (which is then not tried). A
+/// parameter at zero whose cost rises as it grows is held there, and one the step would
+/// take below zero is moved to zero ([`bounded_step`]); the step is solved for the others
+/// with them there. (A step solved for all and then cut at zero moves the others by what
+/// the cut one could not do: it is refused, and the damped steps after it crawl along the
+/// bound.) `r` returns the residual vector (`None`: invalid point).
 pub fn gauss_newton_nonneg(
     mut u: Vec<f64>,
     steps: &[f64],
@@ -263,28 +268,44 @@ pub fn gauss_newton_nonneg(
                 )
             })
             .collect::<Option<Vec<Vec<f64>>>>()?;
-        let k = cols.len();
-        let jtj = DMatrix::from_fn(k, k, |a, b| dot(&cols[a], &cols[b]));
-        let jtr = DVector::from_fn(k, |a, _| dot(&cols[a], &res));
+        // The parameters the step moves: all but those held at zero.
+        let free: Vec<(usize, &Vec<f64>)> = cols
+            .iter()
+            .enumerate()
+            .filter(|(j, c)| u.get(*j).is_some_and(|v| *v > 0.0) || dot(c, &res) < 0.0)
+            .collect();
+        let k = free.len();
+        if k == 0 {
+            break;
+        }
+        let jtj = DMatrix::from_fn(k, k, |a, b| dot(free[a].1, free[b].1));
+        let jtr = DVector::from_fn(k, |a, _| dot(free[a].1, &res));
         if !all_finite(jtj.as_slice()) || !all_finite(jtr.as_slice()) {
             break;
         }
+        let at: Vec<f64> = free
+            .iter()
+            .map(|(j, _)| u.get(*j).copied().unwrap_or(0.0))
+            .collect();
         let mut improved = false;
         let mut converged = false;
         for _ in 0..6 {
-            let mut m = jtj.clone();
-            for d in 0..k {
-                m[(d, d)] *= 1.0 + damping;
-            }
-            let Some(delta) = m.clone().lu().solve(&(-&jtr)) else {
+            let Some(delta) = bounded_step(&jtj, &jtr, &at, damping) else {
                 damping *= 10.0;
                 continue;
             };
-            let trial: Vec<f64> = u
-                .iter()
-                .zip(delta.iter())
-                .map(|(a, d)| (a + d).max(0.0))
-                .collect();
+            // ‖r‖² − ‖r + J·δ‖²: the decrease the linearised residual promises.
+            let promised = -(2.0 * delta.dot(&jtr) + delta.dot(&(&jtj * &delta)));
+            if promised.is_nan() || promised < GN_TOLERANCE * cost {
+                converged = true;
+                break;
+            }
+            let mut trial = u.clone();
+            for ((j, _), d) in free.iter().zip(delta.iter()) {
+                if let Some(v) = trial.get_mut(*j) {
+                    *v = (*v + d).max(0.0);
+                }
+            }
             if let Some(rt) = r(&trial) {
                 let ct = sumsq(&rt);
                 if ct.is_finite() && ct < cost {
@@ -304,6 +325,53 @@ pub fn gauss_newton_nonneg(
         }
     }
     Some((u, cost))
+}
+
+/// The damped Gauss–Newton step `δ` of parameters at `at` whose columns give `jtj` and
+/// `jtr`, kept within `at + δ ≥ 0`: a parameter the step would take below zero is moved to
+/// zero and the others solved again with it there (each pass holds at least one more, so
+/// there are at most as many passes as parameters). `None` if a system is singular.
+fn bounded_step(
+    jtj: &DMatrix<f64>,
+    jtr: &DVector<f64>,
+    at: &[f64],
+    damping: f64,
+) -> Option<DVector<f64>> {
+    let k = at.len();
+    let mut delta = DVector::zeros(k);
+    let mut held = vec![false; k];
+    for _ in 0..k {
+        let moved: Vec<usize> = (0..k).filter(|i| !held[*i]).collect();
+        let n = moved.len();
+        if n == 0 {
+            break;
+        }
+        let m = DMatrix::from_fn(n, n, |a, b| {
+            let d = if a == b { 1.0 + damping } else { 1.0 };
+            jtj[(moved[a], moved[b])] * d
+        });
+        let rhs = DVector::from_fn(n, |a, _| {
+            let pulled: f64 = (0..k)
+                .filter(|h| held[*h])
+                .map(|h| jtj[(moved[a], h)] * delta[h])
+                .sum();
+            -(jtr[moved[a]] + pulled)
+        });
+        let sol = m.lu().solve(&rhs)?;
+        let mut crossed = false;
+        for (i, d) in moved.iter().zip(sol.iter()) {
+            delta[*i] = *d;
+            if at[*i] + d < 0.0 {
+                held[*i] = true;
+                delta[*i] = -at[*i];
+                crossed = true;
+            }
+        }
+        if !crossed {
+            break;
+        }
+    }
+    Some(delta)
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
@@ -394,6 +462,37 @@ mod tests {
             (u[0] - best[0]).abs() < 1e-4 && (u[1] - best[1]).abs() < 1e-4,
             "{u:?}"
         );
+    }
+
+    #[test]
+    fn gauss_newton_holds_a_parameter_at_its_bound_and_solves_for_the_other() {
+        // Two nearly parallel columns, the second's unconstrained optimum negative: the
+        // optimum over u ≥ 0 holds it at zero and fits the first alone. A step solved for both
+        // and cut at zero moves the first by what the second could not do, is refused, and
+        // the damped steps that follow crawl along the bound.
+        let x: Vec<f64> = (0..100).map(|i| f64::from(i) / 50.0).collect();
+        let a: Vec<f64> = x.iter().map(|v| 1.0 + v).collect();
+        let b: Vec<f64> = x.iter().map(|v| 1.0 + 0.8 * v).collect();
+        let y: Vec<f64> = a.iter().zip(&b).map(|(a, b)| 2.0 * a - 0.5 * b).collect();
+        let calls = std::sync::atomic::AtomicUsize::new(0);
+        let r = |u: &[f64]| {
+            calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            Some(
+                (0..y.len())
+                    .map(|i| u[0] * a[i] + u[1] * b[i] - y[i])
+                    .collect::<Vec<f64>>(),
+            )
+        };
+        let (u, cost) = gauss_newton_nonneg(vec![1.0, 1.0], &[1e-3, 1e-3], 20, r).unwrap();
+        let (best, rss) = lstsq(std::slice::from_ref(&a), &y).unwrap();
+        assert_eq!(u[1], 0.0, "{u:?}");
+        assert!(
+            (u[0] - best[0]).abs() < 1e-6 * best[0],
+            "{u:?} against {best:?}"
+        );
+        assert!(cost <= rss * (1.0 + GN_TOLERANCE), "{cost} against {rss}");
+        let n = calls.load(std::sync::atomic::Ordering::Relaxed);
+        assert!(n <= 1 + 4 * 3, "{n} evaluations");
     }
 
     #[test]
