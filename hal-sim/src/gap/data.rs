@@ -266,14 +266,26 @@ impl Measured {
             order: 2,
             lag: sg_window / 2,
         };
-        let (v_mps, a_mps2) = firmware_derivatives(&x_m, dt_s, encoder_period_m, settings)?;
-        let (omega_rad_s, ports_angle_rad) = rotation(&theta_rad, dt_s, n, theta_source)?;
         let w_p = Kernel::new(sg_weights(sg_window, 2, 1, dt_s).ok_or("pressure-rate weights")?);
         let p_a_pa = col("p_a_pa")?;
         let p_b_pa = col("p_b_pa")?;
-        let dp_a_pa_per_s = w_p.apply(&p_a_pa);
-        let dp_b_pa_per_s = w_p.apply(&p_b_pa);
-        let d2x_mps2 = second_difference(&x_m, dt_s, n);
+        // The derived columns are independent: made on every core, errors named in order.
+        let ((motion, rotated), ((dp_a_pa_per_s, dp_b_pa_per_s), d2x_mps2)) = rayon::join(
+            || {
+                rayon::join(
+                    || firmware_derivatives(&x_m, dt_s, encoder_period_m, settings),
+                    || rotation(&theta_rad, dt_s, n, theta_source),
+                )
+            },
+            || {
+                rayon::join(
+                    || rayon::join(|| w_p.apply(&p_a_pa), || w_p.apply(&p_b_pa)),
+                    || second_difference(&x_m, dt_s, n),
+                )
+            },
+        );
+        let (v_mps, a_mps2) = motion?;
+        let (omega_rad_s, ports_angle_rad) = rotated?;
         let edge = 2 * sg_window;
         let inner: Vec<f64> = (0..n)
             .map(|i| f64::from(u8::from(i >= edge && i + edge < n)))

@@ -61,10 +61,17 @@ pub fn fit_position_offset(data: &Measured, band: &Band, model: &MachineModel) -
         residual(&moved, band, model, ChannelId::Pressure).map(|r| r.kept)
     };
     let rss = |r: &[f64]| r.iter().map(|v| v * v).sum::<f64>();
-    let mut r0 = kept_at(data.x_offset_m)?;
+    // Each step's probe replay is made beside the replay it follows from (the one at the
+    // log's offset, then each step's trial, whose probe the next step reads if the trial
+    // is kept): the same replays are read in the same order, on two cores.
+    let (r0, mut probe) = rayon::join(
+        || kept_at(data.x_offset_m),
+        || kept_at(data.x_offset_m + PROBE_M),
+    );
+    let mut r0 = r0?;
     let mut best = (data.x_offset_m, rss(&r0));
-    for _ in 0..MAX_OFFSET_STEPS {
-        let r1 = kept_at(best.0 + PROBE_M)?;
+    for step in 1..=MAX_OFFSET_STEPS {
+        let r1 = probe.take()?;
         let (mut num, mut den) = (0.0, 0.0);
         for (a, b) in r0.iter().zip(&r1) {
             let d = (b - a) / PROBE_M;
@@ -78,7 +85,12 @@ pub fn fit_position_offset(data: &Measured, band: &Band, model: &MachineModel) -
         if offset == best.0 {
             break;
         }
-        let r2 = kept_at(offset)?;
+        let (r2, next) = if step < MAX_OFFSET_STEPS {
+            rayon::join(|| kept_at(offset), || kept_at(offset + PROBE_M))
+        } else {
+            (kept_at(offset), None)
+        };
+        let r2 = r2?;
         let r = rss(&r2);
         if r >= best.1 {
             break;
@@ -86,6 +98,7 @@ pub fn fit_position_offset(data: &Measured, band: &Band, model: &MachineModel) -
         let moved = (offset - best.0).abs();
         best = (offset, r);
         r0 = r2;
+        probe = next;
         if moved < 0.1e-6 {
             break;
         }

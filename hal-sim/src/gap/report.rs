@@ -217,16 +217,22 @@ pub fn write(dir: &Path, out: &GapOutcome) -> Result<(), String> {
         data: &out.measured,
         band: &out.band,
     };
+    // The sections read the outcome and write files of their own: made on every core,
+    // placed in order.
+    let ((left, lags), (maps, pv)) = rayon::join(
+        || rayon::join(|| what_is_left(dir, out), || candidates_and_lags(&ctx, out)),
+        || rayon::join(|| maps_and_overlays(dir, &ctx, out), || pv_replay(dir, out)),
+    );
     let mut blocks = summary(out);
     blocks.extend(effect_tables(out));
-    blocks.extend(what_is_left(dir, out)?);
-    blocks.extend(candidates_and_lags(&ctx, out));
+    blocks.extend(left?);
+    blocks.extend(lags);
     if !out.json.warnings.is_empty() {
         blocks.push(Block::Heading(2, "Warnings".into()));
         blocks.push(Block::List(out.json.warnings.clone()));
     }
-    blocks.extend(maps_and_overlays(dir, &ctx, out)?);
-    blocks.extend(pv_replay(dir, out)?);
+    blocks.extend(maps?);
+    blocks.extend(pv?);
     blocks.push(Block::Para(
         "Maps: `map_<channel>_<variable>.svg`. Augmented model: `model.toml`.".into(),
     ));
