@@ -287,44 +287,79 @@ pub fn gauss_newton_nonneg(
             .iter()
             .map(|(j, _)| u.get(*j).copied().unwrap_or(0.0))
             .collect();
-        let mut improved = false;
-        let mut converged = false;
-        for _ in 0..6 {
-            let Some(delta) = bounded_step(&jtj, &jtr, &at, damping) else {
-                damping *= 10.0;
-                continue;
-            };
-            // ‖r‖² − ‖r + J·δ‖²: the decrease the linearised residual promises.
-            let promised = -(2.0 * delta.dot(&jtr) + delta.dot(&(&jtj * &delta)));
-            if promised.is_nan() || promised < GN_TOLERANCE * cost {
-                converged = true;
-                break;
-            }
-            let mut trial = u.clone();
-            for ((j, _), d) in free.iter().zip(delta.iter()) {
-                if let Some(v) = trial.get_mut(*j) {
-                    *v = (*v + d).max(0.0);
-                }
-            }
-            if let Some(rt) = r(&trial) {
-                let ct = sumsq(&rt);
-                if ct.is_finite() && ct < cost {
-                    converged = cost - ct < GN_TOLERANCE * cost;
-                    u = trial;
-                    res = rt;
-                    cost = ct;
-                    damping = (damping * 0.3).max(1e-6);
-                    improved = true;
+        // The damped tries, damping ×10 after each that gives no step or a refused one:
+        // their trial points, in order, up to one whose promised decrease is below the
+        // tolerance (then converged, if every trial before it is refused).
+        let mut trials: Vec<(f64, Vec<f64>)> = Vec::new();
+        for _ in 0..MAX_TRIES {
+            if let Some(delta) = bounded_step(&jtj, &jtr, &at, damping) {
+                // ‖r‖² − ‖r + J·δ‖²: the decrease the linearised residual promises.
+                let promised = -(2.0 * delta.dot(&jtr) + delta.dot(&(&jtj * &delta)));
+                if promised.is_nan() || promised < GN_TOLERANCE * cost {
                     break;
                 }
+                let mut trial = u.clone();
+                for ((j, _), d) in free.iter().zip(delta.iter()) {
+                    if let Some(v) = trial.get_mut(*j) {
+                        *v = (*v + d).max(0.0);
+                    }
+                }
+                trials.push((damping, trial));
             }
             damping *= 10.0;
         }
-        if !improved || converged {
+        let Some((tried, trial, rt, ct)) = first_accepted(&trials, cost, &r) else {
+            break;
+        };
+        let converged = cost - ct < GN_TOLERANCE * cost;
+        u = trial;
+        res = rt;
+        cost = ct;
+        damping = (tried * 0.3).max(1e-6);
+        if converged {
             break;
         }
     }
     Some((u, cost))
+}
+
+/// Most damped tries per Gauss–Newton iteration.
+const MAX_TRIES: usize = 6;
+
+/// The first of `trials` (damping, point), in order, whose residual `r` lowers the cost
+/// below `cost`: with that damping, the point, its residual and cost. Two trials are
+/// evaluated at a time: the second on another core if one is free, and otherwise after the
+/// first, only if the first is refused; the result is the one the trials give one by one.
+fn first_accepted(
+    trials: &[(f64, Vec<f64>)],
+    cost: f64,
+    r: &(impl Fn(&[f64]) -> Option<Vec<f64>> + Sync),
+) -> Option<(f64, Vec<f64>, Vec<f64>, f64)> {
+    let accept = |point: &[f64]| -> Option<(Vec<f64>, f64)> {
+        let rt = r(point)?;
+        let ct = sumsq(&rt);
+        (ct.is_finite() && ct < cost).then_some((rt, ct))
+    };
+    for pair in trials.chunks(2) {
+        let first_kept = std::sync::atomic::AtomicBool::new(false);
+        let (first, second) = rayon::join(
+            || {
+                let got = pair.first().and_then(|(_, p)| accept(p));
+                first_kept.store(got.is_some(), std::sync::atomic::Ordering::Release);
+                got
+            },
+            || {
+                let kept = first_kept.load(std::sync::atomic::Ordering::Acquire);
+                pair.get(1).filter(|_| !kept).and_then(|(_, p)| accept(p))
+            },
+        );
+        for (got, (tried, point)) in [first, second].into_iter().zip(pair) {
+            if let Some((rt, ct)) = got {
+                return Some((*tried, point.clone(), rt, ct));
+            }
+        }
+    }
+    None
 }
 
 /// The damped Gauss–Newton step `δ` of parameters at `at` whose columns give `jtj` and
@@ -428,6 +463,44 @@ mod tests {
         assert!((u[0] - 0.08).abs() < 1e-6, "{u:?}");
     }
 
+    /// `f` on a pool of one thread: the evaluations a search makes one by one, without
+    /// those a free core makes ahead ([`first_accepted`]).
+    fn on_one_thread<T: Send>(f: impl FnOnce() -> T + Send) -> T {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(f)
+    }
+
+    #[test]
+    fn the_first_trial_that_lowers_the_cost_is_taken_in_order() {
+        // Costs 9, 2.25, 1, 0.25 against 4: the second is the first below, whether the
+        // trials are evaluated on one core (then exactly two are) or ahead on another.
+        let trials: Vec<(f64, Vec<f64>)> = [3.0f64, 1.5, 1.0, 0.5]
+            .iter()
+            .enumerate()
+            .map(|(i, c)| (10f64.powi(i as i32), vec![*c]))
+            .collect();
+        let calls = std::sync::atomic::AtomicUsize::new(0);
+        let r = |u: &[f64]| {
+            calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            Some(vec![u[0]])
+        };
+        let (damping, point, _, cost) = on_one_thread(|| first_accepted(&trials, 4.0, &r)).unwrap();
+        assert_eq!((damping, point, cost), (10.0, vec![1.5], 2.25));
+        assert_eq!(calls.load(std::sync::atomic::Ordering::Relaxed), 2);
+        // The first taken: on one core its pair's second is not evaluated.
+        calls.store(0, std::sync::atomic::Ordering::Relaxed);
+        let got = on_one_thread(|| first_accepted(trials.get(1..).unwrap(), 4.0, &r));
+        assert_eq!(got.map(|g| g.0), Some(10.0));
+        assert_eq!(calls.load(std::sync::atomic::Ordering::Relaxed), 1);
+        let (damping, _, _, cost) = first_accepted(&trials, 4.0, &r).unwrap();
+        assert_eq!((damping, cost), (10.0, 2.25));
+        // None below: none taken.
+        assert!(first_accepted(&trials, 0.2, &r).is_none());
+    }
+
     #[test]
     fn gauss_newton_stops_once_a_step_gains_less_than_its_tolerance() {
         // A straight line with noise left at its optimum. The damped first step lands within
@@ -451,7 +524,8 @@ mod tests {
                     .collect::<Vec<f64>>(),
             )
         };
-        let (u, cost) = gauss_newton_nonneg(vec![1.0, 1.0], &[1e-3, 1e-3], 20, r).unwrap();
+        let (u, cost) =
+            on_one_thread(|| gauss_newton_nonneg(vec![1.0, 1.0], &[1e-3, 1e-3], 20, r)).unwrap();
         // The start, then per iteration a difference per parameter and one accepted trial:
         // four iterations.
         let n = calls.load(std::sync::atomic::Ordering::Relaxed);
@@ -483,7 +557,8 @@ mod tests {
                     .collect::<Vec<f64>>(),
             )
         };
-        let (u, cost) = gauss_newton_nonneg(vec![1.0, 1.0], &[1e-3, 1e-3], 20, r).unwrap();
+        let (u, cost) =
+            on_one_thread(|| gauss_newton_nonneg(vec![1.0, 1.0], &[1e-3, 1e-3], 20, r)).unwrap();
         let (best, rss) = lstsq(std::slice::from_ref(&a), &y).unwrap();
         assert_eq!(u[1], 0.0, "{u:?}");
         assert!(
