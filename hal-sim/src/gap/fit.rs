@@ -108,12 +108,15 @@ pub fn minimise_1d(
     iters: usize,
     mut f: impl FnMut(f64) -> Option<f64>,
 ) -> Option<(f64, f64)> {
-    minimise_batched(lo, hi, grid, iters, |xs| xs.iter().map(|&x| f(x)).collect())
+    minimise_batched(lo, hi, grid, iters, |xs, _| {
+        (xs.iter().map(|&x| f(x)).collect(), None)
+    })
 }
 
 /// [`minimise_1d`] with the independent evaluations (the grid, the golden section's first
-/// pair, the bracket ends) spread over the cores; the same points are evaluated and scanned
-/// in the same order, so the result does not depend on the number of threads.
+/// pair, the bracket ends) spread over the cores, and each golden-section step's point
+/// evaluated beside the one before it ([`ahead`]); the same points are scanned in the same
+/// order, so the result does not depend on the number of threads.
 pub fn minimise_1d_par(
     lo: f64,
     hi: f64,
@@ -121,32 +124,108 @@ pub fn minimise_1d_par(
     iters: usize,
     f: impl Fn(f64) -> Option<f64> + Sync,
 ) -> Option<(f64, f64)> {
-    minimise_batched(lo, hi, grid, iters, |xs| {
-        if xs.len() == 1 {
-            xs.iter().map(|&x| f(x)).collect()
-        } else {
-            xs.par_iter().map(|&x| f(x)).collect()
+    minimise_batched(lo, hi, grid, iters, |xs, next| match (xs, next) {
+        ([x], Some(next)) => {
+            let (v, later) = ahead(&f, *x, next);
+            (vec![v], later)
         }
+        _ => (xs.par_iter().map(|&x| f(x)).collect(), None),
     })
 }
 
+/// `f` at `x`, and beside it `f` at the point `next` gives for the value at `x`: on another
+/// core if one is free (then, not knowing that value yet, the point `next` gives for a value
+/// below all others: the search goes on the way it went), and otherwise after `x`, with its
+/// value. The second is `None` where `next` gives no point.
+fn ahead(
+    f: &(impl Fn(f64) -> Option<f64> + Sync),
+    x: f64,
+    next: &(dyn Fn(f64) -> Option<f64> + Sync),
+) -> (Option<f64>, Option<(f64, Option<f64>)>) {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    // The value at `x` once it is known (NaN bits until then; +∞ stands for `None`).
+    let known = AtomicU64::new(f64::NAN.to_bits());
+    rayon::join(
+        || {
+            let v = f(x);
+            let seen = v.filter(|v| v.is_finite()).unwrap_or(f64::INFINITY);
+            known.store(seen.to_bits(), Ordering::Release);
+            v
+        },
+        || {
+            let seen = f64::from_bits(known.load(Ordering::Acquire));
+            let x2 = next(if seen.is_nan() {
+                f64::NEG_INFINITY
+            } else {
+                seen
+            })?;
+            Some((x2, f(x2)))
+        },
+    )
+}
+
+/// The golden section's bracket `[a, b]` with its inner points `c < d` and their values.
+#[derive(Clone, Copy)]
+struct Golden {
+    a: f64,
+    b: f64,
+    c: f64,
+    d: f64,
+    fc: f64,
+    fd: f64,
+}
+
+impl Golden {
+    /// The bracket narrowed away from the worse inner point, and its new inner point, whose
+    /// value [`Golden::with`] sets (`true`: the new point is `c`).
+    fn narrowed(self) -> (Golden, f64, bool) {
+        let r = 0.5 * (5f64.sqrt() - 1.0);
+        let mut g = self;
+        if g.fc < g.fd {
+            g.b = g.d;
+            g.d = g.c;
+            g.fd = g.fc;
+            g.c = g.b - r * (g.b - g.a);
+            (g, g.c, true)
+        } else {
+            g.a = g.c;
+            g.c = g.d;
+            g.fc = g.fd;
+            g.d = g.a + r * (g.b - g.a);
+            (g, g.d, false)
+        }
+    }
+
+    /// The narrowed bracket with `v`, the value at its new point.
+    fn with(mut self, new_is_c: bool, v: f64) -> Golden {
+        if new_is_c {
+            self.fc = v;
+        } else {
+            self.fd = v;
+        }
+        self
+    }
+}
+
+/// What [`minimise_batched`] is handed to evaluate `f`: at the points `xs` (in their order),
+/// and, for a single point, optionally a point ahead: `next` gives the point the search
+/// needs after this one for the value there (`None`: none), and the evaluator may return it
+/// with its value.
+type Ahead<'a> = Option<&'a (dyn Fn(f64) -> Option<f64> + Sync)>;
+
 /// The search of [`minimise_1d`], `batch` evaluating `f` at several points at once (in
-/// their order).
+/// their order), or at one point and one ahead of it.
 fn minimise_batched(
     lo: f64,
     hi: f64,
     grid: usize,
     iters: usize,
-    mut batch: impl FnMut(&[f64]) -> Vec<Option<f64>>,
+    mut batch: impl FnMut(&[f64], Ahead<'_>) -> (Vec<Option<f64>>, Option<(f64, Option<f64>)>),
 ) -> Option<(f64, f64)> {
     let grid = grid.max(3);
     let step = (hi - lo) / (grid - 1) as f64;
     let finite = |v: Option<f64>| v.filter(|v| v.is_finite()).unwrap_or(f64::INFINITY);
-    let mut evals = |xs: &[f64]| -> Vec<f64> {
-        let mut out: Vec<f64> = batch(xs).into_iter().map(finite).collect();
-        out.resize(xs.len(), f64::INFINITY);
-        out
-    };
+    let mut evals = |xs: &[f64]| finite_at(&mut batch, xs);
     let points: Vec<f64> = (0..grid).map(|i| lo + step * i as f64).collect();
     let (mut best_i, mut best) = (0usize, f64::INFINITY);
     for (i, v) in evals(&points).into_iter().enumerate() {
@@ -158,28 +237,32 @@ fn minimise_batched(
     if !best.is_finite() {
         return None;
     }
-    let mut a = lo + step * best_i.saturating_sub(1) as f64;
-    let mut b = (lo + step * (best_i + 1) as f64).min(hi);
+    let a = lo + step * best_i.saturating_sub(1) as f64;
+    let b = (lo + step * (best_i + 1) as f64).min(hi);
     let mut best_x = lo + step * best_i as f64;
     let r = 0.5 * (5f64.sqrt() - 1.0);
-    let mut c = b - r * (b - a);
-    let mut d = a + r * (b - a);
-    let (mut fc, mut fd) = pair(&mut evals, c, d);
-    for _ in 0..iters {
-        if fc < fd {
-            b = d;
-            d = c;
-            fd = fc;
-            c = b - r * (b - a);
-            fc = one(&mut evals, c);
-        } else {
-            a = c;
-            c = d;
-            fc = fd;
-            d = a + r * (b - a);
-            fd = one(&mut evals, d);
-        }
+    let c = b - r * (b - a);
+    let d = a + r * (b - a);
+    let (fc, fd) = pair(&mut evals, c, d);
+    let mut g = Golden { a, b, c, d, fc, fd };
+    // A point evaluated ahead, with its value: used if it is the one the step needs.
+    let mut known: Option<(f64, f64)> = None;
+    for k in 0..iters {
+        let (narrowed, x, new_is_c) = g.narrowed();
+        let v = match known.take() {
+            Some((kx, kv)) if kx.to_bits() == x.to_bits() => kv,
+            _ => {
+                let next =
+                    |v: f64| (k + 1 < iters).then(|| narrowed.with(new_is_c, v).narrowed().1);
+                let (v, later) = batch(&[x], Some(&next));
+                known = later.map(|(x2, v2)| (x2, finite(v2)));
+                finite(v.into_iter().next().flatten())
+            }
+        };
+        g = narrowed.with(new_is_c, v);
     }
+    let Golden { a, b, c, d, fc, fd } = g;
+    let mut evals = |xs: &[f64]| finite_at(&mut batch, xs);
     for (x, v) in [(c, fc), (d, fd)] {
         if v < best {
             best = v;
@@ -207,6 +290,20 @@ fn minimise_batched(
         }
     }
     Some((best_x, best))
+}
+
+/// `batch` at the points `xs`, each value finite or +∞.
+fn finite_at(
+    batch: &mut impl FnMut(&[f64], Ahead<'_>) -> (Vec<Option<f64>>, Option<(f64, Option<f64>)>),
+    xs: &[f64],
+) -> Vec<f64> {
+    let mut out: Vec<f64> = batch(xs, None)
+        .0
+        .into_iter()
+        .map(|v| v.filter(|v| v.is_finite()).unwrap_or(f64::INFINITY))
+        .collect();
+    out.resize(xs.len(), f64::INFINITY);
+    out
 }
 
 /// `evals` at one point.
