@@ -8,8 +8,9 @@
 #   - each field log d01–d11 (tests/data/field-logs, gzipped as delivered, with its model),
 # end to end (parsing, the analysis, the report and plots). Prints per log the best of N runs'
 # wall time of each binary and their ratio (this tree over the reference) against the 0.40
-# asked for, and this tree's CPU time (user + sys, from its rusage) and what it
-# named. Machines differ by more than the code does, hence the pairing. The ratios are
+# asked for, each binary's CPU time (user + sys, from its rusage, best of N) and their ratio,
+# and what this tree named. Machines differ by more than the code does, hence the pairing. The
+# CPU ratio says how much of a wall ratio is less work and how much more cores used. The ratios are
 # figures, not checks (a shared machine's timing is noise): the script fails only if a run
 # fails.
 #
@@ -116,25 +117,27 @@ def gap(binary, measured, model, out):
 
 print(f"bench-gap: fpc-sim gap, this tree ({sim}) against the reference ({ref}), run in "
       f"turn, best of {runs} each, on {os.cpu_count()} cores")
-print(f"{'log':>5} {'rows':>8} {'ours s':>8} {'ref s':>8} {'ratio':>6} {'target':>6} {'ours CPU s':>10}  named (ours)")
+print(f"{'log':>5} {'rows':>8} {'ours s':>8} {'ref s':>8} {'ratio':>6} {'target':>6} "
+      f"{'ours CPU s':>10} {'ref CPU s':>9} {'CPU ratio':>9}  named (ours)")
 ratios = []
 for log in logs.split():
     measured, model, model_ref = inputs(log)
-    best, best_ref, cpu, named = float("inf"), float("inf"), float("inf"), None
+    best, best_ref, cpu, cpu_ref, named = (float("inf"),) * 4 + (None,)
     for _ in range(runs):
         w, c, named = gap(sim, measured, model, os.path.join(work, "out"))
         best, cpu = min(best, w), min(cpu, c)
         if ref != "none":
-            w, _, _ = gap(ref, measured, model_ref, os.path.join(work, "out-ref"))
-            best_ref = min(best_ref, w)
+            w, c, _ = gap(ref, measured, model_ref, os.path.join(work, "out-ref"))
+            best_ref, cpu_ref = min(best_ref, w), min(cpu_ref, c)
     if ref == "none":
         print(f"{log:>5} {rows(measured):>8} {best:>8.2f} {'-':>8} {'-':>6} {'-':>6} "
-              f"{cpu:>10.2f}  {named}", flush=True)
+              f"{cpu:>10.2f} {'-':>9} {'-':>9}  {named}", flush=True)
         continue
     ratio = best / best_ref
     ratios.append(ratio)
     print(f"{log:>5} {rows(measured):>8} {best:>8.2f} {best_ref:>8.2f} {ratio:>6.2f} "
-          f"{'≤' + format(TARGET, '.2f'):>6} {cpu:>10.2f}  {named}", flush=True)
+          f"{'≤' + format(TARGET, '.2f'):>6} {cpu:>10.2f} {cpu_ref:>9.2f} {cpu / cpu_ref:>9.2f}  "
+          f"{named}", flush=True)
 if not ratios:
     sys.exit(0)
 worst = max(ratios)
